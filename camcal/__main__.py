@@ -1,0 +1,5 @@
+"""``python -m camcal``."""
+
+from camcal.cli import run
+
+run()

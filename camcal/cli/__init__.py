@@ -1,0 +1,90 @@
+"""The ``camcal`` command line: a thin layer that parses arguments and calls the library.
+
+Each command group lives in its own module exposing ``register(app)``.
+:func:`main` turns every user error into one line on stderr and exit code 2.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.util
+import sys
+
+import typer
+
+from camcal import __version__
+from camcal.errors import CamcalError
+
+app = typer.Typer(
+    name="camcal",
+    help="Turn a consumer camera into a calibrated radiometer for water-quality science.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+#: Command modules, in help order; each defines ``register(app)``.
+COMMAND_MODULES = (
+    "demo", "inspect", "synth", "dark", "flat", "linearity", "sweep", "calibrate", "profile", "apply", "water",
+)
+
+
+def _version(value: bool) -> None:
+    if value:
+        typer.echo(f"camcal {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(
+    version: bool = typer.Option(False, "--version", callback=_version, is_eager=True, help="Show the version."),
+) -> None:
+    """camcal: camera calibration for radiometry (see README.md)."""
+
+
+for _name in COMMAND_MODULES:
+    _mod = f"camcal.cli.{_name}_cmd"
+    if importlib.util.find_spec(_mod) is not None:
+        importlib.import_module(_mod).register(app)
+
+
+def _usage_error_type() -> type[Exception]:
+    """Typer >= 0.20 vendors click as ``typer._click``; older versions raise click's own."""
+    try:
+        from typer._click.exceptions import ClickException
+    except ImportError:  # pragma: no cover - depends on the installed typer
+        from click.exceptions import ClickException
+    return ClickException
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the CLI; returns the exit code (0 ok, 1 partial failure, 2 user error, 3 internal error)."""
+    usage_error = _usage_error_type()
+    try:
+        result = app(args=argv, prog_name="camcal", standalone_mode=False)
+    except typer.Exit as exc:
+        return int(exc.exit_code or 0)
+    except typer.Abort:
+        print("camcal: interrupted", file=sys.stderr)
+        return 130
+    except usage_error as exc:  # type: ignore[misc]
+        print(f"camcal: error: {exc.format_message()} (see camcal --help)", file=sys.stderr)
+        return 2
+    except CamcalError as exc:
+        print(f"camcal: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("camcal: interrupted", file=sys.stderr)
+        return 130
+    except BrokenPipeError:
+        return 0
+    except Exception as exc:  # the promise: never a traceback
+        print(f"camcal: internal error: {type(exc).__name__}: {' '.join(str(exc).split())} (please report)",
+              file=sys.stderr)
+        return 3
+    return int(result) if isinstance(result, int) else 0
+
+
+def run() -> None:
+    """Console-script entry point."""
+    sys.exit(main())

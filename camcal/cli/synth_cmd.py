@@ -1,0 +1,98 @@
+"""``camcal synth session|photo``: write real synthetic DNG/JPEG files from known parameters."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import typer
+
+from camcal.cli.common import console, progress
+from camcal.errors import CamcalError
+
+
+def _camera(pattern: str, bits: int, width: int, height: int, seed: int, sensitivity: str):
+    from camcal.synth.camera import SensorParams, SyntheticCamera
+
+    return SyntheticCamera(
+        SensorParams(width=width, height=height, cfa_pattern=pattern.upper(), bit_depth=bits, seed=seed,
+                     sensitivity=sensitivity)
+    )
+
+
+def register(app: typer.Typer) -> None:
+    synth = typer.Typer(help="Synthetic camera: real DNG/JPEG files from known parameters.", no_args_is_help=True)
+    app.add_typer(synth, name="synth")
+
+    @synth.command("session")
+    def session_cmd(
+        outdir: Path = typer.Argument(..., help="Session folder to create."),
+        pattern: str = typer.Option("RGGB", help="CFA pattern: RGGB, BGGR, GRBG or GBRG."),
+        bits: int = typer.Option(14, help="Bit depth of the RAW data."),
+        width: int = typer.Option(384, help="Sensor width, pixels."),
+        height: int = typer.Option(256, help="Sensor height, pixels."),
+        seed: int = typer.Option(1, help="Random seed."),
+        sensitivity: str = typer.Option("nikon-d5100", help="Spectral sensitivity: nikon-d5100, sigma-sd-merrill."),
+        stages: str = typer.Option("bias,dark,flat,linearity,sweep", help="Comma-separated stages to shoot."),
+    ) -> None:
+        """Write a whole calibration session (bias, dark, flat, linearity, sweep) with truth.json."""
+        from camcal.synth.session import STAGES, SessionPlan, write_session
+
+        chosen = tuple(s.strip() for s in stages.split(",") if s.strip())
+        bad = [s for s in chosen if s not in STAGES]
+        if bad:
+            raise CamcalError(f"unknown stage(s) {bad}; choose from {', '.join(STAGES)}")
+        cam = _camera(pattern, bits, width, height, seed, sensitivity)
+        with progress() as bar:
+            tasks: dict[str, int] = {}
+
+            def tick(stage: str, done: int, total: int) -> None:
+                if stage not in tasks:
+                    tasks[stage] = bar.add_task(stage, total=total)
+                bar.update(tasks[stage], completed=done)
+
+            out = write_session(outdir, cam, SessionPlan(stages=chosen), progress=tick)
+        console.print(f"wrote session {out} (truth in {out / 'truth.json'})")
+
+    @synth.command("photo")
+    def photo_cmd(
+        out: Path = typer.Argument(..., help="Output file: .dng or .jpg."),
+        scene: str = typer.Option("uniform", help="uniform (flat spectrum), line (monochromator), lamp (black body)."),
+        radiance: float = typer.Option(0.02, help="uniform: W m-2 sr-1 nm-1; line: band W m-2 sr-1; lamp: peak."),
+        wavelength: float = typer.Option(663.0, help="line centre, nm."),
+        fwhm: float = typer.Option(5.0, help="line FWHM, nm."),
+        temperature: float = typer.Option(3200.0, help="lamp temperature, K."),
+        exposure: float = typer.Option(0.01, help="exposure time, s."),
+        iso: float = typer.Option(100.0, help="ISO."),
+        f_number: float = typer.Option(4.0, help="f-number."),
+        pattern: str = typer.Option("RGGB"),
+        bits: int = typer.Option(14),
+        width: int = typer.Option(384),
+        height: int = typer.Option(256),
+        seed: int = typer.Option(1),
+        sensitivity: str = typer.Option("nikon-d5100"),
+    ) -> None:
+        """Write one synthetic photo of a simple scene as DNG or JPEG."""
+        from camcal.spectra import WAVELENGTHS_NM, gaussian_line, planck_radiance
+        from camcal.synth.camera import Scene
+
+        cam = _camera(pattern, bits, width, height, seed, sensitivity)
+        if scene == "uniform":
+            spectrum = np.full(WAVELENGTHS_NM.size, radiance)
+        elif scene == "line":
+            spectrum = radiance * gaussian_line(wavelength, fwhm)
+        elif scene == "lamp":
+            b = planck_radiance(temperature)
+            spectrum = radiance * b / b.max()
+        else:
+            raise CamcalError(f"unknown scene {scene!r}; choose uniform, line or lamp")
+        rng = np.random.default_rng(seed)
+        kw = dict(exposure_s=exposure, iso=iso, f_number=f_number, rng=rng)
+        suffix = out.suffix.lower()
+        if suffix == ".dng":
+            cam.write_dng(out, Scene.uniform(spectrum), **kw)
+        elif suffix in (".jpg", ".jpeg"):
+            cam.write_jpeg(out, Scene.uniform(spectrum), **kw)
+        else:
+            raise CamcalError("output must end in .dng or .jpg", out)
+        console.print(f"wrote {out}")

@@ -1,0 +1,119 @@
+"""OpenEXR output and input through OpenImageIO.
+
+Channels are written and read *by name* (OpenImageIO does not keep channel
+order on read-back). camcal metadata is stored as header attributes prefixed
+``camcal:``; values that are not numbers or strings are stored as JSON text
+under ``camcal:json:<name>``. Writes are atomic.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from camcal.atomic import atomic_path
+from camcal.errors import CamcalError
+
+COMPRESSIONS = ("none", "zip", "zips", "piz", "pxr24", "b44", "dwaa", "dwab", "zstd", "rle")
+
+
+def write_exr(
+    path: str | Path,
+    channels: dict[str, np.ndarray],
+    metadata: dict[str, object] | None = None,
+    *,
+    half: bool = False,
+    compression: str = "zip",
+) -> Path:
+    """Write named 2-D float channels to an OpenEXR file, atomically.
+
+    Parameters
+    ----------
+    path : output path (``.exr``).
+    channels : ``{name: (H, W) array}``; all the same shape.
+    metadata : header attributes; numbers and strings as-is, other values as JSON.
+    half : store 16-bit half floats instead of float32.
+    compression : one of :data:`COMPRESSIONS`.
+    """
+    import OpenImageIO as oiio
+
+    if not channels:
+        raise CamcalError("no channels to write", path)
+    if compression not in COMPRESSIONS:
+        raise CamcalError(f"unknown EXR compression {compression!r}; choose from {', '.join(COMPRESSIONS)}")
+    names = list(channels)
+    arrays = [np.asarray(channels[n], dtype=np.float32) for n in names]
+    shape = arrays[0].shape
+    if any(a.shape != shape or a.ndim != 2 for a in arrays):
+        raise CamcalError("EXR channels must be 2-D arrays of one shape", path)
+    h, w = shape
+    spec = oiio.ImageSpec(w, h, len(names), oiio.HALF if half else oiio.FLOAT)
+    spec.channelnames = tuple(names)
+    spec.attribute("compression", compression)
+    for key, value in (metadata or {}).items():
+        if isinstance(value, bool) or value is None or not isinstance(value, int | float | str):
+            spec.attribute(f"camcal:json:{key}", json.dumps(value, sort_keys=True, default=str))
+        elif isinstance(value, int):
+            spec.attribute(f"camcal:{key}", float(value)) if abs(value) > 2**31 - 1 else spec.attribute(
+                f"camcal:{key}", int(value)
+            )
+        else:
+            spec.attribute(f"camcal:{key}", value)
+    pixels = np.stack(arrays, axis=-1)
+    with atomic_path(path) as tmp:
+        out = oiio.ImageOutput.create(str(tmp))
+        if out is None or not out.open(str(tmp), spec):
+            raise CamcalError(f"cannot write EXR: {oiio.geterror()}", path)
+        ok = out.write_image(pixels)
+        err = out.geterror()
+        out.close()
+        if not ok:
+            raise CamcalError(f"cannot write EXR: {err}", path)
+    return Path(path)
+
+
+def read_exr(
+    path: str | Path, channels: list[str] | tuple[str, ...] | None = None
+) -> tuple[dict[str, np.ndarray], dict[str, object]]:
+    """Read channels (all, or the named ones) and camcal metadata from an EXR file.
+
+    Returns
+    -------
+    (channels, metadata) : ``{name: float32 (H, W)}`` and ``{key: value}`` with the
+    ``camcal:`` prefix removed and JSON attributes decoded.
+    """
+    import OpenImageIO as oiio
+
+    path = Path(path)
+    if not path.is_file():
+        raise CamcalError("no such EXR file", path)
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        oiio.geterror()
+        raise CamcalError("cannot open as EXR (damaged or not an image)", path)
+    try:
+        spec = inp.spec()
+        names = list(spec.channelnames)
+        want = list(channels) if channels is not None else names
+        missing = [c for c in want if c not in names]
+        if missing:
+            raise CamcalError(f"EXR has no channel(s) {missing}; it has {names}", path)
+        data = inp.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT)
+        err = inp.geterror()
+        if data is None or err:
+            raise CamcalError(f"cannot decode EXR pixels (damaged or truncated?): {err.strip()[:120]}", path)
+        meta: dict[str, object] = {}
+        for attr in spec.extra_attribs:
+            if attr.name.startswith("camcal:json:"):
+                try:
+                    meta[attr.name[len("camcal:json:") :]] = json.loads(attr.value)
+                except (TypeError, ValueError):
+                    raise CamcalError(f"EXR attribute {attr.name} is not valid JSON", path) from None
+            elif attr.name.startswith("camcal:"):
+                meta[attr.name[len("camcal:") :]] = attr.value
+    finally:
+        inp.close()
+    data = np.asarray(data, dtype=np.float32).reshape(spec.height, spec.width, spec.nchannels)
+    return {c: np.ascontiguousarray(data[..., names.index(c)]) for c in want}, meta

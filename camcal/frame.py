@@ -1,0 +1,191 @@
+"""The frame model: one image with its sensor layout and exposure metadata.
+
+A :class:`Frame` holds either a CFA mosaic (``kind == "raw"``, shape (H, W),
+values in DN) or a processed 3-channel image (``kind == "processed"``, shape
+(H, W, 3), R, G, B, values in DN of the file's bit depth, e.g. 0..255 for an
+8-bit JPEG). Calibration works on the four CFA *planes* R, G1, G2, B at half
+resolution: G1 is the green of the first row of the 2x2 CFA cell, G2 the green
+of the second row.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+
+from camcal.errors import CamcalError, MissingMetadataError
+
+PLANES: tuple[str, str, str, str] = ("R", "G1", "G2", "B")
+"""Canonical order of CFA planes in every (4, h, w) array camcal makes."""
+
+RGB: tuple[str, str, str] = ("R", "G", "B")
+
+PATTERNS: tuple[str, ...] = ("RGGB", "BGGR", "GRBG", "GBRG")
+
+
+@dataclass(frozen=True)
+class Exposure:
+    """Exposure metadata of one frame.
+
+    Attributes
+    ----------
+    exposure_s : float or None
+        Exposure (integration) time t in seconds.
+    f_number : float or None
+        Aperture f-number N (dimensionless).
+    iso : float or None
+        ISO speed (dimensionless, the camera's gain setting).
+    make, model, serial : str or None
+        Camera identity from the file's metadata.
+    capture_time : str or None
+        Capture time as ISO 8601 text, local camera time.
+    temperature_c : float or None
+        Sensor or ambient temperature in degrees Celsius, when known.
+    """
+
+    exposure_s: float | None = None
+    f_number: float | None = None
+    iso: float | None = None
+    make: str | None = None
+    model: str | None = None
+    serial: str | None = None
+    capture_time: str | None = None
+    temperature_c: float | None = None
+
+    def require(self, name: str, path: str | Path | None) -> float:
+        """Return the named numeric field or raise :class:`MissingMetadataError`."""
+        value = getattr(self, name)
+        if value is None or not np.isfinite(value) or value <= 0:
+            raise MissingMetadataError(path or "<frame>", name)
+        return float(value)
+
+    def merged(self, **overrides) -> Exposure:
+        """A copy with every non-None override applied (manifest over file)."""
+        clean = {k: v for k, v in overrides.items() if v is not None}
+        return dataclasses.replace(self, **clean)
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One decoded image and what is known about how it was taken.
+
+    Attributes
+    ----------
+    data : ndarray
+        ``raw``: (H, W) uint16 CFA mosaic in DN. ``processed``: (H, W, 3) in the
+        file's DN (uint8 or uint16).
+    kind : {"raw", "processed"}
+    cfa_pattern : str or None
+        2x2 CFA cell, row-major (``RGGB``...), raw frames only.
+    black_level_dn : dict
+        Black level in DN per plane (``R, G1, G2, B``) for raw frames, per
+        channel (``R, G, B``; zero) for processed ones.
+    white_level_dn : float
+        Saturation level in DN (clipping value).
+    exposure : Exposure
+    path : Path or None
+        Source file.
+    """
+
+    data: np.ndarray
+    kind: Literal["raw", "processed"]
+    cfa_pattern: str | None
+    black_level_dn: dict[str, float]
+    white_level_dn: float
+    exposure: Exposure = field(default_factory=Exposure)
+    path: Path | None = None
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """Full-resolution (height, width) in pixels."""
+        return int(self.data.shape[0]), int(self.data.shape[1])
+
+    @property
+    def channel_names(self) -> tuple[str, ...]:
+        return PLANES if self.kind == "raw" else RGB
+
+    def planes(self, dtype=np.float32) -> np.ndarray:
+        """Channel planes as one array, channel first.
+
+        ``raw``: (4, H/2, W/2) in :data:`PLANES` order. ``processed``: (3, H, W).
+        """
+        if self.kind == "raw":
+            return split_planes(self.data, self.cfa_pattern, dtype=dtype)
+        return np.moveaxis(self.data, -1, 0).astype(dtype, copy=True)
+
+    def black_vector(self) -> np.ndarray:
+        """Black level per channel in :attr:`channel_names` order, shape (C, 1, 1)."""
+        return np.array([self.black_level_dn.get(c, 0.0) for c in self.channel_names], float)[:, None, None]
+
+
+def _check_pattern(pattern: str | None) -> str:
+    if pattern not in PATTERNS:
+        raise CamcalError(f"unsupported CFA pattern {pattern!r}; camcal handles {', '.join(PATTERNS)}")
+    return pattern
+
+
+def plane_offsets(pattern: str) -> dict[str, tuple[int, int]]:
+    """Row/column offset within the 2x2 cell of each plane R, G1, G2, B."""
+    pattern = _check_pattern(pattern)
+    pos = {}
+    for i, ch in enumerate(pattern):
+        rc = divmod(i, 2)
+        if ch == "G":
+            pos["G1" if rc[0] == 0 else "G2"] = rc
+        else:
+            pos[ch] = rc
+    return pos
+
+
+def split_planes(mosaic: np.ndarray, pattern: str, dtype=np.float32) -> np.ndarray:
+    """Split a CFA mosaic into its four half-resolution planes.
+
+    Parameters
+    ----------
+    mosaic : ndarray, shape (H, W), H and W even
+    pattern : str
+        ``RGGB``, ``BGGR``, ``GRBG`` or ``GBRG``.
+    dtype : numpy dtype, optional
+        Output type (default float32; ``None`` keeps the input type).
+
+    Returns
+    -------
+    ndarray, shape (4, H/2, W/2), planes in :data:`PLANES` order.
+    """
+    if mosaic.ndim != 2 or mosaic.shape[0] % 2 or mosaic.shape[1] % 2:
+        raise CamcalError(f"a CFA mosaic must be 2-D with even sides, got shape {mosaic.shape}")
+    off = plane_offsets(pattern)
+    out = np.empty((4, mosaic.shape[0] // 2, mosaic.shape[1] // 2), dtype=dtype or mosaic.dtype)
+    for k, name in enumerate(PLANES):
+        r, c = off[name]
+        out[k] = mosaic[r::2, c::2]
+    return out
+
+
+def merge_planes(planes: np.ndarray, pattern: str) -> np.ndarray:
+    """Inverse of :func:`split_planes`: interleave (4, h, w) planes into an (2h, 2w) mosaic."""
+    if planes.ndim != 3 or planes.shape[0] != 4:
+        raise CamcalError(f"expected planes of shape (4, h, w), got {planes.shape}")
+    off = plane_offsets(pattern)
+    _, h, w = planes.shape
+    out = np.empty((2 * h, 2 * w), dtype=planes.dtype)
+    for k, name in enumerate(PLANES):
+        r, c = off[name]
+        out[r::2, c::2] = planes[k]
+    return out
+
+
+def pattern_from_rawpy(raw_pattern: np.ndarray, color_desc: bytes) -> str:
+    """Translate rawpy's ``raw_pattern`` and ``color_desc`` into ``RGGB``-style text."""
+    desc = color_desc.decode("ascii", "replace")
+    letters = "".join(desc[int(i)] for i in np.asarray(raw_pattern)[:2, :2].ravel())
+    return letters
+
+
+def rgb_from_planes(planes: np.ndarray) -> np.ndarray:
+    """(4, h, w) R, G1, G2, B planes -> (3, h, w) R, G, B with G the mean of G1 and G2."""
+    return np.stack([planes[0], 0.5 * (planes[1] + planes[2]), planes[3]])

@@ -1,0 +1,462 @@
+"""The synthetic camera: a physically honest sensor model that writes real files.
+
+Signal chain per pixel (all per CFA plane, at half resolution):
+
+1. Photo-electron rate from the scene's spectral radiance L(λ) (W m^-2 sr^-1 nm^-1)::
+
+       e_rate = A_pix · π / (4 N²) · τ · ∫ QE_i(λ) L(λ) λ / (h c) dλ        [e- s^-1]
+
+   (image-plane irradiance of a distant Lambertian scene through an f/N lens,
+   A_pix the pixel area, τ the lens transmittance), times the vignetting
+   g(x, y) (1 at the optical centre) and the PRNU map (mean 1).
+2. Electrons collected: Poisson((e_rate + dark_rate) · t), clipped at the full well.
+3. Read noise: Gaussian, σ_read electrons (input referred).
+4. DN = electrons · (ISO / ISO_base) / K + black level (+ bias pattern), rounded,
+   clipped to [0, white level]. K is the system gain in e-/DN at the base ISO.
+
+So the DN rate per unit exposure ISO·t/N² is constant (seed §2.1), and the
+spectral sensitivity at the reference setting (ISO_ref, N_ref) is::
+
+       c_i(λ) = A_pix · π/(4 N_ref²) · τ · QE_i(λ) · λ/(h c) · ISO_ref/(ISO_base · K)
+              [DN s^-1 per W m^-2 sr^-1 nm^-1, per nm]
+
+with DN rate = ∫ c_i(λ) L(λ) dλ (seed §3.1, d = t ∫ c L dλ).
+
+Vignetting follows the DNG ``FixVignetteRadial`` opcode model,
+g(r) = 1 + k0 r² + k1 r⁴ + k2 r⁶ + k3 r⁸ + k4 r¹⁰, with r the distance from the
+optical centre divided by the distance from it to the farthest image corner.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass, field
+from datetime import datetime, timedelta
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+
+from camcal.errors import CamcalError
+from camcal.frame import PATTERNS, PLANES, merge_planes, plane_offsets, split_planes
+from camcal.spectra import WAVELENGTHS_NM, camera_sensitivities, photon_energy_j
+from camcal.synth.dng import write_dng
+
+
+@dataclass(frozen=True)
+class SensorParams:
+    """Parameters of a synthetic camera (the ground truth of every test).
+
+    Sizes are full-resolution mosaic pixels; electrons are e-; DN are digital numbers.
+    """
+
+    width: int = 384
+    height: int = 256
+    cfa_pattern: str = "RGGB"
+    bit_depth: int = 14
+    black_level_dn: tuple[float, float, float, float] = (512.0, 512.0, 512.0, 512.0)
+    """Black level per plane R, G1, G2, B, DN."""
+    white_level_dn: int | None = None
+    """Clipping level, DN (default 2**bit_depth - 1)."""
+    gain_e_per_dn: float = 1.6
+    """System gain at the base ISO, electrons per DN."""
+    iso_base: float = 100.0
+    read_noise_e: float = 3.0
+    """Read noise, electrons RMS (input referred, ISO independent)."""
+    full_well_e: float = 40000.0
+    dark_current_e_per_s: tuple[float, float, float, float] = (2.0, 2.0, 2.0, 2.0)
+    """Median dark current per plane, e- s^-1."""
+    dark_current_spread: float = 0.25
+    """Log-normal sigma of the per-pixel dark current."""
+    hot_pixel_fraction: float = 3e-4
+    hot_pixel_factor: tuple[float, float] = (30.0, 300.0)
+    """Hot pixels have this many times the median dark current (log-uniform)."""
+    bias_pattern_dn: float = 0.5
+    """RMS of the fixed per-pixel bias offset, DN (bias DSNU)."""
+    prnu_sigma: float = 0.01
+    """Relative RMS of the photo-response non-uniformity."""
+    vignetting_k: tuple[float, float, float, float, float] = (-0.30, -0.08, 0.0, 0.0, 0.0)
+    """DNG radial vignetting coefficients k0..k4 (g(1) = 1 + sum k = corner gain)."""
+    optical_centre: tuple[float, float] = (0.55, 0.48)
+    """Optical centre as fractions of width and height."""
+    pixel_pitch_um: float = 4.78
+    lens_transmittance: float = 0.9
+    qe_peak: tuple[float, float, float] = (0.35, 0.45, 0.38)
+    """Peak quantum efficiency of R, G, B (the measured curves give the shape)."""
+    sensitivity: str = "nikon-d5100"
+    """Key of :data:`camcal.spectra.CAMERAS` or a colour-science camera name."""
+    reference_iso: float = 100.0
+    reference_f_number: float = 4.0
+    make: str = "camcal"
+    model: str = "Synthetic D5100"
+    serial: str = "SYN0001"
+    seed: int = 1
+
+    def __post_init__(self) -> None:
+        if self.cfa_pattern not in PATTERNS:
+            raise CamcalError(f"unknown CFA pattern {self.cfa_pattern!r}")
+        if self.width % 2 or self.height % 2 or self.width < 64 or self.height < 64:
+            raise CamcalError("synthetic sensor size must be even and at least 64x64 (LibRaw's minimum)")
+        if not 8 <= self.bit_depth <= 16:
+            raise CamcalError("bit depth must be 8..16")
+
+    @property
+    def white_dn(self) -> int:
+        return int(self.white_level_dn if self.white_level_dn is not None else 2**self.bit_depth - 1)
+
+    def to_json(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A scene: spectral radiance components, each uniform or weighted by a map.
+
+    ``components`` is a list of ``(weight, spectrum)``: ``weight`` is None
+    (uniform) or an (H, W) array of full-resolution weights; ``spectrum`` is the
+    spectral radiance in W m^-2 sr^-1 nm^-1 on ``wavelengths_nm``.
+    """
+
+    components: tuple[tuple[np.ndarray | None, np.ndarray], ...]
+    wavelengths_nm: np.ndarray = field(default_factory=lambda: WAVELENGTHS_NM)
+
+    @staticmethod
+    def uniform(spectrum: np.ndarray, wavelengths_nm: np.ndarray = WAVELENGTHS_NM) -> Scene:
+        return Scene(((None, np.asarray(spectrum, float)),), wavelengths_nm)
+
+    @staticmethod
+    def dark() -> Scene:
+        return Scene(())
+
+
+class SyntheticCamera:
+    """A camera with fixed-pattern maps drawn once from ``params.seed``.
+
+    Methods return new arrays; the camera holds no mutable state besides caches.
+    """
+
+    def __init__(self, params: SensorParams | None = None) -> None:
+        self.params = params or SensorParams()
+
+    # ---- fixed pattern ------------------------------------------------------------
+    @cached_property
+    def _maps(self) -> dict[str, np.ndarray]:
+        p = self.params
+        rng = np.random.default_rng([p.seed, 7])
+        h, w = p.height // 2, p.width // 2
+        med = np.asarray(p.dark_current_e_per_s, float)[:, None, None]
+        dark = med * np.exp(p.dark_current_spread * rng.standard_normal((4, h, w)) - 0.0)
+        hot = rng.random((4, h, w)) < p.hot_pixel_fraction
+        lo, hi = np.log(p.hot_pixel_factor[0]), np.log(p.hot_pixel_factor[1])
+        factor = np.exp(rng.uniform(lo, hi, size=int(hot.sum())))
+        dark[hot] = (med * np.ones((4, h, w)))[hot] * factor
+        prnu = 1.0 + p.prnu_sigma * rng.standard_normal((4, h, w))
+        bias = p.bias_pattern_dn * rng.standard_normal((4, h, w))
+        return {"dark_e_per_s": dark, "hot": hot, "prnu": prnu, "bias_dn": bias, "vignetting": self._vignetting()}
+
+    def _vignetting(self) -> np.ndarray:
+        p = self.params
+        cx, cy = self.optical_centre_px
+        yy, xx = np.mgrid[0 : p.height, 0 : p.width].astype(float)
+        rmax = max(np.hypot(x - cx, y - cy) for x in (0, p.width - 1) for y in (0, p.height - 1))
+        r2 = ((xx - cx) ** 2 + (yy - cy) ** 2) / rmax**2
+        g = np.ones_like(r2)
+        for i, k in enumerate(p.vignetting_k):
+            g += k * r2 ** (i + 1)
+        return split_planes(g, p.cfa_pattern, dtype=np.float64)
+
+    @property
+    def optical_centre_px(self) -> tuple[float, float]:
+        """Optical centre (x, y) in full-resolution pixel coordinates."""
+        p = self.params
+        return p.optical_centre[0] * (p.width - 1), p.optical_centre[1] * (p.height - 1)
+
+    @property
+    def dark_current_map_e_per_s(self) -> np.ndarray:
+        return self._maps["dark_e_per_s"]
+
+    @property
+    def hot_pixel_mask(self) -> np.ndarray:
+        return self._maps["hot"]
+
+    @property
+    def prnu_map(self) -> np.ndarray:
+        return self._maps["prnu"]
+
+    @property
+    def vignetting_map(self) -> np.ndarray:
+        """(4, h, w) relative illumination per plane, 1 at the optical centre."""
+        return self._maps["vignetting"]
+
+    # ---- radiometry ----------------------------------------------------------------
+    @cached_property
+    def qe(self) -> np.ndarray:
+        """(3, n) quantum efficiency of R, G, B on :data:`WAVELENGTHS_NM`."""
+        rel = camera_sensitivities(self.params.sensitivity, WAVELENGTHS_NM)
+        return rel * np.asarray(self.params.qe_peak)[:, None]
+
+    def electron_response(self, f_number: float, wavelengths_nm: np.ndarray = WAVELENGTHS_NM) -> np.ndarray:
+        """(3, n) electrons s^-1 per (W m^-2 sr^-1 nm^-1) per nm, at f-number ``f_number``."""
+        p = self.params
+        area_m2 = (p.pixel_pitch_um * 1e-6) ** 2
+        qe = self.qe if wavelengths_nm is WAVELENGTHS_NM else np.stack(
+            [np.interp(wavelengths_nm, WAVELENGTHS_NM, q, left=0, right=0) for q in self.qe]
+        )
+        return area_m2 * np.pi / (4 * f_number**2) * p.lens_transmittance * qe / photon_energy_j(wavelengths_nm)
+
+    def dn_per_electron(self, iso: float) -> float:
+        return iso / (self.params.iso_base * self.params.gain_e_per_dn)
+
+    def spectral_sensitivity(self, iso: float | None = None, f_number: float | None = None) -> np.ndarray:
+        """True c_i(λ), (3, n): DN s^-1 per (W m^-2 sr^-1 nm^-1) per nm, on-axis, at a setting.
+
+        Defaults to the reference setting of the params.
+        """
+        p = self.params
+        iso = p.reference_iso if iso is None else iso
+        n = p.reference_f_number if f_number is None else f_number
+        return self.electron_response(n) * self.dn_per_electron(iso)
+
+    def channel_rates_e(self, spectrum: np.ndarray, f_number: float, wavelengths_nm=WAVELENGTHS_NM) -> np.ndarray:
+        """On-axis electron rate per channel (R, G, B) for a spectrum, e- s^-1."""
+        resp = self.electron_response(f_number, wavelengths_nm)
+        return np.trapezoid(resp * np.asarray(spectrum)[None, :], wavelengths_nm, axis=-1)
+
+    # ---- exposure ------------------------------------------------------------------
+    def _electron_rate_planes(self, scene: Scene, f_number: float) -> np.ndarray:
+        p = self.params
+        h, w = p.height // 2, p.width // 2
+        rate = np.zeros((4, h, w))
+        rgb_of_plane = [0, 1, 1, 2]
+        for weight, spectrum in scene.components:
+            rgb = self.channel_rates_e(spectrum, f_number, scene.wavelengths_nm)
+            per_plane = np.array([rgb[i] for i in rgb_of_plane])[:, None, None]
+            if weight is None:
+                rate += per_plane
+            else:
+                weight = np.asarray(weight, float)
+                if weight.shape != (p.height, p.width):
+                    raise CamcalError(f"scene weight map has shape {weight.shape}, sensor is {(p.height, p.width)}")
+                rate += per_plane * split_planes(weight, p.cfa_pattern, dtype=np.float64)
+        return rate * self.vignetting_map * self.prnu_map
+
+    def expose_planes(
+        self,
+        scene: Scene,
+        *,
+        exposure_s: float,
+        iso: float | None = None,
+        f_number: float | None = None,
+        rng: np.random.Generator,
+    ) -> np.ndarray:
+        """Simulate one exposure; returns (4, h, w) uint16 DN planes (R, G1, G2, B)."""
+        p = self.params
+        iso = p.iso_base if iso is None else iso
+        f_number = p.reference_f_number if f_number is None else f_number
+        mean_e = (self._electron_rate_planes(scene, f_number) + self.dark_current_map_e_per_s) * exposure_s
+        electrons = rng.poisson(mean_e).astype(np.float64)
+        np.minimum(electrons, p.full_well_e, out=electrons)
+        electrons += p.read_noise_e * rng.standard_normal(electrons.shape)
+        black = np.asarray(p.black_level_dn, float)[:, None, None]
+        dn = electrons * self.dn_per_electron(iso) + black + self._maps["bias_dn"]
+        return np.clip(np.rint(dn), 0, p.white_dn).astype(np.uint16)
+
+    def expose(self, scene: Scene, **kwargs) -> np.ndarray:
+        """Simulate one exposure; returns the (H, W) uint16 mosaic."""
+        return merge_planes(self.expose_planes(scene, **kwargs), self.params.cfa_pattern)
+
+    def linear_rgb(self, planes_dn: np.ndarray) -> np.ndarray:
+        """In-camera processing, linear part: black removed, scaled to [0, 1], (3, h, w) RGB."""
+        p = self.params
+        black = np.asarray(p.black_level_dn, float)[:, None, None]
+        x = (planes_dn.astype(np.float64) - black) / (p.white_dn - black)
+        return np.clip(np.stack([x[0], 0.5 * (x[1] + x[2]), x[3]]), 0.0, 1.0)
+
+    # ---- files ---------------------------------------------------------------------
+    def write_dng(
+        self,
+        path: str | Path,
+        scene: Scene,
+        *,
+        exposure_s: float,
+        iso: float | None = None,
+        f_number: float | None = None,
+        rng: np.random.Generator,
+        capture_time: datetime | None = None,
+        temperature_c: float | None = None,
+    ) -> Path:
+        """Expose and write a real DNG file (decodable by LibRaw, Exif exposure tags)."""
+        p = self.params
+        iso = p.iso_base if iso is None else iso
+        f_number = p.reference_f_number if f_number is None else f_number
+        mosaic = self.expose(scene, exposure_s=exposure_s, iso=iso, f_number=f_number, rng=rng)
+        return write_dng(
+            path,
+            mosaic,
+            cfa_pattern=p.cfa_pattern,
+            black_level_dn=self._black_by_position(),
+            white_level_dn=p.white_dn,
+            exposure_s=exposure_s,
+            f_number=f_number,
+            iso=iso,
+            make=p.make,
+            model=p.model,
+            serial=p.serial,
+            capture_time=capture_time,
+            temperature_c=temperature_c,
+        )
+
+    def _black_by_position(self) -> tuple[float, float, float, float]:
+        off = plane_offsets(self.params.cfa_pattern)
+        pos = [0.0] * 4
+        for k, name in enumerate(PLANES):
+            r, c = off[name]
+            pos[2 * r + c] = self.params.black_level_dn[k]
+        return tuple(pos)  # type: ignore[return-value]
+
+    def write_jpeg(
+        self,
+        path: str | Path,
+        scene: Scene,
+        *,
+        exposure_s: float,
+        iso: float | None = None,
+        f_number: float | None = None,
+        rng: np.random.Generator,
+        tone: str = "srgb",
+        gamma: float = 1 / 2.2,
+        quality: int = 97,
+        capture_time: datetime | None = None,
+    ) -> Path:
+        """Expose and write an 8-bit JPEG as a camera would: linear RGB, tone curve, EXIF.
+
+        Processing: black removed and scaled to [0, 1] (:meth:`linear_rgb`),
+        nearest-neighbour demosaic to full resolution, tone curve ``tone``
+        (``"srgb"``: IEC 61966-2-1; ``"power"``: x**gamma), 8-bit quantisation,
+        JPEG at ``quality`` with 4:4:4 chroma.
+        """
+        from camcal.synth.tone import apply_tone
+
+        p = self.params
+        iso = p.iso_base if iso is None else iso
+        f_number = p.reference_f_number if f_number is None else f_number
+        planes = self.expose_planes(scene, exposure_s=exposure_s, iso=iso, f_number=f_number, rng=rng)
+        lin = self.linear_rgb(planes)
+        full = np.repeat(np.repeat(lin, 2, axis=1), 2, axis=2)
+        enc = apply_tone(full, tone, gamma)
+        img = np.clip(np.rint(enc * 255.0), 0, 255).astype(np.uint8)
+        return write_jpeg_file(
+            path,
+            np.moveaxis(img, 0, -1),
+            exposure_s=exposure_s,
+            f_number=f_number,
+            iso=iso,
+            make=p.make,
+            model=p.model,
+            quality=quality,
+            capture_time=capture_time,
+        )
+
+    def truth(self, iso: float | None = None) -> dict:
+        """Ground truth of the fixed pattern and the radiometry, JSON-ready."""
+        p = self.params
+        iso = p.iso_base if iso is None else iso
+        k = self.dn_per_electron(iso)
+        dark_dn = self.dark_current_map_e_per_s * k
+        hot = self.hot_pixel_mask
+        cx, cy = self.optical_centre_px
+        c_ref = self.spectral_sensitivity()
+        return {
+            "params": p.to_json(),
+            "iso": iso,
+            "planes": list(PLANES),
+            "bias_dn": {
+                n: float(p.black_level_dn[i] + np.mean(self._maps["bias_dn"][i])) for i, n in enumerate(PLANES)
+            },
+            "dark_current_dn_per_s": {n: float(np.median(dark_dn[i])) for i, n in enumerate(PLANES)},
+            "read_noise_dn": {
+                n: float(np.hypot(p.read_noise_e * k, 0.0)) for n in PLANES
+            },
+            "hot_pixels": [[int(c), int(y), int(x)] for c, y, x in zip(*np.nonzero(hot), strict=True)],
+            "hot_pixel_count": int(hot.sum()),
+            "prnu_sigma": p.prnu_sigma,
+            "vignetting": {
+                "model": "dng-radial",
+                "k": list(p.vignetting_k),
+                "centre_px": [cx, cy],
+                "centre_half_px": {
+                    n: [(cx - plane_offsets(p.cfa_pattern)[n][1]) / 2, (cy - plane_offsets(p.cfa_pattern)[n][0]) / 2]
+                    for n in PLANES
+                },
+                "corner_gain": float(1 + sum(p.vignetting_k)),
+            },
+            "gain_e_per_dn_at_iso": 1.0 / k,
+            "saturation_dn": float(min(p.white_dn, p.full_well_e * k + min(p.black_level_dn))),
+            "spectral_sensitivity": {
+                "wavelength_nm": WAVELENGTHS_NM.tolist(),
+                "R": c_ref[0].tolist(),
+                "G": c_ref[1].tolist(),
+                "B": c_ref[2].tolist(),
+                "units": "DN s^-1 per (W m^-2 sr^-1 nm^-1) per nm at reference ISO and f-number, on axis",
+                "reference_iso": p.reference_iso,
+                "reference_f_number": p.reference_f_number,
+            },
+        }
+
+
+def write_jpeg_file(
+    path: str | Path,
+    rgb8: np.ndarray,
+    *,
+    exposure_s: float | None,
+    f_number: float | None,
+    iso: float | None,
+    make: str = "camcal",
+    model: str = "Synthetic",
+    quality: int = 97,
+    capture_time: datetime | None = None,
+) -> Path:
+    """Write an (H, W, 3) uint8 image as a JPEG with an Exif block, atomically.
+
+    OpenImageIO encodes the pixels (4:4:4 chroma); camcal writes the Exif APP1
+    segment itself so that exposure time and f-number are exact rationals.
+    """
+    import tempfile
+
+    import OpenImageIO as oiio
+
+    from camcal.atomic import atomic_write_bytes
+    from camcal.synth.dng import encode_exif_app1
+
+    h, w, _ = rgb8.shape
+    spec = oiio.ImageSpec(w, h, 3, oiio.UINT8)
+    spec.attribute("Compression", f"jpeg:{int(quality)}")
+    spec.attribute("jpeg:subsampling", "4:4:4")
+    with tempfile.TemporaryDirectory(prefix="camcal-jpeg-") as tdir:
+        tmp = Path(tdir) / "pixels.jpg"
+        out = oiio.ImageOutput.create(str(tmp))
+        if out is None or not out.open(str(tmp), spec):
+            raise CamcalError(f"cannot write JPEG: {oiio.geterror()}", path)
+        out.write_image(np.ascontiguousarray(rgb8))
+        out.close()
+        data = tmp.read_bytes()
+    app1 = encode_exif_app1(
+        exposure_s=exposure_s, f_number=f_number, iso=iso, make=make, model=model, capture_time=capture_time
+    )
+    return atomic_write_bytes(path, data[:2] + app1 + data[2:])
+
+
+def frame_rngs(seed: int, n: int, stream: int) -> list[np.random.Generator]:
+    """``n`` independent generators for frames of one stream (reproducible)."""
+    return [np.random.default_rng(s) for s in np.random.SeedSequence([seed, stream]).spawn(n)]
+
+
+def save_truth(path: str | Path, truth: dict) -> Path:
+    from camcal.atomic import atomic_write_text
+
+    return atomic_write_text(path, json.dumps(truth, indent=1, sort_keys=True))
+
+
+def timestamps(start: datetime, n: int, step_s: float = 2.0) -> list[datetime]:
+    return [start + timedelta(seconds=i * step_s) for i in range(n)]

@@ -1,0 +1,219 @@
+"""Write a whole calibration session folder from one synthetic camera.
+
+Layout (see ``docs/session-layout.md``)::
+
+    SESSION/
+      bias/ dark/ flat/ linearity/ sweep/   frames + frames.csv (sweep: sweep.csv)
+      truth.json                            the ground truth, for tests and the demo
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from collections.abc import Callable
+from dataclasses import dataclass
+from datetime import datetime, timedelta
+from pathlib import Path
+
+import numpy as np
+
+from camcal.atomic import atomic_write_text
+from camcal.spectra import WAVELENGTHS_NM, gaussian_line, planck_radiance
+from camcal.synth.camera import Scene, SyntheticCamera, frame_rngs, save_truth
+
+STAGES = ("bias", "dark", "flat", "linearity", "sweep")
+
+
+@dataclass(frozen=True)
+class SessionPlan:
+    """What to shoot. Exposure times in s; radiances in W m^-2 sr^-1 (band) or per nm."""
+
+    stages: tuple[str, ...] = STAGES
+    n_bias: int = 16
+    bias_exposure_s: float = 1 / 4000
+    dark_exposures_s: tuple[float, ...] = (2.0, 8.0, 16.0, 32.0)
+    n_dark: int = 4
+    temperature_c: float = 24.0
+    n_flat: int = 8
+    flat_level: float = 0.45
+    """Target flat level at the optical centre, as a fraction of full scale."""
+    flat_temperature_k: float = 5000.0
+    linearity_steps: int = 14
+    linearity_factor: float = 2**0.5
+    linearity_jpeg: bool = True
+    jpeg_tone: str = "srgb"
+    jpeg_gamma: float = 1 / 2.2
+    sweep_start_nm: float = 400.0
+    sweep_stop_nm: float = 700.0
+    sweep_step_nm: float = 5.0
+    sweep_fwhm_nm: float = 5.0
+    n_sweep: int = 3
+    lamp_temperature_k: float = 3200.0
+    sweep_peak_radiance_w_m2_sr: float = 0.05
+    """Band radiance of the monochromator output at the lamp's brightest wavelength."""
+    sweep_level: float = 0.35
+    """Target level of the brightest channel, fraction of full scale."""
+    sweep_reference_unc: float = 0.005
+    """Relative standard uncertainty of the reference detector, written to sweep.csv."""
+    iso: float = 100.0
+
+
+def _csv(rows: list[dict[str, object]]) -> str:
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=list(rows[0]), lineterminator="\n")
+    writer.writeheader()
+    writer.writerows(rows)
+    return buf.getvalue()
+
+
+def _white_spectrum(temperature_k: float) -> np.ndarray:
+    b = planck_radiance(temperature_k)
+    return b / b.max()
+
+
+def flat_scene(camera: SyntheticCamera, temperature_k: float) -> Scene:
+    return Scene.uniform(_white_spectrum(temperature_k))
+
+
+def exposure_for_level(
+    camera: SyntheticCamera, spectrum: np.ndarray, level: float, iso: float, f_number: float
+) -> float:
+    """Exposure time (s) that puts the brightest channel at ``level`` of full scale on axis."""
+    p = camera.params
+    rate_dn = camera.channel_rates_e(spectrum, f_number).max() * camera.dn_per_electron(iso)
+    span = p.white_dn - max(p.black_level_dn)
+    return float(level * span / rate_dn)
+
+
+def write_session(
+    outdir: str | Path,
+    camera: SyntheticCamera,
+    plan: SessionPlan | None = None,
+    progress: Callable[[str, int, int], None] | None = None,
+) -> Path:
+    """Synthesise every stage of ``plan`` into ``outdir``; returns the folder.
+
+    ``progress(stage, done, total)`` is called after each frame when given.
+    """
+    plan = plan or SessionPlan()
+    out = Path(outdir)
+    out.mkdir(parents=True, exist_ok=True)
+    p = camera.params
+    n_ref = p.reference_f_number
+    t0 = datetime(2026, 6, 1, 9, 0, 0)
+    seq = iter(range(10_000))
+
+    def note(stage: str, i: int, n: int) -> None:
+        if progress:
+            progress(stage, i + 1, n)
+
+    truth = camera.truth(plan.iso)
+    truth["plan"] = {k: (list(v) if isinstance(v, tuple) else v) for k, v in plan.__dict__.items()}
+
+    if "bias" in plan.stages:
+        d = out / "bias"
+        rows = []
+        rngs = frame_rngs(p.seed, plan.n_bias, 1)
+        for i, rng in enumerate(rngs):
+            name = f"bias_{i:03d}.dng"
+            camera.write_dng(d / name, Scene.dark(), exposure_s=plan.bias_exposure_s, iso=plan.iso,
+                             f_number=n_ref, rng=rng, capture_time=t0 + timedelta(seconds=next(seq)),
+                             temperature_c=plan.temperature_c)
+            rows.append({"file": name, "exposure_s": plan.bias_exposure_s, "iso": plan.iso, "f_number": n_ref,
+                         "temperature_C": plan.temperature_c})
+            note("bias", i, plan.n_bias)
+        atomic_write_text(d / "frames.csv", _csv(rows))
+
+    if "dark" in plan.stages:
+        d = out / "dark"
+        rows = []
+        total = len(plan.dark_exposures_s) * plan.n_dark
+        rngs = frame_rngs(p.seed, total, 2)
+        k = 0
+        for t in plan.dark_exposures_s:
+            for j in range(plan.n_dark):
+                name = f"dark_{t:07.3f}s_{j:02d}.dng"
+                camera.write_dng(d / name, Scene.dark(), exposure_s=t, iso=plan.iso, f_number=n_ref, rng=rngs[k],
+                                 capture_time=t0 + timedelta(seconds=next(seq)), temperature_c=plan.temperature_c)
+                rows.append({"file": name, "exposure_s": t, "iso": plan.iso, "f_number": n_ref,
+                             "temperature_C": plan.temperature_c})
+                k += 1
+                note("dark", k - 1, total)
+        atomic_write_text(d / "frames.csv", _csv(rows))
+
+    if "flat" in plan.stages:
+        d = out / "flat"
+        spec = _white_spectrum(plan.flat_temperature_k)
+        t = exposure_for_level(camera, spec, plan.flat_level, plan.iso, n_ref)
+        rows = []
+        rngs = frame_rngs(p.seed, plan.n_flat, 3)
+        for i, rng in enumerate(rngs):
+            name = f"flat_{i:03d}.dng"
+            camera.write_dng(d / name, Scene.uniform(spec), exposure_s=t, iso=plan.iso, f_number=n_ref, rng=rng,
+                             capture_time=t0 + timedelta(seconds=next(seq)))
+            rows.append({"file": name, "exposure_s": t, "iso": plan.iso, "f_number": n_ref})
+            note("flat", i, plan.n_flat)
+        atomic_write_text(d / "frames.csv", _csv(rows))
+        truth["flat"] = {"exposure_s": t, "temperature_k": plan.flat_temperature_k}
+
+    if "linearity" in plan.stages:
+        d = out / "linearity"
+        spec = _white_spectrum(plan.flat_temperature_k)
+        # start at ~1 % of full scale and step up past saturation
+        t_start = exposure_for_level(camera, spec, 0.01, plan.iso, n_ref)
+        times = [t_start * plan.linearity_factor**i for i in range(plan.linearity_steps)]
+        rows = []
+        rngs = frame_rngs(p.seed, 2 * len(times), 4)
+        for i, t in enumerate(times):
+            name = f"lin_{i:03d}.dng"
+            camera.write_dng(d / name, Scene.uniform(spec), exposure_s=t, iso=plan.iso, f_number=n_ref,
+                             rng=rngs[2 * i], capture_time=t0 + timedelta(seconds=next(seq)))
+            rows.append({"file": name, "exposure_s": t, "iso": plan.iso, "f_number": n_ref})
+            if plan.linearity_jpeg:
+                jname = f"lin_{i:03d}.jpg"
+                camera.write_jpeg(d / jname, Scene.uniform(spec), exposure_s=t, iso=plan.iso, f_number=n_ref,
+                                  rng=rngs[2 * i + 1], tone=plan.jpeg_tone, gamma=plan.jpeg_gamma,
+                                  capture_time=t0 + timedelta(seconds=next(seq)))
+                rows.append({"file": jname, "exposure_s": t, "iso": plan.iso, "f_number": n_ref})
+            note("linearity", i, len(times))
+        atomic_write_text(d / "frames.csv", _csv(rows))
+        rate = camera.channel_rates_e(spec, n_ref) * camera.dn_per_electron(plan.iso)
+        truth["linearity"] = {
+            "exposure_s": times,
+            "rate_dn_per_s_on_axis": {"R": rate[0], "G": rate[1], "B": rate[2]},
+            "jpeg_tone": plan.jpeg_tone,
+            "jpeg_gamma": plan.jpeg_gamma,
+            "spectrum": "normalised black body",
+            "spectrum_temperature_k": plan.flat_temperature_k,
+        }
+
+    if "sweep" in plan.stages:
+        d = out / "sweep"
+        wls = np.arange(plan.sweep_start_nm, plan.sweep_stop_nm + 0.5 * plan.sweep_step_nm, plan.sweep_step_nm)
+        lamp = planck_radiance(plan.lamp_temperature_k, wls)
+        band = plan.sweep_peak_radiance_w_m2_sr * lamp / planck_radiance(plan.lamp_temperature_k, WAVELENGTHS_NM).max()
+        rows = []
+        rngs = frame_rngs(p.seed, len(wls) * plan.n_sweep, 5)
+        k = 0
+        for wl, lb in zip(wls, band, strict=True):
+            spectrum = lb * gaussian_line(wl, plan.sweep_fwhm_nm)
+            t = exposure_for_level(camera, spectrum, plan.sweep_level, plan.iso, n_ref)
+            t = float(f"{min(t, 30.0):.4g}")
+            for j in range(plan.n_sweep):
+                name = f"sweep_{wl:05.1f}nm_{j:02d}.dng"
+                camera.write_dng(d / name, Scene.uniform(spectrum), exposure_s=t, iso=plan.iso, f_number=n_ref,
+                                 rng=rngs[k], capture_time=t0 + timedelta(seconds=next(seq)))
+                rows.append({
+                    "file": name, "wavelength_nm": float(wl), "radiance_W_m2_sr": float(f"{lb:.6g}"),
+                    "radiance_unc_W_m2_sr": float(f"{lb * plan.sweep_reference_unc:.6g}"),
+                    "bandwidth_nm": plan.sweep_fwhm_nm, "exposure_s": t, "iso": plan.iso, "f_number": n_ref,
+                })
+                k += 1
+                note("sweep", k - 1, len(wls) * plan.n_sweep)
+        atomic_write_text(d / "sweep.csv", _csv(rows))
+        truth["sweep"] = {"wavelength_nm": wls.tolist(), "band_radiance_W_m2_sr": band.tolist(),
+                          "fwhm_nm": plan.sweep_fwhm_nm, "lamp_temperature_k": plan.lamp_temperature_k}
+
+    save_truth(out / "truth.json", truth)
+    return out

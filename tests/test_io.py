@@ -1,0 +1,146 @@
+"""Real files through real decoders: DNG via LibRaw (rawpy), JPEG via OpenImageIO/exifread."""
+
+from datetime import datetime
+
+import numpy as np
+import pytest
+import rawpy
+
+from camcal.errors import CamcalError, MissingMetadataError
+from camcal.frame import PATTERNS, PLANES, split_planes
+from camcal.io import iter_folder, load_frame
+from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
+from camcal.synth.dng import write_dng
+
+
+@pytest.mark.parametrize("bits", [12, 14])
+@pytest.mark.parametrize("pattern", PATTERNS)
+def test_dng_round_trip(tmp_path, rng, pattern, bits):
+    mosaic = rng.integers(0, 2**bits, size=(64, 96)).astype(np.uint16)
+    black = (256.0, 257.0, 258.0, 259.0)  # per position of the 2x2 cell
+    path = write_dng(tmp_path / "x.dng", mosaic, cfa_pattern=pattern, black_level_dn=black, white_level_dn=2**bits - 1,
+                     exposure_s=1 / 320, f_number=7.1, iso=1600, make="Acme", model="Cam 1", serial="S42",
+                     capture_time=datetime(2026, 5, 4, 3, 2, 1))
+    # LibRaw itself, no camcal in between
+    with rawpy.imread(str(path)) as raw:
+        np.testing.assert_array_equal(raw.raw_image_visible, mosaic)
+        assert raw.white_level == 2**bits - 1
+    frame = load_frame(path)
+    np.testing.assert_array_equal(frame.data, mosaic)
+    assert frame.cfa_pattern == pattern
+    assert frame.white_level_dn == 2**bits - 1
+    # black level of each plane = the value written at that plane's cell position
+    from camcal.frame import plane_offsets
+
+    for name in PLANES:
+        r, c = plane_offsets(pattern)[name]
+        assert frame.black_level_dn[name] == black[2 * r + c]
+    e = frame.exposure
+    assert e.exposure_s == pytest.approx(1 / 320, rel=1e-6)
+    assert e.f_number == pytest.approx(7.1, rel=1e-6)
+    assert e.iso == 1600
+    assert (e.make, e.model, e.serial) == ("Acme", "Cam 1", "S42")
+    assert e.capture_time == "2026-05-04T03:02:01"
+
+
+def test_jpeg_metadata_and_pixels(tmp_path, camera):
+    spectrum = np.full(401, 0.01)
+    path = camera.write_jpeg(tmp_path / "p.jpg", Scene.uniform(spectrum), exposure_s=1 / 60, iso=400, f_number=2.8,
+                             rng=np.random.default_rng(1))
+    frame = load_frame(path)
+    assert frame.kind == "processed" and frame.data.shape == (256, 384, 3) and frame.data.dtype == np.uint8
+    assert frame.exposure.exposure_s == pytest.approx(1 / 60)
+    assert frame.exposure.iso == 400 and frame.exposure.f_number == pytest.approx(2.8)
+    assert frame.exposure.make == "camcal" and frame.white_level_dn == 255
+    import OpenImageIO as oiio
+
+    spec = oiio.ImageInput.open(str(path)).spec()
+    assert spec.getattribute("Exif:PhotographicSensitivity") == 400
+
+
+def test_manifest_overrides_file_metadata(tmp_path, camera):
+    d = tmp_path / "dark"
+    camera.write_dng(d / "a.dng", Scene.dark(), exposure_s=2.0, rng=np.random.default_rng(0))
+    camera.write_dng(d / "b.dng", Scene.dark(), exposure_s=2.0, rng=np.random.default_rng(1))
+    (d / "frames.csv").write_text("file,exposure_s,iso,temperature_C\r\na.dng,4.5,,-3.5\r\n", encoding="utf-8-sig")
+    frames = dict((p.name, f) for p, f in iter_folder(d))
+    assert frames["a.dng"].exposure.exposure_s == 4.5
+    assert frames["a.dng"].exposure.iso == 100  # empty cell keeps the file's value
+    assert frames["a.dng"].exposure.temperature_c == -3.5
+    assert frames["b.dng"].exposure.exposure_s == 2.0
+
+
+def test_missing_metadata_error_names_file_field_and_fix(tmp_path):
+    mosaic = np.zeros((64, 64), np.uint16)
+    path = write_dng(tmp_path / "m.dng", mosaic, cfa_pattern="RGGB", black_level_dn=0, white_level_dn=4095,
+                     exposure_s=0.01, f_number=4, iso=0)
+    frame = load_frame(path)
+    assert frame.exposure.iso is None
+    with pytest.raises(MissingMetadataError) as err:
+        frame.exposure.require("iso", frame.path)
+    msg = str(err.value)
+    assert "m.dng" in msg and "iso" in msg and "frames.csv" in msg
+
+
+def test_synthetic_photon_transfer_is_physical(tmp_path):
+    """Mean and variance of a flat exposure follow Poisson + read noise at the set gain."""
+    cam = SyntheticCamera(SensorParams(prnu_sigma=0.0, vignetting_k=(0, 0, 0, 0, 0), dark_current_e_per_s=(0,) * 4,
+                                       hot_pixel_fraction=0.0, bias_pattern_dn=0.0))
+    spectrum = np.full(401, 0.002)
+    a = cam.expose_planes(Scene.uniform(spectrum), exposure_s=0.01, rng=np.random.default_rng(1)).astype(float)
+    b = cam.expose_planes(Scene.uniform(spectrum), exposure_s=0.01, rng=np.random.default_rng(2)).astype(float)
+    k = cam.dn_per_electron(100)
+    for i in range(4):
+        signal_dn = a[i].mean() - 512
+        expected_e = cam.channel_rates_e(spectrum, 4.0)[[0, 1, 1, 2][i]] * 0.01
+        assert signal_dn == pytest.approx(expected_e * k, rel=0.01)
+        var_dn = np.var(a[i] - b[i]) / 2  # difference of two frames removes fixed pattern
+        expected_var = (expected_e + cam.params.read_noise_e**2) * k**2 + 1 / 12
+        # sampling error of a variance over n=24576 px: sqrt(2/n) ~ 0.9 %
+        assert var_dn == pytest.approx(expected_var, rel=0.05)
+
+
+def test_synthetic_frames_clip_at_white_level(camera):
+    planes = camera.expose_planes(Scene.uniform(np.full(401, 1.0)), exposure_s=1.0, rng=np.random.default_rng(0))
+    assert planes.max() == camera.params.white_dn
+
+
+def test_split_of_loaded_dng_matches_camera_planes(tmp_path, camera):
+    rng = np.random.default_rng(3)
+    path = camera.write_dng(tmp_path / "x.dng", Scene.uniform(np.full(401, 0.001)), exposure_s=0.01, rng=rng)
+    frame = load_frame(path)
+    planes = frame.planes()
+    again = split_planes(frame.data, camera.params.cfa_pattern)
+    np.testing.assert_array_equal(planes, again)
+
+
+@pytest.mark.parametrize(
+    "make_file, fragment",
+    [
+        (lambda p: p.write_bytes(b""), "empty"),
+        (lambda p: p.write_text("this is not a raw file\n" * 50), "LibRaw"),
+        (lambda p: p.mkdir(), "directory"),
+        (lambda p: None, "no such file"),
+    ],
+)
+def test_bad_files_raise_one_line_errors(tmp_path, make_file, fragment):
+    p = tmp_path / "bad.dng"
+    make_file(p)
+    with pytest.raises(CamcalError) as err:
+        load_frame(p)
+    assert fragment in str(err.value) and "bad.dng" in str(err.value) and "\n" not in str(err.value)
+
+
+def test_truncated_dng_is_refused(tmp_path, camera):
+    path = camera.write_dng(tmp_path / "t.dng", Scene.dark(), exposure_s=0.01, rng=np.random.default_rng(0))
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 3])
+    with pytest.raises(CamcalError, match="damaged or truncated"):
+        load_frame(path)
+
+
+def test_pixel_limit_refuses_before_decoding(tmp_path, camera, monkeypatch):
+    path = camera.write_dng(tmp_path / "t.dng", Scene.dark(), exposure_s=0.01, rng=np.random.default_rng(0))
+    monkeypatch.setenv("CAMCAL_MAX_PIXELS", "1000")
+    with pytest.raises(CamcalError, match="above the limit"):
+        load_frame(path)
