@@ -14,6 +14,7 @@ import contextlib
 import math
 import os
 import sys
+import threading
 from fractions import Fraction
 from pathlib import Path
 
@@ -163,23 +164,42 @@ def _fill(primary: Exposure, fallback: Exposure) -> Exposure:
     )
 
 
+_QUIET_LOCK = threading.Lock()
+_QUIET_STATE: dict[str, int] = {"depth": 0, "saved": -1, "fd": -1}
+
+
 @contextlib.contextmanager
 def quiet_stderr():
-    """Silence C libraries (LibRaw prints decode warnings to fd 2) for the block."""
+    """Silence C libraries (LibRaw prints decode warnings to fd 2) for the block.
+
+    Thread-safe: fd 2 is process-wide, so concurrent blocks share one redirection
+    (reference-counted); the first to enter redirects, the last to leave restores.
+    """
     try:
         fd = sys.stderr.fileno()
     except (AttributeError, OSError, ValueError):
         yield
         return
-    sys.stderr.flush()
-    saved = os.dup(fd)
+    with _QUIET_LOCK:
+        if _QUIET_STATE["depth"] == 0:
+            sys.stderr.flush()
+            saved = os.dup(fd)
+            null = os.open(os.devnull, os.O_WRONLY)
+            try:
+                os.dup2(null, fd)
+            finally:
+                os.close(null)
+            _QUIET_STATE.update(saved=saved, fd=fd)
+        _QUIET_STATE["depth"] += 1
     try:
-        with open(os.devnull, "wb") as null:
-            os.dup2(null.fileno(), fd)
-            yield
+        yield
     finally:
-        os.dup2(saved, fd)
-        os.close(saved)
+        with _QUIET_LOCK:
+            _QUIET_STATE["depth"] -= 1
+            if _QUIET_STATE["depth"] == 0:
+                os.dup2(_QUIET_STATE["saved"], _QUIET_STATE["fd"])
+                os.close(_QUIET_STATE["saved"])
+                _QUIET_STATE.update(saved=-1, fd=-1)
 
 
 def _load_raw(path: Path) -> Frame:

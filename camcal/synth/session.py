@@ -39,7 +39,7 @@ class SessionPlan:
     flat_level: float = 0.45
     """Target flat level at the optical centre, as a fraction of full scale."""
     flat_temperature_k: float = 5000.0
-    linearity_steps: int = 14
+    linearity_steps: int = 17
     linearity_factor: float = 2**0.5
     linearity_jpeg: bool = True
     jpeg_tone: str = "srgb"
@@ -50,8 +50,12 @@ class SessionPlan:
     sweep_fwhm_nm: float = 5.0
     n_sweep: int = 3
     lamp_temperature_k: float = 3200.0
-    sweep_peak_radiance_w_m2_sr: float = 0.05
-    """Band radiance of the monochromator output at the lamp's brightest wavelength."""
+    sweep_peak_radiance_w_m2_sr: float = 0.2
+    """Band radiance of the monochromator output at the lamp's brightest wavelength (a QTH lamp through a
+    5 nm monochromator into an integrating sphere: 0.2 W m^-2 sr^-1 keeps 400 nm at a few % of full scale
+    within the exposure cap)."""
+    sweep_max_exposure_s: float = 30.0
+    """Longest exposure the sweep may use, s."""
     sweep_level: float = 0.35
     """Target level of the brightest channel, fraction of full scale."""
     sweep_reference_unc: float = 0.005
@@ -84,6 +88,50 @@ def exposure_for_level(
     rate_dn = camera.channel_rates_e(spectrum, f_number).max() * camera.dn_per_electron(iso)
     span = p.white_dn - max(p.black_level_dn)
     return float(level * span / rate_dn)
+
+
+@dataclass(frozen=True)
+class SweepShot:
+    """One monochromator frame of the sweep: file name, scene spectrum, exposure and its sweep.csv row."""
+
+    name: str
+    wavelength_nm: float
+    spectrum: np.ndarray
+    """Spectral radiance on :data:`WAVELENGTHS_NM`, W m^-2 sr^-1 nm^-1."""
+    exposure_s: float
+    row: dict[str, object]
+
+
+def sweep_shots(camera: SyntheticCamera, plan: SessionPlan) -> tuple[list[SweepShot], dict]:
+    """The sweep's frames (``plan.n_sweep`` per wavelength) and its truth record.
+
+    Band radiance follows a ``plan.lamp_temperature_k`` black body scaled to
+    ``plan.sweep_peak_radiance_w_m2_sr`` at its brightest; the line is a Gaussian of
+    ``plan.sweep_fwhm_nm``. Each wavelength's exposure puts its brightest channel at
+    ``plan.sweep_level`` of full scale, capped at ``plan.sweep_max_exposure_s``.
+    """
+    p = camera.params
+    n_ref = p.reference_f_number
+    wls = np.arange(plan.sweep_start_nm, plan.sweep_stop_nm + 0.5 * plan.sweep_step_nm, plan.sweep_step_nm)
+    lamp = planck_radiance(plan.lamp_temperature_k, wls)
+    band = plan.sweep_peak_radiance_w_m2_sr * lamp / planck_radiance(plan.lamp_temperature_k, WAVELENGTHS_NM).max()
+    shots = []
+    for wl, lb in zip(wls, band, strict=True):
+        spectrum = lb * gaussian_line(wl, plan.sweep_fwhm_nm)
+        t = exposure_for_level(camera, spectrum, plan.sweep_level, plan.iso, n_ref)
+        t = float(f"{min(t, plan.sweep_max_exposure_s):.4g}")
+        for j in range(plan.n_sweep):
+            name = f"sweep_{wl:05.1f}nm_{j:02d}.dng"
+            row = {
+                "file": name, "wavelength_nm": float(wl), "radiance_W_m2_sr": float(f"{lb:.6g}"),
+                "radiance_unc_W_m2_sr": float(f"{lb * plan.sweep_reference_unc:.6g}"),
+                "bandwidth_nm": plan.sweep_fwhm_nm, "exposure_s": t, "iso": plan.iso, "f_number": n_ref,
+            }
+            shots.append(SweepShot(name, float(wl), spectrum, t, row))
+    info = {"wavelength_nm": wls.tolist(), "band_radiance_W_m2_sr": band.tolist(),
+            "fwhm_nm": plan.sweep_fwhm_nm, "lamp_temperature_k": plan.lamp_temperature_k,
+            "exposure_s": [s.exposure_s for s in shots[:: max(1, plan.n_sweep)]]}
+    return shots, info
 
 
 def write_session(
@@ -190,30 +238,16 @@ def write_session(
 
     if "sweep" in plan.stages:
         d = out / "sweep"
-        wls = np.arange(plan.sweep_start_nm, plan.sweep_stop_nm + 0.5 * plan.sweep_step_nm, plan.sweep_step_nm)
-        lamp = planck_radiance(plan.lamp_temperature_k, wls)
-        band = plan.sweep_peak_radiance_w_m2_sr * lamp / planck_radiance(plan.lamp_temperature_k, WAVELENGTHS_NM).max()
+        shots, info = sweep_shots(camera, plan)
         rows = []
-        rngs = frame_rngs(p.seed, len(wls) * plan.n_sweep, 5)
-        k = 0
-        for wl, lb in zip(wls, band, strict=True):
-            spectrum = lb * gaussian_line(wl, plan.sweep_fwhm_nm)
-            t = exposure_for_level(camera, spectrum, plan.sweep_level, plan.iso, n_ref)
-            t = float(f"{min(t, 30.0):.4g}")
-            for j in range(plan.n_sweep):
-                name = f"sweep_{wl:05.1f}nm_{j:02d}.dng"
-                camera.write_dng(d / name, Scene.uniform(spectrum), exposure_s=t, iso=plan.iso, f_number=n_ref,
-                                 rng=rngs[k], capture_time=t0 + timedelta(seconds=next(seq)))
-                rows.append({
-                    "file": name, "wavelength_nm": float(wl), "radiance_W_m2_sr": float(f"{lb:.6g}"),
-                    "radiance_unc_W_m2_sr": float(f"{lb * plan.sweep_reference_unc:.6g}"),
-                    "bandwidth_nm": plan.sweep_fwhm_nm, "exposure_s": t, "iso": plan.iso, "f_number": n_ref,
-                })
-                k += 1
-                note("sweep", k - 1, len(wls) * plan.n_sweep)
+        rngs = frame_rngs(p.seed, len(shots), 5)
+        for k, (shot, rng) in enumerate(zip(shots, rngs, strict=True)):
+            camera.write_dng(d / shot.name, Scene.uniform(shot.spectrum), exposure_s=shot.exposure_s, iso=plan.iso,
+                             f_number=n_ref, rng=rng, capture_time=t0 + timedelta(seconds=next(seq)))
+            rows.append(shot.row)
+            note("sweep", k, len(shots))
         atomic_write_text(d / "sweep.csv", _csv(rows))
-        truth["sweep"] = {"wavelength_nm": wls.tolist(), "band_radiance_W_m2_sr": band.tolist(),
-                          "fwhm_nm": plan.sweep_fwhm_nm, "lamp_temperature_k": plan.lamp_temperature_k}
+        truth["sweep"] = info
 
     save_truth(out / "truth.json", truth)
     return out

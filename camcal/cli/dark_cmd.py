@@ -1,0 +1,54 @@
+"""``camcal dark SESSION/dark [--bias SESSION/bias] -o dark.json``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+from rich.table import Table
+
+from camcal.cli.common import console, print_json, progress
+from camcal.dark import fit_dark, save_dark
+from camcal.frame import PLANES
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("dark")
+    def dark_cmd(
+        dark: Path = typer.Argument(..., help="Folder of RAW dark frames (two or more exposure times)."),
+        bias: Path | None = typer.Option(None, "--bias", help="Folder of RAW bias frames."),
+        output: Path = typer.Option(..., "-o", "--output", help="Output dark model (.json, maps beside it)."),
+        method: str = typer.Option("sigma_clip", "--method", help="Combination of darks: mean, median, sigma_clip."),
+        sigma: float = typer.Option(3.0, "--sigma", help="Sigma-clipping threshold."),
+        jobs: int = typer.Option(2, "--jobs", "-j", help="Decode processes (1 or 2)."),
+        as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON instead of a table."),
+    ) -> None:
+        """Fit bias, read noise, dark current and defects from bias and dark frames."""
+        with progress() as bar:
+            task = bar.add_task("dark frames", total=None)
+
+            def cb(done: int, total: int) -> None:
+                bar.update(task, completed=done, total=total)
+
+            model = fit_dark(dark, bias, method=method, sigma=sigma, jobs=jobs, progress=cb)
+        save_dark(model, output)
+        summary = model.summary()
+        if as_json:
+            print_json(summary)
+            return
+        temp = "—" if model.temperature_c is None else f"{model.temperature_c:.1f} °C"
+        table = Table(title=f"Dark model → {output}  (ISO {model.iso:g}, {model.cfa_pattern}, {temp}, "
+                            f"t = {', '.join(f'{t:g}' for t in model.exposure_times_s)} s)", title_justify="left")
+        table.add_column("plane")
+        for col in ("bias", "β", "±β", "σ read", "DSNU", "DSNU β", "hot", "dead", "noisy"):
+            table.add_column(col, justify="right")
+        for p in PLANES:
+            c = model.channels[p]
+            table.add_row(p, f"{c['bias_dn']:.2f}", f"{c['dark_current_dn_per_s']:.4g}",
+                          f"{c['dark_current_unc_dn_per_s']:.1g}", f"{c['read_noise_dn']:.3f}",
+                          f"{c['dsnu_bias_dn']:.3f}", f"{c['dsnu_dark_current_dn_per_s']:.3g}",
+                          str(c["hot_pixel_count"]), str(c["dead_pixel_count"]), str(c["noisy_pixel_count"]))
+        console.print(table)
+        console.print("bias, read noise (σ read) and bias DSNU in DN; dark current β and its DSNU in DN/s "
+                      f"at ISO {model.iso:g}")
+        console.print(f"defective pixels: {100 * summary['defect_fraction']:.3f} %  →  {output}")

@@ -1,0 +1,84 @@
+"""``camcal sweep``: spectral sensitivity c(λ) per channel from a monochromator sweep (seed §3.1)."""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import typer
+
+from camcal.cli.common import console, err_console, print_json, progress
+from camcal.errors import CamcalError
+
+
+def _parse_roi(text: str | None) -> tuple[int, int, int, int] | float | None:
+    if text is None:
+        return None
+    parts = [p.strip() for p in text.split(",")]
+    try:
+        if len(parts) == 1:
+            return float(parts[0])
+        if len(parts) == 4:
+            return tuple(int(p) for p in parts)  # type: ignore[return-value]
+    except ValueError:
+        pass
+    raise CamcalError(f"--roi must be x0,y0,x1,y1 (half-resolution plane pixels) or a fraction, got {text!r}")
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("sweep")
+    def sweep_cmd(
+        sweep: Path = typer.Argument(..., help="Sweep folder holding the frames and sweep.csv."),
+        output: Path = typer.Option(..., "-o", "--output", help="Output CSV (SPECTACLE layout); metadata goes to "
+                                    "<stem>.meta.json beside it."),
+        dark: Path | None = typer.Option(None, "--dark", help="Dark model (camcal dark -o dark.json)."),
+        flat: Path | None = typer.Option(None, "--flat", help="Flat model (camcal flat -o flat.json)."),
+        mode: str = typer.Option("absolute", help="absolute (DN s^-1 per W m^-2 sr^-1 at the reference setting) "
+                                 "or relative (peak 1)."),
+        roi: str | None = typer.Option(None, help="Region: x0,y0,x1,y1 in half-resolution plane pixels, or a "
+                                       "fraction of each side for a centred box (default 0.2)."),
+        deconvolve: bool = typer.Option(False, help="Remove the monochromator slit function (needs bandwidth_nm)."),
+        slit: str = typer.Option("gaussian", help="Slit function shape for --deconvolve: gaussian or triangular."),
+        reference_iso: float = typer.Option(100.0, help="Reference ISO of the absolute result."),
+        reference_f_number: float = typer.Option(4.0, help="Reference f-number of the absolute result."),
+        png: Path | None = typer.Option(None, help="Plot of c(λ) (default <output stem>.png)."),
+        jobs: int = typer.Option(2, help="Decoding threads."),
+        as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
+    ) -> None:
+        """Measure c(λ) for R, G1, G2, B and write a SPECTACLE CSV and a PNG plot."""
+        from camcal.spectral import measure_sweep, plot_sensitivity, read_sweep, write_spectacle_csv
+
+        if output.suffix.lower() != ".csv":
+            raise CamcalError("output must be a .csv file", output)
+        if mode not in ("absolute", "relative"):
+            raise CamcalError(f"--mode must be absolute or relative, got {mode!r}")
+        total = len(read_sweep(sweep))
+        with warnings.catch_warnings(record=True) as caught, progress() as bar:
+            warnings.simplefilter("always")
+            task = bar.add_task("sweep frames", total=total)
+            result = measure_sweep(
+                sweep, dark=dark, flat=flat, roi=_parse_roi(roi), mode=mode, deconvolve=deconvolve,  # type: ignore[arg-type]
+                slit=slit, reference_iso=reference_iso, reference_f_number=reference_f_number,  # type: ignore[arg-type]
+                jobs=jobs, progress=lambda done, n: bar.update(task, completed=done),
+            )
+        for w in caught:
+            err_console.print(f"camcal: warning: {w.message}")
+        write_spectacle_csv(result, output)
+        png_path = png or output.with_suffix(".png")
+        plot_sensitivity(result, png_path)
+        summary = result.summary()
+        if as_json:
+            print_json({**summary, "output": str(output), "png": str(png_path)})
+            return
+        from rich.table import Table
+
+        table = Table(title=f"spectral sensitivity ({result.mode}, {result.units})")
+        for col in ("channel", "peak λ (nm)", "peak value", "λ_eff (nm)", "bandwidth (nm)"):
+            table.add_column(col)
+        chans = result.channels()
+        for ch in ("R", "G1", "G2", "B", "G"):
+            table.add_row(ch, f"{summary['peak_wavelength_nm'][ch]:g}", f"{float(chans[ch].max()):.5g}",
+                          f"{summary['effective_wavelength_nm'][ch]:.1f}",
+                          f"{summary['effective_bandwidth_nm'][ch]:.1f}")
+        console.print(table)
+        console.print(f"wrote {output} (+ {output.stem}.meta.json) and {png_path}")

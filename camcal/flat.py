@@ -1,0 +1,878 @@
+"""Flat fields: master flat, per-channel vignetting with a fitted optical centre, PRNU.
+
+A flat field is a frame of a uniformly radiant target (an integrating sphere, a
+diffuser over the lens). Its dark-subtracted signal per CFA plane is
+
+    S(x, y) = A · g(x, y) · P(x, y)                                        [DN]
+
+with A the on-axis level, g the smooth *relative illumination* (vignetting,
+cos⁴ falloff, lens shading; 1 at the optical centre) and P the pixel-level
+photo-response non-uniformity (PRNU, mean 1). The seed's pixel model (seed
+eq. 12, g_i = α_i [∫ ... dλ]^γ_i + β_i) assumes one α per channel; the flat
+field makes that true across the frame: radiance = (DN − dark) / (α · g · P).
+
+The smooth part follows the DNG ``FixVignetteRadial`` opcode (Adobe DNG
+specification 1.4, opcode list 3, also used by SPECTACLE, Burggraaff et al. 2019)
+
+    g(r) = 1 + k0 r² + k1 r⁴ + k2 r⁶ + k3 r⁸ + k4 r¹⁰
+
+with r the distance from the optical centre (cx, cy) divided by the distance
+from the optical centre to the farthest image corner. Distances are measured in
+*full-resolution mosaic pixels* (a plane pixel (x, y) of a plane with CFA offset
+(ox, oy) sits at mosaic pixel (2x + ox, 2y + oy); the image corners are the
+pixel centres (0, 0) and (W − 1, H − 1)), so the k are those a DNG writer would
+store. The centre is a free parameter per plane, reported in plane pixels.
+
+Normalisation: g = 1 at the optical centre. Radiance calibration therefore
+refers to the on-axis sensitivity (``docs/conventions.md``).
+
+Fitting (fast whatever the sensor size): each plane is block-averaged to about
+64 blocks along its long side; for a trial centre the model is linear in
+(A, A·k0, ..., A·k4), so :func:`scipy.optimize.least_squares` searches only the
+centre (variable projection) and a weighted linear solve gives the rest.
+Residuals are relative (data/model − 1): shot noise and PRNU both scale with
+the signal. An optional smooth 2-D model (a Legendre series in x and y) serves
+lenses that are not radially symmetric. PRNU is the pixel-level residual
+master / (A·g), normalised to mean 1.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+
+from camcal.errors import CamcalError
+from camcal.frame import PLANES, Frame, plane_offsets
+
+N_RADIAL = 5
+"""Number of DNG radial coefficients k0..k4."""
+
+DEFAULT_TERMS = 3
+"""Radial terms fitted by default: k0..k2, the vignetting model of Adobe's lens profiles (k3 = k4 = 0).
+More terms follow noise at the farthest corner (the only place the data constrain r¹⁰)."""
+
+DEFAULT_BLOCKS = 64
+"""Target number of blocks along the long side of the downsampled plane."""
+
+
+# ---------------------------------------------------------------------------------------------
+# geometry
+# ---------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class PlaneGeometry:
+    """Where plane pixels sit on the full-resolution sensor.
+
+    Attributes
+    ----------
+    scale : int
+        Mosaic pixels per plane pixel (2 for CFA planes, 1 for full-resolution channels).
+    offsets : dict
+        ``{channel: (row, column)}`` offset of each plane within the CFA cell, mosaic pixels.
+    full_shape : (int, int)
+        Full-resolution (H, W) in mosaic pixels.
+    """
+
+    scale: int
+    offsets: dict[str, tuple[int, int]]
+    full_shape: tuple[int, int]
+
+    @staticmethod
+    def for_planes(channels: tuple[str, ...], shape: tuple[int, int], cfa_pattern: str | None) -> PlaneGeometry:
+        h, w = shape
+        if cfa_pattern is None:
+            return PlaneGeometry(1, {c: (0, 0) for c in channels}, (h, w))
+        off = plane_offsets(cfa_pattern)
+        return PlaneGeometry(2, {c: off[c] for c in channels}, (2 * h, 2 * w))
+
+    def to_full(self, channel: str, x: np.ndarray | float, y: np.ndarray | float):
+        """Plane pixel coordinates -> full-resolution mosaic coordinates (x, y)."""
+        oy, ox = self.offsets[channel]
+        return self.scale * np.asarray(x, float) + ox, self.scale * np.asarray(y, float) + oy
+
+    def rmax_full(self, channel: str, cx: float, cy: float) -> float:
+        """Distance (mosaic px) from the plane's optical centre to the farthest image corner."""
+        fx, fy = self.to_full(channel, cx, cy)
+        hh, ww = self.full_shape
+        return float(max(np.hypot(x - fx, y - fy) for x in (0.0, ww - 1.0) for y in (0.0, hh - 1.0)))
+
+    def r2(self, channel: str, x: np.ndarray, y: np.ndarray, cx: float, cy: float) -> np.ndarray:
+        """Squared normalised radius r² of plane pixels (x, y) for the centre (cx, cy) in plane px."""
+        s = self.scale
+        rmax = self.rmax_full(channel, cx, cy)
+        return ((s * (x - cx)) ** 2 + (s * (y - cy)) ** 2) / rmax**2
+
+
+def radial_gain(r2: np.ndarray, k: tuple[float, ...] | np.ndarray) -> np.ndarray:
+    """DNG radial model g = 1 + k0 r² + k1 r⁴ + ... (Horner), r² given."""
+    g = np.zeros_like(r2, dtype=np.float64)
+    for kk in reversed(tuple(k)):
+        g = (g + kk) * r2
+    return 1.0 + g
+
+
+def _legendre_uv(geom: PlaneGeometry, channel: str, x: np.ndarray, y: np.ndarray):
+    """Plane pixels -> (u, v) in [-1, 1] across the full-resolution image."""
+    fx, fy = geom.to_full(channel, x, y)
+    hh, ww = geom.full_shape
+    return 2.0 * fx / (ww - 1.0) - 1.0, 2.0 * fy / (hh - 1.0) - 1.0
+
+
+# ---------------------------------------------------------------------------------------------
+# the model
+# ---------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class FlatModel:
+    """A fitted flat field.
+
+    Attributes
+    ----------
+    channels : tuple of str
+        Plane names, ``("R", "G1", "G2", "B")`` for RAW.
+    centre_px : dict
+        Fitted optical centre (x, y) per plane, in plane pixels (half resolution for RAW).
+    k : dict
+        DNG radial coefficients k0..k4 per plane (r normalised to the farthest corner, measured in
+        full-resolution pixels; see the module docstring).
+    model_2d : dict or None
+        Optional smooth 2-D model: ``{"kind": "legendre2d", "degree": n, "coefficients": {ch: (n+1)x(n+1)},
+        "scale": {ch: s}}``, g(u, v) = s · Σ c_ij P_i(u) P_j(v), u, v in [-1, 1] across the full-resolution image.
+        When present, :meth:`gain` uses it instead of the radial model.
+    prnu : ndarray or None
+        (C, h, w) pixel-level residual master/(A·g), mean 1 per plane (dimensionless).
+    residual_rms : dict
+        Relative RMS of the downsampled master about the active smooth model, per plane.
+    shape : (int, int)
+        (h, w) of each plane.
+    cfa_pattern : str or None
+        CFA pattern of the frames (None: channels already at full resolution).
+    level_dn : dict
+        Fitted on-axis level A per plane of the master flat, DN above dark (mean over frames).
+    prnu_rms : dict
+        Estimated PRNU (relative RMS of P, the temporal noise of the master removed), per plane.
+    info : dict
+        Provenance: frames used, downsample factor, combine method, dark model.
+    """
+
+    channels: tuple[str, ...]
+    centre_px: dict[str, tuple[float, float]]
+    k: dict[str, tuple[float, ...]]
+    model_2d: dict | None
+    prnu: np.ndarray | None
+    residual_rms: dict[str, float]
+    shape: tuple[int, int]
+    cfa_pattern: str | None = None
+    level_dn: dict[str, float] = field(default_factory=dict)
+    prnu_rms: dict[str, float] = field(default_factory=dict)
+    info: dict = field(default_factory=dict)
+
+    @property
+    def geometry(self) -> PlaneGeometry:
+        return PlaneGeometry.for_planes(self.channels, self.shape, self.cfa_pattern)
+
+    @property
+    def kind(self) -> str:
+        return "2d" if self.model_2d else "radial"
+
+    def radial_gain(self) -> np.ndarray:
+        """(C, h, w) DNG radial model per plane, 1 at each plane's optical centre."""
+        h, w = self.shape
+        yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+        geom = self.geometry
+        out = np.empty((len(self.channels), h, w), np.float32)
+        for i, c in enumerate(self.channels):
+            cx, cy = self.centre_px[c]
+            out[i] = radial_gain(geom.r2(c, xx, yy, cx, cy), self.k[c])
+        return out
+
+    def gain(self, with_prnu: bool = False) -> np.ndarray:
+        """(C, h, w) relative illumination, 1 at the optical centre (times the PRNU map when asked).
+
+        The 2-D model is used when present, else the DNG radial model.
+        """
+        if self.model_2d:
+            h, w = self.shape
+            yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+            out = np.empty((len(self.channels), h, w), np.float32)
+            for i, c in enumerate(self.channels):
+                out[i] = _eval_2d(self.model_2d, self.geometry, c, xx, yy)
+        else:
+            out = self.radial_gain()
+        if with_prnu:
+            if self.prnu is None:
+                raise CamcalError("this flat model has no PRNU map (fitted without it)")
+            out = out * self.prnu.astype(np.float32)
+        return out
+
+    def corner_gain(self) -> dict[str, float]:
+        """Smallest gain at the four plane corners, per plane."""
+        g = self.gain()
+        return {c: float(min(g[i, 0, 0], g[i, 0, -1], g[i, -1, 0], g[i, -1, -1])) for i, c in enumerate(self.channels)}
+
+    def centre_full_px(self) -> dict[str, tuple[float, float]]:
+        """Optical centre per plane in full-resolution mosaic pixels (x, y)."""
+        geom = self.geometry
+        return {c: tuple(float(v) for v in geom.to_full(c, *self.centre_px[c])) for c in self.channels}
+
+    def summary(self) -> dict:
+        """JSON-ready summary (no maps)."""
+        return {
+            "model": self.kind,
+            "channels": list(self.channels),
+            "shape": list(self.shape),
+            "cfa_pattern": self.cfa_pattern,
+            "normalisation": "gain = 1 at the optical centre (radiance refers to on-axis sensitivity)",
+            "centre_px": {c: list(v) for c, v in self.centre_px.items()},
+            "centre_full_px": {c: list(v) for c, v in self.centre_full_px().items()},
+            "k": {c: list(v) for c, v in self.k.items()},
+            "corner_gain": self.corner_gain(),
+            "residual_rms": dict(self.residual_rms),
+            "level_dn": dict(self.level_dn),
+            "prnu_rms": dict(self.prnu_rms),
+            "has_prnu": self.prnu is not None,
+            "info": dict(self.info),
+        }
+
+
+def _eval_2d(model_2d: dict, geom: PlaneGeometry, channel: str, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    from numpy.polynomial import legendre
+
+    u, v = _legendre_uv(geom, channel, x, y)
+    coef = np.asarray(model_2d["coefficients"][channel], float)
+    return float(model_2d["scale"][channel]) * legendre.legval2d(u, v, coef)
+
+
+# ---------------------------------------------------------------------------------------------
+# fitting on arrays
+# ---------------------------------------------------------------------------------------------
+def auto_downsample(shape: tuple[int, int], blocks: int = DEFAULT_BLOCKS) -> int:
+    """Block size giving about ``blocks`` blocks along the long side (at least 1)."""
+    return max(1, int(max(shape)) // blocks)
+
+
+def block_mean(plane: np.ndarray, factor: int, mask: np.ndarray | None = None):
+    """Mean of ``factor`` x ``factor`` blocks (remainder rows/columns dropped), ignoring masked pixels.
+
+    Returns
+    -------
+    mean : (hb, wb) float64 (NaN where every pixel of a block is masked)
+    x, y : (hb, wb) plane coordinates of the block centres, plane pixels
+    """
+    h, w = plane.shape
+    hb, wb = h // factor, w // factor
+    if hb < 1 or wb < 1:
+        raise CamcalError(f"downsample factor {factor} is larger than the plane ({h}x{w})")
+    a = np.asarray(plane[: hb * factor, : wb * factor], np.float64).reshape(hb, factor, wb, factor)
+    if mask is None:
+        mean = a.mean(axis=(1, 3))
+    else:
+        good = ~np.asarray(mask[: hb * factor, : wb * factor], bool).reshape(hb, factor, wb, factor)
+        n = good.sum(axis=(1, 3))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean = np.where(good, a, 0.0).sum(axis=(1, 3)) / n
+        mean[n == 0] = np.nan
+    centre = (factor - 1) / 2.0
+    y, x = np.mgrid[0:hb, 0:wb].astype(np.float64) * factor + centre
+    return mean, x, y
+
+
+def _radial_design(geom, channel, x, y, cx, cy, n_terms):
+    r2 = geom.r2(channel, x, y, cx, cy)
+    return np.stack([r2**i for i in range(n_terms + 1)], axis=-1)
+
+
+def _weighted_solve(design: np.ndarray, data: np.ndarray, weight: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    coef, *_ = np.linalg.lstsq(design * weight[:, None], data * weight, rcond=None)
+    return coef, design @ coef
+
+
+def _quadratic_vertex(x: np.ndarray, y: np.ndarray, d: np.ndarray, box: tuple[float, float, float, float]):
+    """Start for the centre: the vertex of a quadratic surface fitted to the data, kept inside the central 80 %."""
+    x_lo, x_hi, y_lo, y_hi = box
+    xm, ym, sx, sy = (x_lo + x_hi) / 2, (y_lo + y_hi) / 2, (x_hi - x_lo) / 2 or 1.0, (y_hi - y_lo) / 2 or 1.0
+    u, v = (x - xm) / sx, (y - ym) / sy
+    a = np.stack([np.ones_like(u), u, v, u * u, v * v, u * v], axis=-1)
+    c, *_ = np.linalg.lstsq(a, d, rcond=None)
+    hess = np.array([[2 * c[3], c[5]], [c[5], 2 * c[4]]])
+    try:
+        uv = np.linalg.solve(hess, -c[1:3])
+    except np.linalg.LinAlgError:
+        uv = np.zeros(2)
+    if not np.all(np.isfinite(uv)):
+        uv = np.zeros(2)
+    uv = np.clip(uv, -0.8, 0.8)
+    return xm + uv[0] * sx, ym + uv[1] * sy
+
+
+def fit_radial_plane(
+    block: np.ndarray,
+    x: np.ndarray,
+    y: np.ndarray,
+    geom: PlaneGeometry,
+    channel: str,
+    *,
+    n_terms: int = DEFAULT_TERMS,
+    centre_guess: tuple[float, float] | None = None,
+) -> tuple[float, tuple[float, float], tuple[float, ...], float]:
+    """Fit A·g(r) to one downsampled plane, optical centre free.
+
+    Variable projection: for a trial centre, (A, A·k0, ..., A·k_{n-1}) follow from a linear solve
+    weighted by 1/data (relative residuals); :func:`scipy.optimize.least_squares` moves the centre.
+
+    Returns
+    -------
+    level : A, the on-axis level (units of ``block``)
+    centre : (cx, cy) in plane pixels
+    k : k0..k4 (zeros beyond ``n_terms``)
+    rms : relative RMS residual data/model − 1 over the blocks
+    """
+    from scipy.optimize import least_squares
+
+    ok = np.isfinite(block) & (block > 0)
+    d, xs, ys = block[ok], x[ok], y[ok]
+    if d.size < 4 * (n_terms + 3):
+        raise CamcalError(f"channel {channel}: too few usable blocks ({d.size}) to fit the vignetting model")
+    wgt = 1.0 / d
+
+    def resid(p):
+        design = _radial_design(geom, channel, xs, ys, p[0], p[1], n_terms)
+        _, model = _weighted_solve(design, d, wgt)
+        return (model - d) * wgt
+
+    x_lo, x_hi, y_lo, y_hi = float(x.min()), float(x.max()), float(y.min()), float(y.max())
+    if centre_guess is None:
+        centre_guess = _quadratic_vertex(xs, ys, d, (x_lo, x_hi, y_lo, y_hi))
+    sol = least_squares(resid, np.asarray(centre_guess, float), bounds=([x_lo, y_lo], [x_hi, y_hi]),
+                        x_scale=[max(1.0, (x_hi - x_lo) / 10)] * 2, diff_step=1e-4, xtol=1e-7, ftol=1e-10)
+    cx, cy = (float(v) for v in sol.x)
+    design = _radial_design(geom, channel, xs, ys, cx, cy, n_terms)
+    coef, model = _weighted_solve(design, d, wgt)
+    level = float(coef[0])
+    if not level > 0:
+        raise CamcalError(f"channel {channel}: the vignetting fit failed (non-positive on-axis level)")
+    k = tuple(float(c / level) for c in coef[1:]) + (0.0,) * (N_RADIAL - n_terms)
+    rms = float(np.sqrt(np.mean((d / model - 1.0) ** 2)))
+    return level, (cx, cy), k, rms
+
+
+def _total_degree_mask(degree: int) -> np.ndarray:
+    """(n+1, n+1) bool: Legendre terms P_i(u) P_j(v) with i + j <= degree."""
+    i, j = np.mgrid[0 : degree + 1, 0 : degree + 1]
+    return (i + j) <= degree
+
+
+def fit_2d_plane(
+    block: np.ndarray, x: np.ndarray, y: np.ndarray, geom: PlaneGeometry, channel: str, degree: int,
+    centre: tuple[float, float],
+) -> tuple[float, np.ndarray, float, float]:
+    """Weighted linear fit of a 2-D Legendre series of total ``degree`` in u, v to one downsampled plane.
+
+    Returns (level at ``centre``, coefficients normalised so the series is 1 at ``centre``, scale 1.0,
+    relative RMS residual).
+    """
+    from numpy.polynomial import legendre
+
+    ok = np.isfinite(block) & (block > 0)
+    d = block[ok]
+    n_coef = int(_total_degree_mask(degree).sum())
+    if d.size < 2 * n_coef:
+        raise CamcalError(f"channel {channel}: too few usable blocks ({d.size}) for a degree-{degree} 2-D model; "
+                          f"lower the degree or the downsample factor")
+    u, v = _legendre_uv(geom, channel, x[ok], y[ok])
+    keep = _total_degree_mask(degree).ravel()
+    design = legendre.legvander2d(u, v, [degree, degree])[:, keep]
+    sol, model = _weighted_solve(design, d, 1.0 / d)
+    coef = np.zeros((degree + 1) ** 2)
+    coef[keep] = sol
+    coef = coef.reshape(degree + 1, degree + 1)
+    uc, vc = _legendre_uv(geom, channel, np.array(centre[0]), np.array(centre[1]))
+    level = float(legendre.legval2d(uc, vc, coef))
+    if not level > 0:
+        raise CamcalError(f"channel {channel}: the 2-D flat model is not positive at the optical centre")
+    rms = float(np.sqrt(np.mean((d / model - 1.0) ** 2)))
+    return level, coef / level, 1.0, rms
+
+
+def _check_options(model: str, n_terms: int) -> None:
+    if model not in ("radial", "2d"):
+        raise CamcalError(f"unknown flat model {model!r}; choose 'radial' or '2d'")
+    if not 1 <= n_terms <= N_RADIAL:
+        raise CamcalError(f"n_terms must be 1..{N_RADIAL}, got {n_terms}")
+
+
+def fit_flat_planes(
+    master: np.ndarray,
+    *,
+    channels: tuple[str, ...] = PLANES,
+    cfa_pattern: str | None = "RGGB",
+    model: Literal["radial", "2d"] = "radial",
+    downsample: int | None = None,
+    n_terms: int = DEFAULT_TERMS,
+    degree_2d: int = 4,
+    mask: np.ndarray | None = None,
+    with_prnu: bool = True,
+    noise_var: np.ndarray | None = None,
+    info: dict | None = None,
+) -> FlatModel:
+    """Fit the vignetting model (and PRNU) to a master flat held in memory.
+
+    Parameters
+    ----------
+    master : (C, h, w) array
+        Dark-subtracted master flat, any positive scale per channel (DN, or normalised).
+    channels : plane names in ``master`` order.
+    cfa_pattern : CFA pattern the planes came from (None: the planes are full resolution).
+    model : ``"radial"`` (DNG radial, centre free) or ``"2d"`` (Legendre series; the radial fit
+        still gives the optical centre, where the 2-D model is normalised to 1).
+    downsample : block size for the fit, plane pixels (default: ~64 blocks on the long side).
+    n_terms : radial coefficients fitted (1..5; the rest are 0).
+    degree_2d : degree in x and y of the 2-D model.
+    mask : (C, h, w) bool/uint8, True for pixels to ignore (hot pixels from the dark model).
+    with_prnu : compute the PRNU map master / (A·g), mean 1 per plane.
+    noise_var : (C, h, w) variance of ``master`` (same units squared), to remove temporal noise
+        from the PRNU RMS estimate.
+    info : provenance to store in the model.
+    """
+    master = np.asarray(master)
+    if master.ndim != 3 or master.shape[0] != len(channels):
+        raise CamcalError(f"a master flat must be ({len(channels)}, h, w), got shape {master.shape}")
+    _check_options(model, n_terms)
+    if mask is not None and mask.shape != master.shape:
+        raise CamcalError(f"defect mask has shape {mask.shape}, the flats have {master.shape}")
+    _, h, w = master.shape
+    factor = int(downsample) if downsample else auto_downsample((h, w))
+    if factor < 1:
+        raise CamcalError("downsample must be at least 1")
+    geom = PlaneGeometry.for_planes(channels, (h, w), cfa_pattern)
+    centres, ks, rms, levels, coef2d, scale2d = {}, {}, {}, {}, {}, {}
+    for i, c in enumerate(channels):
+        block, bx, by = block_mean(master[i], factor, None if mask is None else mask[i])
+        level, centre, k, r = fit_radial_plane(block, bx, by, geom, c, n_terms=n_terms)
+        centres[c], ks[c], rms[c], levels[c] = centre, k, r, level
+        if model == "2d":
+            level2, coef, scale, r2d = fit_2d_plane(block, bx, by, geom, c, degree_2d, centre)
+            levels[c], rms[c] = level2, r2d
+            coef2d[c], scale2d[c] = coef.tolist(), scale
+    model_2d = None
+    if model == "2d":
+        model_2d = {"kind": "legendre2d", "degree": int(degree_2d), "coefficients": coef2d, "scale": scale2d,
+                    "domain": "u = 2X/(W-1) - 1, v = 2Y/(H-1) - 1, (X, Y) full-resolution pixel centres"}
+    fm = FlatModel(
+        channels=tuple(channels), centre_px=centres, k=ks, model_2d=model_2d, prnu=None, residual_rms=rms,
+        shape=(h, w), cfa_pattern=cfa_pattern, level_dn=levels,
+        info={"downsample": factor, "n_terms": n_terms, **(info or {})},
+    )
+    if not with_prnu:
+        return fm
+    smooth = fm.gain().astype(np.float64) * np.array([levels[c] for c in channels])[:, None, None]
+    prnu = master / smooth
+    prnu_rms = {}
+    for i, c in enumerate(channels):
+        good = np.isfinite(prnu[i]) & (smooth[i] > 0)
+        if mask is not None:
+            good &= ~mask[i].astype(bool)
+        mean = float(np.mean(prnu[i][good]))
+        prnu[i] /= mean
+        prnu[i][~good] = 1.0
+        var = float(np.var(prnu[i][good]))
+        if noise_var is not None:
+            var -= float(np.mean((noise_var[i] / smooth[i] ** 2 / mean**2)[good]))
+        prnu_rms[c] = float(np.sqrt(max(var, 0.0)))
+    return dataclasses.replace(fm, prnu=prnu.astype(np.float32), prnu_rms=prnu_rms)
+
+
+# ---------------------------------------------------------------------------------------------
+# applying
+# ---------------------------------------------------------------------------------------------
+def correct_flat(planes: np.ndarray, model: FlatModel, with_prnu: bool = False) -> np.ndarray:
+    """Divide dark-subtracted planes by the flat-field gain (1 at the optical centre).
+
+    Parameters
+    ----------
+    planes : (C, h, w) DN above dark (subtract bias/dark first), channels as in ``model.channels``.
+    model : the fitted :class:`FlatModel`.
+    with_prnu : also divide by the PRNU map.
+
+    Returns
+    -------
+    (C, h, w) float32: the signal the pixel would have at the optical centre.
+    """
+    planes = np.asarray(planes)
+    want = (len(model.channels), *model.shape)
+    if planes.shape != want:
+        raise CamcalError(f"frame planes have shape {planes.shape}, the flat model is for {want} "
+                          f"(a different camera, crop or resolution)")
+    return (planes / model.gain(with_prnu=with_prnu)).astype(np.float32)
+
+
+# ---------------------------------------------------------------------------------------------
+# from files: checks, master flat, fit
+# ---------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class FlatChecks:
+    """Exposure limits for flat frames.
+
+    Attributes
+    ----------
+    max_clipped_fraction : float
+        Largest fraction of pixels at or above the white level (saturated) a flat may have.
+    min_level : float
+        Smallest median signal of the weakest plane, as a fraction of the range white − black.
+        Below it the flat is too dark for a useful SNR (5 % of a 14-bit range is ~800 DN,
+        a shot-noise SNR of ~35 per pixel and frame at 1.6 e-/DN).
+    max_level : float
+        Largest median signal of the brightest plane (fraction of the range); above it the
+        bright centre risks the non-linear top of the sensor's range.
+    """
+
+    max_clipped_fraction: float = 1e-4
+    min_level: float = 0.05
+    max_level: float = 0.95
+
+
+def check_flat_frame(frame: Frame, checks: FlatChecks = FlatChecks(),  # noqa: B008
+                     shape: tuple[int, int] | None = None, reference: str | None = None) -> None:
+    """Raise a one-line :class:`CamcalError` when a flat frame is unusable.
+
+    Checks: RAW (a JPEG's tone curve breaks the flat), same size as ``shape`` (the first flat),
+    not saturated, not too dark, not too bright.
+    """
+    path = frame.path
+    if frame.kind != "raw":
+        raise CamcalError("flat fields must be RAW frames (a processed image's tone curve distorts the falloff)",
+                          path)
+    if shape is not None and frame.shape != tuple(shape):
+        ref = f" of {reference}" if reference else ""
+        raise CamcalError(f"is {frame.shape[1]}x{frame.shape[0]} pixels but the flats{ref} are "
+                          f"{shape[1]}x{shape[0]}: mismatched sizes (one camera, one mode)", path)
+    white = float(frame.white_level_dn)
+    clipped = float(np.mean(frame.data >= white))
+    if clipped > checks.max_clipped_fraction:
+        raise CamcalError(f"flat is saturated: {100 * clipped:.3g} % of pixels at the white level ({white:g} DN); "
+                          f"shorten the exposure or dim the source", path)
+    planes = frame.planes()
+    black = frame.black_vector()
+    med = np.median((planes - black).reshape(planes.shape[0], -1), axis=1)
+    span = white - black.ravel()
+    frac = med / span
+    lo = int(np.argmin(frac))
+    if frac[lo] < checks.min_level:
+        raise CamcalError(
+            f"flat is too dark for a useful SNR: plane {frame.channel_names[lo]} median {med[lo]:.0f} DN above black "
+            f"is {100 * frac[lo]:.2g} % of the range (need {100 * checks.min_level:g} %); lengthen the exposure", path)
+    hi = int(np.argmax(frac))
+    if frac[hi] > checks.max_level:
+        raise CamcalError(
+            f"flat is over-exposed: plane {frame.channel_names[hi]} median is {100 * frac[hi]:.3g} % of the range "
+            f"(limit {100 * checks.max_level:g} %); shorten the exposure", path)
+
+
+@dataclass(frozen=True)
+class MasterFlat:
+    """A combined, dark-subtracted flat, normalised per channel.
+
+    Attributes
+    ----------
+    value : (C, h, w) float32, each frame's dark-subtracted planes divided by their per-plane median,
+        then combined: median ≈ 1 per plane (dimensionless).
+    variance_of_mean : (C, h, w) float32, temporal variance of ``value`` divided by the frame count.
+    level_dn : per-plane median signal of the first frame, DN above dark (the frames are checked to be
+        well exposed; the master itself is normalised).
+    n_frames, paths, channels, cfa_pattern, method, exposure_s (per frame).
+    """
+
+    value: np.ndarray
+    variance_of_mean: np.ndarray | None
+    level_dn: dict[str, float]
+    n_frames: int
+    paths: tuple[Path, ...]
+    channels: tuple[str, ...]
+    cfa_pattern: str | None
+    method: str
+    exposure_s: tuple[float | None, ...]
+
+
+def _resolve_dark(dark):
+    if dark is None:
+        return None
+    if isinstance(dark, str | Path):
+        from camcal.dark import load_dark
+
+        return load_dark(dark)
+    return dark
+
+
+def master_flat(
+    flat_folder: str | Path,
+    dark=None,
+    *,
+    method: str = "sigma_clip",
+    sigma: float = 3.0,
+    checks: FlatChecks = FlatChecks(),  # noqa: B008
+    jobs: int = 1,
+    progress: Callable | None = None,
+) -> MasterFlat:
+    """Dark-subtract, normalise and combine every flat of a folder (streaming, :mod:`camcal.stack`).
+
+    Each frame's planes minus the dark model's expected bias + dark (or, without a dark model, the
+    file's black level) are divided by their per-plane median so lamp drift between frames does not
+    bias the combine; the combined master is thus normalised per channel (median ≈ 1).
+    """
+    from camcal.io import folder_manifest, list_frames, load_folder_frame
+    from camcal.stack import combine_folder
+
+    folder = Path(flat_folder)
+    dark_model = _resolve_dark(dark)
+    paths = list_frames(folder)
+    if not paths:
+        raise CamcalError("holds no image files", folder)
+    manifest = folder_manifest(folder)
+    first = load_folder_frame(paths[0], manifest)
+    check_flat_frame(first, checks)
+    ref_shape = first.shape
+    plane_shape = (ref_shape[0] // 2, ref_shape[1] // 2)
+    if dark_model is not None:
+        dshape = tuple(np.asarray(dark_model.bias_dn).shape)
+        if dshape[-2:] != plane_shape:
+            raise CamcalError(f"the dark model is for {dshape[-1]}x{dshape[-2]} planes but the flats have "
+                              f"{plane_shape[1]}x{plane_shape[0]} planes: mismatched sizes", paths[0])
+        dpat = getattr(dark_model, "cfa_pattern", None)
+        if dpat and first.cfa_pattern and dpat != first.cfa_pattern:
+            raise CamcalError(f"the dark model is for CFA pattern {dpat} but the flats are {first.cfa_pattern}",
+                              paths[0])
+
+    def check(frame: Frame) -> None:
+        check_flat_frame(frame, checks, shape=ref_shape, reference=paths[0].name)
+
+    def preprocess(frame: Frame) -> np.ndarray:
+        planes = frame.planes(np.float32)
+        if dark_model is not None:
+            from camcal.dark import subtract_dark
+
+            t = frame.exposure.require("exposure_s", frame.path)
+            planes = subtract_dark(planes, dark_model, t, frame.exposure.iso)
+        else:
+            planes = planes - frame.black_vector().astype(np.float32)
+        med = np.median(planes.reshape(planes.shape[0], -1), axis=1)
+        if np.any(med <= 0):
+            raise CamcalError("flat has no signal above dark in some plane", frame.path)
+        return (planes / med[:, None, None]).astype(np.float32)
+
+    res = combine_folder(folder, method=method, sigma=sigma, preprocess=preprocess, manifest=manifest, check=check,
+                         jobs=jobs, progress=progress)
+    # per-plane level in DN: recomputed from the first frame (the check guarantees all are similar)
+    fp = first.planes(np.float32)
+    if dark_model is not None:
+        from camcal.dark import subtract_dark
+
+        fp = subtract_dark(fp, dark_model, first.exposure.require("exposure_s", first.path), first.exposure.iso)
+    else:
+        fp = fp - first.black_vector().astype(np.float32)
+    level = {c: float(np.median(fp[i])) for i, c in enumerate(first.channel_names)}
+    var = None
+    if getattr(res, "variance", None) is not None and res.n_frames > 1:
+        var = (np.asarray(res.variance, np.float32) / np.maximum(np.asarray(res.count, np.float32), 1.0))
+    return MasterFlat(
+        value=np.asarray(res.value, np.float32), variance_of_mean=var, level_dn=level, n_frames=int(res.n_frames),
+        paths=tuple(Path(p) for p in res.paths), channels=tuple(res.channel_names), cfa_pattern=first.cfa_pattern,
+        method=str(res.method), exposure_s=tuple(e.exposure_s for e in res.exposures),
+    )
+
+
+def fit_flat(
+    flat_folder: str | Path,
+    dark=None,
+    *,
+    model: Literal["radial", "2d"] = "radial",
+    downsample: int | None = None,
+    n_terms: int = DEFAULT_TERMS,
+    degree_2d: int = 4,
+    with_prnu: bool = True,
+    method: str = "sigma_clip",
+    sigma: float = 3.0,
+    checks: FlatChecks = FlatChecks(),  # noqa: B008
+    jobs: int = 1,
+    progress: Callable | None = None,
+) -> FlatModel:
+    """Master flat of a folder, then the vignetting model and PRNU (see :func:`fit_flat_planes`).
+
+    Parameters
+    ----------
+    flat_folder : folder of RAW flat frames (+ optional ``frames.csv``).
+    dark : a ``camcal.dark.DarkModel``, a path to a dark model JSON, or None (subtract the
+        files' black level only).
+    model, downsample, n_terms, degree_2d, with_prnu : see :func:`fit_flat_planes`.
+    method, sigma : combine method (``mean``, ``median``, ``sigma_clip``) and clip threshold.
+    checks : exposure limits (:class:`FlatChecks`).
+    jobs, progress : passed to :func:`camcal.stack.combine_frames`.
+    """
+    _check_options(model, n_terms)
+    dark_model = _resolve_dark(dark)
+    mf = master_flat(flat_folder, dark_model, method=method, sigma=sigma, checks=checks, jobs=jobs,
+                     progress=progress)
+    return fit_master(mf, dark_model, model=model, downsample=downsample, n_terms=n_terms, degree_2d=degree_2d,
+                      with_prnu=with_prnu)
+
+
+def fit_master(
+    mf: MasterFlat,
+    dark_model=None,
+    *,
+    model: Literal["radial", "2d"] = "radial",
+    downsample: int | None = None,
+    n_terms: int = DEFAULT_TERMS,
+    degree_2d: int = 4,
+    with_prnu: bool = True,
+) -> FlatModel:
+    """Fit a :class:`MasterFlat` (hot pixels of ``dark_model.defects`` masked); levels reported in DN."""
+    mask = None
+    if dark_model is not None and getattr(dark_model, "defects", None) is not None:
+        mask = np.asarray(dark_model.defects).astype(bool)
+        if mask.shape != mf.value.shape:
+            raise CamcalError(f"the dark model's defect map has shape {mask.shape}, the flats {mf.value.shape}: "
+                              f"mismatched sizes")
+    info = {
+        "n_frames": mf.n_frames,
+        "files": [p.name for p in mf.paths],
+        "combine": mf.method,
+        "dark": "dark model" if dark_model is not None else "black level only",
+        "exposure_s": list(mf.exposure_s),
+        "flat_level_dn": mf.level_dn,
+    }
+    fm = fit_flat_planes(mf.value, channels=mf.channels, cfa_pattern=mf.cfa_pattern, model=model,
+                         downsample=downsample, n_terms=n_terms, degree_2d=degree_2d, mask=mask, with_prnu=with_prnu,
+                         noise_var=mf.variance_of_mean, info=info)
+    # the master is normalised per plane: report the on-axis level in DN of the frames
+    level_dn = {c: fm.level_dn[c] * mf.level_dn[c] for c in fm.channels}
+    return dataclasses.replace(fm, level_dn=level_dn)
+
+
+def run_flat_stage(
+    flat_folder: str | Path,
+    output: str | Path,
+    dark=None,
+    *,
+    png: str | Path | None = None,
+    **kwargs,
+) -> tuple[FlatModel, Path, Path]:
+    """The ``camcal flat`` stage: master flat, fit, ``output`` JSON + maps EXR, falloff PNG.
+
+    ``kwargs`` go to :func:`master_flat` (method, sigma, checks, jobs, progress) and
+    :func:`fit_master` (model, downsample, n_terms, degree_2d, with_prnu). ``png`` defaults to
+    ``<output stem>.falloff.png``. Returns (model, JSON path, PNG path).
+    """
+    output = Path(output)
+    if output.suffix.lower() != ".json":
+        raise CamcalError("the flat model output must be a .json file", output)
+    png = Path(png) if png is not None else output.with_name(output.stem + ".falloff.png")
+    mkeys = {"method", "sigma", "checks", "jobs", "progress"}
+    _check_options(kwargs.get("model", "radial"), kwargs.get("n_terms", DEFAULT_TERMS))
+    dark_model = _resolve_dark(dark)
+    mf = master_flat(flat_folder, dark_model, **{k: v for k, v in kwargs.items() if k in mkeys})
+    fm = fit_master(mf, dark_model, **{k: v for k, v in kwargs.items() if k not in mkeys})
+    path = save_flat(fm, output)
+    plot_falloff(fm, png, master=mf.value)
+    return fm, path, png
+
+
+# ---------------------------------------------------------------------------------------------
+# saving and loading
+# ---------------------------------------------------------------------------------------------
+def save_flat(model: FlatModel, path: str | Path) -> Path:
+    """Write ``path`` (JSON) and ``<stem>.maps.exr`` with ``gain.<ch>`` and ``prnu.<ch>`` maps."""
+    from camcal.store import save_stage
+
+    data = model.summary()
+    data["model_2d"] = model.model_2d
+    gain = model.gain()
+    maps = {f"gain.{c}": gain[i] for i, c in enumerate(model.channels)}
+    if model.prnu is not None:
+        maps.update({f"prnu.{c}": model.prnu[i] for i, c in enumerate(model.channels)})
+    return save_stage(path, "flat", data, maps)
+
+
+def load_flat(path: str | Path) -> FlatModel:
+    """Read a flat model written by :func:`save_flat`."""
+    from camcal.store import load_stage
+
+    data, maps = load_stage(path, "flat")
+    try:
+        channels = tuple(data["channels"])
+        shape = (int(data["shape"][0]), int(data["shape"][1]))
+        centre = {c: (float(data["centre_px"][c][0]), float(data["centre_px"][c][1])) for c in channels}
+        k = {c: tuple(float(v) for v in data["k"][c]) for c in channels}
+        rms = {c: float(data["residual_rms"][c]) for c in channels}
+        prnu = None
+        if data.get("has_prnu"):
+            prnu = np.stack([np.asarray(maps[f"prnu.{c}"], np.float32) for c in channels])
+            if prnu.shape[1:] != shape:
+                raise ValueError("PRNU maps do not match the recorded shape")
+        return FlatModel(
+            channels=channels, centre_px=centre, k=k, model_2d=data.get("model_2d"), prnu=prnu, residual_rms=rms,
+            shape=shape, cfa_pattern=data.get("cfa_pattern"),
+            level_dn={c: float(v) for c, v in (data.get("level_dn") or {}).items()},
+            prnu_rms={c: float(v) for c, v in (data.get("prnu_rms") or {}).items()},
+            info=dict(data.get("info") or {}),
+        )
+    except (KeyError, TypeError, ValueError, IndexError) as exc:
+        raise CamcalError(f"not a valid camcal flat file ({type(exc).__name__}: {exc})", path) from None
+
+
+# ---------------------------------------------------------------------------------------------
+# plot
+# ---------------------------------------------------------------------------------------------
+def plot_falloff(model: FlatModel, path: str | Path, master: np.ndarray | None = None) -> Path:
+    """PNG of the fitted falloff: gain against radius per plane (and the data when given), and a map.
+
+    Parameters
+    ----------
+    model : the fitted model.
+    path : output ``.png`` (written atomically).
+    master : optional (C, h, w) master flat (any scale) to overlay as block means.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from camcal.atomic import atomic_path
+
+    colours = {"R": "tab:red", "G1": "tab:green", "G2": "darkgreen", "B": "tab:blue", "G": "tab:green"}
+    gain = model.gain()
+    geom = model.geometry
+    h, w = model.shape
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.5), constrained_layout=True)
+    r = np.linspace(0.0, 1.0, 200)
+    factor = auto_downsample((h, w), 48)
+    for i, c in enumerate(model.channels):
+        col = colours.get(c, None)
+        ax1.plot(r, radial_gain(r**2, model.k[c]), color=col, label=f"{c} (corner {model.corner_gain()[c]:.3f})")
+        if master is not None:
+            block, bx, by = block_mean(np.asarray(master[i], float), factor)
+            cx, cy = model.centre_px[c]
+            rr = np.sqrt(geom.r2(c, bx, by, cx, cy)).ravel()
+            # the master is on any scale: divide by its level at the optical centre
+            scale = float(np.nanmedian(np.asarray(master[i], float) / np.maximum(gain[i], 1e-6)))
+            ax1.plot(rr, block.ravel() / scale, ".", ms=2, color=col, alpha=0.35)
+    ax1.set_xlabel("r (distance from optical centre / distance to farthest corner)")
+    ax1.set_ylabel("relative illumination g (1 at optical centre)")
+    ax1.set_title("Fitted vignetting (DNG radial model)")
+    ax1.grid(alpha=0.3)
+    ax1.legend(fontsize=8)
+    gi = 1 if len(model.channels) > 1 else 0
+    im = ax2.imshow(gain[gi], origin="upper", cmap="viridis")
+    for c in model.channels:
+        cx, cy = model.centre_px[c]
+        ax2.plot(cx, cy, "+", color=colours.get(c, "w"), ms=10)
+    ax2.set_title(f"gain, plane {model.channels[gi]} ({model.kind} model); + optical centres")
+    ax2.set_xlabel("x (plane px)")
+    ax2.set_ylabel("y (plane px)")
+    fig.colorbar(im, ax=ax2, shrink=0.8)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)
+    return Path(path)

@@ -1,0 +1,924 @@
+"""Linearity and response: gain α, gamma γ and offset β per channel (seed eq. 12), RAW and JPEG.
+
+Seed eq. 12 models the value of channel i as
+
+    g_i = α_i · x^γ_i + β_i
+
+with x the exposure ISO·t/N² relative to a reference setting, i.e. the
+exposure time in seconds *at the reference ISO and f-number*
+(:func:`camcal.exposure.relative_exposure`, seed §2.1). RAW data give γ ≈ 1
+and β = black level + dark signal; a JPEG encoded for a 2.2 display gives
+γ ≈ 1/2.2. The seed's integral of radiance × sensitivity is constant for a
+constant source, so an exposure series of one source measures the response
+curve g(x).
+
+What this module does, per kind of file present in a folder (``raw`` planes
+R, G1, G2, B; ``processed`` channels R, G, B):
+
+1. the mean and its standard error in a central region of interest (ROI) of
+   every frame and channel (:func:`measure_series`); optional dark-frame
+   subtraction from a dark model (RAW only);
+2. saturation: a frame is saturated in a channel when more than 0.1 % of its
+   ROI pixels sit at the white level; the top points are also trimmed while
+   they fall below the fit by more than 1 % (full-well compression);
+3. a weighted least-squares fit of eq. 12 (``scipy.optimize.curve_fit``,
+   weights from the ROI standard error, uncertainties scaled by the reduced
+   χ² when it exceeds 1);
+4. the EMVA 1288 linearity error (release 3.1 / 4.0, §6.x "Linearity"):
+   a straight line μ = a·x + b fitted minimising the *relative* deviations over
+   the points between 5 % and 95 % of the saturation signal,
+   δ_i = 100 (μ_i − (a x_i + b)) / (a x_i + b) %, and LE = (max δ − min δ)/2;
+   and the Pearson correlation r of g with x (SPECTACLE, Burggraaff et al. 2019,
+   counts r ≥ 0.98 as linear);
+5. JPEG: the sRGB transfer-function form with a free exponent p
+   (IEC 61966-2-1 with 1/2.4 replaced by p; offset a = 0.055; linear toe
+   tangent from the origin), V = (1 + a)(x/x_w)^p − a, V = g/W; the better of
+   the two forms (eq. 12 or sRGB) is inverted by :meth:`ResponseModel.linearise`.
+
+Note: above the toe the sRGB form *is* eq. 12 with β = −a·W, so for an sRGB
+JPEG eq. 12's γ is the sRGB exponent 1/2.4 (not 1/2.2, which is only the
+"effective" gamma of the whole curve).
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+
+from camcal.errors import CamcalError
+from camcal.exposure import relative_exposure
+from camcal.frame import PLANES, Frame, split_planes
+
+DEFAULT_ROI_FRACTION = 0.10
+"""Default ROI: a centred window holding this fraction of each plane's area."""
+
+SATURATED_PIXEL_FRACTION = 1e-3
+"""A frame is saturated in a channel when more than this fraction of ROI pixels is clipped."""
+
+COMPRESSION_TOLERANCE = 0.01
+"""Top points falling below the fit by more than this relative amount (and 5 σ) are excluded."""
+
+SRGB_OFFSET_A = 0.055
+"""Offset a of the sRGB transfer-function form (IEC 61966-2-1)."""
+
+RESPONSE_KIND = "response"
+"""Stage kind in the JSON written by :func:`save_response`."""
+
+MIN_EXPOSURES = 3
+
+
+class DarkFrameModel(Protocol):
+    """What :func:`fit_response` needs of a dark model (``camcal.dark.DarkModel``).
+
+    ``dark_frame_dn(exposure_s, iso)`` returns the complete expected dark frame
+    in DN (bias + dark current × t), as (4, h, w) planes in R, G1, G2, B order,
+    a dict of plane name -> (h, w) map, or the (H, W) mosaic.
+    """
+
+    def dark_frame_dn(self, exposure_s: float, iso: float) -> Any: ...
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# data classes
+# ---------------------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ChannelResponse:
+    """One channel of seed eq. 12: g = alpha · x**gamma + beta.
+
+    Attributes
+    ----------
+    alpha, alpha_unc : float
+        Gain α and its standard uncertainty, DN s^-γ (x in s at the reference setting).
+        For RAW (γ ≈ 1) this is the DN rate, DN s^-1.
+    gamma, gamma_unc : float
+        Exponent γ (dimensionless).
+    beta, beta_unc : float
+        Offset β in DN: black level + dark signal for RAW without a dark model,
+        ≈ 0 after dark subtraction; ≈ 0 (power law) or −0.055·W (sRGB) for JPEG.
+    linear_range_dn : (float, float)
+        Lowest and highest ROI mean (DN, as fitted) of the points the fit used:
+        the range over which eq. 12 describes the channel (unsaturated, uncompressed).
+    saturation_dn : float
+        Clipping level in DN: the largest ROI value seen when frames saturated,
+        else the file's white level.
+    linearity_error_pct : float
+        EMVA 1288 linearity error of g − β against x, percent (module docstring).
+    pearson_r : float
+        Pearson correlation of g with x over the fitted points.
+    rate_dn_per_s, rate_dn_per_s_unc, offset_dn : float
+        RAW only (NaN otherwise): the straight-line fit g = rate·x + offset (γ fixed to 1) over
+        the same points. Because x is in seconds (~1e-5 s), α = A·x0^-γ moves by −ln(x0)·Δγ ≈ 10·Δγ
+        relative when γ moves, so the DN rate of a linear sensor is this constrained fit's slope,
+        not α; :meth:`ResponseModel.linearise` and ``linear_gain_dn_per_s`` use it.
+    """
+
+    alpha: float
+    alpha_unc: float
+    gamma: float
+    gamma_unc: float
+    beta: float
+    beta_unc: float
+    linear_range_dn: tuple[float, float]
+    saturation_dn: float
+    linearity_error_pct: float
+    pearson_r: float
+    rate_dn_per_s: float = float("nan")
+    rate_dn_per_s_unc: float = float("nan")
+    offset_dn: float = float("nan")
+
+    def predict(self, x_s: np.ndarray | float) -> np.ndarray:
+        """g(x) of eq. 12 for relative exposure ``x_s`` (s)."""
+        return self.alpha * np.power(np.asarray(x_s, float), self.gamma) + self.beta
+
+
+@dataclass(frozen=True)
+class ExposureSeries:
+    """ROI statistics of one kind of frame across an exposure series.
+
+    Arrays have shape (n,) per frame or (n, C) per frame and channel, frames
+    sorted by relative exposure.
+
+    Attributes
+    ----------
+    kind : "raw" or "processed"
+    channels : channel names (R, G1, G2, B or R, G, B)
+    files : file names
+    x_s : relative exposure, s at the reference setting
+    exposure_s, iso, f_number : the frames' settings
+    mean_dn, sem_dn : ROI mean and its standard error, DN (after dark subtraction when a dark model was given)
+    clipped_fraction : fraction of ROI pixels at or above the white level
+    max_dn : largest ROI value, DN (before dark subtraction)
+    white_level_dn : the file's white level, DN
+    black_level_dn : black level per channel from the file's metadata, DN
+    dark_subtracted : whether a dark model was subtracted
+    roi : (y0, y1, x0, x1) fractions of the plane
+    """
+
+    kind: str
+    channels: tuple[str, ...]
+    files: tuple[str, ...]
+    x_s: np.ndarray
+    exposure_s: np.ndarray
+    iso: np.ndarray
+    f_number: np.ndarray
+    mean_dn: np.ndarray
+    sem_dn: np.ndarray
+    clipped_fraction: np.ndarray
+    max_dn: np.ndarray
+    white_level_dn: float
+    black_level_dn: np.ndarray
+    reference_iso: float
+    reference_f_number: float
+    dark_subtracted: bool = False
+    roi: tuple[float, float, float, float] = (0.0, 1.0, 0.0, 1.0)
+    folder: str | None = None
+
+
+@dataclass(frozen=True)
+class ResponseModel:
+    """The response of every channel of one kind of file.
+
+    Attributes
+    ----------
+    kind : "raw" or "processed" (JPEG/TIFF/PNG)
+    channels : {name: ChannelResponse}; raw: R, G1, G2, B; processed: R, G, B
+    reference_iso, reference_f_number : the setting x refers to
+    tone : processed only: per channel the fitted sRGB-form transfer function with
+        free exponent, the chosen inverse (``"srgb"`` or ``"eq12"``) and the linear
+        gain (DN s^-1) of the linearised values; None for raw.
+    white_level_dn : the files' white level, DN
+    dark_subtracted : whether a dark model was subtracted before the fit (raw)
+    points : per channel the measured series (x_s, mean_dn, sem_dn, used, saturated, files)
+    """
+
+    kind: str
+    channels: dict[str, ChannelResponse]
+    reference_iso: float
+    reference_f_number: float
+    tone: dict | None = None
+    white_level_dn: float = float("nan")
+    dark_subtracted: bool = False
+    roi: tuple[float, float, float, float] = (0.0, 1.0, 0.0, 1.0)
+    points: dict = field(default_factory=dict)
+
+    # -- use -----------------------------------------------------------------------------------------------------
+    def linear_gain_dn_per_s(self, channel: str) -> float:
+        """The constant ratio ``linearise(g) / x`` of a channel, DN s^-1 at the reference setting.
+
+        RAW: the slope of the γ = 1 fit (α when absent). Processed: W / x_w, the linear DN rate of the
+        de-toned values (W the white level, x_w the exposure reaching white).
+        """
+        if self.kind == "raw":
+            ch = self.channels[channel]
+            return float(ch.rate_dn_per_s if math.isfinite(ch.rate_dn_per_s) else ch.alpha)
+        return float(self.tone["channels"][channel]["linear_gain_dn_per_s"])  # type: ignore[index]
+
+    def linearise(self, values: np.ndarray, channel_axis: int = 0) -> np.ndarray:
+        """Pixel values -> linear signal proportional to exposure.
+
+        Parameters
+        ----------
+        values : array with the channels along ``channel_axis`` (4 for raw in R, G1, G2, B order,
+            3 for processed in R, G, B order), DN as in the files.
+        channel_axis : axis holding the channels.
+
+        Returns
+        -------
+        float64 array of the same shape.
+        RAW: ``values − offset`` (DN above the offset of the γ = 1 fit, ≈ β; when the model was fitted
+        after dark subtraction, subtract the dark frame first). The RAW γ is a
+        diagnostic: the sensor is linear and its value is within 0.5 % of 1.
+        Processed: the inverse of the chosen tone curve, in linear DN on the file's
+        scale (0…W): ``W · x / x_w``, so that ``result / x`` is the constant
+        :meth:`linear_gain_dn_per_s`. Values below the curve's offset map to 0.
+        """
+        v = np.asarray(values, dtype=np.float64)
+        names = list(self.channels)
+        v = np.moveaxis(v, channel_axis, 0)
+        if v.shape[0] != len(names):
+            raise CamcalError(
+                f"{self.kind} response has {len(names)} channels ({', '.join(names)}); "
+                f"values have {v.shape[0]} along axis {channel_axis}"
+            )
+        out = np.empty_like(v)
+        for k, name in enumerate(names):
+            ch = self.channels[name]
+            if self.kind == "raw":
+                out[k] = v[k] - (ch.offset_dn if math.isfinite(ch.offset_dn) else ch.beta)
+            else:
+                out[k] = _detone(v[k], ch, self.tone["channels"][name], self.white_level_dn)  # type: ignore[index]
+        return np.moveaxis(out, 0, channel_axis)
+
+    def summary(self) -> dict:
+        """JSON-ready summary: per channel α, γ, β with uncertainties, ranges, LE, r; tone fit."""
+        chans = {}
+        for name, ch in self.channels.items():
+            rec = asdict(ch)
+            rec["linear_range_dn"] = list(ch.linear_range_dn)
+            rec["linear_pearson_r_ok"] = bool(ch.pearson_r >= 0.98)
+            chans[name] = rec
+        out = {
+            "kind": self.kind,
+            "equation": "g = alpha * x**gamma + beta (seed eq. 12), x = ISO*t/N^2 relative to the reference, s",
+            "reference_iso": self.reference_iso,
+            "reference_f_number": self.reference_f_number,
+            "white_level_dn": self.white_level_dn,
+            "dark_subtracted": self.dark_subtracted,
+            "channels": chans,
+        }
+        if self.tone is not None:
+            out["tone"] = self.tone
+        return out
+
+    def to_dict(self) -> dict:
+        """Everything, JSON-ready (see :func:`save_response`)."""
+        d = self.summary()
+        d["roi"] = list(self.roi)
+        d["points"] = self.points
+        return d
+
+    @staticmethod
+    def from_dict(d: dict) -> ResponseModel:
+        """Inverse of :meth:`to_dict`."""
+
+        def num(v) -> float:
+            return float("nan") if v is None else float(v)
+
+        try:
+            channels = {}
+            for name, rec in d["channels"].items():
+                channels[name] = ChannelResponse(
+                    alpha=num(rec["alpha"]), alpha_unc=num(rec["alpha_unc"]), gamma=num(rec["gamma"]),
+                    gamma_unc=num(rec["gamma_unc"]), beta=num(rec["beta"]), beta_unc=num(rec["beta_unc"]),
+                    linear_range_dn=(num(rec["linear_range_dn"][0]), num(rec["linear_range_dn"][1])),
+                    saturation_dn=num(rec["saturation_dn"]), linearity_error_pct=num(rec["linearity_error_pct"]),
+                    pearson_r=num(rec["pearson_r"]), rate_dn_per_s=num(rec.get("rate_dn_per_s")),
+                    rate_dn_per_s_unc=num(rec.get("rate_dn_per_s_unc")), offset_dn=num(rec.get("offset_dn")),
+                )
+            return ResponseModel(
+                kind=str(d["kind"]), channels=channels, reference_iso=num(d["reference_iso"]),
+                reference_f_number=num(d["reference_f_number"]), tone=d.get("tone"),
+                white_level_dn=num(d.get("white_level_dn")), dark_subtracted=bool(d.get("dark_subtracted", False)),
+                roi=tuple(d.get("roi", (0.0, 1.0, 0.0, 1.0))), points=d.get("points") or {},
+            )
+        except (KeyError, TypeError, ValueError, IndexError) as exc:
+            raise CamcalError(f"malformed response model ({type(exc).__name__}: {exc})") from None
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# measuring the series
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def roi_window(roi: float | tuple[float, float, float, float] | None) -> tuple[float, float, float, float]:
+    """ROI as fractions (y0, y1, x0, x1) of a plane.
+
+    ``None`` -> central window holding :data:`DEFAULT_ROI_FRACTION` of the area;
+    a float f in (0, 1] -> central window holding f of the area (side √f);
+    a 4-tuple -> taken as (y0, y1, x0, x1) fractions.
+    """
+    if roi is None:
+        roi = DEFAULT_ROI_FRACTION
+    if isinstance(roi, int | float):
+        f = float(roi)
+        if not 0.0 < f <= 1.0:
+            raise CamcalError(f"ROI fraction must be in (0, 1], got {f}")
+        s = math.sqrt(f)
+        return (0.5 - s / 2, 0.5 + s / 2, 0.5 - s / 2, 0.5 + s / 2)
+    try:
+        y0, y1, x0, x1 = (float(v) for v in roi)
+    except (TypeError, ValueError):
+        raise CamcalError(f"ROI must be a fraction or (y0, y1, x0, x1) fractions, got {roi!r}") from None
+    if not (0.0 <= y0 < y1 <= 1.0 and 0.0 <= x0 < x1 <= 1.0):
+        raise CamcalError(f"ROI (y0, y1, x0, x1) = {roi!r} must satisfy 0 <= y0 < y1 <= 1 and 0 <= x0 < x1 <= 1")
+    return (y0, y1, x0, x1)
+
+
+def roi_slices(shape: tuple[int, int], roi: tuple[float, float, float, float]) -> tuple[slice, slice]:
+    h, w = shape
+    y0, y1 = int(round(roi[0] * h)), int(round(roi[1] * h))
+    x0, x1 = int(round(roi[2] * w)), int(round(roi[3] * w))
+    y1, x1 = max(y1, y0 + 1), max(x1, x0 + 1)
+    return slice(y0, min(y1, h)), slice(x0, min(x1, w))
+
+
+def _dark_planes(dark: DarkFrameModel, frame: Frame, exposure_s: float, iso: float) -> np.ndarray:
+    """The dark model's frame for this exposure as (4, h, w) planes."""
+    try:
+        d = dark.dark_frame_dn(exposure_s, iso)
+    except CamcalError:
+        raise
+    except Exception as exc:  # a third-party model: report, do not crash
+        raise CamcalError(f"the dark model failed for t = {exposure_s} s, ISO {iso}: {exc}", frame.path) from None
+    if isinstance(d, dict):
+        d = np.stack([np.asarray(d[n], float) for n in PLANES])
+    d = np.asarray(d, dtype=np.float64)
+    h, w = frame.shape
+    if d.shape == (h, w):
+        d = split_planes(d, frame.cfa_pattern, dtype=np.float64)
+    if d.ndim == 0:
+        d = np.full((4, h // 2, w // 2), float(d))
+    if d.shape != (4, h // 2, w // 2):
+        raise CamcalError(f"the dark model's frame has shape {d.shape}, this frame's planes are {(4, h // 2, w // 2)}",
+                          frame.path)
+    return d
+
+
+def measure_series(
+    folder: str | Path,
+    *,
+    roi: float | tuple[float, float, float, float] | None = None,
+    dark: DarkFrameModel | None = None,
+    reference_iso: float | None = None,
+    reference_f_number: float | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> dict[str, ExposureSeries]:
+    """ROI statistics of every frame of an exposure-series folder, grouped by kind.
+
+    Frames are read one at a time (memory does not grow with their number).
+    Without an explicit reference, the most common ISO and f-number of the
+    series are used (ties: the smaller value).
+
+    Raises
+    ------
+    CamcalError
+        Folder without images, unreadable files, missing exposure metadata, bad ROI.
+    """
+    from camcal.io import folder_manifest, list_frames, load_folder_frame
+
+    folder = Path(folder)
+    window = roi_window(roi)
+    files = list_frames(folder)
+    if not files:
+        raise CamcalError("holds no image files", folder)
+    manifest = folder_manifest(folder)
+    for name in manifest:
+        if not (folder / name).is_file():
+            raise CamcalError(f"frames.csv lists {name!r}, which is not in the folder", folder)
+    rows: dict[str, list[dict]] = {}
+    for i, path in enumerate(files):
+        frame = load_folder_frame(path, manifest)
+        e = frame.exposure
+        t, iso, n = e.require("exposure_s", path), e.require("iso", path), e.require("f_number", path)
+        planes = frame.planes(np.float64)
+        ys, xs = roi_slices(planes.shape[1:], window)
+        cut = planes[:, ys, xs].reshape(planes.shape[0], -1)
+        white = float(frame.white_level_dn)
+        clipped = np.mean(cut >= white - 0.5, axis=1)
+        mx = cut.max(axis=1)
+        if dark is not None and frame.kind == "raw":
+            dp = _dark_planes(dark, frame, t, iso)
+            cut = cut - dp[:, ys, xs].reshape(4, -1)
+        npx = cut.shape[1]
+        mean = cut.mean(axis=1)
+        sem = cut.std(axis=1, ddof=1) / math.sqrt(npx) if npx > 1 else np.zeros(cut.shape[0])
+        # 8-bit or integer quantisation: never let a point claim less than a uniform-quantisation error
+        sem = np.sqrt(sem**2 + 1.0 / 12.0 / npx)
+        rows.setdefault(frame.kind, []).append({
+            "file": path.name, "t": t, "iso": iso, "n": n, "mean": mean, "sem": sem, "clipped": clipped, "max": mx,
+            "white": white, "black": frame.black_vector()[:, 0, 0], "channels": frame.channel_names,
+        })
+        if progress:
+            progress(i + 1, len(files))
+    out = {}
+    for kind, rs in rows.items():
+        out[kind] = _series_from_rows(kind, rs, window, dark is not None and kind == "raw", folder,
+                                      reference_iso, reference_f_number)
+    return out
+
+
+def _mode(values: list[float]) -> float:
+    vals, counts = np.unique(np.asarray(values, float), return_counts=True)
+    return float(vals[np.argmax(counts)])  # np.unique sorts: ties resolve to the smaller value
+
+
+def _series_from_rows(kind, rs, window, dark_subtracted, folder, reference_iso, reference_f_number) -> ExposureSeries:
+    ref_iso = float(reference_iso) if reference_iso is not None else _mode([r["iso"] for r in rs])
+    ref_n = float(reference_f_number) if reference_f_number is not None else _mode([r["n"] for r in rs])
+    if ref_iso <= 0 or ref_n <= 0:
+        raise CamcalError(f"reference ISO and f-number must be positive, got {ref_iso}, {ref_n}")
+    x = np.array([relative_exposure(r["t"], r["iso"], r["n"], ref_iso, ref_n) for r in rs])
+    order = np.argsort(x, kind="stable")
+    rs = [rs[i] for i in order]
+    whites = {r["white"] for r in rs}
+    if len(whites) > 1:
+        raise CamcalError(f"{kind} frames have different white levels {sorted(whites)}; fit them separately", folder)
+    return ExposureSeries(
+        kind=kind,
+        channels=tuple(rs[0]["channels"]),
+        files=tuple(r["file"] for r in rs),
+        x_s=x[order],
+        exposure_s=np.array([r["t"] for r in rs]),
+        iso=np.array([r["iso"] for r in rs]),
+        f_number=np.array([r["n"] for r in rs]),
+        mean_dn=np.array([r["mean"] for r in rs]),
+        sem_dn=np.array([r["sem"] for r in rs]),
+        clipped_fraction=np.array([r["clipped"] for r in rs]),
+        max_dn=np.array([r["max"] for r in rs]),
+        white_level_dn=float(rs[0]["white"]),
+        black_level_dn=np.array(rs[0]["black"], float),
+        reference_iso=ref_iso,
+        reference_f_number=ref_n,
+        dark_subtracted=dark_subtracted,
+        roi=window,
+        folder=str(folder),
+    )
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# fitting
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def _eq12(x, a, g, b):
+    return a * np.power(x, g) + b
+
+
+def fit_eq12(x_s: np.ndarray, g_dn: np.ndarray, sigma_dn: np.ndarray, *, gamma0: float = 1.0) -> dict:
+    """Weighted least-squares fit of seed eq. 12, g = α x^γ + β, to one channel.
+
+    x is scaled by its geometric mean x0 during the fit (g = A (x/x0)^γ + β,
+    α = A x0^-γ) to decorrelate the parameters; the covariance is propagated to α.
+    Uncertainties are the covariance with the weights taken as absolute, scaled
+    by the reduced χ² when that exceeds 1 (the ROI standard error does not see
+    every systematic effect). With exactly three points they are NaN.
+
+    Returns
+    -------
+    dict with alpha, gamma, beta, their ``_unc``, ``chi2_red``, ``rms_dn``.
+    """
+    from scipy.optimize import OptimizeWarning, curve_fit
+
+    x = np.asarray(x_s, float)
+    g = np.asarray(g_dn, float)
+    s = np.maximum(np.asarray(sigma_dn, float), 1e-9 * max(1.0, float(np.max(np.abs(g)))))
+    x0 = float(np.exp(np.mean(np.log(x))))
+    u = x / x0
+    # starting point: β from a straight line through the lowest two points extrapolated to x = 0 (γ = 1 case)
+    # or 0 for a compressive curve; γ from a log-log slope of g − β
+    if gamma0 >= 0.9:
+        slope = (g[1] - g[0]) / (x[1] - x[0]) if x[1] > x[0] else (g[-1] - g[0]) / max(x[-1] - x[0], 1e-30)
+        b0 = float(g[0] - slope * x[0])
+    else:
+        b0 = 0.0
+    b0 = min(b0, float(g.min()) - 1e-3 * max(1.0, float(np.ptp(g))))
+    pos = g - b0
+    gam0 = float(np.polyfit(np.log(u), np.log(pos), 1)[0]) if np.all(pos > 0) else gamma0
+    gam0 = float(np.clip(gam0, 0.1, 3.0))
+    a0 = float(np.exp(np.mean(np.log(pos)) - gam0 * np.mean(np.log(u)))) if np.all(pos > 0) else float(np.ptp(g))
+    lo = [0.0, 0.02, -np.inf]
+    hi = [np.inf, 10.0, np.inf]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", OptimizeWarning)
+        warnings.simplefilter("ignore", RuntimeWarning)
+        try:
+            popt, pcov = curve_fit(_eq12, u, g, p0=[max(a0, 1e-12), gam0, b0], sigma=s, absolute_sigma=True,
+                                   bounds=(lo, hi), method="trf", x_scale="jac", max_nfev=20000)
+        except (RuntimeError, ValueError) as exc:
+            raise CamcalError(f"the fit of eq. 12 did not converge ({exc})") from None
+    a, gam, b = (float(v) for v in popt)
+    resid = g - _eq12(u, a, gam, b)
+    dof = len(x) - 3
+    chi2_red = float(np.sum((resid / s) ** 2) / dof) if dof > 0 else float("nan")
+    if dof > 0 and np.all(np.isfinite(pcov)):
+        cov = pcov * max(1.0, chi2_red)
+        alpha = a * x0 ** (-gam)
+        jac = np.array([x0 ** (-gam), -alpha * math.log(x0), 0.0])
+        alpha_unc = float(math.sqrt(max(jac @ cov @ jac, 0.0)))
+        gamma_unc = float(math.sqrt(max(cov[1, 1], 0.0)))
+        beta_unc = float(math.sqrt(max(cov[2, 2], 0.0)))
+    else:
+        alpha = a * x0 ** (-gam)
+        alpha_unc = gamma_unc = beta_unc = float("nan")
+    return {"alpha": float(alpha), "alpha_unc": alpha_unc, "gamma": gam, "gamma_unc": gamma_unc, "beta": b,
+            "beta_unc": beta_unc, "chi2_red": chi2_red, "rms_dn": float(np.sqrt(np.mean(resid**2)))}
+
+
+def fit_line(x_s: np.ndarray, g_dn: np.ndarray, sigma_dn: np.ndarray) -> dict:
+    """Weighted straight line g = rate·x + offset (eq. 12 with γ = 1); uncertainties scaled by √χ²_red ≥ 1."""
+    x, g = np.asarray(x_s, float), np.asarray(g_dn, float)
+    w = 1.0 / np.maximum(np.asarray(sigma_dn, float), 1e-9)
+    design = np.stack([x, np.ones_like(x)], axis=1) * w[:, None]
+    coef, *_ = np.linalg.lstsq(design, g * w, rcond=None)
+    dof = len(x) - 2
+    resid = (g - design[:, 0] / w * coef[0] - coef[1]) * w
+    chi2_red = float(np.sum(resid**2) / dof) if dof > 0 else float("nan")
+    try:
+        cov = np.linalg.inv(design.T @ design) * (max(1.0, chi2_red) if dof > 0 else float("nan"))
+    except np.linalg.LinAlgError:
+        cov = np.full((2, 2), float("nan"))
+    return {"rate": float(coef[0]), "offset": float(coef[1]), "rate_unc": float(np.sqrt(abs(cov[0, 0]))),
+            "offset_unc": float(np.sqrt(abs(cov[1, 1]))), "chi2_red": chi2_red}
+
+
+def emva_linearity_error(x_s: np.ndarray, signal_dn: np.ndarray, saturation_signal_dn: float) -> float:
+    """EMVA 1288 linearity error LE, percent.
+
+    ``signal_dn`` is the mean signal above dark (μ_y − μ_y.dark). A line
+    μ = a·x + b is fitted minimising the relative deviations (weights 1/μ²)
+    over the points between 5 % and 95 % of ``saturation_signal_dn``;
+    δ_i = 100 (μ_i − (a x_i + b)) / (a x_i + b) and LE = (max δ − min δ) / 2.
+    When fewer than three points lie in that range all positive points are used.
+    """
+    x = np.asarray(x_s, float)
+    y = np.asarray(signal_dn, float)
+    sel = (y >= 0.05 * saturation_signal_dn) & (y <= 0.95 * saturation_signal_dn)
+    if sel.sum() < 3:
+        sel = y > 0
+    if sel.sum() < 2:
+        return float("nan")
+    xs, ys = x[sel], y[sel]
+    design = np.stack([xs / ys, 1.0 / ys], axis=1)
+    (a, b), *_ = np.linalg.lstsq(design, np.ones_like(ys), rcond=None)
+    fit = a * xs + b
+    dev = 100.0 * (ys - fit) / fit
+    return float((dev.max() - dev.min()) / 2.0)
+
+
+def _pearson(x: np.ndarray, y: np.ndarray) -> float:
+    if len(x) < 2 or np.ptp(x) == 0 or np.ptp(y) == 0:
+        return float("nan")
+    return float(np.corrcoef(x, y)[0, 1])
+
+
+# ---- sRGB form with a free exponent -------------------------------------------------------------------------
+
+
+def srgb_form_toe(p: float, a: float = SRGB_OFFSET_A) -> tuple[float, float]:
+    """Toe of the sRGB form with exponent p: the line V = s·L from the origin tangent to (1 + a) L^p − a.
+
+    Returns (L_b, s): the linear value where the toe meets the curve and its slope.
+    For p = 1/2.4 this gives L_b = 0.00304, s = 12.92 (IEC 61966-2-1: 0.0031308, 12.92).
+    """
+    lb = (a / ((1 + a) * (1 - p))) ** (1 / p) if p < 1 else 0.0
+    s = (1 + a) * p * lb ** (p - 1) if lb > 0 else 1.0
+    return float(lb), float(s)
+
+
+def srgb_form_encode(lin: np.ndarray, p: float, a: float = SRGB_OFFSET_A) -> np.ndarray:
+    """Linear L (1 at white) -> encoded V with the sRGB form, exponent p."""
+    lb, s = srgb_form_toe(p, a)
+    lin = np.asarray(lin, float)
+    return np.where(lin <= lb, s * lin, (1 + a) * np.power(np.maximum(lin, lb), p) - a)
+
+
+def srgb_form_decode(v: np.ndarray, p: float, a: float = SRGB_OFFSET_A) -> np.ndarray:
+    """Inverse of :func:`srgb_form_encode`; values below 0 map to 0."""
+    lb, s = srgb_form_toe(p, a)
+    v = np.maximum(np.asarray(v, float), 0.0)
+    return np.where(v <= s * lb, v / s, np.power((v + a) / (1 + a), 1.0 / p))
+
+
+def fit_srgb_form(x_s: np.ndarray, g_dn: np.ndarray, sigma_dn: np.ndarray, white_dn: float, p0: float,
+                  x_white0: float) -> dict:
+    """Fit g/W = V((x/x_w), p) of the sRGB form (free exponent p, white exposure x_w in s)."""
+    from scipy.optimize import least_squares
+
+    x = np.asarray(x_s, float)
+    g = np.asarray(g_dn, float)
+    s = np.maximum(np.asarray(sigma_dn, float), 1e-6)
+
+    def resid(q):
+        p, lxw = q
+        return (white_dn * srgb_form_encode(x / math.exp(lxw), p) - g) / s
+
+    q0 = [float(np.clip(p0, 0.05, 0.99)), math.log(x_white0)]
+    res = least_squares(resid, q0, bounds=([0.05, -np.inf], [0.99, np.inf]), x_scale="jac")
+    p, lxw = (float(v) for v in res.x)
+    r = res.fun * s
+    dof = len(x) - 2
+    chi2_red = float(np.sum(res.fun**2) / dof) if dof > 0 else float("nan")
+    p_unc = float("nan")
+    if dof > 0:
+        try:
+            cov = np.linalg.inv(res.jac.T @ res.jac) * max(1.0, chi2_red)
+            p_unc = float(math.sqrt(max(cov[0, 0], 0.0)))
+        except np.linalg.LinAlgError:
+            pass
+    lb, slope = srgb_form_toe(p)
+    return {"form": "srgb", "exponent": p, "exponent_unc": p_unc, "offset_a": SRGB_OFFSET_A,
+            "x_white_s": math.exp(lxw), "toe_linear": lb, "toe_slope": slope, "chi2_red": chi2_red,
+            "rms_dn": float(np.sqrt(np.mean(r**2)))}
+
+
+def _detone(v: np.ndarray, ch: ChannelResponse, tone: dict, white_dn: float) -> np.ndarray:
+    """Processed value -> linear DN on the 0..W scale (W·x/x_w)."""
+    if tone["use"] == "srgb":
+        return white_dn * srgb_form_decode(v / white_dn, tone["srgb"]["exponent"], tone["srgb"]["offset_a"])
+    num = np.maximum(v - ch.beta, 0.0)
+    return white_dn * np.power(num / (white_dn - ch.beta), 1.0 / ch.gamma)
+
+
+# ---- the per-channel fit --------------------------------------------------------------------------------------
+
+
+def _check_monotone(series: ExposureSeries, c: int, ok: np.ndarray) -> None:
+    """Means of distinct exposures must not fall as the exposure grows (5 σ tolerance)."""
+    x, m, s = series.x_s[ok], series.mean_dn[ok, c], series.sem_dn[ok, c]
+    files = np.asarray(series.files)[ok]
+    ux = np.unique(x)
+    gm, gs, gf = [], [], []
+    for v in ux:
+        k = x == v
+        gm.append(float(np.mean(m[k])))
+        gs.append(float(np.sqrt(np.sum(s[k] ** 2)) / k.sum()))
+        gf.append(str(files[k][0]))
+    for i in range(1, len(ux)):
+        drop = gm[i - 1] - gm[i]
+        if drop > 5.0 * math.hypot(gs[i - 1], gs[i]) + 1e-6 * abs(gm[i - 1]):
+            raise CamcalError(
+                f"{series.kind} channel {series.channels[c]} is not monotone in exposure: {gf[i]} "
+                f"(x = {ux[i]:.4g} s) has mean {gm[i]:.2f} DN, below {gf[i - 1]} (x = {ux[i - 1]:.4g} s, "
+                f"{gm[i - 1]:.2f} DN); check the exposure values in frames.csv",
+                series.folder,
+            )
+
+
+def fit_series(series: ExposureSeries) -> ResponseModel:
+    """Fit seed eq. 12 (and, for processed files, the sRGB form) to every channel of a series.
+
+    Raises
+    ------
+    CamcalError
+        Fewer than three distinct exposures; all frames saturated; fewer than three
+        unsaturated exposures in a channel; signal not monotone in exposure.
+    """
+    where = series.folder
+    n_distinct = len(np.unique(series.x_s))
+    if n_distinct < MIN_EXPOSURES:
+        raise CamcalError(
+            f"{series.kind} series has {n_distinct} distinct exposure(s); the fit of eq. 12 (α, γ, β) needs at "
+            f"least {MIN_EXPOSURES}", where)
+    saturated = series.clipped_fraction > SATURATED_PIXEL_FRACTION  # (n, C)
+    if saturated.all():
+        raise CamcalError(
+            f"all {len(series.files)} {series.kind} frames are saturated (more than "
+            f"{SATURATED_PIXEL_FRACTION:.1%} of ROI pixels at the white level {series.white_level_dn:g} DN); "
+            "shorten the exposures", where)
+    white = series.white_level_dn
+    channels: dict[str, ChannelResponse] = {}
+    points: dict[str, dict] = {}
+    tone_channels: dict[str, dict] = {}
+    for c, name in enumerate(series.channels):
+        ok = ~saturated[:, c]
+        n_ok = len(np.unique(series.x_s[ok]))
+        if n_ok == 0:
+            raise CamcalError(f"all {series.kind} frames are saturated in channel {name}; shorten the exposures",
+                              where)
+        if n_ok < MIN_EXPOSURES:
+            raise CamcalError(
+                f"{series.kind} channel {name} has only {n_ok} unsaturated exposure(s); the fit of eq. 12 needs "
+                f"at least {MIN_EXPOSURES}", where)
+        _check_monotone(series, c, ok)
+        used = ok.copy()
+        compressed = np.zeros_like(ok)
+        gamma0 = 1.0 if series.kind == "raw" else 0.45
+        while True:
+            idx = np.flatnonzero(used)
+            fit = fit_eq12(series.x_s[idx], series.mean_dn[idx, c], series.sem_dn[idx, c], gamma0=gamma0)
+            if len(np.unique(series.x_s[idx])) <= MIN_EXPOSURES:
+                break
+            top = idx[-1]
+            pred = fit["alpha"] * series.x_s[top] ** fit["gamma"] + fit["beta"]
+            dev = series.mean_dn[top, c] - pred
+            if dev < -COMPRESSION_TOLERANCE * (pred - fit["beta"]) and dev < -5 * series.sem_dn[top, c]:
+                used[top] = False
+                compressed[top] = True
+                continue
+            break
+        idx = np.flatnonzero(used)
+        x_used, g_used = series.x_s[idx], series.mean_dn[idx, c]
+        if saturated[:, c].any():
+            sat = float(np.max(series.max_dn[saturated[:, c], c]))
+        else:
+            sat = white
+        if series.dark_subtracted:
+            sat_signal = sat - float(series.black_level_dn[c]) if series.kind == "raw" else sat - fit["beta"]
+        else:
+            sat_signal = sat - fit["beta"]
+        le = emva_linearity_error(x_used, g_used - fit["beta"], sat_signal)
+        rate = fit_line(x_used, g_used, series.sem_dn[idx, c]) if series.kind == "raw" else {}
+        channels[name] = ChannelResponse(
+            alpha=fit["alpha"], alpha_unc=fit["alpha_unc"], gamma=fit["gamma"], gamma_unc=fit["gamma_unc"],
+            beta=fit["beta"], beta_unc=fit["beta_unc"],
+            linear_range_dn=(float(g_used.min()), float(g_used.max())),
+            saturation_dn=sat, linearity_error_pct=le, pearson_r=_pearson(x_used, g_used),
+            rate_dn_per_s=rate.get("rate", float("nan")), rate_dn_per_s_unc=rate.get("rate_unc", float("nan")),
+            offset_dn=rate.get("offset", float("nan")),
+        )
+        points[name] = {
+            "files": list(series.files), "x_s": series.x_s.tolist(), "mean_dn": series.mean_dn[:, c].tolist(),
+            "sem_dn": series.sem_dn[:, c].tolist(), "used": used.tolist(), "saturated": saturated[:, c].tolist(),
+            "compressed": compressed.tolist(), "clipped_fraction": series.clipped_fraction[:, c].tolist(),
+            "chi2_red": fit["chi2_red"], "rms_dn": fit["rms_dn"], "saturation_observed": bool(saturated[:, c].any()),
+        }
+        if series.kind != "raw":
+            tone_channels[name] = _tone_fit(channels[name], fit, x_used, g_used, series.sem_dn[idx, c], white)
+    tone = None
+    if series.kind != "raw":
+        tone = {
+            "form": "V = (1 + a) (x / x_white)^p - a for x/x_white above the toe, V = s x/x_white below "
+                    "(IEC 61966-2-1 with free exponent p); V = g / white",
+            "channels": tone_channels,
+        }
+    return ResponseModel(
+        kind=series.kind, channels=channels, reference_iso=series.reference_iso,
+        reference_f_number=series.reference_f_number, tone=tone, white_level_dn=white,
+        dark_subtracted=series.dark_subtracted, roi=series.roi, points=points,
+    )
+
+
+def _tone_fit(ch: ChannelResponse, fit: dict, x: np.ndarray, g: np.ndarray, sem: np.ndarray, white: float) -> dict:
+    """sRGB-form fit of one processed channel; choose the inverse; proportionality check of the inverse."""
+    x_white_eq12 = ((white - ch.beta) / ch.alpha) ** (1.0 / ch.gamma)
+    srgb = fit_srgb_form(x, g, sem, white, p0=ch.gamma, x_white0=x_white_eq12)
+    # choose the sRGB form unless eq. 12 (one more free parameter) fits clearly better
+    use = "srgb" if srgb["rms_dn"] <= max(1.5 * fit["rms_dn"], 0.15) else "eq12"
+    x_white = srgb["x_white_s"] if use == "srgb" else x_white_eq12
+    rec = {"use": use, "srgb": srgb, "eq12_rms_dn": fit["rms_dn"], "x_white_s": float(x_white),
+           "linear_gain_dn_per_s": float(white / x_white)}
+    lin = _detone(g, ch, rec, white)
+    ratio = lin / x
+    rec["linearised_ratio_spread_pct"] = float(100.0 * (ratio.max() - ratio.min()) / np.mean(ratio))
+    rec["linearised_linearity_error_pct"] = emva_linearity_error(x, lin, white)
+    return rec
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# top level, persistence, plot
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def fit_response(
+    folder: str | Path,
+    *,
+    roi: float | tuple[float, float, float, float] | None = None,
+    dark: DarkFrameModel | None = None,
+    reference_iso: float | None = None,
+    reference_f_number: float | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> dict[str, ResponseModel]:
+    """Fit seed eq. 12 to every kind of file in an exposure-series folder.
+
+    Parameters
+    ----------
+    folder : a folder of frames of a constant source (``SESSION/linearity``), with an optional
+        frames.csv giving ``exposure_s, iso, f_number``.
+    roi : ROI (see :func:`roi_window`); default the central 10 % of each plane's area.
+    dark : optional dark model (``dark_frame_dn(exposure_s, iso)``) subtracted from RAW frames.
+    reference_iso, reference_f_number : the setting x refers to; default the series' most common.
+    progress : ``progress(done, total)`` after each frame.
+
+    Returns
+    -------
+    ``{"raw": ResponseModel, "processed": ResponseModel}`` for the kinds present.
+    """
+    series = measure_series(folder, roi=roi, dark=dark, reference_iso=reference_iso,
+                            reference_f_number=reference_f_number, progress=progress)
+    return {kind: fit_series(s) for kind, s in sorted(series.items())}
+
+
+def save_response(models: dict[str, ResponseModel] | ResponseModel, path: str | Path) -> Path:
+    """Write response models as a camcal stage file (kind ``response``, JSON only)."""
+    from camcal.store import save_stage
+
+    if isinstance(models, ResponseModel):
+        models = {models.kind: models}
+    return save_stage(path, RESPONSE_KIND, {"models": {k: m.to_dict() for k, m in models.items()}})
+
+
+def load_response(path: str | Path) -> dict[str, ResponseModel]:
+    """Read what :func:`save_response` wrote: ``{kind: ResponseModel}``."""
+    from camcal.store import load_stage
+
+    data, _ = load_stage(path, RESPONSE_KIND)
+    models = data.get("models")
+    if not isinstance(models, dict) or not models:
+        raise CamcalError("response file holds no models", path)
+    try:
+        return {str(k): ResponseModel.from_dict(v) for k, v in models.items()}
+    except CamcalError as exc:
+        raise CamcalError(exc.message, path) from None
+
+
+def load_dark_model(path: str | Path) -> DarkFrameModel:
+    """Load a dark model written by the dark stage (``camcal.dark``), for dark subtraction."""
+    try:
+        import camcal.dark as dark_mod
+    except ImportError:
+        raise CamcalError("dark models need camcal.dark, which this installation lacks", path) from None
+    for name in ("load_dark", "load_dark_model"):
+        fn = getattr(dark_mod, name, None)
+        if callable(fn):
+            model = fn(path)
+            break
+    else:
+        cls = getattr(dark_mod, "DarkModel", None)
+        loader = getattr(cls, "load", None)
+        if not callable(loader):
+            raise CamcalError("camcal.dark offers no loader (load_dark / DarkModel.load)", path)
+        model = loader(path)
+    if not callable(getattr(model, "dark_frame_dn", None)):
+        raise CamcalError("the dark model has no dark_frame_dn(exposure_s, iso)", path)
+    return model
+
+
+def plot_response(model: ResponseModel, path: str | Path, title: str | None = None) -> Path:
+    """PNG of data and fit per channel: g against x with the eq. 12 fit, and the relative residuals.
+
+    Hollow markers: points left out of the fit (saturated or compressed). Written atomically.
+    """
+    import io
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+
+    from camcal.atomic import atomic_write_bytes
+
+    names = list(model.channels)
+    fig = Figure(figsize=(3.6 * len(names), 6.0))
+    fig.subplots_adjust(left=0.07, right=0.98, top=0.9, bottom=0.1, wspace=0.3, hspace=0.08)
+    axes = fig.subplots(2, len(names), sharex="col", height_ratios=[3, 1.4], squeeze=False)
+    colours = {"R": "tab:red", "G": "tab:green", "G1": "tab:green", "G2": "darkgreen", "B": "tab:blue"}
+    for k, name in enumerate(names):
+        ch, pts = model.channels[name], model.points.get(name, {})
+        ax, axr = axes[0, k], axes[1, k]
+        col = colours.get(name, "k")
+        x = np.asarray(pts.get("x_s", []), float)
+        g = np.asarray(pts.get("mean_dn", []), float)
+        used = np.asarray(pts.get("used", [True] * len(x)), bool)
+        if len(x):
+            xx = np.geomspace(x.min(), x.max(), 200)
+            xx = xx[ch.predict(xx) <= ch.saturation_dn + 0.05 * abs(ch.saturation_dn - ch.beta)]
+            ax.plot(xx * 1e3, ch.predict(xx), "-", color="0.3", lw=1,
+                    label=f"α={ch.alpha:.4g}\nγ={ch.gamma:.4f}±{ch.gamma_unc:.1g}\nβ={ch.beta:.4g}")
+            ax.plot(x[used] * 1e3, g[used], "o", color=col, ms=4)
+            ax.plot(x[~used] * 1e3, g[~used], "o", mfc="none", color=col, ms=5, label="excluded")
+            pred = ch.predict(x)
+            rel = 100.0 * (g - pred) / np.where(np.abs(pred - ch.beta) > 0, pred - ch.beta, 1.0)
+            axr.axhline(0.0, color="0.5", lw=0.8)
+            axr.plot(x[used] * 1e3, rel[used], "o", color=col, ms=3)
+            axr.plot(x[~used] * 1e3, rel[~used], "o", mfc="none", color=col, ms=4)
+            lim = max(1.0, float(np.nanmax(np.abs(rel[used]))) * 1.3) if used.any() else 1.0
+            axr.set_ylim(-lim, lim)
+        ax.axhline(ch.saturation_dn, color="0.6", ls=":", lw=1)
+        ax.set_title(f"{model.kind} {name}  LE={ch.linearity_error_pct:.2f} %  r={ch.pearson_r:.4f}", fontsize=8)
+        ax.legend(fontsize=7, loc="upper left")
+        axr.set_xlabel(f"x [ms at ISO {model.reference_iso:g}, f/{model.reference_f_number:g}]")
+        if k == 0:
+            ax.set_ylabel("ROI mean g [DN]")
+            axr.set_ylabel("residual [% of g−β]")
+    fig.suptitle(title or f"camcal response (seed eq. 12), {model.kind}", fontsize=10)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110)
+    return atomic_write_bytes(path, buf.getvalue())

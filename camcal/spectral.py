@@ -1,0 +1,920 @@
+"""Spectral sensitivity c(λ) per CFA plane from a monochromator sweep (seed §3.1).
+
+The seed defines, at constant ISO and aperture,
+
+    c(λ) = d(λ) / (r(λ) · t(λ))                                    (seed §3.1)
+
+with d the data (DN above dark), r the radiance and t the exposure time. camcal
+normalises every frame to the reference setting (ISO_ref, N_ref) with
+:func:`camcal.exposure.frame_relative_exposure` (seed §2.1), so t becomes the
+relative exposure x = (ISO·t/N²)/(ISO_ref/N_ref²) and d/x is the DN rate at the
+reference setting.
+
+Convention stored (finite bandwidth)
+------------------------------------
+A monochromator does not emit one wavelength: at setting λ_j it emits
+L(λ') = L_j · φ_j(λ' − λ_j), where L_j is the *band-integrated* radiance the
+reference detector reports (W m^-2 sr^-1) and φ_j the slit function (unit
+integral, nm^-1, FWHM = ``bandwidth_nm``). The DN rate is then (seed §3.1 with a
+finite band)
+
+    d_j / x_j = ∫ c(λ') L(λ') dλ' = L_j · (c ⊛ φ_j)(λ_j)
+
+so the ratio rate / L_j measures the **slit-weighted sensitivity**
+(c ⊛ φ_j)(λ_j), in DN s^-1 per (W m^-2 sr^-1 nm^-1) per nm (the same unit as c,
+because (W m^-2 sr^-1 nm^-1)·nm = W m^-2 sr^-1). That is what
+``SpectralSensitivity.values`` holds when ``deconvolved`` is False. Its bias
+against c(λ) is, to second order, (σ²/2)·c''(λ) with σ = FWHM/2.3548 for a
+Gaussian slit (FWHM²/24·c'' for a triangular one); :meth:`SpectralSensitivity.summary`
+reports an estimate of it. With ``deconvolve=True`` the values are a Tikhonov
+regularised estimate of c(λ) itself at the same wavelengths
+(:func:`deconvolve_slit`).
+
+Relative mode divides everything by the largest value over all planes (the
+reference radiance may then be in arbitrary units); absolute mode keeps
+DN s^-1 per (W m^-2 sr^-1 nm^-1) per nm at (ISO_ref, N_ref), on axis (the flat
+model brings the region of interest to the optical centre).
+
+References
+----------
+Burggraaff, O. et al. (2019). Standardized spectral and radiometric calibration
+of consumer cameras. Optics Express 27(14), 19075 (SPECTACLE; CSV layout).
+Hansen, P. C. (2010). Discrete Inverse Problems. SIAM (Tikhonov, GCV).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import threading
+import warnings
+from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from camcal.errors import CamcalError
+from camcal.frame import PLANES, Frame, split_planes
+
+SWEEP_CSV = "sweep.csv"
+DEFAULT_REFERENCE_ISO = 100.0
+DEFAULT_REFERENCE_F_NUMBER = 4.0
+DEFAULT_ROI_FRACTION = 0.2
+ABSOLUTE_UNITS = "DN s^-1 per (W m^-2 sr^-1 nm^-1) per nm at ISO_ref, f/N_ref, on axis"
+RELATIVE_UNITS = "relative"
+SPECTACLE_COLUMNS = ("Wavelength", "R", "G", "B", "G2", "R_err", "G_err", "B_err", "G2_err")
+FWHM_TO_SIGMA = 1.0 / (2.0 * math.sqrt(2.0 * math.log(2.0)))
+
+
+class SweepWarning(UserWarning):
+    """A recoverable problem in a sweep (a skipped saturated frame, a missing flat)."""
+
+
+@dataclass(frozen=True)
+class SpectralSensitivity:
+    """Spectral sensitivity per CFA plane.
+
+    Attributes
+    ----------
+    wavelength_nm : ndarray (n,)
+        Monochromator settings, nm, increasing.
+    values : dict
+        c(λ) per plane ``R, G1, G2, B``: slit-weighted (``deconvolved`` False) or
+        deconvolved. Units in :attr:`units`.
+    uncertainty : dict
+        Standard uncertainty per plane, same units (temporal noise and reference
+        detector; for deconvolved values propagated through the linear estimator,
+        regularisation bias excluded).
+    units : str
+        ``"relative"`` or :data:`ABSOLUTE_UNITS`.
+    mode : {"relative", "absolute"}
+    reference_iso, reference_f_number : float
+        Setting the DN rates are normalised to.
+    bandwidth_nm : float or None
+        Median slit FWHM, nm, when known.
+    deconvolved : bool
+    n_frames : dict
+        Frames used per wavelength (key: wavelength as text), informational.
+    notes : tuple of str
+        Warnings raised while measuring (skipped frames...).
+    """
+
+    wavelength_nm: np.ndarray
+    values: dict[str, np.ndarray]
+    uncertainty: dict[str, np.ndarray]
+    units: str
+    mode: Literal["relative", "absolute"]
+    reference_iso: float = DEFAULT_REFERENCE_ISO
+    reference_f_number: float = DEFAULT_REFERENCE_F_NUMBER
+    bandwidth_nm: float | None = None
+    deconvolved: bool = False
+    n_frames: dict[str, int] = field(default_factory=dict)
+    notes: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        wl = np.asarray(self.wavelength_nm, float)
+        if wl.ndim != 1 or wl.size == 0 or np.any(np.diff(wl) <= 0):
+            raise CamcalError("spectral sensitivity wavelengths must be a non-empty increasing 1-D array")
+        for d in (self.values, self.uncertainty):
+            if set(d) != set(PLANES) or any(np.shape(v) != wl.shape for v in d.values()):
+                raise CamcalError(f"spectral sensitivity needs planes {PLANES} of {wl.size} values each")
+
+    # ---- views ---------------------------------------------------------------------
+    def rgb(self) -> dict[str, np.ndarray]:
+        """R, G (mean of G1 and G2), B."""
+        v = self.values
+        return {"R": v["R"], "G": 0.5 * (v["G1"] + v["G2"]), "B": v["B"]}
+
+    def rgb_uncertainty(self) -> dict[str, np.ndarray]:
+        """Standard uncertainty of :meth:`rgb` (G1 and G2 treated as independent)."""
+        u = self.uncertainty
+        return {"R": u["R"], "G": 0.5 * np.hypot(u["G1"], u["G2"]), "B": u["B"]}
+
+    def channels(self) -> dict[str, np.ndarray]:
+        """Planes and RGB together: R, G1, G2, B, G."""
+        return {**self.values, "G": self.rgb()["G"]}
+
+    def to_colour(self):
+        """colour-science :class:`RGB_CameraSensitivities` of R, G (mean of G1, G2), B.
+
+        The four planes (keeping G1 and G2) are in :meth:`to_colour_planes`.
+        """
+        from colour.characterisation import RGB_CameraSensitivities
+
+        rgb = self.rgb()
+        data = np.column_stack([rgb["R"], rgb["G"], rgb["B"]])
+        return RGB_CameraSensitivities(data, self.wavelength_nm, name=f"camcal c(λ) [{self.units}]")
+
+    def to_colour_planes(self):
+        """colour-science :class:`MultiSpectralDistributions` labelled R, G1, G2, B."""
+        import colour
+
+        data = np.column_stack([self.values[p] for p in PLANES])
+        return colour.MultiSpectralDistributions(data, self.wavelength_nm, labels=list(PLANES),
+                                                 name=f"camcal c(λ) planes [{self.units}]")
+
+    # ---- derived figures -----------------------------------------------------------
+    def peak_wavelength_nm(self) -> dict[str, float]:
+        """Wavelength of the largest sample per channel (exact to the sampling), nm."""
+        return {k: float(self.wavelength_nm[int(np.argmax(v))]) for k, v in self.channels().items()}
+
+    def effective_wavelength_nm(self) -> dict[str, float]:
+        """Centroid λ_eff = ∫ λ c dλ / ∫ c dλ per channel, nm (negative noise clipped to 0)."""
+        wl = self.wavelength_nm
+        out = {}
+        for k, v in self.channels().items():
+            c = np.clip(v, 0.0, None)
+            area = np.trapezoid(c, wl)
+            out[k] = float(np.trapezoid(wl * c, wl) / area) if area > 0 else float("nan")
+        return out
+
+    def effective_bandwidth_nm(self) -> dict[str, float]:
+        """Equivalent width ∫ c dλ / max c per channel, nm (the width of a box of the same area and peak)."""
+        wl = self.wavelength_nm
+        out = {}
+        for k, v in self.channels().items():
+            c = np.clip(v, 0.0, None)
+            out[k] = float(np.trapezoid(c, wl) / c.max()) if c.max() > 0 else float("nan")
+        return out
+
+    def slit_bias(self) -> dict[str, np.ndarray]:
+        """Second-order estimate of (c ⊛ φ − c) per plane, same units: (σ²/2)·c'' (Gaussian slit).
+
+        Zero when deconvolved or when the bandwidth is unknown.
+        """
+        if self.deconvolved or not self.bandwidth_nm or self.wavelength_nm.size < 4:
+            return {p: np.zeros_like(self.wavelength_nm) for p in PLANES}
+        from scipy.interpolate import CubicSpline
+
+        sigma2 = (self.bandwidth_nm * FWHM_TO_SIGMA) ** 2
+        return {p: 0.5 * sigma2 * CubicSpline(self.wavelength_nm, v)(self.wavelength_nm, 2)
+                for p, v in self.values.items()}
+
+    def summary(self) -> dict[str, Any]:
+        """JSON-ready overview: setting, range, peaks, effective wavelengths and bandwidths, slit bias."""
+        peak = max(float(np.max(v)) for v in self.values.values())
+        bias = self.slit_bias()
+        return {
+            "mode": self.mode,
+            "units": self.units,
+            "reference_iso": self.reference_iso,
+            "reference_f_number": self.reference_f_number,
+            "bandwidth_nm": self.bandwidth_nm,
+            "deconvolved": self.deconvolved,
+            "n_wavelengths": int(self.wavelength_nm.size),
+            "wavelength_range_nm": [float(self.wavelength_nm[0]), float(self.wavelength_nm[-1])],
+            "peak_value": peak,
+            "peak_wavelength_nm": self.peak_wavelength_nm(),
+            "effective_wavelength_nm": self.effective_wavelength_nm(),
+            "effective_bandwidth_nm": self.effective_bandwidth_nm(),
+            "max_relative_uncertainty_at_peak": {
+                p: float(self.uncertainty[p][int(np.argmax(self.values[p]))] / max(np.max(self.values[p]), 1e-300))
+                for p in PLANES
+            },
+            "slit_bias_rms_of_peak": {p: float(np.sqrt(np.mean(bias[p] ** 2)) / peak) for p in PLANES},
+            "notes": list(self.notes),
+        }
+
+
+# ---- reading a sweep ---------------------------------------------------------------------
+@dataclass(frozen=True)
+class SweepRow:
+    """One row of ``sweep.csv`` (one frame at one monochromator setting)."""
+
+    path: Path
+    wavelength_nm: float
+    radiance_w_m2_sr: float
+    """Band-integrated radiance from the reference detector, W m^-2 sr^-1 (or arbitrary units)."""
+    radiance_unc_w_m2_sr: float | None
+    bandwidth_nm: float | None
+    overrides: dict[str, float | None]
+
+
+def read_sweep(sweep_folder: str | Path) -> list[SweepRow]:
+    """Read and check ``SWEEP/sweep.csv``; every listed frame must exist inside the folder.
+
+    Raises
+    ------
+    CamcalError
+        Missing manifest, a row whose frame is missing, a path leaving the folder,
+        negative or non-numeric values (from :func:`camcal.manifest.read_manifest`).
+    """
+    from camcal.manifest import exposure_overrides, read_manifest, safe_member
+
+    folder = Path(sweep_folder)
+    if not folder.is_dir():
+        raise CamcalError("is not a folder (expected a sweep folder holding sweep.csv)", folder)
+    csv_path = folder / SWEEP_CSV
+    if not csv_path.is_file():
+        raise CamcalError(f"has no {SWEEP_CSV} (columns file,wavelength_nm,radiance_W_m2_sr,...)", folder)
+    rows = read_manifest(csv_path, required=("file", "wavelength_nm", "radiance_W_m2_sr"))
+    if not rows:
+        raise CamcalError("lists no frames", csv_path)
+    out = []
+    for name, rec in rows.items():
+        path = safe_member(folder, name, csv_path)
+        if not path.is_file():
+            raise CamcalError(f"lists {name!r} at {rec['wavelength_nm']:g} nm, which is not in the folder", csv_path)
+        out.append(SweepRow(
+            path=path,
+            wavelength_nm=float(rec["wavelength_nm"]),  # type: ignore[arg-type]
+            radiance_w_m2_sr=float(rec["radiance_W_m2_sr"]),  # type: ignore[arg-type]
+            radiance_unc_w_m2_sr=None if rec.get("radiance_unc_W_m2_sr") is None
+            else float(rec["radiance_unc_W_m2_sr"]),  # type: ignore[arg-type]
+            bandwidth_nm=None if rec.get("bandwidth_nm") is None else float(rec["bandwidth_nm"]),  # type: ignore[arg-type]
+            overrides=exposure_overrides(rec),
+        ))
+    return out
+
+
+def central_roi(shape_hw: tuple[int, int], fraction: float = DEFAULT_ROI_FRACTION) -> tuple[int, int, int, int]:
+    """A centred box ``(x0, y0, x1, y1)`` (half-open, plane pixels) covering ``fraction`` of each side."""
+    if not 0 < fraction <= 1:
+        raise CamcalError(f"ROI fraction must be in (0, 1], got {fraction}")
+    h, w = shape_hw
+    rw, rh = max(2, round(w * fraction)), max(2, round(h * fraction))
+    x0, y0 = (w - rw) // 2, (h - rh) // 2
+    return x0, y0, x0 + rw, y0 + rh
+
+
+def _check_roi(roi: tuple[int, int, int, int], shape_hw: tuple[int, int], where: Path) -> tuple[int, int, int, int]:
+    x0, y0, x1, y1 = (int(v) for v in roi)
+    h, w = shape_hw
+    if not (0 <= x0 < x1 <= w and 0 <= y0 < y1 <= h):
+        raise CamcalError(f"ROI {roi} (x0,y0,x1,y1 in half-resolution plane pixels) is outside the {w}x{h} planes",
+                          where)
+    return x0, y0, x1, y1
+
+
+@dataclass
+class _Corrections:
+    """Per-ROI dark and flat corrections, computed once and shared by the worker threads."""
+
+    roi: tuple[int, int, int, int]
+    dark: Any = None
+    flat_gain_roi: np.ndarray | None = None
+    _dark_cache: dict = field(default_factory=dict)
+    _lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def crop(self, full: np.ndarray) -> np.ndarray:
+        x0, y0, x1, y1 = self.roi
+        return np.ascontiguousarray(full[:, y0:y1, x0:x1], dtype=np.float32)
+
+    def dark_roi(self, exposure_s: float, iso: float | None, exposures: Sequence[float]) -> np.ndarray:
+        """Dark frame (DN, black level included) on the ROI at ``exposure_s``.
+
+        The dark model is affine in t (dark = bias + β·t, issue 3), so it is
+        evaluated at the shortest and longest sweep exposures and interpolated;
+        a third evaluation checks the affinity, and a non-affine model is
+        evaluated at every exposure instead.
+        """
+        with self._lock:
+            key = iso
+            if key not in self._dark_cache:
+                t_lo, t_hi = min(exposures), max(exposures)
+                d_lo = self.crop(np.asarray(self.dark.dark_frame_dn(t_lo, iso)))
+                d_hi = self.crop(np.asarray(self.dark.dark_frame_dn(t_hi, iso)))
+                affine = True
+                if t_hi > t_lo:
+                    t_mid = 0.5 * (t_lo + t_hi)
+                    d_mid = self.crop(np.asarray(self.dark.dark_frame_dn(t_mid, iso)))
+                    affine = bool(np.allclose(0.5 * (d_lo + d_hi), d_mid, rtol=0, atol=1e-3 + 1e-5 * np.abs(d_mid)))
+                self._dark_cache[key] = (t_lo, t_hi, d_lo, d_hi, affine, {})
+            t_lo, t_hi, d_lo, d_hi, affine, exact = self._dark_cache[key]
+            if t_hi == t_lo:
+                return d_lo
+            if affine:
+                w = (exposure_s - t_lo) / (t_hi - t_lo)
+                return (d_lo + np.float32(w) * (d_hi - d_lo)).astype(np.float32)
+            if exposure_s not in exact:
+                exact[exposure_s] = self.crop(np.asarray(self.dark.dark_frame_dn(exposure_s, iso)))
+            return exact[exposure_s]
+
+
+@dataclass(frozen=True)
+class _FrameResult:
+    row: SweepRow
+    planes: np.ndarray  # (4, hr, wr) float32, dark-subtracted, flat-corrected DN
+    relative_exposure_s: float
+    saturated_fraction: float
+
+
+def _process_frame(row: SweepRow, corr: _Corrections, ref_iso: float, ref_n: float,
+                   exposures: Sequence[float], roi_shape_check: Callable[[Frame], None]) -> _FrameResult:
+    """Decode one file once, crop the ROI from the mosaic, dark- and flat-correct it in place."""
+    from camcal.exposure import frame_relative_exposure
+    from camcal.io import load_frame
+
+    frame = load_frame(row.path, row.overrides)
+    if frame.kind != "raw":
+        raise CamcalError("is not a RAW file; the spectral sweep needs linear RAW data", row.path)
+    roi_shape_check(frame)
+    x_rel = frame_relative_exposure(frame.exposure, ref_iso, ref_n, row.path)
+    x0, y0, x1, y1 = corr.roi
+    mosaic = frame.data[2 * y0: 2 * y1, 2 * x0: 2 * x1]
+    saturated = float(np.count_nonzero(mosaic >= frame.white_level_dn)) / mosaic.size
+    planes = split_planes(mosaic, frame.cfa_pattern)
+    if corr.dark is not None:
+        planes -= corr.dark_roi(frame.exposure.require("exposure_s", row.path), frame.exposure.iso, exposures)
+    else:
+        planes -= frame.black_vector().astype(np.float32)
+    if corr.flat_gain_roi is not None:
+        planes /= corr.flat_gain_roi
+    return _FrameResult(row, planes, x_rel, saturated)
+
+
+def _load_model(obj, kind: str):
+    if obj is None or not isinstance(obj, str | Path):
+        return obj
+    try:
+        if kind == "dark":
+            from camcal.dark import load_dark as loader
+        else:
+            from camcal.flat import load_flat as loader
+    except ImportError:
+        raise CamcalError(f"{kind} models need camcal.{kind}, which is not installed", obj) from None
+    return loader(obj)
+
+
+def _robust_mask(m: np.ndarray, nsigma: float = 5.0) -> np.ndarray:
+    """Pixels within ``nsigma`` robust (MAD) sigmas of the plane median; (hr, wr) bool."""
+    med = np.median(m)
+    mad = 1.4826 * np.median(np.abs(m - med))
+    if mad <= 0:
+        return np.ones(m.shape, bool)
+    return np.abs(m - med) <= nsigma * mad
+
+
+def combine_wavelength(results: Sequence[_FrameResult]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per-plane sensitivity of one monochromator setting from its frames.
+
+    Each frame's ROI is divided by its relative exposure x_k and band radiance
+    L_k: y_k = d_k / (x_k L_k) (seed §3.1). Per pixel the temporal mean and
+    variance (ddof=1) over the frames are taken; pixels more than 5 robust
+    sigmas from the ROI median (hot or dead) are dropped; the value is the ROI
+    mean and its noise variance the mean temporal variance over
+    (n_frames · n_pixels). With one frame the spatial variance is used
+    instead (it includes PRNU: conservative).
+
+    Returns
+    -------
+    value (4,), noise standard uncertainty (4,), relative reference uncertainty (scalar array)
+    """
+    n = len(results)
+    value = np.empty(4)
+    u_noise = np.empty(4)
+    scale = np.array([1.0 / (r.relative_exposure_s * r.row.radiance_w_m2_sr) for r in results], np.float32)
+    for p in range(4):
+        y = np.stack([r.planes[p] for r in results]) * scale[:, None, None]
+        m = y.mean(axis=0)
+        mask = _robust_mask(m)
+        npix = int(mask.sum())
+        value[p] = float(m[mask].mean(dtype=np.float64))
+        if n > 1:
+            var = y[:, mask].var(axis=0, ddof=1, dtype=np.float64)
+            u_noise[p] = math.sqrt(float(var.mean()) / (n * npix))
+        else:
+            u_noise[p] = math.sqrt(float(m[mask].var(dtype=np.float64)) / npix)
+    rel = [r.row.radiance_unc_w_m2_sr / r.row.radiance_w_m2_sr for r in results
+           if r.row.radiance_unc_w_m2_sr is not None]
+    # the frames of one setting share the reference reading's calibration: fully correlated, not /sqrt(n)
+    u_ref = float(np.mean(rel)) if rel else 0.0
+    return value, u_noise, np.asarray(u_ref)
+
+
+def measure_sweep(
+    sweep_folder: str | Path,
+    *,
+    dark=None,
+    flat=None,
+    roi: tuple[int, int, int, int] | float | None = None,
+    mode: Literal["relative", "absolute"] = "absolute",
+    deconvolve: bool = False,
+    slit: Literal["gaussian", "triangular"] = "gaussian",
+    regularisation: float | None = None,
+    reference_iso: float = DEFAULT_REFERENCE_ISO,
+    reference_f_number: float = DEFAULT_REFERENCE_F_NUMBER,
+    max_saturated_fraction: float = 1e-3,
+    min_frames: int = 1,
+    jobs: int = 2,
+    progress: Callable[[int, int], None] | None = None,
+) -> SpectralSensitivity:
+    """Measure c(λ) per CFA plane from ``SWEEP/`` and its ``sweep.csv`` (seed §3.1).
+
+    Parameters
+    ----------
+    sweep_folder : folder holding the frames and ``sweep.csv`` (columns ``file,
+        wavelength_nm, radiance_W_m2_sr`` required; ``radiance_unc_W_m2_sr,
+        bandwidth_nm, exposure_s, iso, f_number`` optional).
+    dark : DarkModel or path to ``dark.json``, optional
+        Subtracted per pixel at each frame's exposure; without it the file's
+        black level is subtracted (dark current then biases c(λ) by β/L).
+    flat : FlatModel or path to ``flat.json``, optional
+        The ROI is divided by the smooth gain (1 at the optical centre), so
+        absolute values refer to the optical axis. Without it, absolute mode warns.
+    roi : (x0, y0, x1, y1) in half-resolution plane pixels, or a fraction of
+        each side for a centred box (default 0.2).
+    mode : "absolute" (DN s^-1 per (W m^-2 sr^-1 nm^-1) per nm at the reference
+        setting) or "relative" (divided by the largest value over all planes).
+    deconvolve : bool
+        Remove the slit function (``bandwidth_nm`` required) with
+        :func:`deconvolve_slit`.
+    slit : slit function shape for deconvolution.
+    regularisation : Tikhonov weight for deconvolution (None: chosen by GCV).
+    reference_iso, reference_f_number : the reference setting (seed §2.1).
+    max_saturated_fraction : a frame with more than this fraction of clipped ROI
+        pixels is skipped with a :class:`SweepWarning`.
+    min_frames : frames that must remain per wavelength after skipping.
+    jobs : decoding threads (LibRaw releases the GIL).
+    progress : ``progress(done, total)`` after each frame.
+
+    Raises
+    ------
+    CamcalError
+        Bad manifest, missing frame, path outside the folder, negative or zero
+        radiance, non-RAW frames, mismatched sizes, too few unsaturated frames.
+    """
+    if mode not in ("relative", "absolute"):
+        raise CamcalError(f"mode must be 'relative' or 'absolute', got {mode!r}")
+    rows = read_sweep(sweep_folder)
+    csv_path = Path(sweep_folder) / SWEEP_CSV
+    for r in rows:
+        if r.radiance_w_m2_sr <= 0:
+            raise CamcalError(f"{r.path.name} at {r.wavelength_nm:g} nm: radiance_W_m2_sr must be positive, "
+                              f"got {r.radiance_w_m2_sr:g}", csv_path)
+    dark = _load_model(dark, "dark")
+    flat = _load_model(flat, "flat")
+    notes: list[str] = []
+
+    def warn(msg: str) -> None:
+        notes.append(msg)
+        warnings.warn(msg, SweepWarning, stacklevel=3)
+
+    if mode == "absolute" and flat is None:
+        warn("no flat model: absolute values refer to the ROI, not the optical axis (vignetting not removed)")
+
+    # geometry from the first frame (header decode only once: the first frame is decoded again by the pool)
+    from camcal.io import load_frame
+
+    first = load_frame(rows[0].path, rows[0].overrides)
+    if first.kind != "raw":
+        raise CamcalError("is not a RAW file; the spectral sweep needs linear RAW data", rows[0].path)
+    shape_hw = (first.shape[0] // 2, first.shape[1] // 2)
+    full_shape = first.shape
+    del first
+    if roi is None:
+        box = central_roi(shape_hw, DEFAULT_ROI_FRACTION)
+    elif isinstance(roi, float | int):
+        box = central_roi(shape_hw, float(roi))
+    else:
+        box = _check_roi(tuple(roi), shape_hw, Path(sweep_folder))  # type: ignore[arg-type]
+
+    corr = _Corrections(roi=box, dark=dark)
+    if flat is not None:
+        gain = np.asarray(flat.gain(with_prnu=False), float)
+        if gain.shape[1:] != shape_hw:
+            raise CamcalError(f"flat model planes {gain.shape[1:]} do not match the sweep frames' {shape_hw}",
+                              Path(sweep_folder))
+        g = corr.crop(gain)
+        if not np.all(np.isfinite(g)) or np.any(g <= 0):
+            raise CamcalError("flat model gain is not positive and finite in the ROI", Path(sweep_folder))
+        corr.flat_gain_roi = g
+    exposures = [float(r.overrides.get("exposure_s") or 0.0) for r in rows]
+    exposures = [t for t in exposures if t > 0] or [1.0]
+
+    def shape_check(frame: Frame) -> None:
+        if frame.shape != full_shape:
+            raise CamcalError(f"frame is {frame.shape[1]}x{frame.shape[0]} pixels, the sweep's first frame is "
+                              f"{full_shape[1]}x{full_shape[0]}", frame.path)
+
+    def work(row: SweepRow) -> _FrameResult:
+        return _process_frame(row, corr, reference_iso, reference_f_number, exposures, shape_check)
+
+    # group by wavelength (file order kept inside a group)
+    groups: dict[float, list[SweepRow]] = {}
+    for r in rows:
+        groups.setdefault(r.wavelength_nm, []).append(r)
+    wls = sorted(groups)
+    value = np.empty((4, len(wls)))
+    u_noise = np.empty((4, len(wls)))
+    u_ref = np.zeros(len(wls))
+    bw: list[float] = []
+    n_used: dict[str, int] = {}
+    done = 0
+    total = len(rows)
+    ordered = [r for wl in wls for r in groups[wl]]
+    with ThreadPoolExecutor(max_workers=max(1, int(jobs))) as pool:
+        results = pool.map(work, ordered) if jobs > 1 else map(work, ordered)
+        it = iter(results)
+        for j, wl in enumerate(wls):
+            frames: list[_FrameResult] = []
+            for _ in groups[wl]:
+                res = next(it)
+                done += 1
+                if progress:
+                    progress(done, total)
+                if res.saturated_fraction > max_saturated_fraction:
+                    warn(f"{res.row.path.name} at {wl:g} nm: {100 * res.saturated_fraction:.2g} % of the ROI is "
+                         f"saturated; frame skipped")
+                    continue
+                frames.append(res)
+            if len(frames) < max(1, min_frames):
+                names = ", ".join(r.path.name for r in groups[wl])
+                raise CamcalError(f"at {wl:g} nm only {len(frames)} of {len(groups[wl])} frames are unsaturated "
+                                  f"({names}); need {max(1, min_frames)}: shorten the exposure", csv_path)
+            value[:, j], u_noise[:, j], u_ref[j] = combine_wavelength(frames)
+            n_used[f"{wl:g}"] = len(frames)
+            bws = {r.bandwidth_nm for r in groups[wl] if r.bandwidth_nm is not None}
+            if len(bws) > 1:
+                raise CamcalError(f"rows at {wl:g} nm give different bandwidth_nm values {sorted(bws)}", csv_path)
+            if bws:
+                bw.append(bws.pop())
+            del frames
+    wl_arr = np.asarray(wls, float)
+    u_tot = np.hypot(u_noise, value * u_ref[None, :])
+    bandwidth = float(np.median(bw)) if bw else None
+    out_vals, out_unc = value, u_tot
+    if deconvolve:
+        if len(bw) != len(wls):
+            raise CamcalError("deconvolution needs a bandwidth_nm value on every sweep.csv row", csv_path)
+        out_vals = np.empty_like(value)
+        out_unc = np.empty_like(value)
+        for p in range(4):
+            out_vals[p], out_unc[p] = deconvolve_slit(wl_arr, value[p], u_tot[p], np.asarray(bw), slit=slit,
+                                                      regularisation=regularisation)
+    sens = SpectralSensitivity(
+        wavelength_nm=wl_arr,
+        values={p: out_vals[k] for k, p in enumerate(PLANES)},
+        uncertainty={p: out_unc[k] for k, p in enumerate(PLANES)},
+        units=ABSOLUTE_UNITS,
+        mode="absolute",
+        reference_iso=float(reference_iso),
+        reference_f_number=float(reference_f_number),
+        bandwidth_nm=bandwidth,
+        deconvolved=bool(deconvolve),
+        n_frames=n_used,
+        notes=tuple(notes),
+    )
+    return to_relative(sens) if mode == "relative" else sens
+
+
+def to_relative(s: SpectralSensitivity) -> SpectralSensitivity:
+    """Divide values and uncertainties by the largest value over all planes (mode ``relative``)."""
+    peak = max(float(np.max(v)) for v in s.values.values())
+    if not peak > 0:
+        raise CamcalError("spectral sensitivity has no positive value; cannot normalise")
+    return _replace(s, values={p: v / peak for p, v in s.values.items()},
+                    uncertainty={p: u / peak for p, u in s.uncertainty.items()}, units=RELATIVE_UNITS,
+                    mode="relative")
+
+
+def _replace(s: SpectralSensitivity, **kw) -> SpectralSensitivity:
+    import dataclasses
+
+    return dataclasses.replace(s, **kw)
+
+
+# ---- finite bandwidth ----------------------------------------------------------------------
+def slit_function(offset_nm: np.ndarray, fwhm_nm: float, shape: str = "gaussian") -> np.ndarray:
+    """Unit-peak slit function at ``offset_nm`` from the setting (Gaussian or triangular, given FWHM)."""
+    if shape == "gaussian":
+        return np.exp(-0.5 * (offset_nm / (fwhm_nm * FWHM_TO_SIGMA)) ** 2)
+    if shape == "triangular":
+        return np.clip(1.0 - np.abs(offset_nm) / fwhm_nm, 0.0, None)
+    raise CamcalError(f"unknown slit shape {shape!r}; use gaussian or triangular")
+
+
+def slit_matrix(wavelength_nm: np.ndarray, fwhm_nm: np.ndarray | float, shape: str = "gaussian",
+                step_nm: float = 0.1) -> np.ndarray:
+    """Forward operator A (n, n): measured (c ⊛ φ_j)(λ_j) = Σ_k A_jk c(λ_k).
+
+    c between the nodes is the natural cubic spline through the node values
+    (fourth-order accurate, so the representation error stays well below the
+    slit bias being removed); outside the sampled range it is held at the end
+    values.
+    """
+    from scipy.interpolate import CubicSpline
+
+    wl = np.asarray(wavelength_nm, float)
+    fwhm = np.broadcast_to(np.asarray(fwhm_nm, float), wl.shape)
+    reach = 3.0 * float(fwhm.max())
+    fine = np.arange(wl[0] - reach, wl[-1] + reach + step_nm / 2, step_nm)
+    basis = CubicSpline(wl, np.eye(wl.size), bc_type="natural")(np.clip(fine, wl[0], wl[-1]))  # (nf, n)
+    phi = slit_function(fine[None, :] - wl[:, None], fwhm[:, None], shape)  # (n, nf)
+    phi /= np.trapezoid(phi, fine, axis=1)[:, None]
+    weights = np.full(fine.size, step_nm)
+    weights[[0, -1]] *= 0.5
+    return (phi * weights[None, :]) @ basis
+
+
+def deconvolve_slit(
+    wavelength_nm: np.ndarray,
+    measured: np.ndarray,
+    uncertainty: np.ndarray,
+    fwhm_nm: np.ndarray | float,
+    *,
+    slit: str = "gaussian",
+    regularisation: float | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Tikhonov-regularised removal of the monochromator slit function.
+
+    Solves min_c ||W^½ (A c − m)||² + α ||D₂ c||² with A = :func:`slit_matrix`,
+    W = diag(1/u²) and D₂ the second difference per nm² (a smoothness prior);
+    α = ``regularisation`` · tr(AᵀWA)/tr(D₂ᵀD₂) (dimensionless ``regularisation``), chosen by
+    generalised cross-validation (Hansen 2010, §5.4) over 1e-10..1e2 unless given.
+    The uncertainty is propagated through the linear estimator
+    R = (AᵀWA + αD₂ᵀD₂)⁻¹AᵀW as sqrt(diag(R diag(u²) Rᵀ)); the regularisation
+    bias is not included.
+
+    Returns
+    -------
+    c (n,), u_c (n,) at ``wavelength_nm``.
+    """
+    wl = np.asarray(wavelength_nm, float)
+    m = np.asarray(measured, float)
+    u = np.asarray(uncertainty, float)
+    n = wl.size
+    if n < 4:
+        raise CamcalError("deconvolution needs at least 4 wavelengths")
+    scale = max(float(np.max(np.abs(m))), 1e-300)
+    u_floor = np.maximum(u, 1e-6 * scale)
+    a = slit_matrix(wl, fwhm_nm, slit)
+    h = np.diff(wl)
+    d2 = np.zeros((n - 2, n))
+    for i in range(n - 2):
+        h0, h1 = h[i], h[i + 1]
+        d2[i, i: i + 3] = 2.0 / (h0 + h1) * np.array([1 / h0, -(1 / h0 + 1 / h1), 1 / h1])
+    w = 1.0 / u_floor**2
+    ata = a.T @ (w[:, None] * a)
+    dtd = d2.T @ d2
+    # scale alpha to the problem: trace ratio makes the grid dimensionless
+    base = np.trace(ata) / max(np.trace(dtd), 1e-300)
+
+    def solve(alpha: float) -> tuple[np.ndarray, np.ndarray]:
+        mat = ata + alpha * dtd
+        r = np.linalg.solve(mat, a.T * w[None, :])  # (n, n) estimator
+        return r @ m, r
+
+    if regularisation is None:
+        best = None
+        for lg in np.linspace(-10, 2, 49):
+            alpha = base * 10.0**lg
+            c, r = solve(alpha)
+            resid = np.sqrt(w) * (a @ c - m)
+            dof = n - np.trace(a @ r)
+            gcv = n * float(resid @ resid) / max(dof, 1e-9) ** 2
+            if best is None or gcv < best[0]:
+                best = (gcv, c, r)
+        _, c, r = best  # type: ignore[misc]
+    else:
+        c, r = solve(base * float(regularisation))
+    cov = (r * u**2) @ r.T
+    return c, np.sqrt(np.clip(np.diag(cov), 0.0, None))
+
+
+# ---- merging ------------------------------------------------------------------------------
+def merge_sweeps(a: SpectralSensitivity, b: SpectralSensitivity, *, scale: bool = True,
+                 min_overlap: int = 2) -> SpectralSensitivity:
+    """Merge two sweeps (e.g. two gratings) into one on the union of their wavelengths.
+
+    ``b`` is first scaled onto ``a`` by one factor k fitted in the overlap
+    (weighted least squares over all planes, k = Σ w a b / Σ w b², w = 1/(u_a² + k² u_b²)
+    iterated), with k's uncertainty added to b's. Then, where both sweeps cover a
+    wavelength (b interpolated linearly onto it), the values are averaged with
+    inverse-variance (SNR) weights; elsewhere the covering sweep is used.
+    """
+    if a.mode != b.mode or a.deconvolved != b.deconvolved:
+        raise CamcalError("cannot merge sweeps of different mode or deconvolution")
+    if (a.reference_iso, a.reference_f_number) != (b.reference_iso, b.reference_f_number) and a.mode == "absolute":
+        raise CamcalError("cannot merge absolute sweeps normalised to different reference settings")
+    wa, wb = a.wavelength_nm, b.wavelength_nm
+    grid = np.union1d(wa, wb)
+
+    def on(s: SpectralSensitivity, key: str, which: str) -> tuple[np.ndarray, np.ndarray]:
+        src = getattr(s, which)[key]
+        inside = (grid >= s.wavelength_nm[0]) & (grid <= s.wavelength_nm[-1])
+        return np.where(inside, np.interp(grid, s.wavelength_nm, src), np.nan), inside
+
+    k, u_k = 1.0, 0.0
+    overlap = (grid >= max(wa[0], wb[0])) & (grid <= min(wa[-1], wb[-1]))
+    if scale:
+        if overlap.sum() < min_overlap:
+            raise CamcalError(f"sweeps overlap at {int(overlap.sum())} wavelengths; need {min_overlap} to scale")
+        av = np.concatenate([on(a, p, "values")[0][overlap] for p in PLANES])
+        au = np.concatenate([on(a, p, "uncertainty")[0][overlap] for p in PLANES])
+        bv = np.concatenate([on(b, p, "values")[0][overlap] for p in PLANES])
+        bu = np.concatenate([on(b, p, "uncertainty")[0][overlap] for p in PLANES])
+        for _ in range(5):
+            wgt = 1.0 / np.maximum(au**2 + k**2 * bu**2, 1e-300)
+            k = float(np.sum(wgt * av * bv) / np.sum(wgt * bv**2))
+        u_k = float(1.0 / math.sqrt(np.sum(wgt * bv**2)))
+    vals, uncs = {}, {}
+    for p in PLANES:
+        va, ina = on(a, p, "values")
+        ua, _ = on(a, p, "uncertainty")
+        vb, inb = on(b, p, "values")
+        ub, _ = on(b, p, "uncertainty")
+        vb, ub = k * vb, np.hypot(k * ub, u_k * vb)
+        wa_ = np.where(ina, 1.0 / np.maximum(ua, 1e-300) ** 2, 0.0)
+        wb_ = np.where(inb, 1.0 / np.maximum(ub, 1e-300) ** 2, 0.0)
+        tot = wa_ + wb_
+        vals[p] = (np.nan_to_num(va) * wa_ + np.nan_to_num(vb) * wb_) / tot
+        uncs[p] = 1.0 / np.sqrt(tot)
+    notes = (*a.notes, *b.notes, f"merged: second sweep scaled by {k:.6g} ± {u_k:.2g}")
+    bws = [x for x in (a.bandwidth_nm, b.bandwidth_nm) if x]
+    return SpectralSensitivity(grid, vals, uncs, a.units, a.mode, a.reference_iso, a.reference_f_number,
+                               max(bws) if bws else None, a.deconvolved, {**b.n_frames, **a.n_frames}, notes)
+
+
+# ---- SPECTACLE CSV ---------------------------------------------------------------------------
+def _meta_path(path: Path) -> Path:
+    return path.with_name(path.stem + ".meta.json")
+
+
+def write_spectacle_csv(s: SpectralSensitivity, path: str | Path) -> Path:
+    """Write the SPECTACLE layout ``Wavelength,R,G,B,G2,R_err,G_err,B_err,G2_err`` (G = G1, G2 = G2).
+
+    The CSV holds only the header and numbers, as SPECTACLE's tools read it;
+    camcal's metadata (mode, units, reference setting, bandwidth, summary) goes
+    to ``<stem>.meta.json`` beside it. Both are written atomically.
+    """
+    from camcal.atomic import atomic_write_text
+    from camcal.store import to_jsonable
+
+    path = Path(path)
+    cols = [s.wavelength_nm, s.values["R"], s.values["G1"], s.values["B"], s.values["G2"],
+            s.uncertainty["R"], s.uncertainty["G1"], s.uncertainty["B"], s.uncertainty["G2"]]
+    lines = [",".join(SPECTACLE_COLUMNS)]
+    for row in np.column_stack(cols):
+        lines.append(",".join(f"{row[0]:g}" if i == 0 else f"{v:.9g}" for i, v in enumerate(row)))
+    meta = {"kind": "camcal.spectral", "mode": s.mode, "units": s.units, "reference_iso": s.reference_iso,
+            "reference_f_number": s.reference_f_number, "bandwidth_nm": s.bandwidth_nm,
+            "deconvolved": s.deconvolved, "n_frames": s.n_frames, "notes": list(s.notes), "summary": s.summary()}
+    atomic_write_text(_meta_path(path), json.dumps(to_jsonable(meta), indent=1, allow_nan=False))
+    atomic_write_text(path, "\n".join(lines) + "\n")
+    return path
+
+
+def spectral_to_dict(s: SpectralSensitivity) -> dict[str, Any]:
+    """Everything of ``s``, JSON-ready (lists of floats); inverse of :func:`spectral_from_dict`."""
+    from camcal.store import to_jsonable
+
+    return to_jsonable({
+        "wavelength_nm": s.wavelength_nm, "values": {p: s.values[p] for p in PLANES},
+        "uncertainty": {p: s.uncertainty[p] for p in PLANES}, "units": s.units, "mode": s.mode,
+        "reference_iso": s.reference_iso, "reference_f_number": s.reference_f_number,
+        "bandwidth_nm": s.bandwidth_nm, "deconvolved": s.deconvolved, "n_frames": s.n_frames,
+        "notes": list(s.notes), "summary": s.summary(),
+    })
+
+
+def spectral_from_dict(d: dict[str, Any]) -> SpectralSensitivity:
+    """Rebuild a :class:`SpectralSensitivity` from :func:`spectral_to_dict` output."""
+    try:
+        return SpectralSensitivity(
+            wavelength_nm=np.asarray(d["wavelength_nm"], float),
+            values={p: np.asarray(d["values"][p], float) for p in PLANES},
+            uncertainty={p: np.asarray(d["uncertainty"][p], float) for p in PLANES},
+            units=str(d["units"]), mode="absolute" if d["mode"] == "absolute" else "relative",
+            reference_iso=float(d["reference_iso"]), reference_f_number=float(d["reference_f_number"]),
+            bandwidth_nm=None if d.get("bandwidth_nm") is None else float(d["bandwidth_nm"]),
+            deconvolved=bool(d.get("deconvolved", False)), n_frames=dict(d.get("n_frames") or {}),
+            notes=tuple(str(n) for n in d.get("notes") or ()),
+        )
+    except (KeyError, TypeError, ValueError) as exc:
+        raise CamcalError(f"malformed spectral sensitivity ({type(exc).__name__}: {exc})") from None
+
+
+def read_spectacle_csv(path: str | Path) -> SpectralSensitivity:
+    """Read a SPECTACLE-layout CSV (and camcal's ``<stem>.meta.json`` when present).
+
+    Without the metadata file the result is in ``relative`` mode with unknown
+    bandwidth. Missing ``*_err`` columns give zero uncertainty.
+    """
+    import csv
+
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except OSError as exc:
+        raise CamcalError(f"cannot read: {exc.strerror or exc}", path) from None
+    except UnicodeDecodeError:
+        raise CamcalError("is not UTF-8 text", path) from None
+    lines = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
+    if not lines:
+        raise CamcalError("is empty", path)
+    rows = list(csv.reader(lines))
+    header = [h.strip() for h in rows[0]]
+    for col in ("Wavelength", "R", "G", "B"):
+        if col not in header:
+            raise CamcalError(f"missing column {col!r}; expected {','.join(SPECTACLE_COLUMNS)}", path)
+    try:
+        data = np.array([[float(c) for c in r] for r in rows[1:]], float)
+    except ValueError as exc:
+        raise CamcalError(f"non-numeric cell: {exc}", path) from None
+    if data.ndim != 2 or data.shape[0] == 0 or data.shape[1] != len(header) or not np.all(np.isfinite(data)):
+        raise CamcalError("rows must be complete and finite numbers", path)
+    col = {h: data[:, i] for i, h in enumerate(header)}
+    zero = np.zeros(data.shape[0])
+    g2 = col.get("G2", col["G"])
+    values = {"R": col["R"], "G1": col["G"], "G2": g2, "B": col["B"]}
+    unc = {"R": col.get("R_err", zero), "G1": col.get("G_err", zero), "G2": col.get("G2_err", col.get("G_err", zero)),
+           "B": col.get("B_err", zero)}
+    order = np.argsort(col["Wavelength"])
+    meta: dict[str, Any] = {}
+    mp = _meta_path(path)
+    if mp.is_file():
+        try:
+            meta = json.loads(mp.read_text(encoding="utf-8"))
+        except (OSError, ValueError) as exc:
+            raise CamcalError(f"invalid metadata file: {exc}", mp) from None
+    mode = meta.get("mode", "relative")
+    return SpectralSensitivity(
+        wavelength_nm=col["Wavelength"][order],
+        values={k: v[order] for k, v in values.items()},
+        uncertainty={k: v[order] for k, v in unc.items()},
+        units=meta.get("units", RELATIVE_UNITS),
+        mode="absolute" if mode == "absolute" else "relative",
+        reference_iso=float(meta.get("reference_iso", DEFAULT_REFERENCE_ISO)),
+        reference_f_number=float(meta.get("reference_f_number", DEFAULT_REFERENCE_F_NUMBER)),
+        bandwidth_nm=meta.get("bandwidth_nm"),
+        deconvolved=bool(meta.get("deconvolved", False)),
+        n_frames=dict(meta.get("n_frames", {})),
+        notes=tuple(meta.get("notes", ())),
+    )
+
+
+# ---- plot -------------------------------------------------------------------------------------
+def plot_sensitivity(s: SpectralSensitivity, path: str | Path, *, title: str | None = None,
+                     truth: dict[str, np.ndarray] | None = None, truth_wavelength_nm: np.ndarray | None = None) -> Path:
+    """PNG of c(λ) per plane with ±2u bands (and an optional truth overlay), written atomically."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from camcal.atomic import atomic_path
+
+    colours = {"R": "tab:red", "G1": "tab:green", "G2": "olive", "B": "tab:blue"}
+    fig, ax = plt.subplots(figsize=(8, 4.5), dpi=110)
+    for p in PLANES:
+        v, u = s.values[p], s.uncertainty[p]
+        ax.plot(s.wavelength_nm, v, "--" if p == "G2" else "-o", ms=2.5, color=colours[p], label=p)
+        ax.fill_between(s.wavelength_nm, v - 2 * u, v + 2 * u, color=colours[p], alpha=0.2, lw=0)
+    if truth is not None and truth_wavelength_nm is not None:
+        for k, v in truth.items():
+            ax.plot(truth_wavelength_nm, v, "--", color="k", lw=0.8, label=f"truth {k}")
+    ax.set_xlabel("wavelength (nm)")
+    ax.set_ylabel("c(λ) relative" if s.mode == "relative" else "c(λ) (DN s⁻¹ per W m⁻² sr⁻¹)")
+    ax.set_title(title or f"spectral sensitivity ({s.mode}{', deconvolved' if s.deconvolved else ''})")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, ncol=2)
+    fig.tight_layout()
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)
+    return path

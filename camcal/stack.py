@@ -1,0 +1,463 @@
+"""Streaming combination of a stack of frames: mean, median, sigma-clipped mean.
+
+Every calibration stage (bias, dark, flat, sweep, profile) averages N frames of one
+setting per pixel and per channel plane. :func:`combine_frames` does it with each
+file decoded exactly once and memory that does not grow with N:
+
+- ``method="mean"``: running (Welford) mean and sum of squared deviations in float64,
+  one frame in memory at a time (Welford 1962; Chan, Golub & LeVeque 1983).
+- ``method="median"`` / ``"sigma_clip"``: each decoded frame is spilled to a temporary
+  raw file (uint16 when the planes are integer DN, as with the default preprocessing,
+  float32 otherwise); the statistics are then computed over *row bands* read back with
+  explicit ``readinto`` calls (not ``np.memmap``, whose touched pages count against the
+  resident set). The band height shrinks as N grows so the working set stays at about
+  ``band_mb`` megabytes whatever the number of frames.
+
+Decoding can run in a 2-process pool (``jobs=2``) that writes straight into the spill
+file; the band statistics run in ``jobs`` threads (numpy's sort releases the GIL).
+
+Sigma clipping (``sigma_clip``) per pixel: pass 1 keeps values within ``sigma`` robust
+standard deviations (interquartile range / 1.349) of the median; pass 2 keeps
+values within ``sigma`` standard deviations (ddof=1) of the mean of the pass-1 values.
+The combined value is the mean of the kept values; ``mean``/``variance``/``count`` are
+those of the kept values too (for ``mean`` and ``median`` every value is used).
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import tempfile
+from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from camcal.errors import CamcalError
+from camcal.frame import Exposure, Frame
+from camcal.io import folder_manifest, list_frames, load_folder_frame
+
+METHODS = ("mean", "median", "sigma_clip")
+MAD_TO_SIGMA = 1.4826
+"""Scale of the median absolute deviation to the standard deviation of a normal law."""
+IQR_TO_SIGMA = 1.349
+"""Interquartile range of a normal law in standard deviations."""
+
+
+@dataclass(frozen=True)
+class StackResult:
+    """Per-pixel statistics of a stack of N frames (channel first, (C, h, w)).
+
+    Attributes
+    ----------
+    value : (C, h, w) float32
+        Combined value per ``method`` (mean, median or sigma-clipped mean), in the
+        units of the planes (DN for raw and processed frames).
+    mean : (C, h, w) float32
+        Plain mean of the values used.
+    variance : (C, h, w) float32
+        Temporal variance (ddof=1) of the values used, units squared; NaN where fewer
+        than two values were used.
+    count : (C, h, w) int16 or int32
+        Number of values used per pixel.
+    n_frames : int
+    method : str
+    exposures : tuple of Exposure
+        Per frame, with the folder's ``frames.csv`` applied.
+    paths : tuple of Path
+    channel_names : tuple of str
+        :data:`camcal.frame.PLANES` for raw frames, ``("R", "G", "B")`` for processed.
+    kind : str
+        ``"raw"`` or ``"processed"`` (of the first frame).
+    cfa_pattern : str or None
+    black_level_dn : tuple of float
+        Black level per channel of the first frame, DN.
+    white_level_dn : float
+        Saturation level of the first frame, DN.
+    frame_shape : tuple of int
+        Full-resolution (height, width) of the frames.
+    variance_all : (C, h, w) float32 or None
+        Temporal variance (ddof=1) of *all* values, before clipping (``sigma_clip``);
+        the same array as ``variance`` for ``mean`` and ``median``.
+    """
+
+    value: np.ndarray
+    mean: np.ndarray
+    variance: np.ndarray
+    count: np.ndarray
+    n_frames: int
+    method: str
+    exposures: tuple[Exposure, ...]
+    paths: tuple[Path, ...]
+    channel_names: tuple[str, ...]
+    kind: str = "raw"
+    cfa_pattern: str | None = None
+    black_level_dn: tuple[float, ...] = field(default_factory=tuple)
+    white_level_dn: float = float("nan")
+    frame_shape: tuple[int, int] = (0, 0)
+    variance_all: np.ndarray | None = None
+
+
+# --------------------------------------------------------------------------------------------
+# decoding (parent or forked worker)
+
+_STATE: dict = {}
+"""Decode settings shared with forked workers (closures need not be picklable with fork)."""
+
+
+@dataclass(frozen=True)
+class _Meta:
+    index: int
+    exposure: Exposure
+    kind: str
+    cfa_pattern: str | None
+    channel_names: tuple[str, ...]
+    black: tuple[float, ...]
+    white: float
+    frame_shape: tuple[int, int]
+    planes_shape: tuple[int, ...]
+
+
+def _manifest_for(path: Path) -> dict:
+    cache = _STATE.setdefault("manifests", {})
+    folder = path.parent
+    if folder not in cache:
+        cache[folder] = folder_manifest(folder)
+    return cache[folder]
+
+
+def _decode(index: int, path: Path) -> tuple[_Meta, np.ndarray]:
+    manifest = _STATE.get("manifest")
+    frame: Frame = load_folder_frame(path, manifest if manifest is not None else _manifest_for(path))
+    check = _STATE.get("check")
+    if check is not None:
+        check(frame)
+    pre = _STATE.get("preprocess")
+    # default planes keep the file's integer type (uint8/uint16): exact, half the bytes to move and spill
+    planes = frame.planes(dtype=frame.data.dtype) if pre is None else np.asarray(pre(frame), dtype=np.float32)
+    if planes.ndim != 3:
+        raise CamcalError(f"preprocessing gave an array of shape {planes.shape}, expected (C, h, w)", path)
+    meta = _Meta(index, frame.exposure, frame.kind, frame.cfa_pattern, frame.channel_names,
+                 tuple(float(v) for v in frame.black_vector().ravel()), float(frame.white_level_dn), frame.shape,
+                 tuple(planes.shape))
+    return meta, planes
+
+
+def _check_same(meta: _Meta, first: _Meta, path: Path) -> None:
+    if meta.frame_shape != first.frame_shape or meta.planes_shape != first.planes_shape:
+        h, w = meta.frame_shape
+        h0, w0 = first.frame_shape
+        raise CamcalError(f"frame size {w}x{h} differs from the first frame's {w0}x{h0}; "
+                          "all frames of a stack must have one size", path)
+    if meta.kind != first.kind:
+        raise CamcalError(f"is a {meta.kind} image but the first frame is {first.kind}; do not mix them", path)
+    if meta.cfa_pattern != first.cfa_pattern:
+        raise CamcalError(f"CFA pattern {meta.cfa_pattern} differs from the first frame's {first.cfa_pattern}", path)
+
+
+def _spill_write(index: int, planes: np.ndarray) -> None:
+    dtype = _STATE["spill_dtype"]
+    data = planes.astype(dtype, copy=False) if planes.dtype != dtype else planes
+    buf = np.ascontiguousarray(data).view(np.uint8).reshape(-1)
+    offset = index * buf.nbytes
+    fd = _STATE.get("spill_fd")
+    if fd is None:
+        fd = os.open(_STATE["spill_path"], os.O_WRONLY)
+        _STATE["spill_fd"] = fd
+    done = 0
+    while done < buf.nbytes:
+        done += os.pwrite(fd, buf[done:], offset + done)
+
+
+def _worker(item: tuple[int, str]) -> tuple[_Meta, np.ndarray | None]:
+    """Decode one frame in a pool worker; spill it (median/clip) or return it (mean)."""
+    index, path = item
+    meta, planes = _decode(index, Path(path))
+    first: _Meta = _STATE["first"]
+    _check_same(meta, first, Path(path))
+    if _STATE["spill_path"] is not None:
+        _spill_write(index, planes)
+        return meta, None
+    return meta, planes
+
+
+# --------------------------------------------------------------------------------------------
+# band statistics
+
+
+def _band_stats(x: np.ndarray, method: str, sigma: float) -> tuple[np.ndarray, ...]:
+    """Statistics along axis 0 of an (N, ...) band (uint16 or float32).
+
+    Returns value, mean, variance, count and the variance of all values. The band is
+    sorted once (uint16 sorts fast); everything else works on values shifted by the
+    median in float32, so sums of squares keep their precision.
+    """
+    n = x.shape[0]
+    s = np.sort(x, axis=0)
+    med = _sorted_median(s)
+    d = s.astype(np.float32)
+    del s
+    d -= med
+    sd = d.sum(axis=0, dtype=np.float32)
+    sdd = np.einsum("i...,i...->...", d, d)
+    mean_all = med + sd.astype(np.float64) / n
+    with np.errstate(invalid="ignore", divide="ignore"):
+        var_all = np.maximum(sdd - sd * sd / n, 0) / (n - 1) if n > 1 else np.full(med.shape, np.nan, np.float32)
+    if method == "median":
+        return med, mean_all, var_all, np.full(med.shape, n, np.int32), var_all
+    # pass 1: robust scale from the interquartile range of the sorted values (IQR / 1.349 = sigma)
+    scale = (_sorted_quantile(d, 0.75) - _sorted_quantile(d, 0.25)) / np.float32(IQR_TO_SIGMA)
+    scale = np.where(scale > 0, scale, np.sqrt(np.nan_to_num(var_all)))
+    thr = (sigma * scale).astype(np.float32)
+    keep = d >= -thr
+    keep &= d <= thr
+    m, v, cnt = _shifted_moments(d, keep)
+    # pass 2: within sigma standard deviations (ddof=1) of the mean of the pass-1 values
+    thr = sigma * np.sqrt(np.nan_to_num(v)).astype(np.float32) + np.float32(1e-6) * np.abs(med)
+    keep = d >= m - thr
+    keep &= d <= m + thr
+    m, v, cnt = _shifted_moments(d, keep)
+    mean = med + m.astype(np.float64)
+    return mean, mean, v, cnt, var_all
+
+
+def _shifted_moments(d: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Mean, variance (ddof=1) and count of the kept values of ``d`` along axis 0 (float32)."""
+    cnt = keep.sum(axis=0, dtype=np.int32)
+    dk = d * keep
+    s1 = dk.sum(axis=0, dtype=np.float32)
+    s2 = np.einsum("i...,i...->...", dk, dk)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        m = s1 / cnt
+        v = np.maximum(s2 - s1 * m, 0) / (cnt - 1)
+    v = np.where(cnt > 1, v, np.float32(np.nan))
+    return m.astype(np.float32), v.astype(np.float32), cnt
+
+
+def _sorted_median(s: np.ndarray) -> np.ndarray:
+    n = s.shape[0]
+    if n % 2:
+        return s[n // 2].astype(np.float32)
+    return np.float32(0.5) * (s[n // 2 - 1].astype(np.float32) + s[n // 2].astype(np.float32))
+
+
+def _sorted_quantile(s: np.ndarray, q: float) -> np.ndarray:
+    """Quantile of sorted values along axis 0 (linear interpolation, numpy's default)."""
+    pos = q * (s.shape[0] - 1)
+    lo = int(np.floor(pos))
+    hi = min(lo + 1, s.shape[0] - 1)
+    f = np.float32(pos - lo)
+    return s[lo] + f * (s[hi] - s[lo])
+
+
+# --------------------------------------------------------------------------------------------
+
+
+def combine_frames(
+    paths: Sequence[str | Path],
+    *,
+    method: str = "mean",
+    sigma: float = 3.0,
+    preprocess: Callable[[Frame], np.ndarray] | None = None,
+    manifest: dict | None = None,
+    check: Callable[[Frame], None] | None = None,
+    jobs: int = 1,
+    progress: Callable[[int, int], None] | None = None,
+    band_mb: float = 8.0,
+    spill_dir: str | Path | None = None,
+) -> StackResult:
+    """Combine frames per pixel and per channel plane, reading each file once.
+
+    Parameters
+    ----------
+    paths : image files (RAW or processed), all of one size.
+    method : ``"mean"``, ``"median"`` or ``"sigma_clip"`` (sigma-clipped mean, see module docs).
+    sigma : clipping threshold in standard deviations (``sigma_clip`` only).
+    preprocess : ``Frame -> (C, h, w)`` float32 array; default :meth:`Frame.planes`
+        (raw: R, G1, G2, B planes in DN; processed: R, G, B).
+    manifest : ``frames.csv`` rows (:func:`camcal.io.folder_manifest`) applied to every file;
+        None reads each file's own folder manifest.
+    check : called with each decoded frame; raise :class:`CamcalError` to refuse it.
+    jobs : 1, or 2 to decode in a 2-process pool and compute band statistics in 2 threads.
+    progress : ``progress(done, total)`` after each decoded frame.
+    band_mb : working-set budget of one row band, MB (median / sigma_clip).
+    spill_dir : folder for the temporary spill file (default: the system temp folder).
+
+    Returns
+    -------
+    StackResult
+
+    Raises
+    ------
+    CamcalError
+        No frames, an unknown method, an unreadable file, frames of different sizes,
+        kinds or CFA patterns, or whatever ``check`` raises.
+    """
+    paths = tuple(Path(p) for p in paths)
+    if method not in METHODS:
+        raise CamcalError(f"unknown combination method {method!r}; choose from {', '.join(METHODS)}")
+    if not paths:
+        raise CamcalError("no frames to combine")
+    if not np.isfinite(sigma) or sigma <= 0:
+        raise CamcalError(f"sigma must be a positive number, got {sigma}")
+    n = len(paths)
+    jobs = max(1, min(int(jobs), 2, n))
+
+    _STATE.clear()
+    _STATE.update(manifest=manifest, check=check, preprocess=preprocess, spill_path=None)
+    try:
+        first_meta, first_planes = _decode(0, paths[0])
+        _STATE["first"] = first_meta
+        c, h, w = first_planes.shape
+        spill_path = None
+        if method != "mean":
+            integer = preprocess is None
+            _STATE["spill_dtype"] = np.dtype(np.uint16 if integer else np.float32)
+            fd, name = tempfile.mkstemp(prefix="camcal-stack-", suffix=".raw", dir=spill_dir)
+            os.close(fd)
+            spill_path = Path(name)
+            _STATE["spill_path"] = str(spill_path)
+        try:
+            metas: list[_Meta | None] = [None] * n
+            metas[0] = first_meta
+            acc = _Welford((c, h, w)) if method == "mean" else None
+            if acc is not None:
+                acc.add(first_planes)
+            else:
+                _spill_write(0, first_planes)
+            del first_planes
+            if progress:
+                progress(1, n)
+            items = [(i, str(p)) for i, p in enumerate(paths)][1:]
+            for done, (meta, planes) in enumerate(_run(items, jobs), start=2):
+                metas[meta.index] = meta
+                if acc is not None and planes is not None:
+                    acc.add(planes)
+                if progress:
+                    progress(done, n)
+            fd = _STATE.pop("spill_fd", None)
+            if fd is not None:
+                os.close(fd)
+            if acc is not None:
+                value, mean, var, count = acc.result()
+                var_all = var
+            else:
+                value, mean, var, count, var_all = _bands(spill_path, n, (c, h, w), _STATE["spill_dtype"], method,
+                                                          sigma, jobs, band_mb)
+        finally:
+            fd = _STATE.pop("spill_fd", None)
+            if fd is not None:
+                os.close(fd)
+            if spill_path is not None:
+                spill_path.unlink(missing_ok=True)
+    finally:
+        _STATE.clear()
+    count_dtype = np.int16 if n < 2**15 else np.int32
+    return StackResult(
+        value=value, mean=mean, variance=var, count=count.astype(count_dtype), n_frames=n, method=method,
+        exposures=tuple(m.exposure for m in metas), paths=paths, channel_names=first_meta.channel_names,
+        kind=first_meta.kind, cfa_pattern=first_meta.cfa_pattern, black_level_dn=first_meta.black,
+        white_level_dn=first_meta.white, frame_shape=first_meta.frame_shape, variance_all=var_all,
+    )
+
+
+def _run(items: list[tuple[int, str]], jobs: int):
+    """Yield ``(meta, planes-or-None)`` per item, in a forked pool when ``jobs > 1``."""
+    if jobs <= 1 or not items or "fork" not in multiprocessing.get_all_start_methods():
+        for item in items:
+            yield _worker(item)
+        return
+    ctx = multiprocessing.get_context("fork")
+    with ctx.Pool(jobs) as pool:
+        yield from pool.imap_unordered(_worker, items, chunksize=1)
+
+
+class _Welford:
+    """Running mean and sum of squared deviations (Welford's algorithm), float64."""
+
+    def __init__(self, shape: tuple[int, ...]) -> None:
+        self.n = 0
+        self.mean = np.zeros(shape, np.float64)
+        self.m2 = np.zeros(shape, np.float64)
+
+    def add(self, x: np.ndarray) -> None:
+        self.n += 1
+        delta = x - self.mean
+        self.mean += delta / self.n
+        delta2 = x - self.mean
+        delta *= delta2
+        self.m2 += delta
+
+    def result(self) -> tuple[np.ndarray, ...]:
+        mean = self.mean.astype(np.float32)
+        var = (self.m2 / (self.n - 1)).astype(np.float32) if self.n > 1 else np.full(mean.shape, np.nan, np.float32)
+        return mean, mean, var, np.full(mean.shape, self.n, np.int32)
+
+
+def _bands(spill: Path, n: int, shape: tuple[int, int, int], dtype: np.dtype, method: str, sigma: float,
+           jobs: int, band_mb: float) -> tuple[np.ndarray, ...]:
+    """Band-wise statistics of the spilled (n, C, h, w) stack."""
+    c, h, w = shape
+    rows = max(1, min(h, int(band_mb * 1e6 / (n * c * w * 4))))
+    bands = [(y0, min(h, y0 + rows)) for y0 in range(0, h, rows)]
+    value = np.empty(shape, np.float32)
+    mean = np.empty(shape, np.float32)
+    var = np.empty(shape, np.float32)
+    count = np.empty(shape, np.int32)
+    var_all = np.empty(shape, np.float32) if method == "sigma_clip" else var
+    item = dtype.itemsize
+    fd = os.open(spill, os.O_RDONLY)
+
+    def one(band: tuple[int, int]) -> None:
+        y0, y1 = band
+        buf = np.empty((n, c, y1 - y0, w), dtype)
+        for i in range(n):
+            for k in range(c):
+                mv = memoryview(buf[i, k]).cast("B")
+                off = (((i * c + k) * h) + y0) * w * item
+                got = 0
+                while got < mv.nbytes:
+                    r = os.preadv(fd, [mv[got:]], off + got)
+                    if r <= 0:
+                        raise CamcalError("temporary stack file ended early (disk full?)", spill)
+                    got += r
+        v, m, s2, cnt, s2_all = _band_stats(buf, method, sigma)
+        del buf
+        value[:, y0:y1] = v
+        mean[:, y0:y1] = m
+        var[:, y0:y1] = s2
+        count[:, y0:y1] = cnt
+        if var_all is not var:
+            var_all[:, y0:y1] = s2_all
+
+    try:
+        if jobs > 1 and len(bands) > 1:
+            with ThreadPoolExecutor(jobs) as ex:
+                list(ex.map(one, bands))
+        else:
+            for b in bands:
+                one(b)
+    finally:
+        os.close(fd)
+    return value, mean, var, count, var_all
+
+
+def combine_folder(folder: str | Path, **kwargs) -> StackResult:
+    """:func:`combine_frames` over every image of ``folder`` (its ``frames.csv`` applied).
+
+    Files listed in ``frames.csv`` but missing from the folder are an error.
+    """
+    folder = Path(folder)
+    files = list_frames(folder)
+    manifest = kwargs.pop("manifest", None)
+    if manifest is None:
+        manifest = folder_manifest(folder)
+    names = {p.name for p in files}
+    for name in manifest:
+        if name not in names and not (folder / name).is_file():
+            raise CamcalError(f"frames.csv lists {name!r}, which is not in the folder", folder)
+    if not files:
+        raise CamcalError("holds no image files", folder)
+    return combine_frames(files, manifest=manifest, **kwargs)

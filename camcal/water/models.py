@@ -1,0 +1,238 @@
+"""Forward models of a Lambertian disk in a water column (seed §1, §4), vectorised over C and d.
+
+Every model is written in terms of the one-way vertical natural optical depth of the water above the
+disk, τ = k d (k the natural absorption coefficient, m⁻¹; for chlorophyll alone k = ln(10) ε C). The
+seed's eq. 10 and the refined model share one closed form (physics notes; Abramowitz & Stegun 5.1.4):
+
+    ∫_0^θc e^(−x/cos θ) cos θ sin θ dθ = E₃(x) − μc² E₃(x/μc),   μc = cos θc,
+
+so each model's ratio is  R(τ) = K · e^(−sτ) · I(mτ; μc),  I(x; μc) = E₃(x) − μc² E₃(x/μc)
+(:class:`ClosedForm`), with derivative dI/dx = −E₂(x) + μc E₂(x/μc).
+
+References
+----------
+Seed (Zaman 2018) eq. 10 and eq. 11; Abramowitz, M., Stegun, I. (1964), Handbook of Mathematical
+Functions, §5.1 (exponential integrals E_n); Mobley, C. D. (1994), Light and Water, §4.3 (the n² law).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.special import expn
+
+from camcal.water.optics import (
+    N_WATER,
+    critical_angle,
+    gauss_legendre,
+    hemispheric_transmittance,
+    snell,
+    transmittance,
+)
+from camcal.water.units import EPSILON_SEED_L_PER_MOL_CM, LN10
+
+#: Seed §5: the cutoff angle of the simulations, π/2.1 rad.
+SEED_CUTOFF_RAD = np.pi / 2.1
+#: Pure-water absorption at 663 nm, m⁻¹ (Pope & Fry 1997: 0.424 at 662.5 nm, 0.429 at 665 nm).
+WATER_ABSORPTION_663_PER_M = 0.425
+
+
+def e3_integral(x, mu_c):
+    """I(x; μc) = ∫_0^θc e^(−x/cos θ) cos θ sin θ dθ = E₃(x) − μc² E₃(x/μc)  (x ≥ 0, 0 < μc < 1)."""
+    x = np.asarray(x, dtype=float)
+    return expn(3, x) - mu_c * mu_c * expn(3, x / mu_c)
+
+
+def e3_integral_derivative(x, mu_c):
+    """dI/dx = −E₂(x) + μc E₂(x/μc) (negative: I decreases monotonically in x)."""
+    x = np.asarray(x, dtype=float)
+    return -expn(2, x) + mu_c * expn(2, x / mu_c)
+
+
+@dataclass(frozen=True)
+class ClosedForm:
+    """R(τ) = scale · e^(−view_factor·τ) · I(path_factor·τ; mu_c): the shape shared by every model.
+
+    scale : K (dimensionless); view_factor : s (1/cos of the in-water view angle, 0 for the seed);
+    path_factor : m (2 for the seed's down-and-up path, 1 for the refined model's downward cone);
+    mu_c : cos of the in-water cutoff angle.
+    """
+
+    scale: float
+    view_factor: float
+    path_factor: float
+    mu_c: float
+
+    def ratio(self, tau):
+        """R(τ)."""
+        tau = np.asarray(tau, dtype=float)
+        return self.scale * np.exp(-self.view_factor * tau) * e3_integral(self.path_factor * tau, self.mu_c)
+
+    def dlog_ratio_dtau(self, tau):
+        """d ln R / dτ = −s + m I'(mτ)/I(mτ) (negative)."""
+        x = self.path_factor * np.asarray(tau, dtype=float)
+        return -self.view_factor + self.path_factor * e3_integral_derivative(x, self.mu_c) / e3_integral(x, self.mu_c)
+
+    def ratio_derivative(self, tau):
+        """dR/dτ."""
+        return self.ratio(tau) * self.dlog_ratio_dtau(tau)
+
+    @property
+    def ratio_at_zero(self) -> float:
+        """R(0) = K (1 − μc²)/2 (= ρ sin²θc for the seed)."""
+        return float(self.scale * 0.5 * (1.0 - self.mu_c * self.mu_c))
+
+    @property
+    def slope_at_zero(self) -> float:
+        """−d ln R/dτ at τ = 0: s + 2m/(1 + μc)."""
+        return float(self.view_factor + 2.0 * self.path_factor / (1.0 + self.mu_c))
+
+
+def chlorophyll_tau(c_mol_per_L, depth_m, epsilon_L_per_mol_cm: float):
+    """One-way natural optical depth of chlorophyll over depth d: τ = ln(10) ε C (100 d) (d in m → cm)."""
+    return LN10 * epsilon_L_per_mol_cm * np.asarray(c_mol_per_L, dtype=float) * 100.0 * np.asarray(depth_m, float)
+
+
+@dataclass(frozen=True)
+class SeedModel:
+    """The seed's eq. 10: L_i/L_s = 2ρ ∫_0^θc 10^(−2εdC/cos θ) cos θ sin θ dθ, evaluated exactly.
+
+    epsilon_L_per_mol_cm : decadic molar absorption coefficient (default: the seed's 0.088 L mg⁻¹ cm⁻¹).
+    albedo : ρ, the disk's albedo relative to the reference (seed §5 uses 1).
+    cutoff_rad : θc (seed §5: π/2.1). No surface, no water absorption: the seed's assumptions.
+    """
+
+    epsilon_L_per_mol_cm: float = EPSILON_SEED_L_PER_MOL_CM
+    albedo: float = 1.0
+    cutoff_rad: float = SEED_CUTOFF_RAD
+
+    name = "seed"
+
+    def closed_form(self) -> ClosedForm:
+        return ClosedForm(2.0 * self.albedo, 0.0, 2.0, float(np.cos(self.cutoff_rad)))
+
+    def tau(self, c_mol_per_L, depth_m):
+        return chlorophyll_tau(c_mol_per_L, depth_m, self.epsilon_L_per_mol_cm)
+
+    def background_tau(self, depth_m):
+        return np.zeros_like(np.asarray(depth_m, dtype=float))
+
+    def ratio(self, c_mol_per_L, depth_m):
+        """L_i/L_s (seed eq. 10) by the E₃ closed form."""
+        return self.closed_form().ratio(self.tau(c_mol_per_L, depth_m))
+
+    def ratio_first_order(self, c_mol_per_L, depth_m, theta0_rad: float = 0.0):
+        """The seed's eq. 11 forward: ρ (cos²θ0 − cos²θc) 10^(−2εdC) (1/cos θ ≈ 1; sign corrected)."""
+        attenuation = np.exp(-2.0 * self.tau(c_mol_per_L, depth_m))
+        return self.albedo * (np.cos(theta0_rad) ** 2 - np.cos(self.cutoff_rad) ** 2) * attenuation
+
+    def invert_first_order(self, ratio, depth_m, theta0_rad: float = 0.0):
+        """The seed's eq. 11: C = −log10(L_i / (ρ L_s (cos²θ0 − cos²θc))) / (2 ε d), mol/L (d in cm)."""
+        base = self.albedo * (np.cos(theta0_rad) ** 2 - np.cos(self.cutoff_rad) ** 2)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return -np.log10(np.asarray(ratio, float) / base) / (
+                2.0 * self.epsilon_L_per_mol_cm * 100.0 * np.asarray(depth_m, float))
+
+
+@dataclass(frozen=True)
+class RefinedModel:
+    """Sky light refracted down, absorbed by water + chlorophyll + background, reflected by the disk,
+    absorbed on the way up along the camera's view and refracted out (Fresnel both ways, the n² law).
+
+    The ratio is camera radiance over the radiance of the same-albedo reference under the same uniform
+    sky in air (L_ref = ρ_ref L_sky). With T̄ the cosine-weighted mean air→water transmittance of the sky
+    cone and T_up the water→air transmittance along the view,
+
+        R = 2ρ T̄ T_up e^(−τ/μv) [E₃(τ) − μw² E₃(τ/μw)],  τ = (a_w + a_bg + ln10 ε C) d,
+
+    with μv, μw the cosines of the in-water view angle and of the in-water cutoff (the refracted sky
+    cutoff, the critical angle 48.75° for a full sky). The n² factors cancel (n² in, 1/n² out).
+    ``transmittance="exact"`` keeps T(θ) inside the angular integral (Gauss-Legendre), forward only.
+    """
+
+    epsilon_L_per_mol_cm: float = EPSILON_SEED_L_PER_MOL_CM
+    albedo: float = 1.0
+    n_water: float = N_WATER
+    sky_cutoff_rad: float = np.pi / 2  # air-side zenith angle above which no sky light enters
+    view_angle_rad: float = 0.0  # camera's air-side view angle from nadir
+    water_absorption_per_m: float = WATER_ABSORPTION_663_PER_M
+    background_absorption_per_m: float = 0.0  # CDOM, detritus: natural absorption, m⁻¹
+    reflectance: str = "fresnel"  # or "schlick"
+    transmittance: str = "mean"  # or "exact"
+
+    name = "refined"
+
+    def water_cutoff_rad(self) -> float:
+        """In-water cutoff: the sky cutoff refracted (the critical angle for a full sky)."""
+        if self.sky_cutoff_rad >= np.pi / 2:
+            return critical_angle(self.n_water)
+        return float(snell(self.sky_cutoff_rad, 1.0, self.n_water))
+
+    def view_water_rad(self) -> float:
+        return float(snell(self.view_angle_rad, 1.0, self.n_water))
+
+    def transmittance_up(self) -> float:
+        return float(transmittance(self.view_water_rad(), self.n_water, 1.0, self.reflectance))
+
+    def transmittance_down_mean(self) -> float:
+        return hemispheric_transmittance(min(self.sky_cutoff_rad, np.pi / 2), self.n_water, self.reflectance)
+
+    def closed_form(self) -> ClosedForm:
+        k = 2.0 * self.albedo * self.transmittance_down_mean() * self.transmittance_up()
+        return ClosedForm(k, 1.0 / float(np.cos(self.view_water_rad())), 1.0, float(np.cos(self.water_cutoff_rad())))
+
+    def tau(self, c_mol_per_L, depth_m):
+        return self.background_tau(depth_m) + chlorophyll_tau(c_mol_per_L, depth_m, self.epsilon_L_per_mol_cm)
+
+    def background_tau(self, depth_m):
+        return (self.water_absorption_per_m + self.background_absorption_per_m) * np.asarray(depth_m, dtype=float)
+
+    def ratio(self, c_mol_per_L, depth_m):
+        """Camera radiance over reference radiance."""
+        tau = self.tau(c_mol_per_L, depth_m)
+        cf = self.closed_form()
+        if self.transmittance == "mean":
+            return cf.ratio(tau)
+        if self.transmittance != "exact":
+            raise ValueError(f"unknown transmittance {self.transmittance!r}; use 'mean' or 'exact'")
+        x, w = gauss_legendre(128)
+        mu_c = cf.mu_c
+        mu = 0.5 * (1 - mu_c) * x + 0.5 * (1 + mu_c)  # in-water cos θ over [μc, 1]
+        theta_air = np.arcsin(np.clip(self.n_water * np.sqrt(1 - mu * mu), 0, 1))
+        t_down = transmittance(theta_air, 1.0, self.n_water, self.reflectance)
+        tau_b = np.asarray(tau, float)[..., None]
+        integral = 0.5 * (1 - mu_c) * np.sum(w * t_down * mu * np.exp(-tau_b / mu), axis=-1)  # ∫ .. μ dμ
+        return (2.0 * self.albedo * self.transmittance_up() * np.exp(-cf.view_factor * np.asarray(tau, float))
+                * integral)
+
+
+def lamp_ratio(c_mol_per_L, depth_m, height_m: float, lamp_angle_rad: float, model: RefinedModel | None = None):
+    """Seed §4: a point lamp at height H above the surface, its ray reaching the disk centre at air zenith
+    angle θa. Returns camera radiance of the submerged disk over that of the same disk in the empty tank
+    (same position, straight-line illumination from the same lamp).
+
+    Ray-tube irradiance through a flat interface: a ray leaving at α hits the surface at H tan α, refracts
+    to β (sin α = n sin β) and reaches depth d at X = H tan α + d tan β; the horizontal irradiance is
+    E = I₀ T(α) e^(−k d/cos β) sin α / (X dX/dα), dX/dα = H/cos²α + d cos α/(n cos³β)
+    (→ I₀ T/(H + d/n)² at normal incidence). In air: E = I₀ (H+d)/(X² + (H+d)²)^(3/2).
+    The upward path follows the camera's view (``model.view_angle_rad``) with T_up/n².
+    """
+    model = model or RefinedModel()
+    n = model.n_water
+    d = np.asarray(depth_m, dtype=float)
+    alpha = float(lamp_angle_rad)
+    beta = float(snell(alpha, 1.0, n))
+    tau = model.tau(c_mol_per_L, d)
+    t_down = float(transmittance(alpha, 1.0, n, model.reflectance))
+    if alpha == 0.0:
+        e_water = t_down * np.exp(-tau / np.cos(beta)) / (height_m + d / n) ** 2
+        x = np.zeros_like(d)
+    else:
+        x = height_m * np.tan(alpha) + d * np.tan(beta)
+        dx = height_m / np.cos(alpha) ** 2 + d * np.cos(alpha) / (n * np.cos(beta) ** 3)
+        e_water = t_down * np.exp(-tau / np.cos(beta)) * np.sin(alpha) / (x * dx)
+    hd = height_m + d
+    e_air = hd / (x * x + hd * hd) ** 1.5
+    mu_v = float(np.cos(model.view_water_rad()))
+    return e_water / e_air * model.transmittance_up() / (n * n) * np.exp(-tau / mu_v)

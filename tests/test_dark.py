@@ -1,0 +1,149 @@
+"""Dark model against the synthetic camera's truth (real DNG sessions, BGGR and RGGB, 14-bit, black level > 0)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from camcal.dark import HOT, fit_dark, load_dark, save_dark, subtract_dark
+from camcal.errors import CamcalError
+from camcal.stack import combine_frames
+from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
+from camcal.synth.dng import write_dng
+from camcal.synth.session import SessionPlan, write_session
+from tests.conftest import assert_one_line_error, run_cli
+
+PATTERNS = {"BGGR": dict(seed=21, black_level_dn=(1024.0, 1024.0, 1024.0, 1024.0)),
+            "RGGB": dict(seed=22, black_level_dn=(512.0, 510.0, 514.0, 512.0))}
+
+
+@pytest.fixture(scope="module", params=sorted(PATTERNS))
+def session(request, tmp_path_factory):
+    """A bias + dark session (384x256, 16 bias, darks at 2/8/16/32 s x 4) and its truth and fitted models."""
+    pattern = request.param
+    cam = SyntheticCamera(SensorParams(cfa_pattern=pattern, **PATTERNS[pattern]))
+    root = write_session(tmp_path_factory.mktemp(pattern) / "S", cam, SessionPlan(stages=("bias", "dark")))
+    truth = json.loads((root / "truth.json").read_text())
+    with_bias = fit_dark(root / "dark", root / "bias", jobs=2)
+    without = fit_dark(root / "dark")
+    return root, truth, with_bias, without
+
+
+def _hot_truth(truth, shape):
+    hot = np.zeros(shape, bool)
+    for c, y, x in truth["hot_pixels"]:
+        hot[c, y, x] = True
+    return hot
+
+
+@pytest.mark.parametrize("variant", ["with_bias", "without_bias"])
+def test_recovers_truth(session, variant):
+    root, truth, with_bias, without = session
+    model = with_bias if variant == "with_bias" else without
+    assert model.cfa_pattern == truth["params"]["cfa_pattern"] and model.iso == 100.0
+    assert model.temperature_c == pytest.approx(24.0)
+    s = model.summary()
+    for p in ("R", "G1", "G2", "B"):
+        # β: the median of ~24 600 pixels of a log-normal map (sigma 0.25) plus per-pixel fit noise
+        # (~0.06 DN/s) has a standard error of ~0.2 %; the issue's target is 2 %.
+        assert s["dark_current_dn_per_s"][p] == pytest.approx(truth["dark_current_dn_per_s"][p], rel=0.02)
+        # read noise: with bias frames the mean of 24 600 per-pixel variances (15 dof) has a 0.25 %
+        # standard error; without, the t = 0 extrapolation of 4 groups of 4 frames ~0.8 %. Target 3 %.
+        assert s["read_noise_dn"][p] == pytest.approx(truth["read_noise_dn"][p], rel=0.03)
+        # bias: median of the bias map (pattern RMS 0.5 DN); extrapolated without bias frames
+        tol = 0.05 if variant == "with_bias" else 0.1
+        assert s["bias_dn"][p] == pytest.approx(truth["bias_dn"][p], abs=tol)
+    hot = _hot_truth(truth, model.defects.shape)
+    found = (model.defects & HOT) > 0
+    assert hot.sum() >= 15  # enough injected hot pixels for the 95 % criterion to mean something
+    assert (found & hot).sum() >= 0.95 * hot.sum()
+    assert (found & ~hot).sum() <= 1e-3 * hot.size
+    assert np.all(model.dark_current_dn_per_s[hot] > 20 * np.median(model.dark_current_dn_per_s))
+
+
+def test_maps_and_dsnu(session):
+    root, truth, model, _ = session
+    # DSNU of the bias is the pattern RMS (0.5 DN) once the temporal noise of the mean is removed
+    for p in ("R", "G1", "G2", "B"):
+        assert model.channels[p]["dsnu_bias_dn"] == pytest.approx(0.5, rel=0.1)
+        # log-normal sigma 0.25 around 1.25 DN/s: spatial std = 1.25 * sqrt((e^s² - 1) e^s²) ≈ 0.33 DN/s
+        assert model.channels[p]["dsnu_dark_current_dn_per_s"] == pytest.approx(0.33, rel=0.1)
+    good = model.defects == 0
+    assert np.median(model.read_noise_dn[good]) == pytest.approx(1.875, rel=0.05)
+    # per-pixel uncertainty of β matches the scatter of β about the truth map
+    cam = SyntheticCamera(SensorParams(**truth["params"] | {"black_level_dn": tuple(truth["params"]["black_level_dn"]),
+                                                            "dark_current_e_per_s": (2.0,) * 4}))
+    true_beta = cam.dark_current_map_e_per_s * cam.dn_per_electron(100.0)
+    z = (model.dark_current_dn_per_s - true_beta)[good] / model.dark_current_unc_dn_per_s[good]
+    assert 0.85 < np.std(z) < 1.15
+
+
+def test_subtract_save_load(session, tmp_path):
+    root, truth, model, _ = session
+    out = save_dark(model, tmp_path / "dark.json")
+    assert (tmp_path / "dark.maps.exr").is_file()
+    back = load_dark(out)
+    np.testing.assert_array_equal(back.defects, model.defects)
+    np.testing.assert_allclose(back.dark_current_dn_per_s, model.dark_current_dn_per_s)
+    assert back.summary()["hot_pixel_count"] == model.summary()["hot_pixel_count"]
+    assert back.temperature_c == model.temperature_c and back.cfa_pattern == model.cfa_pattern
+    files = sorted((root / "dark").glob("dark_016.000s_*.dng"))
+    st = combine_frames(files, method="mean")
+    resid = subtract_dark(st.value, back, 16.0)
+    good = back.defects == 0
+    for k in range(4):
+        assert abs(np.median(resid[k][good[k]])) < 0.15  # 4-frame mean: per-pixel noise ~2.7 DN, median of 24 k
+    # β scales with ISO (gain), the bias does not
+    d200 = back.dark_frame_dn(10.0, iso=200.0) - back.bias_dn
+    np.testing.assert_allclose(d200, 2 * (back.dark_frame_dn(10.0) - back.bias_dn), rtol=1e-5, atol=1e-4)
+    with pytest.raises(CamcalError, match="do not match"):
+        subtract_dark(st.value[:, :10], back, 16.0)
+
+
+def _copy(src, dst, keep):
+    dst.mkdir(parents=True)
+    lines = (src / "frames.csv").read_text().splitlines()
+    rows = [lines[0]] + [ln for ln in lines[1:] if keep(ln.split(",")[0])]
+    for ln in rows[1:]:
+        shutil.copy(src / ln.split(",")[0], dst)
+    (dst / "frames.csv").write_text("\n".join(rows) + "\n")
+    return dst
+
+
+def test_errors(session, tmp_path):
+    root = session[0]
+    one = _copy(root / "dark", tmp_path / "one", lambda n: n.startswith("dark_008"))
+    with pytest.raises(CamcalError, match="one exposure time"):
+        fit_dark(one)
+    # with bias frames a single dark exposure time is enough
+    m = fit_dark(one, root / "bias")
+    assert m.exposure_times_s == (8.0,)
+    sat = _copy(root / "dark", tmp_path / "sat", lambda n: n.startswith(("dark_002", "dark_008")))
+    mosaic = np.full((256, 384), 16383, np.uint16)
+    write_dng(sat / "dark_002.000s_01.dng", mosaic, cfa_pattern=session[1]["params"]["cfa_pattern"],
+              black_level_dn=512.0, white_level_dn=16383, exposure_s=2.0, f_number=4.0, iso=100.0)
+    with pytest.raises(CamcalError, match=r"dark_002.000s_01.dng: dark frame is saturated"):
+        fit_dark(sat)
+    size = _copy(root / "dark", tmp_path / "size", lambda n: n.startswith(("dark_002", "dark_008")))
+    SyntheticCamera(SensorParams(width=192, height=128)).write_dng(
+        size / "dark_008.000s_03.dng", Scene.dark(), exposure_s=8.0, rng=np.random.default_rng(0))
+    with pytest.raises(CamcalError, match="frame size 192x128 differs"):
+        fit_dark(size, jobs=2)
+    proc = run_cli("dark", one, "-o", tmp_path / "x.json")
+    assert_one_line_error(proc, "one exposure time", "--bias")
+    assert not (tmp_path / "x.json").exists()
+
+
+def test_cli(session, tmp_path):
+    root, truth, _, _ = session
+    proc = run_cli("dark", root / "dark", "--bias", root / "bias", "-o", tmp_path / "d.json", "--json")
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads(proc.stdout)
+    assert summary["dark_current_dn_per_s"]["G1"] == pytest.approx(truth["dark_current_dn_per_s"]["G1"], rel=0.02)
+    assert load_dark(tmp_path / "d.json").iso == 100.0
+    proc = run_cli("dark", root / "dark", "-o", tmp_path / "t.json")
+    assert proc.returncode == 0, proc.stderr
+    assert "read noise" in proc.stdout and "G2" in proc.stdout

@@ -1,0 +1,114 @@
+"""Water module: surface optics, the E₃ closed form, the forward models (physics notes reference values)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.integrate import quad
+
+from camcal.water.models import RefinedModel, SeedModel, e3_integral, e3_integral_derivative, lamp_ratio
+from camcal.water.optics import (
+    critical_angle,
+    fresnel_reflectance,
+    hemispheric_transmittance,
+    schlick_r0,
+    schlick_reflectance,
+    snell,
+)
+from camcal.water.units import (
+    EPSILON_SEED_L_PER_MOL_CM,
+    mol_per_L_to_ug_per_L,
+    parse_concentration_mol_per_L,
+    parse_epsilon_L_per_mol_cm,
+    parse_length_m,
+)
+
+
+def test_fresnel_and_schlick_reference_values():
+    # physics notes: air-side 40/53/80/85 deg, n = 1.33 (quoted to 3 significant figures)
+    ang = np.radians([40, 53, 80, 85])
+    np.testing.assert_allclose(fresnel_reflectance(ang), [0.0242, 0.0384, 0.347, 0.583], atol=6e-4)
+    np.testing.assert_allclose(schlick_reflectance(ang), [0.0207, 0.0299, 0.398, 0.641], atol=6e-4)
+    assert schlick_r0() == pytest.approx(0.0201, abs=1e-4)
+    assert np.degrees(critical_angle()) == pytest.approx(48.75, abs=0.01)
+    assert hemispheric_transmittance() == pytest.approx(0.934, abs=1e-3)
+
+
+def test_total_internal_reflection_from_below():
+    below = np.radians([30.0, 48.0, 49.0, 70.0])
+    r = fresnel_reflectance(below, 1.33, 1.0)
+    assert np.all(r[2:] == 1.0) and np.all(r[:2] < 0.5)
+    assert np.all(schlick_reflectance(below, 1.33, 1.0)[2:] == 1.0)
+    assert np.isnan(snell(np.radians(60.0), 1.33, 1.0))
+    # Snell round trip
+    t = snell(np.radians(35.0))
+    assert float(snell(t, 1.33, 1.0)) == pytest.approx(np.radians(35.0), rel=1e-12)
+
+
+def test_closed_form_reference_values():
+    assert e3_integral(1.0, np.cos(np.radians(48.6))) == pytest.approx(0.0852629829471, rel=1e-11)
+    assert e3_integral(0.5, np.cos(np.radians(48.6))) == pytest.approx(0.154493621161, rel=1e-11)
+    assert e3_integral(2.0, np.cos(np.radians(80.0))) == pytest.approx(0.0301333588536, rel=1e-11)
+
+
+@pytest.mark.parametrize("theta_c_deg", [5.0, 30.0, 48.75, 70.0, 85.7, 89.0])
+def test_closed_form_equals_quadrature(theta_c_deg):
+    tc = np.radians(theta_c_deg)
+    mu = np.cos(tc)
+    for a in np.logspace(-6, np.log10(20.0), 9):
+        ref = quad(lambda t, a=a: np.exp(-a / np.cos(t)) * np.cos(t) * np.sin(t), 0, tc, epsabs=0, epsrel=1e-13,
+                   limit=200)[0]
+        assert e3_integral(a, mu) == pytest.approx(ref, rel=1e-10)
+        h = 1e-6 * max(a, 1e-3)
+        num = (e3_integral(a + h, mu) - e3_integral(a - h, mu)) / (2 * h) if a > h else None
+        if num is not None:
+            assert e3_integral_derivative(a, mu) == pytest.approx(num, rel=1e-5)
+
+
+def test_seed_model_limits_and_section5_range():
+    m = SeedModel()
+    assert m.ratio(0.0, 0.2) == pytest.approx(np.sin(np.pi / 2.1) ** 2, rel=1e-14)  # C = 0: ρ sin²θc
+    assert SeedModel(albedo=0.5).ratio(0.0, 0.3) == pytest.approx(0.5 * np.sin(np.pi / 2.1) ** 2, rel=1e-14)
+    # physics notes: the seed's §5 range spans ≈0.55 … ≈2e-5
+    assert m.ratio(1e-7, 0.10) == pytest.approx(0.55, abs=0.01)
+    assert m.ratio(5e-7, 0.50) == pytest.approx(2e-5, rel=0.05)
+    # first order (eq. 11) is exact only at C = 0
+    assert m.ratio_first_order(0.0, 0.2) == pytest.approx(m.ratio(0.0, 0.2), rel=1e-14)
+    c = np.array([1e-8, 1e-7])
+    assert np.all(m.invert_first_order(m.ratio_first_order(c, 0.2), 0.2) == pytest.approx(c, rel=1e-12))
+
+
+def test_refined_model_c0_is_rho_over_n2_times_transmittances():
+    rm = RefinedModel(water_absorption_per_m=0.0)
+    # C = 0, no water absorption: ρ T̄ T_up sin²θcrit = ρ T̄ T_up / n²
+    expect = rm.transmittance_down_mean() * rm.transmittance_up() / 1.33**2
+    assert rm.ratio(0.0, 0.2) == pytest.approx(expect, rel=1e-12)
+    # the mean-T closed form vs keeping T(θ) inside the integral: T varies < 7 % over the cone, and the
+    # weighting shifts to steep rays as τ grows; measured 1.6 % at τ ≈ 3 (docs/water.md)
+    exact = RefinedModel(transmittance="exact")
+    c = np.array([0.0, 1e-8, 1e-7, 3e-7])
+    np.testing.assert_allclose(RefinedModel().ratio(c, 0.3), exact.ratio(c, 0.3), rtol=0.02)
+
+
+def test_lamp_model_normal_incidence_and_monotone():
+    rm = RefinedModel(water_absorption_per_m=0.0)
+    h, d = 0.5, 0.2
+    t = 1 - fresnel_reflectance(0.0)
+    # normal incidence, C = 0: E ratio (H+d)²/(H+d/n)², times T_down T_up / n²
+    expect = (h + d) ** 2 / (h + d / 1.33) ** 2 * t * t / 1.33**2
+    assert lamp_ratio(0.0, d, h, 0.0, rm) == pytest.approx(expect, rel=1e-12)
+    # small angle approaches normal incidence (the ray-tube Jacobian is continuous)
+    assert lamp_ratio(0.0, d, h, 1e-5, rm) == pytest.approx(expect, rel=1e-6)
+    r = lamp_ratio(np.array([0.0, 1e-7, 3e-7]), d, h, 0.4, rm)
+    assert np.all(np.diff(r) < 0)
+
+
+def test_units():
+    assert parse_length_m("20cm") == pytest.approx(0.2)
+    assert parse_length_m("0.2m") == pytest.approx(0.2)
+    assert parse_concentration_mol_per_L("89.35ug/L") == pytest.approx(1e-7)
+    assert parse_concentration_mol_per_L("1e-7mol/L") == pytest.approx(1e-7)
+    assert float(mol_per_L_to_ug_per_L(1e-7)) == pytest.approx(89.35)
+    assert parse_epsilon_L_per_mol_cm("88L/g/cm") == pytest.approx(EPSILON_SEED_L_PER_MOL_CM)
+    assert parse_epsilon_L_per_mol_cm("0.088L/mg/cm") == pytest.approx(EPSILON_SEED_L_PER_MOL_CM)
+    assert parse_epsilon_L_per_mol_cm("porra1989") == pytest.approx(85.96 * 893.5)
