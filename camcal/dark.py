@@ -487,8 +487,8 @@ def subtract_dark(planes: np.ndarray, model: DarkModel, exposure_s: float, iso: 
     return planes.astype(np.float32) - model.dark_frame_dn(exposure_s, iso)
 
 
-def save_dark(model: DarkModel, path: str | Path) -> Path:
-    """Write the model as ``path`` (JSON) + ``<stem>.maps.exr`` (maps ``bias.R`` ...), kind ``dark``."""
+def dark_to_parts(model: DarkModel) -> tuple[dict, dict[str, np.ndarray]]:
+    """The JSON part and the named maps (``bias.R`` ...) of a model; used by files and profiles."""
     arrays = {"bias": model.bias_dn, "dark_current": model.dark_current_dn_per_s,
               "dark_current_unc": model.dark_current_unc_dn_per_s, "read_noise": model.read_noise_dn,
               "defects": model.defects.astype(np.float32)}
@@ -502,19 +502,14 @@ def save_dark(model: DarkModel, path: str | Path) -> Path:
         "units": {"bias": "DN", "dark_current": "DN/s at iso", "dark_current_unc": "DN/s", "read_noise": "DN",
                   "defects": "bits: 1 hot, 2 dead, 4 noisy"},
     }
-    from camcal.store import save_stage
-
-    return save_stage(path, KIND, data, maps)
+    return data, maps
 
 
-def load_dark(path: str | Path) -> DarkModel:
-    """Read a model written by :func:`save_dark`."""
-    from camcal.store import load_stage
-
-    data, maps = load_stage(path, KIND)
+def dark_from_parts(data: dict, maps: dict[str, np.ndarray], where: str | Path | None = None) -> DarkModel:
+    """Inverse of :func:`dark_to_parts`; ``where`` names the file in errors."""
     missing = [f"{m}.{p}" for m in _MAPS for p in PLANES if f"{m}.{p}" not in maps]
     if missing:
-        raise CamcalError(f"dark model lacks maps {', '.join(missing[:4])}", path)
+        raise CamcalError(f"dark model lacks maps {', '.join(missing[:4])}", where)
     try:
         arr = {m: np.stack([maps[f"{m}.{p}"] for p in PLANES]).astype(np.float32) for m in _MAPS}
         arr["dark_current_unc"] = np.where(arr["dark_current_unc"] >= 3.0e38, np.inf, arr["dark_current_unc"])
@@ -531,4 +526,20 @@ def load_dark(path: str | Path) -> DarkModel:
             provenance=dict(data.get("provenance") or {}),
         )
     except (KeyError, TypeError, ValueError) as exc:
-        raise CamcalError(f"malformed dark model ({exc})", path) from None
+        raise CamcalError(f"malformed dark model ({exc})", where) from None
+
+
+def save_dark(model: DarkModel, path: str | Path) -> Path:
+    """Write the model as ``path`` (JSON) + ``<stem>.maps.exr`` (maps ``bias.R`` ...), kind ``dark``."""
+    from camcal.store import save_stage
+
+    data, maps = dark_to_parts(model)
+    return save_stage(path, KIND, data, maps)
+
+
+def load_dark(path: str | Path) -> DarkModel:
+    """Read a model written by :func:`save_dark`."""
+    from camcal.store import load_stage
+
+    data, maps = load_stage(path, KIND)
+    return dark_from_parts(data, maps, path)

@@ -782,24 +782,19 @@ def run_flat_stage(
 # ---------------------------------------------------------------------------------------------
 # saving and loading
 # ---------------------------------------------------------------------------------------------
-def save_flat(model: FlatModel, path: str | Path) -> Path:
-    """Write ``path`` (JSON) and ``<stem>.maps.exr`` with ``gain.<ch>`` and ``prnu.<ch>`` maps."""
-    from camcal.store import save_stage
-
+def flat_to_parts(model: FlatModel) -> tuple[dict, dict[str, np.ndarray]]:
+    """The JSON part and the named maps (``gain.R``, ``prnu.R`` ...) of a model; used by files and profiles."""
     data = model.summary()
     data["model_2d"] = model.model_2d
     gain = model.gain()
     maps = {f"gain.{c}": gain[i] for i, c in enumerate(model.channels)}
     if model.prnu is not None:
         maps.update({f"prnu.{c}": model.prnu[i] for i, c in enumerate(model.channels)})
-    return save_stage(path, "flat", data, maps)
+    return data, maps
 
 
-def load_flat(path: str | Path) -> FlatModel:
-    """Read a flat model written by :func:`save_flat`."""
-    from camcal.store import load_stage
-
-    data, maps = load_stage(path, "flat")
+def flat_from_parts(data: dict, maps: dict[str, np.ndarray], where: str | Path | None = None) -> FlatModel:
+    """Inverse of :func:`flat_to_parts`; ``where`` names the file in errors."""
     try:
         channels = tuple(data["channels"])
         shape = (int(data["shape"][0]), int(data["shape"][1]))
@@ -819,7 +814,23 @@ def load_flat(path: str | Path) -> FlatModel:
             info=dict(data.get("info") or {}),
         )
     except (KeyError, TypeError, ValueError, IndexError) as exc:
-        raise CamcalError(f"not a valid camcal flat file ({type(exc).__name__}: {exc})", path) from None
+        raise CamcalError(f"not a valid camcal flat file ({type(exc).__name__}: {exc})", where) from None
+
+
+def save_flat(model: FlatModel, path: str | Path) -> Path:
+    """Write ``path`` (JSON) and ``<stem>.maps.exr`` with ``gain.<ch>`` and ``prnu.<ch>`` maps."""
+    from camcal.store import save_stage
+
+    data, maps = flat_to_parts(model)
+    return save_stage(path, "flat", data, maps)
+
+
+def load_flat(path: str | Path) -> FlatModel:
+    """Read a flat model written by :func:`save_flat`."""
+    from camcal.store import load_stage
+
+    data, maps = load_stage(path, "flat")
+    return flat_from_parts(data, maps, path)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -25,7 +25,8 @@ app = typer.Typer(
 
 #: Command modules, in help order; each defines ``register(app)``.
 COMMAND_MODULES = (
-    "demo", "inspect", "synth", "dark", "flat", "linearity", "sweep", "calibrate", "profile", "apply", "water",
+    "demo", "inspect", "synth", "dark", "flat", "linearity", "sweep", "calibrate", "profile", "report", "apply",
+    "water",
 )
 
 

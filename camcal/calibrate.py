@@ -1,0 +1,169 @@
+"""``camcal calibrate``: run every stage whose folder exists, in order, into one profile.
+
+Order: dark (with bias/ when present) → flat (dark-corrected) → linearity
+(dark-corrected) → sweep (dark- and flat-corrected). Every input file is
+hashed (SHA-256) into the profile's provenance.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+
+from camcal import __version__
+from camcal.errors import CamcalError
+from camcal.io import IMAGE_EXTENSIONS, folder_manifest, list_frames, load_frame
+from camcal.profile import CalibrationProfile, CameraIdentity, Provenance
+
+STAGES = ("bias", "dark", "flat", "linearity", "sweep")
+
+Progress = Callable[[str, int, int], None]
+
+
+@dataclass(frozen=True)
+class CalibrateOptions:
+    """Options of :func:`calibrate_session` (recorded in the profile's provenance).
+
+    ``reference_iso`` / ``reference_f_number``: the reference setting; by default
+    the setting of the sweep frames (where the absolute calibration is measured),
+    else the most common one of the linearity series, else ISO of the darks and f/4.
+    """
+
+    reference_iso: float | None = None
+    reference_f_number: float | None = None
+    dark_method: str = "sigma_clip"
+    flat_model: str = "radial"
+    sweep_mode: str = "absolute"
+    deconvolve: bool = False
+    jobs: int = 2
+
+
+def present_stages(session: str | Path) -> list[str]:
+    """Stage folders of ``session`` that hold at least one image file."""
+    session = Path(session)
+    if not session.is_dir():
+        raise CamcalError("is not a session folder", session)
+    out = []
+    for s in STAGES:
+        d = session / s
+        if d.is_dir() and any(p.suffix.lower() in IMAGE_EXTENSIONS for p in d.iterdir()):
+            out.append(s)
+    return out
+
+
+def sha256_of(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _inputs(session: Path, stages: list[str]) -> list[dict]:
+    rows = []
+    for s in stages:
+        d = session / s
+        for p in sorted(d.iterdir()):
+            if p.is_file() and not p.name.startswith(".") and (
+                p.suffix.lower() in IMAGE_EXTENSIONS or p.suffix.lower() == ".csv"
+            ):
+                rows.append({"stage": s, "file": f"{s}/{p.name}", "sha256": sha256_of(p), "bytes": p.stat().st_size})
+    return rows
+
+
+def camera_identity(session: Path, stages: list[str]) -> CameraIdentity:
+    """Identity from the first RAW frame of the session (else the first frame); all stages must agree."""
+    seen: dict[str, CameraIdentity] = {}
+    for s in stages:
+        frames = list_frames(session / s)
+        raw = [p for p in frames if p.suffix.lower() not in (".jpg", ".jpeg", ".png", ".tif", ".tiff")]
+        f = load_frame((raw or frames)[0])
+        h, w = f.shape
+        seen[s] = CameraIdentity(f.exposure.make, f.exposure.model, f.exposure.serial, f.cfa_pattern, w, h)
+    models = {(c.make, c.model) for c in seen.values() if c.model}
+    if len(models) > 1:
+        raise CamcalError(f"frames from different cameras in one session: {sorted(models)}", session)
+    raw_ids = [c for c in seen.values() if c.cfa_pattern]
+    return (raw_ids or list(seen.values()))[0]
+
+
+def _reference(session: Path, stages: list[str], opts: CalibrateOptions) -> tuple[float, float]:
+    iso, n = opts.reference_iso, opts.reference_f_number
+    if iso and n:
+        return float(iso), float(n)
+    for s in ("sweep", "linearity", "dark"):
+        if s not in stages:
+            continue
+        manifest = folder_manifest(session / s) if (session / s / "frames.csv").exists() else {}
+        if s == "sweep" and (session / s / "sweep.csv").exists():
+            from camcal.manifest import read_manifest
+
+            manifest = read_manifest(session / s / "sweep.csv", required=("file",))
+        settings: Counter = Counter()
+        for p in list_frames(session / s)[:64]:
+            row = manifest.get(p.name, {})
+            f = load_frame(p)
+            settings[(row.get("iso") or f.exposure.iso, row.get("f_number") or f.exposure.f_number)] += 1
+        (fi, fn), _ = settings.most_common(1)[0]
+        return float(iso or fi or 100.0), float(n or fn or 4.0)
+    return float(iso or 100.0), float(n or 4.0)
+
+
+def calibrate_session(
+    session: str | Path, options: CalibrateOptions | None = None, progress: Progress | None = None
+) -> tuple[CalibrationProfile, list[str]]:
+    """Calibrate every stage present in ``session``; returns the profile and notes (skipped stages...).
+
+    ``progress(stage, done, total)`` is called as frames are processed.
+    """
+    session = Path(session)
+    opts = options or CalibrateOptions()
+    stages = present_stages(session)
+    if not stages:
+        raise CamcalError("holds none of bias/ dark/ flat/ linearity/ sweep/ with image files", session)
+    notes: list[str] = []
+    camera = camera_identity(session, stages)
+    ref_iso, ref_n = _reference(session, stages, opts)
+
+    def cb(stage: str):
+        return (lambda done, total: progress(stage, done, total)) if progress else None
+
+    dark = flat = spectral = None
+    response = None
+    if "dark" in stages:
+        from camcal.dark import fit_dark
+
+        dark = fit_dark(session / "dark", session / "bias" if "bias" in stages else None, method=opts.dark_method,
+                        jobs=opts.jobs, progress=cb("dark"))
+    elif "bias" in stages:
+        notes.append("bias/ without dark/: no dark model (dark current needs dark frames)")
+    if "flat" in stages:
+        from camcal.flat import fit_flat
+
+        flat = fit_flat(session / "flat", dark, model=opts.flat_model, jobs=opts.jobs, progress=cb("flat"))
+    if "linearity" in stages:
+        from camcal.response import fit_response
+
+        response = fit_response(session / "linearity", dark=dark, reference_iso=ref_iso, reference_f_number=ref_n,
+                                progress=cb("linearity"))
+    if "sweep" in stages:
+        from camcal.spectral import measure_sweep
+
+        spectral = measure_sweep(session / "sweep", dark=dark, flat=flat, mode=opts.sweep_mode,
+                                 deconvolve=opts.deconvolve, reference_iso=ref_iso, reference_f_number=ref_n,
+                                 jobs=opts.jobs, progress=cb("sweep"))
+        if flat is None:
+            notes.append("sweep without a flat model: c(λ) refers to the region of interest, not the optical axis")
+    provenance = Provenance(
+        camcal_version=__version__,
+        created_utc=datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
+        inputs=tuple(_inputs(session, stages)),
+        options={**asdict(opts), "session": session.name, "stages": stages},
+    )
+    profile = CalibrationProfile(camera=camera, reference_iso=ref_iso, reference_f_number=ref_n, dark=dark,
+                                 flat=flat, response=response, spectral=spectral, provenance=provenance)
+    return profile, notes

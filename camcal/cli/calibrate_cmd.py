@@ -1,0 +1,45 @@
+"""``camcal calibrate SESSION -o PROFILE``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from camcal.cli.common import console, err_console, progress
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("calibrate")
+    def calibrate_cmd(
+        session: Path = typer.Argument(..., help="Session folder with any of bias/ dark/ flat/ linearity/ sweep/."),
+        output: Path = typer.Option(..., "-o", "--output", help="Profile file to write (.camcal)."),
+        reference_iso: float | None = typer.Option(None, help="Reference ISO (default: the sweep's)."),
+        reference_f_number: float | None = typer.Option(None, help="Reference f-number (default: the sweep's)."),
+        flat_model: str = typer.Option("radial", help="Vignetting model: radial or 2d."),
+        sweep_mode: str = typer.Option("absolute", help="c(λ) units: absolute or relative."),
+        deconvolve: bool = typer.Option(False, help="Deconvolve the monochromator slit from c(λ)."),
+        jobs: int = typer.Option(2, "--jobs", "-j", help="Worker processes (1 or 2)."),
+    ) -> None:
+        """Run every calibration stage whose folder exists and write one profile."""
+        from camcal.calibrate import CalibrateOptions, calibrate_session
+        from camcal.profile import contract, save_profile
+
+        opts = CalibrateOptions(reference_iso=reference_iso, reference_f_number=reference_f_number,
+                                flat_model=flat_model, sweep_mode=sweep_mode, deconvolve=deconvolve, jobs=jobs)
+        with progress() as bar:
+            tasks: dict[str, int] = {}
+
+            def tick(stage: str, done: int, total: int) -> None:
+                if stage not in tasks:
+                    tasks[stage] = bar.add_task(stage, total=total)
+                bar.update(tasks[stage], completed=done, total=total)
+
+            profile, notes = calibrate_session(session, opts, progress=tick)
+        profile = save_profile(profile, output)
+        for note in notes:
+            err_console.print(f"camcal: warning: {note}")
+        from camcal.cli.profile_cmd import print_contract
+
+        print_contract(contract(profile), title=f"profile → {output}")
+        console.print(f"wrote {output} (sha256 {profile.content_sha256[:16]}…)")

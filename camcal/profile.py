@@ -1,0 +1,372 @@
+"""The calibration profile: every stage of one camera's calibration in one validated file.
+
+A profile file (``.camcal``) is a ZIP container (:mod:`camcal.container`) with
+``profile.json`` — human-readable, validated against
+``camcal/schemas/profile-1.schema.json`` on every load — and ``maps.exr`` with
+the per-pixel maps (dark: ``dark.bias.R`` ...; flat: ``flat.gain.R`` ...).
+Content and maps are protected by SHA-256 hashes; loading refuses unknown
+major schema versions, corrupted files and hash mismatches. The format is
+documented in ``docs/profile-format.md``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from camcal import __version__
+from camcal.container import read_container, write_container
+from camcal.errors import CamcalError
+from camcal.frame import PLANES
+from camcal.store import to_jsonable
+
+FORMAT = "camcal-profile"
+SCHEMA_VERSION = "1.0"
+SUPPORTED_MAJOR = 1
+SPECTRAL_UNITS_DEFAULT = "DN s^-1 per (W m^-2 sr^-1 nm^-1) per nm at ISO_ref, f/N_ref, on axis"
+
+
+@dataclass(frozen=True)
+class CameraIdentity:
+    """Which camera a profile belongs to. Width and height are full-resolution pixels."""
+
+    make: str | None
+    model: str | None
+    serial: str | None
+    cfa_pattern: str | None
+    width: int
+    height: int
+
+
+@dataclass(frozen=True)
+class Provenance:
+    """Where a profile came from: camcal version, UTC creation time, input files with SHA-256, options."""
+
+    camcal_version: str
+    created_utc: str
+    inputs: tuple[dict, ...] = ()
+    options: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True, eq=False)
+class CalibrationProfile:
+    """One camera's calibration.
+
+    Attributes
+    ----------
+    camera : CameraIdentity
+    reference_iso, reference_f_number : float
+        The reference setting every DN rate is normalised to (seed §2.1).
+    dark : camcal.dark.DarkModel or None
+    flat : camcal.flat.FlatModel or None
+    response : dict of camcal.response.ResponseModel, keyed ``raw`` / ``processed``, or None
+    spectral : camcal.spectral.SpectralSensitivity or None
+        Absolute c(λ) in DN s^-1 per (W m^-2 sr^-1 nm^-1) per nm at the reference setting, on axis.
+    provenance : Provenance
+    schema_version : str
+    content_sha256 : str or None
+        The integrity hash of the file it was loaded from or saved to.
+    """
+
+    camera: CameraIdentity
+    reference_iso: float
+    reference_f_number: float
+    dark: Any = None
+    flat: Any = None
+    response: dict[str, Any] | None = None
+    spectral: Any = None
+    provenance: Provenance = field(default_factory=lambda: Provenance(__version__, ""))
+    schema_version: str = SCHEMA_VERSION
+    content_sha256: str | None = None
+
+    def stages(self) -> dict[str, bool]:
+        return {"dark": self.dark is not None, "flat": self.flat is not None,
+                "response": bool(self.response), "spectral_sensitivity": self.spectral is not None}
+
+
+# ---- stage codecs: model <-> (JSON part, maps) ------------------------------------------------------------
+def _stage_to_parts(name: str, model) -> tuple[dict, dict[str, np.ndarray]]:
+    if name == "dark":
+        from camcal.dark import dark_to_parts
+
+        return dark_to_parts(model)
+    if name == "flat":
+        from camcal.flat import flat_to_parts
+
+        return flat_to_parts(model)
+    if name == "response":
+        return {k: m.to_dict() for k, m in model.items()}, {}
+    if name == "spectral_sensitivity":
+        from camcal.spectral import spectral_to_dict
+
+        return spectral_to_dict(model), {}
+    raise ValueError(name)
+
+
+def _stage_from_parts(name: str, data: dict, maps: dict[str, np.ndarray], where: Path):
+    try:
+        if name == "dark":
+            from camcal.dark import dark_from_parts
+
+            return dark_from_parts(data, maps, where)
+        if name == "flat":
+            from camcal.flat import flat_from_parts
+
+            return flat_from_parts(data, maps, where)
+        if name == "response":
+            from camcal.response import ResponseModel
+
+            return {k: ResponseModel.from_dict(v) for k, v in data.items()}
+        if name == "spectral_sensitivity":
+            from camcal.spectral import spectral_from_dict
+
+            return spectral_from_dict(data)
+    except CamcalError as exc:
+        raise CamcalError(f"{name} section: {exc.message}", where) from None
+    raise ValueError(name)
+
+
+_STAGE_ATTR = {"dark": "dark", "flat": "flat", "response": "response", "spectral_sensitivity": "spectral"}
+
+
+def profile_to_document(profile: CalibrationProfile) -> tuple[dict, dict[str, np.ndarray]]:
+    """The JSON document (without integrity) and the prefixed maps of a profile."""
+    doc: dict[str, Any] = {
+        "format": FORMAT,
+        "schema_version": profile.schema_version,
+        "camera": dataclasses.asdict(profile.camera),
+        "reference": {"iso": float(profile.reference_iso), "f_number": float(profile.reference_f_number)},
+    }
+    maps: dict[str, np.ndarray] = {}
+    names: dict[str, list[str]] = {}
+    for key, attr in _STAGE_ATTR.items():
+        model = getattr(profile, attr)
+        if model is None or (key == "response" and not model):
+            doc[key] = None
+            continue
+        data, stage_maps = _stage_to_parts(key, model)
+        doc[key] = to_jsonable(data)
+        if stage_maps:
+            names[key] = [f"{key}.{m}" for m in stage_maps]
+            maps.update({f"{key}.{m}": np.asarray(a, np.float32) for m, a in stage_maps.items()})
+    p = profile.provenance
+    doc["provenance"] = to_jsonable({"camcal_version": p.camcal_version, "created_utc": p.created_utc,
+                                     "inputs": list(p.inputs), "options": p.options})
+    doc["maps"] = names
+    return doc, maps
+
+
+def _schema() -> dict:
+    text = resources.files("camcal").joinpath("schemas/profile-1.schema.json").read_text(encoding="utf-8")
+    return json.loads(text)
+
+
+def check_version(doc: dict, where: str | Path) -> None:
+    """Refuse documents that are not camcal profiles or have an unknown major schema version."""
+    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+        raise CamcalError("not a camcal profile (format marker missing)", where)
+    version = doc.get("schema_version")
+    if not isinstance(version, str) or not version.split(".")[0].isdigit():
+        raise CamcalError(f"profile has an invalid schema_version {version!r}", where)
+    major = int(version.split(".")[0])
+    if major != SUPPORTED_MAJOR:
+        raise CamcalError(
+            f"profile schema version {version} is not supported (this camcal {__version__} reads {SUPPORTED_MAJOR}.x); "
+            "use a matching camcal version", where)
+
+
+def validate_document(doc: dict, where: str | Path) -> None:
+    """Validate ``doc`` against the JSON Schema; one line naming the first offending field."""
+    import jsonschema
+
+    check_version(doc, where)
+    validator = jsonschema.Draft202012Validator(_schema())
+    errors = sorted(validator.iter_errors(doc), key=lambda e: list(e.absolute_path))
+    if errors:
+        err = errors[0]
+        loc = "/".join(str(p) for p in err.absolute_path) or "(top level)"
+        raise CamcalError(f"profile does not follow the schema at {loc}: {' '.join(err.message.split())[:160]}",
+                          where)
+    spec = doc.get("spectral_sensitivity")
+    if spec:
+        n = len(spec["wavelength_nm"])
+        for part in ("values", "uncertainty"):
+            for plane in PLANES:
+                if len(spec[part][plane]) != n:
+                    raise CamcalError(f"spectral_sensitivity.{part}.{plane} has {len(spec[part][plane])} values, "
+                                      f"wavelength_nm has {n}", where)
+
+
+def profile_from_document(doc: dict, maps: dict[str, np.ndarray], where: str | Path) -> CalibrationProfile:
+    """Rebuild a profile from a validated document and its maps."""
+    where = Path(where)
+    validate_document(doc, where)
+    stages: dict[str, Any] = {}
+    for key, attr in _STAGE_ATTR.items():
+        data = doc[key]
+        if data is None:
+            stages[attr] = None
+            continue
+        wanted = doc["maps"].get(key, [])
+        missing = [m for m in wanted if m not in maps]
+        if missing:
+            raise CamcalError(f"profile lacks maps {missing[:3]}", where)
+        stage_maps = {m[len(key) + 1:]: maps[m] for m in wanted}
+        stages[attr] = _stage_from_parts(key, data, stage_maps, where)
+    cam = doc["camera"]
+    prov = doc["provenance"]
+    return CalibrationProfile(
+        camera=CameraIdentity(cam["make"], cam["model"], cam["serial"], cam["cfa_pattern"], int(cam["width"]),
+                              int(cam["height"])),
+        reference_iso=float(doc["reference"]["iso"]),
+        reference_f_number=float(doc["reference"]["f_number"]),
+        provenance=Provenance(prov["camcal_version"], prov["created_utc"], tuple(prov["inputs"]),
+                              dict(prov["options"])),
+        schema_version=doc["schema_version"],
+        content_sha256=doc.get("integrity", {}).get("content_sha256"),
+        **stages,
+    )
+
+
+def save_profile(profile: CalibrationProfile, path: str | Path) -> CalibrationProfile:
+    """Write ``profile`` to ``path`` (atomically); returns it with ``content_sha256`` set."""
+    doc, maps = profile_to_document(profile)
+    validate_document({**doc, "integrity": {"algorithm": "sha256", "content_sha256": "0" * 64,
+                                            "maps_sha256": None}}, path)
+    write_container(path, doc, maps)
+    written, _ = read_container(path)
+    return dataclasses.replace(profile, content_sha256=written["integrity"]["content_sha256"])
+
+
+def load_profile(path: str | Path) -> CalibrationProfile:
+    """Read, verify (hashes, schema, version) and rebuild a profile."""
+    doc, maps = read_container(path)
+    return profile_from_document(doc, maps, path)
+
+
+# ---- the JSON contract -------------------------------------------------------------------------------------
+def _rgb(per_plane: dict | None) -> dict | None:
+    """{R, G1, G2, B} -> {R, G, B, G1, G2} with G the mean of G1 and G2."""
+    if not per_plane:
+        return None
+    out = {"R": per_plane.get("R"), "B": per_plane.get("B"), "G1": per_plane.get("G1"), "G2": per_plane.get("G2")}
+    g1, g2 = per_plane.get("G1"), per_plane.get("G2")
+    out["G"] = None if g1 is None or g2 is None else 0.5 * (float(g1) + float(g2))
+    return {k: out[k] for k in ("R", "G", "B", "G1", "G2")}
+
+
+def _finite(x):
+    return None if x is None or (isinstance(x, float) and not math.isfinite(x)) else x
+
+
+def contract(profile: CalibrationProfile) -> dict:
+    """The stable JSON object of ``camcal profile show --json`` (see docs/profile-format.md).
+
+    A stage that was not calibrated is ``null``. G is the mean of G1 and G2.
+    """
+    out: dict[str, Any] = {
+        "schema_version": profile.schema_version,
+        "content_sha256": profile.content_sha256,
+        "camera": dataclasses.asdict(profile.camera),
+        "reference": {"iso": profile.reference_iso, "f_number": profile.reference_f_number},
+    }
+    if profile.dark is not None:
+        s = profile.dark.summary()
+        out["dark"] = {
+            "iso": s["iso"],
+            "temperature_c": s.get("temperature_c"),
+            "bias_dn": _rgb(s.get("bias_dn")),
+            "dark_current_dn_per_s": _rgb(s.get("dark_current_dn_per_s")),
+            "dark_current_unc_dn_per_s": _rgb(s.get("dark_current_unc_dn_per_s")),
+            "read_noise_dn": _rgb(s.get("read_noise_dn")),
+            "dsnu_bias_dn": _rgb(s.get("dsnu_bias_dn")),
+            "dsnu_dark_current_dn_per_s": _rgb(s.get("dsnu_dark_current_dn_per_s")),
+            "hot_pixel_count": s["hot_pixel_count"],
+            "dead_pixel_count": s.get("dead_pixel_count"),
+            "noisy_pixel_count": s.get("noisy_pixel_count"),
+        }
+    else:
+        out["dark"] = None
+    if profile.flat is not None:
+        s = profile.flat.summary()
+        out["flat"] = {"model": s["model"], "centre_full_px": s["centre_full_px"],
+                       "corner_gain": _rgb(s["corner_gain"]), "residual_rms": _rgb(s["residual_rms"]),
+                       "prnu_rms": _rgb(s.get("prnu_rms"))}
+    else:
+        out["flat"] = None
+    if profile.response:
+        primary = profile.response.get("raw") or next(iter(profile.response.values()))
+
+        def per(model, attr):
+            ch = model.channels
+            if "G1" in ch:
+                return _rgb({p: _finite(getattr(ch[p], attr)) for p in PLANES})
+            return {c: _finite(getattr(ch[c], attr)) for c in ("R", "G", "B")}
+
+        out["response"] = {"kind": primary.kind, "gamma": per(primary, "gamma"), "alpha": per(primary, "alpha"),
+                           "beta": per(primary, "beta"),
+                           "models": {k: {"gamma": per(m, "gamma"), "alpha": per(m, "alpha"), "beta": per(m, "beta"),
+                                          "linearity_error_pct": per(m, "linearity_error_pct")}
+                                      for k, m in profile.response.items()}}
+    else:
+        out["response"] = None
+    if profile.spectral is not None:
+        s = profile.spectral
+        rgb, unc = s.rgb(), s.rgb_uncertainty()
+        out["spectral_sensitivity"] = {
+            "wavelength_nm": [float(v) for v in s.wavelength_nm],
+            **{c: [float(v) for v in rgb[c]] for c in ("R", "G", "B")},
+            **{f"{c}_unc": [float(v) for v in unc[c]] for c in ("R", "G", "B")},
+            "units": s.units,
+            "mode": s.mode,
+            "peak_wavelength_nm": s.peak_wavelength_nm(),
+            "effective_wavelength_nm": s.effective_wavelength_nm(),
+        }
+    else:
+        out["spectral_sensitivity"] = None
+    p = profile.provenance
+    out["provenance"] = {"camcal_version": p.camcal_version, "created_utc": p.created_utc, "n_inputs": len(p.inputs),
+                         "options": p.options}
+    return to_jsonable(out)
+
+
+def _flatten(obj, prefix: str = "") -> dict[str, Any]:
+    if isinstance(obj, dict):
+        out = {}
+        for k, v in obj.items():
+            out.update(_flatten(v, f"{prefix}.{k}" if prefix else str(k)))
+        return out
+    if isinstance(obj, list) and obj and all(isinstance(v, int | float) for v in obj):
+        return {prefix: obj}
+    return {prefix: obj}
+
+
+def diff_profiles(a: CalibrationProfile, b: CalibrationProfile, rel_tol: float = 0.0) -> list[dict]:
+    """Differences between two profiles' contracts: ``[{key, a, b, rel_change}]`` (numbers compared relatively)."""
+    fa, fb = _flatten(contract(a)), _flatten(contract(b))
+    rows = []
+    for key in sorted(set(fa) | set(fb)):
+        if key in ("content_sha256", "provenance.created_utc"):
+            continue
+        va, vb = fa.get(key), fb.get(key)
+        if isinstance(va, list) and isinstance(vb, list) and len(va) == len(vb) and va and isinstance(va[0], float):
+            x, y = np.asarray(va, float), np.asarray(vb, float)
+            scale = max(float(np.max(np.abs(x))), 1e-300)
+            rel = float(np.max(np.abs(x - y)) / scale)
+            if rel > rel_tol:
+                rows.append({"key": key, "a": f"{len(va)} values", "b": f"{len(vb)} values", "rel_change": rel})
+            continue
+        if isinstance(va, int | float) and isinstance(vb, int | float) and not isinstance(va, bool):
+            rel = abs(vb - va) / max(abs(va), 1e-300) if va != vb else 0.0
+            if rel > rel_tol:
+                rows.append({"key": key, "a": va, "b": vb, "rel_change": rel})
+        elif va != vb:
+            rows.append({"key": key, "a": va, "b": vb, "rel_change": None})
+    return rows
