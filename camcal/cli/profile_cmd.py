@@ -1,4 +1,4 @@
-"""``camcal profile show|diff`` and ``camcal report``."""
+"""``camcal profile show|diff``."""
 
 from __future__ import annotations
 
