@@ -26,6 +26,7 @@ def write_exr(
     *,
     half: bool = False,
     compression: str = "zip",
+    datetime: str | None = None,
 ) -> Path:
     """Write named 2-D float channels to an OpenEXR file, atomically.
 
@@ -36,6 +37,8 @@ def write_exr(
     metadata : header attributes; numbers and strings as-is, other values as JSON.
     half : store 16-bit half floats instead of float32.
     compression : one of :data:`COMPRESSIONS`.
+    datetime : the header's ``DateTime`` (EXR ``capDate``), ``"YYYY:MM:DD HH:MM:SS"``; by default
+        OpenImageIO writes the current time, so two writes of the same data differ in that field.
     """
     import OpenImageIO as oiio
 
@@ -52,6 +55,8 @@ def write_exr(
     spec = oiio.ImageSpec(w, h, len(names), oiio.HALF if half else oiio.FLOAT)
     spec.channelnames = tuple(names)
     spec.attribute("compression", compression)
+    if datetime is not None:
+        spec.attribute("DateTime", str(datetime))
     for key, value in (metadata or {}).items():
         if isinstance(value, bool) or value is None or not isinstance(value, int | float | str):
             spec.attribute(f"camcal:json:{key}", json.dumps(value, sort_keys=True, default=str))
@@ -95,6 +100,13 @@ def read_exr(
         raise CamcalError("cannot open as EXR (damaged or not an image)", path)
     try:
         spec = inp.spec()
+        from camcal.io import max_pixels
+
+        if spec.width <= 0 or spec.height <= 0 or spec.nchannels <= 0:
+            raise CamcalError(f"EXR declares an empty image ({spec.width}x{spec.height}x{spec.nchannels})", path)
+        if spec.width * spec.height > max_pixels():  # before any pixel is allocated
+            raise CamcalError(f"EXR declares {spec.width}x{spec.height} pixels, above the limit of {max_pixels()} "
+                              "(set CAMCAL_MAX_PIXELS to raise it)", path)
         names = list(spec.channelnames)
         want = list(channels) if channels is not None else names
         missing = [c for c in want if c not in names]

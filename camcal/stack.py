@@ -13,7 +13,7 @@ file decoded exactly once and memory that does not grow with N:
   resident set). The band height shrinks as N grows so the working set stays at about
   ``band_mb`` megabytes whatever the number of frames.
 
-Decoding can run in a 2-process pool (``jobs=2``) that writes straight into the spill
+Decoding can run in 2 threads (``jobs=2``; LibRaw releases the GIL) that write straight into the spill
 file; the band statistics run in ``jobs`` threads (numpy's sort releases the GIL).
 
 Sigma clipping (``sigma_clip``) per pixel: pass 1 keeps values within ``sigma`` robust
@@ -25,9 +25,9 @@ those of the kept values too (for ``mean`` and ``median`` every value is used).
 
 from __future__ import annotations
 
-import multiprocessing
 import os
 import tempfile
+import threading
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -104,6 +104,7 @@ class StackResult:
 # decoding (parent or forked worker)
 
 _STATE: dict = {}
+_SPILL_LOCK = threading.Lock()
 """Decode settings shared with forked workers (closures need not be picklable with fork)."""
 
 
@@ -162,10 +163,11 @@ def _spill_write(index: int, planes: np.ndarray) -> None:
     data = planes.astype(dtype, copy=False) if planes.dtype != dtype else planes
     buf = np.ascontiguousarray(data).view(np.uint8).reshape(-1)
     offset = index * buf.nbytes
-    fd = _STATE.get("spill_fd")
-    if fd is None:
-        fd = os.open(_STATE["spill_path"], os.O_WRONLY)
-        _STATE["spill_fd"] = fd
+    with _SPILL_LOCK:
+        fd = _STATE.get("spill_fd")
+        if fd is None:
+            fd = os.open(_STATE["spill_path"], os.O_WRONLY)
+            _STATE["spill_fd"] = fd
     done = 0
     while done < buf.nbytes:
         done += os.pwrite(fd, buf[done:], offset + done)
@@ -280,7 +282,7 @@ def combine_frames(
     manifest : ``frames.csv`` rows (:func:`camcal.io.folder_manifest`) applied to every file;
         None reads each file's own folder manifest.
     check : called with each decoded frame; raise :class:`CamcalError` to refuse it.
-    jobs : 1, or 2 to decode in a 2-process pool and compute band statistics in 2 threads.
+    jobs : 1, or 2 to decode in 2 threads and compute band statistics in 2 threads.
     progress : ``progress(done, total)`` after each decoded frame.
     band_mb : working-set budget of one row band, MB (median / sigma_clip).
     spill_dir : folder for the temporary spill file (default: the system temp folder).
@@ -364,14 +366,37 @@ def combine_frames(
 
 
 def _run(items: list[tuple[int, str]], jobs: int):
-    """Yield ``(meta, planes-or-None)`` per item, in a forked pool when ``jobs > 1``."""
-    if jobs <= 1 or not items or "fork" not in multiprocessing.get_all_start_methods():
+    """Yield ``(meta, planes-or-None)`` per item, decoding ``jobs`` frames at a time in threads.
+
+    LibRaw and OpenImageIO release the GIL while reading and decoding, so threads
+    give most of the gain of processes without forking a process that may hold
+    other threads' locks (a forked pool deadlocked under pytest-xdist and Dask).
+    At most ``2 * jobs`` frames are in flight, so memory does not grow with the
+    number of frames; results come in completion order.
+    """
+    if jobs <= 1 or len(items) <= 1:
         for item in items:
             yield _worker(item)
         return
-    ctx = multiprocessing.get_context("fork")
-    with ctx.Pool(jobs) as pool:
-        yield from pool.imap_unordered(_worker, items, chunksize=1)
+    from concurrent.futures import FIRST_COMPLETED, wait
+
+    pending: set = set()
+    queue = iter(items)
+    with ThreadPoolExecutor(jobs, thread_name_prefix="camcal-decode") as pool:
+        try:
+            for item in queue:
+                pending.add(pool.submit(_worker, item))
+                if len(pending) >= 2 * jobs:
+                    done, pending = wait(pending, return_when=FIRST_COMPLETED)
+                    for fut in done:
+                        yield fut.result()
+            while pending:
+                done, pending = wait(pending, return_when=FIRST_COMPLETED)
+                for fut in done:
+                    yield fut.result()
+        finally:
+            for fut in pending:
+                fut.cancel()
 
 
 class _Welford:

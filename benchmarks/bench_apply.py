@@ -1,0 +1,180 @@
+"""Benchmark: one 24-megapixel DNG to a radiance EXR, against the floor; batch throughput on 2 cores.
+
+Run ``python benchmarks/bench_apply.py``; prints a Markdown section for ``benchmarks/RESULTS.md``.
+
+Floor (the unavoidable work, measured in the same run): ``rawpy`` decode of the DNG (mosaic copied
+out) plus an OpenImageIO write of an EXR of the same size as camcal's output (5 float32 channels at
+3000x2000, zip). camcal: :func:`camcal.io.load_frame` + :func:`camcal.apply.apply_prepared` +
+:func:`camcal.exr.write_exr` (what a batch worker does per photo; the profile-dependent maps are
+prepared once per worker and timed separately). Target: camcal ≤ 1.3x the floor.
+
+The 24-megapixel profile is assembled from the synthetic camera's truth (dark maps, radial
+vignetting) and the spectral sensitivity and responses of a calibrated small session: a speed
+benchmark, not an accuracy one. Files go to ``benchmarks/_work/`` (git-ignored) and are written once.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime
+import os
+import platform
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+WORK = Path(__file__).resolve().parent / "_work" / "apply24mp"
+WIDTH, HEIGHT = 6000, 4000
+N_BATCH = 4
+REPEATS = 3
+
+
+def _small_profile(work: Path):
+    from camcal.calibrate import calibrate_session
+    from camcal.profile import load_profile, save_profile
+    from camcal.synth.camera import SyntheticCamera
+    from camcal.synth.session import SessionPlan, write_session
+
+    path = work / "small.camcal"
+    if not path.exists():
+        session = write_session(work / "small_session", SyntheticCamera(), SessionPlan())
+        profile, _ = calibrate_session(session)
+        save_profile(profile, path)
+        shutil.rmtree(work / "small_session", ignore_errors=True)
+    return load_profile(path)
+
+
+def build(work: Path):
+    """The 24 MP camera, profile and photos (written once)."""
+    from camcal.dark import DarkModel
+    from camcal.flat import FlatModel
+    from camcal.frame import PLANES
+    from camcal.profile import CameraIdentity, load_profile, save_profile
+    from camcal.spectra import gaussian_line
+    from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
+    from camcal.synth.session import exposure_for_level
+
+    work.mkdir(parents=True, exist_ok=True)
+    cam = SyntheticCamera(SensorParams(width=WIDTH, height=HEIGHT))
+    prof_path = work / "cam24.camcal"
+    photos = [work / f"photo_{i:02d}.dng" for i in range(N_BATCH)]
+    if prof_path.exists() and all(p.exists() for p in photos):
+        return load_profile(prof_path), prof_path, photos
+    small = _small_profile(work)
+    p = cam.params
+    k = cam.dn_per_electron(p.iso_base)
+    black = np.asarray(p.black_level_dn, np.float32)[:, None, None]
+    dark = DarkModel(
+        bias_dn=(black + cam._maps["bias_dn"]).astype(np.float32),
+        dark_current_dn_per_s=(cam.dark_current_map_e_per_s * k).astype(np.float32),
+        dark_current_unc_dn_per_s=np.full((4, HEIGHT // 2, WIDTH // 2), 0.05, np.float32),
+        read_noise_dn=np.full((4, HEIGHT // 2, WIDTH // 2), p.read_noise_e * k, np.float32),
+        defects=cam.hot_pixel_mask.astype(np.uint8), iso=p.iso_base, cfa_pattern=p.cfa_pattern, temperature_c=None,
+        channels=small.dark.channels, black_level_dn=tuple(p.black_level_dn), white_level_dn=float(p.white_dn),
+    )
+    cx, cy = cam.optical_centre_px
+    from camcal.frame import plane_offsets
+
+    off = plane_offsets(p.cfa_pattern)
+    flat = FlatModel(channels=PLANES, centre_px={c: ((cx - off[c][1]) / 2, (cy - off[c][0]) / 2) for c in PLANES},
+                     k={c: tuple(p.vignetting_k) for c in PLANES}, model_2d=None, prnu=None,
+                     residual_rms={c: 0.0 for c in PLANES}, shape=(HEIGHT // 2, WIDTH // 2), cfa_pattern=p.cfa_pattern)
+    profile = dataclasses.replace(
+        small, camera=CameraIdentity(p.make, p.model, p.serial, p.cfa_pattern, WIDTH, HEIGHT), dark=dark, flat=flat,
+        content_sha256=None)
+    profile = save_profile(profile, prof_path)
+    line = 2.0 * gaussian_line(663.0, 5.0)
+    t = exposure_for_level(cam, line, 0.4, 100, 4.0)
+    rng = np.random.default_rng(5)
+    cam.write_dng(photos[0], Scene.uniform(line), exposure_s=t, iso=100, f_number=4.0, rng=rng)
+    for ph in photos[1:]:
+        shutil.copyfile(photos[0], ph)  # same content: throughput does not depend on it
+    return load_profile(prof_path), prof_path, photos
+
+
+def floor_once(photo: Path, out: Path) -> float:
+    import OpenImageIO as oiio
+    import rawpy
+
+    t0 = time.perf_counter()
+    with rawpy.imread(str(photo)) as raw:
+        mosaic = np.array(raw.raw_image_visible, dtype=np.uint16, copy=True)
+    h, w = mosaic.shape[0] // 2, mosaic.shape[1] // 2
+    pixels = np.empty((h, w, 5), np.float32)
+    pixels[..., :4] = np.moveaxis(mosaic.reshape(h, 2, w, 2).transpose(1, 3, 0, 2).reshape(4, h, w), 0, -1)
+    pixels[..., 4] = pixels[..., 0]
+    pixels *= np.float32(1.2345678e-4)  # non-integer floats, so zip compresses them like camcal's radiances
+    spec = oiio.ImageSpec(w, h, 5, oiio.FLOAT)
+    spec.channelnames = ("R", "G", "B", "L663", "L663_unc")
+    spec.attribute("DateTime", "2026:01:01 12:00:00")
+    spec.attribute("compression", "zip")
+    o = oiio.ImageOutput.create(str(out))
+    o.open(str(out), spec)
+    o.write_image(pixels)
+    o.close()
+    return time.perf_counter() - t0
+
+
+def camcal_once(photo: Path, plan, out: Path) -> float:
+    from camcal.apply import apply_prepared
+    from camcal.exr import write_exr
+    from camcal.io import load_frame
+
+    t0 = time.perf_counter()
+    image = apply_prepared(load_frame(photo), plan)
+    write_exr(out, image.channels, image.metadata, compression="zip")
+    return time.perf_counter() - t0
+
+
+def main() -> None:
+    from camcal.apply import prepare
+    from camcal.batch import BatchOptions, run_batch
+
+    profile, prof_path, photos = build(WORK)
+    t0 = time.perf_counter()
+    plan = prepare(profile)
+    t_prepare = time.perf_counter() - t0
+    with tempfile.TemporaryDirectory(dir=WORK) as tmp:
+        tmp = Path(tmp)
+        floor, ours = [], []
+        for _ in range(REPEATS):  # interleaved, best of
+            floor.append(floor_once(photos[0], tmp / "floor.exr"))
+            ours.append(camcal_once(photos[0], plan, tmp / "camcal.exr"))
+        f, c = min(floor), min(ours)
+        size_floor = (tmp / "floor.exr").stat().st_size / 1e6
+        size_ours = (tmp / "camcal.exr").stat().st_size / 1e6
+        # batch throughput: the CLI's path (process pool of 2, profile loaded once per worker)
+        t0 = time.perf_counter()
+        rep = run_batch(prof_path, photos, tmp / "batch", BatchOptions(), jobs=2)
+        t_batch = time.perf_counter() - t0
+        assert rep.counts["done"] == N_BATCH, rep.counts
+        t0 = time.perf_counter()
+        run_batch(prof_path, photos, tmp / "batch", BatchOptions(), jobs=2)
+        t_resume = time.perf_counter() - t0
+    try:
+        load = os.getloadavg()[0]
+    except OSError:
+        load = float("nan")
+    print("## apply\n")
+    print(f"Machine: {os.cpu_count()} cores, CPython {platform.python_version()}, {platform.machine()}; "
+          f"{datetime.date.today().isoformat()}; load average {load:.1f} at the end of the run.\n")
+    print(f"`python benchmarks/bench_apply.py`: one {WIDTH}x{HEIGHT} (24 MP) RGGB 14-bit DNG → EXR with R, G, B, "
+          f"L663, L663_unc at {WIDTH // 2}x{HEIGHT // 2}, float32, zip; best of {REPEATS}, interleaved.\n")
+    print("| what | time (s) | ratio to floor |")
+    print("|---|---:|---:|")
+    print(f"| floor: rawpy decode + OpenImageIO EXR write of the same size ({size_floor:.0f} MB) | {f:.3f} | 1.00 |")
+    print(f"| camcal: load_frame + apply + write_exr ({size_ours:.0f} MB) | {c:.3f} | **{c / f:.2f}** |")
+    print(f"| once per worker: prepare (flat gain maps, estimator) | {t_prepare:.3f} | |")
+    print()
+    print(f"Target ≤ 1.3x the floor: {'met' if c / f <= 1.3 else 'NOT met'} ({c / f:.2f}x).\n")
+    print(f"Batch of {N_BATCH} photos on a process pool of 2 (`run_batch(..., jobs=2)`, spawn start, profile "
+          f"loaded once per worker): {t_batch:.1f} s = **{N_BATCH / t_batch:.2f} photos/s**; the rerun skips all "
+          f"{N_BATCH} from the EXR headers in {t_resume:.2f} s.")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

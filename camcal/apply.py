@@ -1,0 +1,494 @@
+"""Apply a calibration profile to one survey photo: radiance per channel and at one wavelength.
+
+The pipeline (seed eq. 12 inverted, seed §2.1 and §3.1)
+--------------------------------------------------------
+RAW (CFA planes R, G1, G2, B in DN)::
+
+    signal  = planes − (bias + β·t·ISO/ISO_dark)        dark model (or the file's black level)
+    signal /= g_flat(x, y)                              flat field, 1 on the optical axis
+    rate    = signal / x,   x = (ISO·t/N²)/(ISO_ref/N_ref²)   DN s^-1 at the reference setting
+    R, G, B = R, (G1 + G2)/2, B
+    L_i     = rate_i / ∫c_i dλ                          band radiance, W m^-2 sr^-1 nm^-1
+    L(λ0)   = w · (R, G, B)                             narrowband or smooth estimator (camcal.radiance)
+
+Processed (JPEG/TIFF/PNG, 8 or 16 bit R, G, B)::
+
+    lin     = response["processed"].linearise(values)   linear, 0..W scale, ∝ exposure
+    DN_raw  = lin · k_i,  k_i = a_raw,i / a_jpeg,i      RAW-equivalent DN above dark (same linearity series)
+    2x2 mean → half resolution, then flat, exposure and radiance as for RAW (no dark subtraction:
+    the camera already removed black).
+
+Assumptions for processed files: the camera applies no white balance and no colour matrix, only a
+per-channel tone curve, so each JPEG channel is a function of one RAW channel. True for the synthetic
+camera; NOT true for real cameras, whose JPEG channels mix the RAW channels (white balance, colour
+matrix, local tone mapping). Use RAW files for radiometry; JPEG results are a fallback and only valid
+with the white balance and picture style fixed as during calibration.
+
+Resolution
+----------
+The output is **half resolution**, not demosaicked: one value per 2x2 CFA cell (R, mean of the two G,
+B of that cell), so an (H, W) photo gives (H/2, W/2) maps. Processed files are binned 2x2 to the same
+grid. Pixel (i, j) of the output covers photo pixels rows 2i..2i+1, columns 2j..2j+1.
+
+Invalid pixels are NaN: defective pixels of the dark model (hot, dead, noisy; in G only when both G1
+and G2 are defective), saturated pixels (RAW DN at the white level; processed values at the maximum).
+
+Uncertainty (``L<λ>_unc``, one standard deviation)
+-------------------------------------------------
+Per-pixel noise variance in DN² of each RAW plane, EMVA 1288 linear model::
+
+    var = σ_read² · (ISO/ISO_dark)² + K · (signal + β·t·ISO/ISO_dark),  K = K_dark · ISO/ISO_dark
+
+with σ_read the dark model's per-pixel read noise and K the system gain in DN per electron from the
+dark model's photon-transfer line (``gain_dn_per_e_from_dark``); the read noise is assumed input
+referred (constant in electrons), so it scales with ISO in DN. Without a dark model the noise term
+is omitted (documented in the metadata ``notes``). For processed files the same model is evaluated at
+the RAW-equivalent signal (the JPEG came from that sensor; quantisation and compression are ignored).
+The variance is propagated through the flat, the exposure and the estimator's linear weights and
+combined with the relative uncertainty of c(λ) (as :func:`camcal.radiance.radiance_at` does) and,
+when the PRNU map is not applied, the profile's PRNU (relative RMS per channel, a fixed-pattern
+error of each pixel). Not included:
+flat-field model error, exposure-metadata error (ISO and f-number are nominal values), and, for
+``smooth``, the reconstruction error (documented in docs/apply.md).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from camcal.errors import CamcalError
+from camcal.exposure import frame_relative_exposure
+from camcal.frame import Frame
+from camcal.radiance import RadianceModel, radiance_model
+
+BAND_UNITS = "W m^-2 sr^-1 nm^-1"
+RESOLUTION_NOTE = "half resolution: one value per 2x2 CFA cell (R, mean of G1 and G2, B), not demosaicked"
+
+
+def radiance_channel_name(wavelength_nm: float) -> str:
+    """``L663`` for 663 nm; ``L662.5`` for 662.5 nm."""
+    return f"L{float(wavelength_nm):g}"
+
+
+@dataclass(frozen=True, eq=False)
+class RadianceImage:
+    """Result of :func:`apply`: named half-resolution maps and metadata.
+
+    Attributes
+    ----------
+    channels : dict
+        ``R``, ``G``, ``B``: band radiance, W m^-2 sr^-1 nm^-1; ``L<λ>`` spectral radiance at λ
+        (units in ``metadata["units"]``) and ``L<λ>_unc`` its standard uncertainty. float32 (h, w).
+    metadata : dict
+        units, wavelength_nm, estimator, profile_sha256, source_file, exposure, camera, notes...
+    """
+
+    channels: dict[str, np.ndarray]
+    metadata: dict = field(default_factory=dict)
+
+    @property
+    def radiance_name(self) -> str:
+        return radiance_channel_name(self.metadata["wavelength_nm"])
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return next(iter(self.channels.values())).shape  # type: ignore[return-value]
+
+
+@dataclass(frozen=True, eq=False)
+class ApplyPlan:
+    """Everything of a profile that does not depend on the photo, computed once (batches reuse it).
+
+    Attributes
+    ----------
+    profile : the CalibrationProfile.
+    model : the radiance estimator's linear maps.
+    flat_planes : (4, h, w) flat gain of the RAW planes, or None without a flat model.
+    flat_rgb : (3, h, w) flat gain of R, G (mean of G1, G2), B, or None.
+    options : the estimator options, for the metadata.
+    """
+
+    profile: object
+    model: RadianceModel
+    flat_planes: np.ndarray | None
+    flat_rgb: np.ndarray | None
+    options: dict
+    prnu_rel: np.ndarray | None = None
+    inv_flat_planes: np.ndarray | None = None
+    bad_planes: np.ndarray | None = None
+    read_var_dn2: np.ndarray | None = None
+    gain_dn_per_e: np.ndarray | None = None
+
+
+def prepare(
+    profile,
+    wavelength_nm: float = 663.0,
+    estimator: str = "narrowband",
+    *,
+    filter_fwhm_nm: float | None = None,
+    line_fwhm_nm: float | None = None,
+    with_prnu: bool = False,
+) -> ApplyPlan:
+    """Precompute the photo-independent parts of :func:`apply` for ``profile``.
+
+    Raises
+    ------
+    CamcalError
+        The profile has no absolute spectral sensitivity, or the wavelength/estimator is invalid.
+    """
+    spectral = profile.spectral
+    if spectral is None:
+        raise CamcalError("the profile has no spectral sensitivity (sweep stage); radiance needs c(λ)")
+    if spectral.mode != "absolute":
+        raise CamcalError("the profile's spectral sensitivity is relative; radiance needs an absolute c(λ) "
+                          "(calibrate with --sweep-mode absolute)")
+    slit = 0.0 if spectral.deconvolved else spectral.bandwidth_nm
+    model = radiance_model(spectral.wavelength_nm, spectral.rgb(), spectral.rgb_uncertainty(), float(wavelength_nm),
+                           estimator, filter_fwhm_nm=filter_fwhm_nm, line_fwhm_nm=line_fwhm_nm, slit_fwhm_nm=slit)
+    flat_planes = flat_rgb = None
+    if profile.flat is not None:
+        flat_planes = profile.flat.gain(with_prnu=with_prnu).astype(np.float32)
+        if flat_planes.shape[0] == 4:
+            flat_rgb = np.stack([flat_planes[0], 0.5 * (flat_planes[1] + flat_planes[2]), flat_planes[3]])
+        else:  # a flat fitted on processed RGB frames
+            flat_rgb, flat_planes = flat_planes, None
+    prnu_rel = None
+    if profile.flat is not None and not with_prnu and profile.flat.prnu_rms:
+        rms = [float(profile.flat.prnu_rms.get(c, 0.0) or 0.0) for c in profile.flat.channels]
+        if len(rms) == 4:
+            rms = [rms[0], 0.5 * math.hypot(rms[1], rms[2]), rms[3]]
+        prnu_rel = np.array(rms, np.float32)[:, None, None]
+    options = {"wavelength_nm": float(wavelength_nm), "estimator": estimator, "filter_fwhm_nm": filter_fwhm_nm,
+               "line_fwhm_nm": line_fwhm_nm, "with_prnu": with_prnu}
+    inv_flat = None if flat_planes is None else (1.0 / flat_planes).astype(np.float32)
+    bad = read_var = gain = None
+    if profile.dark is not None:
+        bad = profile.dark.defects != 0
+        read_var, gain, _ = _noise_params(profile, profile.dark.iso)
+    return ApplyPlan(profile, model, flat_planes, flat_rgb, options, prnu_rel, inv_flat, bad, read_var, gain)
+
+
+def check_camera(exposure, profile, path: Path | None, allow_other_camera: bool = False) -> list[str]:
+    """Refuse a photo from another camera model than the profile's (make and model); returns notes.
+
+    A photo without make/model metadata cannot be checked: a note says so.
+    """
+    cam = profile.camera
+    make, model = exposure.make, exposure.model
+    if not make and not model:
+        return ["photo has no camera make/model metadata: camera not checked"]
+    same = (str(make or "").strip().lower(), str(model or "").strip().lower()) == (
+        str(cam.make or "").strip().lower(), str(cam.model or "").strip().lower())
+    if same:
+        return []
+    msg = f"photo is from {make} {model}, the profile is for {cam.make} {cam.model}"
+    if not allow_other_camera:
+        raise CamcalError(f"{msg}; use a profile of this camera (or --allow-other-camera)", path)
+    return [msg + " (allowed by --allow-other-camera)"]
+
+
+def _bin2(x: np.ndarray) -> np.ndarray:
+    """(C, H, W) -> (C, H//2, W//2) mean of 2x2 blocks (odd edges cropped)."""
+    c, h, w = x.shape
+    x = x[:, : h // 2 * 2, : w // 2 * 2]
+    return x.reshape(c, h // 2, 2, w // 2, 2).mean(axis=(2, 4), dtype=np.float32)
+
+
+def _noise_params(profile, iso: float) -> tuple[np.ndarray | None, np.ndarray | None, float]:
+    """(read variance (4,h,w) DN², gain (4,1,1) DN/e-, ISO scale) at ``iso``, or Nones without a dark model."""
+    dark = profile.dark
+    if dark is None:
+        return None, None, 1.0
+    scale = float(iso) / dark.iso
+    gains = dark.summary().get("gain_dn_per_e_from_dark") or {}
+    k = np.array([float(gains.get(p, 0.0) or 0.0) for p in ("R", "G1", "G2", "B")], np.float32)[:, None, None]
+    rn = dark.read_noise_dn.astype(np.float32) * np.float32(scale)
+    return rn * rn, k * np.float32(scale), scale
+
+
+def _raw_rgb(frame: Frame, plan: ApplyPlan, t: float, iso: float, notes: list[str]):
+    """RAW planes -> (R, G, B signal above dark, flat-corrected, NaN where invalid (3,h,w); variance or None).
+
+    Written in place on float32 buffers: this is the per-photo hot path of a batch.
+    """
+    profile = plan.profile
+    planes = frame.planes(np.float32)
+    invalid = planes >= np.float32(frame.white_level_dn)
+    dark = profile.dark
+    var = None
+    if dark is not None:
+        if planes.shape != dark.bias_dn.shape:
+            raise CamcalError(f"photo planes {planes.shape[1:]} do not match the profile's dark model "
+                              f"{dark.bias_dn.shape[1:]} (another camera, crop or resolution)", frame.path)
+        scale = np.float32(iso / dark.iso)
+        dark_signal = dark.dark_current_dn_per_s * np.float32(t * iso / dark.iso)
+        planes -= dark.bias_dn
+        planes -= dark_signal
+        invalid |= plan.bad_planes
+        # var = σ_read²·s² + K·s·max(signal + dark, 0)   (EMVA 1288 linear model, s = ISO/ISO_dark)
+        var = dark_signal
+        var += planes
+        np.maximum(var, 0, out=var)
+        var *= plan.gain_dn_per_e * scale
+        var += plan.read_var_dn2 * (scale * scale)
+    else:
+        planes -= frame.black_vector().astype(np.float32)
+        notes.append("no dark model: the file's black level was subtracted, dark current ignored; no noise map")
+    if plan.inv_flat_planes is not None:
+        if plan.inv_flat_planes.shape != planes.shape:
+            raise CamcalError(f"photo planes {planes.shape[1:]} do not match the profile's flat field "
+                              f"{plan.inv_flat_planes.shape[1:]} (another camera, crop or resolution)", frame.path)
+        planes *= plan.inv_flat_planes
+        if var is not None:
+            var *= plan.inv_flat_planes
+            var *= plan.inv_flat_planes
+    np.copyto(planes, np.float32(np.nan), where=invalid)
+    # G: mean of the good greens (one defective green leaves the other)
+    g = planes[1] + planes[2]
+    g *= np.float32(0.5)
+    np.copyto(g, planes[2], where=invalid[1])
+    np.copyto(g, planes[1], where=invalid[2])
+    signal = np.stack([planes[0], g, planes[3]])
+    if var is not None:
+        vg = var[1] + var[2]
+        vg *= np.float32(0.25)
+        np.copyto(vg, var[2], where=invalid[1])
+        np.copyto(vg, var[1], where=invalid[2])
+        var = np.stack([var[0], vg, var[3]])
+    return signal, var
+
+
+def _processed_signal(frame: Frame, plan: ApplyPlan, iso: float, notes: list[str]):
+    """Processed RGB -> (RAW-equivalent signal (3,h,w) binned, variance or None, invalid (3,h,w))."""
+    profile = plan.profile
+    resp = profile.response or {}
+    if "processed" not in resp or "raw" not in resp:
+        raise CamcalError("the profile has no JPEG response (needs a linearity series with RAW+JPEG pairs) "
+                          "to read processed photos; use the RAW file", frame.path)
+    rp, rr = resp["processed"], resp["raw"]
+    values = frame.planes(np.float32)
+    saturated = _bin2((values >= np.float32(frame.white_level_dn)).astype(np.float32)) > 0
+    lin = rp.linearise(values).astype(np.float32)
+    k = []
+    for ch in ("R", "G", "B"):
+        raw_gain = (0.5 * (rr.linear_gain_dn_per_s("G1") + rr.linear_gain_dn_per_s("G2")) if ch == "G"
+                    else rr.linear_gain_dn_per_s(ch))
+        k.append(raw_gain / rp.linear_gain_dn_per_s(ch))
+    signal = _bin2(lin * np.array(k, np.float32)[:, None, None])
+    notes.append("processed file: assumes no white balance or colour matrix in the camera (true for the "
+                 "synthetic camera, not for real ones)")
+    var = None
+    read_var, kg, scale = _noise_params(profile, iso)
+    if read_var is not None:
+        if read_var.shape[1:] != signal.shape[1:]:
+            raise CamcalError(f"photo (half resolution {signal.shape[1:]}) does not match the profile's sensor "
+                              f"{read_var.shape[1:]}", frame.path)
+        rv = np.stack([read_var[0], 0.25 * (read_var[1] + read_var[2]), read_var[3]])
+        kk = np.stack([kg[0], 0.5 * (kg[1] + kg[2]), kg[3]])
+        var = rv + kk * np.maximum(signal, 0) * np.array([1.0, 0.5, 1.0], np.float32)[:, None, None]
+    return signal, var, saturated
+
+
+def apply_prepared(frame: Frame, plan: ApplyPlan, *, allow_other_camera: bool = False) -> RadianceImage:
+    """:func:`apply` with a precomputed :class:`ApplyPlan` (see :func:`prepare`)."""
+    profile = plan.profile
+    path = frame.path
+    notes = check_camera(frame.exposure, profile, path, allow_other_camera)
+    x = frame_relative_exposure(frame.exposure, profile.reference_iso, profile.reference_f_number, path)
+    t = frame.exposure.require("exposure_s", path)
+    iso = frame.exposure.require("iso", path)
+    if frame.kind == "raw":
+        signal, var = _raw_rgb(frame, plan, t, iso, notes)
+    else:
+        signal, var, saturated = _processed_signal(frame, plan, iso, notes)
+        if plan.flat_rgb is not None:
+            if plan.flat_rgb.shape != signal.shape:
+                raise CamcalError(f"photo (half resolution {signal.shape[1:]}) does not match the profile's flat "
+                                  f"field {plan.flat_rgb.shape[1:]} (another camera, crop or resolution)", path)
+            signal /= plan.flat_rgb
+            if var is not None:
+                var /= plan.flat_rgb * plan.flat_rgb
+        signal[saturated] = np.nan
+    if plan.flat_planes is None and plan.flat_rgb is None:
+        notes.append("no flat model: vignetting not corrected")
+    if var is not None and plan.prnu_rel is not None:
+        var += (plan.prnu_rel * signal) ** 2  # pixel response non-uniformity left uncorrected
+    inv_x = 1.0 / x
+    band = [signal[i] * np.float32(inv_x / plan.model.band_integral[i]) for i in range(3)]
+    value, unc = _radiance(signal, var, plan.model, inv_x)
+    name = radiance_channel_name(plan.model.wavelength_nm)
+    channels = {"R": band[0], "G": band[1], "B": band[2], name: value, f"{name}_unc": unc}
+    e = frame.exposure
+    meta = {
+        "units": {"R": BAND_UNITS, "G": BAND_UNITS, "B": BAND_UNITS, name: plan.model.units,
+                  f"{name}_unc": plan.model.units},
+        "wavelength_nm": plan.model.wavelength_nm,
+        "estimator": plan.model.estimator,
+        "estimator_channel": plan.model.channel,
+        "estimator_weights": [float(w) for w in plan.model.weights],
+        "options": plan.options,
+        "profile_sha256": profile.content_sha256,
+        "source_file": str(path) if path is not None else None,
+        "source_name": path.name if path is not None else None,
+        "kind": frame.kind,
+        "exposure": {"exposure_s": e.exposure_s, "iso": e.iso, "f_number": e.f_number,
+                     "capture_time": e.capture_time, "relative_exposure_s": x,
+                     "reference_iso": profile.reference_iso, "reference_f_number": profile.reference_f_number},
+        "camera": {"make": e.make, "model": e.model, "serial": e.serial},
+        "profile_camera": {"make": profile.camera.make, "model": profile.camera.model,
+                           "serial": profile.camera.serial},
+        "resolution": RESOLUTION_NOTE,
+        "invalid": "NaN: defective (dark model) or saturated pixels",
+        "notes": notes,
+    }
+    return RadianceImage(channels, meta)
+
+
+def _radiance(signal: np.ndarray, var: np.ndarray | None, model: RadianceModel, inv_x: float):
+    """L(λ0) = Σ w_i·signal_i/x and its uncertainty (noise ⊕ relative c(λ) uncertainty), float32.
+
+    Only channels with a non-zero weight enter (a NaN in an unused channel does not spread).
+    """
+    used = [i for i in range(3) if model.weights[i] != 0]
+    value = np.zeros(signal.shape[1:], np.float32)
+    noise = np.zeros(signal.shape[1:], np.float32)
+    for i in used:
+        wi = np.float32(model.weights[i] * inv_x)
+        value += signal[i] * wi
+        if var is not None:
+            noise += var[i] * (wi * wi)
+    rel = np.float32(model.weights_unc_rel if math.isfinite(model.weights_unc_rel) else 0.0)
+    if rel:
+        noise += (value * rel) ** 2
+    np.sqrt(noise, out=noise)
+    return value, noise
+
+
+def apply(
+    frame: Frame,
+    profile,
+    wavelength_nm: float = 663.0,
+    estimator: str = "narrowband",
+    *,
+    filter_fwhm_nm: float | None = None,
+    line_fwhm_nm: float | None = None,
+    with_prnu: bool = False,
+    allow_other_camera: bool = False,
+) -> RadianceImage:
+    """Radiance maps of one photo through a calibration profile (module docstring: the pipeline).
+
+    Parameters
+    ----------
+    frame : a decoded photo (:func:`camcal.io.load_frame`), RAW or processed.
+    profile : :class:`camcal.profile.CalibrationProfile` with an absolute spectral sensitivity.
+    wavelength_nm : λ0 of the spectral-radiance map, nm (channel ``L<λ0>``).
+    estimator : ``"narrowband"`` (light confined near λ0) or ``"smooth"`` (smooth spectrum);
+        see :mod:`camcal.radiance`.
+    filter_fwhm_nm : narrowband only: divide by this width to give W m^-2 sr^-1 nm^-1.
+    line_fwhm_nm : narrowband only: FWHM of the light, for the slit correction of c(λ0).
+    with_prnu : also divide by the profile's PRNU map.
+    allow_other_camera : accept a photo whose make/model differs from the profile's.
+
+    Returns
+    -------
+    RadianceImage with channels R, G, B (band radiance), L<λ0>, L<λ0>_unc at half resolution.
+
+    Raises
+    ------
+    CamcalError
+        Another camera, missing exposure metadata, size mismatch, a profile without c(λ) or
+        (processed photos) without a JPEG response.
+    """
+    plan = prepare(profile, wavelength_nm, estimator, filter_fwhm_nm=filter_fwhm_nm, line_fwhm_nm=line_fwhm_nm,
+                   with_prnu=with_prnu)
+    return apply_prepared(frame, plan, allow_other_camera=allow_other_camera)
+
+
+# ---- regions of interest ------------------------------------------------------------------------------------------
+def parse_roi(text: str) -> tuple[int, int, int, int]:
+    """``"x,y,w,h"`` (full-resolution photo pixels) -> tuple; CamcalError when malformed."""
+    try:
+        parts = [int(float(v)) for v in text.split(",")]
+    except ValueError:
+        parts = []
+    if len(parts) != 4 or parts[2] <= 0 or parts[3] <= 0 or parts[0] < 0 or parts[1] < 0:
+        raise CamcalError(f"--roi must be x,y,w,h with non-negative x, y and positive w, h (photo pixels), got "
+                          f"{text!r}")
+    return parts[0], parts[1], parts[2], parts[3]
+
+
+def roi_mask(shape_hw: tuple[int, int], roi: tuple[int, int, int, int] | None = None,
+             mask: np.ndarray | None = None, where: str | Path | None = None) -> np.ndarray:
+    """Boolean mask on the half-resolution output grid.
+
+    ``roi`` is (x, y, w, h) in full-resolution photo pixels (rounded outward to whole 2x2 cells).
+    ``mask`` is a 2-D array at the photo's full resolution (2x the output) or at the output resolution;
+    non-zero marks the region; at full resolution a cell is in when at least half its pixels are.
+    """
+    h, w = shape_hw
+    if mask is not None:
+        m = np.asarray(mask, np.float32)
+        if m.ndim == 3:
+            m = m.max(axis=-1)
+        if m.shape == (h, w):
+            out = m > 0
+        elif m.shape[0] // 2 == h and m.shape[1] // 2 == w:
+            out = _bin2((m > 0).astype(np.float32)[None])[0] >= 0.5
+        else:
+            raise CamcalError(f"mask is {m.shape[1]}x{m.shape[0]}; expected the photo's size {2 * w}x{2 * h} "
+                              f"or the output's {w}x{h}", where)
+    elif roi is not None:
+        x, y, rw, rh = roi
+        r0, r1 = y // 2, -(-(y + rh) // 2)
+        c0, c1 = x // 2, -(-(x + rw) // 2)
+        if r0 >= h or c0 >= w:
+            raise CamcalError(f"ROI {x},{y},{rw},{rh} lies outside the photo ({2 * w}x{2 * h})", where)
+        out = np.zeros((h, w), bool)
+        out[r0:min(r1, h), c0:min(c1, w)] = True
+    else:
+        raise CamcalError("give an ROI or a mask")
+    if not out.any():
+        raise CamcalError("the ROI/mask selects no pixels", where)
+    return out
+
+
+def read_mask(path: str | Path) -> np.ndarray:
+    """A mask image (PNG/TIFF/JPEG, any channels) as a 2-D float array."""
+    import OpenImageIO as oiio
+
+    path = Path(path)
+    if not path.is_file():
+        raise CamcalError("no such mask file", path)
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        oiio.geterror()
+        raise CamcalError("cannot open the mask as an image", path)
+    try:
+        spec = inp.spec()
+        data = inp.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT)
+        if data is None:
+            raise CamcalError(f"cannot decode the mask: {inp.geterror()}", path)
+    finally:
+        inp.close()
+    return np.asarray(data, np.float32).reshape(spec.height, spec.width, spec.nchannels).max(axis=-1)
+
+
+def roi_statistics(channels: dict[str, np.ndarray], mask: np.ndarray) -> list[dict]:
+    """Mean, median and standard deviation (ddof 1) per channel over the mask, NaN pixels excluded.
+
+    Returns rows ``{"channel", "n", "mean", "median", "sigma"}``.
+    """
+    rows = []
+    for name, arr in channels.items():
+        v = np.asarray(arr, np.float64)[mask]
+        v = v[np.isfinite(v)]
+        n = int(v.size)
+        rows.append({"channel": name, "n": n,
+                     "mean": float(np.mean(v)) if n else float("nan"),
+                     "median": float(np.median(v)) if n else float("nan"),
+                     "sigma": float(np.std(v, ddof=1)) if n > 1 else float("nan")})
+    return rows

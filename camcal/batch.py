@@ -1,0 +1,409 @@
+"""Batches of survey photos through a profile: a process pool, or a dask.distributed cluster.
+
+Behaviour
+---------
+- One EXR per photo, ``OUTDIR/<photo name>.exr`` (``IMG_1.dng`` -> ``IMG_1.dng.exr``, so a RAW and its
+  JPEG twin do not collide), written atomically (temporary file + rename): a failed or interrupted photo
+  leaves no file under its final name.
+- **Resumable**: a photo whose EXR exists, made with the same profile (content hash), wavelength and
+  estimator (read from the EXR header, no pixels), is skipped without being decoded. An EXR made
+  with other settings is redone.
+- A failing photo (damaged file, missing metadata, another camera) does not stop the batch; its
+  one-line error is listed in the report (``apply_report.csv``) and the exit code is 1.
+- With a region of interest the mean, median and standard deviation of every channel are written
+  to ``roi_stats.csv`` (skipped photos: read back from their EXR).
+- ``progress(done, total, result)`` is called in the caller's process as photos finish.
+
+Workers load the profile from its path once per process (a dask cluster needs the profile, the
+photos and the output folder on a shared file system).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+from camcal.errors import CamcalError
+
+REPORT_CSV = "apply_report.csv"
+ROI_CSV = "roi_stats.csv"
+STATUSES = ("done", "skipped", "failed")
+
+
+@dataclass(frozen=True)
+class BatchOptions:
+    """Per-photo options (see :func:`camcal.apply.apply`) and the region for statistics.
+
+    ``roi`` is (x, y, w, h) in photo pixels; ``mask_path`` a mask image (either one, or neither).
+    """
+
+    wavelength_nm: float = 663.0
+    estimator: str = "narrowband"
+    filter_fwhm_nm: float | None = None
+    line_fwhm_nm: float | None = None
+    with_prnu: bool = False
+    allow_other_camera: bool = False
+    roi: tuple[int, int, int, int] | None = None
+    mask_path: str | None = None
+    half: bool = False
+    compression: str = "zip"
+
+
+@dataclass(frozen=True)
+class PhotoResult:
+    """Outcome of one photo: status ``done`` / ``skipped`` / ``failed``, the error line, ROI rows."""
+
+    source: str
+    output: str
+    status: str
+    error: str | None = None
+    seconds: float = 0.0
+    stats: tuple[dict, ...] = ()
+
+
+@dataclass(frozen=True)
+class BatchReport:
+    results: tuple[PhotoResult, ...]
+    outdir: str
+    report_csv: str
+    roi_csv: str | None = None
+    counts: dict = field(default_factory=dict)
+
+    @property
+    def failed(self) -> list[PhotoResult]:
+        return [r for r in self.results if r.status == "failed"]
+
+    @property
+    def exit_code(self) -> int:
+        """0 when every photo has its EXR, 1 when any failed."""
+        return 1 if self.failed else 0
+
+
+def output_path(photo: str | Path, outdir: str | Path) -> Path:
+    """``OUTDIR/<photo file name>.exr``."""
+    return Path(outdir) / f"{Path(photo).name}.exr"
+
+
+# ---- per process state ---------------------------------------------------------------------------------------------
+_PLANS: dict[tuple, object] = {}
+
+
+def _plan(profile_path: str, options: BatchOptions):
+    """The profile's ApplyPlan, loaded once per process and per (file, mtime, options)."""
+    p = Path(profile_path)
+    try:
+        st = p.stat()
+    except OSError:
+        raise CamcalError("no such profile file", p) from None
+    key = (str(p.resolve()), st.st_mtime_ns, st.st_size, options.wavelength_nm, options.estimator,
+           options.filter_fwhm_nm, options.line_fwhm_nm, options.with_prnu)
+    plan = _PLANS.get(key)
+    if plan is None:
+        from camcal.apply import prepare
+        from camcal.profile import load_profile
+
+        profile = load_profile(p)
+        plan = prepare(profile, options.wavelength_nm, options.estimator, filter_fwhm_nm=options.filter_fwhm_nm,
+                       line_fwhm_nm=options.line_fwhm_nm, with_prnu=options.with_prnu)
+        _PLANS.clear()
+        _PLANS[key] = plan
+    return plan
+
+
+def exr_header(path: Path) -> dict | None:
+    """camcal attributes of an EXR header (no pixels), or None when it cannot be read."""
+    import json
+
+    import OpenImageIO as oiio
+
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        oiio.geterror()
+        return None
+    try:
+        meta: dict = {}
+        for attr in inp.spec().extra_attribs:
+            if attr.name.startswith("camcal:json:"):
+                try:
+                    meta[attr.name[12:]] = json.loads(attr.value)
+                except (TypeError, ValueError):
+                    return None
+            elif attr.name.startswith("camcal:"):
+                meta[attr.name[7:]] = attr.value
+        return meta
+    finally:
+        inp.close()
+
+
+def _is_current(out: Path, profile_sha256: str | None, options: BatchOptions) -> bool:
+    if not out.is_file():
+        return False
+    meta = exr_header(out)
+    if not meta:
+        return False
+    wl = meta.get("wavelength_nm")
+    return (meta.get("profile_sha256") == profile_sha256 and meta.get("estimator") == options.estimator
+            and isinstance(wl, int | float) and math.isclose(float(wl), options.wavelength_nm)
+            and (meta.get("options") or {}).get("filter_fwhm_nm") == options.filter_fwhm_nm)
+
+
+def _load_mask(options: BatchOptions):
+    if options.mask_path is None:
+        return None
+    from camcal.apply import read_mask
+
+    return read_mask(options.mask_path)
+
+
+def _stats(channels: dict, options: BatchOptions, mask_image, where: Path) -> tuple[dict, ...]:
+    if options.roi is None and options.mask_path is None:
+        return ()
+    from camcal.apply import roi_mask, roi_statistics
+
+    shape = next(iter(channels.values())).shape
+    m = roi_mask(shape, options.roi, mask_image, where)
+    return tuple(roi_statistics(channels, m))
+
+
+def exr_datetime(capture_time: str | None) -> str:
+    """The EXR ``DateTime`` of an output: the photo's capture time (``YYYY:MM:DD HH:MM:SS``).
+
+    Deterministic, so the same photo gives a byte-identical EXR wherever and whenever it is processed.
+    """
+    if capture_time and len(capture_time) >= 19 and capture_time[10] in "T ":
+        return f"{capture_time[:10].replace('-', ':')} {capture_time[11:19]}"
+    return "1970:01:01 00:00:00"
+
+
+def process_photo(photo: str, profile_path: str, outdir: str, options: BatchOptions) -> PhotoResult:
+    """Apply the profile to one photo and write its EXR; never raises (failures are a result).
+
+    Skips the photo when its EXR is current (:func:`_is_current`).
+    """
+    t0 = time.perf_counter()
+    src = Path(photo)
+    out = output_path(src, outdir)
+    try:
+        plan = _plan(profile_path, options)
+        mask_image = _load_mask(options)
+        if _is_current(out, plan.profile.content_sha256, options):
+            stats = ()
+            if options.roi is not None or options.mask_path is not None:
+                from camcal.exr import read_exr
+
+                channels, _ = read_exr(out)
+                stats = _stats(channels, options, mask_image, src)
+            return PhotoResult(str(src), str(out), "skipped", None, time.perf_counter() - t0, stats)
+        from camcal.apply import apply_prepared
+        from camcal.exr import write_exr
+        from camcal.io import folder_manifest, load_frame
+        from camcal.manifest import exposure_overrides
+
+        manifest = folder_manifest(src.parent) if (src.parent / "frames.csv").is_file() else {}
+        frame = load_frame(src, exposure_overrides(manifest.get(src.name)))
+        image = apply_prepared(frame, plan, allow_other_camera=options.allow_other_camera)
+        stats = _stats(image.channels, options, mask_image, src)
+        write_exr(out, image.channels, image.metadata, half=options.half, compression=options.compression,
+                  datetime=exr_datetime(frame.exposure.capture_time))
+        return PhotoResult(str(src), str(out), "done", None, time.perf_counter() - t0, stats)
+    except CamcalError as exc:
+        return PhotoResult(str(src), str(out), "failed", str(exc), time.perf_counter() - t0)
+    except MemoryError:
+        return PhotoResult(str(src), str(out), "failed", f"{src}: out of memory", time.perf_counter() - t0)
+    except Exception as exc:  # a batch reports every failure and goes on
+        msg = " ".join(f"{type(exc).__name__}: {exc}".split())
+        return PhotoResult(str(src), str(out), "failed", f"{src}: internal error: {msg}", time.perf_counter() - t0)
+
+
+# ---- the runner ------------------------------------------------------------------------------------------------------
+def expand_photos(items: Sequence[str | Path]) -> list[Path]:
+    """Files as given; folders expanded to their image files (not recursive). Duplicated output names refused."""
+    from camcal.io import list_frames
+
+    photos: list[Path] = []
+    for item in items:
+        p = Path(item)
+        if p.is_dir():
+            photos.extend(list_frames(p))
+        else:
+            photos.append(p)
+    seen: dict[str, Path] = {}
+    for p in photos:
+        if p.name in seen and seen[p.name].resolve() != p.resolve():
+            raise CamcalError(f"two photos share the file name {p.name} ({seen[p.name]} and {p}); their outputs "
+                              "would collide: run them into different output folders", p)
+        seen[p.name] = p
+    unique = list({str(p.resolve()): p for p in photos}.values())
+    if not unique:
+        raise CamcalError("no photos given")
+    return unique
+
+
+def preflight(profile_path: str | Path, photos: Sequence[Path], options: BatchOptions):
+    """Load the profile and refuse the batch (CamcalError, exit 2) when a photo's EXIF names another camera.
+
+    Only the EXIF header is read (photos that cannot be read are left to fail in the batch).
+    """
+    from camcal.apply import check_camera
+    from camcal.io import exposure_from_exif
+
+    plan = _plan(str(profile_path), options)
+    if options.roi is None and options.mask_path is not None:
+        _load_mask(options)
+    if not options.allow_other_camera:
+        for p in photos:
+            try:
+                exp = exposure_from_exif(p)
+            except Exception:  # noqa: BLE001 - unreadable files fail later, per photo
+                continue
+            check_camera(exp, plan.profile, p, False)
+    return plan
+
+
+def _write_reports(outdir: Path, results: list[PhotoResult], options: BatchOptions) -> tuple[Path, Path | None]:
+    from camcal.atomic import atomic_write_text
+
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(["file", "status", "output", "seconds", "error"])
+    for r in results:
+        w.writerow([r.source, r.status, r.output if r.status != "failed" else "", f"{r.seconds:.3f}", r.error or ""])
+    report = atomic_write_text(outdir / REPORT_CSV, buf.getvalue())
+    roi_csv = None
+    if options.roi is not None or options.mask_path is not None:
+        buf = io.StringIO()
+        w = csv.writer(buf, lineterminator="\n")
+        region = (f"roi {','.join(map(str, options.roi))}" if options.roi is not None
+                  else f"mask {options.mask_path}")
+        w.writerow(["file", "channel", "n", "mean", "median", "sigma", "region"])
+        for r in results:
+            for row in r.stats:
+                w.writerow([Path(r.source).name, row["channel"], row["n"], repr(row["mean"]), repr(row["median"]),
+                            repr(row["sigma"]), region])
+        roi_csv = atomic_write_text(outdir / ROI_CSV, buf.getvalue())
+    return report, roi_csv
+
+
+def run_batch(
+    profile_path: str | Path,
+    photos: Sequence[str | Path],
+    outdir: str | Path,
+    options: BatchOptions | None = None,
+    *,
+    jobs: int = 1,
+    scheduler: str | object | None = None,
+    progress: Callable[[int, int, PhotoResult], None] | None = None,
+) -> BatchReport:
+    """Apply a profile to many photos (module docstring: outputs, resuming, failures).
+
+    Parameters
+    ----------
+    profile_path : the ``.camcal`` profile.
+    photos : photo files and/or folders.
+    outdir : output folder (created).
+    options : :class:`BatchOptions`.
+    jobs : worker processes for the local pool (1: in this process).
+    scheduler : a dask.distributed scheduler address (``tcp://host:8786``), or a ``Client`` /
+        ``LocalCluster`` object; None uses the local process pool.
+    progress : ``progress(done, total, result)``.
+
+    Raises
+    ------
+    CamcalError
+        Unreadable profile, photos of another camera (without ``allow_other_camera``), colliding names,
+        a bad ROI/mask. Per-photo failures are reported, not raised.
+    """
+    options = options or BatchOptions()
+    outdir = Path(outdir)
+    paths = expand_photos(photos)
+    plan = preflight(profile_path, paths, options)
+    outdir.mkdir(parents=True, exist_ok=True)
+    profile_path = str(Path(profile_path).resolve())
+    args = [(str(p.resolve()), profile_path, str(outdir.resolve()), options) for p in paths]
+    total = len(args)
+    results: dict[str, PhotoResult] = {}
+
+    def done(r: PhotoResult) -> None:
+        results[r.source] = r
+        if progress is not None:
+            progress(len(results), total, r)
+
+    # outputs already written with this profile and these options: skipped here, no worker started
+    todo = []
+    for a in args:
+        if _is_current(output_path(a[0], a[2]), plan.profile.content_sha256, options):
+            done(process_photo(*a))  # reads only the header (and the pixels for ROI statistics)
+        else:
+            todo.append(a)
+    if not todo:
+        pass
+    elif scheduler is not None:
+        _run_dask(todo, scheduler, done)
+    elif jobs <= 1 or len(todo) == 1:
+        for a in todo:
+            done(process_photo(*a))
+    else:
+        _run_pool(todo, jobs, done)
+    ordered = [results[a[0]] for a in args]
+    report, roi_csv = _write_reports(outdir, ordered, options)
+    counts = {s: sum(r.status == s for r in ordered) for s in STATUSES}
+    return BatchReport(tuple(ordered), str(outdir), str(report), None if roi_csv is None else str(roi_csv), counts)
+
+
+def _run_pool(args: list[tuple], jobs: int, done: Callable[[PhotoResult], None]) -> None:
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from concurrent.futures.process import BrokenProcessPool
+
+    ctx = multiprocessing.get_context("spawn")  # no fork of a process holding threads (progress bar, OIIO)
+    with ProcessPoolExecutor(max_workers=min(jobs, len(args)), mp_context=ctx) as pool:
+        futures = {pool.submit(process_photo, *a): a for a in args}
+        for fut in as_completed(futures):
+            a = futures[fut]
+            try:
+                done(fut.result())
+            except BrokenProcessPool:
+                done(PhotoResult(a[0], str(output_path(a[0], a[2])), "failed",
+                                 f"{a[0]}: worker process died (out of memory?)"))
+
+
+def _run_dask(args: list[tuple], scheduler, done: Callable[[PhotoResult], None]) -> None:
+    try:
+        from dask.distributed import Client, as_completed
+    except ImportError:
+        raise CamcalError("--dask-scheduler needs dask.distributed (pip install 'dask[distributed]')") from None
+    own = False
+    if isinstance(scheduler, str):
+        try:
+            client = Client(scheduler, timeout="10s")
+        except (OSError, TimeoutError) as exc:
+            raise CamcalError(f"cannot connect to the dask scheduler {scheduler}: {exc}") from None
+        own = True
+    elif hasattr(scheduler, "submit"):
+        client = scheduler
+    else:
+        client = Client(scheduler)
+        own = True
+    try:
+        futures = [client.submit(process_photo, *a, pure=False) for a in args]
+        index = {f.key: a for f, a in zip(futures, args, strict=True)}
+        for fut in as_completed(futures):
+            a = index[fut.key]
+            try:
+                done(fut.result())
+            except Exception as exc:  # noqa: BLE001 - a lost worker is a failed photo, not a failed batch
+                done(PhotoResult(a[0], str(output_path(a[0], a[2])), "failed",
+                                 f"{a[0]}: dask task failed: {type(exc).__name__}: {exc}"))
+    finally:
+        if own:
+            client.close()
+
+
+def report_rows(report: BatchReport) -> list[dict]:
+    """JSON-ready rows of a report."""
+    return [{k: v for k, v in asdict(r).items() if k != "stats"} for r in report.results]

@@ -1,0 +1,70 @@
+"""``camcal apply PROFILE PHOTO... -o OUTDIR``: radiance EXRs from survey photos."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from camcal.cli.common import console, err_console, print_json, progress
+from camcal.errors import CamcalError
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("apply")
+    def apply_cmd(
+        profile: Path = typer.Argument(..., help="Calibration profile (.camcal)."),
+        photos: list[Path] = typer.Argument(..., help="Photos (RAW or JPEG) and/or folders of photos."),
+        outdir: Path = typer.Option(..., "-o", "--output", help="Output folder: one <photo>.exr per photo."),
+        wavelength: float = typer.Option(663.0, "--wavelength", help="λ0 of the L<λ0> map, nm."),
+        estimator: str = typer.Option("narrowband", "--estimator", help="narrowband or smooth (docs/apply.md)."),
+        filter_fwhm: float | None = typer.Option(None, "--filter-fwhm",
+                                                 help="narrowband: filter width, nm; L<λ0> then per nm."),
+        line_fwhm: float | None = typer.Option(None, "--line-fwhm",
+                                               help="narrowband: width of the light, nm (slit correction of c)."),
+        jobs: int = typer.Option(2, "--jobs", "-j", help="Worker processes of the local pool."),
+        dask_scheduler: str | None = typer.Option(None, "--dask-scheduler",
+                                                  help="Run on a dask.distributed cluster (tcp://host:8786)."),
+        roi: str | None = typer.Option(None, "--roi", help="x,y,w,h in photo pixels: statistics to roi_stats.csv."),
+        mask: Path | None = typer.Option(None, "--mask", help="Mask image (non-zero = in): statistics."),
+        allow_other_camera: bool = typer.Option(False, "--allow-other-camera",
+                                                help="Accept photos of another camera model than the profile's."),
+        half: bool = typer.Option(False, "--half", help="Store 16-bit half floats."),
+        json_out: bool = typer.Option(False, "--json", help="Print the report as JSON."),
+    ) -> None:
+        """Apply a profile to photos: band radiance R, G, B and L<λ> with its uncertainty, as OpenEXR.
+
+        Exit code 0 when every photo has its EXR, 1 when some failed (listed), 2 on bad input.
+        """
+        from camcal.apply import parse_roi
+        from camcal.batch import BatchOptions, run_batch
+
+        if roi is not None and mask is not None:
+            raise CamcalError("give --roi or --mask, not both")
+        if jobs < 1:
+            raise CamcalError("--jobs must be at least 1")
+        opts = BatchOptions(wavelength_nm=wavelength, estimator=estimator, filter_fwhm_nm=filter_fwhm,
+                            line_fwhm_nm=line_fwhm, allow_other_camera=allow_other_camera,
+                            roi=parse_roi(roi) if roi is not None else None,
+                            mask_path=None if mask is None else str(mask), half=half)
+        with progress() as bar:
+            task = bar.add_task("apply", total=None)
+
+            def tick(done: int, total: int, _result) -> None:
+                bar.update(task, completed=done, total=total)
+
+            report = run_batch(profile, photos, outdir, opts, jobs=jobs, scheduler=dask_scheduler, progress=tick)
+        if json_out:
+            from camcal.batch import report_rows
+
+            print_json({"counts": report.counts, "report_csv": report.report_csv, "roi_csv": report.roi_csv,
+                        "photos": report_rows(report)})
+        else:
+            c = report.counts
+            console.print(f"{c['done']} written, {c['skipped']} already done (skipped), {c['failed']} failed "
+                          f"→ {report.outdir} (report {Path(report.report_csv).name}"
+                          f"{', ' + Path(report.roi_csv).name if report.roi_csv else ''})", soft_wrap=True)
+        for r in report.failed:
+            err_console.print(f"camcal: failed: {r.error}", markup=False, highlight=False, soft_wrap=True)
+        if report.exit_code:
+            raise typer.Exit(report.exit_code)

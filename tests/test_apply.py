@@ -1,0 +1,240 @@
+"""Apply a profile to synthetic survey photos of known spectral radiance (issue 8).
+
+Truth: a uniform field of spectral radiance L(λ) photographed by the same synthetic camera the
+session was shot with. True band radiance per channel: ∫c_i L dλ / ∫c_i dλ with the camera's true
+c_i; true in-band radiance of a line: its band radiance (the line has unit integral).
+
+Noise budget (default sensor 384x256 → 192x128 output, 24 576 cells): the per-pixel scatter of a
+frame at ~40 % of full scale is ≈1.5 % (shot noise ≈1 % + PRNU 1 %), so a whole-frame mean carries
+≈0.01 % noise and a 20x20 block ≈0.08 %; the profile's c(λ) samples match the truth to ≈0.05 %.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from camcal.apply import apply, parse_roi, prepare, radiance_channel_name, roi_mask, roi_statistics
+from camcal.errors import CamcalError
+from camcal.exr import read_exr
+from camcal.io import load_frame
+from camcal.profile import load_profile
+from camcal.radiance import radiance_model, smooth_error_table
+from camcal.spectra import WAVELENGTHS_NM, gaussian_line, planck_radiance
+from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
+from camcal.synth.session import exposure_for_level
+from tests.conftest import assert_one_line_error, run_cli
+
+LINE_BAND_W_M2_SR = 2.0
+LINE = LINE_BAND_W_M2_SR * gaussian_line(663.0, 5.0)
+_PLANCK = planck_radiance(5500.0)
+SMOOTH = 0.05 * _PLANCK / np.interp(663.0, WAVELENGTHS_NM, _PLANCK)  # 0.05 W m^-2 sr^-1 nm^-1 at 663 nm
+
+
+@pytest.fixture(scope="module")
+def profile_path(session_dir, tmp_path_factory):
+    out = tmp_path_factory.mktemp("apply-profile") / "cam.camcal"
+    proc = run_cli("calibrate", session_dir, "-o", out)
+    assert proc.returncode == 0, proc.stderr
+    return out
+
+
+@pytest.fixture(scope="module")
+def profile(profile_path):
+    return load_profile(profile_path)
+
+
+@pytest.fixture(scope="module")
+def photos(tmp_path_factory, camera):
+    """RAW and JPEG photos of the line and of the smooth spectrum at several settings (written once)."""
+    d = tmp_path_factory.mktemp("photos")
+    rng = np.random.default_rng(2024)
+    out = {}
+    for name, spec in (("line", LINE), ("smooth", SMOOTH)):
+        for iso, n, k in ((100, 4.0, 1.0), (200, 4.0, 1.0), (100, 8.0, 0.5)):
+            t = k * exposure_for_level(camera, spec, 0.4, iso, n)
+            p = d / f"{name}_iso{iso}_f{n:g}.dng"
+            camera.write_dng(p, Scene.uniform(spec), exposure_s=t, iso=iso, f_number=n, rng=rng)
+            out[(name, "raw", iso, n)] = p
+        p = d / f"{name}.jpg"
+        t = exposure_for_level(camera, spec, 0.4, 100, 4.0)
+        camera.write_jpeg(p, Scene.uniform(spec), exposure_s=t, iso=100, f_number=4.0, rng=rng)
+        out[(name, "jpeg", 100, 4.0)] = p
+    # long exposure of a dim line: dark current (and hot pixels) matter
+    t = 10.0
+    dim = LINE * exposure_for_level(camera, LINE, 0.15, 100, 4.0) / t
+    p = d / "dim_long.dng"
+    camera.write_dng(p, Scene.uniform(dim), exposure_s=t, iso=100, f_number=4.0, rng=rng)
+    out["dim"] = (p, float(dim.max() / LINE.max()))
+    return out
+
+
+def true_band(camera: SyntheticCamera, spectrum: np.ndarray) -> np.ndarray:
+    c = camera.spectral_sensitivity()
+    return np.trapezoid(c * spectrum, WAVELENGTHS_NM, axis=1) / np.trapezoid(c, WAVELENGTHS_NM, axis=1)
+
+
+def mean(a: np.ndarray) -> float:
+    return float(np.nanmean(a))
+
+
+def test_narrowband_line_within_1pct(photos, profile, camera):
+    img = apply(load_frame(photos[("line", "raw", 100, 4.0)]), profile, 663.0, "narrowband")
+    assert set(img.channels) == {"R", "G", "B", "L663", "L663_unc"}
+    assert img.shape == (128, 192)  # half resolution of 384x256
+    assert img.metadata["estimator_channel"] == "R"
+    assert img.metadata["units"]["L663"].startswith("W m^-2 sr^-1")
+    # target 1 %; measured ≈0.05 % (noise 0.01 %, c(λ0) spline 0.05 %)
+    assert mean(img.channels["L663"]) == pytest.approx(LINE_BAND_W_M2_SR, rel=0.01)
+    tb = true_band(camera, LINE)
+    for i, ch in enumerate("RGB"):
+        assert mean(img.channels[ch]) == pytest.approx(tb[i], rel=0.005), ch
+
+
+def test_vignetting_and_dark_removed(photos, profile):
+    img = apply(load_frame(photos[("line", "raw", 100, 4.0)]), profile)
+    L = img.channels["L663"]
+    centre = mean(L[54:74, 86:106])
+    # the raw corner gain is 0.62; after the flat every 20x20 corner block agrees with the centre
+    # to within 0.5 % (block noise 0.08 %, flat-model residual a few 0.1 %)
+    for block in (L[:20, :20], L[:20, -20:], L[-20:, :20], L[-20:, -20:]):
+        assert mean(block) == pytest.approx(centre, rel=0.005)
+    # 10 s exposure of a dim line: dark current ≈ 1 % of the signal and hot pixels up to 300x are removed
+    path, scale = photos["dim"]
+    dim = apply(load_frame(path), profile).channels["L663"]
+    assert mean(dim) == pytest.approx(LINE_BAND_W_M2_SR * scale, rel=0.005)
+    finite = dim[np.isfinite(dim)]
+    z = np.abs(finite - np.median(finite)) / (1.4826 * np.median(np.abs(finite - np.median(finite))))
+    assert z.max() < 6.0  # no hot pixel survives (a hot pixel is > 30 σ)
+
+
+def test_defects_are_nan(photos, profile):
+    img = apply(load_frame(photos[("line", "raw", 100, 4.0)]), profile)
+    bad_r = profile.dark.defects[0] != 0
+    assert bad_r.any()
+    assert np.all(np.isnan(img.channels["R"][bad_r])) and np.all(np.isnan(img.channels["L663"][bad_r]))
+    both_g = (profile.dark.defects[1] != 0) & (profile.dark.defects[2] != 0)
+    one_g = (profile.dark.defects[1] != 0) ^ (profile.dark.defects[2] != 0)
+    assert np.all(np.isnan(img.channels["G"][both_g])) and np.all(np.isfinite(img.channels["G"][one_g]))
+
+
+def test_exposure_settings_give_the_same_radiance(photos, profile):
+    vals = [mean(apply(load_frame(photos[("line", "raw", iso, n)]), profile).channels["L663"])
+            for iso, n in ((100, 4.0), (200, 4.0), (100, 8.0))]
+    # ISO 200 / f/8 at half the signal: noise of the means < 0.03 %; the dark model scales with ISO
+    assert np.ptp(vals) / np.mean(vals) < 0.003, vals
+
+
+def test_uncertainty_map_matches_scatter(photos, profile):
+    img = apply(load_frame(photos[("line", "raw", 100, 4.0)]), profile)
+    L, u = img.channels["L663"], img.channels["L663_unc"]
+    rel_unc = float(np.nanmedian(u / L))
+    # the map = noise (shot + read + PRNU) ⊕ c(λ0) uncertainty (0.5 %, the reference detector)
+    c_rel = 0.005
+    noise = np.sqrt(max(rel_unc**2 - c_rel**2, 0.0))
+    scatter = float(np.nanstd(L) / np.nanmean(L))
+    assert noise == pytest.approx(scatter, rel=0.15), (noise, scatter)
+
+
+def test_smooth_estimator_documented_error(photos, profile, camera):
+    img = apply(load_frame(photos[("smooth", "raw", 100, 4.0)]), profile, 663.0, "smooth")
+    true = 0.05
+    s = profile.spectral
+    model = radiance_model(s.wavelength_nm, s.rgb(), s.rgb_uncertainty(), 663.0, "smooth")
+    c = camera.spectral_sensitivity()
+    predicted = float(model.weights @ np.trapezoid(c * SMOOTH, WAVELENGTHS_NM, axis=1))
+    got = mean(img.channels["L663"])
+    # the pipeline delivers what the estimator predicts for the true rates (band accuracy ≈0.1 %) ...
+    assert got == pytest.approx(predicted, rel=0.005)
+    # ... and the estimator's error for a 5500 K black body lies between the documented 5000 K and
+    # 6500 K rows of smooth_error_table (docs/apply.md: −8.5 % and +1.8 %)
+    table = {r["spectrum"]: r["error_pct"] for r in smooth_error_table(s.wavelength_nm, s.rgb())}
+    err = 100 * (got / true - 1)
+    assert table["black body 5000 K"] - 0.5 < err < table["black body 6500 K"] + 0.5, (err, table)
+    assert abs(err) > 1  # the smooth estimator is not exact here: the test would notice a change of method
+
+
+def test_jpeg_within_3pct(photos, profile, camera):
+    for name, spec, est, truth in (("line", LINE, "narrowband", LINE_BAND_W_M2_SR), ("smooth", SMOOTH, "band", None)):
+        img = apply(load_frame(photos[(name, "jpeg", 100, 4.0)]), profile, 663.0,
+                    "narrowband" if est == "narrowband" else "smooth")
+        assert img.metadata["kind"] == "processed" and img.shape == (128, 192)
+        tb = true_band(camera, spec)
+        for i, ch in enumerate("RGB"):
+            assert mean(img.channels[ch]) == pytest.approx(tb[i], rel=0.03), (name, ch)
+        if truth is not None:
+            assert mean(img.channels["L663"]) == pytest.approx(truth, rel=0.03)
+        assert any("white balance" in n for n in img.metadata["notes"])
+
+
+def test_other_camera_refused(tmp_path, profile, profile_path):
+    other = SyntheticCamera(SensorParams(model="Other Cam 9"))
+    p = other.write_dng(tmp_path / "other.dng", Scene.uniform(LINE), exposure_s=0.02, iso=100, f_number=4.0,
+                        rng=np.random.default_rng(1))
+    with pytest.raises(CamcalError, match="Other Cam 9"):
+        apply(load_frame(p), profile)
+    img = apply(load_frame(p), profile, allow_other_camera=True)
+    assert any("allowed" in n for n in img.metadata["notes"])
+    proc = run_cli("apply", profile_path, p, "-o", tmp_path / "out")
+    assert_one_line_error(proc, "other.dng", "Other Cam 9", "--allow-other-camera")
+    assert not (tmp_path / "out" / "other.dng.exr").exists()
+    proc = run_cli("apply", profile_path, p, "-o", tmp_path / "out", "--allow-other-camera", "-j", "1")
+    assert proc.returncode == 0, proc.stderr
+
+
+def test_channel_names_follow_wavelength(photos, profile):
+    img = apply(load_frame(photos[("line", "raw", 100, 4.0)]), profile, 560.0)
+    assert radiance_channel_name(560) == "L560" and "L560" in img.channels and "L560_unc" in img.channels
+    assert img.metadata["estimator_channel"] == "G"
+    with pytest.raises(CamcalError, match="outside the calibrated range"):
+        prepare(profile, 900.0)
+    with pytest.raises(CamcalError, match="unknown estimator"):
+        prepare(profile, 663.0, "magic")
+
+
+def test_cli_exr_and_roi_stats(tmp_path, photos, profile_path, profile):
+    src = photos[("line", "raw", 100, 4.0)]
+    out = tmp_path / "out"
+    proc = run_cli("apply", profile_path, src, "-o", out, "--roi", "100,60,80,60", "-j", "1")
+    assert proc.returncode == 0, proc.stderr
+    chans, meta = read_exr(out / f"{src.name}.exr")
+    assert set(chans) == {"R", "G", "B", "L663", "L663_unc"}
+    assert meta["profile_sha256"] == profile.content_sha256
+    assert meta["wavelength_nm"] == pytest.approx(663.0) and meta["estimator"] == "narrowband"
+    assert meta["source_name"] == src.name and meta["exposure"]["iso"] == 100
+    assert meta["units"]["R"] == "W m^-2 sr^-1 nm^-1" and "half resolution" in meta["resolution"]
+    rows = (out / "roi_stats.csv").read_text().splitlines()
+    assert rows[0] == "file,channel,n,mean,median,sigma,region"
+    stats = {r.split(",")[1]: r.split(",") for r in rows[1:]}
+    assert int(stats["L663"][2]) <= 40 * 30
+    m = roi_mask((128, 192), (100, 60, 80, 60))
+    ref = {r["channel"]: r for r in roi_statistics(chans, m)}
+    assert float(stats["L663"][3]) == pytest.approx(ref["L663"]["mean"], rel=1e-6)
+    assert float(stats["L663"][3]) == pytest.approx(LINE_BAND_W_M2_SR, rel=0.01)
+    # a mask image over the same region gives the same numbers
+    import OpenImageIO as oiio
+
+    mask = np.zeros((256, 384), np.uint8)
+    mask[60:120, 100:180] = 255
+    spec = oiio.ImageSpec(384, 256, 1, oiio.UINT8)
+    mo = oiio.ImageOutput.create(str(tmp_path / "mask.png"))
+    mo.open(str(tmp_path / "mask.png"), spec)
+    mo.write_image(mask[..., None])
+    mo.close()
+    proc = run_cli("apply", profile_path, src, "-o", out, "--mask", tmp_path / "mask.png", "-j", "1")
+    assert proc.returncode == 0, proc.stderr
+    rows2 = (out / "roi_stats.csv").read_text().splitlines()
+    assert [r.split(",")[:6] for r in rows2[1:]] == [r.split(",")[:6] for r in rows[1:]]
+
+
+def test_bad_roi_and_profile(tmp_path, photos, profile_path):
+    with pytest.raises(CamcalError, match="x,y,w,h"):
+        parse_roi("1,2,3")
+    with pytest.raises(CamcalError, match="outside"):
+        roi_mask((128, 192), (1000, 10, 5, 5))
+    proc = run_cli("apply", profile_path, photos[("line", "raw", 100, 4.0)], "-o", tmp_path, "--roi", "a,b")
+    assert_one_line_error(proc, "--roi")
+    bad = tmp_path / "bad.camcal"
+    bad.write_bytes(b"not a profile")
+    proc = run_cli("apply", bad, photos[("line", "raw", 100, 4.0)], "-o", tmp_path / "o")
+    assert_one_line_error(proc, "bad.camcal")
