@@ -30,6 +30,15 @@ def truth(session_dir) -> dict:
     return json.loads((session_dir / "truth.json").read_text())
 
 
+@pytest.fixture(scope="session")
+def profile_path(session_dir, tmp_path_factory) -> Path:
+    """The profile calibrated from ``session_dir`` by the real CLI (written once per test worker)."""
+    out = tmp_path_factory.mktemp("profile") / "cam.camcal"
+    proc = run_cli("calibrate", session_dir, "-o", out)
+    assert proc.returncode == 0, proc.stderr
+    return out
+
+
 def run_cli(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
     """Run the real CLI in a subprocess (what a user sees, exit code and all)."""
     return subprocess.run([sys.executable, "-m", "camcal", *map(str, args)], capture_output=True, text=True, cwd=cwd,

@@ -32,14 +32,6 @@ SMOOTH = 0.05 * _PLANCK / np.interp(663.0, WAVELENGTHS_NM, _PLANCK)  # 0.05 W m^
 
 
 @pytest.fixture(scope="module")
-def profile_path(session_dir, tmp_path_factory):
-    out = tmp_path_factory.mktemp("apply-profile") / "cam.camcal"
-    proc = run_cli("calibrate", session_dir, "-o", out)
-    assert proc.returncode == 0, proc.stderr
-    return out
-
-
-@pytest.fixture(scope="module")
 def profile(profile_path):
     return load_profile(profile_path)
 

@@ -17,14 +17,6 @@ N_GOOD = 18
 
 
 @pytest.fixture(scope="module")
-def profile_path(session_dir, tmp_path_factory):
-    out = tmp_path_factory.mktemp("batch-profile") / "cam.camcal"
-    proc = run_cli("calibrate", session_dir, "-o", out)
-    assert proc.returncode == 0, proc.stderr
-    return out
-
-
-@pytest.fixture(scope="module")
 def photo_dir(tmp_path_factory, camera):
     d = tmp_path_factory.mktemp("batch-photos")
     rng = np.random.default_rng(77)

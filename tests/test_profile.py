@@ -12,14 +12,6 @@ from tests.conftest import assert_one_line_error, run_cli
 
 
 @pytest.fixture(scope="module")
-def profile_path(session_dir, tmp_path_factory):
-    out = tmp_path_factory.mktemp("profile") / "cam.camcal"
-    proc = run_cli("calibrate", session_dir, "-o", out)
-    assert proc.returncode == 0, proc.stderr
-    return out
-
-
-@pytest.fixture(scope="module")
 def shown(profile_path):
     proc = run_cli("profile", "show", "--json", profile_path)
     assert proc.returncode == 0, proc.stderr

@@ -83,11 +83,9 @@ def _contract_in_page(page: str) -> dict:
 # fixtures: a full profile (the session_dir fixture) and a dark-only one
 # ---------------------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
-def full_report(session_dir, tmp_path_factory) -> tuple[Path, Path]:
+def full_report(profile_path, tmp_path_factory) -> tuple[Path, Path]:
     tmp = tmp_path_factory.mktemp("report_full")
-    prof = tmp / "cam.camcal"
-    proc = run_cli("calibrate", session_dir, "-o", prof)
-    assert proc.returncode == 0, proc.stderr
+    prof = profile_path
     html_path = tmp / "out" / "report.html"
     proc = run_cli("report", prof, "-o", html_path)
     assert proc.returncode == 0, proc.stderr
