@@ -22,8 +22,11 @@ from scipy.optimize import brentq
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # run from a checkout without installing
 
+from camcal.spectra import WAVELENGTHS_NM
+from camcal.synth.camera import SyntheticCamera
+from camcal.water.band import BandModel, illuminant_spectrum
 from camcal.water.invert import invert_ratio, tau_table
-from camcal.water.models import SeedModel
+from camcal.water.models import RefinedModel, SeedModel
 
 H, W = 3000, 4000  # 12 MP
 SAMPLE = 200
@@ -40,6 +43,41 @@ def baseline_pixel(ratio: float, model: SeedModel, depth_m: float) -> float:
         return 2 * model.albedo * val - ratio
 
     return brentq(f, 0.0, 1e-4, xtol=1e-22, rtol=1e-12)
+
+
+def band_section(rng: np.random.Generator) -> None:
+    """Band-aware inversion of a 12-MP red-channel ratio map against per-pixel brentq over the band model."""
+    band = BandModel(WAVELENGTHS_NM, SyntheticCamera().spectral_sensitivity()[0], geometry=RefinedModel(),
+                     illuminant=illuminant_spectrum("D65", WAVELENGTHS_NM))
+    depth = 0.8
+    levels = np.linspace(5.0, 200.0, 4096)  # µg/L; exact forward values, assigned to pixels at random
+    k = rng.integers(0, levels.size, size=(H, W))
+    ratio = band.ratio(levels, depth)[k].astype(np.float32)
+    t0 = time.perf_counter()
+    inverse = band.inverse(depth)
+    build_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    inv = inverse.concentration(ratio, sigma_ln_ratio=0.01)
+    fast_s = time.perf_counter() - t0
+    idx = rng.choice(ratio.size, SAMPLE // 4, replace=False)
+    flat = ratio.reshape(-1)
+    t0 = time.perf_counter()
+    base = np.array([brentq(lambda c, r=float(flat[i]): float(band.ratio(c, depth)) - r, 0.0, 1e4, xtol=1e-12,
+                            rtol=1e-13) for i in idx])
+    base_s = time.perf_counter() - t0
+    fast_px, base_px = fast_s / ratio.size, base_s / idx.size
+    agree = np.max(np.abs(inv.c_ug_per_L.reshape(-1)[idx] / base - 1))
+    truth_err = np.max(np.abs(inv.c_ug_per_L / levels[k] - 1))
+    print("\nBand-aware inversion (`BandInverse`) of a 12-megapixel float32 red-channel ratio map: synthetic "
+          "D5100 red c(λ), D65, refined model with Pope & Fry water, Bricaud 1998, d = 0.8 m, C in 5…200 µg/L.\n")
+    print("| method | pixels | time | per pixel |")
+    print("|---|---:|---:|---:|")
+    print(f"| camcal band table (2 threads) | {ratio.size:,} | {fast_s:.2f} s | {fast_px * 1e9:.0f} ns |")
+    print(f"| baseline: brentq over the band integral (sample) | {idx.size} | {base_s:.2f} s "
+          f"| {base_px * 1e3:.2f} ms |")
+    print(f"\nSpeed-up per pixel: **{base_px / fast_px:,.0f}x**; table build {build_s:.2f} s once per depth. "
+          f"Agreement with the baseline: max relative difference {agree:.1e}; against the truth over the map "
+          f"(float32 ratios): {truth_err:.1e}.")
 
 
 def main() -> None:
@@ -78,6 +116,7 @@ def main() -> None:
           f"(target < 2 s); table build {build_s * 1e3:.0f} ms once per geometry.")
     print(f"Agreement with the baseline on the sample: max relative difference {agree:.1e}; "
           f"against the truth over the whole map (float32 ratios): {truth_err:.1e}.")
+    band_section(rng)
 
 
 if __name__ == "__main__":

@@ -1,45 +1,180 @@
-"""The end-to-end demo on synthetic data (grows with each pipeline stage)."""
+"""``camcal demo``: the whole pipeline on synthetic data, with truth against recovered values.
+
+1. synthesise a calibration session (bias, dark, flat, linearity RAW+JPEG, monochromator sweep) from a
+   camera with the NPL-measured Nikon D5100 spectral sensitivities;
+2. calibrate it into a profile and write the HTML report;
+3. synthesise two survey photos of a Secchi disk in daylight (CIE D65): the reference disk above water
+   and the disk submerged at a known depth in water with a known chlorophyll-a concentration;
+4. apply the profile: radiance EXRs (band radiance R, G, B and L663);
+5. invert the red-band ratio per pixel for chlorophyll-a with the band-aware model built from the
+   profile's measured c_R(λ) (Bricaud et al. 1998 absorption, Pope & Fry 1997 water);
+6. print a table of truth against recovered values for every stage, with the tolerances of the stage issues.
+"""
 
 from __future__ import annotations
 
 import json
+import time
+from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 from rich.table import Table
 
 from camcal.cli.common import console, progress
-from camcal.inspect import describe
-from camcal.synth.camera import SensorParams, SyntheticCamera
-from camcal.synth.session import SessionPlan, write_session
+
+CHL_UG_PER_L = 60.0
+DEPTH_M = 0.80
 
 
-def run_demo(out: str | Path) -> dict:
-    """Synthesise a session into ``out``/session and report what it holds. Returns a summary dict."""
+@dataclass(frozen=True)
+class Check:
+    """One row of the demo table: a recovered value against the truth and the stage tolerance."""
+
+    stage: str
+    quantity: str
+    truth: float
+    recovered: float
+    tolerance: float
+    relative: bool = True
+
+    @property
+    def error(self) -> float:
+        d = self.recovered - self.truth
+        return d / self.truth if self.relative else d
+
+    @property
+    def ok(self) -> bool:
+        return bool(np.isfinite(self.recovered) and abs(self.error) <= self.tolerance)
+
+
+def _checks(truth: dict, contract: dict, survey: dict) -> list[Check]:
+    rows: list[Check] = []
+    d = contract["dark"]
+    for ch in ("R", "G", "B"):
+        planes = ("G1", "G2") if ch == "G" else (ch,)
+        t = float(np.mean([truth["dark_current_dn_per_s"][p] for p in planes]))
+        rows.append(Check("dark", f"β {ch} (DN/s)", t, d["dark_current_dn_per_s"][ch], 0.02))
+    t = float(np.mean(list(truth["read_noise_dn"].values())))
+    rows.append(Check("dark", "read noise G (DN)", t, d["read_noise_dn"]["G"], 0.03))
+    rows.append(Check("dark", "hot pixels", truth["hot_pixel_count"], d["hot_pixel_count"], 0.05))
+    f = contract["flat"]
+    rows.append(Check("flat", "corner gain G", truth["vignetting"]["corner_gain"], f["corner_gain"]["G"], 0.005))
+    cx, _ = truth["vignetting"]["centre_px"]
+    rows.append(Check("flat", "centre x (px)", cx, float(np.mean([v[0] for v in f["centre_full_px"].values()])),
+                      2.0, relative=False))
+    r = contract["response"]
+    rows.append(Check("response", "γ RAW G", 1.0, r["gamma"]["G"], 0.005))
+    if "processed" in r["models"]:
+        rows.append(Check("response", "γ JPEG G (sRGB 1/2.4)", 1 / 2.4, r["models"]["processed"]["gamma"]["G"], 0.01))
+    s = contract["spectral_sensitivity"]
+    wl_true = np.asarray(truth["spectral_sensitivity"]["wavelength_nm"])
+    for ch in ("R", "G", "B"):
+        true = np.interp(s["wavelength_nm"], wl_true, truth["spectral_sensitivity"][ch])
+        rms = float(np.sqrt(np.mean((np.asarray(s[ch]) - true) ** 2)) / true.max())
+        rows.append(Check("sweep", f"c_{ch}(λ) RMS/peak", 0.0, rms, 0.03, relative=False))
+    rows.append(Check("apply", "disk L_R (W/m²/sr/nm)", survey["true_band_R"],
+                      survey["band_R"], 0.03))
+    rows.append(Check("apply", "ratio sub/ref R", survey["true_ratio"], survey["ratio"], 0.03))
+    rows.append(Check("water", "chl-a (µg/L)", survey["true_chl"], survey["chl"], 0.05))
+    return rows
+
+
+def run_demo(out: str | Path, *, size: tuple[int, int] = (384, 256)) -> dict:
+    """Run the demo into ``out``; returns ``{"checks": [...], "ok": bool, "files": {...}, "seconds": s}``."""
+    from camcal.batch import BatchOptions, run_batch
+    from camcal.calibrate import calibrate_session
+    from camcal.exr import read_exr, write_exr
+    from camcal.profile import contract, save_profile
+    from camcal.report import write_report
+    from camcal.synth.camera import SensorParams, SyntheticCamera, frame_rngs
+    from camcal.synth.secchi import secchi_scenes, suggest_exposure_s
+    from camcal.synth.session import SessionPlan, write_session
+    from camcal.water.band import BandInverse, band_model_from_profile
+
+    t0 = time.perf_counter()
     out = Path(out)
-    cam = SyntheticCamera(SensorParams())
+    out.mkdir(parents=True, exist_ok=True)
+    cam = SyntheticCamera(SensorParams(width=size[0], height=size[1]))
     with progress() as bar:
         tasks: dict[str, int] = {}
 
         def tick(stage: str, done: int, total: int) -> None:
             if stage not in tasks:
-                tasks[stage] = bar.add_task(f"synthesise {stage}", total=total)
-            bar.update(tasks[stage], completed=done)
+                tasks[stage] = bar.add_task(stage, total=total)
+            bar.update(tasks[stage], completed=done, total=total)
 
-        session = write_session(out / "session", cam, SessionPlan(), progress=tick)
+        session = write_session(out / "session", cam, SessionPlan(),
+                                progress=lambda s, d, n: tick(f"synthesise {s}", d, n))
+        profile, notes = calibrate_session(session, progress=lambda s, d, n: tick(f"calibrate {s}", d, n))
+        profile = save_profile(profile, out / "camera.camcal")
+        write_report(profile, out / "report.html")
+
+        # survey photos of a Secchi disk
+        scenes = secchi_scenes(cam, c_ug_per_L=CHL_UG_PER_L, depth_m=DEPTH_M)
+        survey = out / "survey"
+        rng_ref, rng_sub = frame_rngs(cam.params.seed, 2, 99)
+        t_ref = suggest_exposure_s(cam, scenes.reference_radiance, fill=0.5)
+        t_sub = suggest_exposure_s(cam, scenes.submerged_radiance, fill=0.5)
+        ref_path = cam.write_dng(survey / "disk_reference.dng", scenes.reference, exposure_s=float(f"{t_ref:.3g}"),
+                                 rng=rng_ref)
+        sub_path = cam.write_dng(survey / "disk_submerged.dng", scenes.submerged, exposure_s=float(f"{t_sub:.3g}"),
+                                 rng=rng_sub)
+        report = run_batch(out / "camera.camcal", [ref_path, sub_path], out / "radiance", BatchOptions(), jobs=1,
+                           progress=lambda d, n, _r: tick("apply", d, n))
+        if report.failed:
+            raise RuntimeError(f"demo photos failed: {[r.error for r in report.failed]}")
+        ref, _ = read_exr(out / "radiance" / "disk_reference.dng.exr", ["R"])
+        sub, _ = read_exr(out / "radiance" / "disk_submerged.dng.exr", ["R"])
+
+        # chlorophyll-a per pixel from the red-band ratio
+        inverse = BandInverse(band_model_from_profile(profile, "R"), DEPTH_M)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = sub["R"] / ref["R"]
+        inv = inverse.concentration(ratio, sigma_ln_ratio=0.01)
+        write_exr(out / "chlorophyll.exr", {"chl_ug_per_L": inv.c_ug_per_L, "chl_unc_ug_per_L": inv.sigma_ug_per_L,
+                                            "reason": inv.reason.astype(np.float32)},
+                  {"units": "ug/L", "depth_m": DEPTH_M, "model": "band-aware, refined geometry, profile c_R"})
+        tick("water", 1, 1)
+
+    # the disk region at half resolution, away from its edge
+    weight = scenes.weight[::2, ::2]
+    disk = weight > 0.99
+    h, w = disk.shape
+    yy, xx = np.mgrid[0:h, 0:w]
+    cx, cy = (w - 1) / 2, (h - 1) / 2
+    core = disk & (np.hypot(xx - cx, yy - cy) < 0.6 * scenes.truth["disk_radius_px"] / 2)
+    c_true = cam.spectral_sensitivity()[0]
+    wl = scenes.wavelengths_nm
+    true_band_r = float(np.trapezoid(c_true * scenes.reference_radiance, wl) / np.trapezoid(c_true, wl))
+    survey_vals = {
+        "band_R": float(np.nanmedian(ref["R"][core])),
+        "true_band_R": true_band_r,
+        "ratio": float(np.nanmedian(ratio[core])),
+        "true_ratio": float(scenes.truth["predicted_red_band_ratio"]),
+        "chl": float(np.nanmedian(inv.c_ug_per_L[core])),
+        "true_chl": CHL_UG_PER_L,
+    }
     truth = json.loads((session / "truth.json").read_text())
-    table = Table(title="camcal demo: synthetic session")
-    for col in ("stage", "file", "pattern", "exposure s", "ISO", "f/N", "black DN", "white DN"):
-        table.add_column(col)
-    for stage in ("bias", "dark", "flat", "linearity", "sweep"):
-        files = sorted((session / stage).glob("*.dng"))
-        if not files:
-            continue
-        info = describe(files[0])
-        table.add_row(stage, files[0].name, str(info["cfa_pattern"]), f"{info['exposure_s']:.4g}", f"{info['iso']:g}",
-                      f"{info['f_number']:g}", f"{info['black_level_dn']['R']:g}", f"{info['white_level_dn']:g}")
+    checks = _checks(truth, contract(profile), survey_vals)
+
+    table = Table(title=f"camcal demo: truth against recovered (chl-a {CHL_UG_PER_L:g} µg/L at {100 * DEPTH_M:g} cm)",
+                  title_justify="left", pad_edge=False)
+    for col in ("stage", "quantity", "truth", "recovered", "error", "tolerance", ""):
+        table.add_column(col, justify="left" if col in ("stage", "quantity") else "right")
+    for c in checks:
+        err = f"{100 * c.error:+.2f}%" if c.relative else f"{c.error:+.2g}"
+        tol = f"±{100 * c.tolerance:g}%" if c.relative else f"±{c.tolerance:g}"
+        table.add_row(c.stage, c.quantity, f"{c.truth:.4g}", f"{c.recovered:.4g}", err, tol,
+                      "[green]✓[/green]" if c.ok else "[red]✗[/red]")
     console.print(table)
-    console.print(
-        f"truth: bias {truth['bias_dn']['R']:.1f} DN, dark current {truth['dark_current_dn_per_s']['R']:.3f} DN/s, "
-        f"read noise {truth['read_noise_dn']['R']:.2f} DN, {truth['hot_pixel_count']} hot pixels"
-    )
-    return {"session": str(session), "truth": truth}
+    for n in notes:
+        console.print(f"note: {n}")
+    seconds = time.perf_counter() - t0
+    files = {"session": session, "profile": out / "camera.camcal", "report": out / "report.html",
+             "photos": survey, "radiance": out / "radiance", "chlorophyll": out / "chlorophyll.exr"}
+    for k, v in files.items():
+        console.print(f"{k:12s} {v}")
+    ok = all(c.ok for c in checks)
+    console.print(f"{'all checks within tolerance' if ok else 'SOME CHECKS FAILED'} — {seconds:.0f} s")
+    return {"checks": checks, "ok": ok, "files": files, "seconds": seconds}

@@ -5,9 +5,16 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
+from camcal.errors import CamcalError
 from camcal.exr import read_exr, write_exr
-from camcal.water.models import SeedModel
+from camcal.io import load_frame
+from camcal.synth.camera import Scene
+from camcal.synth.secchi import secchi_scenes, suggest_exposure_s
+from camcal.water.band import band_model_from_profile
+from camcal.water.invert import invert_images
+from camcal.water.models import RefinedModel, SeedModel
 from tests.conftest import assert_one_line_error, run_cli
 
 
@@ -60,3 +67,66 @@ def test_errors_are_one_line(tmp_path):
                                   tmp_path / "a.exr", "--depth", "1m", "--channel", "R", "-o", tmp_path / "o.exr"),
                           "no channel")
     assert not (tmp_path / "o.exr").exists()
+
+
+@pytest.fixture(scope="module")
+def profile_path(session_dir, tmp_path_factory):
+    out = tmp_path_factory.mktemp("water_profile") / "cam.camcal"
+    proc = run_cli("calibrate", session_dir, "-o", out)
+    assert proc.returncode == 0, proc.stderr
+    return out
+
+
+@pytest.fixture(scope="module")
+def secchi_exrs(camera, tmp_path_factory):
+    """Photos (real DNGs) of a Secchi disk by the calibrated camera; EXR channel R = dark-subtracted R-plane DN
+    rate, which is the band radiance up to the constant ∫c_R dλ that cancels in the ratio."""
+    tmp = tmp_path_factory.mktemp("secchi_exr")
+    sc = secchi_scenes(camera, c_ug_per_L=60.0, depth_m=0.8, radius_fraction=0.6)
+    rng = np.random.default_rng(99)
+
+    def rate(name, scene, t):
+        light = load_frame(camera.write_dng(tmp / f"{name}.dng", scene, exposure_s=t, rng=rng)).planes()[0]
+        dark = np.mean([load_frame(camera.write_dng(tmp / f"{name}_d{k}.dng", Scene.dark(), exposure_s=t,
+                                                    rng=rng)).planes()[0] for k in range(3)], axis=0)
+        return ((light - dark) / t).astype(np.float32)
+
+    for name, scene, spec in (("ref", sc.reference, sc.reference_radiance), ("sub", sc.submerged,
+                                                                           sc.submerged_radiance)):
+        write_exr(tmp / f"{name}.exr", {"R": rate(name, scene, suggest_exposure_s(camera, spec))})
+    return tmp / "sub.exr", tmp / "ref.exr", sc.truth
+
+
+def test_invert_band_aware_with_profile(profile_path, secchi_exrs, tmp_path):
+    sub, ref, truth = secchi_exrs
+    roi = "76,44,40,40"  # R-plane pixels well inside the disk (centre 95.75,63.75; radius 38.4)
+    proc = run_cli("water", "invert", "--submerged", sub, "--reference", ref, "--depth", "80cm", "--model", "refined",
+                   "--profile", profile_path, "--roi", roi, "-o", tmp_path / "chl.exr")
+    assert proc.returncode == 0, proc.stderr
+    ch, meta = read_exr(tmp_path / "chl.exr", ["chl_ug_per_L", "reason"])
+    assert meta["inversion"] == "band" and meta["channel"] == "R" and meta["illuminant"] == "D65"
+    assert meta["summary"]["valid"] == 1600
+    ok = ch["reason"] == 0
+    # the profile's c_R (from the noisy sweep) biases C by < 1 % here; ≈ 5 % per-pixel noise averages out
+    assert np.median(ch["chl_ug_per_L"][ok]) == pytest.approx(truth["c_ug_per_L"], rel=0.05)
+    # numbers only, on the predicted ratio: the profile's band model reproduces the camera's truth to 1 %
+    proc = run_cli("water", "invert", "--ratio", repr(truth["predicted_red_band_ratio"]), "--depth", "0.8m",
+                   "--model", "refined", "--profile", profile_path)
+    assert proc.returncode == 0, proc.stderr
+    out = json.loads(proc.stdout)
+    assert out["band_model"]["water_absorption"] == "Pope & Fry 1997"
+    assert out["c_ug_per_L"][0] == pytest.approx(truth["c_ug_per_L"], rel=0.01)
+    # the narrowband reading of the same broad red channel (ε at 663 nm, in-process) is far off
+    rs, _ = read_exr(sub, ["R"])
+    rr, _ = read_exr(ref, ["R"])
+    nb = invert_images(rs["R"], rr["R"], RefinedModel(), 0.8, roi=(76, 44, 40, 40))
+    assert not np.nanmedian(nb.c_ug_per_L) == pytest.approx(truth["c_ug_per_L"], rel=0.3)
+
+
+def test_profile_errors(profile_path, tmp_path):
+    assert_one_line_error(run_cli("water", "invert", "--ratio", "0.3", "--depth", "1m", "--profile",
+                                  tmp_path / "none.camcal"))
+    with pytest.raises(CamcalError, match="no channel"):
+        band_model_from_profile(profile_path, "IR")
+    with pytest.raises(CamcalError, match="illuminant"):
+        band_model_from_profile(profile_path, "R", illuminant="candle")

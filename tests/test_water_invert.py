@@ -11,6 +11,7 @@ from camcal.spectra import WAVELENGTHS_NM, gaussian_line
 from camcal.water.band import BandModel, bricaud_1998, solvent_spectrum
 from camcal.water.invert import Reason, invert_images, invert_ratio, tau_newton, tau_table
 from camcal.water.models import RefinedModel, SeedModel
+from camcal.water.purewater import pure_water_absorption_per_m
 from camcal.water.units import mol_per_L_to_ug_per_L
 
 SEED_C = np.linspace(1e-7, 5e-7, 41)  # seed §5 ranges
@@ -116,14 +117,36 @@ def test_band_round_trip_with_synthetic_camera_red(camera):
     c = np.logspace(-1, 3, 60)  # 0.1 … 1000 µg/L
     inv = inverse.concentration(band.ratio(c, 0.3), sigma_ln_ratio=0.01)
     assert np.all(inv.reason == 0)
-    np.testing.assert_allclose(inv.c_ug_per_L, c, rtol=1e-7)
+    np.testing.assert_allclose(inv.c_ug_per_L, c, rtol=1e-8)  # measured 7e-10
     assert np.all(inv.sigma_ug_per_L > 0)
-    # the narrowband assumption (Bricaud a* at 674 nm, the peak) misreads a broad red channel badly
-    a674 = bricaud_1998().on(np.array([674.0]))
-    b = band.ratio(np.array([10.0]), 0.3)
-    cf = RefinedModel().closed_form()
+    # the narrowband assumption (Bricaud a* and Pope & Fry a_w at 674 nm, the a* peak) misreads a broad red
+    # channel badly: the band also sees 580-650 nm, where water absorbs less, so at 10 µg/L the band ratio is
+    # brighter than narrowband clear water allows, and at 100 µg/L the narrowband reading is < 1/5 of the truth
     from scipy.optimize import brentq
-    c_narrow = brentq(lambda x: float(cf.ratio(a674.absorption_per_m(x)[0] * 0.3)) - b[0], 1e-6, 1e6)
-    assert c_narrow < 0.5 * 10.0
+
+    a674 = bricaud_1998().on(np.array([674.0]))
+    aw674 = float(pure_water_absorption_per_m(674.0))
+    cf = RefinedModel().closed_form()
+    assert band.ratio(10.0, 0.3) > cf.ratio(aw674 * 0.3)
+    b = band.ratio(100.0, 0.3)
+    c_narrow = brentq(lambda x: float(cf.ratio((aw674 + a674.absorption_per_m(x)[0]) * 0.3)) - b, 1e-6, 1e6)
+    assert c_narrow < 0.2 * 100.0
     reasons = inverse.concentration(np.array([np.nan, -1.0, 2.0, 1e-300])).reason
     assert reasons.tolist() == [1, 2, 3, 4]
+
+
+def test_band_images_sigma_roi_and_reasons(camera):
+    band = BandModel(WAVELENGTHS_NM, camera.spectral_sensitivity()[0], geometry=RefinedModel())
+    c = np.linspace(10.0, 200.0, 12 * 16).reshape(12, 16)
+    ref = np.full(c.shape, 2.0)
+    sub = band.ratio(c, 0.5) * ref
+    sub[0, 0], ref[0, 1], sub[0, 2] = np.nan, 0.0, 3.0  # not finite, bad reference, above clear water
+    sig_map = 0.01 * sub
+    inv = invert_images(sub, ref, band, 0.5, sigma_submerged=sig_map, sigma_reference=0.0, roi=(0, 0, 16, 10))
+    assert inv.reason[0, :3].tolist() == [Reason.NOT_FINITE, Reason.BAD_REFERENCE, Reason.ABOVE_CLEAR_WATER]
+    assert np.all(inv.reason[10:] == Reason.OUTSIDE_ROI) and np.all(np.isnan(inv.c_ug_per_L[10:]))
+    ok = inv.reason == 0
+    np.testing.assert_allclose(inv.c_ug_per_L[ok], c[ok], rtol=1e-8)
+    # σ from a 1 % ratio error: C · 0.01 / |d ln B / d ln C| (analytic derivative of the band model)
+    b, db = band.ratio_and_derivative(c[ok], 0.5)
+    np.testing.assert_allclose(inv.sigma_ug_per_L[ok], 0.01 * b / np.abs(db), rtol=1e-5)

@@ -112,3 +112,20 @@ def test_units():
     assert parse_epsilon_L_per_mol_cm("88L/g/cm") == pytest.approx(EPSILON_SEED_L_PER_MOL_CM)
     assert parse_epsilon_L_per_mol_cm("0.088L/mg/cm") == pytest.approx(EPSILON_SEED_L_PER_MOL_CM)
     assert parse_epsilon_L_per_mol_cm("porra1989") == pytest.approx(85.96 * 893.5)
+
+
+def test_pope_fry_1997_table():
+    from camcal.water.models import WATER_ABSORPTION_663_PER_M
+    from camcal.water.purewater import pope_fry_1997, pure_water_absorption_per_m
+
+    wl, a = pope_fry_1997()
+    # the full published table: 380-727.5 nm every 2.5 nm, m^-1
+    assert wl.size == 140 and wl[0] == 380.0 and wl[-1] == 727.5 and np.all(np.diff(wl) == 2.5)
+    # values quoted in the physics notes and the paper's minimum (0.0044 m^-1 near 418 nm)
+    np.testing.assert_allclose(pure_water_absorption_per_m([660.0, 662.5, 665.0]), [0.410, 0.424, 0.429])
+    assert wl[np.argmin(a)] == 417.5 and a.min() == pytest.approx(0.00442)
+    assert pure_water_absorption_per_m(440.0) == pytest.approx(0.00635)
+    assert pure_water_absorption_per_m(800.0) == a[-1]  # held beyond the table
+    assert WATER_ABSORPTION_663_PER_M == pytest.approx(0.425, abs=1e-12)
+    assert RefinedModel().water_absorption_per_m == WATER_ABSORPTION_663_PER_M
+    assert RefinedModel.at_wavelength(680.0).water_absorption_per_m == pytest.approx(0.465)

@@ -11,8 +11,8 @@ def register(app: typer.Typer) -> None:
     @app.command("demo")
     def demo_cmd(
         out: Path = typer.Option(Path("camcal-demo"), "--out", help="Folder for the demo's files."),
-    ) -> None:
-        """Synthesise a calibration session and survey photos, run every stage, print truth vs recovered."""
+    ) -> int:
+        """Synthesise a calibration session and Secchi-disk photos, run every stage, print truth vs recovered."""
         from camcal.demo import run_demo
 
-        run_demo(out)
+        return 0 if run_demo(out)["ok"] else 1

@@ -61,7 +61,8 @@ def register(app: typer.Typer) -> None:
         cutoff_deg=typer.Option(None, help="Cutoff angle θc, degrees (seed: π/2.1; refined: air-side sky cutoff)."),
         view_deg=typer.Option(0.0, help="refined: camera view angle from nadir in air, degrees."),
         n_water=typer.Option(1.33, help="refined: refractive index of water."),
-        water_absorption=typer.Option(0.425, help="refined: pure-water absorption, m^-1 (Pope & Fry 1997, 663 nm)."),
+        water_absorption=typer.Option(0.425, help="refined, narrowband: pure-water absorption, m^-1 "
+                                       "(Pope & Fry 1997 at 663 nm; --profile uses their full spectrum)."),
         background_absorption=typer.Option(0.0, help="refined: background (CDOM) absorption, m^-1."),
         reflectance=typer.Option("fresnel", help="refined: fresnel (exact) or schlick."),
     )
@@ -94,18 +95,28 @@ def register(app: typer.Typer) -> None:
         depth: str = typer.Option(..., help="Disk depth: '0.2m' or '20cm'."),
         submerged: Path = typer.Option(None, help="EXR with the submerged disk's radiance."),
         reference: Path = typer.Option(None, help="EXR with the reference radiance (same channel)."),
-        channel: str = typer.Option("L663", help="EXR channel to read from both files."),
+        channel: str = typer.Option(None, help="EXR channel to read from both files (default L663; R with --profile)."),
         sigma_channel: str = typer.Option(None, help="EXR channel with the 1-σ radiance uncertainty (both files)."),
         relative_sigma: float = typer.Option(None, help="Relative 1-σ uncertainty of the ratio (instead of maps)."),
         roi: str = typer.Option(None, help="Region x0,y0,width,height in pixels; other pixels become NaN."),
         ratio: str = typer.Option(None, help="Numbers only: comma list of ratios; prints JSON."),
         out: Path = typer.Option(None, "-o", "--out", help="Output EXR (chl_ug_per_L, chl_unc_ug_per_L, reason)."),
+        profile: Path = typer.Option(None, "--profile", help="Calibration profile: band-aware inversion over its "
+                                     "c(λ) (the images hold band radiances, as `camcal apply` writes)."),
+        band_channel: str = typer.Option("R", help="With --profile: the channel whose c(λ) defines the band."),
+        illuminant: str = typer.Option("D65", help="With --profile: the light's spectrum (flat, D65, A, ...)."),
+        chlorophyll_csv: Path = typer.Option(None, help="With --profile: a_chl(λ) CSV (default Bricaud 1998)."),
         model: str = common["model"], epsilon: str = common["epsilon"], albedo: float = common["albedo"],
         cutoff_deg: float = common["cutoff_deg"], view_deg: float = common["view_deg"],
         n_water: float = common["n_water"], water_absorption: float = common["water_absorption"],
         background_absorption: float = common["background_absorption"], reflectance: str = common["reflectance"],
     ) -> None:
-        """Chlorophyll-a per pixel from a submerged and a reference radiance image (or from numbers)."""
+        """Chlorophyll-a per pixel from a submerged and a reference radiance image (or from numbers).
+
+        Narrowband by default (the images are radiances at the wavelength of --epsilon); with --profile,
+        band-aware: the ratio is predicted by integrating the model over the profile's c(λ) of
+        --band-channel with Pope & Fry (1997) water (refined model) and a chlorophyll spectrum.
+        """
         from camcal.water.invert import Reason, invert_images, invert_ratio
         from camcal.water.units import parse_length_m
 
@@ -116,10 +127,26 @@ def register(app: typer.Typer) -> None:
             raise CamcalError("invert uses the exact models: choose --model seed or refined")
         m = _model(model, epsilon, albedo, cutoff_deg, view_deg, n_water, water_absorption, background_absorption,
                    reflectance)
+        meta = {"model": model, "depth_m": d}
+        if profile is not None:
+            from camcal.water.band import band_model_from_profile, read_chlorophyll_csv
+
+            chl = read_chlorophyll_csv(chlorophyll_csv) if chlorophyll_csv else None
+            m = band_model_from_profile(profile, band_channel, geometry=m, chlorophyll=chl, illuminant=illuminant,
+                                        background_absorption_per_m=background_absorption)
+            meta.update({"inversion": "band", "profile": str(profile), "band_channel": band_channel,
+                         "illuminant": illuminant, "band_model": m.describe()})
+            channel = channel or band_channel
+        else:
+            meta.update({"inversion": "narrowband", "epsilon_L_per_mol_cm": m.epsilon_L_per_mol_cm})
+            channel = channel or "L663"
         if ratio is not None:
             r = _list(ratio, float)
-            inv = invert_ratio(r, m, d, sigma_ln_ratio=relative_sigma)
-            print_json({"model": model, "depth_m": d, "ratio": r.tolist(),
+            if profile is not None:
+                inv = m.inverse(d).concentration(r, sigma_ln_ratio=relative_sigma)
+            else:
+                inv = invert_ratio(r, m, d, sigma_ln_ratio=relative_sigma)
+            print_json({**meta, "ratio": r.tolist(),
                         "c_mol_per_L": [None if not np.isfinite(v) else float(v) for v in inv.c_mol_per_L],
                         "c_ug_per_L": [None if not np.isfinite(v) else float(v) for v in inv.c_ug_per_L],
                         "sigma_ug_per_L": [None if not np.isfinite(v) else float(v) for v in inv.sigma_ug_per_L],
@@ -144,9 +171,8 @@ def register(app: typer.Typer) -> None:
                 kwargs = {"sigma_submerged": relative_sigma * np.abs(sub[channel].astype(float))}
             inv = invert_images(sub[channel], ref[channel], m, d, roi=_roi(roi), **kwargs)
             bar.advance(task)
-            meta = {"model": model, "depth_m": d, "epsilon_L_per_mol_cm": m.epsilon_L_per_mol_cm,
-                    "channel": channel, "reasons": {r.name.lower(): int(r) for r in Reason},
-                    "summary": inv.summary()}
+            meta.update({"channel": channel, "reasons": {r.name.lower(): int(r) for r in Reason},
+                         "summary": inv.summary()})
             write_exr(out, {"chl_ug_per_L": inv.c_ug_per_L, "chl_unc_ug_per_L": inv.sigma_ug_per_L,
                             "reason": inv.reason.astype(np.float32)}, meta)
             bar.advance(task)

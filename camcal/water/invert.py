@@ -346,9 +346,11 @@ def invert_images(submerged, reference, model, depth_m, *, sigma_submerged=None,
                   roi: tuple[int, int, int, int] | None = None, method: str = "table") -> Inversion:
     """Chlorophyll-a map from a submerged-disk radiance image and a reference radiance image.
 
-    ``reference`` may be an image or a scalar; σ arguments are 1-σ radiance uncertainties in the same
-    units (images or scalars). ``roi`` = (x0, y0, width, height) in pixels: pixels outside get NaN with
-    reason OUTSIDE_ROI.
+    ``model`` is a SeedModel/RefinedModel (narrowband: the images are radiances at one wavelength) or a
+    :class:`camcal.water.band.BandModel` (band-aware: the images are one channel's band radiances or DN
+    rates; ``depth_m`` must then be a scalar). ``reference`` may be an image or a scalar; σ arguments are
+    1-σ radiance uncertainties in the same units (images or scalars). ``roi`` = (x0, y0, width, height) in
+    pixels: pixels outside get NaN with reason OUTSIDE_ROI.
     """
     sub = np.asarray(submerged, dtype=np.float64)
     ref = np.broadcast_to(np.asarray(reference, dtype=np.float64), sub.shape)
@@ -360,7 +362,10 @@ def invert_images(submerged, reference, model, depth_m, *, sigma_submerged=None,
             rs = 0.0 if sigma_submerged is None else np.asarray(sigma_submerged, float) / sub
             rr = 0.0 if sigma_reference is None else np.asarray(sigma_reference, float) / ref
             sig = np.sqrt(np.square(rs) + np.square(rr))
-    inv = invert_ratio(ratio, model, depth_m, sigma_ln_ratio=sig, method=method)
+    if hasattr(model, "inverse"):  # a BandModel: its tabulated band inverse at this depth
+        inv = model.inverse(float(depth_m)).concentration(ratio, sigma_ln_ratio=sig)
+    else:
+        inv = invert_ratio(ratio, model, depth_m, sigma_ln_ratio=sig, method=method)
     reason = inv.reason
     reason[ref_bad & np.isfinite(sub)] = Reason.BAD_REFERENCE
     if roi is not None:

@@ -30,12 +30,14 @@ from camcal.water.optics import (
     snell,
     transmittance,
 )
+from camcal.water.purewater import pure_water_absorption_per_m
 from camcal.water.units import EPSILON_SEED_L_PER_MOL_CM, LN10
 
 #: Seed §5: the cutoff angle of the simulations, π/2.1 rad.
 SEED_CUTOFF_RAD = np.pi / 2.1
-#: Pure-water absorption at 663 nm, m⁻¹ (Pope & Fry 1997: 0.424 at 662.5 nm, 0.429 at 665 nm).
-WATER_ABSORPTION_663_PER_M = 0.425
+#: Pure-water absorption at 663 nm, m⁻¹, from the shipped Pope & Fry (1997) table (0.424 at 662.5 nm,
+#: 0.429 at 665 nm → 0.425).
+WATER_ABSORPTION_663_PER_M = float(pure_water_absorption_per_m(663.0))
 
 
 def e3_integral(x, mu_c):
@@ -162,6 +164,11 @@ class RefinedModel:
     transmittance: str = "mean"  # or "exact"
 
     name = "refined"
+
+    @classmethod
+    def at_wavelength(cls, wavelength_nm: float, **kwargs) -> RefinedModel:
+        """The model at one wavelength: ``water_absorption_per_m`` from Pope & Fry (1997) at ``wavelength_nm``."""
+        return cls(water_absorption_per_m=float(pure_water_absorption_per_m(wavelength_nm)), **kwargs)
 
     def water_cutoff_rad(self) -> float:
         """In-water cutoff: the sky cutoff refracted (the critical angle for a full sky)."""
