@@ -380,7 +380,7 @@ def _run_dask(args: list[tuple], scheduler, done: Callable[[PhotoResult], None])
     own = False
     if isinstance(scheduler, str):
         try:
-            client = Client(scheduler, timeout="10s")
+            client = Client(scheduler, timeout="60s")
         except (OSError, TimeoutError) as exc:
             raise CamcalError(f"cannot connect to the dask scheduler {scheduler}: {exc}") from None
         own = True
