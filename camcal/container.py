@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import tempfile
 import zipfile
 from pathlib import Path
@@ -75,6 +76,13 @@ def _reject_constant(value: str):
     raise ValueError(f"{value} is not allowed")
 
 
+def _finite_float(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value):
+        raise ValueError(f"number {text[:20]} is out of range")
+    return value
+
+
 def read_container(path: str | Path) -> tuple[dict, dict[str, np.ndarray]]:
     """Read and verify a profile file; returns ``(doc, maps)``. See the module docstring."""
     path = Path(path)
@@ -99,7 +107,7 @@ def read_container(path: str | Path) -> tuple[dict, dict[str, np.ndarray]]:
         if MAPS_MEMBER in names and zf.getinfo(MAPS_MEMBER).file_size > MAX_MAPS_BYTES:
             raise CamcalError("maps.exr is implausibly large; refused", path)
     try:
-        doc = json.loads(raw.decode("utf-8"), parse_constant=_reject_constant)
+        doc = json.loads(raw.decode("utf-8"), parse_constant=_reject_constant, parse_float=_finite_float)
     except (UnicodeDecodeError, ValueError) as exc:
         raise CamcalError(f"profile.json is not valid JSON ({' '.join(str(exc).split())[:100]})", path) from None
     if not isinstance(doc, dict) or not isinstance(doc.get("integrity"), dict):
@@ -117,7 +125,10 @@ def read_container(path: str | Path) -> tuple[dict, dict[str, np.ndarray]]:
         with tempfile.TemporaryDirectory(prefix="camcal-profile-") as tdir:
             mp = Path(tdir) / MAPS_MEMBER
             mp.write_bytes(maps_bytes)
-            maps, _ = read_exr(mp)
+            try:
+                maps, _ = read_exr(mp)
+            except CamcalError as exc:
+                raise CamcalError(f"{MAPS_MEMBER}: {exc.message}", path) from None
     return doc, maps
 
 

@@ -26,6 +26,7 @@ times), following EMVA 1288 (release 4.0, §4.3 "dark current", §4.5 "DSNU"):
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -435,6 +436,9 @@ def _noise_model(stats: list[tuple[float, StackResult]], b: np.ndarray) -> tuple
             var = np.asarray(st.variance_all if st.variance_all is not None else st.variance, np.float64)[k]
             ok = np.isfinite(var) & np.isfinite(b[k])
             ok &= var < 5 * np.median(var[ok])
+            if not ok.any():
+                raise CamcalError(f"the dark frames at {_t:g} s show no temporal noise at all (the same file "
+                                  "twice, or a copy?)", st.paths[0].parent if st.paths else None)
             xs.append(float(np.mean(np.asarray(st.value, np.float64)[k][ok] - b[k][ok])))
             ys.append(float(np.mean(var[ok])))
         if len(xs) >= 2 and np.ptp(xs) > 0:
@@ -505,11 +509,48 @@ def dark_to_parts(model: DarkModel) -> tuple[dict, dict[str, np.ndarray]]:
     return data, maps
 
 
+def _check_dark_data(data: dict, where: str | Path | None) -> None:
+    """Refuse a dark model's JSON part with values of the wrong type or out of range (one line)."""
+    from camcal.frame import PATTERNS
+
+    def number(key: str, *, positive: bool, optional: bool = False) -> None:
+        v = data.get(key)
+        if v is None and optional:
+            return
+        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) or (positive and v <= 0):
+            raise CamcalError(f"malformed dark model: {key} must be a finite{' positive' if positive else ''} "
+                              f"number, got {v!r}", where)
+
+    if not isinstance(data, dict):
+        raise CamcalError("malformed dark model: its data is not an object", where)
+    number("iso", positive=True)
+    number("white_level_dn", positive=True, optional=True)
+    number("temperature_c", positive=False, optional=True)
+    if data.get("cfa_pattern") not in PATTERNS:
+        raise CamcalError(f"malformed dark model: cfa_pattern {data.get('cfa_pattern')!r} is not one of "
+                          f"{', '.join(PATTERNS)}", where)
+    for key in ("exposure_times_s", "black_level_dn"):
+        v = data.get(key)
+        if v is not None and (not isinstance(v, list) or not all(
+                isinstance(t, int | float) and not isinstance(t, bool) and math.isfinite(t) for t in v)):
+            raise CamcalError(f"malformed dark model: {key} must be a list of numbers", where)
+    ch = data.get("channels")
+    if not isinstance(ch, dict) or not all(isinstance(ch.get(p), dict) and ch[p] for p in PLANES) or len(
+            {tuple(sorted(ch[p])) for p in PLANES}) != 1 or "hot_pixel_count" not in ch[PLANES[0]]:
+        raise CamcalError(f"malformed dark model: channels must hold the same summary numbers for {', '.join(PLANES)}",
+                          where)
+    for p in PLANES:
+        for key, v in ch[p].items():
+            if v is not None and (isinstance(v, bool) or not isinstance(v, int | float)):
+                raise CamcalError(f"malformed dark model: channels.{p}.{key} must be a number, got {v!r}", where)
+
+
 def dark_from_parts(data: dict, maps: dict[str, np.ndarray], where: str | Path | None = None) -> DarkModel:
     """Inverse of :func:`dark_to_parts`; ``where`` names the file in errors."""
     missing = [f"{m}.{p}" for m in _MAPS for p in PLANES if f"{m}.{p}" not in maps]
     if missing:
         raise CamcalError(f"dark model lacks maps {', '.join(missing[:4])}", where)
+    _check_dark_data(data, where)
     try:
         arr = {m: np.stack([maps[f"{m}.{p}"] for p in PLANES]).astype(np.float32) for m in _MAPS}
         arr["dark_current_unc"] = np.where(arr["dark_current_unc"] >= 3.0e38, np.inf, arr["dark_current_unc"])

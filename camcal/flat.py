@@ -806,14 +806,24 @@ def flat_from_parts(data: dict, maps: dict[str, np.ndarray], where: str | Path |
             prnu = np.stack([np.asarray(maps[f"prnu.{c}"], np.float32) for c in channels])
             if prnu.shape[1:] != shape:
                 raise ValueError("PRNU maps do not match the recorded shape")
-        return FlatModel(
+        model = FlatModel(
             channels=channels, centre_px=centre, k=k, model_2d=data.get("model_2d"), prnu=prnu, residual_rms=rms,
             shape=shape, cfa_pattern=data.get("cfa_pattern"),
             level_dn={c: float(v) for c, v in (data.get("level_dn") or {}).items()},
             prnu_rms={c: float(v) for c, v in (data.get("prnu_rms") or {}).items()},
             info=dict(data.get("info") or {}),
         )
-    except (KeyError, TypeError, ValueError, IndexError) as exc:
+        # probe the model at the plane corners: a decodable but unusable model fails here, not later
+        h, w = shape
+        yy, xx = np.array([[0.0, 0.0], [h - 1.0, h - 1.0]]), np.array([[0.0, w - 1.0], [0.0, w - 1.0]])
+        geom = model.geometry
+        for c in channels:
+            g = (_eval_2d(model.model_2d, geom, c, xx, yy) if model.model_2d
+                 else radial_gain(geom.r2(c, xx, yy, *centre[c]), k[c]))
+            if not np.all(np.isfinite(g)):
+                raise ValueError(f"the vignetting model of {c} is not finite at the corners")
+        return model
+    except (KeyError, TypeError, ValueError, IndexError, AttributeError) as exc:
         raise CamcalError(f"not a valid camcal flat file ({type(exc).__name__}: {exc})", where) from None
 
 

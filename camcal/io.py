@@ -87,8 +87,13 @@ def _magic(path: Path) -> bytes:
 def _exif_tags(path: Path) -> dict[str, object]:
     """EXIF tags via exifread (header only); {} when the file has none or is damaged."""
     try:
+        import logging
+
         import exifread
 
+        log = logging.getLogger("exifread")  # it logs "File format not recognized." to stderr on non-EXIF files
+        if log.level == logging.NOTSET:
+            log.setLevel(logging.ERROR)
         with open(path, "rb") as fh:
             return exifread.process_file(fh, details=False, debug=False)
     except Exception:  # exifread raises many types on damaged files; metadata is optional here
@@ -250,17 +255,22 @@ def _load_raw(path: Path) -> Frame:
 def _load_processed(path: Path) -> Frame:
     import OpenImageIO as oiio
 
-    inp = oiio.ImageInput.open(str(path))
+    with quiet_stderr():  # libpng/libjpeg print their own messages to fd 2 on damaged files
+        inp = oiio.ImageInput.open(str(path))
     if inp is None:
         oiio.geterror()
         raise CamcalError("cannot open as an image (damaged, or not JPEG/TIFF/PNG)", path)
     try:
         spec = inp.spec()
+        fmt_name = inp.format_name()
+        if fmt_name not in ("jpeg", "tiff", "png"):  # OpenImageIO opens any format it knows, whatever the name
+            raise CamcalError(f"is a {fmt_name} file, not a JPEG, TIFF or PNG image", path)
         _check_pixels(path, spec.width, spec.height)
         if spec.nchannels < 3:
             raise CamcalError(f"has {spec.nchannels} channel(s); camcal needs an RGB image", path)
         fmt = oiio.UINT16 if spec.format.size() > 1 else oiio.UINT8
-        data = inp.read_image(0, 0, 0, 3, fmt)
+        with quiet_stderr():
+            data = inp.read_image(0, 0, 0, 3, fmt)
         err = inp.geterror()
         if data is None or err:
             raise CamcalError(f"cannot decode image data (damaged or truncated?): {err.strip()[:120]}", path)

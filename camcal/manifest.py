@@ -35,6 +35,21 @@ NUMERIC_COLUMNS: dict[str, bool] = {
 #: Columns that must be strictly positive when given.
 POSITIVE_COLUMNS = {"exposure_s", "iso", "f_number", "wavelength_nm", "bandwidth_nm"}
 
+#: Physically plausible range of numeric columns (inclusive); values outside are typing errors
+#: (a missing decimal point, a value in the wrong column) that would overflow or divide by zero later.
+PLAUSIBLE_RANGE: dict[str, tuple[float, float]] = {
+    "exposure_s": (1e-7, 1e5),
+    "iso": (1.0, 1e7),
+    "f_number": (0.5, 1000.0),
+    "temperature_C": (-273.15, 500.0),
+    "wavelength_nm": (100.0, 3000.0),
+    "bandwidth_nm": (1e-3, 1000.0),
+    "radiance_W_m2_sr": (0.0, 1e30),
+    "radiance_unc_W_m2_sr": (0.0, 1e30),
+}
+#: Smallest non-zero value accepted in any numeric column (below it, products and ratios underflow).
+TINY = 1e-30
+
 MAX_MANIFEST_BYTES = 16 * 1024 * 1024
 
 
@@ -50,8 +65,11 @@ def safe_member(folder: str | Path, name: str, manifest: str | Path | None = Non
     p = Path(name)
     if p.is_absolute() or p.drive:
         raise CamcalError(f"path {name!r} is absolute; manifest paths must be relative to the folder", where)
-    root = Path(folder).resolve()
-    full = (root / p).resolve()
+    try:
+        root = Path(folder).resolve()
+        full = (root / p).resolve()
+    except (OSError, RuntimeError):  # a symbolic-link loop
+        raise CamcalError(f"path {name!r} is a symbolic-link loop", where) from None
     if full != root and root not in full.parents:
         raise CamcalError(f"path {name!r} leaves the session folder; refused", where)
     return full
@@ -69,6 +87,9 @@ def parse_number(text: str, column: str, where: str) -> float:
         raise CamcalError(f"{where}: column {column!r} is negative ({text})")
     if value == 0 and column in POSITIVE_COLUMNS:
         raise CamcalError(f"{where}: column {column!r} must be positive, got {text}")
+    lo, hi = PLAUSIBLE_RANGE.get(column, (-math.inf, math.inf))
+    if not lo <= value <= hi or 0 < abs(value) < TINY:
+        raise CamcalError(f"{where}: column {column!r} value {text} is outside the plausible range [{lo:g}, {hi:g}]")
     return value
 
 
@@ -89,9 +110,12 @@ def read_manifest(
     """
     path = Path(path)
     try:
-        if path.stat().st_size > MAX_MANIFEST_BYTES:
+        if not path.is_file():
+            raise CamcalError("manifest is not a regular file", path)
+        with open(path, "rb") as fh:  # bounded read: st_size is 0 for devices and pipes
+            raw = fh.read(MAX_MANIFEST_BYTES + 1)
+        if len(raw) > MAX_MANIFEST_BYTES:
             raise CamcalError("manifest larger than 16 MiB; refused", path)
-        raw = path.read_bytes()
     except OSError as exc:
         raise CamcalError(f"cannot read manifest: {exc.strerror or exc}", path) from None
     try:

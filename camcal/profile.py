@@ -130,6 +130,8 @@ def _stage_from_parts(name: str, data: dict, maps: dict[str, np.ndarray], where:
             return spectral_from_dict(data)
     except CamcalError as exc:
         raise CamcalError(f"{name} section: {exc.message}", where) from None
+    except (KeyError, TypeError, ValueError, IndexError, AttributeError) as exc:  # schema-valid but undecodable
+        raise CamcalError(f"{name} section is malformed ({type(exc).__name__}: {exc})", where) from None
     raise ValueError(name)
 
 

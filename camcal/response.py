@@ -303,6 +303,10 @@ class ResponseModel:
                     pearson_r=num(rec["pearson_r"]), rate_dn_per_s=num(rec.get("rate_dn_per_s")),
                     rate_dn_per_s_unc=num(rec.get("rate_dn_per_s_unc")), offset_dn=num(rec.get("offset_dn")),
                 )
+            expected = {"raw": set(PLANES), "processed": {"R", "G", "B"}}.get(str(d["kind"]))
+            if expected is None or set(channels) != expected:
+                raise ValueError(f"kind {d['kind']!r} with channels {sorted(channels)}; expected raw R, G1, G2, B "
+                                 "or processed R, G, B")
             return ResponseModel(
                 kind=str(d["kind"]), channels=channels, reference_iso=num(d["reference_iso"]),
                 reference_f_number=num(d["reference_f_number"]), tone=d.get("tone"),

@@ -79,10 +79,17 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     except BrokenPipeError:
         return 0
+    except OSError as exc:  # writing an output: a directory in the way, no space, no permission
+        where = exc.filename2 or exc.filename
+        print(f"camcal: error: {where + ': ' if where else ''}{exc.strerror or ' '.join(str(exc).split())}",
+              file=sys.stderr)
+        return 2
     except Exception as exc:  # the promise: never a traceback
         print(f"camcal: internal error: {type(exc).__name__}: {' '.join(str(exc).split())} (please report)",
               file=sys.stderr)
         return 3
+    if result == 130:  # click turns Ctrl-C into Exit(130) and, not standalone, returns the code silently
+        print("camcal: interrupted", file=sys.stderr)
     return int(result) if isinstance(result, int) else 0
 
 

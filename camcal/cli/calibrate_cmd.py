@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import typer
@@ -27,7 +28,8 @@ def register(app: typer.Typer) -> None:
 
         opts = CalibrateOptions(reference_iso=reference_iso, reference_f_number=reference_f_number,
                                 flat_model=flat_model, sweep_mode=sweep_mode, deconvolve=deconvolve, jobs=jobs)
-        with progress() as bar:
+        with warnings.catch_warnings(record=True) as caught, progress() as bar:
+            warnings.simplefilter("always")
             tasks: dict[str, int] = {}
 
             def tick(stage: str, done: int, total: int) -> None:
@@ -37,8 +39,10 @@ def register(app: typer.Typer) -> None:
 
             profile, notes = calibrate_session(session, opts, progress=tick)
         profile = save_profile(profile, output)
-        for note in notes:
-            err_console.print(f"camcal: warning: {note}")
+        # stage warnings (e.g. the sweep's) and notes, one line each, without repeats
+        messages = [" ".join(str(w.message).split()) for w in caught if issubclass(w.category, UserWarning)]
+        for msg in dict.fromkeys([*notes, *messages]):
+            err_console.print(f"camcal: warning: {msg}", soft_wrap=True, markup=False, highlight=False)
         from camcal.cli.profile_cmd import print_contract
 
         print_contract(contract(profile), title=f"profile → {output}")

@@ -61,8 +61,8 @@ def register(app: typer.Typer) -> None:
                 slit=slit, reference_iso=reference_iso, reference_f_number=reference_f_number,  # type: ignore[arg-type]
                 jobs=jobs, progress=lambda done, n: bar.update(task, completed=done),
             )
-        for w in caught:
-            err_console.print(f"camcal: warning: {w.message}")
+        for msg in dict.fromkeys(" ".join(str(w.message).split()) for w in caught):
+            err_console.print(f"camcal: warning: {msg}", soft_wrap=True, markup=False, highlight=False)
         write_spectacle_csv(result, output)
         png_path = png or output.with_suffix(".png")
         plot_sensitivity(result, png_path)
