@@ -150,3 +150,13 @@ def test_band_images_sigma_roi_and_reasons(camera):
     # σ from a 1 % ratio error: C · 0.01 / |d ln B / d ln C| (analytic derivative of the band model)
     b, db = band.ratio_and_derivative(c[ok], 0.5)
     np.testing.assert_allclose(inv.sigma_ug_per_L[ok], 0.01 * b / np.abs(db), rtol=1e-5)
+
+
+def test_denormal_depth_is_a_reason_not_an_infinity():
+    """Found by hypothesis: depth 5e-324 m made C overflow to inf with reason OK."""
+    from camcal.water.invert import Reason, invert_ratio
+    from camcal.water.models import SeedModel
+
+    for method in ("table", "newton"):
+        inv = invert_ratio(np.array([0.5]), SeedModel(), 5e-324, method=method)
+        assert inv.reason[0] == Reason.BAD_DEPTH and np.isnan(inv.c_ug_per_L[0])

@@ -41,7 +41,11 @@ class Reason(IntEnum):
     TOO_DARK = 4  # ratio below what the model can represent (optical depth beyond the table)
     BAD_REFERENCE = 5  # reference radiance ≤ 0 or not finite
     OUTSIDE_ROI = 6  # pixel outside the requested region
-    BAD_DEPTH = 7  # depth ≤ 0 or not finite
+    BAD_DEPTH = 7  # depth below MIN_DEPTH_M (1 µm), or not finite
+
+
+MIN_DEPTH_M = 1e-6
+"""Smallest depth inverted, m: below it τ per unit concentration underflows and C overflows."""
 
 
 def tau_newton(ratio, cf: ClosedForm, *, max_iter: int = 200, rtol: float = 1e-15):
@@ -264,10 +268,10 @@ def invert_ratio(ratio, model, depth_m, *, sigma_ln_ratio=None, method: str = "t
     """
     r = np.asarray(ratio)
     cf = model.closed_form()
-    scalar_depth = np.ndim(depth_m) == 0 and np.isfinite(depth_m) and float(depth_m) > 0
+    scalar_depth = np.ndim(depth_m) == 0 and np.isfinite(depth_m) and float(depth_m) >= MIN_DEPTH_M
     scalar_sigma = sigma_ln_ratio is None or np.ndim(sigma_ln_ratio) == 0
     if method == "table" and scalar_depth and scalar_sigma:
-        return _invert_table_scalar(r, model, cf, float(depth_m), sigma_ln_ratio)
+        return _finite_or_reason(_invert_table_scalar(r, model, cf, float(depth_m), sigma_ln_ratio))
     depth = np.broadcast_to(np.asarray(depth_m, dtype=float), r.shape)
     if method == "table":
         tau, reason, slope = tau_table(cf).tau(r, with_slope=True)
@@ -278,7 +282,7 @@ def invert_ratio(ratio, model, depth_m, *, sigma_ln_ratio=None, method: str = "t
     else:
         raise ValueError(f"unknown method {method!r}; use 'table' or 'newton'")
     reason = reason.copy()
-    good_depth = np.isfinite(depth) & (depth > 0)
+    good_depth = np.isfinite(depth) & (depth >= MIN_DEPTH_M)
     reason[~good_depth & (reason == 0)] = Reason.BAD_DEPTH
     dd = np.where(good_depth, depth, 1.0)
     per_c = model.tau(1.0, dd) - model.background_tau(dd)
@@ -294,8 +298,19 @@ def invert_ratio(ratio, model, depth_m, *, sigma_ln_ratio=None, method: str = "t
             sigma = np.full(r.shape, np.nan)
         else:
             sigma = np.where(ok, np.abs(slope) * np.asarray(sigma_ln_ratio, dtype=float) / per_c, np.nan)
-    return Inversion(c, mol_per_L_to_ug_per_L(c), mol_per_L_to_ug_per_L(sigma), np.where(ok, tau, np.nan),
-                     reason)
+    return _finite_or_reason(Inversion(c, mol_per_L_to_ug_per_L(c), mol_per_L_to_ug_per_L(sigma),
+                                       np.where(ok, tau, np.nan), reason))
+
+
+def _finite_or_reason(inv: Inversion) -> Inversion:
+    """A concentration that overflowed (extreme τ per unit C) becomes NaN with reason TOO_DARK, in place."""
+    with np.errstate(invalid="ignore"):
+        bad = (inv.reason == 0) & ~(np.isfinite(inv.c_mol_per_L) & np.isfinite(inv.c_ug_per_L))
+    if bad.any():
+        inv.reason[bad] = Reason.TOO_DARK
+        for arr in (inv.c_mol_per_L, inv.c_ug_per_L, inv.sigma_ug_per_L, inv.tau):
+            arr[bad] = np.nan
+    return inv
 
 
 def _invert_table_scalar(r: np.ndarray, model, cf: ClosedForm, depth_m: float, sigma_ln_ratio) -> Inversion:
