@@ -362,20 +362,31 @@ def load_folder_frame(path: Path, manifest: dict[str, dict[str, float | str | No
     return load_frame(path, exposure_overrides(manifest.get(path.name)))
 
 
-def iter_folder(folder: str | Path):
-    """Yield ``(path, frame)`` for every image of a folder, manifest applied, one at a time.
+def folder_files(
+    folder: str | Path, manifest: dict[str, dict[str, float | str | None]] | None = None
+) -> tuple[list[Path], dict[str, dict[str, float | str | None]]]:
+    """The image files of a folder and its manifest rows (read from ``frames.csv`` unless given).
 
-    Files listed in ``frames.csv`` but absent are an error; frames are read
-    lazily so memory does not grow with the number of frames.
+    Files listed in ``frames.csv`` but absent, and a folder without images, are errors.
     """
     folder = Path(folder)
-    manifest = folder_manifest(folder)
     files = list_frames(folder)
+    if manifest is None:
+        manifest = folder_manifest(folder)
     names = {p.name for p in files}
     for name in manifest:
         if name not in names and not (folder / name).is_file():
             raise CamcalError(f"frames.csv lists {name!r}, which is not in the folder", folder)
     if not files:
         raise CamcalError("holds no image files", folder)
+    return files, manifest
+
+
+def iter_folder(folder: str | Path):
+    """Yield ``(path, frame)`` for every image of a folder, manifest applied, one at a time.
+
+    Frames are read lazily so memory does not grow with the number of frames.
+    """
+    files, manifest = folder_files(folder)
     for p in files:
         yield p, load_folder_frame(p, manifest)

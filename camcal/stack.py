@@ -37,7 +37,7 @@ import numpy as np
 
 from camcal.errors import CamcalError
 from camcal.frame import Exposure, Frame
-from camcal.io import folder_manifest, list_frames, load_folder_frame
+from camcal.io import folder_files, folder_manifest, load_folder_frame
 
 METHODS = ("mean", "median", "sigma_clip")
 MAD_TO_SIGMA = 1.4826
@@ -474,15 +474,5 @@ def combine_folder(folder: str | Path, **kwargs) -> StackResult:
 
     Files listed in ``frames.csv`` but missing from the folder are an error.
     """
-    folder = Path(folder)
-    files = list_frames(folder)
-    manifest = kwargs.pop("manifest", None)
-    if manifest is None:
-        manifest = folder_manifest(folder)
-    names = {p.name for p in files}
-    for name in manifest:
-        if name not in names and not (folder / name).is_file():
-            raise CamcalError(f"frames.csv lists {name!r}, which is not in the folder", folder)
-    if not files:
-        raise CamcalError("holds no image files", folder)
+    files, manifest = folder_files(folder, kwargs.pop("manifest", None))
     return combine_frames(files, manifest=manifest, **kwargs)
