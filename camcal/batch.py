@@ -108,8 +108,13 @@ def _plan(profile_path: str, options: BatchOptions):
         from camcal.profile import load_profile
 
         profile = load_profile(p)
-        plan = prepare(profile, options.wavelength_nm, options.estimator, filter_fwhm_nm=options.filter_fwhm_nm,
-                       line_fwhm_nm=options.line_fwhm_nm, with_prnu=options.with_prnu)
+        try:
+            plan = prepare(profile, options.wavelength_nm, options.estimator, filter_fwhm_nm=options.filter_fwhm_nm,
+                           line_fwhm_nm=options.line_fwhm_nm, with_prnu=options.with_prnu)
+        except CamcalError as exc:  # e.g. "the profile has no spectral sensitivity": name the profile file
+            if exc.path is not None:
+                raise
+            raise CamcalError(exc.message, p) from None
         _PLANS.clear()
         _PLANS[key] = plan
     return plan

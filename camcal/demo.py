@@ -22,6 +22,7 @@ import numpy as np
 from rich.table import Table
 
 from camcal.cli.common import console, progress
+from camcal.errors import CamcalError
 
 CHL_UG_PER_L = 60.0
 DEPTH_M = 0.80
@@ -94,6 +95,8 @@ def run_demo(out: str | Path, *, size: tuple[int, int] = (384, 256)) -> dict:
 
     t0 = time.perf_counter()
     out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise CamcalError("is a file, not a folder; give --out a folder for the demo's files", out)
     out.mkdir(parents=True, exist_ok=True)
     cam = SyntheticCamera(SensorParams(width=size[0], height=size[1]))
     with progress() as bar:

@@ -44,6 +44,8 @@ def write_exr(
 
     if not channels:
         raise CamcalError("no channels to write", path)
+    if Path(path).is_dir():
+        raise CamcalError("is a folder; give the EXR a file name", path)
     if compression not in COMPRESSIONS:
         raise CamcalError(f"unknown EXR compression {compression!r}; choose from {', '.join(COMPRESSIONS)}")
     names = list(channels)
@@ -99,6 +101,9 @@ def read_exr(
         oiio.geterror()
         raise CamcalError("cannot open as EXR (damaged or not an image)", path)
     try:
+        fmt = inp.format_name()
+        if fmt != "openexr":  # OIIO opens any image by its content: a JPEG named .exr is not a radiance map
+            raise CamcalError(f"is not an OpenEXR file (it is a {fmt or 'unknown'} image)", path)
         spec = inp.spec()
         from camcal.io import max_pixels
 

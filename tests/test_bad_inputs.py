@@ -62,7 +62,7 @@ class Base:
     dark_json: Path
     profile: Path
     files: dict[str, bytes] = field(default_factory=dict)
-    """Valid source bytes by kind: dng, jpeg, tiff, exr, profile."""
+    """Valid source bytes by kind: dng, jpeg, tiff, exr, profile, water_sub, water_ref (radiance EXRs)."""
 
 
 def run_main(argv: list[str], env: dict[str, str] | None = None) -> tuple[int, str, str]:
@@ -93,6 +93,27 @@ def run_subprocess(argv: list[str], env: dict[str, str] | None = None) -> tuple[
     return proc.returncode, proc.stdout, proc.stderr
 
 
+WATER_SHAPE = (32, 48)  # the half-resolution radiance maps `camcal apply` makes of a 96x64 photo
+
+
+def water_exrs(folder: Path, shape: tuple[int, int] = WATER_SHAPE, **pixels: np.ndarray) -> dict[str, bytes]:
+    """A valid pair of radiance EXRs for ``camcal water invert`` (channels L663 and R, as apply writes).
+
+    The submerged disk is half as bright as the reference: a ratio of 0.5 inverts to a finite concentration
+    with every model (~50 µg/L). ``pixels`` replace the L663 and R pixels of the named image.
+    """
+    from camcal.exr import write_exr
+
+    ref = np.linspace(0.1, 1.0, shape[0] * shape[1], dtype=np.float32).reshape(shape)
+    images = {"sub": 0.5 * ref, "ref": ref, **pixels}
+    folder.mkdir(parents=True, exist_ok=True)
+    out = {}
+    for name, img in images.items():
+        p = write_exr(folder / f"{name}.exr", {"L663": img, "R": img}, {"source": f"{name} (corpus)"})
+        out[name] = p.read_bytes()
+    return out
+
+
 def build_base(root: Path) -> Base:
     import OpenImageIO as oiio
 
@@ -120,6 +141,8 @@ def build_base(root: Path) -> Base:
              "jpeg": (session / "linearity" / "lin_004.jpg").read_bytes(),
              "tiff": tiff.read_bytes(), "exr": (root / "models" / "dark.maps.exr").read_bytes(),
              "profile": profile.read_bytes()}
+    for name, data in water_exrs(root / "water").items():
+        files[f"water_{name}"] = data
     return Base(root, session, dark_json, profile, files)
 
 
@@ -215,7 +238,8 @@ def image_cases() -> list[Case]:
     def add(category, name, make, expect=ERROR, env=None):
         cases.append(Case("image", category, name, make, expect, env))
 
-    raw_ok = {"inspect": OK, "*": ERROR}  # decodable but not a RAW frame of this camera
+    # decodable but not a RAW frame of this camera; apply reads a processed file by its content
+    raw_ok = {"inspect": OK, "apply": OK, "apply-batch": OK, "*": ERROR}
     for src, suffix in (("dng", ".dng"), ("jpeg", ".jpg"), ("tiff", ".tif")):
         for n in (1, 2, 4, 8, 16, 64, 256, 1024):
             add("truncated", f"{src}-first{n}B", lambda b, s=src, x=suffix, n=n: (x, truncate(b.files[s], n)))
@@ -601,15 +625,164 @@ def session_cases() -> list[Case]:
     return cases
 
 
+def water_exr_cases() -> list[Case]:
+    """Damaged radiance EXRs for ``camcal water invert``: ``make(base, ws) -> (role, bytes | None | "dir")``.
+
+    ``role`` is the image replaced (``sub``: --submerged, ``ref``: --reference); ``None`` removes the file,
+    ``"dir"`` puts a folder in its place. Impossible pixels (NaN, negative, zero) are per-pixel reasons in the
+    output's ``reason`` channel, not errors.
+    """
+    cases: list[Case] = []
+
+    def add(category, name, make, expect=ERROR, env=None):
+        cases.append(Case("water_exr", category, name, make, expect, env))
+
+    def variant(ws: Path, **pixels) -> dict[str, bytes]:
+        return water_exrs(ws / "variant", **pixels)
+
+    small = np.full((16, 48), 0.5, np.float32)
+    for role in ("sub", "ref"):
+        src = f"water_{role}"
+        for n in (0, 1, 4, 16, 100, 300, 1000):
+            add("truncated", f"{role}-first{n}B", lambda b, ws, r=role, s=src, n=n: (r, truncate(b.files[s], n)))
+        for frac in (0.25, 0.5, 0.9, 0.99):
+            add("truncated", f"{role}-{int(frac * 100)}pct",
+                lambda b, ws, r=role, s=src, f=frac: (r, truncate(b.files[s], int(f * len(b.files[s])))))
+        add("truncated", f"{role}-minus1B", lambda b, ws, r=role, s=src: (r, b.files[s][:-1]))
+        for seed in range(8):
+            add("bit-flipped", f"{role}-flip{seed}",
+                lambda b, ws, r=role, s=src, k=seed: (r, bitflip(b.files[s], 60 + k, 1 + k)), EITHER)
+        for seed in range(4):
+            add("bit-flipped", f"{role}-headflip{seed}", lambda b, ws, r=role, s=src, k=seed: (
+                r, bitflip(b.files[s][:300], 160 + k, 2) + b.files[s][300:]), EITHER)
+        for w, h in ((99999, 99999), (20000, 20000), (10**6, 10), (-5, -5), (0, 0)):
+            add("huge dimensions", f"{role}-window{w}x{h}",
+                lambda b, ws, r=role, s=src, w=w, h=h: (r, exr_window_patch(b.files[s], w, h)))
+        add("huge dimensions", f"{role}-display-window", lambda b, ws, r=role, s=src: (
+            r, exr_window_patch(b.files[s], 99999, 99999, b"displayWindow")), EITHER)  # display only: data intact
+        add("pixel limit", f"{role}-over-limit", lambda b, ws, r=role, s=src: (r, b.files[s]),
+            env={"CAMCAL_MAX_PIXELS": "1000"})
+        for k in ("jpeg", "tiff", "dng", "profile"):
+            add("wrong extension", f"{role}-{k}-as-exr", lambda b, ws, r=role, k=k: (r, b.files[k]))
+        add("wrong extension", f"{role}-text-as-exr", lambda b, ws, r=role: (r, b"L663\n0.5\n"))
+        add("zero bytes", f"{role}-empty", lambda b, ws, r=role: (r, b""))
+        add("missing", f"{role}-no-file", lambda b, ws, r=role: (r, None))
+        add("missing", f"{role}-is-folder", lambda b, ws, r=role: (r, "dir"))
+        add("missing channel", f"{role}-other-channels", lambda b, ws, r=role, s=src: (
+            r, b.files["exr"]))  # the dark model's maps: bias.R ... but no L663/R
+        add("mismatched size", f"{role}-16-rows", lambda b, ws, r=role: (r, variant(ws, **{r: small})[r]))
+        add("mismatched size", f"{role}-transposed", lambda b, ws, r=role: (
+            r, variant(ws, **{r: np.full(WATER_SHAPE[::-1], 0.5, np.float32)})[r]))
+        add("mismatched size", f"{role}-1px", lambda b, ws, r=role: (r, variant(ws, **{r: small[:1, :1]})[r]))
+
+        def odd(value: float, rows: slice = slice(0, 4)) -> np.ndarray:
+            a = np.full(WATER_SHAPE, 0.5 if value != 0.5 else 0.25, np.float32)
+            a[rows] = value
+            return a
+        for label, value in (("NaN", np.nan), ("inf", np.inf), ("negative", -1.0), ("zero", 0.0),
+                             ("huge", 3e38), ("tiny", 1e-38)):
+            add("per-pixel reason", f"{role}-{label}-pixels", lambda b, ws, r=role, v=value: (
+                r, variant(ws, **{r: odd(v)})[r]), OK)
+        add("per-pixel reason", f"{role}-all-NaN", lambda b, ws, r=role: (
+            r, variant(ws, **{r: odd(np.nan, slice(None))})[r]), OK)
+    return cases
+
+
+def argument_cases() -> list[Case]:
+    """Bad command-line values: ``make(base, ws) -> (argv, outputs, the token the error line must name)``."""
+    cases: list[Case] = []
+
+    def add(category, name, make, expect=ERROR):
+        cases.append(Case("arguments", category, name, make, expect))
+
+    def invert(*extra, token=None):
+        def make(b: Base, ws: Path):
+            sub, ref = ws / "sub.exr", ws / "ref.exr"
+            sub.write_bytes(b.files["water_sub"])
+            ref.write_bytes(b.files["water_ref"])
+            out = ws / "out" / "chl.exr"
+            return (["water", "invert", "--submerged", sub, "--reference", ref, "-o", out, *extra],
+                    [] if "--ratio" in extra else [out],  # numbers in, JSON out
+                    Path(str(token if token is not None else extra[-1])))
+        return make
+
+    def forward(concentration="1e-7mol/L", depth="20cm", *extra, token=None):
+        def make(b: Base, ws: Path):
+            argv = ["water", "forward", "--concentration", concentration, "--depth", depth, *extra]
+            return argv, [], Path(str(token))
+        return make
+
+    for d, exp in (("-1m", ERROR), ("0", ERROR), ("0m", ERROR), ("-0cm", ERROR), ("abc", ERROR),
+                   ("5 furlongs", ERROR), ("10km", ERROR), ("nan", ERROR), ("inf", ERROR), ("1e400m", ERROR),
+                   ("1e-320m", ERROR), ("1e300m", ERROR), ("0.2", OK), (" 20 cm ", OK)):
+        add("depth", f"invert-depth-{d.strip()}", invert("--depth", d), exp)
+        add("depth", f"forward-depth-{d.strip()}", forward("1e-7mol/L", d, token=d.strip()), exp)
+    add("depth", "invert-depth-empty", invert("--depth", "", token="depth"))
+    add("depth", "forward-depth-empty", forward("1e-7mol/L", "", token="--depth"))
+    add("depth", "forward-depth-list-with-bad", forward("1e-7mol/L", "10cm,x", token="x"))
+    for c, exp in (("abc", ERROR), ("-1mol/L", ERROR), ("nan", ERROR), ("inf", ERROR), ("1e400mol/L", ERROR),
+                   ("1e300mol/L", ERROR), ("5 furlongs", ERROR), ("1e-7mol/L,,x", ERROR), ("0ug/L", OK),
+                   ("89ug/L,1e-7mol/L", OK)):
+        add("concentration", f"forward-c-{c}", forward(c, "20cm", token=c.split(",")[-1]), exp)
+    add("concentration", "forward-c-empty", forward("", "20cm", token="--concentration"))
+    for r, exp in (("abc", ERROR), ("1,2,3", ERROR), ("-1,0,4,4", ERROR), ("0,0,0,5", ERROR), ("1.5,0,4,4", ERROR),
+                   ("0,0,1e9,1", ERROR), (",,,", ERROR), ("0,0,4,4,4", ERROR), ("100,100,4,4", ERROR),
+                   ("48,0,4,4", ERROR), ("0,0,1000,1000", OK), ("10,10,4,4", OK)):
+        add("roi", f"invert-roi-{r}", invert("--depth", "20cm", "--roi", r), exp)
+    for label, extra, exp in (("sigma-negative", ("--relative-sigma", "-1"), ERROR),
+                              ("sigma-nan", ("--relative-sigma", "nan"), ERROR),
+                              ("channel-missing", ("--channel", "nope"), ERROR),
+                              ("sigma-channel-missing", ("--sigma-channel", "nope"), ERROR),
+                              ("albedo-negative", ("--albedo", "-1"), ERROR),
+                              ("albedo-inf", ("--albedo", "inf"), ERROR),
+                              ("epsilon-text", ("--epsilon", "abc"), ERROR),
+                              ("epsilon-overflow", ("--epsilon", "1e400L/g/cm"), ERROR),
+                              ("model-unknown", ("--model", "x"), ERROR),
+                              ("model-first-order", ("--model", "seed-first-order"), ERROR),
+                              ("refined-n-water-nan", ("--model", "refined", "--n-water", "nan"), ERROR),
+                              ("refined-view-95", ("--model", "refined", "--view-deg", "95"), ERROR),
+                              ("refined-water-abs-negative", ("--model", "refined", "--water-absorption", "-1"),
+                               ERROR),
+                              ("refined-background-inf", ("--model", "refined", "--background-absorption", "inf"),
+                               ERROR),
+                              ("refined-cutoff-120", ("--model", "refined", "--cutoff-deg", "120"), ERROR),
+                              ("ratio-text", ("--ratio", "abc"), ERROR),
+                              ("ratio-impossible", ("--ratio", "nan,inf,-1,0,2"), OK)):  # NaN with a reason
+        token = {"channel-missing": "sub.exr", "sigma-channel-missing": "sub.exr", "albedo-negative": "albedo",
+                 "albedo-inf": "albedo", "model-first-order": "seed", "refined-n-water-nan": "--n-water",
+                 "refined-view-95": "--view-deg", "refined-water-abs-negative": "--water-absorption",
+                 "refined-background-inf": "--background-absorption", "refined-cutoff-120": "cutoff",
+                 "sigma-negative": "--relative-sigma", "sigma-nan": "--relative-sigma"}.get(label)
+        add("option", f"invert-{label}", invert("--depth", "20cm", *extra, token=token), exp)
+    add("profile", "invert-profile-missing", lambda b, ws: invert("--depth", "20cm", "--profile",
+                                                                   ws / "nothere.camcal")(b, ws))
+    add("profile", "invert-profile-is-folder", lambda b, ws: invert("--depth", "20cm", "--profile", ws)(b, ws))
+    add("profile", "invert-profile-is-exr", lambda b, ws: invert("--depth", "20cm", "--profile",
+                                                                  ws / "sub.exr")(b, ws))
+    add("profile", "invert-band-channel-unknown", lambda b, ws: invert(
+        "--depth", "20cm", "--profile", b.profile, "--band-channel", "Q", token="Q")(b, ws))
+    add("profile", "invert-illuminant-unknown", lambda b, ws: invert(
+        "--depth", "20cm", "--profile", b.profile, "--illuminant", "zzz")(b, ws))
+
+    def output_is_folder(b: Base, ws: Path):
+        argv, outs, _ = invert("--depth", "20cm")(b, ws)
+        outs[0].mkdir(parents=True)
+        return argv, [], outs[0]
+    add("output", "invert-output-is-folder", output_is_folder)
+
+    def demo_out_is_file(b: Base, ws: Path):
+        f = ws / "not-a-folder"
+        f.write_text("x")
+        return ["demo", "--out", f], [], f
+    add("output", "demo-out-is-file", demo_out_is_file)
+    return cases
+
+
 # --------------------------------------------------------------------------------------------------------------
 # consumers: (command name, input kind) -> how to place the input and build argv + the outputs it may write
 #
 # To cover a new command, add one row (a builder returning argv, the outputs it may write, the bad input).
-# Planned, once their CLIs are stable (files owned by other helpers at the time of writing):
-#   Consumer("apply", "image", <bad photo with the valid base.profile, -o ws/out/r.exr>)
-#   Consumer("apply", "profile", <valid photo with the bad profile>)
-#   Consumer("report", "profile", <bad profile, -o ws/out/report.html>)
-#   Consumer("water", "image" / a new "water_csv" kind, <bad photos / bad depth table>)
+# Every command writes under ws/out: after an error nothing may be there (not even an empty report).
 
 
 def _copy(src: Path, dst: Path) -> Path:
@@ -691,6 +864,88 @@ def _profile_diff(ws, b, make):
     return ["profile", "diff", b.profile, p], [], p
 
 
+def _image_apply(ws, b, make):
+    """One bad photo: a listed failure (exit 1, one ``camcal: failed:`` line), no EXR for it."""
+    suffix, data = make(b)
+    p = ws / "photos" / f"bad{suffix}"
+    p.parent.mkdir()
+    p.write_bytes(data)
+    out = ws / "out"
+    return ["apply", b.profile, p, "-o", out, "-j", "1"], [out / f"{p.name}.exr"], p
+
+
+def _image_apply_batch(ws, b, make):
+    """A bad photo between two good ones: the good EXRs are written whatever happens to the bad one."""
+    argv, outputs, p = _image_apply(ws, b, make)
+    for name in ("good_a.dng", "good_z.dng"):
+        (p.parent / name).write_bytes(b.files["dng"])
+    return [*argv[:2], p.parent / "good_a.dng", p, p.parent / "good_z.dng", *argv[3:]], outputs, p
+
+
+def _kept_good_photos(ws: Path) -> list[Path]:
+    return [ws / "out" / "good_a.dng.exr", ws / "out" / "good_z.dng.exr"]
+
+
+def _profile_apply(ws, b, make):
+    p = ws / "bad.camcal"
+    p.write_bytes(make(b))
+    photo = ws / "photos" / "a.dng"
+    photo.parent.mkdir()
+    photo.write_bytes(b.files["dng"])
+    out = ws / "out"
+    return ["apply", p, photo, "-o", out, "-j", "1"], [out / "a.dng.exr", out / "apply_report.csv"], p
+
+
+def _profile_report(ws, b, make):
+    p = ws / "bad.camcal"
+    p.write_bytes(make(b))
+    out = ws / "out" / "report.html"
+    return ["report", p, "-o", out], [out], p
+
+
+def _water_pair(ws: Path, b: Base, make) -> tuple[Path, Path, Path]:
+    """The valid submerged/reference pair with one of them replaced by the bad input (named bad.exr)."""
+    role, data = make(b, ws)
+    paths = {}
+    for r in ("sub", "ref"):
+        paths[r] = ws / ("bad.exr" if r == role else f"{r}.exr")
+        if r != role:
+            paths[r].write_bytes(b.files[f"water_{r}"])
+        elif data == "dir":
+            paths[r].mkdir()
+        elif data is not None:
+            paths[r].write_bytes(data)
+    return paths["sub"], paths["ref"], paths[role]
+
+
+def _water_invert(ws, b, make):
+    sub, ref, bad = _water_pair(ws, b, make)
+    out = ws / "out" / "chl.exr"
+    return ["water", "invert", "--submerged", sub, "--reference", ref, "--depth", "20cm", "-o", out], [out], bad
+
+
+def _water_invert_band(ws, b, make):
+    sub, ref, bad = _water_pair(ws, b, make)
+    out = ws / "out" / "chl.exr"
+    return ["water", "invert", "--submerged", sub, "--reference", ref, "--depth", "20cm", "--profile", b.profile,
+            "-o", out], [out], bad
+
+
+def _profile_water(ws, b, make):
+    p = ws / "bad.camcal"
+    p.write_bytes(make(b))
+    sub, ref = ws / "sub.exr", ws / "ref.exr"
+    sub.write_bytes(b.files["water_sub"])
+    ref.write_bytes(b.files["water_ref"])
+    out = ws / "out" / "chl.exr"
+    return ["water", "invert", "--submerged", sub, "--reference", ref, "--depth", "20cm", "--profile", p,
+            "-o", out], [out], p
+
+
+def _arguments(ws, b, make):
+    return make(b, ws)
+
+
 def _session_calibrate(ws, b, make):
     s = _copy(b.session, ws / "S")
     make(s)
@@ -712,6 +967,10 @@ class Consumer:
     build: Callable  # (ws, base, case.make) -> (argv, outputs, the bad input's path)
     every: int = 1
     """Use every n-th case of the kind only (to keep the corpus fast where a command is slow)."""
+    failure_code: int = 2
+    """Exit code of a refused input: 2, or 1 for a batch that lists a bad photo as failed and goes on."""
+    kept: Callable[[Path], list[Path]] | None = None
+    """Outputs of the *good* inputs of the same run, which must exist whatever the bad input does."""
 
 
 CONSUMERS: tuple[Consumer, ...] = (
@@ -738,6 +997,14 @@ CONSUMERS: tuple[Consumer, ...] = (
         ["c.csv", "c.meta.json", "c.png"]), every=8),
     Consumer("profile-show", "profile", _profile_show),
     Consumer("profile-diff", "profile", _profile_diff, every=10),
+    Consumer("apply", "image", _image_apply, failure_code=1),
+    Consumer("apply-batch", "image", _image_apply_batch, every=4, failure_code=1, kept=_kept_good_photos),
+    Consumer("apply", "profile", _profile_apply, every=2),
+    Consumer("report", "profile", _profile_report, every=6),  # ~4 s per report that succeeds
+    Consumer("water", "profile", _profile_water, every=3),
+    Consumer("water", "water_exr", _water_invert),
+    Consumer("water-band", "water_exr", _water_invert_band, every=3),
+    Consumer("cli", "arguments", _arguments),
     Consumer("calibrate", "session", _session_calibrate),
     Consumer("dark", "session", _session_dark, every=2),
 )
@@ -753,6 +1020,8 @@ CASES: dict[str, list[Case]] = {
     "stage": stage_cases(),
     "profile": profile_cases(),
     "session": session_cases(),
+    "water_exr": water_exr_cases(),
+    "arguments": argument_cases(),
 }
 
 
@@ -760,6 +1029,8 @@ def corpus() -> list[tuple[Consumer, Case]]:
     runs = []
     for consumer in CONSUMERS:
         for i, case in enumerate(CASES[consumer.kind]):
+            if consumer.kept and case.env:  # a resource limit applies to the good inputs as well
+                continue
             if i % consumer.every == 0:
                 runs.append((consumer, case))
     return runs
@@ -785,22 +1056,36 @@ def test_bad_input(index, base, tmp_path):
     code, stdout, stderr = (run_subprocess if real else run_main)(argv, case.env)
     lines = [ln for ln in stderr.splitlines() if ln.strip()]
     assert "Traceback" not in stderr, stderr
-    assert code in (0, 2), (code, stderr)
+    failure = consumer.failure_code
+    assert code in (0, failure), (code, stderr)
     expected = case.expected(consumer.name)
     if expected != EITHER:
-        assert code == (0 if expected == OK else 2), (expected, code, stderr)
-    if code == 2:
+        assert code == (0 if expected == OK else failure), (expected, code, stderr)
+    for kept in consumer.kept(tmp_path) if consumer.kept and not case.env else []:  # a limit applies to all
+        assert kept.is_file() and kept.stat().st_size > 0, f"good input's output {kept} missing (exit {code})"
+    if code == failure:
         assert len(lines) == 1, stderr
-        assert lines[0].startswith("camcal: error: "), lines[0]
+        assert lines[0].startswith("camcal: error: " if failure == 2 else "camcal: failed: "), lines[0]
         names = {bad_path.name, bad_path.parent.name} | {Path(a).name for a in argv if "/" in str(a)}
+        if failure != 2:  # a listed failure names the bad photo itself
+            names = {bad_path.name}
         assert any(n and n in lines[0] for n in names), (names, lines[0])
         for out in outputs:
             assert not out.exists(), f"partial output {out} after an error"
+        if failure == 2 and (tmp_path / "out").is_dir():
+            assert not [p for p in (tmp_path / "out").rglob("*") if p.is_file()], "output after an error"
     else:
         assert all(ln.startswith("camcal: warning: ") for ln in lines), stderr
         if outputs:
             assert outputs[0].is_file() and outputs[0].stat().st_size > 0
     assert not _partials(tmp_path), _partials(tmp_path)
+
+
+def _valid_invert(b: Base, ws: Path):
+    sub, ref, out = ws / "s.exr", ws / "r.exr", ws / "out" / "chl.exr"
+    sub.write_bytes(b.files["water_sub"])
+    ref.write_bytes(b.files["water_ref"])
+    return ["water", "invert", "--submerged", sub, "--reference", ref, "--depth", "20cm", "-o", out], [out], sub
 
 
 def test_corpus_size_and_controls(base, tmp_path):
@@ -814,6 +1099,8 @@ def test_corpus_size_and_controls(base, tmp_path):
         "image": lambda b: (".dng", b.files["dng"]), "frames_csv_dark": lambda t: t.encode(),
         "frames_csv_lin": lambda t: t.encode(), "sweep_csv": lambda t: t.encode(), "stage": lambda p: None,
         "profile": lambda b: b.files["profile"], "session": lambda s: None,
+        "water_exr": lambda b, ws: ("sub", b.files["water_sub"]),
+        "arguments": _valid_invert,
     }
     for i, consumer in enumerate(CONSUMERS):
         ws = tmp_path / f"c{i}"
@@ -821,7 +1108,7 @@ def test_corpus_size_and_controls(base, tmp_path):
         argv, outputs, _ = consumer.build(ws, base, identity[consumer.kind])
         code, _, stderr = run_main(argv)
         assert code == 0, (consumer.name, consumer.kind, stderr)
-        for out in outputs:
+        for out in outputs + (consumer.kept(ws) if consumer.kept else []):
             assert out.is_file(), out
 
 

@@ -18,8 +18,8 @@ def _model(kind: str, epsilon: str, albedo: float, cutoff_deg: float | None, vie
     from camcal.water.units import parse_epsilon_L_per_mol_cm
 
     eps = parse_epsilon_L_per_mol_cm(epsilon)
-    if not (eps > 0 and albedo > 0):
-        raise CamcalError("epsilon and albedo must be positive")
+    if not (eps > 0 and 0 < albedo < np.inf):
+        raise CamcalError("epsilon and albedo must be positive (and finite)")
     if reflectance not in ("fresnel", "schlick"):
         raise CamcalError(f"unknown reflectance {reflectance!r}; use fresnel or schlick")
     if kind in ("seed", "seed-first-order"):
@@ -29,13 +29,61 @@ def _model(kind: str, epsilon: str, albedo: float, cutoff_deg: float | None, vie
         return SeedModel(eps, albedo, float(cut))
     if kind == "refined":
         cut = np.pi / 2 if cutoff_deg is None else np.radians(cutoff_deg)
+        if not 0 < cut <= np.pi / 2:
+            raise CamcalError("cutoff angle must be above 0 and at most 90 degrees")
+        if not 0 <= view_deg < 90:
+            raise CamcalError(f"--view-deg must be from 0 to below 90 degrees (from nadir), got {view_deg!r}")
+        if not 1 <= n_water < 3:
+            raise CamcalError(f"--n-water must be a refractive index from 1 to 3 (water: 1.33), got {n_water!r}")
+        for name, value in (("--water-absorption", water_absorption), ("--background-absorption",
+                                                                        background_absorption)):
+            if not 0 <= value < np.inf:
+                raise CamcalError(f"{name} must be a finite absorption >= 0 per m, got {value!r}")
         return RefinedModel(eps, albedo, n_water, float(cut), float(np.radians(view_deg)), water_absorption,
                             background_absorption, reflectance)
     raise CamcalError(f"unknown model {kind!r}; use seed, seed-first-order or refined")
 
 
-def _list(text: str, parse) -> np.ndarray:
-    return np.array([parse(t) for t in text.split(",") if t.strip()], dtype=float)
+#: Plausible disk depths, m: a micrometre to the deepest ocean (anything else is a typing error).
+DEPTH_RANGE_M = (1e-6, 1.1e4)
+#: Largest plausible chlorophyll-a concentration, mol/L (≈ 0.9 kg/L: denser than any pigment solution).
+MAX_CONCENTRATION_MOL_PER_L = 1.0
+
+
+def _list(text: str, parse, what: str) -> np.ndarray:
+    values = np.array([parse(t) for t in text.split(",") if t.strip()], dtype=float)
+    if values.size == 0:
+        raise CamcalError(f"--{what} needs at least one value, got {text!r}")
+    return values
+
+
+def _depth(text: str) -> float:
+    """A disk depth in metres: positive and plausible (:data:`DEPTH_RANGE_M`), else CamcalError."""
+    from camcal.water.units import parse_length_m
+
+    d = parse_length_m(text)
+    if not d > 0:
+        raise CamcalError(f"depth must be positive, got {text!r}")
+    if not DEPTH_RANGE_M[0] <= d <= DEPTH_RANGE_M[1]:
+        raise CamcalError(f"depth {text!r} is implausible: give {DEPTH_RANGE_M[0]:g} m to {DEPTH_RANGE_M[1]:g} m")
+    return d
+
+
+def _ratio(text: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise CamcalError(f"--ratio must be a comma list of numbers, got {text.strip()!r}") from None
+
+
+def _json_list(values) -> list:
+    """Floats for JSON: non-finite values become null (JSON has no NaN)."""
+    return [float(v) if np.isfinite(v) else None for v in np.asarray(values, dtype=float).ravel()]
+
+
+def _json_nested(values) -> list:
+    a = np.asarray(values, dtype=float)
+    return np.where(np.isfinite(a), a, None).tolist()
 
 
 def _roi(text: str | None) -> tuple[int, int, int, int] | None:
@@ -77,18 +125,22 @@ def register(app: typer.Typer) -> None:
         background_absorption: float = common["background_absorption"], reflectance: str = common["reflectance"],
     ) -> None:
         """Predicted ratio (disk radiance over reference) for each concentration and depth, as JSON."""
-        from camcal.water.units import mol_per_L_to_ug_per_L, parse_concentration_mol_per_L, parse_length_m
+        from camcal.water.units import mol_per_L_to_ug_per_L, parse_concentration_mol_per_L
 
         m = _model(model, epsilon, albedo, cutoff_deg, view_deg, n_water, water_absorption, background_absorption,
                    reflectance)
-        c = _list(concentration, parse_concentration_mol_per_L)
-        d = _list(depth, parse_length_m)
-        if np.any(c < 0) or np.any(d <= 0):
-            raise CamcalError("concentrations must be >= 0 and depths > 0")
-        ratio = m.ratio_first_order(c[None, :], d[:, None]) if model == "seed-first-order" else m.ratio(
-            c[None, :], d[:, None])
+        c = _list(concentration, parse_concentration_mol_per_L, "concentration")
+        d = _list(depth, _depth, "depth")
+        if np.any(c < 0):
+            raise CamcalError(f"concentrations must be >= 0, got {concentration!r}")
+        if np.any(c > MAX_CONCENTRATION_MOL_PER_L):
+            raise CamcalError(f"concentration {concentration!r} is implausible: at most "
+                              f"{MAX_CONCENTRATION_MOL_PER_L:g} mol/L")
+        with np.errstate(all="ignore"):  # extreme optical depths: the ratio underflows to 0 (or NaN -> null)
+            ratio = m.ratio_first_order(c[None, :], d[:, None]) if model == "seed-first-order" else m.ratio(
+                c[None, :], d[:, None])
         print_json({"model": model, "depth_m": d.tolist(), "c_mol_per_L": c.tolist(),
-                    "c_ug_per_L": mol_per_L_to_ug_per_L(c).tolist(), "ratio": np.asarray(ratio).tolist()})
+                    "c_ug_per_L": mol_per_L_to_ug_per_L(c).tolist(), "ratio": _json_nested(ratio)})
 
     @water.command("invert")
     def invert_cmd(
@@ -118,11 +170,9 @@ def register(app: typer.Typer) -> None:
         --band-channel with Pope & Fry (1997) water (refined model) and a chlorophyll spectrum.
         """
         from camcal.water.invert import Reason, invert_images, invert_ratio
-        from camcal.water.units import parse_length_m
-
-        d = parse_length_m(depth)
-        if not d > 0:
-            raise CamcalError(f"depth must be positive, got {depth!r}")
+        d = _depth(depth)
+        if relative_sigma is not None and not (np.isfinite(relative_sigma) and relative_sigma >= 0):
+            raise CamcalError(f"--relative-sigma must be a finite number >= 0, got {relative_sigma!r}")
         if model == "seed-first-order":
             raise CamcalError("invert uses the exact models: choose --model seed or refined")
         m = _model(model, epsilon, albedo, cutoff_deg, view_deg, n_water, water_absorption, background_absorption,
@@ -141,15 +191,13 @@ def register(app: typer.Typer) -> None:
             meta.update({"inversion": "narrowband", "epsilon_L_per_mol_cm": m.epsilon_L_per_mol_cm})
             channel = channel or "L663"
         if ratio is not None:
-            r = _list(ratio, float)
+            r = _list(ratio, _ratio, "ratio")
             if profile is not None:
                 inv = m.inverse(d).concentration(r, sigma_ln_ratio=relative_sigma)
             else:
                 inv = invert_ratio(r, m, d, sigma_ln_ratio=relative_sigma)
-            print_json({**meta, "ratio": r.tolist(),
-                        "c_mol_per_L": [None if not np.isfinite(v) else float(v) for v in inv.c_mol_per_L],
-                        "c_ug_per_L": [None if not np.isfinite(v) else float(v) for v in inv.c_ug_per_L],
-                        "sigma_ug_per_L": [None if not np.isfinite(v) else float(v) for v in inv.sigma_ug_per_L],
+            print_json({**meta, "ratio": _json_list(r), "c_mol_per_L": _json_list(inv.c_mol_per_L),
+                        "c_ug_per_L": _json_list(inv.c_ug_per_L), "sigma_ug_per_L": _json_list(inv.sigma_ug_per_L),
                         "reason": [Reason(int(v)).name.lower() for v in inv.reason]})
             return
         if submerged is None or reference is None or out is None:
@@ -161,15 +209,20 @@ def register(app: typer.Typer) -> None:
             task = bar.add_task("inverting", total=3)
             sub, _ = read_exr(submerged, names)
             ref, _ = read_exr(reference, names)
-            if sub[channel].shape != ref[channel].shape:
-                raise CamcalError(f"reference is {ref[channel].shape}, submerged is {sub[channel].shape}", reference)
+            (h, w), (rh, rw) = sub[channel].shape, ref[channel].shape
+            if (h, w) != (rh, rw):
+                raise CamcalError(f"is {w}x{h} pixels but the reference {reference.name} is {rw}x{rh}; the two images "
+                                  "must have one size (same camera, same crop)", submerged)
+            region = _roi(roi)
+            if region is not None and (region[0] >= w or region[1] >= h):
+                raise CamcalError(f"--roi {roi} lies outside the image ({w}x{h} pixels)", submerged)
             bar.advance(task)
             kwargs = {}
             if sigma_channel:
                 kwargs = {"sigma_submerged": sub[sigma_channel], "sigma_reference": ref[sigma_channel]}
             elif relative_sigma is not None:
                 kwargs = {"sigma_submerged": relative_sigma * np.abs(sub[channel].astype(float))}
-            inv = invert_images(sub[channel], ref[channel], m, d, roi=_roi(roi), **kwargs)
+            inv = invert_images(sub[channel], ref[channel], m, d, roi=region, **kwargs)
             bar.advance(task)
             meta.update({"channel": channel, "reasons": {r.name.lower(): int(r) for r in Reason},
                          "summary": inv.summary()})

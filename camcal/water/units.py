@@ -74,11 +74,18 @@ _CONC = {"mol/l": 1.0, "m": 1.0, "umol/l": 1e-6, "nmol/l": 1e-9,
 _EPS = {"l/mol/cm": "mol", "lmol-1cm-1": "mol", "l/g/cm": "g", "lg-1cm-1": "g", "l/mg/cm": "mg", "lmg-1cm-1": "mg"}
 
 
+_EXAMPLE = {"depth": "'0.2m'", "concentration": "'89ug/L'", "epsilon": "'88L/g/cm'"}
+
+
 def _split(text: str, what: str) -> tuple[float, str]:
     m = re.fullmatch(_NUM + r"([^\s]*)\s*", str(text))
     if not m:
-        raise CamcalError(f"cannot read {what} {text!r}: expected a number with a unit, e.g. '0.2m'")
-    return float(m.group(1)), m.group(2).strip().lower().replace(" ", "")
+        raise CamcalError(f"cannot read {what} {text!r}: expected a number with a unit, "
+                          f"e.g. {_EXAMPLE.get(what, repr('0.2m'))}")
+    value = float(m.group(1))
+    if not math.isfinite(value):  # '1e400' overflows to inf
+        raise CamcalError(f"{what} {text!r} is out of range (not a finite number)")
+    return value, m.group(2).strip().lower().replace(" ", "")
 
 
 def parse_length_m(text: str, default_unit: str = "m") -> float:
