@@ -460,21 +460,14 @@ def read_mask(path: str | Path) -> np.ndarray:
     """A mask image (PNG/TIFF/JPEG, any channels) as a 2-D float array."""
     import OpenImageIO as oiio
 
+    from camcal.io import open_image, read_pixels
+
     path = Path(path)
     if not path.is_file():
         raise CamcalError("no such mask file", path)
-    inp = oiio.ImageInput.open(str(path))
-    if inp is None:
-        oiio.geterror()
-        raise CamcalError("cannot open the mask as an image", path)
-    try:
-        spec = inp.spec()
-        data = inp.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT)
-        if data is None:
-            raise CamcalError(f"cannot decode the mask: {inp.geterror()}", path)
-    finally:
-        inp.close()
-    return np.asarray(data, np.float32).reshape(spec.height, spec.width, spec.nchannels).max(axis=-1)
+    with open_image(path, None, "a mask image") as (inp, spec):
+        data = read_pixels(inp, spec, path, spec.nchannels, oiio.FLOAT)
+    return np.asarray(data, np.float32).max(axis=-1)
 
 
 def roi_statistics(channels: dict[str, np.ndarray], mask: np.ndarray) -> list[dict]:

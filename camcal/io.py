@@ -252,28 +252,49 @@ def _load_raw(path: Path) -> Frame:
     )
 
 
-def _load_processed(path: Path) -> Frame:
+@contextlib.contextmanager
+def open_image(path: Path, formats: tuple[str, ...] | None = None, what: str = "an image"):
+    """Open ``path`` with OpenImageIO and yield ``(input, spec)``, checked before any pixel is read.
+
+    C-library messages are silenced; the format must be one of ``formats`` (OpenImageIO opens any
+    format it knows whatever the file's name); the declared size must be within :func:`max_pixels`.
+    """
     import OpenImageIO as oiio
 
     with quiet_stderr():  # libpng/libjpeg print their own messages to fd 2 on damaged files
         inp = oiio.ImageInput.open(str(path))
     if inp is None:
         oiio.geterror()
-        raise CamcalError("cannot open as an image (damaged, or not JPEG/TIFF/PNG)", path)
+        raise CamcalError(f"cannot open as {what} (damaged, or not a supported image)", path)
     try:
         spec = inp.spec()
         fmt_name = inp.format_name()
-        if fmt_name not in ("jpeg", "tiff", "png"):  # OpenImageIO opens any format it knows, whatever the name
-            raise CamcalError(f"is a {fmt_name} file, not a JPEG, TIFF or PNG image", path)
+        if formats is not None and fmt_name not in formats:
+            raise CamcalError(f"is a {fmt_name} file, not {what}", path)
         _check_pixels(path, spec.width, spec.height)
+        yield inp, spec
+    finally:
+        inp.close()
+
+
+def read_pixels(inp, spec, path: Path, nchannels: int, fmt) -> np.ndarray:
+    """``inp.read_image`` of the first ``nchannels`` channels, C-library chatter silenced; damage is an error."""
+    with quiet_stderr():
+        data = inp.read_image(0, 0, 0, nchannels, fmt)
+    err = inp.geterror()
+    if data is None or err:
+        raise CamcalError(f"cannot decode image data (damaged or truncated?): {err.strip()[:120]}", path)
+    return np.asarray(data).reshape(spec.height, spec.width, nchannels)
+
+
+def _load_processed(path: Path) -> Frame:
+    import OpenImageIO as oiio
+
+    with open_image(path, ("jpeg", "tiff", "png"), "a JPEG, TIFF or PNG image") as (inp, spec):
         if spec.nchannels < 3:
             raise CamcalError(f"has {spec.nchannels} channel(s); camcal needs an RGB image", path)
         fmt = oiio.UINT16 if spec.format.size() > 1 else oiio.UINT8
-        with quiet_stderr():
-            data = inp.read_image(0, 0, 0, 3, fmt)
-        err = inp.geterror()
-        if data is None or err:
-            raise CamcalError(f"cannot decode image data (damaged or truncated?): {err.strip()[:120]}", path)
+        data = read_pixels(inp, spec, path, 3, fmt)
         bits = 16 if fmt == oiio.UINT16 else 8
 
         def attr(*names):
@@ -291,8 +312,6 @@ def _load_processed(path: Path) -> Frame:
             model=attr("Model"),
             capture_time=_iso_time(attr("Exif:DateTimeOriginal", "DateTime")),
         )
-    finally:
-        inp.close()
     data = np.ascontiguousarray(data)
     return Frame(
         data=data,

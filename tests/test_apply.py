@@ -230,3 +230,20 @@ def test_bad_roi_and_profile(tmp_path, photos, profile_path):
     bad.write_bytes(b"not a profile")
     proc = run_cli("apply", bad, photos[("line", "raw", 100, 4.0)], "-o", tmp_path / "o")
     assert_one_line_error(proc, "bad.camcal")
+
+
+def test_mask_over_the_pixel_limit_is_refused_before_reading(tmp_path, monkeypatch):
+    """The mask reader shares camcal.io.open_image: declared size checked before any pixel is read."""
+    import OpenImageIO as oiio
+
+    from camcal.apply import read_mask
+
+    path = tmp_path / "mask.png"
+    out = oiio.ImageOutput.create(str(path))
+    out.open(str(path), oiio.ImageSpec(64, 48, 1, oiio.UINT8))
+    out.write_image(np.full((48, 64), 255, np.uint8))
+    out.close()
+    assert read_mask(path).shape == (48, 64)
+    monkeypatch.setenv("CAMCAL_MAX_PIXELS", "1000")
+    with pytest.raises(CamcalError, match="above the limit"):
+        read_mask(path)
