@@ -35,7 +35,7 @@ import numpy as np
 
 from camcal.errors import CamcalError
 from camcal.frame import PLANES, Frame
-from camcal.io import exposure_from_exif, folder_manifest, list_frames
+from camcal.io import exposure_from_exif, folder_files
 from camcal.stack import MAD_TO_SIGMA, METHODS, StackResult, combine_frames
 
 HOT, DEAD, NOISY = 1, 2, 4
@@ -142,16 +142,7 @@ def _exposure_time(path: Path, manifest: dict) -> float:
 
 
 def _files(folder: Path) -> tuple[list[Path], dict]:
-    folder = Path(folder)
-    files = list_frames(folder)
-    manifest = folder_manifest(folder)
-    names = {p.name for p in files}
-    for name in manifest:
-        if name not in names:
-            raise CamcalError(f"frames.csv lists {name!r}, which is not in the folder", folder)
-    if not files:
-        raise CamcalError("holds no image files", folder)
-    return files, manifest
+    return folder_files(folder)
 
 
 def dark_frame_check(saturation_fraction: float = 0.01) -> Callable[[Frame], None]:

@@ -622,15 +622,12 @@ def master_flat(
     file's black level) are divided by their per-plane median so lamp drift between frames does not
     bias the combine; the combined master is thus normalised per channel (median ≈ 1).
     """
-    from camcal.io import folder_manifest, list_frames, load_folder_frame
+    from camcal.io import folder_files, load_folder_frame
     from camcal.stack import combine_folder
 
     folder = Path(flat_folder)
     dark_model = _resolve_dark(dark)
-    paths = list_frames(folder)
-    if not paths:
-        raise CamcalError("holds no image files", folder)
-    manifest = folder_manifest(folder)
+    paths, manifest = folder_files(folder)
     first = load_folder_frame(paths[0], manifest)
     check_flat_frame(first, checks)
     ref_shape = first.shape

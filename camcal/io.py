@@ -386,7 +386,8 @@ def folder_files(
 ) -> tuple[list[Path], dict[str, dict[str, float | str | None]]]:
     """The image files of a folder and its manifest rows (read from ``frames.csv`` unless given).
 
-    Files listed in ``frames.csv`` but absent, and a folder without images, are errors.
+    Rows of ``frames.csv`` naming anything but an image file of the folder (absent, another extension,
+    a sub-folder), and a folder without images, are errors.
     """
     folder = Path(folder)
     files = list_frames(folder)
@@ -394,8 +395,8 @@ def folder_files(
         manifest = folder_manifest(folder)
     names = {p.name for p in files}
     for name in manifest:
-        if name not in names and not (folder / name).is_file():
-            raise CamcalError(f"frames.csv lists {name!r}, which is not in the folder", folder)
+        if name not in names:
+            raise CamcalError(f"frames.csv lists {name!r}, which is not an image file in the folder", folder)
     if not files:
         raise CamcalError("holds no image files", folder)
     return files, manifest

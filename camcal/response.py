@@ -396,17 +396,11 @@ def measure_series(
     CamcalError
         Folder without images, unreadable files, missing exposure metadata, bad ROI.
     """
-    from camcal.io import folder_manifest, list_frames, load_folder_frame
+    from camcal.io import folder_files, load_folder_frame
 
     folder = Path(folder)
     window = roi_window(roi)
-    files = list_frames(folder)
-    if not files:
-        raise CamcalError("holds no image files", folder)
-    manifest = folder_manifest(folder)
-    for name in manifest:
-        if not (folder / name).is_file():
-            raise CamcalError(f"frames.csv lists {name!r}, which is not in the folder", folder)
+    files, manifest = folder_files(folder)
     rows: dict[str, list[dict]] = {}
     for i, path in enumerate(files):
         frame = load_folder_frame(path, manifest)
