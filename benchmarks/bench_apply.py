@@ -30,8 +30,8 @@ import numpy as np
 WORK = Path(__file__).resolve().parent / "_work" / "apply24mp"
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # run from a checkout without installing
 WIDTH, HEIGHT = 6000, 4000
-N_BATCH = 4
-REPEATS = 3
+N_BATCH = 8
+REPEATS = 5
 
 
 def _small_profile(work: Path):

@@ -55,6 +55,7 @@ flat-field model error, exposure-metadata error (ISO and f-number are nominal va
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -62,7 +63,7 @@ import numpy as np
 
 from camcal.errors import CamcalError
 from camcal.exposure import frame_relative_exposure
-from camcal.frame import Frame
+from camcal.frame import PLANES, Frame, plane_offsets
 from camcal.radiance import RadianceModel, radiance_model
 
 BAND_UNITS = "W m^-2 sr^-1 nm^-1"
@@ -210,56 +211,142 @@ def _noise_params(profile, iso: float) -> tuple[np.ndarray | None, np.ndarray | 
     return rn * rn, k * np.float32(scale), scale
 
 
-def _raw_rgb(frame: Frame, plan: ApplyPlan, t: float, iso: float, notes: list[str]):
-    """RAW planes -> (R, G, B signal above dark, flat-corrected, NaN where invalid (3,h,w); variance or None).
+#: Half-resolution rows per work unit of the RAW path: a band's temporaries stay in the CPU cache.
+BAND_ROWS = 16
 
-    Written in place on float32 buffers: this is the per-photo hot path of a batch.
+
+def default_threads() -> int:
+    """Threads of one photo's arithmetic: ``CAMCAL_THREADS`` if set, else the usable cores (at most 4)."""
+    env = os.environ.get("CAMCAL_THREADS", "").strip()
+    if env:
+        try:
+            return max(1, int(env))
+        except ValueError:
+            raise CamcalError(f"CAMCAL_THREADS must be a whole number of threads, got {env!r}") from None
+    try:
+        n = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        n = os.cpu_count() or 1
+    return max(1, min(4, n))
+
+
+def _run_bands(work, n_rows: int, threads: int) -> None:
+    """Run ``work(r0, r1)`` over bands of :data:`BAND_ROWS` rows, on ``threads`` threads (numpy releases the GIL)."""
+    bands = [(r, min(r + BAND_ROWS, n_rows)) for r in range(0, n_rows, BAND_ROWS)]
+    if threads <= 1 or len(bands) < 2:
+        for b in bands:
+            work(*b)
+        return
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(max_workers=min(threads, len(bands))) as pool:
+        for _ in pool.map(lambda b: work(*b), bands):
+            pass
+
+
+def _raw_check(frame: Frame, plan: ApplyPlan) -> None:
+    """Refuse a photo whose planes do not match the profile's maps (another camera, crop or resolution)."""
+    shape = (4, frame.shape[0] // 2, frame.shape[1] // 2)
+    dark = plan.profile.dark
+    if frame.shape[0] % 2 or frame.shape[1] % 2:
+        raise CamcalError(f"a CFA mosaic must have even sides, got {frame.shape}", frame.path)
+    if dark is not None and shape != dark.bias_dn.shape:
+        raise CamcalError(f"photo planes {shape[1:]} do not match the profile's dark model "
+                          f"{dark.bias_dn.shape[1:]} (another camera, crop or resolution)", frame.path)
+    if plan.inv_flat_planes is not None and plan.inv_flat_planes.shape != shape:
+        raise CamcalError(f"photo planes {shape[1:]} do not match the profile's flat field "
+                          f"{plan.inv_flat_planes.shape[1:]} (another camera, crop or resolution)", frame.path)
+
+
+def _raw_pixels(frame: Frame, plan: ApplyPlan, t: float, iso: float, inv_x: float, notes: list[str],
+                threads: int) -> np.ndarray:
+    """RAW mosaic -> interleaved (h, w, 5) float32: R, G, B band radiance, L(λ0), its uncertainty.
+
+    The per-photo hot path of a batch. Each band of :data:`BAND_ROWS` half-resolution rows runs the
+    whole chain (module docstring) on float32 buffers that stay in the cache, and writes its rows of
+    the output; the bands run on ``threads`` threads.
     """
-    profile = plan.profile
-    planes = frame.planes(np.float32)
-    invalid = planes >= np.float32(frame.white_level_dn)
+    _raw_check(frame, plan)
+    profile, model = plan.profile, plan.model
     dark = profile.dark
-    var = None
+    mosaic = frame.data
+    h, w = frame.shape[0] // 2, frame.shape[1] // 2
+    off = plane_offsets(frame.cfa_pattern)
+    white = np.float32(frame.white_level_dn)
     if dark is not None:
-        if planes.shape != dark.bias_dn.shape:
-            raise CamcalError(f"photo planes {planes.shape[1:]} do not match the profile's dark model "
-                              f"{dark.bias_dn.shape[1:]} (another camera, crop or resolution)", frame.path)
         scale = np.float32(iso / dark.iso)
-        dark_signal = dark.dark_current_dn_per_s * np.float32(t * iso / dark.iso)
-        planes -= dark.bias_dn
-        planes -= dark_signal
-        invalid |= plan.bad_planes
-        # var = σ_read²·s² + K·s·max(signal + dark, 0)   (EMVA 1288 linear model, s = ISO/ISO_dark)
-        var = dark_signal
-        var += planes
-        np.maximum(var, 0, out=var)
-        var *= plan.gain_dn_per_e * scale
-        var += plan.read_var_dn2 * (scale * scale)
+        dark_factor = np.float32(t * iso / dark.iso)
+        gain_s = (plan.gain_dn_per_e * scale).astype(np.float32)
+        read_s2 = np.float32(scale * scale)
     else:
-        planes -= frame.black_vector().astype(np.float32)
+        black = frame.black_vector().astype(np.float32)
         notes.append("no dark model: the file's black level was subtracted, dark current ignored; no noise map")
-    if plan.inv_flat_planes is not None:
-        if plan.inv_flat_planes.shape != planes.shape:
-            raise CamcalError(f"photo planes {planes.shape[1:]} do not match the profile's flat field "
-                              f"{plan.inv_flat_planes.shape[1:]} (another camera, crop or resolution)", frame.path)
-        planes *= plan.inv_flat_planes
+    band_k = [np.float32(inv_x / model.band_integral[i]) for i in range(3)]
+    used = [(i, np.float32(model.weights[i] * inv_x)) for i in range(3) if model.weights[i] != 0]
+    rel = np.float32(model.weights_unc_rel if math.isfinite(model.weights_unc_rel) else 0.0)
+    nan = np.float32(np.nan)
+    out = np.empty((h, w, 5), np.float32)
+
+    def work(r0: int, r1: int) -> None:
+        n = r1 - r0
+        planes = np.empty((4, n, w), np.float32)
+        for k, name in enumerate(PLANES):
+            r, c = off[name]
+            planes[k] = mosaic[2 * r0 + r: 2 * r1: 2, c::2]
+        invalid = planes >= white
+        var = None
+        if dark is not None:
+            planes -= dark.bias_dn[:, r0:r1]
+            ds = dark.dark_current_dn_per_s[:, r0:r1] * dark_factor
+            planes -= ds
+            invalid |= plan.bad_planes[:, r0:r1]
+            # var = σ_read²·s² + K·s·max(signal + dark, 0)   (EMVA 1288 linear model, s = ISO/ISO_dark)
+            var = ds
+            var += planes
+            np.maximum(var, 0, out=var)
+            var *= gain_s
+            var += plan.read_var_dn2[:, r0:r1] * read_s2
+        else:
+            planes -= black
+        if plan.inv_flat_planes is not None:
+            inv = plan.inv_flat_planes[:, r0:r1]
+            planes *= inv
+            if var is not None:
+                var *= inv
+                var *= inv
+        np.copyto(planes, nan, where=invalid)
+        # G: mean of the good greens (one defective green leaves the other)
+        g = planes[1] + planes[2]
+        g *= np.float32(0.5)
+        np.copyto(g, planes[2], where=invalid[1])
+        np.copyto(g, planes[1], where=invalid[2])
+        signal = (planes[0], g, planes[3])
         if var is not None:
-            var *= plan.inv_flat_planes
-            var *= plan.inv_flat_planes
-    np.copyto(planes, np.float32(np.nan), where=invalid)
-    # G: mean of the good greens (one defective green leaves the other)
-    g = planes[1] + planes[2]
-    g *= np.float32(0.5)
-    np.copyto(g, planes[2], where=invalid[1])
-    np.copyto(g, planes[1], where=invalid[2])
-    signal = np.stack([planes[0], g, planes[3]])
-    if var is not None:
-        vg = var[1] + var[2]
-        vg *= np.float32(0.25)
-        np.copyto(vg, var[2], where=invalid[1])
-        np.copyto(vg, var[1], where=invalid[2])
-        var = np.stack([var[0], vg, var[3]])
-    return signal, var
+            vg = var[1] + var[2]
+            vg *= np.float32(0.25)
+            np.copyto(vg, var[2], where=invalid[1])
+            np.copyto(vg, var[1], where=invalid[2])
+            var = [var[0], vg, var[3]]
+            if plan.prnu_rel is not None:  # pixel response non-uniformity left uncorrected
+                for i in range(3):
+                    var[i] += (plan.prnu_rel[i] * signal[i]) ** 2
+        o = out[r0:r1]
+        for i in range(3):
+            np.multiply(signal[i], band_k[i], out=o[..., i])
+        value = np.zeros((n, w), np.float32)
+        noise = np.zeros((n, w), np.float32)
+        for i, wi in used:
+            value += signal[i] * wi
+            if var is not None:
+                noise += var[i] * (wi * wi)
+        if rel:
+            noise += (value * rel) ** 2
+        np.sqrt(noise, out=noise)
+        o[..., 3] = value
+        o[..., 4] = noise
+
+    _run_bands(work, h, threads)
+    return out
 
 
 def _processed_signal(frame: Frame, plan: ApplyPlan, iso: float, notes: list[str]):
@@ -293,16 +380,23 @@ def _processed_signal(frame: Frame, plan: ApplyPlan, iso: float, notes: list[str
     return signal, var, saturated
 
 
-def apply_prepared(frame: Frame, plan: ApplyPlan, *, allow_other_camera: bool = False) -> RadianceImage:
-    """:func:`apply` with a precomputed :class:`ApplyPlan` (see :func:`prepare`)."""
+def apply_prepared(frame: Frame, plan: ApplyPlan, *, allow_other_camera: bool = False,
+                   threads: int | None = None) -> RadianceImage:
+    """:func:`apply` with a precomputed :class:`ApplyPlan` (see :func:`prepare`).
+
+    ``threads``: threads of the RAW arithmetic (default :func:`default_threads`; a batch worker of a
+    pool gets its share of the cores). The channels are views of one interleaved (h, w, 5) float32
+    array, which :func:`camcal.exr.write_exr` writes without a copy.
+    """
     profile = plan.profile
     path = frame.path
     notes = check_camera(frame.exposure, profile, path, allow_other_camera)
     x = frame_relative_exposure(frame.exposure, profile.reference_iso, profile.reference_f_number, path)
     t = frame.exposure.require("exposure_s", path)
     iso = frame.exposure.require("iso", path)
+    inv_x = 1.0 / x
     if frame.kind == "raw":
-        signal, var = _raw_rgb(frame, plan, t, iso, notes)
+        pixels = _raw_pixels(frame, plan, t, iso, inv_x, notes, default_threads() if threads is None else threads)
     else:
         signal, var, saturated = _processed_signal(frame, plan, iso, notes)
         if plan.flat_rgb is not None:
@@ -313,15 +407,16 @@ def apply_prepared(frame: Frame, plan: ApplyPlan, *, allow_other_camera: bool = 
             if var is not None:
                 var /= plan.flat_rgb * plan.flat_rgb
         signal[saturated] = np.nan
+        if var is not None and plan.prnu_rel is not None:
+            var += (plan.prnu_rel * signal) ** 2  # pixel response non-uniformity left uncorrected
+        pixels = np.empty((*signal.shape[1:], 5), np.float32)
+        for i in range(3):
+            np.multiply(signal[i], np.float32(inv_x / plan.model.band_integral[i]), out=pixels[..., i])
+        pixels[..., 3], pixels[..., 4] = _radiance(signal, var, plan.model, inv_x)
     if plan.flat_planes is None and plan.flat_rgb is None:
         notes.append("no flat model: vignetting not corrected")
-    if var is not None and plan.prnu_rel is not None:
-        var += (plan.prnu_rel * signal) ** 2  # pixel response non-uniformity left uncorrected
-    inv_x = 1.0 / x
-    band = [signal[i] * np.float32(inv_x / plan.model.band_integral[i]) for i in range(3)]
-    value, unc = _radiance(signal, var, plan.model, inv_x)
     name = radiance_channel_name(plan.model.wavelength_nm)
-    channels = {"R": band[0], "G": band[1], "B": band[2], name: value, f"{name}_unc": unc}
+    channels = {c: pixels[..., i] for i, c in enumerate(("R", "G", "B", name, f"{name}_unc"))}
     e = frame.exposure
     meta = {
         "units": {"R": BAND_UNITS, "G": BAND_UNITS, "B": BAND_UNITS, name: plan.model.units,

@@ -25,7 +25,7 @@ import io
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 from camcal.errors import CamcalError
@@ -52,6 +52,7 @@ class BatchOptions:
     mask_path: str | None = None
     half: bool = False
     compression: str = "zip"
+    threads: int | None = None  # threads of one photo's arithmetic; None: the batch runner's share of the cores
 
 
 @dataclass(frozen=True)
@@ -93,8 +94,12 @@ def output_path(photo: str | Path, outdir: str | Path) -> Path:
 _PLANS: dict[tuple, object] = {}
 
 
-def _plan(profile_path: str, options: BatchOptions):
-    """The profile's ApplyPlan, loaded once per process and per (file, mtime, options)."""
+def _plan(profile_path: str, options: BatchOptions, *, with_maps: bool = True):
+    """The profile's ApplyPlan, loaded once per process and per (file, mtime, options).
+
+    ``with_maps=False``: a plan of the profile without its per-pixel maps (identity and options
+    checked, no dark or flat), not cached — for the runner when workers do the photos.
+    """
     p = Path(profile_path)
     try:
         st = p.stat()
@@ -102,12 +107,12 @@ def _plan(profile_path: str, options: BatchOptions):
         raise CamcalError("no such profile file", p) from None
     key = (str(p.resolve()), st.st_mtime_ns, st.st_size, options.wavelength_nm, options.estimator,
            options.filter_fwhm_nm, options.line_fwhm_nm, options.with_prnu)
-    plan = _PLANS.get(key)
+    plan = _PLANS.get(key) if with_maps else None
     if plan is None:
         from camcal.apply import prepare
         from camcal.profile import load_profile
 
-        profile = load_profile(p)
+        profile = load_profile(p, with_maps=with_maps)
         try:
             plan = prepare(profile, options.wavelength_nm, options.estimator, filter_fwhm_nm=options.filter_fwhm_nm,
                            line_fwhm_nm=options.line_fwhm_nm, with_prnu=options.with_prnu)
@@ -115,8 +120,9 @@ def _plan(profile_path: str, options: BatchOptions):
             if exc.path is not None:
                 raise
             raise CamcalError(exc.message, p) from None
-        _PLANS.clear()
-        _PLANS[key] = plan
+        if with_maps:
+            _PLANS.clear()
+            _PLANS[key] = plan
     return plan
 
 
@@ -197,13 +203,7 @@ def process_photo(photo: str, profile_path: str, outdir: str, options: BatchOpti
         plan = _plan(profile_path, options)
         mask_image = _load_mask(options)
         if _is_current(out, plan.profile.content_sha256, options):
-            stats = ()
-            if options.roi is not None or options.mask_path is not None:
-                from camcal.exr import read_exr
-
-                channels, _ = read_exr(out)
-                stats = _stats(channels, options, mask_image, src)
-            return PhotoResult(str(src), str(out), "skipped", None, time.perf_counter() - t0, stats)
+            return _skipped(src, out, options, mask_image, t0)
         from camcal.apply import apply_prepared
         from camcal.exr import write_exr
         from camcal.io import folder_manifest, load_frame
@@ -211,7 +211,7 @@ def process_photo(photo: str, profile_path: str, outdir: str, options: BatchOpti
 
         manifest = folder_manifest(src.parent) if (src.parent / "frames.csv").is_file() else {}
         frame = load_frame(src, exposure_overrides(manifest.get(src.name)))
-        image = apply_prepared(frame, plan, allow_other_camera=options.allow_other_camera)
+        image = apply_prepared(frame, plan, allow_other_camera=options.allow_other_camera, threads=options.threads)
         stats = _stats(image.channels, options, mask_image, src)
         write_exr(out, image.channels, image.metadata, half=options.half, compression=options.compression,
                   datetime=exr_datetime(frame.exposure.capture_time))
@@ -220,6 +220,31 @@ def process_photo(photo: str, profile_path: str, outdir: str, options: BatchOpti
         return PhotoResult(str(src), str(out), "failed", str(exc), time.perf_counter() - t0)
     except MemoryError:
         return PhotoResult(str(src), str(out), "failed", f"{src}: out of memory", time.perf_counter() - t0)
+    except Exception as exc:  # a batch reports every failure and goes on
+        msg = " ".join(f"{type(exc).__name__}: {exc}".split())
+        return PhotoResult(str(src), str(out), "failed", f"{src}: internal error: {msg}", time.perf_counter() - t0)
+
+
+def _skipped(src: Path, out: Path, options: BatchOptions, mask_image, t0: float) -> PhotoResult:
+    """A photo whose EXR is current: nothing is computed; ROI statistics are read back from the EXR."""
+    stats = ()
+    if options.roi is not None or options.mask_path is not None:
+        from camcal.exr import read_exr
+
+        channels, _ = read_exr(out)
+        stats = _stats(channels, options, mask_image, src)
+    return PhotoResult(str(src), str(out), "skipped", None, time.perf_counter() - t0, stats)
+
+
+def _skip_current(photo: str, outdir: str, options: BatchOptions, mask_image) -> PhotoResult:
+    """:func:`_skipped` for the runner, which already checked the header (no profile load here)."""
+    t0 = time.perf_counter()
+    src = Path(photo)
+    out = output_path(src, outdir)
+    try:
+        return _skipped(src, out, options, mask_image, t0)
+    except CamcalError as exc:
+        return PhotoResult(str(src), str(out), "failed", str(exc), time.perf_counter() - t0)
     except Exception as exc:  # a batch reports every failure and goes on
         msg = " ".join(f"{type(exc).__name__}: {exc}".split())
         return PhotoResult(str(src), str(out), "failed", f"{src}: internal error: {msg}", time.perf_counter() - t0)
@@ -249,15 +274,16 @@ def expand_photos(items: Sequence[str | Path]) -> list[Path]:
     return unique
 
 
-def preflight(profile_path: str | Path, photos: Sequence[Path], options: BatchOptions):
+def preflight(profile_path: str | Path, photos: Sequence[Path], options: BatchOptions, *, with_maps: bool = True):
     """Load the profile and refuse the batch (CamcalError, exit 2) when a photo's EXIF names another camera.
 
     Only the EXIF header is read (photos that cannot be read are left to fail in the batch).
+    ``with_maps=False`` when workers do the photos: the maps are verified by hash, not decoded here.
     """
     from camcal.apply import check_camera
     from camcal.io import exposure_from_exif
 
-    plan = _plan(str(profile_path), options)
+    plan = _plan(str(profile_path), options, with_maps=with_maps)
     if options.roi is None and options.mask_path is not None:
         _load_mask(options)
     if not options.allow_other_camera:
@@ -326,7 +352,7 @@ def run_batch(
     options = options or BatchOptions()
     outdir = Path(outdir)
     paths = expand_photos(photos)
-    plan = preflight(profile_path, paths, options)
+    plan = preflight(profile_path, paths, options, with_maps=scheduler is None and jobs <= 1)
     outdir.mkdir(parents=True, exist_ok=True)
     profile_path = str(Path(profile_path).resolve())
     args = [(str(p.resolve()), profile_path, str(outdir.resolve()), options) for p in paths]
@@ -340,24 +366,33 @@ def run_batch(
 
     # outputs already written with this profile and these options: skipped here, no worker started
     todo = []
+    mask_image = _load_mask(options) if options.mask_path is not None else None
     for a in args:
         if _is_current(output_path(a[0], a[2]), plan.profile.content_sha256, options):
-            done(process_photo(*a))  # reads only the header (and the pixels for ROI statistics)
+            done(_skip_current(a[0], a[2], options, mask_image))  # the header (and pixels for ROI statistics)
         else:
             todo.append(a)
     if not todo:
         pass
-    elif scheduler is not None:
-        _run_dask(todo, scheduler, done)
+    elif scheduler is not None:  # a dask worker runs as many photos at once as it has threads
+        _run_dask(_with_threads(todo, 1), scheduler, done)
     elif jobs <= 1 or len(todo) == 1:
         for a in todo:
             done(process_photo(*a))
     else:
-        _run_pool(todo, jobs, done)
+        workers = min(jobs, len(todo))
+        from camcal.apply import default_threads
+
+        _run_pool(_with_threads(todo, max(1, default_threads() // workers)), workers, done)
     ordered = [results[a[0]] for a in args]
     report, roi_csv = _write_reports(outdir, ordered, options)
     counts = {s: sum(r.status == s for r in ordered) for s in STATUSES}
     return BatchReport(tuple(ordered), str(outdir), str(report), None if roi_csv is None else str(roi_csv), counts)
+
+
+def _with_threads(args: list[tuple], threads: int) -> list[tuple]:
+    """``args`` with the photo-arithmetic threads set, unless the options already say."""
+    return [(*a[:3], a[3] if a[3].threads is not None else replace(a[3], threads=threads)) for a in args]
 
 
 def _run_pool(args: list[tuple], jobs: int, done: Callable[[PhotoResult], None]) -> None:

@@ -83,8 +83,12 @@ def _finite_float(text: str) -> float:
     return value
 
 
-def read_container(path: str | Path) -> tuple[dict, dict[str, np.ndarray]]:
-    """Read and verify a profile file; returns ``(doc, maps)``. See the module docstring."""
+def read_container(path: str | Path, *, decode_maps: bool = True) -> tuple[dict, dict[str, np.ndarray]]:
+    """Read and verify a profile file; returns ``(doc, maps)``. See the module docstring.
+
+    ``decode_maps=False``: both hashes are still verified, but ``maps.exr`` is not decoded (``maps`` is
+    empty) — for a check of the profile's identity before the work goes to other processes.
+    """
     path = Path(path)
     if not path.is_file():
         raise CamcalError("no such profile file", path)
@@ -121,7 +125,7 @@ def read_container(path: str | Path) -> tuple[dict, dict[str, np.ndarray]]:
     ):
         raise CamcalError("maps hash mismatch: maps.exr was modified or replaced", path)
     maps: dict[str, np.ndarray] = {}
-    if maps_bytes:
+    if maps_bytes and decode_maps:
         with tempfile.TemporaryDirectory(prefix="camcal-profile-") as tdir:
             mp = Path(tdir) / MAPS_MEMBER
             mp.write_bytes(maps_bytes)

@@ -19,6 +19,25 @@ from camcal.errors import CamcalError
 COMPRESSIONS = ("none", "zip", "zips", "piz", "pxr24", "b44", "dwaa", "dwab", "zstd", "rle")
 
 
+def interleaved(arrays: list[np.ndarray]) -> np.ndarray | None:
+    """The C-contiguous (H, W, C) float32 array whose channels ``arrays`` are, in order, or None.
+
+    :func:`camcal.apply.apply_prepared` returns its channels as views of one such array; writing it
+    directly saves a copy of the whole image.
+    """
+    base = arrays[0].base
+    if not isinstance(base, np.ndarray) or base.dtype != np.float32 or base.ndim != 3:
+        return None
+    if not base.flags.c_contiguous or base.shape != (*arrays[0].shape, len(arrays)):
+        return None
+    start = base.__array_interface__["data"][0]
+    for i, a in enumerate(arrays):
+        if (a.base is not base or a.strides != base.strides[:2]
+                or a.__array_interface__["data"][0] != start + i * base.itemsize):
+            return None
+    return base
+
+
 def write_exr(
     path: str | Path,
     channels: dict[str, np.ndarray],
@@ -53,6 +72,9 @@ def write_exr(
     shape = arrays[0].shape
     if any(a.shape != shape or a.ndim != 2 for a in arrays):
         raise CamcalError("EXR channels must be 2-D arrays of one shape", path)
+    pixels = interleaved(arrays)
+    if pixels is None:
+        pixels = np.stack(arrays, axis=-1)
     h, w = shape
     spec = oiio.ImageSpec(w, h, len(names), oiio.HALF if half else oiio.FLOAT)
     spec.channelnames = tuple(names)
@@ -68,7 +90,6 @@ def write_exr(
             )
         else:
             spec.attribute(f"camcal:{key}", value)
-    pixels = np.stack(arrays, axis=-1)
     with atomic_path(path) as tmp:
         out = oiio.ImageOutput.create(str(tmp))
         if out is None or not out.open(str(tmp), spec):
@@ -133,4 +154,26 @@ def read_exr(
     finally:
         inp.close()
     data = np.asarray(data, dtype=np.float32).reshape(spec.height, spec.width, spec.nchannels)
-    return {c: np.ascontiguousarray(data[..., names.index(c)]) for c in want}, meta
+    planes = _deinterleave(data, [names.index(c) for c in want])
+    return dict(zip(want, planes, strict=True)), meta
+
+
+def _deinterleave(data: np.ndarray, index: list[int], rows: int = 8) -> np.ndarray:
+    """(H, W, C) interleaved -> (len(index), H, W) channel planes, copied in cache-sized row blocks on
+    two threads (a channel-at-a-time copy strides through the whole image once per channel)."""
+    h = data.shape[0]
+    out = np.empty((len(index), h, data.shape[1]), data.dtype)
+    sel = index if index != list(range(data.shape[2])) else slice(None)
+
+    def work(y: int) -> None:
+        out[:, y: y + rows] = np.moveaxis(data[y: y + rows, :, sel], -1, 0)
+
+    if h <= rows:
+        work(0)
+    else:
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(max_workers=2) as pool:
+            for _ in pool.map(work, range(0, h, rows)):
+                pass
+    return out

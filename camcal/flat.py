@@ -109,10 +109,12 @@ class PlaneGeometry:
 
 def radial_gain(r2: np.ndarray, k: tuple[float, ...] | np.ndarray) -> np.ndarray:
     """DNG radial model g = 1 + k0 r² + k1 r⁴ + ... (Horner), r² given."""
-    g = np.zeros_like(r2, dtype=np.float64)
+    g = np.zeros(np.shape(r2), dtype=np.float64)
     for kk in reversed(tuple(k)):
-        g = (g + kk) * r2
-    return 1.0 + g
+        g += kk
+        g *= r2
+    g += 1.0
+    return g
 
 
 def _legendre_uv(geom: PlaneGeometry, channel: str, x: np.ndarray, y: np.ndarray):
@@ -181,7 +183,7 @@ class FlatModel:
     def radial_gain(self) -> np.ndarray:
         """(C, h, w) DNG radial model per plane, 1 at each plane's optical centre."""
         h, w = self.shape
-        yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+        yy, xx = np.arange(h, dtype=np.float64)[:, None], np.arange(w, dtype=np.float64)[None, :]  # broadcast
         geom = self.geometry
         out = np.empty((len(self.channels), h, w), np.float32)
         for i, c in enumerate(self.channels):

@@ -206,8 +206,9 @@ def validate_document(doc: dict, where: str | Path) -> None:
                                       f"wavelength_nm has {n}", where)
 
 
-def profile_from_document(doc: dict, maps: dict[str, np.ndarray], where: str | Path) -> CalibrationProfile:
-    """Rebuild a profile from a validated document and its maps."""
+def profile_from_document(doc: dict, maps: dict[str, np.ndarray], where: str | Path, *,
+                          skip_map_stages: bool = False) -> CalibrationProfile:
+    """Rebuild a profile from a validated document and its maps (``skip_map_stages``: stages with maps → None)."""
     where = Path(where)
     validate_document(doc, where)
     stages: dict[str, Any] = {}
@@ -217,6 +218,9 @@ def profile_from_document(doc: dict, maps: dict[str, np.ndarray], where: str | P
             stages[attr] = None
             continue
         wanted = doc["maps"].get(key, [])
+        if wanted and skip_map_stages:
+            stages[attr] = None
+            continue
         missing = [m for m in wanted if m not in maps]
         if missing:
             raise CamcalError(f"profile lacks maps {missing[:3]}", where)
@@ -247,10 +251,15 @@ def save_profile(profile: CalibrationProfile, path: str | Path) -> CalibrationPr
     return dataclasses.replace(profile, content_sha256=written["integrity"]["content_sha256"])
 
 
-def load_profile(path: str | Path) -> CalibrationProfile:
-    """Read, verify (hashes, schema, version) and rebuild a profile."""
-    doc, maps = read_container(path)
-    return profile_from_document(doc, maps, path)
+def load_profile(path: str | Path, *, with_maps: bool = True) -> CalibrationProfile:
+    """Read, verify (hashes, schema, version) and rebuild a profile.
+
+    ``with_maps=False`` verifies everything the same way but does not decode the per-pixel maps; the
+    stages that hold maps (dark, flat) are then None. A batch runner uses it to check the camera and
+    the options before sending the work to processes that each load the whole profile.
+    """
+    doc, maps = read_container(path, decode_maps=with_maps)
+    return profile_from_document(doc, maps, path, skip_map_stages=not with_maps)
 
 
 # ---- the JSON contract -------------------------------------------------------------------------------------

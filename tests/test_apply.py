@@ -247,3 +247,83 @@ def test_mask_over_the_pixel_limit_is_refused_before_reading(tmp_path, monkeypat
     monkeypatch.setenv("CAMCAL_MAX_PIXELS", "1000")
     with pytest.raises(CamcalError, match="above the limit"):
         read_mask(path)
+
+
+def _reference_raw(frame, plan, notes_dark: bool = True):
+    """The RAW chain of the module docstring on whole float64 planes (an independent reading of it)."""
+    prof, model = plan.profile, plan.model
+    e = frame.exposure
+    x = (e.iso * e.exposure_s / e.f_number**2) / (prof.reference_iso / prof.reference_f_number**2)
+    planes = frame.planes(np.float64)
+    invalid = planes >= frame.white_level_dn
+    var = None
+    if prof.dark is not None:
+        s = e.iso / prof.dark.iso
+        ds = prof.dark.dark_current_dn_per_s * e.exposure_s * s
+        planes = planes - prof.dark.bias_dn - ds
+        invalid |= prof.dark.defects != 0
+        var = np.maximum(planes + ds, 0) * plan.gain_dn_per_e * s + plan.read_var_dn2 * s * s
+    else:
+        planes = planes - frame.black_vector()
+    if plan.flat_planes is not None:
+        planes = planes / plan.flat_planes
+        var = None if var is None else var / plan.flat_planes**2
+    planes[invalid] = np.nan
+    g = np.where(invalid[1], planes[2], np.where(invalid[2], planes[1], 0.5 * (planes[1] + planes[2])))
+    signal = np.stack([planes[0], g, planes[3]])
+    if var is not None:
+        vg = np.where(invalid[1], var[2], np.where(invalid[2], var[1], 0.25 * (var[1] + var[2])))
+        var = np.stack([var[0], vg, var[3]])
+        if plan.prnu_rel is not None:
+            var = var + (plan.prnu_rel * signal) ** 2
+    w = np.asarray(model.weights, float)[:, None, None] / x
+    used = np.asarray(model.weights) != 0
+    value = np.sum(signal[used] * w[used], axis=0)
+    noise = np.zeros_like(value) if var is None else np.sum(var[used] * w[used] ** 2, axis=0)
+    unc = np.sqrt(noise + (value * model.weights_unc_rel) ** 2)
+    band = signal / x / np.asarray(model.band_integral)[:, None, None]
+    return {"R": band[0], "G": band[1], "B": band[2], "L663": value, "L663_unc": unc}
+
+
+@pytest.mark.parametrize("variant", ["as calibrated", "smooth estimator", "no dark model", "no flat model"])
+def test_banded_threaded_raw_path_matches_whole_frame_reference(photos, profile, monkeypatch, variant):
+    """The RAW hot path runs in row bands on threads; uneven bands, 1 or 3 threads: same numbers as
+    the whole-frame formula (float32 arithmetic against float64: rel 1e-5), identical across threads."""
+    import dataclasses
+
+    import camcal.apply as ap
+
+    prof = {"no dark model": dataclasses.replace(profile, dark=None),
+            "no flat model": dataclasses.replace(profile, flat=None)}.get(variant, profile)
+    plan = prepare(prof, estimator="smooth" if variant == "smooth estimator" else "narrowband")
+    assert variant != "smooth estimator" or all(w != 0 for w in plan.model.weights)  # every channel enters
+    assert variant != "as calibrated" or plan.prnu_rel is not None  # the PRNU term is exercised
+    monkeypatch.setattr(ap, "BAND_ROWS", 7)  # 128 rows: 18 full bands and a short one
+    frame = load_frame(photos["dim"][0])
+    one = ap.apply_prepared(frame, plan, threads=1)
+    three = ap.apply_prepared(frame, plan, threads=3)
+    ref = _reference_raw(frame, plan)
+    for name, want in ref.items():
+        got = one.channels[name]
+        assert np.array_equal(got, three.channels[name], equal_nan=True), name
+        assert np.array_equal(np.isnan(got), np.isnan(want)), name
+        ok = np.isfinite(want)
+        np.testing.assert_allclose(got[ok], want[ok], rtol=1e-5, atol=1e-7 * np.nanmax(np.abs(want)), err_msg=name)
+    if variant == "no dark model":
+        assert any("no dark model" in n for n in one.metadata["notes"])
+
+
+def test_exr_of_interleaved_channels_is_written_without_reordering(tmp_path, photos, profile):
+    """apply's channels are views of one (h, w, 5) array; the EXR holds each under its own name."""
+    from camcal.exr import interleaved, write_exr
+
+    img = apply(load_frame(photos[("line", "raw", 100, 4.0)]), profile)
+    arrays = list(img.channels.values())
+    assert interleaved(arrays) is not None and interleaved(arrays[::-1]) is None
+    write_exr(tmp_path / "a.exr", img.channels, compression="zip")
+    write_exr(tmp_path / "b.exr", {k: np.array(v) for k, v in reversed(img.channels.items())}, compression="zip")
+    a, _ = read_exr(tmp_path / "a.exr")
+    b, _ = read_exr(tmp_path / "b.exr")
+    for k in img.channels:
+        assert np.array_equal(a[k], img.channels[k], equal_nan=True)
+        assert np.array_equal(b[k], img.channels[k], equal_nan=True)

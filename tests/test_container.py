@@ -53,6 +53,8 @@ def test_replaced_maps_are_refused(written):
     _rewrite(path, maps_bytes=bytes(m))
     with pytest.raises(CamcalError, match="maps hash mismatch"):
         read_container(path)
+    with pytest.raises(CamcalError, match="maps hash mismatch"):  # also when the maps are not decoded
+        read_container(path, decode_maps=False)
 
 
 def test_truncated_extra_member_and_not_zip(written, tmp_path):

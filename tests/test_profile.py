@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from camcal.container import JSON_MEMBER, MAPS_MEMBER
+from camcal.errors import CamcalError
 from camcal.profile import SCHEMA_VERSION, contract, diff_profiles, load_profile, save_profile
 from tests.conftest import assert_one_line_error, run_cli
 
@@ -132,3 +133,25 @@ def test_diff_shows_changes(profile_path, tmp_path, session_dir):
     keys = {r["key"] for r in rows}
     assert "spectral_sensitivity.units" in keys and "spectral_sensitivity.R" in keys
     assert not any(k.startswith("dark.") for k in keys)
+
+
+def test_light_load_verifies_but_does_not_decode_maps(profile_path, tmp_path):
+    """``with_maps=False`` (a batch runner's preflight): same identity and hash, no dark/flat stage,
+    the spectral stage intact; a profile with damaged maps is still refused."""
+    full = load_profile(profile_path)
+    light = load_profile(profile_path, with_maps=False)
+    assert light.content_sha256 == full.content_sha256 and light.camera == full.camera
+    assert full.dark is not None and full.flat is not None
+    assert light.dark is None and light.flat is None
+    assert light.spectral is not None and light.response is not None
+    for a, b in zip(light.spectral.rgb().values(), full.spectral.rgb().values(), strict=True):
+        np.testing.assert_array_equal(a, b)
+    with zipfile.ZipFile(profile_path) as zf:
+        j, m = zf.read(JSON_MEMBER), bytearray(zf.read(MAPS_MEMBER))
+    m[len(m) // 2] ^= 0x01
+    bad = tmp_path / "bad.camcal"
+    with zipfile.ZipFile(bad, "w") as zf:
+        zf.writestr(JSON_MEMBER, j)
+        zf.writestr(MAPS_MEMBER, bytes(m))
+    with pytest.raises(CamcalError, match="maps hash mismatch"):
+        load_profile(bad, with_maps=False)
