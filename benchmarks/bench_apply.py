@@ -19,6 +19,7 @@ import dataclasses
 import datetime
 import os
 import platform
+import resource
 import shutil
 import sys
 import tempfile
@@ -131,6 +132,27 @@ def camcal_once(photo: Path, plan, out: Path) -> float:
     return time.perf_counter() - t0
 
 
+def breakdown(photo: Path, plan, out: Path) -> dict[str, float]:
+    """Seconds of each step of :func:`camcal_once` (wall and CPU of this process)."""
+    from camcal.apply import apply_prepared
+    from camcal.exr import write_exr
+    from camcal.io import load_frame
+
+    def clock():
+        r = resource.getrusage(resource.RUSAGE_SELF)
+        return time.perf_counter(), r.ru_utime + r.ru_stime
+
+    c0 = clock()
+    frame = load_frame(photo)
+    c1 = clock()
+    image = apply_prepared(frame, plan)
+    c2 = clock()
+    write_exr(out, image.channels, image.metadata, compression="zip")
+    c3 = clock()
+    return {"decode": (c1[0] - c0[0], c1[1] - c0[1]), "apply": (c2[0] - c1[0], c2[1] - c1[1]),
+            "write": (c3[0] - c2[0], c3[1] - c2[1])}
+
+
 def main() -> None:
     from camcal.apply import prepare
     from camcal.batch import BatchOptions, run_batch
@@ -148,11 +170,18 @@ def main() -> None:
         f, c = min(floor), min(ours)
         size_floor = (tmp / "floor.exr").stat().st_size / 1e6
         size_ours = (tmp / "camcal.exr").stat().st_size / 1e6
-        # batch throughput: the CLI's path (process pool of 2, profile loaded once per worker)
+        # where camcal's time goes (one more run, timed per step)
+        steps = breakdown(photos[0], plan, tmp / "steps.exr")
+        # batch throughput: the CLI's path (process pool of 2, profile loaded once per worker); the
+        # workers' peak RSS after a batch of 2 and after one of N_BATCH (it must not grow with N)
+        run_batch(prof_path, photos[:2], tmp / "batch2", BatchOptions(), jobs=2)
+        rss2 = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
         t0 = time.perf_counter()
         rep = run_batch(prof_path, photos, tmp / "batch", BatchOptions(), jobs=2)
         t_batch = time.perf_counter() - t0
+        rss_n = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
         assert rep.counts["done"] == N_BATCH, rep.counts
+        per_photo = sorted(r.seconds for r in rep.results)
         t0 = time.perf_counter()
         run_batch(prof_path, photos, tmp / "batch", BatchOptions(), jobs=2)
         t_resume = time.perf_counter() - t0
@@ -172,10 +201,18 @@ def main() -> None:
     print(f"| once per worker: prepare (flat gain maps, estimator) | {t_prepare:.3f} | |")
     print()
     print(f"Target ≤ 1.3x the floor: {'met' if c / f <= 1.3 else 'NOT met'} ({c / f:.2f}x).\n")
+    print("Where camcal's time goes (one more run; CPU > wall means threads):\n")
+    print("| step | wall (s) | CPU (s) |")
+    print("|---|---:|---:|")
+    for k, (wall, cpu) in steps.items():
+        print(f"| {k} | {wall:.3f} | {cpu:.3f} |")
+    print()
     print(f"Batch of {N_BATCH} photos on a process pool of 2 (`run_batch(..., jobs=2)`, spawn start, profile "
-          f"loaded once per worker): {t_batch:.1f} s = **{N_BATCH / t_batch:.2f} photos/s**; the rerun skips all "
-          f"{N_BATCH} from the EXR headers in {t_resume:.2f} s.")
-
+          f"loaded once per worker): {t_batch:.1f} s = **{N_BATCH / t_batch:.2f} photos/s** (per photo in a "
+          f"worker: {per_photo[0]:.1f}–{per_photo[-1]:.1f} s, the first of each worker includes loading the "
+          f"profile); the rerun skips all {N_BATCH} from the EXR headers in {t_resume:.2f} s. Peak RSS of a "
+          f"worker: {rss2:.0f} MB after a batch of 2, {rss_n:.0f} MB after a batch of {N_BATCH} (the maximum "
+          "over all workers so far; it does not grow with the number of photos).")
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -129,6 +129,7 @@ def read_container(path: str | Path, *, decode_maps: bool = True) -> tuple[dict,
         with tempfile.TemporaryDirectory(prefix="camcal-profile-") as tdir:
             mp = Path(tdir) / MAPS_MEMBER
             mp.write_bytes(maps_bytes)
+            del maps_bytes  # not held while the maps are decoded (peak memory of a profile load)
             try:
                 maps, _ = read_exr(mp)
             except CamcalError as exc:
