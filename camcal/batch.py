@@ -284,8 +284,17 @@ def preflight(profile_path: str | Path, photos: Sequence[Path], options: BatchOp
     from camcal.io import exposure_from_exif
 
     plan = _plan(str(profile_path), options, with_maps=with_maps)
-    if options.roi is None and options.mask_path is not None:
-        _load_mask(options)
+    mask = _load_mask(options) if options.roi is None and options.mask_path is not None else None
+    cam = plan.profile.camera
+    if (options.roi is not None or mask is not None) and cam.width and cam.height and photos:
+        from camcal.apply import roi_mask
+        from camcal.io import is_raw_path
+
+        # RAW photos of the profile's camera have its sensor size: a region that does not fit it is a
+        # bad option of the whole batch (exit 2, naming the mask), not a failure of every photo
+        if all(is_raw_path(Path(p)) for p in photos):
+            roi_mask((cam.height // 2, cam.width // 2), options.roi if mask is None else None, mask,
+                     options.mask_path if mask is not None else "--roi")
     if not options.allow_other_camera:
         for p in photos:
             try:

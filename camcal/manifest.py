@@ -93,6 +93,29 @@ def parse_number(text: str, column: str, where: str) -> float:
     return value
 
 
+def read_text_file(path: str | Path, what: str, max_bytes: int = MAX_MANIFEST_BYTES) -> str:
+    """The UTF-8 text (BOM allowed) of a small input file, read with a bound.
+
+    Refuses (CamcalError naming the file and ``what`` it is) a path that is not a regular file, more
+    than ``max_bytes`` (a device or pipe is never read to its end: its size says nothing), and text
+    that is not UTF-8.
+    """
+    path = Path(path)
+    try:
+        if not path.is_file():
+            raise CamcalError(f"{what} is not a regular file" if path.exists() else "no such file", path)
+        with open(path, "rb") as fh:  # bounded read: st_size is 0 for devices and pipes
+            raw = fh.read(max_bytes + 1)
+    except OSError as exc:
+        raise CamcalError(f"cannot read {what}: {exc.strerror or exc}", path) from None
+    if len(raw) > max_bytes:
+        raise CamcalError(f"{what} larger than {max_bytes // 1024 // 1024} MiB; refused", path)
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        raise CamcalError(f"{what} is not UTF-8 text", path) from None
+
+
 def read_manifest(
     path: str | Path, *, required: tuple[str, ...] = ("file",)
 ) -> dict[str, dict[str, float | str | None]]:
@@ -109,19 +132,7 @@ def read_manifest(
     Numeric columns (see :data:`NUMERIC_COLUMNS`) are floats, empty cells None.
     """
     path = Path(path)
-    try:
-        if not path.is_file():
-            raise CamcalError("manifest is not a regular file", path)
-        with open(path, "rb") as fh:  # bounded read: st_size is 0 for devices and pipes
-            raw = fh.read(MAX_MANIFEST_BYTES + 1)
-        if len(raw) > MAX_MANIFEST_BYTES:
-            raise CamcalError("manifest larger than 16 MiB; refused", path)
-    except OSError as exc:
-        raise CamcalError(f"cannot read manifest: {exc.strerror or exc}", path) from None
-    try:
-        text = raw.decode("utf-8-sig")
-    except UnicodeDecodeError:
-        raise CamcalError("manifest is not UTF-8 text", path) from None
+    text = read_text_file(path, "manifest")
     lines = [ln for ln in io.StringIO(text, newline=None).read().splitlines()]
     numbered = [(i + 1, ln) for i, ln in enumerate(lines) if ln.strip() and not ln.lstrip().startswith("#")]
     if not numbered:

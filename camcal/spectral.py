@@ -836,13 +836,10 @@ def read_spectacle_csv(path: str | Path) -> SpectralSensitivity:
     """
     import csv
 
+    from camcal.manifest import read_text_file
+
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except OSError as exc:
-        raise CamcalError(f"cannot read: {exc.strerror or exc}", path) from None
-    except UnicodeDecodeError:
-        raise CamcalError("is not UTF-8 text", path) from None
+    text = read_text_file(path, "spectral sensitivity CSV")
     lines = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
     if not lines:
         raise CamcalError("is empty", path)
@@ -868,9 +865,11 @@ def read_spectacle_csv(path: str | Path) -> SpectralSensitivity:
     mp = _meta_path(path)
     if mp.is_file():
         try:
-            meta = json.loads(mp.read_text(encoding="utf-8"))
-        except (OSError, ValueError) as exc:
+            meta = json.loads(read_text_file(mp, "spectral metadata"))
+        except ValueError as exc:
             raise CamcalError(f"invalid metadata file: {exc}", mp) from None
+    if not isinstance(meta, dict):
+        raise CamcalError("invalid metadata file: not a JSON object", mp)
     mode = meta.get("mode", "relative")
     return SpectralSensitivity(
         wavelength_nm=col["Wavelength"][order],

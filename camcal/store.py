@@ -69,15 +69,21 @@ def save_stage(path: str | Path, kind: str, data: dict, maps: dict[str, np.ndarr
     return path
 
 
+#: Stage JSON files hold summaries and small tables (the maps are in the EXR): 64 MiB is far above any.
+MAX_STAGE_JSON_BYTES = 64 * 1024 * 1024
+
+
 def load_stage(path: str | Path, kind: str) -> tuple[dict, dict[str, np.ndarray]]:
     """Load a stage result written by :func:`save_stage`; check kind and the maps' hash."""
+    from camcal.manifest import read_text_file
+
     path = Path(path)
+    text = read_text_file(path, f"{kind} file", MAX_STAGE_JSON_BYTES)
     try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise CamcalError("no such file", path) from None
-    except (OSError, UnicodeDecodeError, ValueError) as exc:
-        raise CamcalError(f"not a camcal {kind} file (invalid JSON: {exc})", path) from None
+        doc = json.loads(text)
+    except ValueError as exc:
+        raise CamcalError(f"not a camcal {kind} file (invalid JSON: {' '.join(str(exc).split())[:100]})",
+                          path) from None
     if not isinstance(doc, dict) or doc.get("kind") != kind or not isinstance(doc.get("data"), dict):
         raise CamcalError(f"not a camcal {kind} file", path)
     maps: dict[str, np.ndarray] = {}

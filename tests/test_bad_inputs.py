@@ -239,7 +239,8 @@ def image_cases() -> list[Case]:
         cases.append(Case("image", category, name, make, expect, env))
 
     # decodable but not a RAW frame of this camera; apply reads a processed file by its content
-    raw_ok = {"inspect": OK, "apply": OK, "apply-batch": OK, "*": ERROR}
+    raw_ok = {"inspect": OK, "apply": OK, "apply-batch": OK, "apply-mask": OK, "*": ERROR}
+    image_ok = {"apply-mask": EITHER, "*": ERROR}  # any decodable image of the right size is a valid mask
     for src, suffix in (("dng", ".dng"), ("jpeg", ".jpg"), ("tiff", ".tif")):
         for n in (1, 2, 4, 8, 16, 64, 256, 1024):
             add("truncated", f"{src}-first{n}B", lambda b, s=src, x=suffix, n=n: (x, truncate(b.files[s], n)))
@@ -257,7 +258,7 @@ def image_cases() -> list[Case]:
                 lambda b, s=src, x=suffix, k=seed: (x, bitflip(b.files[s][:600], 100 + k, 2) + b.files[s][600:]),
                 EITHER)
     # huge (or empty) declared dimensions
-    small = {"inspect": EITHER, "*": ERROR}  # a smaller declared size may decode (as garbage) but never stacks
+    small = {"inspect": EITHER, "apply-mask": EITHER, "*": ERROR}  # a smaller size may decode but never stacks
     for w, h, exp in ((60000, 60000, ERROR), (20000, 20000, ERROR), (65535, 65535, ERROR), (0, 0, ERROR),
                       (1, 1, small), (48, 32, small)):
         add("huge dimensions", f"dng-{w}x{h}",
@@ -277,11 +278,11 @@ def image_cases() -> list[Case]:
     add("wrong extension", "jpeg-as-tif", lambda b: (".tif", b.files["jpeg"]), raw_ok)
     add("wrong extension", "tiff-as-dng", lambda b: (".dng", b.files["tiff"]), EITHER)
     add("wrong extension", "tiff-as-jpg", lambda b: (".jpg", b.files["tiff"]), {"inspect": EITHER, "*": ERROR})
-    add("wrong extension", "dng-as-jpg", lambda b: (".jpg", b.files["dng"]), ERROR)
-    add("wrong extension", "dng-as-tif", lambda b: (".tif", b.files["dng"]), ERROR)
+    add("wrong extension", "dng-as-jpg", lambda b: (".jpg", b.files["dng"]), image_ok)
+    add("wrong extension", "dng-as-tif", lambda b: (".tif", b.files["dng"]), image_ok)
     add("wrong extension", "dng-as-txt", lambda b: (".txt", b.files["dng"]), {"inspect": OK, "*": EITHER})
     for suffix in (".dng", ".jpg", ".tif", ".nef"):
-        add("wrong extension", f"exr-as-{suffix[1:]}", lambda b, x=suffix: (x, b.files["exr"]), ERROR)
+        add("wrong extension", f"exr-as-{suffix[1:]}", lambda b, x=suffix: (x, b.files["exr"]), image_ok)
         add("wrong extension", f"profile-as-{suffix[1:]}", lambda b, x=suffix: (x, b.files["profile"]), ERROR)
         add("wrong extension", f"text-as-{suffix[1:]}", lambda b, x=suffix: (x, b"file,exposure_s\nx.dng,1\n"), ERROR)
     for suffix in (".dng", ".jpg", ".jpeg", ".tif", ".png", ".cr2"):
@@ -688,6 +689,67 @@ def water_exr_cases() -> list[Case]:
     return cases
 
 
+CHL_CSV = ("# Bricaud-like power law, a_chl = A·C^(1-E) (C in mg m^-3)\nwavelength_nm,A_m2_per_mg,E\n"
+           + "".join(f"{w},{0.02 + 0.01 * np.cos(w / 40.0):.5f},{0.7 + 0.1 * np.sin(w / 50.0):.4f}\n"
+                     for w in range(380, 801, 10)))
+
+
+def chl_csv_cases() -> list[Case]:
+    """Damaged ``--chlorophyll-csv`` files: ``make(valid_text) -> bytes``, or None for a link to /dev/zero."""
+    cases: list[Case] = []
+
+    def add(category, name, make, expect=ERROR):
+        cases.append(Case("chl_csv", category, name, make, expect))
+
+    def set_cell(col: int, value: str, row: int = 3):  # line 3: the first data row after comment and header
+        def make(text: str) -> bytes:
+            lines = text.splitlines()
+            cells = lines[row].split(",")
+            cells[col] = value
+            lines[row] = ",".join(cells)
+            return ("\n".join(lines) + "\n").encode()
+        return make
+
+    for col, name in ((0, "wavelength"), (1, "A"), (2, "E")):
+        for label, value in (("text", "abc"), ("NaN", "NaN"), ("inf", "inf"), ("overflow", "1e400"), ("empty", ""),
+                             ("comma-decimal", "0;5"), ("negative", "-0.5")):
+            add("cell", f"{name}-{label}", set_cell(col, value))
+        add("cell", f"{name}-padded", lambda t, c=col: set_cell(c, f"  {t.splitlines()[3].split(',')[c]}  ")(t), OK)
+    add("cell", "E-zero", set_cell(2, "0"))
+    add("cell", "E-huge", set_cell(2, "50"))
+    add("cell", "A-zero", set_cell(1, "0"), OK)
+    add("cell", "wavelength-zero", set_cell(0, "0"))
+    add("order", "wavelength-repeated", set_cell(0, "380", row=4))
+    add("order", "wavelengths-decreasing", lambda t: "\n".join(t.splitlines()[:2] + t.splitlines()[:1:-1]).encode())
+    add("structure", "one-row", lambda t: "\n".join(t.splitlines()[:3]).encode())
+    add("structure", "header-only", lambda t: "\n".join(t.splitlines()[:2]).encode())
+    add("structure", "empty-file", lambda t: b"")
+    add("structure", "comments-only", lambda t: b"# nothing\n#\n")
+    add("structure", "no-wavelength-column", lambda t: t.replace("wavelength_nm", "lambda").encode())
+    add("structure", "no-absorption-column", lambda t: t.replace("A_m2_per_mg", "a_star").encode())
+    add("structure", "duplicate-column", lambda t: t.replace(",E\n", ",A_m2_per_mg\n", 1).encode())
+    add("structure", "extra-cell", lambda t: t.replace("\n400,", "\n400,9,", 1).encode())
+    add("structure", "missing-cell", lambda t: "\n".join(ln.rsplit(",", 1)[0] if i == 4 else ln
+                                                         for i, ln in enumerate(t.splitlines())).encode())
+    add("structure", "tab-separated", lambda t: t.replace(",", "\t").encode())
+    add("structure", "semicolon-separated", lambda t: t.replace(",", ";").encode())
+    add("structure", "reordered-columns", lambda t: "\n".join(
+        ",".join(ln.split(",")[::-1]) if not ln.startswith("#") else ln for ln in t.splitlines()).encode(), EITHER)
+    add("structure", "epsilon-column", lambda t: (
+        "wavelength_nm,epsilon_L_per_g_cm\n" + "".join(f"{w},{20 + 60 * np.exp(-((w - 665) / 12) ** 2):.3f}\n"
+                                                        for w in range(380, 801, 5))).encode(), OK)
+    add("structure", "narrow-range", lambda t: "\n".join(t.splitlines()[:2] + t.splitlines()[30:33]).encode(), EITHER)
+    add("encoding", "bom", lambda t: b"\xef\xbb\xbf" + t.encode(), OK)
+    add("encoding", "crlf", lambda t: t.replace("\n", "\r\n").encode(), OK)
+    add("encoding", "utf16", lambda t: t.encode("utf-16"))
+    add("encoding", "latin1", lambda t: ("# mesuré à 24 °C\n" + t).encode("latin-1"))
+    add("encoding", "nul-bytes", lambda t: t.replace("\n", "\n\x00", 2).encode())
+    add("encoding", "binary", lambda t: np.random.default_rng(11).bytes(400))
+    add("resource", "over-16MiB", lambda t: t.encode() + b"#" * (16 * 1024 * 1024 + 10) + b"\n")
+    add("resource", "dev-zero", lambda t: None)
+    return cases
+
+
 def argument_cases() -> list[Case]:
     """Bad command-line values: ``make(base, ws) -> (argv, outputs, the token the error line must name)``."""
     cases: list[Case] = []
@@ -769,6 +831,18 @@ def argument_cases() -> list[Case]:
         outs[0].mkdir(parents=True)
         return argv, [], outs[0]
     add("output", "invert-output-is-folder", output_is_folder)
+
+    def simulate_out_is_file(b: Base, ws: Path):
+        f = ws / "not-a-folder"
+        f.write_text("x")
+        return ["water", "simulate", "-o", f], [], f
+    add("output", "water-simulate-out-is-file", simulate_out_is_file)
+
+    def simulate_out_under_file(b: Base, ws: Path):
+        f = ws / "a-file"
+        f.write_text("x")
+        return ["water", "simulate", "-o", f / "sub"], [], f
+    add("output", "water-simulate-out-under-a-file", simulate_out_under_file)
 
     def demo_out_is_file(b: Base, ws: Path):
         f = ws / "not-a-folder"
@@ -942,6 +1016,36 @@ def _profile_water(ws, b, make):
             "-o", out], [out], p
 
 
+def _chl_csv_water(ws, b, make):
+    """``water invert --profile P --chlorophyll-csv BAD`` on the valid radiance pair."""
+    csv = ws / "chl.csv"
+    data = make(CHL_CSV)
+    if data is None:
+        csv.symlink_to("/dev/zero")
+    else:
+        csv.write_bytes(data)
+    sub, ref = ws / "sub.exr", ws / "ref.exr"
+    sub.write_bytes(b.files["water_sub"])
+    ref.write_bytes(b.files["water_ref"])
+    out = ws / "out" / "chl.exr"
+    return ["water", "invert", "--submerged", sub, "--reference", ref, "--depth", "20cm", "--profile", b.profile,
+            "--chlorophyll-csv", csv, "-o", out], [out], csv
+
+
+def _image_mask(ws, b, make):
+    """A damaged ``--mask`` image for a good photo: refused before any work (exit 2), no EXR, no CSV."""
+    suffix, data = make(b)
+    mask = ws / "masks" / f"mask{suffix}"
+    mask.parent.mkdir()
+    mask.write_bytes(data)
+    photo = ws / "photos" / "a.dng"
+    photo.parent.mkdir()
+    photo.write_bytes(b.files["dng"])
+    out = ws / "out"
+    return (["apply", b.profile, photo, "-o", out, "-j", "1", "--mask", mask],
+            [out / "a.dng.exr", out / "roi_stats.csv", out / "apply_report.csv"], mask)
+
+
 def _arguments(ws, b, make):
     return make(b, ws)
 
@@ -999,11 +1103,13 @@ CONSUMERS: tuple[Consumer, ...] = (
     Consumer("profile-diff", "profile", _profile_diff, every=10),
     Consumer("apply", "image", _image_apply, failure_code=1),
     Consumer("apply-batch", "image", _image_apply_batch, every=4, failure_code=1, kept=_kept_good_photos),
+    Consumer("apply-mask", "image", _image_mask, every=2),
     Consumer("apply", "profile", _profile_apply, every=2),
     Consumer("report", "profile", _profile_report, every=6),  # ~4 s per report that succeeds
     Consumer("water", "profile", _profile_water, every=3),
     Consumer("water", "water_exr", _water_invert),
     Consumer("water-band", "water_exr", _water_invert_band, every=3),
+    Consumer("water-chl", "chl_csv", _chl_csv_water),
     Consumer("cli", "arguments", _arguments),
     Consumer("calibrate", "session", _session_calibrate),
     Consumer("dark", "session", _session_dark, every=2),
@@ -1021,6 +1127,7 @@ CASES: dict[str, list[Case]] = {
     "profile": profile_cases(),
     "session": session_cases(),
     "water_exr": water_exr_cases(),
+    "chl_csv": chl_csv_cases(),
     "arguments": argument_cases(),
 }
 
@@ -1100,6 +1207,7 @@ def test_corpus_size_and_controls(base, tmp_path):
         "frames_csv_lin": lambda t: t.encode(), "sweep_csv": lambda t: t.encode(), "stage": lambda p: None,
         "profile": lambda b: b.files["profile"], "session": lambda s: None,
         "water_exr": lambda b, ws: ("sub", b.files["water_sub"]),
+        "chl_csv": lambda t: t.encode(),
         "arguments": _valid_invert,
     }
     for i, consumer in enumerate(CONSUMERS):

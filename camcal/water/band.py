@@ -23,7 +23,7 @@ Pope, R. M., Fry, E. S. (1997). Applied Optics 36(33), 8710-8723.
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -89,23 +89,48 @@ def solvent_spectrum(wavelengths_nm, epsilon_L_per_g_cm) -> ChlorophyllAbsorptio
 def read_chlorophyll_csv(path: str | Path) -> ChlorophyllAbsorption:
     """A user spectrum: CSV with ``wavelength_nm`` and either ``epsilon_L_per_g_cm`` (linear) or
     ``A_m2_per_mg`` and optionally ``E`` (power law); ``#`` lines are comments."""
+    from camcal.manifest import read_text_file
+
     path = Path(path)
-    try:
-        lines = [ln for ln in path.read_text(encoding="utf-8").splitlines() if ln.strip() and not ln.startswith("#")]
-        header = [h.strip() for h in lines[0].split(",")]
-        v = np.array([[float(x) for x in ln.split(",")] for ln in lines[1:]], dtype=float)
-    except (OSError, ValueError, IndexError) as exc:
-        raise CamcalError(f"cannot read chlorophyll absorption CSV: {exc}", path) from None
-    if "wavelength_nm" not in header or v.ndim != 2 or v.shape[0] < 2 or v.shape[1] != len(header):
-        raise CamcalError("chlorophyll CSV needs a wavelength_nm column and at least two rows", path)
-    if not np.all(np.isfinite(v)) or np.any(np.diff(v[:, header.index("wavelength_nm")]) <= 0):
-        raise CamcalError("chlorophyll CSV has non-finite values or wavelengths not increasing", path)
+    text = read_text_file(path, "chlorophyll absorption CSV")
+    lines = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
+    if not lines:
+        raise CamcalError("chlorophyll CSV is empty (no header row)", path)
+    header = [h.strip() for h in lines[0].split(",")]
+    if len(set(header)) != len(header):
+        raise CamcalError(f"chlorophyll CSV has duplicate columns in its header {header}", path)
+    if "wavelength_nm" not in header:
+        raise CamcalError(f"chlorophyll CSV needs a wavelength_nm column (header is {','.join(header)})", path)
+    rows = []
+    for i, ln in enumerate(lines[1:], start=2):
+        cells = [c.strip() for c in ln.split(",")]
+        if len(cells) != len(header):
+            raise CamcalError(f"chlorophyll CSV row {i}: {len(cells)} cells, the header has {len(header)}", path)
+        try:
+            rows.append([float(c) for c in cells])
+        except ValueError:
+            raise CamcalError(f"chlorophyll CSV row {i}: not a number in {ln.strip()[:60]!r}", path) from None
+    v = np.array(rows, dtype=float).reshape(len(rows), len(header))
+    if v.shape[0] < 2:
+        raise CamcalError("chlorophyll CSV needs at least two rows", path)
+    if not np.all(np.isfinite(v)):
+        raise CamcalError("chlorophyll CSV has non-finite values (NaN, inf or overflow)", path)
     wl = v[:, header.index("wavelength_nm")]
+    if np.any(np.diff(wl) <= 0) or wl[0] <= 0:
+        raise CamcalError("chlorophyll CSV: wavelengths must be positive and increasing", path)
     if "epsilon_L_per_g_cm" in header:
-        return solvent_spectrum(wl, v[:, header.index("epsilon_L_per_g_cm")])
+        eps = v[:, header.index("epsilon_L_per_g_cm")]
+        if np.any(eps < 0):
+            raise CamcalError("chlorophyll CSV: epsilon_L_per_g_cm must not be negative", path)
+        return replace(solvent_spectrum(wl, eps), source=str(path))
     if "A_m2_per_mg" in header:
+        a = v[:, header.index("A_m2_per_mg")]
         e = v[:, header.index("E")] if "E" in header else np.ones_like(wl)
-        return ChlorophyllAbsorption(wl, v[:, header.index("A_m2_per_mg")], e, str(path))
+        if np.any(a < 0):
+            raise CamcalError("chlorophyll CSV: A_m2_per_mg must not be negative", path)
+        if np.any(e <= 0) or np.any(e > 2):
+            raise CamcalError("chlorophyll CSV: the power-law exponent E must be in (0, 2]", path)
+        return ChlorophyllAbsorption(wl, a, e, str(path))
     raise CamcalError("chlorophyll CSV needs an epsilon_L_per_g_cm or an A_m2_per_mg column", path)
 
 
@@ -276,6 +301,14 @@ def band_model_from_profile(profile, channel: str = "R", *, geometry=None, chlor
         raise CamcalError(f"profile has no channel {channel!r}; use one of {', '.join(sorted(curves))}", where)
     wl = np.asarray(spectral.wavelength_nm, float)
     s = illuminant_spectrum(illuminant, wl) if isinstance(illuminant, str) else illuminant
+    if chlorophyll is not None:  # outside its table a user spectrum absorbs nothing: it must span the band
+        weight = np.abs(np.asarray(curves[channel], float)) * (1.0 if s is None else np.asarray(s, float))
+        band = wl[weight >= 0.01 * np.max(weight)] if np.max(weight) > 0 else wl
+        lo, hi = float(chlorophyll.wavelengths_nm[0]), float(chlorophyll.wavelengths_nm[-1])
+        if lo > band[0] or hi < band[-1]:
+            src = _Path(chlorophyll.source) if chlorophyll.source and _Path(chlorophyll.source).is_file() else where
+            raise CamcalError(f"the chlorophyll spectrum covers {lo:g}–{hi:g} nm; channel {channel}'s band "
+                              f"(c(λ)·illuminant ≥ 1 % of its peak) spans {band[0]:g}–{band[-1]:g} nm", src)
     return BandModel(wl, np.asarray(curves[channel], float), geometry=geometry or RefinedModel(),
                      chlorophyll=chlorophyll, background_absorption_per_m=background_absorption_per_m,
                      illuminant=s, water_absorption_per_m=water_absorption_per_m)
@@ -304,6 +337,9 @@ class BandInverse:
             # drop the plateau where B no longer responds to C (light the chlorophyll spectrum does not absorb,
             # e.g. beyond its 700 nm end, floors B): |d ln B/d ln C| < 1e-8 is beyond any measurement
             keep = (b > 1e-300) & np.isfinite(db) & (c * -db > 1e-8 * b) & (delta > 0)
+        if np.count_nonzero(keep) < 4:
+            raise CamcalError("the band model does not respond to chlorophyll at this depth (the chlorophyll "
+                              "spectrum absorbs nowhere in the channel's band): nothing to invert")
         c, b, db, delta = c[keep], b[keep], db[keep], delta[keep]
         w = np.log(delta)
         mono = np.concatenate([[True], w[1:] > np.maximum.accumulate(w)[:-1]])  # strictly increasing
