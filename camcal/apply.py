@@ -45,11 +45,11 @@ referred (constant in electrons), so it scales with ISO in DN. Without a dark mo
 is omitted (documented in the metadata ``notes``). For processed files the same model is evaluated at
 the RAW-equivalent signal (the JPEG came from that sensor; quantisation and compression are ignored).
 The variance is propagated through the flat, the exposure and the estimator's linear weights and
-combined with the relative uncertainty of c(λ) (as :func:`camcal.radiance.radiance_at` does) and
-the flat correction's relative error per pixel: the profile's PRNU (relative RMS per channel, a
-fixed-pattern error of each pixel) when the PRNU map is not applied, in quadrature with the flat
-model's residual RMS (the estimate of the model's error). Not included: exposure-metadata error (ISO,
-t and f-number are nominal values) and, for ``smooth``, the reconstruction error (docs/apply.md).
+combined with the relative uncertainty of c(λ) (as :func:`camcal.radiance.radiance_at` does) and,
+when the PRNU map is not applied, the profile's PRNU (relative RMS per channel, a fixed-pattern
+error of each pixel). Not included:
+flat-field model error, exposure-metadata error (ISO and f-number are nominal values), and, for
+``smooth``, the reconstruction error (documented in docs/apply.md).
 """
 
 from __future__ import annotations
@@ -118,7 +118,7 @@ class ApplyPlan:
     flat_planes: np.ndarray | None
     flat_rgb: np.ndarray | None
     options: dict
-    flat_rel: np.ndarray | None = None  # (3, 1, 1) relative error of the flat correction per pixel
+    prnu_rel: np.ndarray | None = None
     inv_flat_planes: np.ndarray | None = None
     bad_planes: np.ndarray | None = None
     read_var_dn2: np.ndarray | None = None
@@ -157,16 +157,12 @@ def prepare(
             flat_rgb = np.stack([flat_planes[0], 0.5 * (flat_planes[1] + flat_planes[2]), flat_planes[3]])
         else:  # a flat fitted on processed RGB frames
             flat_rgb, flat_planes = flat_planes, None
-    flat_rel = None
-    if profile.flat is not None:
-        # relative errors of the flat correction per pixel: the PRNU left uncorrected (unless the map is
-        # applied) and the model's residual RMS (scatter of the block data about the fitted surface)
-        rms = [math.hypot(0.0 if with_prnu else _finite(profile.flat.prnu_rms.get(c)),
-                          _finite(profile.flat.residual_rms.get(c))) for c in profile.flat.channels]
+    prnu_rel = None
+    if profile.flat is not None and not with_prnu and profile.flat.prnu_rms:
+        rms = [float(profile.flat.prnu_rms.get(c, 0.0) or 0.0) for c in profile.flat.channels]
         if len(rms) == 4:
             rms = [rms[0], 0.5 * math.hypot(rms[1], rms[2]), rms[3]]
-        if any(rms):
-            flat_rel = np.array(rms, np.float32)[:, None, None]
+        prnu_rel = np.array(rms, np.float32)[:, None, None]
     options = {"wavelength_nm": float(wavelength_nm), "estimator": estimator, "filter_fwhm_nm": filter_fwhm_nm,
                "line_fwhm_nm": line_fwhm_nm, "with_prnu": with_prnu}
     inv_flat = None if flat_planes is None else (1.0 / flat_planes).astype(np.float32)
@@ -174,16 +170,7 @@ def prepare(
     if profile.dark is not None:
         bad = profile.dark.defects != 0
         read_var, gain, _ = _noise_params(profile, profile.dark.iso)
-    return ApplyPlan(profile, model, flat_planes, flat_rgb, options, flat_rel, inv_flat, bad, read_var, gain)
-
-
-def _finite(value) -> float:
-    """A stored relative RMS as a float; 0 when absent or not finite."""
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        return 0.0
-    return v if math.isfinite(v) else 0.0
+    return ApplyPlan(profile, model, flat_planes, flat_rgb, options, prnu_rel, inv_flat, bad, read_var, gain)
 
 
 def check_camera(exposure, profile, path: Path | None, allow_other_camera: bool = False) -> list[str]:
@@ -340,9 +327,9 @@ def _raw_pixels(frame: Frame, plan: ApplyPlan, t: float, iso: float, inv_x: floa
             np.copyto(vg, var[2], where=invalid[1])
             np.copyto(vg, var[1], where=invalid[2])
             var = [var[0], vg, var[3]]
-            if plan.flat_rel is not None:  # PRNU left uncorrected, flat-model error
+            if plan.prnu_rel is not None:  # pixel response non-uniformity left uncorrected
                 for i in range(3):
-                    var[i] += (plan.flat_rel[i] * signal[i]) ** 2
+                    var[i] += (plan.prnu_rel[i] * signal[i]) ** 2
         o = out[r0:r1]
         for i in range(3):
             np.multiply(signal[i], band_k[i], out=o[..., i])
@@ -420,8 +407,8 @@ def apply_prepared(frame: Frame, plan: ApplyPlan, *, allow_other_camera: bool = 
             if var is not None:
                 var /= plan.flat_rgb * plan.flat_rgb
         signal[saturated] = np.nan
-        if var is not None and plan.flat_rel is not None:
-            var += (plan.flat_rel * signal) ** 2  # PRNU left uncorrected, flat-model error
+        if var is not None and plan.prnu_rel is not None:
+            var += (plan.prnu_rel * signal) ** 2  # pixel response non-uniformity left uncorrected
         pixels = np.empty((*signal.shape[1:], 5), np.float32)
         for i in range(3):
             np.multiply(signal[i], np.float32(inv_x / plan.model.band_integral[i]), out=pixels[..., i])

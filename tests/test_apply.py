@@ -122,11 +122,8 @@ def test_uncertainty_map_matches_scatter(photos, profile):
     L, u = img.channels["L663"], img.channels["L663_unc"]
     rel_unc = float(np.nanmedian(u / L))
     # the map = noise (shot + read + PRNU) ⊕ c(λ0) uncertainty (0.5 %, the reference detector)
-    # ⊕ the flat model's error (its residual RMS, ≈0.37 %; systematic, not in the pixel scatter)
     c_rel = 0.005
-    flat_rel = profile.flat.residual_rms["R"]
-    assert 0.001 < flat_rel < 0.01
-    noise = np.sqrt(max(rel_unc**2 - c_rel**2 - flat_rel**2, 0.0))
+    noise = np.sqrt(max(rel_unc**2 - c_rel**2, 0.0))
     scatter = float(np.nanstd(L) / np.nanmean(L))
     assert noise == pytest.approx(scatter, rel=0.15), (noise, scatter)
 
@@ -277,8 +274,8 @@ def _reference_raw(frame, plan, notes_dark: bool = True):
     if var is not None:
         vg = np.where(invalid[1], var[2], np.where(invalid[2], var[1], 0.25 * (var[1] + var[2])))
         var = np.stack([var[0], vg, var[3]])
-        if plan.flat_rel is not None:
-            var = var + (plan.flat_rel * signal) ** 2
+        if plan.prnu_rel is not None:
+            var = var + (plan.prnu_rel * signal) ** 2
     w = np.asarray(model.weights, float)[:, None, None] / x
     used = np.asarray(model.weights) != 0
     value = np.sum(signal[used] * w[used], axis=0)
@@ -300,7 +297,7 @@ def test_banded_threaded_raw_path_matches_whole_frame_reference(photos, profile,
             "no flat model": dataclasses.replace(profile, flat=None)}.get(variant, profile)
     plan = prepare(prof, estimator="smooth" if variant == "smooth estimator" else "narrowband")
     assert variant != "smooth estimator" or all(w != 0 for w in plan.model.weights)  # every channel enters
-    assert variant != "as calibrated" or plan.flat_rel is not None  # the PRNU term is exercised
+    assert variant != "as calibrated" or plan.prnu_rel is not None  # the PRNU term is exercised
     monkeypatch.setattr(ap, "BAND_ROWS", 7)  # 128 rows: 18 full bands and a short one
     frame = load_frame(photos["dim"][0])
     one = ap.apply_prepared(frame, plan, threads=1)
