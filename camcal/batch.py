@@ -280,9 +280,10 @@ def preflight(profile_path: str | Path, photos: Sequence[Path], options: BatchOp
     Only the EXIF header is read (photos that cannot be read are left to fail in the batch).
     ``with_maps=False`` when workers do the photos: the maps are verified by hash, not decoded here.
     """
-    from camcal.apply import check_camera
+    from camcal.apply import check_camera, default_threads
     from camcal.io import exposure_from_exif
 
+    default_threads()  # a bad CAMCAL_THREADS refuses the batch here, not every photo
     plan = _plan(str(profile_path), options, with_maps=with_maps)
     mask = _load_mask(options) if options.roi is None and options.mask_path is not None else None
     cam = plan.profile.camera

@@ -46,10 +46,10 @@ def profile_path(session_dir, tmp_path_factory) -> Path:
     return out
 
 
-def run_cli(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
-    """Run the real CLI in a subprocess (what a user sees, exit code and all)."""
+def run_cli(*args: str, cwd: Path | None = None, env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
+    """Run the real CLI in a subprocess (what a user sees, exit code and all); ``env`` adds variables."""
     return subprocess.run([sys.executable, "-m", "camcal", *map(str, args)], capture_output=True, text=True, cwd=cwd,
-                          timeout=600)
+                          timeout=600, env=None if env is None else {**os.environ, **env})
 
 
 def assert_one_line_error(proc: subprocess.CompletedProcess, *fragments: str, code: int = 2) -> None:

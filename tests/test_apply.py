@@ -327,3 +327,22 @@ def test_exr_of_interleaved_channels_is_written_without_reordering(tmp_path, pho
     for k in img.channels:
         assert np.array_equal(a[k], img.channels[k], equal_nan=True)
         assert np.array_equal(b[k], img.channels[k], equal_nan=True)
+
+
+def test_camcal_threads_environment(monkeypatch, tmp_path, photos, profile_path):
+    """CAMCAL_THREADS sets the threads of one photo's arithmetic; a bad value refuses the batch (exit 2)."""
+    from camcal.apply import default_threads
+
+    monkeypatch.setenv("CAMCAL_THREADS", "3")
+    assert default_threads() == 3
+    monkeypatch.setenv("CAMCAL_THREADS", "0")
+    assert default_threads() == 1
+    monkeypatch.delenv("CAMCAL_THREADS")
+    assert 1 <= default_threads() <= 4
+    monkeypatch.setenv("CAMCAL_THREADS", "many")
+    with pytest.raises(CamcalError, match="CAMCAL_THREADS"):
+        default_threads()
+    proc = run_cli("apply", profile_path, photos[("line", "raw", 100, 4.0)], "-o", tmp_path / "out",
+                   env={"CAMCAL_THREADS": "many"})
+    assert_one_line_error(proc, "CAMCAL_THREADS")
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
