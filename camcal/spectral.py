@@ -380,9 +380,14 @@ def _load_model(obj, kind: str):
 
 
 def _robust_mask(m: np.ndarray, nsigma: float = 5.0) -> np.ndarray:
-    """Pixels within ``nsigma`` robust (MAD) sigmas of the plane median; (hr, wr) bool."""
-    med = np.median(m)
-    mad = 1.4826 * np.median(np.abs(m - med))
+    """Pixels within ``nsigma`` robust (MAD) sigmas of the plane median; (hr, wr) bool.
+
+    Median and MAD come from every other row and column when the plane has more than 40 000 pixels
+    (their relative sampling error, ~1/√(n/4) < 1 %, moves the 5σ threshold by less than 0.05σ).
+    """
+    sample = m[::2, ::2] if m.size > 40_000 else m
+    med = np.median(sample)
+    mad = 1.4826 * np.median(np.abs(sample - med))
     if mad <= 0:
         return np.ones(m.shape, bool)
     return np.abs(m - med) <= nsigma * mad
@@ -408,16 +413,23 @@ def combine_wavelength(results: Sequence[_FrameResult]) -> tuple[np.ndarray, np.
     u_noise = np.empty(4)
     scale = np.array([1.0 / (r.relative_exposure_s * r.row.radiance_w_m2_sr) for r in results], np.float32)
     for p in range(4):
-        y = np.stack([r.planes[p] for r in results]) * scale[:, None, None]
-        m = y.mean(axis=0)
+        y = np.stack([r.planes[p] for r in results])
+        y *= scale[:, None, None]
+        m = y.sum(axis=0)
+        m *= np.float32(1.0 / n)
         mask = _robust_mask(m)
         npix = int(mask.sum())
-        value[p] = float(m[mask].mean(dtype=np.float64))
+        value[p] = float(np.mean(m, where=mask, dtype=np.float64))
         if n > 1:
-            var = y[:, mask].var(axis=0, ddof=1, dtype=np.float64)
-            u_noise[p] = math.sqrt(float(var.mean()) / (n * npix))
+            # per-pixel temporal variance (ddof=1) in float32 about the pixel's mean (no cancellation), then
+            # its mean over the good pixels in float64
+            y -= m
+            y *= y
+            var = y.sum(axis=0)
+            var *= np.float32(1.0 / (n - 1))
+            u_noise[p] = math.sqrt(float(np.mean(var, where=mask, dtype=np.float64)) / (n * npix))
         else:
-            u_noise[p] = math.sqrt(float(m[mask].var(dtype=np.float64)) / npix)
+            u_noise[p] = math.sqrt(float(np.var(m, where=mask, dtype=np.float64)) / npix)
     rel = [r.row.radiance_unc_w_m2_sr / r.row.radiance_w_m2_sr for r in results
            if r.row.radiance_unc_w_m2_sr is not None]
     # the frames of one setting share the reference reading's calibration: fully correlated, not /sqrt(n)
