@@ -718,6 +718,9 @@ def chl_csv_cases() -> list[Case]:
     add("cell", "E-zero", set_cell(2, "0"))
     add("cell", "E-huge", set_cell(2, "50"))
     add("cell", "A-zero", set_cell(1, "0"), OK)
+    add("cell", "A-zero-everywhere", lambda t: "\n".join(
+        ",".join([ln.split(",")[0], "0", ln.split(",")[2]]) if i > 1 else ln
+        for i, ln in enumerate(t.splitlines())).encode())
     add("cell", "wavelength-zero", set_cell(0, "0"))
     add("order", "wavelength-repeated", set_cell(0, "380", row=4))
     add("order", "wavelengths-decreasing", lambda t: "\n".join(t.splitlines()[:2] + t.splitlines()[:1:-1]).encode())

@@ -338,8 +338,10 @@ class BandInverse:
             # e.g. beyond its 700 nm end, floors B): |d ln B/d ln C| < 1e-8 is beyond any measurement
             keep = (b > 1e-300) & np.isfinite(db) & (c * -db > 1e-8 * b) & (delta > 0)
         if np.count_nonzero(keep) < 4:
+            src = getattr(getattr(model, "chlorophyll", None), "source", "") or ""
             raise CamcalError("the band model does not respond to chlorophyll at this depth (the chlorophyll "
-                              "spectrum absorbs nowhere in the channel's band): nothing to invert")
+                              "spectrum absorbs nowhere in the channel's band): nothing to invert",
+                              Path(src) if src and Path(src).is_file() else None)
         c, b, db, delta = c[keep], b[keep], db[keep], delta[keep]
         w = np.log(delta)
         mono = np.concatenate([[True], w[1:] > np.maximum.accumulate(w)[:-1]])  # strictly increasing
