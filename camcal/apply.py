@@ -14,15 +14,17 @@ RAW (CFA planes R, G1, G2, B in DN)::
 Processed (JPEG/TIFF/PNG, 8 or 16 bit R, G, B)::
 
     lin     = response["processed"].linearise(values)   linear, 0..W scale, ∝ exposure
-    DN_raw  = lin · k_i,  k_i = a_raw,i / a_jpeg,i      RAW-equivalent DN above dark (same linearity series)
+    DN_raw  = A⁻¹ · lin                                 the profile's colour matrix (camcal.colour), or
+            = lin · k_i,  k_i = a_raw,i / a_jpeg,i      without one: a gain per channel (same linearity series)
     2x2 mean → half resolution, then flat, exposure and radiance as for RAW (no dark subtraction:
     the camera already removed black).
 
-Assumptions for processed files: the camera applies no white balance and no colour matrix, only a
-per-channel tone curve, so each JPEG channel is a function of one RAW channel. True for the synthetic
-camera; NOT true for real cameras, whose JPEG channels mix the RAW channels (white balance, colour
-matrix, local tone mapping). Use RAW files for radiometry; JPEG results are a fallback and only valid
-with the white balance and picture style fixed as during calibration.
+Assumptions for processed files: the camera renders tone(A · RAW) with a fixed white balance and colour
+matrix (the matrix A is fitted from RAW + JPEG twins of the sweep and the linearity series; without it
+each JPEG channel is assumed to depend on one RAW channel only, true for a camera without a matrix and
+for no real one), a per-channel tone curve, and no local tone mapping or noise reduction. JPEG results
+are only valid with the white balance and picture style fixed as during calibration; RAW is the
+radiometric format.
 
 Resolution
 ----------
@@ -360,14 +362,20 @@ def _processed_signal(frame: Frame, plan: ApplyPlan, iso: float, notes: list[str
     values = frame.planes(np.float32)
     saturated = _bin2((values >= np.float32(frame.white_level_dn)).astype(np.float32)) > 0
     lin = rp.linearise(values).astype(np.float32)
-    k = []
-    for ch in ("R", "G", "B"):
-        raw_gain = (0.5 * (rr.linear_gain_dn_per_s("G1") + rr.linear_gain_dn_per_s("G2")) if ch == "G"
-                    else rr.linear_gain_dn_per_s(ch))
-        k.append(raw_gain / rp.linear_gain_dn_per_s(ch))
-    signal = _bin2(lin * np.array(k, np.float32)[:, None, None])
-    notes.append("processed file: assumes no white balance or colour matrix in the camera (true for the "
-                 "synthetic camera, not for real ones)")
+    if rp.colour_matrix is not None:  # r = A⁻¹ j: the camera's channel mixing undone (camcal.colour)
+        signal = _bin2(rp.colour_matrix.to_raw(lin))
+        notes.append("processed file: RAW-equivalent signal through the profile's colour matrix (fitted on the "
+                     "sweep's JPEG twins); valid with the white balance and picture style of the calibration")
+    else:
+        k = []
+        for ch in ("R", "G", "B"):
+            raw_gain = (0.5 * (rr.linear_gain_dn_per_s("G1") + rr.linear_gain_dn_per_s("G2")) if ch == "G"
+                        else rr.linear_gain_dn_per_s(ch))
+            k.append(raw_gain / rp.linear_gain_dn_per_s(ch))
+        signal = _bin2(lin * np.array(k, np.float32)[:, None, None])
+        notes.append("processed file: no colour matrix in the profile, so one gain per channel: assumes the "
+                     "camera does not mix its channels (true for the synthetic camera without a matrix, not for "
+                     "real ones; calibrate with JPEG twins of the sweep)")
     var = None
     read_var, kg, scale = _noise_params(profile, iso)
     if read_var is not None:

@@ -158,6 +158,17 @@ def calibrate_session(
                                  jobs=opts.jobs, progress=cb("sweep"))
         if flat is None:
             notes.append("sweep without a flat model: c(λ) refers to the region of interest, not the optical axis")
+        if response is not None and "processed" in response:
+            from dataclasses import replace
+
+            from camcal.colour import fit_colour_matrix, twin_pairs
+
+            if twin_pairs(session / "sweep"):  # the sweep's colours; the series adds a broadband one
+                cm = fit_colour_matrix([session / "sweep", session / "linearity"], response["processed"])
+                response = {**response, "processed": replace(response["processed"], colour_matrix=cm)}
+            else:
+                notes.append("JPEG response without a colour matrix (the sweep has no JPEG twins): JPEG radiance "
+                             "assumes the camera does not mix its channels")
     provenance = Provenance(
         camcal_version=__version__,
         created_utc=datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),

@@ -45,12 +45,13 @@ from __future__ import annotations
 import math
 import warnings
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
 
+from camcal.colour import ColourMatrix
 from camcal.errors import CamcalError
 from camcal.exposure import relative_exposure
 from camcal.frame import PLANES, Frame, split_planes
@@ -208,6 +209,9 @@ class ResponseModel:
     dark_subtracted: bool = False
     roi: tuple[float, float, float, float] = (0.0, 1.0, 0.0, 1.0)
     points: dict = field(default_factory=dict)
+    colour_matrix: ColourMatrix | None = None
+    """Processed only: how the camera mixes RAW R, G, B into the linearised processed channels
+    (:mod:`camcal.colour`, fitted from the sweep's JPEG twins); None when not measured."""
 
     # -- use -----------------------------------------------------------------------------------------------------
     def linear_gain_dn_per_s(self, channel: str) -> float:
@@ -276,6 +280,8 @@ class ResponseModel:
         }
         if self.tone is not None:
             out["tone"] = self.tone
+        if self.colour_matrix is not None:
+            out["colour_matrix"] = self.colour_matrix.to_dict()
         return out
 
     def to_dict(self) -> dict:
@@ -312,6 +318,7 @@ class ResponseModel:
                 reference_f_number=num(d["reference_f_number"]), tone=d.get("tone"),
                 white_level_dn=num(d.get("white_level_dn")), dark_subtracted=bool(d.get("dark_subtracted", False)),
                 roi=tuple(d.get("roi", (0.0, 1.0, 0.0, 1.0))), points=d.get("points") or {},
+                colour_matrix=None if d.get("colour_matrix") is None else ColourMatrix.from_dict(d["colour_matrix"]),
             )
         except (KeyError, TypeError, ValueError, IndexError) as exc:
             raise CamcalError(f"malformed response model ({type(exc).__name__}: {exc})") from None
@@ -821,7 +828,29 @@ def fit_response(
     """
     series = measure_series(folder, roi=roi, dark=dark, reference_iso=reference_iso,
                             reference_f_number=reference_f_number, progress=progress)
+    if "raw" in series and "processed" in series:
+        series["processed"] = mask_raw_clipped(series["processed"], series["raw"])
     return {kind: fit_series(s) for kind, s in sorted(series.items())}
+
+
+def mask_raw_clipped(processed: ExposureSeries, raw: ExposureSeries) -> ExposureSeries:
+    """Treat a processed frame as saturated in every channel when its RAW twin (same relative exposure)
+    clips in any plane.
+
+    A camera's colour matrix mixes the RAW channels before the tone curve, so once one RAW channel
+    clips, every processed channel stops being proportional to the exposure, even far below 255
+    (``camcal.colour``). Without a RAW twin at the same exposure the frame is kept.
+    """
+    raw_clipped = (raw.clipped_fraction > SATURATED_PIXEL_FRACTION).any(axis=1)
+    bad = np.zeros(len(processed.files), bool)
+    for i, x in enumerate(processed.x_s):
+        same = np.isclose(raw.x_s, x, rtol=1e-6)
+        bad[i] = bool(same.any() and raw_clipped[same].any())
+    if not bad.any():
+        return processed
+    clipped = processed.clipped_fraction.copy()
+    clipped[bad] = 1.0
+    return replace(processed, clipped_fraction=clipped)
 
 
 def save_response(models: dict[str, ResponseModel] | ResponseModel, path: str | Path) -> Path:

@@ -328,12 +328,14 @@ class SyntheticCamera:
         gamma: float = 1 / 2.2,
         quality: int = 97,
         capture_time: datetime | None = None,
+        colour_matrix: np.ndarray | None = None,
     ) -> Path:
-        """Expose and write an 8-bit JPEG as a camera would: linear RGB, tone curve, EXIF.
+        """Expose and write an 8-bit JPEG as a camera would: linear RGB, colour matrix, tone curve, EXIF.
 
         Processing: black removed and scaled to [0, 1] (:meth:`linear_rgb`),
-        nearest-neighbour demosaic to full resolution, tone curve ``tone``
-        (``"srgb"``: IEC 61966-2-1; ``"power"``: x**gamma), 8-bit quantisation,
+        nearest-neighbour demosaic to full resolution, the 3x3 ``colour_matrix`` (camera RGB →
+        output RGB, rows summing to 1 keep white; None: identity, no mixing) and a clip to [0, 1],
+        tone curve ``tone`` (``"srgb"``: IEC 61966-2-1; ``"power"``: x**gamma), 8-bit quantisation,
         JPEG at ``quality`` with 4:4:4 chroma.
         """
         from camcal.synth.tone import apply_tone
@@ -343,6 +345,11 @@ class SyntheticCamera:
         f_number = p.reference_f_number if f_number is None else f_number
         planes = self.expose_planes(scene, exposure_s=exposure_s, iso=iso, f_number=f_number, rng=rng)
         lin = self.linear_rgb(planes)
+        if colour_matrix is not None:
+            m = np.asarray(colour_matrix, float)
+            if m.shape != (3, 3) or not np.all(np.isfinite(m)):
+                raise ValueError(f"colour_matrix must be a finite 3x3 array, got shape {m.shape}")
+            lin = np.clip(np.einsum("ij,jhw->ihw", m, lin), 0.0, 1.0)
         full = np.repeat(np.repeat(lin, 2, axis=1), 2, axis=2)
         enc = apply_tone(full, tone, gamma)
         img = np.clip(np.rint(enc * 255.0), 0, 255).astype(np.uint8)

@@ -44,6 +44,11 @@ class SessionPlan:
     linearity_jpeg: bool = True
     jpeg_tone: str = "srgb"
     jpeg_gamma: float = 1 / 2.2
+    jpeg_colour_matrix: tuple[tuple[float, float, float], ...] | None = None
+    """The camera's 3x3 colour matrix for JPEGs (camera RGB → output RGB); None: no mixing."""
+    sweep_jpeg: bool = False
+    """Also write a JPEG twin (``<stem>.jpg``, same exposure) of every sweep frame: the chromaticities
+    from which :mod:`camcal.colour` fits the JPEG colour matrix."""
     sweep_start_nm: float = 400.0
     sweep_stop_nm: float = 700.0
     sweep_step_nm: float = 5.0
@@ -222,7 +227,8 @@ def write_session(
                 jname = f"lin_{i:03d}.jpg"
                 camera.write_jpeg(d / jname, Scene.uniform(spec), exposure_s=t, iso=plan.iso, f_number=n_ref,
                                   rng=rngs[2 * i + 1], tone=plan.jpeg_tone, gamma=plan.jpeg_gamma,
-                                  capture_time=t0 + timedelta(seconds=next(seq)))
+                                  capture_time=t0 + timedelta(seconds=next(seq)),
+                                  colour_matrix=plan.jpeg_colour_matrix)
                 rows.append({"file": jname, "exposure_s": t, "iso": plan.iso, "f_number": n_ref})
             note("linearity", i, len(times))
         atomic_write_text(d / "frames.csv", _csv(rows))
@@ -232,6 +238,7 @@ def write_session(
             "rate_dn_per_s_on_axis": {"R": rate[0], "G": rate[1], "B": rate[2]},
             "jpeg_tone": plan.jpeg_tone,
             "jpeg_gamma": plan.jpeg_gamma,
+            "jpeg_colour_matrix": plan.jpeg_colour_matrix,
             "spectrum": "normalised black body",
             "spectrum_temperature_k": plan.flat_temperature_k,
         }
@@ -244,6 +251,12 @@ def write_session(
         for k, (shot, rng) in enumerate(zip(shots, rngs, strict=True)):
             camera.write_dng(d / shot.name, Scene.uniform(shot.spectrum), exposure_s=shot.exposure_s, iso=plan.iso,
                              f_number=n_ref, rng=rng, capture_time=t0 + timedelta(seconds=next(seq)))
+            if plan.sweep_jpeg:
+                camera.write_jpeg(d / Path(shot.name).with_suffix(".jpg"), Scene.uniform(shot.spectrum),
+                                  exposure_s=shot.exposure_s, iso=plan.iso, f_number=n_ref,
+                                  rng=np.random.default_rng(rng.integers(2**63)), tone=plan.jpeg_tone,
+                                  gamma=plan.jpeg_gamma, colour_matrix=plan.jpeg_colour_matrix,
+                                  capture_time=t0 + timedelta(seconds=next(seq)))
             rows.append(shot.row)
             note("sweep", k, len(shots))
         atomic_write_text(d / "sweep.csv", _csv(rows))

@@ -1,0 +1,188 @@
+"""The JPEG colour matrix: how a camera mixes its RAW channels into processed R, G, B.
+
+A camera renders a JPEG as ``tone(M · WB · raw)``: white balance (a gain per channel), a 3x3 colour
+matrix M that mixes the channels, then a tone curve per channel. :mod:`camcal.response` inverts the
+tone curve of each processed channel (``linearise``), which leaves ``j = A · r``: the linearised
+processed values j are a fixed linear map A of the RAW signals r = (R, (G1 + G2)/2, B) above the
+black level (the camera removes its black level, not the dark current), as
+long as the white balance and picture style stay fixed. A grey exposure series cannot separate the
+columns of A (one chromaticity); a monochromator sweep can: every wavelength is a different
+chromaticity. With a JPEG twin of each sweep frame (same exposure, ``<stem>.jpg``), A is fitted by
+least squares, one row per processed channel, over the wavelengths where that channel is neither
+clipped nor near black.
+
+Applying a profile to a JPEG then takes the RAW-equivalent signal as ``r = A⁻¹ · j`` (see
+:mod:`camcal.apply`) instead of one gain per channel — which is only right when M is the identity
+(per-channel white balance alone). Without a fitted matrix apply falls back to the per-channel gains
+and says so in the notes.
+
+Reference: the camera pipeline model of Ramanath et al. (2005), "Color image processing pipeline",
+IEEE Signal Processing Magazine 22(1), 34–43; seed eq. 12 for the per-channel response.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from camcal.errors import CamcalError
+from camcal.frame import PLANES
+
+#: A JPEG channel of a sweep frame is used when fewer than this fraction of its ROI pixels are clipped
+#: (0 or the white level) ...
+MAX_CLIPPED_FRACTION = 0.01
+#: ... and its linearised ROI mean is above this fraction of the white level (8-bit quantisation).
+MIN_LEVEL_FRACTION = 0.02
+
+
+@dataclass(frozen=True)
+class ColourMatrix:
+    """``j = matrix @ r``: linearised processed (R, G, B) from RAW (R, G, B) DN above the black level.
+
+    Attributes
+    ----------
+    matrix : (3, 3) float; rows: processed R, G, B; columns: RAW R, G (mean of G1, G2), B.
+    matrix_unc : (3, 3) standard uncertainties of the entries (from the fit residuals).
+    n_frames : per processed channel, the sweep frames used.
+    residual_rms_rel : per processed channel, RMS of (j − A r)/j over the frames used.
+    sources : the folders whose twins were used.
+    """
+
+    matrix: np.ndarray
+    matrix_unc: np.ndarray
+    n_frames: tuple[int, int, int]
+    residual_rms_rel: tuple[float, float, float]
+    sources: tuple[str, ...]
+
+    @property
+    def inverse(self) -> np.ndarray:
+        return np.linalg.inv(self.matrix)
+
+    def to_raw(self, lin: np.ndarray) -> np.ndarray:
+        """(3, ...) linearised processed values -> (3, ...) RAW-equivalent R, G, B (DN above the black level)."""
+        inv = self.inverse.astype(np.float32)
+        return np.einsum("ij,j...->i...", inv, np.asarray(lin, np.float32)).astype(np.float32)
+
+    def to_dict(self) -> dict:
+        return {"matrix": self.matrix.tolist(), "matrix_unc": self.matrix_unc.tolist(),
+                "n_frames": list(self.n_frames), "residual_rms_rel": list(self.residual_rms_rel),
+                "sources": [Path(f).name for f in self.sources],
+                "equation": "linearised processed (R,G,B) = matrix @ RAW (R, (G1+G2)/2, B) DN above the black level"}
+
+    @staticmethod
+    def from_dict(d: dict) -> ColourMatrix:
+        try:
+            m = np.asarray(d["matrix"], float)
+            u = np.asarray(d.get("matrix_unc", np.zeros((3, 3))), float)
+            if m.shape != (3, 3) or u.shape != (3, 3) or not (np.all(np.isfinite(m)) and np.all(np.isfinite(u))):
+                raise ValueError("matrix and matrix_unc must be finite 3x3 arrays")
+            if abs(np.linalg.det(m)) < 1e-12 * max(1.0, float(np.abs(m).max())) ** 3:
+                raise ValueError("the colour matrix is singular")
+            n = tuple(int(v) for v in d.get("n_frames", (0, 0, 0)))
+            r = tuple(float(v) for v in d.get("residual_rms_rel", (np.nan,) * 3))
+            w = tuple(str(v) for v in d.get("sources", ()))
+            if len(n) != 3 or len(r) != 3:
+                raise ValueError("n_frames and residual_rms_rel need 3 values")
+        except (KeyError, TypeError, ValueError) as exc:
+            raise CamcalError(f"malformed colour matrix ({exc})") from None
+        return ColourMatrix(m, u, n, r, w)  # type: ignore[arg-type]
+
+
+def twin_pairs(folder: str | Path) -> list[tuple[Path, Path]]:
+    """The RAW frames of ``folder`` that have a processed twin (``<stem>.jpg`` or ``.jpeg``), sorted by name."""
+    from camcal.io import is_raw_path, list_frames
+
+    pairs = []
+    for path in list_frames(folder):
+        if not is_raw_path(path):
+            continue
+        for suffix in (".jpg", ".jpeg", ".JPG", ".JPEG"):
+            twin = path.with_suffix(suffix)
+            if twin.is_file():
+                pairs.append((path, twin))
+                break
+    return pairs
+
+
+def fit_colour_matrix(folders: Sequence[str | Path], processed, *, roi_fraction: float = 0.2,
+                      min_frames: int = 6) -> ColourMatrix | None:
+    """Fit the colour matrix A from RAW frames and their JPEG twins (module docstring).
+
+    Parameters
+    ----------
+    folders : folders holding RAW + JPEG twins of the same exposure: the sweep (many chromaticities,
+        but with a negative matrix coefficient a monochromatic line clips the other channels to 0) and
+        the linearity series (one broadband chromaticity with every channel well exposed, which pins
+        the combination a daylight scene needs). Exposures are not needed: A relates the two files of
+        one exposure.
+    processed : the processed :class:`camcal.response.ResponseModel` (its ``linearise``).
+    roi_fraction : central box, fraction of each side.
+    min_frames : usable frames each processed channel needs.
+
+    Returns
+    -------
+    ColourMatrix, or None when no folder has twins.
+
+    Raises
+    ------
+    CamcalError
+        A twin that is not a processed image of the same size, or too few usable frames.
+    """
+    from camcal.io import load_frame
+    from camcal.spectral import central_roi
+
+    pairs = [p for f in folders for p in twin_pairs(f)]
+    if not pairs:
+        return None
+    where = Path(folders[0])
+    r_rows, j_rows, ok_rows = [], [], []
+    white = float(processed.white_level_dn)
+    for path, twin in pairs:
+        raw = load_frame(path)
+        jpg = load_frame(twin)
+        if jpg.kind == "raw" or jpg.shape != raw.shape:
+            raise CamcalError(f"is not a processed twin of {path.name} (a JPEG of the same size)", twin)
+        planes = raw.planes(np.float32)
+        x0, y0, x1, y1 = central_roi(planes.shape[1:], roi_fraction)
+        # above the file's black level, not the dark model: the camera renders its JPEG from the RAW data
+        # minus its black level, dark current included (long sweep exposures: it matters)
+        box = planes[:, y0:y1, x0:x1] - raw.black_vector().astype(np.float32)
+        raw_clipped = np.mean(planes[:, y0:y1, x0:x1] >= raw.white_level_dn, axis=(1, 2)).max()
+        m = {p: float(np.mean(box[i], dtype=np.float64)) for i, p in enumerate(PLANES)}
+        r_rows.append([m["R"], 0.5 * (m["G1"] + m["G2"]), m["B"]])
+        vals = jpg.planes(np.float32)[:, 2 * y0: 2 * y1, 2 * x0: 2 * x1]
+        clipped = np.mean((vals <= 0) | (vals >= jpg.white_level_dn), axis=(1, 2))
+        lin = processed.linearise(vals)
+        j = np.mean(lin, axis=(1, 2), dtype=np.float64)
+        j_rows.append(j)
+        ok_rows.append((clipped < MAX_CLIPPED_FRACTION) & (j > MIN_LEVEL_FRACTION * white)
+                       & (raw_clipped < MAX_CLIPPED_FRACTION))
+    r, j, ok = np.asarray(r_rows), np.asarray(j_rows), np.asarray(ok_rows)
+    matrix = np.empty((3, 3))
+    unc = np.empty((3, 3))
+    n_used, rms = [], []
+    for i, name in enumerate(("R", "G", "B")):
+        use = ok[:, i]
+        n = int(use.sum())
+        if n < max(min_frames, 4):
+            raise CamcalError(f"only {n} sweep frames have a usable JPEG {name} channel (neither clipped nor "
+                              f"below {100 * MIN_LEVEL_FRACTION:g} % of white); the colour matrix needs "
+                              f"{max(min_frames, 4)}", where)
+        x, y = r[use], j[use, i]
+        w = 1.0 / np.maximum(np.abs(y), 1e-12)  # relative residuals: every wavelength counts alike
+        xw, yw = x * w[:, None], y * w
+        coef, *_ = np.linalg.lstsq(xw, yw, rcond=None)
+        res = yw - xw @ coef
+        dof = max(n - 3, 1)
+        s2 = float(res @ res) / dof
+        cov = s2 * np.linalg.pinv(xw.T @ xw)
+        matrix[i], unc[i] = coef, np.sqrt(np.maximum(np.diag(cov), 0))
+        n_used.append(n)
+        rms.append(float(np.sqrt(np.mean(res**2))))
+    if abs(np.linalg.det(matrix)) < 1e-12 * float(np.abs(matrix).max()) ** 3:
+        raise CamcalError("the fitted colour matrix is singular (the JPEG twins hold too few colours)", where)
+    return ColourMatrix(matrix, unc, tuple(n_used), tuple(rms),  # type: ignore[arg-type]
+                        tuple(str(f) for f in folders))
