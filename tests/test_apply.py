@@ -156,7 +156,7 @@ def test_jpeg_within_3pct(photos, profile, camera):
             assert mean(img.channels[ch]) == pytest.approx(tb[i], rel=0.03), (name, ch)
         if truth is not None:
             assert mean(img.channels["L663"]) == pytest.approx(truth, rel=0.03)
-        assert any("no colour matrix" in n for n in img.metadata["notes"])  # the session has no JPEG twins
+        assert any("through the profile's colour matrix" in n for n in img.metadata["notes"])  # sweep twins
 
 
 def test_other_camera_refused(tmp_path, profile, profile_path):

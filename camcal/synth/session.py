@@ -46,9 +46,9 @@ class SessionPlan:
     jpeg_gamma: float = 1 / 2.2
     jpeg_colour_matrix: tuple[tuple[float, float, float], ...] | None = None
     """The camera's 3x3 colour matrix for JPEGs (camera RGB → output RGB); None: no mixing."""
-    sweep_jpeg: bool = False
-    """Also write a JPEG twin (``<stem>.jpg``, same exposure) of every sweep frame: the chromaticities
-    from which :mod:`camcal.colour` fits the JPEG colour matrix."""
+    sweep_jpeg: bool = True
+    """Also write a JPEG twin (``<stem>.jpg``, same exposure) of the first sweep frame at each wavelength:
+    the chromaticities from which :mod:`camcal.colour` fits the JPEG colour matrix."""
     sweep_start_nm: float = 400.0
     sweep_stop_nm: float = 700.0
     sweep_step_nm: float = 5.0
@@ -251,7 +251,7 @@ def write_session(
         for k, (shot, rng) in enumerate(zip(shots, rngs, strict=True)):
             camera.write_dng(d / shot.name, Scene.uniform(shot.spectrum), exposure_s=shot.exposure_s, iso=plan.iso,
                              f_number=n_ref, rng=rng, capture_time=t0 + timedelta(seconds=next(seq)))
-            if plan.sweep_jpeg:
+            if plan.sweep_jpeg and shot.name.endswith("_00.dng"):  # one twin per wavelength is enough
                 camera.write_jpeg(d / Path(shot.name).with_suffix(".jpg"), Scene.uniform(shot.spectrum),
                                   exposure_s=shot.exposure_s, iso=plan.iso, f_number=n_ref,
                                   rng=np.random.default_rng(rng.integers(2**63)), tone=plan.jpeg_tone,
