@@ -428,7 +428,8 @@ PROFILE_PATHS: tuple[tuple, ...] = (
     ("dark",), ("dark", "iso"), ("dark", "cfa_pattern"), ("dark", "exposure_times_s"), ("dark", "channels"),
     ("dark", "white_level_dn"), ("flat",), ("response",), ("response", "raw"), ("spectral_sensitivity",),
     ("spectral_sensitivity", "wavelength_nm"), ("provenance",), ("provenance", "inputs"), ("maps",),
-    ("maps", "dark"), ("integrity",),
+    ("maps", "dark"), ("integrity",), ("response", "processed", "colour_matrix"),
+    ("response", "processed", "colour_matrix", "matrix"), ("response", "processed", "colour_matrix", "matrix_unc"),
 )
 WRONG_VALUES: tuple[tuple[str, object], ...] = (
     ("string", "x"), ("negative", -1), ("null", None), ("list", []), ("object", {}), ("bool", True),
@@ -504,6 +505,12 @@ def profile_cases() -> list[Case]:
                 continue
             add("wrong type", f"{key}={label}", lambda b, p=path, v=value: _rezip(
                 _set_path(_profile_parts(b)[0], p, v), _profile_parts(b)[1]), EITHER)
+    cm_path = ("response", "processed", "colour_matrix", "matrix")
+    for label, value in (("singular", [[1, 0, 0], [0, 1, 0], [1, 0, 0]]), ("2x2", [[1, 0], [0, 1]]),
+                         ("ragged", [[1, 0, 0], [0, 1], [0, 0, 1]]),
+                         ("text-cell", [[1, 0, 0], [0, "x", 0], [0, 0, 1]])):
+        add("wrong type", f"colour-matrix-{label}", lambda b, v=value: _rezip(
+            _set_path(_profile_parts(b)[0], cm_path, v), _profile_parts(b)[1]))
     for where in ((), ("camera",), ("dark",), ("reference",)):
         add("extra key", f"extra-in-{'.'.join(where) or 'top'}", lambda b, w=where: _rezip(
             _set_path(_profile_parts(b)[0], (*w, "surprise"), 1), _profile_parts(b)[1]),
