@@ -480,6 +480,17 @@ def _response_section(profile, c: dict) -> str:
                              "linear gain [DN/s]", "saturation [DN]"], rows))
         parts.append(f'<p class="sub">dark subtracted: {"yes" if model.dark_subtracted else "no"}; '
                      f"white level {_num(model.white_level_dn)} DN.</p>")
+        cm = getattr(model, "colour_matrix", None)
+        if cm is not None:
+            rows = [[out, *(f"{cm.matrix[i, j]:.5g} ± {cm.matrix_unc[i, j]:.2g}" for j in range(3)), cm.n_frames[i],
+                     100 * cm.residual_rms_rel[i]] for i, out in enumerate(("JPEG R", "JPEG G", "JPEG B"))]
+            parts.append("<h4>Colour matrix</h4>" + _table(
+                ["linearised", "× RAW R", "× RAW G", "× RAW B", "frames", "residual RMS [%]"], rows, left=4)
+                + f'<p class="sub">Linearised JPEG = A · RAW (above the black level), fitted on the JPEG twins in '
+                f'{_esc(", ".join(Path(f).name for f in cm.sources))}; apply uses A⁻¹.</p>')
+        elif kind == "processed":
+            parts.append('<p class="sub">No colour matrix (no JPEG twins in the sweep): JPEGs are read with one gain '
+                         "per channel, which assumes the camera does not mix its channels.</p>")
     return "".join(parts) + "</section>"
 
 

@@ -147,6 +147,9 @@ def test_full_report_numbers_follow_the_contract(full_report):
     assert n > 0 and f"{n} (bias:" in page
     assert f"camcal version (profile)</td><td class=\"l\">{profile.provenance.camcal_version}" in page
     assert "sweep_mode" in page  # options table
+    cm = profile.response["processed"].colour_matrix  # the session has JPEG twins in its sweep
+    assert cm is not None and "Colour matrix" in page
+    assert f"{cm.matrix[1, 1]:.5g} ± {cm.matrix_unc[1, 1]:.2g}" in page
 
 
 def test_report_renders_in_headless_chromium(full_report, tmp_path):
