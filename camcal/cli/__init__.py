@@ -60,6 +60,15 @@ def _usage_error_type() -> type[Exception]:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI; returns the exit code (0 ok, 1 partial failure, 2 user error, 3 internal error)."""
+    from camcal.atomic import remove_pending
+
+    try:
+        return _main(argv)
+    finally:  # an interrupt in a window no ``except`` covers must not leave a .part file behind
+        remove_pending()
+
+
+def _main(argv: list[str] | None) -> int:
     usage_error = _usage_error_type()
     try:
         result = app(args=argv, prog_name="camcal", standalone_mode=False)
