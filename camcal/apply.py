@@ -63,6 +63,7 @@ from pathlib import Path
 
 import numpy as np
 
+from camcal.correct import Calibration, correct_planes
 from camcal.errors import CamcalError
 from camcal.exposure import frame_relative_exposure
 from camcal.frame import PLANES, Frame, plane_offsets
@@ -121,10 +122,21 @@ class ApplyPlan:
     flat_rgb: np.ndarray | None
     options: dict
     prnu_rel: np.ndarray | None = None
-    inv_flat_planes: np.ndarray | None = None
-    bad_planes: np.ndarray | None = None
-    read_var_dn2: np.ndarray | None = None
-    gain_dn_per_e: np.ndarray | None = None
+    calibration: Calibration = Calibration()
+    """The RAW planes' correction (:mod:`camcal.correct`): dark model, flat gain, defects."""
+    rgb_calibration: Calibration = Calibration()
+    """The flat division of processed photos' binned R, G, B (:mod:`camcal.correct`)."""
+
+    @property
+    def read_var_dn2(self) -> np.ndarray | None:
+        """(4, h, w) read-noise variance of the dark model at its ISO, DN²."""
+        dark = self.calibration.dark
+        return None if dark is None else dark.read_noise_dn.astype(np.float32) ** 2
+
+    @property
+    def gain_dn_per_e(self) -> np.ndarray | None:
+        """(4, 1, 1) system gain of the dark model at its ISO, DN per electron."""
+        return self.calibration.noise_gain_dn_per_e
 
 
 def prepare(
@@ -167,12 +179,9 @@ def prepare(
         prnu_rel = np.array(rms, np.float32)[:, None, None]
     options = {"wavelength_nm": float(wavelength_nm), "estimator": estimator, "filter_fwhm_nm": filter_fwhm_nm,
                "line_fwhm_nm": line_fwhm_nm, "with_prnu": with_prnu}
-    inv_flat = None if flat_planes is None else (1.0 / flat_planes).astype(np.float32)
-    bad = read_var = gain = None
-    if profile.dark is not None:
-        bad = profile.dark.defects != 0
-        read_var, gain, _ = _noise_params(profile, profile.dark.iso)
-    return ApplyPlan(profile, model, flat_planes, flat_rgb, options, prnu_rel, inv_flat, bad, read_var, gain)
+    cal = Calibration.of(profile.dark, profile.flat if flat_planes is not None else None, with_prnu=with_prnu)
+    rgb_cal = Calibration(flat_gain=flat_rgb, inv_flat_gain=None if flat_rgb is None else 1.0 / flat_rgb)
+    return ApplyPlan(profile, model, flat_planes, flat_rgb, options, prnu_rel, cal, rgb_cal)
 
 
 def check_camera(exposure, profile, path: Path | None, allow_other_camera: bool = False) -> list[str]:
@@ -255,9 +264,9 @@ def _raw_check(frame: Frame, plan: ApplyPlan) -> None:
     if dark is not None and shape != dark.bias_dn.shape:
         raise CamcalError(f"photo planes {shape[1:]} do not match the profile's dark model "
                           f"{dark.bias_dn.shape[1:]} (another camera, crop or resolution)", frame.path)
-    if plan.inv_flat_planes is not None and plan.inv_flat_planes.shape != shape:
+    if plan.flat_planes is not None and plan.flat_planes.shape != shape:
         raise CamcalError(f"photo planes {shape[1:]} do not match the profile's flat field "
-                          f"{plan.inv_flat_planes.shape[1:]} (another camera, crop or resolution)", frame.path)
+                          f"{plan.flat_planes.shape[1:]} (another camera, crop or resolution)", frame.path)
 
 
 def _raw_pixels(frame: Frame, plan: ApplyPlan, t: float, iso: float, inv_x: float, notes: list[str],
@@ -269,20 +278,18 @@ def _raw_pixels(frame: Frame, plan: ApplyPlan, t: float, iso: float, inv_x: floa
     the output; the bands run on ``threads`` threads.
     """
     _raw_check(frame, plan)
-    profile, model = plan.profile, plan.model
-    dark = profile.dark
+    model = plan.model
+    cal = plan.calibration
     mosaic = frame.data
     h, w = frame.shape[0] // 2, frame.shape[1] // 2
     off = plane_offsets(frame.cfa_pattern)
-    white = np.float32(frame.white_level_dn)
-    if dark is not None:
-        scale = np.float32(iso / dark.iso)
-        dark_factor = np.float32(t * iso / dark.iso)
-        gain_s = (plan.gain_dn_per_e * scale).astype(np.float32)
-        read_s2 = np.float32(scale * scale)
-    else:
-        black = frame.black_vector().astype(np.float32)
+    white = float(frame.white_level_dn)
+    black = frame.black_vector().ravel()
+    if cal.dark is None:
         notes.append("no dark model: the file's black level was subtracted, dark current ignored; no noise map")
+    elif not cal.dark_current_known:
+        notes.append("the profile's dark current is unknown (bias-only calibration): the bias was subtracted, "
+                     "dark current was not")
     band_k = [np.float32(inv_x / model.band_integral[i]) for i in range(3)]
     used = [(i, np.float32(model.weights[i] * inv_x)) for i in range(3) if model.weights[i] != 0]
     rel = np.float32(model.weights_unc_rel if math.isfinite(model.weights_unc_rel) else 0.0)
@@ -295,27 +302,10 @@ def _raw_pixels(frame: Frame, plan: ApplyPlan, t: float, iso: float, inv_x: floa
         for k, name in enumerate(PLANES):
             r, c = off[name]
             planes[k] = mosaic[2 * r0 + r: 2 * r1: 2, c::2]
-        invalid = planes >= white
-        var = None
-        if dark is not None:
-            planes -= dark.bias_dn[:, r0:r1]
-            ds = dark.dark_current_dn_per_s[:, r0:r1] * dark_factor
-            planes -= ds
-            invalid |= plan.bad_planes[:, r0:r1]
-            # var = σ_read²·s² + K·s·max(signal + dark, 0)   (EMVA 1288 linear model, s = ISO/ISO_dark)
-            var = ds
-            var += planes
-            np.maximum(var, 0, out=var)
-            var *= gain_s
-            var += plan.read_var_dn2[:, r0:r1] * read_s2
-        else:
-            planes -= black
-        if plan.inv_flat_planes is not None:
-            inv = plan.inv_flat_planes[:, r0:r1]
-            planes *= inv
-            if var is not None:
-                var *= inv
-                var *= inv
+        corr = correct_planes(planes, cal, exposure_s=t, iso=iso, white_level_dn=white, black_level_dn=black,
+                              full_shape=(4, h, w), window=(slice(r0, r1), slice(None)), variance=True,
+                              path=frame.path, inplace=True)
+        planes, invalid, var = corr.signal_dn, corr.invalid, corr.variance_dn2
         np.copyto(planes, nan, where=invalid)
         # G: mean of the good greens (one defective green leaves the other)
         g = planes[1] + planes[2]
@@ -411,9 +401,12 @@ def apply_prepared(frame: Frame, plan: ApplyPlan, *, allow_other_camera: bool = 
             if plan.flat_rgb.shape != signal.shape:
                 raise CamcalError(f"photo (half resolution {signal.shape[1:]}) does not match the profile's flat "
                                   f"field {plan.flat_rgb.shape[1:]} (another camera, crop or resolution)", path)
-            signal /= plan.flat_rgb
+            # linearised, binned RGB: no dark, nothing clipped beyond ``saturated``; the flat division only
+            signal = correct_planes(signal, plan.rgb_calibration, exposure_s=t, iso=iso, white_level_dn=np.inf,
+                                    black_level_dn=np.zeros(3), channels=("R", "G", "B"), path=path,
+                                    inplace=True).signal_dn
             if var is not None:
-                var /= plan.flat_rgb * plan.flat_rgb
+                var *= plan.rgb_calibration.inv_flat_gain ** 2
         signal[saturated] = np.nan
         if var is not None and plan.prnu_rel is not None:
             var += (plan.prnu_rel * signal) ** 2  # pixel response non-uniformity left uncorrected

@@ -15,13 +15,19 @@ times), following EMVA 1288 (release 4.0, §4.3 "dark current", §4.5 "DSNU"):
 - **read noise**: the temporal standard deviation in DN of the bias frames (without bias
   frames: of the shortest dark exposure, extrapolated per channel to t = 0 by a line
   through the mean temporal variance against t, EMVA 1288 §4.3 "from the variance"),
-  minus the quantisation variance 1/12 DN² (EMVA 1288 eq. 4 σ_q² for integer data).
+  minus the quantisation variance 1/12 DN² (EMVA 1288 eq. 4 σ_q² for integer data). Below
+  1 DN of temporal noise that correction is wrong (the pixel means are not spread over whole
+  DN), so there the read noise and DSNU come from a quantised-normal likelihood of frame pairs
+  (:func:`quantised_noise_fit`); ``temporal_noise_dn`` keeps the recorded standard deviation.
 - **DSNU**: the spatial standard deviation of the bias map and of the β map over good
   pixels, with the temporal noise of the estimates removed (EMVA 1288 §4.5).
 - **defects** (bit mask): 1 hot (β above the channel median by more than both
-  ``hot_sigma`` robust standard deviations and ``(hot_factor - 1)`` medians), 2 dead
-  (stuck: temporal sigma below ``dead_fraction`` of the channel median), 4 noisy
-  (temporal sigma above the median by ``noisy_sigma`` robust standard deviations).
+  ``hot_sigma`` robust standard deviations and ``(hot_factor - 1)`` medians), 4 noisy
+  (temporal variance above the plane's model variance beyond a chi-square bound,
+  :func:`temporal_noise`). 2 dead is defined by the response, not by the darks (a pixel that
+  reads one value in every dark frame is normal below 1 DN of noise): :func:`camcal.flat.dead_pixels`.
+- **duplicates**: two frames with identical pixels are refused by content (:mod:`camcal.stack`).
+- **bias only** (:func:`fit_bias`): bias, read noise, DSNU, noisy pixels; dark current unknown.
 """
 
 from __future__ import annotations
@@ -32,10 +38,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from scipy.optimize import minimize
+from scipy.special import chdtri, ndtr
 
+from camcal.correct import Calibration, correct_planes, dark_frame
 from camcal.errors import CamcalError
 from camcal.frame import PLANES, Frame
-from camcal.io import exposure_from_exif, folder_files
+from camcal.io import exposure_from_exif, folder_files, load_frame
 from camcal.stack import MAD_TO_SIGMA, METHODS, StackResult, combine_frames
 
 HOT, DEAD, NOISY = 1, 2, 4
@@ -56,14 +65,16 @@ class DarkModel:
     ----------
     bias_dn : (4, h, w) float32
         Master bias in DN, black level included (the intercept at t = 0).
-    dark_current_dn_per_s : (4, h, w) float32
-        Dark current β in DN/s at :attr:`iso`.
-    dark_current_unc_dn_per_s : (4, h, w) float32
+    dark_current_dn_per_s : (4, h, w) float32, or None
+        Dark current β in DN/s at :attr:`iso`; None when unknown (a bias-only calibration).
+    dark_current_unc_dn_per_s : (4, h, w) float32, or None
         Standard uncertainty of β per pixel, DN/s.
     read_noise_dn : (4, h, w) float32
-        Temporal standard deviation of the dark signal in DN (quantisation removed).
+        Temporal standard deviation of the dark signal in DN with the quantisation removed (below 1 DN
+        of noise: the plane's value from :func:`quantised_noise_fit`, see :func:`temporal_noise`).
     defects : (4, h, w) uint8
-        Bit mask: 1 hot, 2 dead (stuck), 4 noisy.
+        Bit mask: 1 hot (dark current), 2 dead (no response in the flats, set by ``camcal calibrate``
+        from :func:`camcal.flat.dead_pixels`), 4 noisy (temporal variance far above the model).
     iso : float
         ISO of the frames.
     cfa_pattern : str
@@ -82,8 +93,8 @@ class DarkModel:
     """
 
     bias_dn: np.ndarray
-    dark_current_dn_per_s: np.ndarray
-    dark_current_unc_dn_per_s: np.ndarray
+    dark_current_dn_per_s: np.ndarray | None
+    dark_current_unc_dn_per_s: np.ndarray | None
     read_noise_dn: np.ndarray
     defects: np.ndarray
     iso: float
@@ -101,10 +112,7 @@ class DarkModel:
         β scales with the gain, so with ``iso`` it is multiplied by ``iso / self.iso``;
         the bias (black level) does not change with ISO.
         """
-        if not np.isfinite(exposure_s) or exposure_s < 0:
-            raise CamcalError(f"exposure time must be a non-negative number of seconds, got {exposure_s}")
-        scale = 1.0 if iso is None else float(iso) / self.iso
-        return (self.bias_dn + self.dark_current_dn_per_s * np.float32(exposure_s * scale)).astype(np.float32)
+        return dark_frame(self, exposure_s, iso, self.bias_dn.shape)
 
     def summary(self) -> dict:
         """JSON-ready summary: per-plane numbers and defect counts."""
@@ -177,7 +185,7 @@ def _robust(x: np.ndarray) -> tuple[float, float]:
 
 
 def fit_dark(
-    dark_folder: str | Path,
+    dark_folder: str | Path | None,
     bias_folder: str | Path | None = None,
     *,
     method: str = "sigma_clip",
@@ -185,7 +193,6 @@ def fit_dark(
     hot_sigma: float = 6.0,
     hot_factor: float = 5.0,
     noisy_sigma: float = 6.0,
-    dead_fraction: float = 0.25,
     saturation_fraction: float = 0.01,
     bias_prior_frames: float = 1.0,
     jobs: int = 1,
@@ -197,16 +204,18 @@ def fit_dark(
     ----------
     dark_folder : folder of RAW dark frames at two or more exposure times (one is enough
         with bias frames), with an optional ``frames.csv`` (``exposure_s``, ``iso``,
-        ``temperature_C``...).
+        ``temperature_C``...); None for a bias-only calibration (bias, read noise and noisy
+        pixels; the dark current is then unknown, ``dark_current_dn_per_s`` None).
     bias_folder : folder of RAW bias frames (shortest exposure, no light), optional.
     method : how each exposure group of darks is combined (:func:`camcal.stack.combine_frames`);
         bias frames are always averaged (``mean``) so their variance is the full temporal variance.
     sigma : sigma-clipping threshold.
     hot_sigma, hot_factor : hot if β > median + max(hot_sigma · robust σ_β, (hot_factor - 1) · median).
-    noisy_sigma : noisy if temporal σ > median + noisy_sigma · robust spread of σ (and above the
-        chi-square bound a normal pixel exceeds with probability 1e-6, for the number of frames).
-    dead_fraction : dead (stuck) if temporal σ < dead_fraction · median σ (and below the 1e-6
-        chi-square bound).
+    noisy_sigma : noisy if the temporal variance is above the plane's model variance by more than
+        ``noisy_sigma`` standard errors of a variance and by more than the chi-square bound a
+        normal pixel exceeds with probability 1e-6 for the number of frames. Dead pixels are not
+        found here (a zero temporal variance is normal below 1 DN of noise): the flat stage finds
+        them by their response (:func:`camcal.flat.dead_pixels`).
     saturation_fraction : a frame with more than this fraction of pixels at the white level is refused.
     bias_prior_frames : weight, in frames, of the black-level prior at t = 0 (no bias frames only).
     jobs : 1 or 2 (decode pool and band threads).
@@ -220,6 +229,11 @@ def fit_dark(
     """
     if method not in METHODS:
         raise CamcalError(f"unknown combination method {method!r}; choose from {', '.join(METHODS)}")
+    if dark_folder is None:
+        if bias_folder is None:
+            raise CamcalError("the dark model needs dark frames, bias frames or both")
+        return fit_bias(bias_folder, hot_sigma=hot_sigma, noisy_sigma=noisy_sigma,
+                        saturation_fraction=saturation_fraction, jobs=jobs, progress=progress)
     dark_folder = Path(dark_folder)
     files, manifest = _files(dark_folder)
     times = [_exposure_time(p, manifest) for p in files]
@@ -300,29 +314,16 @@ def fit_dark(
     _, beta_var, _, b_var, _ = _fit_lines(modelled, white)
 
     # read noise: per-pixel temporal variance of the bias (or shortest dark), quantisation removed
-    if bias_stack is not None:
-        var_t = np.asarray(bias_stack.variance, np.float64)
-    else:
-        var_t = np.asarray(stacks[0][1].variance_all, np.float64)
-    read_noise = np.sqrt(np.maximum(var_t - QUANTISATION_VAR_DN2, 0.0))
-
-    # defects
-    from scipy.stats import chi2
-
+    rn_stack = bias_stack if bias_stack is not None else stacks[0][1]
+    var_t = np.asarray(bias_stack.variance if bias_stack is not None else stacks[0][1].variance_all, np.float64)
     defects = np.zeros(beta.shape, np.uint8)
-    sigma_t = np.sqrt(var_t)
-    dof = float(np.median((bias_stack or stacks[0][1]).count)) - 1.0
-    # a normal pixel's sample sigma lies within these factors of the true one but for ~1e-6 of pixels
-    lo_factor = float(np.sqrt(chi2.ppf(1e-6, dof) / dof)) if dof >= 1 else 0.0
-    hi_factor = float(np.sqrt(chi2.isf(1e-6, dof) / dof)) if dof >= 1 else np.inf
     for k in range(beta.shape[0]):
         med_b, rs_b = _robust(beta[k])
         thresh = med_b + max(hot_sigma * rs_b, (hot_factor - 1.0) * abs(med_b))
-        hot = ~np.isfinite(beta[k]) | (beta[k] > thresh)
-        med_s, rs_s = _robust(sigma_t[k])
-        noisy = sigma_t[k] > max(med_s + noisy_sigma * rs_s, hi_factor * med_s)
-        dead = sigma_t[k] < min(dead_fraction, lo_factor) * med_s
-        defects[k] = hot * HOT | dead * DEAD | noisy * NOISY
+        defects[k] = ((~np.isfinite(beta[k]) | (beta[k] > thresh)) * HOT).astype(np.uint8)
+    noise = temporal_noise(rn_stack, var_t, defects, noisy_sigma)
+    defects |= (noise.noisy * NOISY).astype(np.uint8)
+    read_noise = noise.read_noise_map_dn
     # pixels without a fit (saturated in all but one group): β lower bound from saturation
     no_fit = ~np.isfinite(beta)
     if np.any(no_fit):
@@ -332,7 +333,7 @@ def fit_dark(
         beta_var = np.where(no_fit, np.inf, beta_var)
 
     channels = _channel_summary(b, b_var, beta, beta_var, var_t, defects, stacks, bias_stack is not None,
-                                noise_gain)
+                                noise_gain, noise)
     temps = [e.temperature_c for _, s in stacks for e in s.exposures]
     temperature = float(np.mean(temps)) if temps and all(t is not None for t in temps) else None
     provenance = {
@@ -343,8 +344,9 @@ def fit_dark(
         "frames_per_exposure": {f"{t:g}": len(groups[t]) for t in sorted(groups)},
         "temperature_range_c": [min(temps), max(temps)] if temperature is not None else None,
         "options": {"method": method, "sigma": sigma, "hot_sigma": hot_sigma, "hot_factor": hot_factor,
-                    "noisy_sigma": noisy_sigma, "dead_fraction": dead_fraction,
-                    "saturation_fraction": saturation_fraction, "bias_prior_frames": bias_prior_frames},
+                    "noisy_sigma": noisy_sigma, "saturation_fraction": saturation_fraction,
+                    "bias_prior_frames": bias_prior_frames},
+        "read_noise_method": noise.method,
         "bias_source": "bias frames" if bias_stack is not None else "fit of dark frames, black level as prior",
         "read_noise_source": "bias frames" if bias_stack is not None
         else f"shortest dark ({stacks[0][0]:g} s), per-plane value extrapolated to t = 0",
@@ -363,6 +365,219 @@ def fit_dark(
         black_level_dn=tuple(float(x) for x in ref.black_level_dn),
         white_level_dn=float(white),
         provenance=provenance,
+    )
+
+
+#: Below this temporal standard deviation (DN) the quantisation of the data is not a small correction:
+#: read noise and DSNU come from a quantised-normal likelihood of frame pairs instead of ``var - 1/12``.
+SUB_DN_NOISE = 1.0
+
+#: Frames of the read-noise stack used for the quantised-normal fit (consecutive pairs).
+QUANTISED_FIT_FRAMES = 4
+
+
+@dataclass(frozen=True)
+class TemporalNoise:
+    """Temporal noise of the read-noise stack (bias frames, or the shortest darks), per plane.
+
+    Attributes
+    ----------
+    temporal_noise_dn : (C,) standard deviation of the recorded values, DN (quantisation included; the
+        per-pixel temporal variance averaged over good pixels, as numpy measures it).
+    read_noise_dn : (C,) read noise with the quantisation removed, DN (NaN where not computed here).
+    dsnu_dn : (C,) spatial spread of the per-pixel means from the quantised fit, DN (NaN elsewhere).
+    quantised : (C,) bool, True where the quantised-normal fit was used (temporal noise < 1 DN).
+    noisy : (C, h, w) bool, temporal variance far above the plane's model variance.
+    read_noise_map_dn : (C, h, w) float64 per-pixel read noise, DN.
+    method : how the read noise was obtained.
+    """
+
+    temporal_noise_dn: np.ndarray
+    read_noise_dn: np.ndarray
+    dsnu_dn: np.ndarray
+    quantised: np.ndarray
+    noisy: np.ndarray
+    read_noise_map_dn: np.ndarray
+    method: str
+
+
+def quantised_noise_fit(first: np.ndarray, second: np.ndarray, eps: float = 1e-4) -> tuple[float, float, float]:
+    """Read noise of integer data below ~1 DN from two frames of one plane (quantised-normal likelihood).
+
+    Each pixel records ``k_f = round(μ + o_f + σ·z_f)`` in frame f: μ its own mean (spread over the
+    plane as a normal distribution of standard deviation ``dsnu``), o_f a frame offset (jitter) and
+    z_f standard normal. The joint histogram of the pairs (k_1, k_2) is fitted by maximum likelihood
+    of this model (cell probabilities integrated exactly over the rounding, Gauss–Hermite over μ), with
+    a small uniform outlier weight ``eps``. This is right where ``var − 1/12`` (Sheppard's correction,
+    EMVA 1288 eq. 4) is not: when σ and the spread of the pixel means are both below ~0.5 DN, so that
+    the fractional parts of μ are not uniform (a 10-bit IMX296 at black level 60: σ ≈ 0.38 DN, while
+    ``var − 1/12`` gives 0.35–0.38 and the raw temporal standard deviation 0.45–0.48).
+
+    Parameters
+    ----------
+    first, second : integer arrays of the same pixels (defects removed), DN.
+
+    Returns
+    -------
+    sigma_dn, dsnu_dn, offset_dn (second − first).
+    """
+    k1 = np.asarray(first).astype(np.int64).ravel()
+    k2 = np.asarray(second).astype(np.int64).ravel()
+    lo, hi = np.quantile(np.concatenate([k1, k2]), [2e-4, 1 - 2e-4])
+    lo, hi = int(np.floor(lo)), int(np.ceil(hi))
+    keep = (k1 >= lo) & (k1 <= hi) & (k2 >= lo) & (k2 <= hi)
+    k1, k2 = k1[keep] - lo, k2[keep] - lo
+    n = hi - lo + 1
+    hist = np.bincount(k1 * n + k2, minlength=n * n).reshape(n, n).astype(np.float64)
+    edges = np.arange(n + 1, dtype=np.float64) - 0.5
+    nodes, weights = np.polynomial.hermite_e.hermegauss(48)
+    weights = weights / weights.sum()
+    m0 = float(k1.mean())
+    d = (k2 - k1).astype(np.float64)
+    s0 = max(float(np.sqrt(max(d.var() / 2 - 1 / 12, 0.01))), 0.05)
+    sd0 = max(float(np.sqrt(max(np.var(0.5 * (k1 + k2)) - s0**2 / 2 - 1 / 24, 0.0025))), 0.05)
+
+    def nll(p: np.ndarray) -> float:
+        m, o, lsd, ls = p
+        sd, sg = np.exp(lsd), np.exp(ls)
+        mu = m + sd * nodes
+        p1 = np.diff(ndtr((edges[None, :] - mu[:, None]) / sg), axis=1)
+        p2 = np.diff(ndtr((edges[None, :] - (mu[:, None] + o)) / sg), axis=1)
+        prob = np.einsum("q,qi,qj->ij", weights, p1, p2)
+        prob = (1 - eps) * prob + eps / (n * n)
+        return -float(np.sum(hist * np.log(prob)))
+
+    res = minimize(nll, [m0, float(d.mean()), np.log(sd0), np.log(s0)], method="Nelder-Mead",
+                   options={"xatol": 1e-5, "fatol": 1e-4, "maxiter": 4000})
+    _, o, lsd, ls = res.x
+    return float(np.exp(ls)), float(np.exp(lsd)), float(o)
+
+
+def temporal_noise(stack: StackResult, var_t: np.ndarray, defects: np.ndarray, noisy_sigma: float) -> TemporalNoise:
+    """Temporal noise, noisy pixels and the read-noise map of the read-noise stack (quantisation-aware).
+
+    Per plane, the model variance v̂ is the mean per-pixel temporal variance over good pixels (the top
+    0.1 % left out). A pixel is *noisy* when its variance exceeds v̂ by more than the chi-square
+    bound a normal pixel passes with probability 1e-6 and by ``noisy_sigma`` standard errors of a
+    variance (√(2/dof)). A zero temporal variance is not a defect: below 1 DN of noise most pixels
+    read one value in every frame. Where the temporal noise is below :data:`SUB_DN_NOISE`, the read
+    noise is :func:`quantised_noise_fit` of consecutive frame pairs (the first
+    :data:`QUANTISED_FIT_FRAMES` frames of the stack, decoded again), else ``√(var − 1/12)``.
+    """
+    c = var_t.shape[0]
+    dof = float(np.median(stack.count)) - 1.0
+    bound = 1.0
+    if dof >= 1:
+        bound = max(float(chdtri(dof, 1e-6)) / dof, 1.0 + noisy_sigma * math.sqrt(2.0 / dof))
+    temporal = np.zeros(c)
+    noisy = np.zeros(var_t.shape, bool)
+    for k in range(c):
+        v = var_t[k][(defects[k] == 0) & np.isfinite(var_t[k])]
+        if v.size == 0:
+            raise CamcalError(f"plane {PLANES[k]} has no pixel to measure the temporal noise on",
+                              stack.paths[0] if stack.paths else None)
+        v = v[v <= np.quantile(v, 0.999)] if v.size > 1000 else v
+        vhat = float(np.mean(v))
+        temporal[k] = math.sqrt(vhat)
+        if dof >= 1 and vhat > 0:
+            noisy[k] = var_t[k] > vhat * bound
+    rn_map = np.sqrt(np.maximum(var_t - QUANTISATION_VAR_DN2, 0.0))
+    read = np.full(c, np.nan)
+    dsnu = np.full(c, np.nan)
+    quantised = temporal < SUB_DN_NOISE
+    method = "per-pixel temporal variance minus the quantisation variance 1/12 DN² (EMVA 1288 eq. 4)"
+    if quantised.any():
+        paths = list(stack.paths[:QUANTISED_FIT_FRAMES])
+        if len(paths) < 2:
+            raise CamcalError("the read noise needs two or more frames of one exposure",
+                              stack.paths[0] if stack.paths else None)
+        frames = []
+        for path in paths:
+            f = load_frame(path)
+            frames.append(f.planes(dtype=f.data.dtype))
+        sig = np.zeros((c, len(frames) - 1))
+        sds = np.zeros((c, len(frames) - 1))
+        for k in np.flatnonzero(quantised):
+            good = (defects[k] == 0) & ~noisy[k]
+            for j in range(len(frames) - 1):
+                sig[k, j], sds[k, j], _ = quantised_noise_fit(frames[j][k][good], frames[j + 1][k][good])
+            read[k] = float(np.mean(sig[k]))
+            dsnu[k] = float(np.mean(sds[k]))
+            rn_map[k] = np.where(noisy[k], rn_map[k], read[k])
+        method = (f"quantised-normal likelihood of {len(frames) - 1} frame pair(s) in planes "
+                  f"{', '.join(PLANES[k] for k in np.flatnonzero(quantised))} (temporal noise below "
+                  f"{SUB_DN_NOISE:g} DN); elsewhere " + method)
+    return TemporalNoise(temporal, read, dsnu, quantised, noisy, rn_map, method)
+
+
+def fit_bias(
+    bias_folder: str | Path,
+    *,
+    hot_sigma: float = 6.0,
+    noisy_sigma: float = 6.0,
+    saturation_fraction: float = 0.01,
+    jobs: int = 1,
+    progress: Callable[[int, int], None] | None = None,
+) -> DarkModel:
+    """A bias-only dark model: bias, read noise, DSNU and noisy pixels; dark current unknown (None).
+
+    Two frames are enough. ``hot_sigma`` is recorded but hot pixels need dark frames (their dark
+    current), so none are flagged; :mod:`camcal.apply` then subtracts the bias only and says so.
+    """
+    bias_folder = Path(bias_folder)
+    files, manifest = _files(bias_folder)
+    if len(files) < 2:
+        raise CamcalError(f"a bias-only calibration needs two or more bias frames, found {len(files)}", bias_folder)
+    st = combine_frames(files, method="mean", manifest=manifest, check=dark_frame_check(saturation_fraction),
+                        jobs=jobs, progress=progress)
+    iso = _same_iso([st], bias_folder)
+    var_t = np.asarray(st.variance, np.float64)
+    defects = np.zeros(var_t.shape, np.uint8)
+    noise = temporal_noise(st, var_t, defects, noisy_sigma)
+    defects |= (noise.noisy * NOISY).astype(np.uint8)
+    b = np.asarray(st.value, np.float64)
+    n = np.maximum(np.asarray(st.count, np.float64), 1.0)
+    channels = {}
+    for k, name in enumerate(PLANES):
+        good = defects[k] == 0
+        bk = b[k][good]
+        if noise.quantised[k]:
+            rn, dsnu = float(noise.read_noise_dn[k]), float(noise.dsnu_dn[k])
+        else:
+            rn = math.sqrt(max(float(np.mean(var_t[k][good])) - QUANTISATION_VAR_DN2, 0.0))
+            dsnu = math.sqrt(max(float(np.var(bk)) - float(np.mean((var_t[k] / n[k])[good])), 0.0))
+        channels[name] = {
+            "bias_dn": float(np.median(bk)),
+            "bias_unc_dn": float(1.2533 * np.std(bk) / np.sqrt(bk.size)),
+            "dark_current_dn_per_s": None,
+            "dark_current_unc_dn_per_s": None,
+            "dark_current_pixel_unc_dn_per_s": None,
+            "dark_current_mean_dn_per_s": None,
+            "read_noise_dn": rn,
+            "temporal_noise_dn": float(noise.temporal_noise_dn[k]),
+            "dsnu_bias_dn": dsnu,
+            "dsnu_dark_current_dn_per_s": None,
+            "gain_dn_per_e_from_dark": 0.0,
+            "hot_pixel_count": 0,
+            "dead_pixel_count": 0,
+            "noisy_pixel_count": int(np.count_nonzero(defects[k] & NOISY)),
+        }
+    tb = [e.exposure_s for e in st.exposures]
+    return DarkModel(
+        bias_dn=b.astype(np.float32), dark_current_dn_per_s=None, dark_current_unc_dn_per_s=None,
+        read_noise_dn=noise.read_noise_map_dn.astype(np.float32), defects=defects, iso=float(iso),
+        cfa_pattern=str(st.cfa_pattern), temperature_c=None, channels=channels,
+        exposure_times_s=tuple(sorted({float(t) for t in tb if t is not None})),
+        black_level_dn=tuple(float(x) for x in st.black_level_dn), white_level_dn=float(st.white_level_dn),
+        provenance={
+            "dark_folder": None, "bias_folder": str(bias_folder), "dark_files": [],
+            "bias_files": [p.name for p in files], "frames_per_exposure": {},
+            "options": {"hot_sigma": hot_sigma, "noisy_sigma": noisy_sigma,
+                        "saturation_fraction": saturation_fraction},
+            "bias_source": "bias frames", "read_noise_source": "bias frames",
+            "read_noise_method": noise.method,
+            "dark_current": "unknown: no dark frames (bias-only calibration); apply subtracts the bias only",
+        },
     )
 
 
@@ -426,10 +641,12 @@ def _noise_model(stats: list[tuple[float, StackResult]], b: np.ndarray) -> tuple
         for _t, st in stats:
             var = np.asarray(st.variance_all if st.variance_all is not None else st.variance, np.float64)[k]
             ok = np.isfinite(var) & np.isfinite(b[k])
-            ok &= var < 5 * np.median(var[ok])
+            # hot and noisy pixels out: above 5x the median, or (quantised data below 1 DN of noise, whose
+            # median variance is often 0) above 5x the mean
+            ok &= var < 5 * max(float(np.median(var[ok])), float(np.mean(var[ok])))
             if not ok.any():
-                raise CamcalError(f"the dark frames at {_t:g} s show no temporal noise at all (the same file "
-                                  "twice, or a copy?)", st.paths[0].parent if st.paths else None)
+                raise CamcalError(f"the dark frames at {_t:g} s show no temporal noise at all",
+                                  st.paths[0].parent if st.paths else None)
             xs.append(float(np.mean(np.asarray(st.value, np.float64)[k][ok] - b[k][ok])))
             ys.append(float(np.mean(var[ok])))
         if len(xs) >= 2 and np.ptp(xs) > 0:
@@ -440,13 +657,16 @@ def _noise_model(stats: list[tuple[float, StackResult]], b: np.ndarray) -> tuple
     return v0, g
 
 
-def _channel_summary(b, b_var, beta, beta_var, var_t, defects, stacks, have_bias: bool, gain) -> dict:
+def _channel_summary(b, b_var, beta, beta_var, var_t, defects, stacks, have_bias: bool, gain,
+                     noise: TemporalNoise) -> dict:
     out = {}
     for k, name in enumerate(PLANES):
         good = defects[k] == 0
         bk, betak = b[k][good], beta[k][good]
         med_beta, rs_beta = _robust(betak)
-        if have_bias:
+        if noise.quantised[k]:
+            rn_var = float(noise.read_noise_dn[k]) ** 2 + QUANTISATION_VAR_DN2
+        elif have_bias:
             rn_var = float(np.mean(var_t[k][good])) - QUANTISATION_VAR_DN2
         else:
             # EMVA 1288: temporal dark variance grows linearly with t; extrapolate its plane mean to t = 0
@@ -455,6 +675,8 @@ def _channel_summary(b, b_var, beta, beta_var, var_t, defects, stacks, have_bias
             rn_var = float(np.polyfit(ts, vs, 1)[1]) if ts.size >= 2 else float(vs[0])
             rn_var -= QUANTISATION_VAR_DN2
         dsnu_bias2 = float(np.var(bk)) - float(np.mean(b_var[k][good]))
+        if noise.quantised[k]:
+            dsnu_bias2 = float(noise.dsnu_dn[k]) ** 2
         dsnu_beta2 = float(np.var(betak)) - float(np.mean(beta_var[k][good]))
         out[name] = {
             "bias_dn": float(np.median(bk)),
@@ -464,6 +686,7 @@ def _channel_summary(b, b_var, beta, beta_var, var_t, defects, stacks, have_bias
             "dark_current_pixel_unc_dn_per_s": float(np.median(np.sqrt(beta_var[k][good]))),
             "dark_current_mean_dn_per_s": float(np.mean(betak)),
             "read_noise_dn": float(np.sqrt(max(rn_var, 0.0))),
+            "temporal_noise_dn": float(noise.temporal_noise_dn[k]),
             "dsnu_bias_dn": float(np.sqrt(max(dsnu_bias2, 0.0))),
             "dsnu_dark_current_dn_per_s": float(np.sqrt(max(dsnu_beta2, 0.0))),
             "gain_dn_per_e_from_dark": float(gain[k, 0, 0]),
@@ -475,11 +698,13 @@ def _channel_summary(b, b_var, beta, beta_var, var_t, defects, stacks, have_bias
 
 
 def subtract_dark(planes: np.ndarray, model: DarkModel, exposure_s: float, iso: float | None = None) -> np.ndarray:
-    """Remove the expected dark frame (bias + β·t) from (4, h, w) planes in DN; float32 result."""
+    """Remove the expected dark frame (bias + β·t) from (4, h, w) planes in DN; float32 result.
+
+    A thin wrapper of the one correction path, :func:`camcal.correct.correct_planes` (no flat, no mask).
+    """
     planes = np.asarray(planes)
-    if planes.shape != model.bias_dn.shape:
-        raise CamcalError(f"planes of shape {planes.shape} do not match the dark model's {model.bias_dn.shape}")
-    return planes.astype(np.float32) - model.dark_frame_dn(exposure_s, iso)
+    return correct_planes(planes, Calibration(dark=model), exposure_s=exposure_s, iso=iso, white_level_dn=np.inf,
+                          black_level_dn=np.zeros(planes.shape[0])).signal_dn
 
 
 def dark_to_parts(model: DarkModel) -> tuple[dict, dict[str, np.ndarray]]:
@@ -488,11 +713,12 @@ def dark_to_parts(model: DarkModel) -> tuple[dict, dict[str, np.ndarray]]:
               "dark_current_unc": model.dark_current_unc_dn_per_s, "read_noise": model.read_noise_dn,
               "defects": model.defects.astype(np.float32)}
     maps = {f"{m}.{p}": np.where(np.isfinite(arrays[m][k]), arrays[m][k], np.float32(3.0e38))
-            for m in _MAPS for k, p in enumerate(PLANES)}
+            for m in _MAPS if arrays[m] is not None for k, p in enumerate(PLANES)}
     data = {
         "iso": model.iso, "cfa_pattern": model.cfa_pattern, "temperature_c": model.temperature_c,
         "exposure_times_s": list(model.exposure_times_s), "black_level_dn": list(model.black_level_dn),
         "white_level_dn": model.white_level_dn, "channels": model.channels, "summary": model.summary(),
+        "dark_current_known": model.dark_current_dn_per_s is not None,
         "provenance": model.provenance,
         "units": {"bias": "DN", "dark_current": "DN/s at iso", "dark_current_unc": "DN/s", "read_noise": "DN",
                   "defects": "bits: 1 hot, 2 dead, 4 noisy"},
@@ -538,13 +764,19 @@ def _check_dark_data(data: dict, where: str | Path | None) -> None:
 
 def dark_from_parts(data: dict, maps: dict[str, np.ndarray], where: str | Path | None = None) -> DarkModel:
     """Inverse of :func:`dark_to_parts`; ``where`` names the file in errors."""
-    missing = [f"{m}.{p}" for m in _MAPS for p in PLANES if f"{m}.{p}" not in maps]
+    known = not (isinstance(data, dict) and data.get("dark_current_known") is False)
+    names = _MAPS if known else tuple(m for m in _MAPS if not m.startswith("dark_current"))
+    missing = [f"{m}.{p}" for m in names for p in PLANES if f"{m}.{p}" not in maps]
     if missing:
         raise CamcalError(f"dark model lacks maps {', '.join(missing[:4])}", where)
     _check_dark_data(data, where)
     try:
-        arr = {m: np.stack([maps[f"{m}.{p}"] for p in PLANES]).astype(np.float32) for m in _MAPS}
-        arr["dark_current_unc"] = np.where(arr["dark_current_unc"] >= 3.0e38, np.inf, arr["dark_current_unc"])
+        arr: dict[str, np.ndarray | None] = {
+            m: np.stack([maps[f"{m}.{p}"] for p in PLANES]).astype(np.float32) for m in names}
+        if known:
+            arr["dark_current_unc"] = np.where(arr["dark_current_unc"] >= 3.0e38, np.inf, arr["dark_current_unc"])
+        else:
+            arr["dark_current"] = arr["dark_current_unc"] = None
         return DarkModel(
             bias_dn=arr["bias"], dark_current_dn_per_s=arr["dark_current"],
             dark_current_unc_dn_per_s=arr["dark_current_unc"], read_noise_dn=arr["read_noise"],

@@ -46,8 +46,12 @@ from typing import Literal
 
 import numpy as np
 
+from camcal.correct import Calibration, correct_frame, correct_planes, require_valid
+from camcal.dark import load_dark
 from camcal.errors import CamcalError
 from camcal.frame import PLANES, Frame, plane_offsets
+from camcal.io import folder_files, load_folder_frame
+from camcal.stack import combine_folder
 
 N_RADIAL = 5
 """Number of DNG radial coefficients k0..k4."""
@@ -504,11 +508,9 @@ def correct_flat(planes: np.ndarray, model: FlatModel, with_prnu: bool = False) 
     (C, h, w) float32: the signal the pixel would have at the optical centre.
     """
     planes = np.asarray(planes)
-    want = (len(model.channels), *model.shape)
-    if planes.shape != want:
-        raise CamcalError(f"frame planes have shape {planes.shape}, the flat model is for {want} "
-                          f"(a different camera, crop or resolution)")
-    return (planes / model.gain(with_prnu=with_prnu)).astype(np.float32)
+    cal = Calibration.of(flat=model, with_prnu=with_prnu)
+    return correct_planes(planes, cal, exposure_s=None, iso=None, white_level_dn=np.inf,
+                          black_level_dn=np.zeros(planes.shape[0]), channels=tuple(model.channels)).signal_dn
 
 
 # ---------------------------------------------------------------------------------------------
@@ -537,11 +539,13 @@ class FlatChecks:
 
 
 def check_flat_frame(frame: Frame, checks: FlatChecks = FlatChecks(),  # noqa: B008
-                     shape: tuple[int, int] | None = None, reference: str | None = None) -> None:
+                     shape: tuple[int, int] | None = None, reference: str | None = None,
+                     defects: np.ndarray | None = None) -> None:
     """Raise a one-line :class:`CamcalError` when a flat frame is unusable.
 
     Checks: RAW (a JPEG's tone curve breaks the flat), same size as ``shape`` (the first flat),
-    not saturated, not too dark, not too bright.
+    not saturated outside the known ``defects`` ((C, h, w) bool planes; a hot pixel the dark model
+    knows never makes a flat "saturated"), not too dark, not too bright.
     """
     path = frame.path
     if frame.kind != "raw":
@@ -552,11 +556,14 @@ def check_flat_frame(frame: Frame, checks: FlatChecks = FlatChecks(),  # noqa: B
         raise CamcalError(f"is {frame.shape[1]}x{frame.shape[0]} pixels but the flats{ref} are "
                           f"{shape[1]}x{shape[0]}: mismatched sizes (one camera, one mode)", path)
     white = float(frame.white_level_dn)
-    clipped = float(np.mean(frame.data >= white))
-    if clipped > checks.max_clipped_fraction:
-        raise CamcalError(f"flat is saturated: {100 * clipped:.3g} % of pixels at the white level ({white:g} DN); "
-                          f"shorten the exposure or dim the source", path)
     planes = frame.planes()
+    at_white = planes >= white
+    if defects is not None and defects.shape == at_white.shape:
+        at_white &= ~defects
+    clipped = float(np.mean(at_white))
+    if clipped > checks.max_clipped_fraction:
+        raise CamcalError(f"flat is saturated: {100 * clipped:.3g} % of pixels at the white level ({white:g} DN) "
+                          f"outside known defects; shorten the exposure or dim the source", path)
     black = frame.black_vector()
     med = np.median((planes - black).reshape(planes.shape[0], -1), axis=1)
     span = white - black.ravel()
@@ -602,8 +609,6 @@ def _resolve_dark(dark):
     if dark is None:
         return None
     if isinstance(dark, str | Path):
-        from camcal.dark import load_dark
-
         return load_dark(dark)
     return dark
 
@@ -618,22 +623,20 @@ def master_flat(
     jobs: int = 1,
     progress: Callable | None = None,
 ) -> MasterFlat:
-    """Dark-subtract, normalise and combine every flat of a folder (streaming, :mod:`camcal.stack`).
+    """Correct, normalise and combine every flat of a folder (streaming, :mod:`camcal.stack`).
 
-    Each frame's planes minus the dark model's expected bias + dark (or, without a dark model, the
-    file's black level) are divided by their per-plane median so lamp drift between frames does not
+    Each frame goes through the one correction path (:func:`camcal.correct.correct_frame`): its
+    planes minus the dark model's expected bias + dark (or, without a dark model, the file's black
+    level), known defects and saturated pixels masked (NaN, left out of the combine and the fit).
+    The valid pixels are divided by their per-plane median so lamp drift between frames does not
     bias the combine; the combined master is thus normalised per channel (median ≈ 1).
     """
-    from camcal.io import folder_files, load_folder_frame
-    from camcal.stack import combine_folder
-
     folder = Path(flat_folder)
     dark_model = _resolve_dark(dark)
+    cal = Calibration.of(dark_model)
     paths, manifest = folder_files(folder)
     first = load_folder_frame(paths[0], manifest)
-    check_flat_frame(first, checks)
-    ref_shape = first.shape
-    plane_shape = (ref_shape[0] // 2, ref_shape[1] // 2)
+    plane_shape = (first.shape[0] // 2, first.shape[1] // 2)
     if dark_model is not None:
         dshape = tuple(np.asarray(dark_model.bias_dn).shape)
         if dshape[-2:] != plane_shape:
@@ -643,35 +646,29 @@ def master_flat(
         if dpat and first.cfa_pattern and dpat != first.cfa_pattern:
             raise CamcalError(f"the dark model is for CFA pattern {dpat} but the flats are {first.cfa_pattern}",
                               paths[0])
+    check_flat_frame(first, checks, defects=cal.defects)
+    ref_shape = first.shape
 
     def check(frame: Frame) -> None:
-        check_flat_frame(frame, checks, shape=ref_shape, reference=paths[0].name)
+        check_flat_frame(frame, checks, shape=ref_shape, reference=paths[0].name, defects=cal.defects)
+
+    def corrected(frame: Frame) -> tuple[np.ndarray, np.ndarray]:
+        corr = correct_frame(frame, cal)
+        require_valid(corr, frame.path, what="flat")
+        med = np.array([np.median(corr.signal_dn[k][~corr.invalid[k]]) for k in range(corr.signal_dn.shape[0])])
+        return corr.masked(np.nan), med
 
     def preprocess(frame: Frame) -> np.ndarray:
-        planes = frame.planes(np.float32)
-        if dark_model is not None:
-            from camcal.dark import subtract_dark
-
-            t = frame.exposure.require("exposure_s", frame.path)
-            planes = subtract_dark(planes, dark_model, t, frame.exposure.iso)
-        else:
-            planes = planes - frame.black_vector().astype(np.float32)
-        med = np.median(planes.reshape(planes.shape[0], -1), axis=1)
+        planes, med = corrected(frame)
         if np.any(med <= 0):
             raise CamcalError("flat has no signal above dark in some plane", frame.path)
-        return (planes / med[:, None, None]).astype(np.float32)
+        planes /= med[:, None, None].astype(np.float32)
+        return planes
 
     res = combine_folder(folder, method=method, sigma=sigma, preprocess=preprocess, manifest=manifest, check=check,
                          jobs=jobs, progress=progress)
     # per-plane level in DN: recomputed from the first frame (the check guarantees all are similar)
-    fp = first.planes(np.float32)
-    if dark_model is not None:
-        from camcal.dark import subtract_dark
-
-        fp = subtract_dark(fp, dark_model, first.exposure.require("exposure_s", first.path), first.exposure.iso)
-    else:
-        fp = fp - first.black_vector().astype(np.float32)
-    level = {c: float(np.median(fp[i])) for i, c in enumerate(first.channel_names)}
+    level = {c: float(m) for c, m in zip(first.channel_names, corrected(first)[1], strict=True)}
     var = None
     if getattr(res, "variance", None) is not None and res.n_frames > 1:
         var = (np.asarray(res.variance, np.float32) / np.maximum(np.asarray(res.count, np.float32), 1.0))
@@ -728,12 +725,14 @@ def fit_master(
     with_prnu: bool = True,
 ) -> FlatModel:
     """Fit a :class:`MasterFlat` (hot pixels of ``dark_model.defects`` masked); levels reported in DN."""
-    mask = None
+    mask = ~np.isfinite(mf.value)  # masked in every frame: known defects, saturated (camcal.correct)
     if dark_model is not None and getattr(dark_model, "defects", None) is not None:
-        mask = np.asarray(dark_model.defects).astype(bool)
-        if mask.shape != mf.value.shape:
-            raise CamcalError(f"the dark model's defect map has shape {mask.shape}, the flats {mf.value.shape}: "
+        defects = np.asarray(dark_model.defects).astype(bool)
+        if defects.shape != mf.value.shape:
+            raise CamcalError(f"the dark model's defect map has shape {defects.shape}, the flats {mf.value.shape}: "
                               f"mismatched sizes")
+        mask |= defects
+    mf = dataclasses.replace(mf, value=np.where(mask, np.float32(1.0), mf.value))
     info = {
         "n_frames": mf.n_frames,
         "files": [p.name for p in mf.paths],

@@ -47,14 +47,15 @@ import warnings
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any, Protocol
 
 import numpy as np
 
 from camcal.colour import ColourMatrix
+from camcal.correct import Calibration, DarkFrameModel, correct_planes
 from camcal.errors import CamcalError
 from camcal.exposure import relative_exposure
-from camcal.frame import PLANES, Frame, split_planes
+from camcal.frame import PLANES
+from camcal.io import folder_files, load_folder_frame
 
 DEFAULT_ROI_FRACTION = 0.10
 """Default ROI: a centred window holding this fraction of each plane's area."""
@@ -72,17 +73,6 @@ RESPONSE_KIND = "response"
 """Stage kind in the JSON written by :func:`save_response`."""
 
 MIN_EXPOSURES = 3
-
-
-class DarkFrameModel(Protocol):
-    """What :func:`fit_response` needs of a dark model (``camcal.dark.DarkModel``).
-
-    ``dark_frame_dn(exposure_s, iso)`` returns the complete expected dark frame
-    in DN (bias + dark current × t), as (4, h, w) planes in R, G1, G2, B order,
-    a dict of plane name -> (h, w) map, or the (H, W) mosaic.
-    """
-
-    def dark_frame_dn(self, exposure_s: float, iso: float) -> Any: ...
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -361,28 +351,6 @@ def roi_slices(shape: tuple[int, int], roi: tuple[float, float, float, float]) -
     return slice(y0, min(y1, h)), slice(x0, min(x1, w))
 
 
-def _dark_planes(dark: DarkFrameModel, frame: Frame, exposure_s: float, iso: float) -> np.ndarray:
-    """The dark model's frame for this exposure as (4, h, w) planes."""
-    try:
-        d = dark.dark_frame_dn(exposure_s, iso)
-    except CamcalError:
-        raise
-    except Exception as exc:  # a third-party model: report, do not crash
-        raise CamcalError(f"the dark model failed for t = {exposure_s} s, ISO {iso}: {exc}", frame.path) from None
-    if isinstance(d, dict):
-        d = np.stack([np.asarray(d[n], float) for n in PLANES])
-    d = np.asarray(d, dtype=np.float64)
-    h, w = frame.shape
-    if d.shape == (h, w):
-        d = split_planes(d, frame.cfa_pattern, dtype=np.float64)
-    if d.ndim == 0:
-        d = np.full((4, h // 2, w // 2), float(d))
-    if d.shape != (4, h // 2, w // 2):
-        raise CamcalError(f"the dark model's frame has shape {d.shape}, this frame's planes are {(4, h // 2, w // 2)}",
-                          frame.path)
-    return d
-
-
 def measure_series(
     folder: str | Path,
     *,
@@ -403,28 +371,40 @@ def measure_series(
     CamcalError
         Folder without images, unreadable files, missing exposure metadata, bad ROI.
     """
-    from camcal.io import folder_files, load_folder_frame
-
     folder = Path(folder)
     window = roi_window(roi)
     files, manifest = folder_files(folder)
+    cal = Calibration.of(dark) if dark is not None else Calibration()
     rows: dict[str, list[dict]] = {}
     for i, path in enumerate(files):
         frame = load_folder_frame(path, manifest)
         e = frame.exposure
         t, iso, n = e.require("exposure_s", path), e.require("iso", path), e.require("f_number", path)
-        planes = frame.planes(np.float64)
+        planes = frame.planes(np.float32)
         ys, xs = roi_slices(planes.shape[1:], window)
-        cut = planes[:, ys, xs].reshape(planes.shape[0], -1)
+        raw = frame.kind == "raw"
+        roi_planes = np.ascontiguousarray(planes[:, ys, xs])
+        nc = roi_planes.shape[0]
+        mx = roi_planes.reshape(nc, -1).max(axis=1).astype(np.float64)
+        # RAW with a dark model: the signal above dark; otherwise the values as recorded (eq. 12's β holds
+        # the black level); known defects and clipped pixels masked (camcal.correct)
+        corr = correct_planes(roi_planes, cal if raw else Calibration(), exposure_s=t, iso=iso,
+                              white_level_dn=float(frame.white_level_dn), black_level_dn=np.zeros(nc),
+                              full_shape=planes.shape, window=(ys, xs), channels=frame.channel_names,
+                              cfa_pattern=frame.cfa_pattern, path=path, inplace=True)
+        del planes
         white = float(frame.white_level_dn)
-        clipped = np.mean(cut >= white - 0.5, axis=1)
-        mx = cut.max(axis=1)
-        if dark is not None and frame.kind == "raw":
-            dp = _dark_planes(dark, frame, t, iso)
-            cut = cut - dp[:, ys, xs].reshape(4, -1)
-        npx = cut.shape[1]
-        mean = cut.mean(axis=1)
-        sem = cut.std(axis=1, ddof=1) / math.sqrt(npx) if npx > 1 else np.zeros(cut.shape[0])
+        clipped = corr.saturated_fraction()
+        cut = corr.signal_dn.reshape(nc, -1)
+        valid = ~corr.invalid.reshape(nc, -1)
+        npx = np.maximum(valid.sum(axis=1), 1)
+        mean = np.array([np.mean(cut[k], where=valid[k], dtype=np.float64) if valid[k].any() else np.nan
+                         for k in range(nc)])
+        std = np.array([np.std(cut[k], where=valid[k], dtype=np.float64, ddof=1) if valid[k].sum() > 1 else 0.0
+                        for k in range(nc)])
+        # a channel without a valid pixel (all clipped) keeps the plain mean: its clipped fraction excludes it
+        mean = np.where(np.isfinite(mean), mean, cut.mean(axis=1))
+        sem = std / np.sqrt(npx)
         # 8-bit or integer quantisation: never let a point claim less than a uniform-quantisation error
         sem = np.sqrt(sem**2 + 1.0 / 12.0 / npx)
         rows.setdefault(frame.kind, []).append({

@@ -46,7 +46,6 @@ from __future__ import annotations
 
 import json
 import math
-import threading
 import warnings
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -56,8 +55,11 @@ from typing import Any, Literal
 
 import numpy as np
 
+from camcal.correct import Calibration, correct_planes
 from camcal.errors import CamcalError
+from camcal.exposure import frame_relative_exposure
 from camcal.frame import PLANES, Frame, split_planes
+from camcal.io import load_frame
 
 SWEEP_CSV = "sweep.csv"
 DEFAULT_REFERENCE_ISO = 100.0
@@ -289,81 +291,33 @@ def _check_roi(roi: tuple[int, int, int, int], shape_hw: tuple[int, int], where:
     return x0, y0, x1, y1
 
 
-@dataclass
-class _Corrections:
-    """Per-ROI dark and flat corrections, computed once and shared by the worker threads."""
-
-    roi: tuple[int, int, int, int]
-    dark: Any = None
-    flat_gain_roi: np.ndarray | None = None
-    _dark_cache: dict = field(default_factory=dict)
-    _lock: threading.Lock = field(default_factory=threading.Lock)
-
-    def crop(self, full: np.ndarray) -> np.ndarray:
-        x0, y0, x1, y1 = self.roi
-        return np.ascontiguousarray(full[:, y0:y1, x0:x1], dtype=np.float32)
-
-    def dark_roi(self, exposure_s: float, iso: float | None, exposures: Sequence[float]) -> np.ndarray:
-        """Dark frame (DN, black level included) on the ROI at ``exposure_s``.
-
-        The dark model is affine in t (dark = bias + β·t, issue 3), so it is
-        evaluated at the shortest and longest sweep exposures and interpolated;
-        a third evaluation checks the affinity, and a non-affine model is
-        evaluated at every exposure instead.
-        """
-        with self._lock:
-            key = iso
-            if key not in self._dark_cache:
-                t_lo, t_hi = min(exposures), max(exposures)
-                d_lo = self.crop(np.asarray(self.dark.dark_frame_dn(t_lo, iso)))
-                d_hi = self.crop(np.asarray(self.dark.dark_frame_dn(t_hi, iso)))
-                affine = True
-                if t_hi > t_lo:
-                    t_mid = 0.5 * (t_lo + t_hi)
-                    d_mid = self.crop(np.asarray(self.dark.dark_frame_dn(t_mid, iso)))
-                    affine = bool(np.allclose(0.5 * (d_lo + d_hi), d_mid, rtol=0, atol=1e-3 + 1e-5 * np.abs(d_mid)))
-                self._dark_cache[key] = (t_lo, t_hi, d_lo, d_hi, affine, {})
-            t_lo, t_hi, d_lo, d_hi, affine, exact = self._dark_cache[key]
-            if t_hi == t_lo:
-                return d_lo
-            if affine:
-                w = (exposure_s - t_lo) / (t_hi - t_lo)
-                return (d_lo + np.float32(w) * (d_hi - d_lo)).astype(np.float32)
-            if exposure_s not in exact:
-                exact[exposure_s] = self.crop(np.asarray(self.dark.dark_frame_dn(exposure_s, iso)))
-            return exact[exposure_s]
-
-
 @dataclass(frozen=True)
 class _FrameResult:
     row: SweepRow
     planes: np.ndarray  # (4, hr, wr) float32, dark-subtracted, flat-corrected DN
+    invalid: np.ndarray  # (4, hr, wr) bool: known defects, saturated or clipped (camcal.correct)
     relative_exposure_s: float
-    saturated_fraction: float
+    saturated_fraction: float  # of the ROI, worst plane, outside known defects
+    defect_saturated: int  # known defects at the white level in the ROI (masked, never counted as saturation)
 
 
-def _process_frame(row: SweepRow, corr: _Corrections, ref_iso: float, ref_n: float,
-                   exposures: Sequence[float], roi_shape_check: Callable[[Frame], None]) -> _FrameResult:
-    """Decode one file once, crop the ROI from the mosaic, dark- and flat-correct it in place."""
-    from camcal.exposure import frame_relative_exposure
-    from camcal.io import load_frame
-
+def _process_frame(row: SweepRow, cal: Calibration, roi: tuple[int, int, int, int], ref_iso: float, ref_n: float,
+                   roi_shape_check: Callable[[Frame], None]) -> _FrameResult:
+    """Decode one file once and correct its ROI through :mod:`camcal.correct` (dark, flat, invalid mask)."""
     frame = load_frame(row.path, row.overrides)
     if frame.kind != "raw":
         raise CamcalError("is not a RAW file; the spectral sweep needs linear RAW data", row.path)
     roi_shape_check(frame)
     x_rel = frame_relative_exposure(frame.exposure, ref_iso, ref_n, row.path)
-    x0, y0, x1, y1 = corr.roi
-    mosaic = frame.data[2 * y0: 2 * y1, 2 * x0: 2 * x1]
-    saturated = float(np.count_nonzero(mosaic >= frame.white_level_dn)) / mosaic.size
-    planes = split_planes(mosaic, frame.cfa_pattern)
-    if corr.dark is not None:
-        planes -= corr.dark_roi(frame.exposure.require("exposure_s", row.path), frame.exposure.iso, exposures)
-    else:
-        planes -= frame.black_vector().astype(np.float32)
-    if corr.flat_gain_roi is not None:
-        planes /= corr.flat_gain_roi
-    return _FrameResult(row, planes, x_rel, saturated)
+    x0, y0, x1, y1 = roi
+    window = (slice(y0, y1), slice(x0, x1))
+    planes = split_planes(frame.data[2 * y0: 2 * y1, 2 * x0: 2 * x1], frame.cfa_pattern)
+    full = (4, frame.shape[0] // 2, frame.shape[1] // 2)
+    corr = correct_planes(planes, cal, exposure_s=frame.exposure.exposure_s, iso=frame.exposure.iso,
+                          white_level_dn=float(frame.white_level_dn), black_level_dn=frame.black_vector().ravel(),
+                          full_shape=full, window=window, path=row.path, inplace=True)
+    defect_sat = int(np.count_nonzero(corr.clipped & corr.defective))
+    return _FrameResult(row, corr.signal_dn, corr.invalid, x_rel, float(corr.saturated_fraction().max()), defect_sat)
 
 
 def _load_model(obj, kind: str):
@@ -379,18 +333,23 @@ def _load_model(obj, kind: str):
     return loader(obj)
 
 
-def _robust_mask(m: np.ndarray, nsigma: float = 5.0) -> np.ndarray:
-    """Pixels within ``nsigma`` robust (MAD) sigmas of the plane median; (hr, wr) bool.
+def _robust_mask(m: np.ndarray, valid: np.ndarray | None = None, nsigma: float = 5.0) -> np.ndarray:
+    """Valid pixels within ``nsigma`` robust (MAD) sigmas of the plane median; (hr, wr) bool.
 
-    Median and MAD come from every other row and column when the plane has more than 40 000 pixels
-    (their relative sampling error, ~1/√(n/4) < 1 %, moves the 5σ threshold by less than 0.05σ).
+    Median and MAD come from the ``valid`` pixels (all when None), every other row and column when the
+    plane has more than 40 000 pixels (their relative sampling error, ~1/√(n/4) < 1 %, moves the 5σ
+    threshold by less than 0.05σ).
     """
-    sample = m[::2, ::2] if m.size > 40_000 else m
+    ok = np.ones(m.shape, bool) if valid is None else valid
+    sub = (m[::2, ::2], ok[::2, ::2]) if m.size > 40_000 else (m, ok)
+    sample = sub[0][sub[1]]
+    if sample.size == 0:
+        return np.zeros(m.shape, bool)
     med = np.median(sample)
     mad = 1.4826 * np.median(np.abs(sample - med))
     if mad <= 0:
-        return np.ones(m.shape, bool)
-    return np.abs(m - med) <= nsigma * mad
+        return ok.copy()
+    return ok & (np.abs(m - med) <= nsigma * mad)
 
 
 def combine_wavelength(results: Sequence[_FrameResult]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -399,7 +358,8 @@ def combine_wavelength(results: Sequence[_FrameResult]) -> tuple[np.ndarray, np.
     Each frame's ROI is divided by its relative exposure x_k and band radiance
     L_k: y_k = d_k / (x_k L_k) (seed §3.1). Per pixel the temporal mean and
     variance (ddof=1) over the frames are taken; pixels more than 5 robust
-    sigmas from the ROI median (hot or dead) are dropped; the value is the ROI
+    sigmas from the ROI median (hot or dead) and pixels invalid in any frame (known defects, saturated:
+    :mod:`camcal.correct`) are dropped; the value is the ROI
     mean and its noise variance the mean temporal variance over
     (n_frames · n_pixels). With one frame the spatial variance is used
     instead (it includes PRNU: conservative).
@@ -417,8 +377,13 @@ def combine_wavelength(results: Sequence[_FrameResult]) -> tuple[np.ndarray, np.
         y *= scale[:, None, None]
         m = y.sum(axis=0)
         m *= np.float32(1.0 / n)
-        mask = _robust_mask(m)
+        valid = ~np.any(np.stack([r.invalid[p] for r in results]), axis=0)
+        mask = _robust_mask(m, valid)
         npix = int(mask.sum())
+        if npix == 0:
+            raise CamcalError(f"no valid pixel is left in plane {PLANES[p]} of the ROI at "
+                              f"{results[0].row.wavelength_nm:g} nm (all defective or saturated)",
+                              results[0].row.path)
         value[p] = float(np.mean(m, where=mask, dtype=np.float64))
         if n > 1:
             # per-pixel temporal variance (ddof=1) in float32 about the pixel's mean (no cancellation), then
@@ -509,8 +474,6 @@ def measure_sweep(
         warn("no flat model: absolute values refer to the ROI, not the optical axis (vignetting not removed)")
 
     # geometry from the first frame (header decode only once: the first frame is decoded again by the pool)
-    from camcal.io import load_frame
-
     first = load_frame(rows[0].path, rows[0].overrides)
     if first.kind != "raw":
         raise CamcalError("is not a RAW file; the spectral sweep needs linear RAW data", rows[0].path)
@@ -524,26 +487,17 @@ def measure_sweep(
     else:
         box = _check_roi(tuple(roi), shape_hw, Path(sweep_folder))  # type: ignore[arg-type]
 
-    corr = _Corrections(roi=box, dark=dark)
-    if flat is not None:
-        gain = np.asarray(flat.gain(with_prnu=False), float)
-        if gain.shape[1:] != shape_hw:
-            raise CamcalError(f"flat model planes {gain.shape[1:]} do not match the sweep frames' {shape_hw}",
-                              Path(sweep_folder))
-        g = corr.crop(gain)
-        if not np.all(np.isfinite(g)) or np.any(g <= 0):
-            raise CamcalError("flat model gain is not positive and finite in the ROI", Path(sweep_folder))
-        corr.flat_gain_roi = g
-    exposures = [float(r.overrides.get("exposure_s") or 0.0) for r in rows]
-    exposures = [t for t in exposures if t > 0] or [1.0]
-
+    cal = Calibration.of(dark, flat)
+    if cal.flat_gain is not None and cal.flat_gain.shape[1:] != shape_hw:
+        raise CamcalError(f"flat model planes {cal.flat_gain.shape[1:]} do not match the sweep frames' {shape_hw}",
+                          Path(sweep_folder))
     def shape_check(frame: Frame) -> None:
         if frame.shape != full_shape:
             raise CamcalError(f"frame is {frame.shape[1]}x{frame.shape[0]} pixels, the sweep's first frame is "
                               f"{full_shape[1]}x{full_shape[0]}", frame.path)
 
     def work(row: SweepRow) -> _FrameResult:
-        return _process_frame(row, corr, reference_iso, reference_f_number, exposures, shape_check)
+        return _process_frame(row, cal, box, reference_iso, reference_f_number, shape_check)
 
     # group by wavelength (file order kept inside a group)
     groups: dict[float, list[SweepRow]] = {}
@@ -555,6 +509,8 @@ def measure_sweep(
     u_ref = np.zeros(len(wls))
     bw: list[float] = []
     n_used: dict[str, int] = {}
+    defect_saturated: dict[float, int] = {}
+    worst: dict[float, float] = {}
     done = 0
     total = len(rows)
     ordered = [r for wl in wls for r in groups[wl]]
@@ -568,15 +524,19 @@ def measure_sweep(
                 done += 1
                 if progress:
                     progress(done, total)
+                if res.defect_saturated:
+                    defect_saturated[wl] = max(defect_saturated.get(wl, 0), res.defect_saturated)
                 if res.saturated_fraction > max_saturated_fraction:
-                    warn(f"{res.row.path.name} at {wl:g} nm: {100 * res.saturated_fraction:.2g} % of the ROI is "
-                         f"saturated; frame skipped")
+                    warn(f"{res.row.path.name} at {wl:g} nm: {100 * res.saturated_fraction:.2g} % of the ROI outside "
+                         f"known defects is saturated; frame skipped")
+                    worst[wl] = max(worst.get(wl, 0.0), res.saturated_fraction)
                     continue
                 frames.append(res)
             if len(frames) < max(1, min_frames):
                 names = ", ".join(r.path.name for r in groups[wl])
                 raise CamcalError(f"at {wl:g} nm only {len(frames)} of {len(groups[wl])} frames are unsaturated "
-                                  f"({names}); need {max(1, min_frames)}: shorten the exposure", csv_path)
+                                  f"({names}: up to {100 * worst.get(wl, 0.0):.2g} % of the ROI saturated outside "
+                                  f"known defects); need {max(1, min_frames)}: shorten the exposure", csv_path)
             value[:, j], u_noise[:, j], u_ref[j] = combine_wavelength(frames)
             n_used[f"{wl:g}"] = len(frames)
             bws = {r.bandwidth_nm for r in groups[wl] if r.bandwidth_nm is not None}
@@ -585,6 +545,10 @@ def measure_sweep(
             if bws:
                 bw.append(bws.pop())
             del frames
+    if defect_saturated:
+        ws = sorted(defect_saturated)
+        notes.append(f"hot pixels saturate: up to {max(defect_saturated.values())} known defects of the ROI reach "
+                     f"the white level at {ws[0]:g}-{ws[-1]:g} nm; they are masked (frames kept)")
     wl_arr = np.asarray(wls, float)
     u_tot = np.hypot(u_noise, value * u_ref[None, :])
     bandwidth = float(np.median(bw)) if bw else None

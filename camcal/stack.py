@@ -25,6 +25,7 @@ those of the kept values too (for ``mean`` and ``median`` every value is used).
 
 from __future__ import annotations
 
+import hashlib
 import os
 import tempfile
 import threading
@@ -119,6 +120,8 @@ class _Meta:
     white: float
     frame_shape: tuple[int, int]
     planes_shape: tuple[int, ...]
+    digest: bytes = b""
+    """BLAKE2b digest of the decoded pixels: two frames with the same digest are copies."""
 
 
 def _manifest_for(path: Path) -> dict:
@@ -142,7 +145,7 @@ def _decode(index: int, path: Path) -> tuple[_Meta, np.ndarray]:
         raise CamcalError(f"preprocessing gave an array of shape {planes.shape}, expected (C, h, w)", path)
     meta = _Meta(index, frame.exposure, frame.kind, frame.cfa_pattern, frame.channel_names,
                  tuple(float(v) for v in frame.black_vector().ravel()), float(frame.white_level_dn), frame.shape,
-                 tuple(planes.shape))
+                 tuple(planes.shape), hashlib.blake2b(np.ascontiguousarray(frame.data), digest_size=16).digest())
     return meta, planes
 
 
@@ -342,6 +345,7 @@ def combine_frames(
             fd = _STATE.pop("spill_fd", None)
             if fd is not None:
                 os.close(fd)
+            _refuse_copies(metas, paths)
             if acc is not None:
                 value, mean, var, count = acc.result()
                 var_all = var
@@ -363,6 +367,18 @@ def combine_frames(
         kind=first_meta.kind, cfa_pattern=first_meta.cfa_pattern, black_level_dn=first_meta.black,
         white_level_dn=first_meta.white, frame_shape=first_meta.frame_shape, variance_all=var_all,
     )
+
+
+def _refuse_copies(metas: list[_Meta | None], paths: tuple[Path, ...]) -> None:
+    """Refuse two frames with identical pixels (the same file twice, or a copy): detected by content."""
+    seen: dict[bytes, int] = {}
+    for i, m in enumerate(metas):
+        if m is None or not m.digest:
+            continue
+        j = seen.setdefault(m.digest, i)
+        if j != i:
+            raise CamcalError(f"has the same pixels as {paths[j].name} (the same frame twice, or a copy): "
+                              "each frame of a stack must be a separate exposure", paths[i])
 
 
 def _run(items: list[tuple[int, str]], jobs: int):
