@@ -15,7 +15,9 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 from camcal import __version__
+from camcal.dark import fit_dark, with_dead_pixels
 from camcal.errors import CamcalError
+from camcal.flat import DEAD_RESPONSE, dead_pixels, fit_flat
 from camcal.io import IMAGE_EXTENSIONS, folder_manifest, list_frames, load_frame
 from camcal.profile import CalibrationProfile, CameraIdentity, Provenance
 
@@ -135,16 +137,20 @@ def calibrate_session(
     dark = flat = spectral = None
     response = None
     if "dark" in stages:
-        from camcal.dark import fit_dark
-
         dark = fit_dark(session / "dark", session / "bias" if "bias" in stages else None, method=opts.dark_method,
                         jobs=opts.jobs, progress=cb("dark"))
     elif "bias" in stages:
-        notes.append("bias/ without dark/: no dark model (dark current needs dark frames)")
+        dark = fit_dark(None, session / "bias", jobs=opts.jobs, progress=cb("bias"))
+        notes.append("bias/ without dark/: bias, read noise and noisy pixels calibrated; dark current unknown "
+                     "(apply subtracts the bias only; add dark frames at two exposure times to measure it)")
     if "flat" in stages:
-        from camcal.flat import fit_flat
-
         flat = fit_flat(session / "flat", dark, model=opts.flat_model, jobs=opts.jobs, progress=cb("flat"))
+        dead = dead_pixels(flat)
+        if dark is not None:
+            dark = with_dead_pixels(dark, dead, f"flat response below {DEAD_RESPONSE:g} of the model")
+        elif dead.any():
+            notes.append(f"{int(dead.sum())} dead pixels in the flats are not kept: without a dark model the "
+                         "profile has no defect map")
     if "linearity" in stages:
         from camcal.response import fit_response
 

@@ -28,8 +28,11 @@ from pathlib import Path
 
 import numpy as np
 
+from camcal.correct import Calibration, correct_frame
 from camcal.errors import CamcalError
 from camcal.frame import PLANES
+from camcal.io import is_raw_path, list_frames, load_frame
+from camcal.spectral import central_roi
 
 #: A JPEG channel of a sweep frame is used when fewer than this fraction of its ROI pixels are clipped
 #: (0 or the white level) ...
@@ -93,8 +96,6 @@ class ColourMatrix:
 
 def twin_pairs(folder: str | Path) -> list[tuple[Path, Path]]:
     """The RAW frames of ``folder`` that have a processed twin (``<stem>.jpg`` or ``.jpeg``), sorted by name."""
-    from camcal.io import is_raw_path, list_frames
-
     pairs = []
     for path in list_frames(folder):
         if not is_raw_path(path):
@@ -131,9 +132,6 @@ def fit_colour_matrix(folders: Sequence[str | Path], processed, *, roi_fraction:
     CamcalError
         A twin that is not a processed image of the same size, or too few usable frames.
     """
-    from camcal.io import load_frame
-    from camcal.spectral import central_roi
-
     pairs = [p for f in folders for p in twin_pairs(f)]
     if not pairs:
         return None
@@ -145,13 +143,13 @@ def fit_colour_matrix(folders: Sequence[str | Path], processed, *, roi_fraction:
         jpg = load_frame(twin)
         if jpg.kind == "raw" or jpg.shape != raw.shape:
             raise CamcalError(f"is not a processed twin of {path.name} (a JPEG of the same size)", twin)
-        planes = raw.planes(np.float32)
-        x0, y0, x1, y1 = central_roi(planes.shape[1:], roi_fraction)
+        x0, y0, x1, y1 = central_roi((raw.shape[0] // 2, raw.shape[1] // 2), roi_fraction)
         # above the file's black level, not the dark model: the camera renders its JPEG from the RAW data
-        # minus its black level, dark current included (long sweep exposures: it matters)
-        box = planes[:, y0:y1, x0:x1] - raw.black_vector().astype(np.float32)
-        raw_clipped = np.mean(planes[:, y0:y1, x0:x1] >= raw.white_level_dn, axis=(1, 2)).max()
-        m = {p: float(np.mean(box[i], dtype=np.float64)) for i, p in enumerate(PLANES)}
+        # minus its black level, dark current included (long sweep exposures: it matters); clipped pixels
+        # masked (camcal.correct)
+        corr = correct_frame(raw, Calibration(), window=(slice(y0, y1), slice(x0, x1)))
+        raw_clipped = float(corr.saturated_fraction().max())
+        m = dict(zip(PLANES, corr.mean_dn(), strict=True))
         r_rows.append([m["R"], 0.5 * (m["G1"] + m["G2"]), m["B"]])
         vals = jpg.planes(np.float32)[:, 2 * y0: 2 * y1, 2 * x0: 2 * x1]
         clipped = np.mean((vals <= 0) | (vals >= jpg.white_level_dn), axis=(1, 2))

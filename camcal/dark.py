@@ -32,6 +32,7 @@ times), following EMVA 1288 (release 4.0, §4.3 "dark current", §4.5 "DSNU"):
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -665,7 +666,7 @@ def _channel_summary(b, b_var, beta, beta_var, var_t, defects, stacks, have_bias
         bk, betak = b[k][good], beta[k][good]
         med_beta, rs_beta = _robust(betak)
         if noise.quantised[k]:
-            rn_var = float(noise.read_noise_dn[k]) ** 2 + QUANTISATION_VAR_DN2
+            rn_var = float(noise.read_noise_dn[k]) ** 2
         elif have_bias:
             rn_var = float(np.mean(var_t[k][good])) - QUANTISATION_VAR_DN2
         else:
@@ -695,6 +696,21 @@ def _channel_summary(b, b_var, beta, beta_var, var_t, defects, stacks, have_bias
             "noisy_pixel_count": int(np.count_nonzero(defects[k] & NOISY)),
         }
     return out
+
+
+def with_dead_pixels(model: DarkModel, dead: np.ndarray, source: str) -> DarkModel:
+    """A new model whose defect map also marks ``dead`` (C, h, w) pixels as DEAD, counts updated.
+
+    Dead pixels are found by their response (:func:`camcal.flat.dead_pixels`); ``source`` says where.
+    """
+    dead = np.asarray(dead, bool)
+    if dead.shape != model.defects.shape:
+        raise CamcalError(f"dead-pixel map {dead.shape} does not match the dark model's {model.defects.shape}")
+    defects = model.defects | (dead * DEAD).astype(np.uint8)
+    channels = {p: {**c, "dead_pixel_count": int(np.count_nonzero(defects[k] & DEAD))}
+                for k, (p, c) in enumerate(model.channels.items())}
+    prov = {**model.provenance, "dead_pixels": source}
+    return dataclasses.replace(model, defects=defects, channels=channels, provenance=prov)
 
 
 def subtract_dark(planes: np.ndarray, model: DarkModel, exposure_s: float, iso: float | None = None) -> np.ndarray:

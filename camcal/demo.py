@@ -81,14 +81,18 @@ def _checks(truth: dict, contract: dict, survey: dict) -> list[Check]:
     return rows
 
 
-def run_demo(out: str | Path, *, size: tuple[int, int] = (384, 256)) -> dict:
-    """Run the demo into ``out``; returns ``{"checks": [...], "ok": bool, "files": {...}, "seconds": s}``."""
+def run_demo(out: str | Path, *, size: tuple[int, int] = (384, 256), preset_name: str = "default") -> dict:
+    """Run the demo into ``out``; returns ``{"checks": [...], "ok": bool, "files": {...}, "seconds": s}``.
+
+    ``preset_name`` picks the synthetic camera (:data:`camcal.synth.camera.PRESETS`: its bit depth, black
+    levels, noise and defects) at the demo's ``size`` (the full IMX296 geometry would take minutes).
+    """
     from camcal.batch import BatchOptions, run_batch
     from camcal.calibrate import calibrate_session
     from camcal.exr import read_exr, write_exr
     from camcal.profile import contract, save_profile
     from camcal.report import write_report
-    from camcal.synth.camera import SensorParams, SyntheticCamera, frame_rngs
+    from camcal.synth.camera import SyntheticCamera, frame_rngs, preset
     from camcal.synth.secchi import secchi_scenes, suggest_exposure_s
     from camcal.synth.session import SessionPlan, write_session
     from camcal.water.band import BandInverse, band_model_from_profile
@@ -98,7 +102,7 @@ def run_demo(out: str | Path, *, size: tuple[int, int] = (384, 256)) -> dict:
     if out.exists() and not out.is_dir():
         raise CamcalError("is a file, not a folder; give --out a folder for the demo's files", out)
     out.mkdir(parents=True, exist_ok=True)
-    cam = SyntheticCamera(SensorParams(width=size[0], height=size[1]))
+    cam = SyntheticCamera(preset(preset_name, width=size[0], height=size[1]))
     with progress() as bar:
         tasks: dict[str, int] = {}
 

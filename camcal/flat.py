@@ -484,11 +484,30 @@ def fit_flat_planes(
         mean = float(np.mean(prnu[i][good]))
         prnu[i] /= mean
         prnu[i][~good] = 1.0
+        # the RMS of responding pixels: dead ones (response < DEAD_RESPONSE) are defects, not PRNU
+        good &= (prnu[i] >= DEAD_RESPONSE) & (prnu[i] <= 2.0 - DEAD_RESPONSE)
         var = float(np.var(prnu[i][good]))
         if noise_var is not None:
             var -= float(np.mean((noise_var[i] / smooth[i] ** 2 / mean**2)[good]))
         prnu_rms[c] = float(np.sqrt(max(var, 0.0)))
     return dataclasses.replace(fm, prnu=prnu.astype(np.float32), prnu_rms=prnu_rms)
+
+
+#: A pixel is dead when its flat-field response is below this fraction of the smooth model's.
+DEAD_RESPONSE = 0.5
+
+
+def dead_pixels(model: FlatModel, threshold: float = DEAD_RESPONSE) -> np.ndarray:
+    """(C, h, w) bool: pixels whose response to the flat light is below ``threshold`` of the model's.
+
+    The response is the PRNU map (master flat / (level · vignetting), mean 1 per plane): a dead pixel
+    answers light with (almost) nothing, whatever its dark level. This, not a zero temporal variance
+    in dark frames, is what makes a pixel dead (below 1 DN of read noise most good pixels read the same
+    value in every dark frame). Empty without a PRNU map.
+    """
+    if model.prnu is None:
+        return np.zeros((len(model.channels), *model.shape), bool)
+    return np.asarray(model.prnu) < threshold
 
 
 # ---------------------------------------------------------------------------------------------

@@ -297,6 +297,8 @@ def contract(profile: CalibrationProfile) -> dict:
             "dark_current_dn_per_s": _rgb(s.get("dark_current_dn_per_s")),
             "dark_current_unc_dn_per_s": _rgb(s.get("dark_current_unc_dn_per_s")),
             "read_noise_dn": _rgb(s.get("read_noise_dn")),
+            "temporal_noise_dn": _rgb(s.get("temporal_noise_dn")),
+            "dark_current_known": profile.dark.dark_current_dn_per_s is not None,
             "dsnu_bias_dn": _rgb(s.get("dsnu_bias_dn")),
             "dsnu_dark_current_dn_per_s": _rgb(s.get("dsnu_dark_current_dn_per_s")),
             "hot_pixel_count": s["hot_pixel_count"],

@@ -11,8 +11,11 @@ def register(app: typer.Typer) -> None:
     @app.command("demo")
     def demo_cmd(
         out: Path = typer.Option(Path("camcal-demo"), "--out", help="Folder for the demo's files."),
+        preset_name: str = typer.Option("default", "--preset",
+                                         help="Synthetic camera: default, imx296, hot or offsets "
+                                              "(`camcal synth session --help`)."),
     ) -> int:
         """Synthesise a calibration session and Secchi-disk photos, run every stage, print truth vs recovered."""
         from camcal.demo import run_demo
 
-        return 0 if run_demo(out)["ok"] else 1
+        return 0 if run_demo(out, preset_name=preset_name)["ok"] else 1

@@ -50,7 +50,11 @@ def print_contract(c: dict, title: str = "profile") -> None:
     if stages:
         console.print(f"not calibrated: {', '.join(stages)}")
     if c["dark"]:
-        console.print(f"hot pixels: {c['dark']['hot_pixel_count']}")
+        d = c["dark"]
+        console.print(f"defects: hot pixels {d['hot_pixel_count']}, dead pixels {d['dead_pixel_count']}, "
+                      f"noisy pixels {d['noisy_pixel_count']}")
+        if not d.get("dark_current_known", True):
+            console.print("dark current: unknown (bias-only calibration)")
 
 
 def register(app: typer.Typer) -> None:

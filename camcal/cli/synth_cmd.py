@@ -11,13 +11,14 @@ from camcal.cli.common import console, progress
 from camcal.errors import CamcalError
 
 
-def _camera(pattern: str, bits: int, width: int, height: int, seed: int, sensitivity: str):
-    from camcal.synth.camera import SensorParams, SyntheticCamera
+def _camera(pattern: str | None, bits: int | None, width: int | None, height: int | None, seed: int,
+            sensitivity: str | None, preset_name: str = "default"):
+    """The synthetic camera: a preset (:data:`camcal.synth.camera.PRESETS`) with the options given."""
+    from camcal.synth.camera import SyntheticCamera, preset
 
-    return SyntheticCamera(
-        SensorParams(width=width, height=height, cfa_pattern=pattern.upper(), bit_depth=bits, seed=seed,
-                     sensitivity=sensitivity)
-    )
+    given = {"cfa_pattern": None if pattern is None else pattern.upper(), "bit_depth": bits, "width": width,
+             "height": height, "sensitivity": sensitivity}
+    return SyntheticCamera(preset(preset_name, seed=seed, **{k: v for k, v in given.items() if v is not None}))
 
 
 def register(app: typer.Typer) -> None:
@@ -27,12 +28,17 @@ def register(app: typer.Typer) -> None:
     @synth.command("session")
     def session_cmd(
         outdir: Path = typer.Argument(..., help="Session folder to create."),
-        pattern: str = typer.Option("RGGB", help="CFA pattern: RGGB, BGGR, GRBG or GBRG."),
-        bits: int = typer.Option(14, help="Bit depth of the RAW data."),
-        width: int = typer.Option(384, help="Sensor width, pixels."),
-        height: int = typer.Option(256, help="Sensor height, pixels."),
+        preset_name: str = typer.Option("default", "--preset",
+                                         help="Camera preset: default, imx296 (10-bit, sub-DN read noise, "
+                                              "black 60, 1456x1088 BGGR), hot (0.3 % hot pixels that saturate "
+                                              "at 30 s), offsets (per-channel black, 0.1 DN jitter)."),
+        pattern: str | None = typer.Option(None, help="CFA pattern: RGGB, BGGR, GRBG or GBRG (default: the "
+                                                      "preset's, RGGB)."),
+        bits: int | None = typer.Option(None, help="Bit depth of the RAW data (default: the preset's, 14)."),
+        width: int | None = typer.Option(None, help="Sensor width, pixels (default: the preset's, 384)."),
+        height: int | None = typer.Option(None, help="Sensor height, pixels (default: the preset's, 256)."),
         seed: int = typer.Option(1, help="Random seed."),
-        sensitivity: str = typer.Option("nikon-d5100", help="Spectral sensitivity: nikon-d5100, sigma-sd-merrill."),
+        sensitivity: str | None = typer.Option(None, help="Spectral sensitivity: nikon-d5100, sigma-sd-merrill."),
         stages: str = typer.Option("bias,dark,flat,linearity,sweep", help="Comma-separated stages to shoot."),
     ) -> None:
         """Write a whole calibration session (bias, dark, flat, linearity, sweep) with truth.json."""
@@ -42,7 +48,7 @@ def register(app: typer.Typer) -> None:
         bad = [s for s in chosen if s not in STAGES]
         if bad:
             raise CamcalError(f"unknown stage(s) {bad}; choose from {', '.join(STAGES)}")
-        cam = _camera(pattern, bits, width, height, seed, sensitivity)
+        cam = _camera(pattern, bits, width, height, seed, sensitivity, preset_name)
         with progress() as bar:
             tasks: dict[str, int] = {}
 
@@ -71,12 +77,13 @@ def register(app: typer.Typer) -> None:
         height: int = typer.Option(256),
         seed: int = typer.Option(1),
         sensitivity: str = typer.Option("nikon-d5100"),
+        preset_name: str = typer.Option("default", "--preset", help="Camera preset (see `synth session`)."),
     ) -> None:
         """Write one synthetic photo of a simple scene as DNG or JPEG."""
         from camcal.spectra import WAVELENGTHS_NM, gaussian_line, planck_radiance
         from camcal.synth.camera import Scene
 
-        cam = _camera(pattern, bits, width, height, seed, sensitivity)
+        cam = _camera(pattern, bits, width, height, seed, sensitivity, preset_name)
         if scene == "uniform":
             spectrum = np.full(WAVELENGTHS_NM.size, radiance)
         elif scene == "line":

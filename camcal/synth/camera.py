@@ -76,6 +76,11 @@ class SensorParams:
     """RMS of the fixed per-pixel bias offset, DN (bias DSNU)."""
     prnu_sigma: float = 0.01
     """Relative RMS of the photo-response non-uniformity."""
+    dead_pixel_fraction: float = 0.0
+    """Fraction of pixels with no response to light (PRNU 0): dark frames look normal, flats do not."""
+    offset_jitter_dn: float = 0.0
+    """RMS of a frame-to-frame offset common to every pixel of a plane, DN (row/frame noise of real
+    sensors, ~0.1 DN on the IMX296)."""
     vignetting_k: tuple[float, float, float, float, float] = (-0.30, -0.08, 0.0, 0.0, 0.0)
     """DNG radial vignetting coefficients k0..k4 (g(1) = 1 + sum k = corner gain)."""
     optical_centre: tuple[float, float] = (0.55, 0.48)
@@ -107,6 +112,43 @@ class SensorParams:
 
     def to_json(self) -> dict:
         return dataclasses.asdict(self)
+
+
+PRESETS: dict[str, SensorParams] = {
+    "default": SensorParams(),
+    # A 10-bit sensor with sub-DN read noise, learned from the Raspberry Pi Global Shutter camera's real
+    # dark frames (Sony IMX296, 1456x1088, BGGR, black level 60, white 1023; ../shared/realdata/pi): read
+    # noise 0.38-0.39 DN with the quantisation removed (0.45-0.48 DN as recorded), frame-to-frame offsets
+    # of ~0.1 DN, a per-pixel bias spread of only ~0.02 DN (so the pixel means are NOT spread over whole
+    # DN: the regime where var - 1/12 fails). Gain ~10 e-/DN (full well ~10 ke- over 963 DN).
+    "imx296": SensorParams(
+        width=1456, height=1088, cfa_pattern="BGGR", bit_depth=10, black_level_dn=(60.0, 60.0, 60.0, 60.0),
+        white_level_dn=1023, gain_e_per_dn=10.0, read_noise_e=3.9, full_well_e=10000.0,
+        dark_current_e_per_s=(3.0, 3.0, 3.0, 3.0), bias_pattern_dn=0.03, offset_jitter_dn=0.1,
+        pixel_pitch_um=3.45, make="camcal", model="Synthetic IMX296", serial="SYN0296",
+    ),
+    # 0.3 % hot pixels that saturate at 30 s (the sweep's longest exposure in the blue) on the default
+    # camera: 500-3000 x the median dark current of 2 e-/s at 1.6 e-/DN reaches the 15 871 DN range in
+    # 8-48 s (the darks of 16 s and 32 s see them saturate too).
+    "hot": SensorParams(hot_pixel_fraction=3e-3, hot_pixel_factor=(500.0, 3000.0), model="Synthetic D5100 hot"),
+    # per-channel black levels and frame-to-frame offset jitter on the default camera
+    "offsets": SensorParams(black_level_dn=(512.0, 510.0, 514.0, 508.0), offset_jitter_dn=0.1,
+                            model="Synthetic D5100 offsets"),
+}
+"""Named synthetic cameras (``camcal synth session --preset NAME``, ``camcal demo --preset NAME``)."""
+
+
+def preset(name: str, **overrides) -> SensorParams:
+    """The :data:`PRESETS` entry ``name`` with ``overrides`` (e.g. a smaller ``width``/``height`` for tests).
+
+    Raises
+    ------
+    CamcalError
+        Unknown preset name.
+    """
+    if name not in PRESETS:
+        raise CamcalError(f"unknown synthetic camera preset {name!r}; choose from {', '.join(PRESETS)}")
+    return dataclasses.replace(PRESETS[name], **overrides)
 
 
 @dataclass(frozen=True)
@@ -153,7 +195,12 @@ class SyntheticCamera:
         dark[hot] = (med * np.ones((4, h, w)))[hot] * factor
         prnu = 1.0 + p.prnu_sigma * rng.standard_normal((4, h, w))
         bias = p.bias_pattern_dn * rng.standard_normal((4, h, w))
-        return {"dark_e_per_s": dark, "hot": hot, "prnu": prnu, "bias_dn": bias, "vignetting": self._vignetting()}
+        dead = np.zeros((4, h, w), bool)
+        if p.dead_pixel_fraction > 0:  # drawn from a stream of its own: the other maps stay as they were
+            dead = np.random.default_rng([p.seed, 11]).random((4, h, w)) < p.dead_pixel_fraction
+            prnu[dead] = 0.0
+        return {"dark_e_per_s": dark, "hot": hot, "prnu": prnu, "bias_dn": bias, "dead": dead,
+                "vignetting": self._vignetting()}
 
     def _vignetting(self) -> np.ndarray:
         p = self.params
@@ -179,6 +226,11 @@ class SyntheticCamera:
     @property
     def hot_pixel_mask(self) -> np.ndarray:
         return self._maps["hot"]
+
+    @property
+    def dead_pixel_mask(self) -> np.ndarray:
+        """(4, h, w) pixels without response to light."""
+        return self._maps["dead"]
 
     @property
     def prnu_map(self) -> np.ndarray:
@@ -260,6 +312,8 @@ class SyntheticCamera:
         electrons += p.read_noise_e * rng.standard_normal(electrons.shape)
         black = np.asarray(p.black_level_dn, float)[:, None, None]
         dn = electrons * self.dn_per_electron(iso) + black + self._maps["bias_dn"]
+        if p.offset_jitter_dn > 0:  # one offset per plane and frame (drawn only then: other streams unchanged)
+            dn += p.offset_jitter_dn * rng.standard_normal((dn.shape[0], 1, 1))
         return np.clip(np.rint(dn), 0, p.white_dn).astype(np.uint16)
 
     def expose(self, scene: Scene, **kwargs) -> np.ndarray:
@@ -387,6 +441,8 @@ class SyntheticCamera:
             },
             "hot_pixels": [[int(c), int(y), int(x)] for c, y, x in zip(*np.nonzero(hot), strict=True)],
             "hot_pixel_count": int(hot.sum()),
+            "dead_pixel_count": int(self.dead_pixel_mask.sum()),
+            "offset_jitter_dn": p.offset_jitter_dn,
             "prnu_sigma": p.prnu_sigma,
             "vignetting": {
                 "model": "dng-radial",
