@@ -548,7 +548,7 @@ def fit_bias(
             rn = math.sqrt(max(float(np.mean(var_t[k][good])) - QUANTISATION_VAR_DN2, 0.0))
             dsnu = math.sqrt(max(float(np.var(bk)) - float(np.mean((var_t[k] / n[k])[good])), 0.0))
         channels[name] = {
-            "bias_dn": float(np.median(bk)),
+            "bias_dn": float(np.mean(bk)),  # the mean: a median of quantised levels sticks to half DN
             "bias_unc_dn": float(1.2533 * np.std(bk) / np.sqrt(bk.size)),
             "dark_current_dn_per_s": None,
             "dark_current_unc_dn_per_s": None,
@@ -680,7 +680,7 @@ def _channel_summary(b, b_var, beta, beta_var, var_t, defects, stacks, have_bias
             dsnu_bias2 = float(noise.dsnu_dn[k]) ** 2
         dsnu_beta2 = float(np.var(betak)) - float(np.mean(beta_var[k][good]))
         out[name] = {
-            "bias_dn": float(np.median(bk)),
+            "bias_dn": float(np.mean(bk)),  # the mean: a median of quantised levels sticks to half DN
             "bias_unc_dn": float(1.2533 * np.std(bk) / np.sqrt(bk.size)),
             "dark_current_dn_per_s": med_beta,
             "dark_current_unc_dn_per_s": float(1.2533 * rs_beta / np.sqrt(betak.size)),
