@@ -53,7 +53,7 @@ from camcal.flat import correct_flat, load_flat
 from camcal.frame import PLANES, Frame
 from camcal.io import load_frame
 from camcal.manifest import exposure_overrides, read_manifest, safe_member
-from camcal.profile import CalibrationProfile, CameraIdentity, Provenance
+from camcal.profile import SCHEMA_VERSION, CalibrationProfile, CameraIdentity, Provenance
 from camcal.spectral import DEFAULT_ROI_FRACTION, SpectralSensitivity, central_roi
 from camcal.spectral_files import FileFormat, as_absolute, read_spectral_file, read_table, resample, sha256_of_file
 
@@ -184,7 +184,7 @@ def _column_file(path: Path, what: str) -> tuple[np.ndarray, np.ndarray, np.ndar
 
 
 def _file_record(path: Path, stage: str, root: Path | None = None) -> dict:
-    name = path.name if root is None else path.relative_to(root.resolve()).as_posix()
+    name = path.name if root is None else path.resolve().relative_to(root.resolve()).as_posix()
     return {"stage": stage, "file": name, "sha256": sha256_of_file(path), "bytes": path.stat().st_size}
 
 
@@ -451,16 +451,6 @@ def _model(obj, loader):
     return loader(obj) if isinstance(obj, str | Path) else obj
 
 
-def default_source(s: SpectralSensitivity) -> dict[str, Any]:
-    """``s.source``, or for curves without one (a sweep) the sweep's description."""
-    if s.source:
-        return s.source
-    return {"kind": "sweep", "file": None, "sha256": None,
-            "absolute_scale": {"method": "sweep" if s.mode == "absolute" else "none",
-                               "description": "monochromator sweep with a reference detector (camcal sweep)"
-                               if s.mode == "absolute" else "relative: no absolute scale"}}
-
-
 def import_spectral(
     curves_path: str | Path,
     *,
@@ -549,7 +539,8 @@ def import_spectral(
         if (base.reference_iso, base.reference_f_number) != (ref_iso, ref_n):
             raise CamcalError(f"the profile's reference setting is ISO {base.reference_iso:g} "
                               f"f/{base.reference_f_number:g}; import at that setting")
-        profile = dataclasses.replace(base, spectral=curves, provenance=prov, content_sha256=None)
+        profile = dataclasses.replace(base, spectral=curves, provenance=prov, content_sha256=None,
+                                      schema_version=SCHEMA_VERSION)
     else:
         if camera is None:
             raise CamcalError("a new profile needs the camera's identity: give reference-target photos, an "

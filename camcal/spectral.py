@@ -162,6 +162,16 @@ class SpectralSensitivity:
         return colour.MultiSpectralDistributions(data, self.wavelength_nm, labels=list(PLANES),
                                                  name=f"camcal c(λ) planes [{self.units}]")
 
+    def origin(self) -> dict[str, Any]:
+        """:attr:`source`, or for curves without one (measured by :func:`measure_sweep`) the sweep's record."""
+        if self.source:
+            return self.source
+        absolute = self.mode == "absolute"
+        return {"kind": "sweep", "file": None, "sha256": None,
+                "absolute_scale": {"method": "sweep" if absolute else "none",
+                                   "description": "monochromator sweep with a reference detector (camcal sweep)"
+                                   if absolute else "relative: no absolute scale"}}
+
     # ---- derived figures -----------------------------------------------------------
     def peak_wavelength_nm(self) -> dict[str, float]:
         """Wavelength of the largest sample per channel (exact to the sampling), nm."""
@@ -223,6 +233,22 @@ class SpectralSensitivity:
             "slit_bias_rms_of_peak": {p: float(np.sqrt(np.mean(bias[p] ** 2)) / peak) for p in PLANES},
             "notes": list(self.notes),
         }
+
+
+def describe_origin(src: dict[str, Any]) -> tuple[str, str]:
+    """(where c(λ) came from, how its absolute scale was set) from :meth:`SpectralSensitivity.origin`."""
+    if src.get("kind") == "sweep":
+        where = "monochromator sweep (camcal sweep / calibrate)"
+    else:
+        where = (f"imported from {src.get('file')} ({src.get('format')} format, SHA-256 "
+                 f"{str(src.get('sha256'))[:12]}…)")
+    a = src.get("absolute_scale") or {}
+    if a.get("method") == "reference_targets":
+        n = len(a.get("targets") or [])
+        how = f"reference targets ({n} target{'s' if n != 1 else ''}): {a.get('verdict', '')}"
+    else:
+        how = str(a.get("description") or a.get("method"))
+    return where, how
 
 
 # ---- reading a sweep ---------------------------------------------------------------------
