@@ -162,7 +162,8 @@ def targets(tmp_path_factory, camera):
     write_target_photos(d / "one", camera, {"lamp_2856K": sp["lamp_2856K"]})
     write_target_photos(d / "three", camera, sp, stated_unc_rel=0.0, seed=7)
     irr = 2.0 * planck_radiance(5000.0) / planck_radiance(5000.0).max()  # W m^-2 nm^-1
-    write_target_photos(d / "card", camera, {}, reflectance={"grey": (grey_card_reflectance(), irr)}, seed=9)
+    write_target_photos(d / "card", camera, {}, reflectance={"grey": (grey_card_reflectance(), irr)}, seed=9,
+                        n_photos=2)
     return d, float(c.max())
 
 
@@ -230,6 +231,7 @@ def test_reflectance_standard_under_measured_irradiance(targets, profile_path):
     d, k_true = targets
     _, scale = import_spectral(d / "truth_rel.csv", base=load_profile(profile_path), targets=d / "card")
     assert "ρE/π" in scale.targets[0]["description"]
+    assert len(scale.targets) == 1 and len(scale.targets[0]["photos"]) == 2  # two photos, one target
     for p in PLANES:
         assert scale.k[p] == pytest.approx(k_true, rel=0.005)
 
@@ -255,6 +257,26 @@ def test_imported_profile_runs_through_apply_and_water_invert(targets, profile_p
         res[name + "_chl"] = json.loads(proc.stdout)["c_ug_per_L"][0]
     assert res["imp"] == pytest.approx(res["sweep"], rel=0.01)
     assert res["imp_chl"] == pytest.approx(res["sweep_chl"], rel=0.01)
+
+
+def test_profile_export_is_spectacles_file_and_imports_back_absolute(profile_path, tmp_path):
+    base = load_profile(profile_path)
+    proc = run_cli("profile", "export-spectral", profile_path, "-o", tmp_path / "c.csv")
+    assert proc.returncode == 0, proc.stderr
+    data = spectacle_read(tmp_path / "c.csv")
+    np.testing.assert_array_equal(data[0], base.spectral.wavelength_nm)
+    for row, p in zip(data[1:5], ("R", "G1", "B", "G2"), strict=True):
+        np.testing.assert_array_equal(row, base.spectral.values[p])
+    (tmp_path / "c.meta.json").unlink()  # as from another tool: the values alone, declared absolute
+    out = tmp_path / "back.camcal"
+    proc = run_cli("profile", "import-spectral", tmp_path / "c.csv", "--into", profile_path, "--absolute", "-o", out)
+    assert proc.returncode == 0, proc.stderr
+    back = load_profile(out).spectral
+    assert back.mode == "absolute" and back.origin()["absolute_scale"]["method"] == "file"
+    for p in PLANES:
+        np.testing.assert_array_equal(back.values[p], base.spectral.values[p])
+    assert_one_line_error(run_cli("profile", "import-spectral", tmp_path / "c.csv", "--into", profile_path,
+                                  "--absolute", "--targets", tmp_path, "-o", tmp_path / "x.camcal"), "exclude")
 
 
 def test_target_errors(targets, tmp_path, profile_path):

@@ -9,6 +9,10 @@ from rich.table import Table
 
 from camcal.cli.common import console, print_json, progress
 from camcal.errors import CamcalError
+from camcal.profile import CameraIdentity, load_profile, save_profile
+from camcal.reference_targets import import_spectral
+from camcal.spectral import describe_origin
+from camcal.spectral_files import write_spectacle_csv
 
 
 def _fmt(v) -> str:
@@ -57,8 +61,6 @@ def print_contract(c: dict, title: str = "profile") -> None:
 
 
 def print_spectral_source(src: dict) -> None:
-    from camcal.spectral import describe_origin
-
     where, how = describe_origin(src)
     console.print(f"c(λ) from: {where}", soft_wrap=True)
     console.print(f"absolute scale: {how}", soft_wrap=True)
@@ -127,9 +129,6 @@ def register(app: typer.Typer) -> None:
         as_json: bool = typer.Option(False, "--json", help="Print the spectral source record as JSON."),
     ) -> None:
         """Put spectral curves measured elsewhere into a profile; absolute through reference-target photos."""
-        from camcal.profile import CameraIdentity, load_profile, save_profile
-        from camcal.reference_targets import import_spectral
-
         if output.suffix.lower() != ".camcal":
             raise CamcalError("output must be a .camcal file", output)
         if fmt not in ("auto", "spectacle", "plain"):
@@ -165,9 +164,6 @@ def register(app: typer.Typer) -> None:
                                     "goes to <stem>.meta.json beside it)."),
     ) -> None:
         """Write a profile's c(λ) as SPECTACLE writes spectral responses (np.loadtxt(path, delimiter=",") reads it)."""
-        from camcal.profile import load_profile
-        from camcal.spectral_files import write_spectacle_csv
-
         if output.suffix.lower() != ".csv":
             raise CamcalError("output must be a .csv file", output)
         p = load_profile(profile, with_maps=False)
