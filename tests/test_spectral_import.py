@@ -19,13 +19,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from camcal.apply import apply
+from camcal.apply import apply, prepare
 from camcal.errors import CamcalError
 from camcal.exr import read_exr
 from camcal.frame import PLANES
 from camcal.io import load_frame
 from camcal.profile import contract, load_profile, save_profile
-from camcal.reference_targets import import_spectral, predicted_rate, radiance_target
+from camcal.reference_targets import import_spectral, predicted_rate, radiance_target, region_rate
 from camcal.spectra import WAVELENGTHS_NM, camera_sensitivities, planck_radiance
 from camcal.spectral import RELATIVE_UNITS, SpectralSensitivity
 from camcal.spectral_files import (
@@ -257,6 +257,30 @@ def test_imported_profile_runs_through_apply_and_water_invert(targets, profile_p
         res[name + "_chl"] = json.loads(proc.stdout)["c_ug_per_L"][0]
     assert res["imp"] == pytest.approx(res["sweep"], rel=0.01)
     assert res["imp_chl"] == pytest.approx(res["sweep_chl"], rel=0.01)
+
+
+def test_region_rate_is_applys_correction(profile_path, camera, tmp_path):
+    """The target's DN rate is what apply computes on the same pixels (apply's R, G, B times ∫c dλ)."""
+    prof = load_profile(profile_path)
+    spec = 0.05 * planck_radiance(4000.0) / planck_radiance(4000.0).max()
+    t = exposure_for_level(camera, spec, 0.4, 200, 5.6)
+    frame = load_frame(camera.write_dng(tmp_path / "p.dng", Scene.uniform(spec), exposure_s=t, iso=200, f_number=5.6,
+                                        rng=np.random.default_rng(4)))
+    box = (60, 40, 120, 90)
+    rr = region_rate(frame, box, dark=prof.dark, flat=prof.flat, reference_iso=prof.reference_iso,
+                     reference_f_number=prof.reference_f_number)
+    assert rr.relative_exposure_s == pytest.approx(t * 2 * 16 / 5.6**2)
+    plan = prepare(prof, 663.0)
+    img = apply(frame, prof, 663.0)
+    rate = {"R": rr.rate_dn_per_s[0], "G": 0.5 * (rr.rate_dn_per_s[1] + rr.rate_dn_per_s[2]), "B": rr.rate_dn_per_s[3]}
+    for i, ch in enumerate("RGB"):
+        via_apply = np.nanmean(img.channels[ch][40:90, 60:120]) * plan.model.band_integral[i]
+        assert rate[ch] == pytest.approx(via_apply, rel=1e-3), ch  # (region_rate also drops > 5σ outliers)
+    # and it is ∫ c L dλ with the camera's true c on axis, to the noise and the models' accuracy
+    truth = np.trapezoid(camera.spectral_sensitivity() * spec, WAVELENGTHS_NM, axis=1)
+    assert rr.rate_dn_per_s[0] == pytest.approx(truth[0], rel=0.005)
+    with pytest.raises(CamcalError, match="outside"):
+        region_rate(frame, (0, 0, 500, 10), reference_iso=100, reference_f_number=4)
 
 
 def test_profile_export_is_spectacles_file_and_imports_back_absolute(profile_path, tmp_path):
