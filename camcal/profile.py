@@ -28,7 +28,7 @@ from camcal.frame import PLANES
 from camcal.store import to_jsonable
 
 FORMAT = "camcal-profile"
-SCHEMA_VERSION = "1.1"  # 1.1: optional response.processed.colour_matrix
+SCHEMA_VERSION = "1.2"  # 1.1: optional response.processed.colour_matrix; 1.2: optional spectral_sensitivity.source
 SUPPORTED_MAJOR = 1
 SPECTRAL_UNITS_DEFAULT = "DN s^-1 per (W m^-2 sr^-1 nm^-1) per nm at ISO_ref, f/N_ref, on axis"
 
@@ -341,6 +341,7 @@ def contract(profile: CalibrationProfile) -> dict:
             "mode": s.mode,
             "peak_wavelength_nm": s.peak_wavelength_nm(),
             "effective_wavelength_nm": s.effective_wavelength_nm(),
+            "source": s.origin(),
         }
     else:
         out["spectral_sensitivity"] = None

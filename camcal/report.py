@@ -41,6 +41,7 @@ from camcal import __version__
 from camcal.atomic import atomic_write_text
 from camcal.errors import CamcalError
 from camcal.frame import PLANES
+from camcal.spectral import describe_origin
 
 COLOURS = {"R": "#d62728", "G": "#2ca02c", "G1": "#2ca02c", "G2": "#17632a", "B": "#1f77b4"}
 """Plot colour per channel."""
@@ -63,6 +64,7 @@ main{max-width:1120px;margin:0 auto;padding:16px 24px 48px;background:#fff}
 h1{font-size:1.6em;margin:.4em 0 .1em}h2{font-size:1.25em;border-bottom:2px solid #dde1e6;padding-bottom:4px;
 margin-top:1.8em}h3{font-size:1.05em;margin:1.2em 0 .4em}
 .sub{color:#5a6270;margin:0 0 1em}
+.bad{color:#b3261e;font-weight:600}
 nav a{margin-right:14px;color:#1f5fa8;text-decoration:none}
 table{border-collapse:collapse;margin:.5em 0 1em;font-size:.9em}
 th,td{border:1px solid #d6dae0;padding:3px 9px;text-align:right;vertical-align:top}
@@ -514,8 +516,28 @@ def _spectral_section(profile, c: dict) -> str:
                "±1 σ band.")
     return (f'<section id="spectral_sensitivity"><h2>{STAGE_TITLES["spectral_sensitivity"]}</h2>'
             f'<p class="sub">{_esc(s["mode"])}, units: <code>{_esc(s["units"])}</code>; slit bandwidth {band}; '
-            f'{"deconvolved" if spec.deconvolved else "slit-weighted (not deconvolved)"}.</p>{fig}{summary}{full}'
+            f'{"deconvolved" if spec.deconvolved else "slit-weighted (not deconvolved)"}.</p>'
+            f"{_spectral_source_html(s['source'])}{fig}{summary}{full}"
             + (f"<p>Notes:</p><ul>{notes}</ul>" if notes else "") + "</section>")
+
+
+def _spectral_source_html(src: dict) -> str:
+    """Where c(λ) came from and how its absolute scale was set; the reference targets' residuals."""
+    where, how = describe_origin(src)
+    a = src.get("absolute_scale") or {}
+    warn = a.get("consistent") is False
+    out = (f'<p id="spectral-source"><b>Source:</b> {_esc(where)}.<br><b>Absolute scale:</b> '
+           + (f'<span class="bad">{_esc(how)}</span>' if warn else _esc(how)) + ".</p>")
+    if a.get("method") == "reference_targets":
+        rows = [[t["name"], ", ".join(t.get("photos") or []),
+                 *(f"{100 * t['residual_rel'][p]:+.3g} % (z {t['z'][p]:+.2g})" for p in PLANES)]
+                for t in a.get("targets") or []]
+        ks = [["k", "", *(f"{a['k'][p]:.6g} ± {a['k_unc'][p]:.2g}" for p in PLANES)]]
+        out += ("<p>c<sub>i</sub> = k<sub>i</sub> · c<sub>rel,i</sub> with k<sub>i</sub> = rate<sub>i</sub> / "
+                "∫ c<sub>rel,i</sub> L dλ (least squares over the targets); residual = rate / (k P) − 1, z in "
+                "units of its standard uncertainty.</p>"
+                + _table(["target", "photos", *PLANES], ks + rows, left=2))
+    return out
 
 
 def _provenance_section(profile, c: dict) -> str:

@@ -38,13 +38,13 @@ model brings the region of interest to the optical centre).
 References
 ----------
 Burggraaff, O. et al. (2019). Standardized spectral and radiometric calibration
-of consumer cameras. Optics Express 27(14), 19075 (SPECTACLE; CSV layout).
+of consumer cameras. Optics Express 27(14), 19075 (SPECTACLE; its CSV layout is
+read and written by :mod:`camcal.spectral_files`).
 Hansen, P. C. (2010). Discrete Inverse Problems. SIAM (Tikhonov, GCV).
 """
 
 from __future__ import annotations
 
-import json
 import math
 import warnings
 from collections.abc import Callable, Sequence
@@ -67,7 +67,6 @@ DEFAULT_REFERENCE_F_NUMBER = 4.0
 DEFAULT_ROI_FRACTION = 0.2
 ABSOLUTE_UNITS = "DN s^-1 per (W m^-2 sr^-1 nm^-1) per nm at ISO_ref, f/N_ref, on axis"
 RELATIVE_UNITS = "relative"
-SPECTACLE_COLUMNS = ("Wavelength", "R", "G", "B", "G2", "R_err", "G_err", "B_err", "G2_err")
 FWHM_TO_SIGMA = 1.0 / (2.0 * math.sqrt(2.0 * math.log(2.0)))
 
 
@@ -102,6 +101,12 @@ class SpectralSensitivity:
         Frames used per wavelength (key: wavelength as text), informational.
     notes : tuple of str
         Warnings raised while measuring (skipped frames...).
+    source : dict or None
+        Where the curves came from and how their absolute scale was set
+        (:mod:`camcal.spectral_files`, :mod:`camcal.reference_targets`): ``kind``
+        ``sweep`` | ``imported`` | ``reference_targets``, the source ``file`` and
+        its ``sha256``, ``absolute_scale``. None: measured by :func:`measure_sweep`
+        (profiles written before the field existed).
     """
 
     wavelength_nm: np.ndarray
@@ -115,6 +120,7 @@ class SpectralSensitivity:
     deconvolved: bool = False
     n_frames: dict[str, int] = field(default_factory=dict)
     notes: tuple[str, ...] = ()
+    source: dict[str, Any] | None = None
 
     def __post_init__(self) -> None:
         wl = np.asarray(self.wavelength_nm, float)
@@ -157,6 +163,16 @@ class SpectralSensitivity:
         data = np.column_stack([self.values[p] for p in PLANES])
         return colour.MultiSpectralDistributions(data, self.wavelength_nm, labels=list(PLANES),
                                                  name=f"camcal c(λ) planes [{self.units}]")
+
+    def origin(self) -> dict[str, Any]:
+        """:attr:`source`, or for curves without one (measured by :func:`measure_sweep`) the sweep's record."""
+        if self.source:
+            return self.source
+        absolute = self.mode == "absolute"
+        return {"kind": "sweep", "file": None, "sha256": None,
+                "absolute_scale": {"method": "sweep" if absolute else "none",
+                                   "description": "monochromator sweep with a reference detector (camcal sweep)"
+                                   if absolute else "relative: no absolute scale"}}
 
     # ---- derived figures -----------------------------------------------------------
     def peak_wavelength_nm(self) -> dict[str, float]:
@@ -219,6 +235,22 @@ class SpectralSensitivity:
             "slit_bias_rms_of_peak": {p: float(np.sqrt(np.mean(bias[p] ** 2)) / peak) for p in PLANES},
             "notes": list(self.notes),
         }
+
+
+def describe_origin(src: dict[str, Any]) -> tuple[str, str]:
+    """(where c(λ) came from, how its absolute scale was set) from :meth:`SpectralSensitivity.origin`."""
+    if src.get("kind") == "sweep":
+        where = "monochromator sweep (camcal sweep / calibrate)"
+    else:
+        where = (f"imported from {src.get('file')} ({src.get('format')} format, SHA-256 "
+                 f"{str(src.get('sha256'))[:12]}…)")
+    a = src.get("absolute_scale") or {}
+    if a.get("method") == "reference_targets":
+        n = len(a.get("targets") or [])
+        how = f"reference targets ({n} target{'s' if n != 1 else ''}): {a.get('verdict', '')}"
+    else:
+        how = str(a.get("description") or a.get("method"))
+    return where, how
 
 
 # ---- reading a sweep ---------------------------------------------------------------------
@@ -745,35 +777,7 @@ def merge_sweeps(a: SpectralSensitivity, b: SpectralSensitivity, *, scale: bool 
                                max(bws) if bws else None, a.deconvolved, {**b.n_frames, **a.n_frames}, notes)
 
 
-# ---- SPECTACLE CSV ---------------------------------------------------------------------------
-def _meta_path(path: Path) -> Path:
-    return path.with_name(path.stem + ".meta.json")
-
-
-def write_spectacle_csv(s: SpectralSensitivity, path: str | Path) -> Path:
-    """Write the SPECTACLE layout ``Wavelength,R,G,B,G2,R_err,G_err,B_err,G2_err`` (G = G1, G2 = G2).
-
-    The CSV holds only the header and numbers, as SPECTACLE's tools read it;
-    camcal's metadata (mode, units, reference setting, bandwidth, summary) goes
-    to ``<stem>.meta.json`` beside it. Both are written atomically.
-    """
-    from camcal.atomic import atomic_write_text
-    from camcal.store import to_jsonable
-
-    path = Path(path)
-    cols = [s.wavelength_nm, s.values["R"], s.values["G1"], s.values["B"], s.values["G2"],
-            s.uncertainty["R"], s.uncertainty["G1"], s.uncertainty["B"], s.uncertainty["G2"]]
-    lines = [",".join(SPECTACLE_COLUMNS)]
-    for row in np.column_stack(cols):
-        lines.append(",".join(f"{row[0]:g}" if i == 0 else f"{v:.9g}" for i, v in enumerate(row)))
-    meta = {"kind": "camcal.spectral", "mode": s.mode, "units": s.units, "reference_iso": s.reference_iso,
-            "reference_f_number": s.reference_f_number, "bandwidth_nm": s.bandwidth_nm,
-            "deconvolved": s.deconvolved, "n_frames": s.n_frames, "notes": list(s.notes), "summary": s.summary()}
-    atomic_write_text(_meta_path(path), json.dumps(to_jsonable(meta), indent=1, allow_nan=False))
-    atomic_write_text(path, "\n".join(lines) + "\n")
-    return path
-
-
+# ---- serialisation (profiles) -------------------------------------------------------------
 def spectral_to_dict(s: SpectralSensitivity) -> dict[str, Any]:
     """Everything of ``s``, JSON-ready (lists of floats); inverse of :func:`spectral_from_dict`."""
     from camcal.store import to_jsonable
@@ -784,6 +788,7 @@ def spectral_to_dict(s: SpectralSensitivity) -> dict[str, Any]:
         "reference_iso": s.reference_iso, "reference_f_number": s.reference_f_number,
         "bandwidth_nm": s.bandwidth_nm, "deconvolved": s.deconvolved, "n_frames": s.n_frames,
         "notes": list(s.notes), "summary": s.summary(),
+        **({"source": s.source} if s.source is not None else {}),
     })
 
 
@@ -799,67 +804,10 @@ def spectral_from_dict(d: dict[str, Any]) -> SpectralSensitivity:
             bandwidth_nm=None if d.get("bandwidth_nm") is None else float(d["bandwidth_nm"]),
             deconvolved=bool(d.get("deconvolved", False)), n_frames=dict(d.get("n_frames") or {}),
             notes=tuple(str(n) for n in d.get("notes") or ()),
+            source=dict(d["source"]) if isinstance(d.get("source"), dict) else None,
         )
     except (KeyError, TypeError, ValueError) as exc:
         raise CamcalError(f"malformed spectral sensitivity ({type(exc).__name__}: {exc})") from None
-
-
-def read_spectacle_csv(path: str | Path) -> SpectralSensitivity:
-    """Read a SPECTACLE-layout CSV (and camcal's ``<stem>.meta.json`` when present).
-
-    Without the metadata file the result is in ``relative`` mode with unknown
-    bandwidth. Missing ``*_err`` columns give zero uncertainty.
-    """
-    import csv
-
-    from camcal.manifest import read_text_file
-
-    path = Path(path)
-    text = read_text_file(path, "spectral sensitivity CSV")
-    lines = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
-    if not lines:
-        raise CamcalError("is empty", path)
-    rows = list(csv.reader(lines))
-    header = [h.strip() for h in rows[0]]
-    for col in ("Wavelength", "R", "G", "B"):
-        if col not in header:
-            raise CamcalError(f"missing column {col!r}; expected {','.join(SPECTACLE_COLUMNS)}", path)
-    try:
-        data = np.array([[float(c) for c in r] for r in rows[1:]], float)
-    except ValueError as exc:
-        raise CamcalError(f"non-numeric cell: {exc}", path) from None
-    if data.ndim != 2 or data.shape[0] == 0 or data.shape[1] != len(header) or not np.all(np.isfinite(data)):
-        raise CamcalError("rows must be complete and finite numbers", path)
-    col = {h: data[:, i] for i, h in enumerate(header)}
-    zero = np.zeros(data.shape[0])
-    g2 = col.get("G2", col["G"])
-    values = {"R": col["R"], "G1": col["G"], "G2": g2, "B": col["B"]}
-    unc = {"R": col.get("R_err", zero), "G1": col.get("G_err", zero), "G2": col.get("G2_err", col.get("G_err", zero)),
-           "B": col.get("B_err", zero)}
-    order = np.argsort(col["Wavelength"])
-    meta: dict[str, Any] = {}
-    mp = _meta_path(path)
-    if mp.is_file():
-        try:
-            meta = json.loads(read_text_file(mp, "spectral metadata"))
-        except ValueError as exc:
-            raise CamcalError(f"invalid metadata file: {exc}", mp) from None
-    if not isinstance(meta, dict):
-        raise CamcalError("invalid metadata file: not a JSON object", mp)
-    mode = meta.get("mode", "relative")
-    return SpectralSensitivity(
-        wavelength_nm=col["Wavelength"][order],
-        values={k: v[order] for k, v in values.items()},
-        uncertainty={k: v[order] for k, v in unc.items()},
-        units=meta.get("units", RELATIVE_UNITS),
-        mode="absolute" if mode == "absolute" else "relative",
-        reference_iso=float(meta.get("reference_iso", DEFAULT_REFERENCE_ISO)),
-        reference_f_number=float(meta.get("reference_f_number", DEFAULT_REFERENCE_F_NUMBER)),
-        bandwidth_nm=meta.get("bandwidth_nm"),
-        deconvolved=bool(meta.get("deconvolved", False)),
-        n_frames=dict(meta.get("n_frames", {})),
-        notes=tuple(meta.get("notes", ())),
-    )
 
 
 # ---- plot -------------------------------------------------------------------------------------

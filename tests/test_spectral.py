@@ -29,9 +29,8 @@ from camcal.spectral import (
     deconvolve_slit,
     measure_sweep,
     merge_sweeps,
-    read_spectacle_csv,
-    write_spectacle_csv,
 )
+from camcal.spectral_files import SPECTACLE_HEADER, read_spectacle_csv, write_spectacle_csv
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
 from camcal.synth.session import SessionPlan, write_session
 from tests.conftest import assert_one_line_error, run_cli
@@ -236,7 +235,7 @@ def test_spectacle_csv_round_trip_and_colour(tmp_path):
     s = _analytic(np.arange(400.0, 701.0, 5.0), centres=(600.0, 540.0, 545.0, 460.0))
     path = write_spectacle_csv(s, tmp_path / "sens.csv")
     header = path.read_text().splitlines()[0]
-    assert header == "Wavelength,R,G,B,G2,R_err,G_err,B_err,G2_err"
+    assert header == "# " + SPECTACLE_HEADER == "# Wavelength, R, G, B, G2, R_err, G_err, B_err, G2_err"
     back = read_spectacle_csv(path)
     for p in PLANES:
         np.testing.assert_allclose(back.values[p], s.values[p], rtol=1e-8)
@@ -248,8 +247,11 @@ def test_spectacle_csv_round_trip_and_colour(tmp_path):
     planes = s.to_colour_planes()
     assert list(planes.labels) == ["R", "G1", "G2", "B"]
     np.testing.assert_allclose(planes.values[:, 2], s.values["G2"])
-    (tmp_path / "bad.csv").write_text("Wavelength,R,G\n400,1,x\n")
+    (tmp_path / "bad.csv").write_text("Wavelength,R,G\n400,1,2\n")
     with pytest.raises(CamcalError, match="missing column 'B'"):
+        read_spectacle_csv(tmp_path / "bad.csv")
+    (tmp_path / "bad.csv").write_text("Wavelength,R,G,B\n400,1,x,3\n")
+    with pytest.raises(CamcalError, match="non-numeric"):
         read_spectacle_csv(tmp_path / "bad.csv")
 
 

@@ -1,4 +1,4 @@
-"""``camcal profile show|diff``."""
+"""``camcal profile show|diff|import-spectral|export-spectral``."""
 
 from __future__ import annotations
 
@@ -7,7 +7,12 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
-from camcal.cli.common import console, print_json
+from camcal.cli.common import console, print_json, progress
+from camcal.errors import CamcalError
+from camcal.profile import CameraIdentity, load_profile, save_profile
+from camcal.reference_targets import import_spectral
+from camcal.spectral import describe_origin
+from camcal.spectral_files import write_spectacle_csv
 
 
 def _fmt(v) -> str:
@@ -55,10 +60,40 @@ def print_contract(c: dict, title: str = "profile") -> None:
                       f"noisy pixels {d['noisy_pixel_count']}")
         if not d.get("dark_current_known", True):
             console.print("dark current: unknown (bias-only calibration)")
+    if c["spectral_sensitivity"]:
+        print_spectral_source(c["spectral_sensitivity"]["source"])
+
+
+def print_spectral_source(src: dict) -> None:
+    where, how = describe_origin(src)
+    console.print(f"c(λ) from: {where}", soft_wrap=True)
+    console.print(f"absolute scale: {how}", soft_wrap=True)
+    a = src.get("absolute_scale") or {}
+    if a.get("method") == "reference_targets":
+        table = Table("target", "photos", *(f"residual {p}" for p in ("R", "G1", "G2", "B")), title_justify="left")
+        for t in a.get("targets") or []:
+            table.add_row(t["name"], str(len(t.get("photos") or [])),
+                          *(f"{100 * t['residual_rel'][p]:+.3g} %" for p in ("R", "G1", "G2", "B")))
+        console.print(table)
+        console.print("k: " + ", ".join(f"{p} {a['k'][p]:.6g} ± {a['k_unc'][p]:.2g}" for p in ("R", "G1", "G2", "B")),
+                      soft_wrap=True)
+
+
+def _parse_size(text: str | None) -> tuple[int, int] | None:
+    if text is None:
+        return None
+    parts = text.lower().split("x")
+    try:
+        w, h = (int(p) for p in parts)
+    except ValueError:
+        w = h = 0
+    if len(parts) != 2 or w < 1 or h < 1:
+        raise CamcalError(f"--size must be WIDTHxHEIGHT in pixels, e.g. 6000x4000, got {text!r}")
+    return w, h
 
 
 def register(app: typer.Typer) -> None:
-    prof = typer.Typer(help="Inspect and compare calibration profiles.", no_args_is_help=True)
+    prof = typer.Typer(help="Inspect, compare and assemble calibration profiles.", no_args_is_help=True)
     app.add_typer(prof, name="profile")
 
     @prof.command("show")
@@ -74,6 +109,72 @@ def register(app: typer.Typer) -> None:
             print_json(c)
         else:
             print_contract(c, title=str(profile))
+
+    @prof.command("import-spectral")
+    def import_cmd(
+        curves: Path = typer.Argument(..., help="Spectral curves: a SPECTACLE CSV, or a plain table "
+                                      "wavelength_nm,R,G,B[,R_unc,G_unc,B_unc] (CSV, or space-separated .dat)."),
+        output: Path = typer.Option(..., "-o", "--output", help="Profile to write (.camcal)."),
+        into: Path | None = typer.Option(None, "--into", help="Existing profile: keep its dark, flat, response and "
+                                         "camera, replace its c(λ) (resampled to its wavelength grid)."),
+        fmt: str = typer.Option("auto", "--format", help="auto, spectacle or plain."),
+        targets: Path | None = typer.Option(None, "--targets", help="targets.csv (or its folder) of reference-target "
+                                            "photos: sets the absolute scale of relative curves."),
+        absolute: bool = typer.Option(False, "--absolute", help="The file's values are already absolute (DN s^-1 per "
+                                      "W m^-2 sr^-1 nm^-1 per nm at the reference setting)."),
+        reference_iso: float | None = typer.Option(None, help="Reference ISO (default: the profile's, else 100)."),
+        reference_f_number: float | None = typer.Option(None, help="Reference f-number (default: the profile's, "
+                                                        "else 4)."),
+        dark: Path | None = typer.Option(None, "--dark", help="Dark model for the target photos (camcal dark)."),
+        flat: Path | None = typer.Option(None, "--flat", help="Flat model for the target photos (camcal flat)."),
+        make: str | None = typer.Option(None, help="Camera make of a new profile without photos."),
+        model: str | None = typer.Option(None, help="Camera model of a new profile without photos."),
+        size: str | None = typer.Option(None, help="Sensor size WIDTHxHEIGHT of a new profile without photos."),
+        as_json: bool = typer.Option(False, "--json", help="Print the spectral source record as JSON."),
+    ) -> None:
+        """Put spectral curves measured elsewhere into a profile; absolute through reference-target photos."""
+        if output.suffix.lower() != ".camcal":
+            raise CamcalError("output must be a .camcal file", output)
+        if fmt not in ("auto", "spectacle", "plain"):
+            raise CamcalError(f"--format must be auto, spectacle or plain, got {fmt!r}")
+        if absolute and targets is not None:
+            raise CamcalError("--absolute and --targets exclude each other: targets set the scale of relative curves")
+        base = load_profile(into) if into is not None else None
+        wh = _parse_size(size)
+        camera = None
+        if wh is not None:
+            camera = CameraIdentity(make, model, None, None, wh[0], wh[1])
+        elif (make or model) and base is None:
+            raise CamcalError("--make/--model need --size WIDTHxHEIGHT as well")
+        with progress() as bar:
+            bar.add_task("import spectral curves", total=None)
+            prof, _ = import_spectral(curves, fmt=fmt, base=base, targets=targets, absolute=absolute,  # type: ignore[arg-type]
+                                      reference_iso=reference_iso, reference_f_number=reference_f_number,
+                                      dark=dark, flat=flat, camera=camera)
+        saved = save_profile(prof, output)
+        src = saved.spectral.origin()
+        if as_json:
+            print_json({"output": str(output), "content_sha256": saved.content_sha256, "mode": saved.spectral.mode,
+                        "source": src})
+            return
+        print_spectral_source(src)
+        console.print(f"wrote {output} (c(λ) {saved.spectral.mode}, {saved.spectral.wavelength_nm.size} wavelengths "
+                      f"{saved.spectral.wavelength_nm[0]:g}–{saved.spectral.wavelength_nm[-1]:g} nm)")
+
+    @prof.command("export-spectral")
+    def export_cmd(
+        profile: Path = typer.Argument(..., help="Profile file (.camcal)."),
+        output: Path = typer.Option(..., "-o", "--output", help="CSV to write (SPECTACLE's layout; camcal's metadata "
+                                    "goes to <stem>.meta.json beside it)."),
+    ) -> None:
+        """Write a profile's c(λ) as SPECTACLE writes spectral responses (np.loadtxt(path, delimiter=",") reads it)."""
+        if output.suffix.lower() != ".csv":
+            raise CamcalError("output must be a .csv file", output)
+        p = load_profile(profile, with_maps=False)
+        if p.spectral is None:
+            raise CamcalError("the profile has no spectral sensitivity", profile)
+        write_spectacle_csv(p.spectral, output)
+        console.print(f"wrote {output} (+ {output.stem}.meta.json)")
 
     @prof.command("diff")
     def diff_cmd(

@@ -46,7 +46,8 @@ def register(app: typer.Typer) -> None:
         as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
     ) -> None:
         """Measure c(λ) for R, G1, G2, B and write a SPECTACLE CSV and a PNG plot."""
-        from camcal.spectral import measure_sweep, plot_sensitivity, read_sweep, write_spectacle_csv
+        from camcal.spectral import measure_sweep, plot_sensitivity, read_sweep
+        from camcal.spectral_files import write_spectacle_csv
 
         if output.suffix.lower() != ".csv":
             raise CamcalError("output must be a .csv file", output)
