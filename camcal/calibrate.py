@@ -17,6 +17,7 @@ from pathlib import Path
 from camcal import __version__
 from camcal.errors import CamcalError
 from camcal.io import IMAGE_EXTENSIONS, folder_manifest, list_frames, load_frame
+from camcal.manifest import SESSION_DEFAULTS, read_manifest
 from camcal.profile import CalibrationProfile, CameraIdentity, Provenance
 
 STAGES = ("bias", "dark", "flat", "linearity", "sweep")
@@ -30,7 +31,8 @@ class CalibrateOptions:
 
     ``reference_iso`` / ``reference_f_number``: the reference setting; by default
     the setting of the sweep frames (where the absolute calibration is measured),
-    else the most common one of the linearity series, else ISO of the darks and f/4.
+    else the most common one of the linearity series, else of the darks (flats, bias).
+    Never defaulted silently: when unknown, calibration stops saying what to add.
     """
 
     reference_iso: float | None = None
@@ -91,26 +93,47 @@ def camera_identity(session: Path, stages: list[str]) -> CameraIdentity:
     return (raw_ids or list(seen.values()))[0]
 
 
+_REFERENCE_HINT = {
+    "iso": ("ISO", "iso = N", "iso", "--reference-iso"),
+    "f_number": ("f-number", "f_number = N", "f_number", "--reference-f-number"),
+}
+
+
 def _reference(session: Path, stages: list[str], opts: CalibrateOptions) -> tuple[float, float]:
+    """The reference setting (ISO_ref, N_ref): the options', else the most common setting of the first stage
+    present of sweep, linearity, dark, flat, bias (frames.csv / sweep.csv and session.toml applied).
+
+    Never defaulted: a value no frame, manifest or session default gives stops calibration with one line
+    saying what to add.
+    """
     iso, n = opts.reference_iso, opts.reference_f_number
     if iso and n:
         return float(iso), float(n)
-    for s in ("sweep", "linearity", "dark"):
+    for s in ("sweep", "linearity", "dark", "flat", "bias"):
         if s not in stages:
             continue
         manifest = folder_manifest(session / s) if (session / s / "frames.csv").exists() else {}
+        csv_name = "frames.csv"
         if s == "sweep" and (session / s / "sweep.csv").exists():
-            from camcal.manifest import read_manifest
-
             manifest = read_manifest(session / s / "sweep.csv", required=("file",))
+            csv_name = "sweep.csv"
         settings: Counter = Counter()
         for p in list_frames(session / s)[:64]:
             row = manifest.get(p.name, {})
             f = load_frame(p)
             settings[(row.get("iso") or f.exposure.iso, row.get("f_number") or f.exposure.f_number)] += 1
         (fi, fn), _ = settings.most_common(1)[0]
-        return float(iso or fi or 100.0), float(n or fn or 4.0)
-    return float(iso or 100.0), float(n or 4.0)
+        iso, n = iso or fi, n or fn
+        for key, value in (("iso", iso), ("f_number", n)):
+            if not value:
+                what, toml, col, opt = _REFERENCE_HINT[key]
+                raise CamcalError(
+                    f"the reference {what} is unknown: the {s}/ frames hold no {what} (no tag, no {col} column); "
+                    f"add '{toml}' to {SESSION_DEFAULTS} at the session root (one value for the whole camera), "
+                    f"an {col} column to {s}/{csv_name}, or pass {opt}", session)
+        return float(iso), float(n)
+    raise CamcalError("no stage folder to take the reference setting from; pass --reference-iso and "
+                      "--reference-f-number", session)
 
 
 def calibrate_session(
