@@ -297,6 +297,20 @@ def _layout_name(raw) -> str:
     return f"a {np.shape(pattern)[0]}x{np.shape(pattern)[1]} colour filter array"
 
 
+MIN_RAW_BYTES_PER_PIXEL = 1 / 64
+"""Smallest file size per declared pixel of a RAW file that holds its image data (1 bit per 8 pixels:
+lossy DNGs hold about 0.4 byte per pixel, files whose image data were stripped 0.002 or less)."""
+
+
+def _check_size_for_pixels(path: Path, width: int, height: int) -> None:
+    """Refuse a RAW file too small to hold the pixels it declares, before LibRaw decodes it: LibRaw then
+    reads past the end of the file and returns zeros or whatever its buffer held before."""
+    size = path.stat().st_size
+    if size < width * height * MIN_RAW_BYTES_PER_PIXEL:
+        raise CamcalError(f"holds no image data: {size} bytes cannot hold its {width}x{height} pixels "
+                          "(the image data were stripped, or the file is truncated)", path)
+
+
 def check_has_data(path: Path, data: np.ndarray, black_dn: float, white_dn: float) -> None:
     """Refuse a RAW frame that holds no image data (stripped, blank or fully saturated).
 
@@ -331,6 +345,7 @@ def _load_raw(path: Path) -> Frame:
         with quiet_stderr(), rawpy.imread(str(path)) as raw:
             sizes = raw.sizes
             _check_pixels(path, int(sizes.raw_width), int(sizes.raw_height))
+            _check_size_for_pixels(path, int(sizes.raw_width), int(sizes.raw_height))
             if raw.raw_type == rawpy.RawType.Stack:
                 desc = raw.color_desc.decode("ascii", "replace")
                 if raw.num_colors != 3 or any(c not in desc for c in RGB):
