@@ -211,3 +211,30 @@ def test_inspect_many_reports_good_files_and_lists_failures(tmp_path):
     table = run_cli("inspect", good, bad)
     assert table.returncode == 1 and "RGGB" in table.stdout and "1 of 2 files read" in table.stdout
     assert run_cli("inspect", good, good).returncode == 0
+
+
+def test_fixed_aperture_camera_end_to_end_with_session_toml(tmp_path):
+    """CLI: a fixed-aperture session and its photos; session.toml gives the f-number to calibrate and apply."""
+    cam = SyntheticCamera(SensorParams(width=96, height=64))
+    s = write_session(tmp_path / "S", cam, SessionPlan(fixed_aperture=True, **{**SMALL, "stages": ("bias", "dark",
+                                                                                                "sweep")}))
+    prof = tmp_path / "p.camcal"
+    assert run_cli("calibrate", s, "-o", prof, "-j", "1").returncode == 0
+    photos = tmp_path / "photos"
+    cam.write_dng(photos / "a.dng", Scene.uniform(np.full(401, 0.002)), exposure_s=0.01,
+                  rng=np.random.default_rng(5), tag_f_number=False)
+    proc = run_cli("apply", prof, photos, "-o", tmp_path / "out1", "-j", "1")
+    assert proc.returncode == 1 and "missing f_number" in proc.stderr and "session.toml" in proc.stderr
+    (photos / "session.toml").write_text("f_number = 4.0\n")
+    proc = run_cli("apply", prof, photos, "-o", tmp_path / "out2", "-j", "1")
+    assert proc.returncode == 0, proc.stderr
+    assert (tmp_path / "out2" / "a.dng.exr").is_file()
+
+
+def test_synth_cli_layout_and_fixed_aperture(tmp_path):
+    proc = run_cli("synth", "session", tmp_path / "S", "--layout", "linear", "--fixed-aperture", "--width", "96",
+                   "--height", "64", "--stages", "bias")
+    assert proc.returncode == 0, proc.stderr
+    info = json.loads(run_cli("inspect", "--json", tmp_path / "S" / "bias" / "bias_000.dng").stdout)[0]
+    assert info["layout"] == "linear" and info["f_number"] == 4.0 and info["sources"]["f_number"] == "session"
+    assert_one_line_error(run_cli("synth", "session", tmp_path / "T", "--layout", "xtrans"), "unknown layout")
