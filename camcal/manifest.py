@@ -230,7 +230,15 @@ def read_session_defaults(path: str | Path) -> dict[str, float]:
             raise CamcalError(f"unknown key {key!r} (known: {', '.join(SESSION_KEYS)})", path)
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise CamcalError(f"key {key!r} must be a number, got {value!r}", path)
-        out[SESSION_KEYS[key]] = parse_number(repr(float(value)), key, f"{path.name} key {key!r}")
+        v = float(value)
+        lo, hi = PLAUSIBLE_RANGE[key]
+        if not math.isfinite(v):
+            raise CamcalError(f"key {key!r} is not finite ({value})", path)
+        if key in POSITIVE_COLUMNS and v <= 0:
+            raise CamcalError(f"key {key!r} must be positive, got {value}", path)
+        if not lo <= v <= hi:
+            raise CamcalError(f"key {key!r} value {value} is outside the plausible range [{lo:g}, {hi:g}]", path)
+        out[SESSION_KEYS[key]] = v
     return out
 
 

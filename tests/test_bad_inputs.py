@@ -658,6 +658,20 @@ def session_cases() -> list[Case]:
     add("structure", "sweep-only", lambda s: [shutil.rmtree(s / d) for d in ("bias", "dark", "flat", "linearity")],
         partial)
     add("structure", "output-is-directory", lambda s: None, ERROR)
+    # session.toml, the session defaults (docs/session-layout.md): strict, one line naming it
+    toml = "session.toml"
+    for name, text in (("syntax", b"f_number = = 4\n"), ("unknown-key", b"fnumber = 4\n"),
+                       ("table", b"[camera]\nf_number = 4\n"), ("string", b'f_number = "4"\n'),
+                       ("bool", b"f_number = true\n"), ("zero", b"f_number = 0\n"), ("negative", b"iso = -100\n"),
+                       ("implausible", b"exposure_s = 1e9\n"), ("nan", b"f_number = nan\n"),
+                       ("inf", b"iso = inf\n"), ("duplicate", b"f_number = 4\nf_number = 5.6\n"),
+                       ("not-utf8", b"f_number = 4 # \xff\xfe\n"), ("huge", b"# x\n" * 40000)):
+        add("session defaults", f"session-toml-{name}", lambda s, t=text: (s / toml).write_bytes(t))
+    add("session defaults", "session-toml-is-directory", lambda s: (s / toml).mkdir())
+    add("session defaults", "session-toml-to-dev-zero", lambda s: (s / toml).symlink_to("/dev/zero"))
+    add("session defaults", "session-toml-dangling", lambda s: (s / toml).symlink_to(s / "nothere.toml"), EITHER)
+    add("session defaults", "session-toml-empty", lambda s: (s / toml).write_bytes(b""), OK)
+    add("session defaults", "session-toml-agrees", lambda s: (s / toml).write_text("f_number = 4.0\n"), OK)
     return cases
 
 
