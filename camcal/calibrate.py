@@ -99,16 +99,17 @@ _REFERENCE_HINT = {
 }
 
 
-def _reference(session: Path, stages: list[str], opts: CalibrateOptions) -> tuple[float, float]:
+def _reference(session: Path, stages: list[str], opts: CalibrateOptions) -> tuple[float, float, list[str]]:
     """The reference setting (ISO_ref, N_ref): the options', else the most common setting of the first stage
     present of sweep, linearity, dark, flat, bias (frames.csv / sweep.csv and session.toml applied).
 
     Never defaulted: a value no frame, manifest or session default gives stops calibration with one line
-    saying what to add.
+    saying what to add. Returns (ISO_ref, N_ref, notes): a note says when a value came from ``session.toml``
+    or from LibRaw alone rather than from a tag or a manifest.
     """
     iso, n = opts.reference_iso, opts.reference_f_number
     if iso and n:
-        return float(iso), float(n)
+        return float(iso), float(n), []
     for s in ("sweep", "linearity", "dark", "flat", "bias"):
         if s not in stages:
             continue
@@ -118,10 +119,14 @@ def _reference(session: Path, stages: list[str], opts: CalibrateOptions) -> tupl
             manifest = read_manifest(session / s / "sweep.csv", required=("file",))
             csv_name = "sweep.csv"
         settings: Counter = Counter()
+        origin: dict[tuple, tuple[str | None, str | None]] = {}
         for p in list_frames(session / s)[:64]:
             row = manifest.get(p.name, {})
             f = load_frame(p)
-            settings[(row.get("iso") or f.exposure.iso, row.get("f_number") or f.exposure.f_number)] += 1
+            key = (row.get("iso") or f.exposure.iso, row.get("f_number") or f.exposure.f_number)
+            settings[key] += 1
+            origin.setdefault(key, (csv_name if row.get("iso") else f.exposure.source("iso"),
+                                    csv_name if row.get("f_number") else f.exposure.source("f_number")))
         (fi, fn), _ = settings.most_common(1)[0]
         iso, n = iso or fi, n or fn
         for key, value in (("iso", iso), ("f_number", n)):
@@ -131,7 +136,11 @@ def _reference(session: Path, stages: list[str], opts: CalibrateOptions) -> tupl
                     f"the reference {what} is unknown: the {s}/ frames hold no {what} (no tag, no {col} column); "
                     f"add '{toml}' to {SESSION_DEFAULTS} at the session root (one value for the whole camera), "
                     f"an {col} column to {s}/{csv_name}, or pass {opt}", session)
-        return float(iso), float(n)
+        notes = [f"reference {what} {value:g} from {SESSION_DEFAULTS if src == 'session' else 'LibRaw alone (no tag)'}"
+                 for what, value, src, given in (("ISO", iso, origin[(fi, fn)][0], opts.reference_iso),
+                                                 ("f-number", n, origin[(fi, fn)][1], opts.reference_f_number))
+                 if not given and src in ("session", "libraw")]
+        return float(iso), float(n), notes
     raise CamcalError("no stage folder to take the reference setting from; pass --reference-iso and "
                       "--reference-f-number", session)
 
@@ -148,9 +157,8 @@ def calibrate_session(
     stages = present_stages(session)
     if not stages:
         raise CamcalError("holds none of bias/ dark/ flat/ linearity/ sweep/ with image files", session)
-    notes: list[str] = []
     camera = camera_identity(session, stages)
-    ref_iso, ref_n = _reference(session, stages, opts)
+    ref_iso, ref_n, notes = _reference(session, stages, opts)
 
     def cb(stage: str):
         return (lambda done, total: progress(stage, done, total)) if progress else None

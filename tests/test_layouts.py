@@ -8,6 +8,7 @@ from __future__ import annotations
 import hashlib
 import json
 from pathlib import Path
+from types import SimpleNamespace as NS
 
 import numpy as np
 import pytest
@@ -15,7 +16,7 @@ import pytest
 from camcal.calibrate import calibrate_session
 from camcal.errors import CamcalError
 from camcal.frame import Exposure, Frame
-from camcal.io import load_frame
+from camcal.io import _layout_name, load_frame
 from camcal.manifest import read_session_defaults
 from camcal.synth.camera import LINEAR_FROM_PLANES, Scene, SensorParams, SyntheticCamera
 from camcal.synth.dng import encode_dng, write_dng, write_linear_dng
@@ -141,6 +142,12 @@ def test_low_noise_dark_frame_is_kept(tmp_path):
     assert np.array_equal(load_frame(p).data, mosaic)
 
 
+def test_other_sensor_layouts_are_named():
+    assert "X-Trans" in _layout_name(NS(raw_pattern=np.zeros((6, 6)), color_desc=b"RGBG", num_colors=3))
+    assert "Foveon" in _layout_name(NS(raw_pattern=None, color_desc=b"RGBG", num_colors=3))
+    assert "4-colour CMYG" in _layout_name(NS(raw_pattern=np.zeros((2, 2)), color_desc=b"CMYG", num_colors=4))
+
+
 def test_raw_too_small_for_its_pixels_is_refused(tmp_path):
     p = write_dng(tmp_path / "s.dng", _noise((512, 768)), cfa_pattern="RGGB", black_level_dn=64, white_level_dn=4095,
                   exposure_s=0.01, f_number=4, iso=100)
@@ -186,8 +193,9 @@ def test_fixed_aperture_session_calibrates_with_one_session_default(tmp_path):
     assert "f_number" not in (s / "dark" / "frames.csv").read_text()
     assert load_frame(s / "sweep" / "sweep_400.0nm_00.dng", defaults={}).exposure.f_number is None  # no tag
     assert read_session_defaults(s / "session.toml") == {"f_number": 4.0}
-    profile, _ = calibrate_session(s)
+    profile, notes = calibrate_session(s)
     assert profile.reference_f_number == 4.0 and profile.reference_iso == 100.0
+    assert "reference f-number 4 from session.toml" in notes
     (s / "session.toml").unlink()
     proc = run_cli("calibrate", s, "-o", tmp_path / "p.camcal", "-j", "1")
     assert_one_line_error(proc, "reference f-number is unknown", "f_number = N", "session.toml", "sweep")
