@@ -19,6 +19,7 @@ from camcal.dark import fit_dark, with_dead_pixels
 from camcal.errors import CamcalError
 from camcal.flat import DEAD_RESPONSE, dead_pixels, fit_flat
 from camcal.io import IMAGE_EXTENSIONS, folder_manifest, list_frames, load_frame
+from camcal.manifest import SESSION_DEFAULTS, read_manifest
 from camcal.profile import CalibrationProfile, CameraIdentity, Provenance
 
 STAGES = ("bias", "dark", "flat", "linearity", "sweep")
@@ -32,7 +33,8 @@ class CalibrateOptions:
 
     ``reference_iso`` / ``reference_f_number``: the reference setting; by default
     the setting of the sweep frames (where the absolute calibration is measured),
-    else the most common one of the linearity series, else ISO of the darks and f/4.
+    else the most common one of the linearity series, else of the darks (flats, bias).
+    Never defaulted silently: when unknown, calibration stops saying what to add.
     """
 
     reference_iso: float | None = None
@@ -93,26 +95,56 @@ def camera_identity(session: Path, stages: list[str]) -> CameraIdentity:
     return (raw_ids or list(seen.values()))[0]
 
 
-def _reference(session: Path, stages: list[str], opts: CalibrateOptions) -> tuple[float, float]:
+_REFERENCE_HINT = {
+    "iso": ("ISO", "iso = N", "iso", "--reference-iso"),
+    "f_number": ("f-number", "f_number = N", "f_number", "--reference-f-number"),
+}
+
+
+def _reference(session: Path, stages: list[str], opts: CalibrateOptions) -> tuple[float, float, list[str]]:
+    """The reference setting (ISO_ref, N_ref): the options', else the most common setting of the first stage
+    present of sweep, linearity, dark, flat, bias (frames.csv / sweep.csv and session.toml applied).
+
+    Never defaulted: a value no frame, manifest or session default gives stops calibration with one line
+    saying what to add. Returns (ISO_ref, N_ref, notes): a note says when a value came from ``session.toml``
+    or from LibRaw alone rather than from a tag or a manifest.
+    """
     iso, n = opts.reference_iso, opts.reference_f_number
     if iso and n:
-        return float(iso), float(n)
-    for s in ("sweep", "linearity", "dark"):
+        return float(iso), float(n), []
+    for s in ("sweep", "linearity", "dark", "flat", "bias"):
         if s not in stages:
             continue
         manifest = folder_manifest(session / s) if (session / s / "frames.csv").exists() else {}
+        csv_name = "frames.csv"
         if s == "sweep" and (session / s / "sweep.csv").exists():
-            from camcal.manifest import read_manifest
-
             manifest = read_manifest(session / s / "sweep.csv", required=("file",))
+            csv_name = "sweep.csv"
         settings: Counter = Counter()
+        origin: dict[tuple, tuple[str | None, str | None]] = {}
         for p in list_frames(session / s)[:64]:
             row = manifest.get(p.name, {})
             f = load_frame(p)
-            settings[(row.get("iso") or f.exposure.iso, row.get("f_number") or f.exposure.f_number)] += 1
+            key = (row.get("iso") or f.exposure.iso, row.get("f_number") or f.exposure.f_number)
+            settings[key] += 1
+            origin.setdefault(key, (csv_name if row.get("iso") else f.exposure.source("iso"),
+                                    csv_name if row.get("f_number") else f.exposure.source("f_number")))
         (fi, fn), _ = settings.most_common(1)[0]
-        return float(iso or fi or 100.0), float(n or fn or 4.0)
-    return float(iso or 100.0), float(n or 4.0)
+        iso, n = iso or fi, n or fn
+        for key, value in (("iso", iso), ("f_number", n)):
+            if not value:
+                what, toml, col, opt = _REFERENCE_HINT[key]
+                raise CamcalError(
+                    f"the reference {what} is unknown: the {s}/ frames hold no {what} (no tag, no {col} column); "
+                    f"add '{toml}' to {SESSION_DEFAULTS} at the session root (one value for the whole camera), "
+                    f"an {col} column to {s}/{csv_name}, or pass {opt}", session)
+        notes = [f"reference {what} {value:g} from {SESSION_DEFAULTS if src == 'session' else 'LibRaw alone (no tag)'}"
+                 for what, value, src, given in (("ISO", iso, origin[(fi, fn)][0], opts.reference_iso),
+                                                 ("f-number", n, origin[(fi, fn)][1], opts.reference_f_number))
+                 if not given and src in ("session", "libraw")]
+        return float(iso), float(n), notes
+    raise CamcalError("no stage folder to take the reference setting from; pass --reference-iso and "
+                      "--reference-f-number", session)
 
 
 def calibrate_session(
@@ -127,9 +159,8 @@ def calibrate_session(
     stages = present_stages(session)
     if not stages:
         raise CamcalError("holds none of bias/ dark/ flat/ linearity/ sweep/ with image files", session)
-    notes: list[str] = []
     camera = camera_identity(session, stages)
-    ref_iso, ref_n = _reference(session, stages, opts)
+    ref_iso, ref_n, notes = _reference(session, stages, opts)
 
     def cb(stage: str):
         return (lambda done, total: progress(stage, done, total)) if progress else None

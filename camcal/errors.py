@@ -35,7 +35,8 @@ class MissingMetadataError(CamcalError):
     def __init__(self, path: str | Path, field: str) -> None:
         super().__init__(
             f"missing {field}: not in the file's metadata; add a '{field}' column for this file "
-            f"to frames.csv in its folder (columns: file,exposure_s,iso,f_number)",
+            f"to frames.csv in its folder (columns: file,exposure_s,iso,f_number), or, when every frame "
+            f"shares it (a fixed lens), '{field} = N' to session.toml in the folder or its parent",
             path,
         )
         self.field = field

@@ -1,11 +1,18 @@
 """The frame model: one image with its sensor layout and exposure metadata.
 
-A :class:`Frame` holds either a CFA mosaic (``kind == "raw"``, shape (H, W),
-values in DN) or a processed 3-channel image (``kind == "processed"``, shape
-(H, W, 3), R, G, B, values in DN of the file's bit depth, e.g. 0..255 for an
-8-bit JPEG). Calibration works on the four CFA *planes* R, G1, G2, B at half
-resolution: G1 is the green of the first row of the 2x2 CFA cell, G2 the green
-of the second row.
+A :class:`Frame` holds one of three kinds of image, told apart by its :attr:`Frame.layout`:
+
+- ``"bayer"``: a 2x2 CFA mosaic (``kind == "raw"``, shape (H, W), values in DN).
+  Calibration works on its four CFA *planes* R, G1, G2, B at half resolution:
+  G1 is the green of the first row of the 2x2 CFA cell, G2 the green of the second row.
+- ``"linear"``: a linear multi-channel RAW (``kind == "raw"``, shape (H, W, 3), values
+  in DN): a DNG LinearRaw (PhotometricInterpretation 34892) or any file LibRaw reads as
+  a 3-colour stack (``RawType.Stack``). Planes R, G, B at full resolution, no G2.
+- ``"processed"``: a processed 3-channel image (JPEG/TIFF/PNG, ``kind == "processed"``,
+  shape (H, W, 3), R, G, B, values in DN of the file's bit depth, e.g. 0..255 for an 8-bit JPEG).
+
+Every exposure value (time, f-number, ISO) and the capture time carries its source
+(:data:`SOURCES`): an unknown value is None, never a library default.
 """
 
 from __future__ import annotations
@@ -23,6 +30,18 @@ PLANES: tuple[str, str, str, str] = ("R", "G1", "G2", "B")
 """Canonical order of CFA planes in every (4, h, w) array camcal makes."""
 
 RGB: tuple[str, str, str] = ("R", "G", "B")
+"""Channel order of linear RAW and processed frames, (3, h, w) arrays."""
+
+LAYOUTS: tuple[str, ...] = ("bayer", "linear", "processed")
+"""Frame layouts: 2x2 CFA mosaic, linear multi-channel RAW, processed RGB image."""
+
+TRACKED: tuple[str, ...] = ("exposure_s", "f_number", "iso", "capture_time")
+"""Exposure fields whose source is recorded."""
+
+SOURCES: tuple[str, ...] = ("tag", "libraw", "frames.csv", "session")
+"""Where a value came from: the file's own metadata tag (read by an EXIF reader), LibRaw alone
+(its decoding of a maker header, no tag an EXIF reader finds), the folder's ``frames.csv``, the
+session defaults file (``session.toml``, see :mod:`camcal.manifest`)."""
 
 PATTERNS: tuple[str, ...] = ("RGGB", "BGGR", "GRBG", "GBRG")
 
@@ -45,6 +64,11 @@ class Exposure:
         Capture time as ISO 8601 text, local camera time.
     temperature_c : float or None
         Sensor or ambient temperature in degrees Celsius, when known.
+    sources : tuple of (field, source) pairs
+        Where each known field of :data:`TRACKED` came from (one of :data:`SOURCES`);
+        read it with :meth:`source`.
+    notes : tuple of str
+        Disagreements between readers and values set aside (e.g. LibRaw's placeholder for a zero tag).
     """
 
     exposure_s: float | None = None
@@ -55,6 +79,14 @@ class Exposure:
     serial: str | None = None
     capture_time: str | None = None
     temperature_c: float | None = None
+    sources: tuple[tuple[str, str], ...] = ()
+    notes: tuple[str, ...] = ()
+
+    def source(self, name: str) -> str | None:
+        """Where field ``name`` came from (one of :data:`SOURCES`); None when the value is unknown."""
+        if getattr(self, name) is None:
+            return None
+        return dict(self.sources).get(name)
 
     def require(self, name: str, path: str | Path | None) -> float:
         """Return the named numeric field or raise :class:`MissingMetadataError`."""
@@ -63,10 +95,23 @@ class Exposure:
             raise MissingMetadataError(path or "<frame>", name)
         return float(value)
 
-    def merged(self, **overrides) -> Exposure:
-        """A copy with every non-None override applied (manifest over file)."""
+    def merged(self, source: str = "frames.csv", **overrides) -> Exposure:
+        """A copy with every non-None override applied (manifest over file), recorded as from ``source``."""
         clean = {k: v for k, v in overrides.items() if v is not None}
-        return dataclasses.replace(self, **clean)
+        src = dict(self.sources) | {k: source for k in clean if k in TRACKED}
+        return dataclasses.replace(self, **clean, sources=tuple(sorted(src.items())))
+
+    def filled(self, source: str = "session", **defaults) -> Exposure:
+        """A copy with the fields that are unknown, or known only from LibRaw, taken from ``defaults``.
+
+        A session default (a fact the user states once) ranks above LibRaw's reading of a maker
+        header, below the file's tag and ``frames.csv``.
+        """
+        weak = {k for k, v in dict(self.sources).items() if v == "libraw"}
+        take = {k: v for k, v in defaults.items() if v is not None and (getattr(self, k) is None or k in weak)}
+        if not take:
+            return self
+        return self.merged(source, **take)
 
 
 @dataclass(frozen=True)
@@ -76,19 +121,23 @@ class Frame:
     Attributes
     ----------
     data : ndarray
-        ``raw``: (H, W) uint16 CFA mosaic in DN. ``processed``: (H, W, 3) in the
-        file's DN (uint8 or uint16).
+        ``bayer``: (H, W) uint16 CFA mosaic in DN. ``linear``: (H, W, 3) uint16 R, G, B in DN.
+        ``processed``: (H, W, 3) in the file's DN (uint8 or uint16).
     kind : {"raw", "processed"}
+        ``raw`` for both RAW layouts (``bayer`` and ``linear``).
     cfa_pattern : str or None
-        2x2 CFA cell, row-major (``RGGB``...), raw frames only.
+        2x2 CFA cell, row-major (``RGGB``...), Bayer frames only.
     black_level_dn : dict
-        Black level in DN per plane (``R, G1, G2, B``) for raw frames, per
-        channel (``R, G, B``; zero) for processed ones.
+        Black level in DN per plane (``R, G1, G2, B``) for Bayer frames, per
+        channel (``R, G, B``) for linear RAW and processed ones (zero for processed).
     white_level_dn : float
         Saturation level in DN (clipping value).
     exposure : Exposure
     path : Path or None
         Source file.
+    layout : {"bayer", "linear", "processed"} or None
+        Sensor layout (see the module docstring); None (the default) derives it from ``kind``:
+        ``raw`` → ``bayer``, ``processed`` → ``processed``.
     """
 
     data: np.ndarray
@@ -98,6 +147,15 @@ class Frame:
     white_level_dn: float
     exposure: Exposure = field(default_factory=Exposure)
     path: Path | None = None
+    layout: Literal["bayer", "linear", "processed"] | None = None
+
+    def __post_init__(self) -> None:
+        if self.layout is None:
+            object.__setattr__(self, "layout", "bayer" if self.kind == "raw" else "processed")
+        if self.layout not in LAYOUTS:
+            raise CamcalError(f"unknown frame layout {self.layout!r}; camcal knows {', '.join(LAYOUTS)}")
+        if (self.layout == "processed") != (self.kind == "processed"):
+            raise CamcalError(f"a {self.kind} frame cannot have layout {self.layout!r}")
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -106,16 +164,17 @@ class Frame:
 
     @property
     def channel_names(self) -> tuple[str, ...]:
-        return PLANES if self.kind == "raw" else RGB
+        """:data:`PLANES` for Bayer frames, :data:`RGB` for linear RAW and processed ones."""
+        return PLANES if self.layout == "bayer" else RGB
 
     def planes(self, dtype=np.float32) -> np.ndarray:
         """Channel planes as one array, channel first.
 
-        ``raw``: (4, H/2, W/2) in :data:`PLANES` order. ``processed``: (3, H, W).
+        ``bayer``: (4, H/2, W/2) in :data:`PLANES` order. ``linear`` and ``processed``: (3, H, W).
         """
-        if self.kind == "raw":
+        if self.layout == "bayer":
             return split_planes(self.data, self.cfa_pattern, dtype=dtype)
-        return np.moveaxis(self.data, -1, 0).astype(dtype, copy=True)
+        return np.moveaxis(self.data, -1, 0).astype(dtype or self.data.dtype, copy=True)
 
     def black_vector(self) -> np.ndarray:
         """Black level per channel in :attr:`channel_names` order, shape (C, 1, 1)."""

@@ -1,18 +1,26 @@
-"""A plain description of an image file: what ``camcal inspect`` prints."""
+"""A plain description of image files: what ``camcal inspect`` prints."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
+from camcal.errors import CamcalError
+from camcal.frame import TRACKED
 from camcal.io import load_frame
 
 
 def describe(path: str | Path) -> dict[str, object]:
     """Decode ``path`` and return its layout and exposure metadata as a JSON-ready dict.
 
-    Keys: file, kind, format, width, height, cfa_pattern, black_level_dn (per plane),
-    white_level_dn, exposure_s, f_number, iso, exposure_value (ISO·t/N², s),
-    make, model, serial, capture_time.
+    Keys: file, kind (raw/processed), layout (bayer/linear/processed), format, width, height,
+    channels (plane names), cfa_pattern, black_level_dn (per plane), white_level_dn,
+    exposure_s, f_number, iso, exposure_value_s (ISO·t/N², s), make, model, serial,
+    capture_time, sources (where each of exposure_s, f_number, iso, capture_time came from:
+    ``tag``, ``libraw``, ``frames.csv``, ``session``; null when unknown), notes (disagreements
+    between readers, values set aside), error (null).
+
+    An unknown value is null (None): never a library's placeholder. Session defaults
+    (``session.toml`` beside the file or in its parent folder) apply, marked ``session``.
     """
     f = load_frame(path)
     e = f.exposure
@@ -21,9 +29,11 @@ def describe(path: str | Path) -> dict[str, object]:
     return {
         "file": str(path),
         "kind": f.kind,
+        "layout": f.layout,
         "format": Path(path).suffix.lower().lstrip("."),
         "width": w,
         "height": h,
+        "channels": list(f.channel_names),
         "cfa_pattern": f.cfa_pattern,
         "black_level_dn": f.black_level_dn,
         "white_level_dn": f.white_level_dn,
@@ -35,4 +45,26 @@ def describe(path: str | Path) -> dict[str, object]:
         "model": e.model,
         "serial": e.serial,
         "capture_time": e.capture_time,
+        "sources": {name: e.source(name) for name in TRACKED},
+        "notes": list(e.notes),
+        "error": None,
     }
+
+
+def describe_many(paths: list[str | Path]) -> tuple[list[dict[str, object]], list[dict[str, str]]]:
+    """:func:`describe` every file; one that cannot be read does not stop the others.
+
+    Returns
+    -------
+    (entries, failures): ``entries`` in the order given, a failed file as ``{"file", "error"}``
+    (the one-line reason); ``failures`` those failed entries alone.
+    """
+    entries: list[dict[str, object]] = []
+    failures: list[dict[str, str]] = []
+    for p in paths:
+        try:
+            entries.append(describe(p))
+        except CamcalError as exc:
+            failures.append({"file": str(p), "error": str(exc)})
+            entries.append(failures[-1])  # type: ignore[arg-type]
+    return entries, failures

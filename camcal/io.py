@@ -1,8 +1,19 @@
 """Reading frames: RAW through rawpy (LibRaw), JPEG/TIFF/PNG through OpenImageIO.
 
-Exposure metadata comes from rawpy's ``other`` (RAW) or the OpenImageIO spec
-(processed), then from EXIF read by exifread as a fallback, and finally from
-the folder's ``frames.csv`` manifest, which overrides both.
+Exposure metadata, each value with its source (:data:`camcal.frame.SOURCES`):
+
+1. the file's tags, read by an EXIF reader (exifread; for processed images also the
+   OpenImageIO spec). A tag that is present but holds zero or nothing is *unknown*;
+2. for RAW files, LibRaw's value where no tag holds one (e.g. a maker header that only
+   LibRaw decodes), marked ``libraw``; LibRaw's placeholders for zero tags (shutter 1 s,
+   f/1, the 1970 timestamp) are never used. Where LibRaw and the tag disagree, a note says so;
+3. the session defaults file (``session.toml`` in the frame's folder or its parent, see
+   :func:`camcal.manifest.session_defaults_for`) for values still unknown;
+4. the folder's ``frames.csv`` manifest, which overrides all of them.
+
+RAW files are 2x2 Bayer mosaics (``layout == "bayer"``) or linear multi-channel RAW
+(DNG LinearRaw, LibRaw ``RawType.Stack``: ``layout == "linear"``); other sensor layouts
+(X-Trans, Foveon, 4-colour CFAs) and RAW files without image data are refused.
 
 Every failure to read a file becomes a one-line :class:`~camcal.errors.CamcalError`
 naming the file.
@@ -11,6 +22,7 @@ naming the file.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import math
 import os
 import sys
@@ -21,8 +33,8 @@ from pathlib import Path
 import numpy as np
 
 from camcal.errors import CamcalError
-from camcal.frame import PLANES, Exposure, Frame, pattern_from_rawpy, plane_offsets
-from camcal.manifest import FRAMES_CSV, exposure_overrides, read_manifest
+from camcal.frame import PLANES, RGB, TRACKED, Exposure, Frame, pattern_from_rawpy, plane_offsets
+from camcal.manifest import FRAMES_CSV, exposure_overrides, read_manifest, session_defaults_for
 
 RAW_EXTENSIONS = {
     ".dng", ".cr2", ".cr3", ".crw", ".nef", ".nrw", ".arw", ".srf", ".sr2", ".orf", ".rw2", ".raf",
@@ -122,9 +134,26 @@ def _exif_value(tags: dict[str, object], *names: str) -> float | str | None:
     return None
 
 
-def exposure_from_exif(path: Path) -> Exposure:
-    """Exposure metadata from a file's EXIF, via exifread."""
-    tags = _exif_tags(path)
+#: exifread names of the tags of each tracked field, first found wins.
+TAG_NAMES: dict[str, tuple[str, ...]] = {
+    "exposure_s": ("EXIF ExposureTime", "Image ExposureTime"),
+    "f_number": ("EXIF FNumber", "Image FNumber"),
+    "iso": ("EXIF ISOSpeedRatings", "EXIF PhotographicSensitivity", "EXIF ISOSpeed", "Image ISOSpeedRatings"),
+    "capture_time": ("EXIF DateTimeOriginal", "Image DateTimeOriginal"),
+}
+"""The capture time is DateTimeOriginal only: IFD0 ``DateTime`` is when the file was last written."""
+
+
+def _tag_present(tags: dict[str, object], field_name: str) -> bool:
+    return any(n in tags for n in TAG_NAMES[field_name])
+
+
+def exposure_from_exif(path: Path, tags: dict[str, object] | None = None) -> Exposure:
+    """Exposure metadata from a file's EXIF, via exifread; every value found is marked ``tag``.
+
+    A tag that holds zero (or an empty date) gives None: unknown.
+    """
+    tags = _exif_tags(path) if tags is None else tags
     if not tags:
         return Exposure()
 
@@ -136,37 +165,83 @@ def exposure_from_exif(path: Path) -> Exposure:
         v = _exif_value(tags, *names)
         return v if isinstance(v, str) else None
 
-    when = text("EXIF DateTimeOriginal", "Image DateTime")
     temp = _exif_value(tags, "EXIF Temperature", "EXIF Tag 0x9400")
+    values = {
+        "exposure_s": num(*TAG_NAMES["exposure_s"]),
+        "f_number": num(*TAG_NAMES["f_number"]),
+        "iso": num(*TAG_NAMES["iso"]),
+        "capture_time": _iso_time(text(*TAG_NAMES["capture_time"])),
+    }
     return Exposure(
-        exposure_s=num("EXIF ExposureTime", "Image ExposureTime"),
-        f_number=num("EXIF FNumber", "Image FNumber"),
-        iso=num("EXIF ISOSpeedRatings", "EXIF PhotographicSensitivity", "EXIF ISOSpeed", "Image ISOSpeedRatings"),
+        **values,
         make=text("Image Make"),
         model=text("Image Model"),
         serial=text("EXIF BodySerialNumber", "Image Tag 0xC62F", "MakerNote SerialNumber"),
-        capture_time=_iso_time(when),
         temperature_c=float(temp) if isinstance(temp, float) else None,
+        sources=tuple(sorted((k, "tag") for k, v in values.items() if v is not None)),
     )
 
 
 def _iso_time(exif_time: str | None) -> str | None:
-    if not exif_time:
+    if not exif_time or not exif_time.strip(" 0:"):  # "0000:00:00 00:00:00" is the EXIF way of saying unknown
         return None
     parts = exif_time.replace(":", "-", 2).split(" ")
     return "T".join(parts) if len(parts) == 2 else exif_time
 
 
-def _fill(primary: Exposure, fallback: Exposure) -> Exposure:
-    """Fields of ``primary``, with gaps filled from ``fallback``."""
-    import dataclasses
+def _libraw_time(ts) -> str | None:
+    """LibRaw's timestamp as ISO text; its placeholder (the 1970 epoch, no date in the file) is None."""
+    if not hasattr(ts, "isoformat") or getattr(ts, "year", 1970) <= 1970:
+        return None
+    return ts.replace(microsecond=0).isoformat()
 
-    return Exposure(
-        **{
-            f.name: getattr(primary, f.name) if getattr(primary, f.name) is not None else getattr(fallback, f.name)
-            for f in dataclasses.fields(Exposure)
-        }
-    )
+
+def _fmt(name: str, v: float | str) -> str:
+    return v if isinstance(v, str) else f"{v:.6g}{' s' if name == 'exposure_s' else ''}"
+
+
+def reconcile_libraw(exp: Exposure, tags: dict[str, object], libraw: dict[str, float | str | None]) -> Exposure:
+    """Combine the tag values ``exp`` (from :func:`exposure_from_exif`) with LibRaw's ``libraw`` values.
+
+    Per field of :data:`camcal.frame.TRACKED`: a tag with a value wins (a note when LibRaw disagrees
+    by more than 0.1 %); a tag present but zero or empty makes the value unknown, whatever LibRaw says
+    (its placeholders: shutter 1 s, f/1, ISO 0, the 1970 epoch); with no tag, LibRaw's value is used
+    and marked ``libraw``.
+    """
+    values: dict[str, object] = {}
+    sources = dict(exp.sources)
+    notes = list(exp.notes)
+    for name in TRACKED:
+        tag_v, lib_v = getattr(exp, name), libraw.get(name)
+        if tag_v is not None:
+            if lib_v is not None and (
+                tag_v != lib_v if isinstance(tag_v, str) else abs(float(tag_v) - float(lib_v)) > 1e-3 * float(tag_v)
+            ):
+                notes.append(f"{name}: the file's tag says {_fmt(name, tag_v)}, LibRaw {_fmt(name, lib_v)}; "
+                             "the tag is used")
+            continue
+        if tags and _tag_present(tags, name):
+            if lib_v is not None:
+                notes.append(f"{name}: the file's tag holds zero or nothing (unknown); LibRaw's "
+                             f"{_fmt(name, lib_v)} is not used")
+            continue
+        if lib_v is not None:
+            values[name] = lib_v
+            sources[name] = "libraw"
+    return dataclasses.replace(exp, **values, sources=tuple(sorted(sources.items())), notes=tuple(notes))
+
+
+def _fill(primary: Exposure, fallback: Exposure) -> Exposure:
+    """Fields of ``primary``, with gaps filled from ``fallback`` (each value keeps its own source)."""
+    values, src = {}, {}
+    for f in dataclasses.fields(Exposure):
+        if f.name in ("sources", "notes"):
+            continue
+        take = primary if getattr(primary, f.name) is not None else fallback
+        values[f.name] = getattr(take, f.name)
+        if take.source(f.name) is not None:
+            src[f.name] = take.source(f.name)
+    return Exposure(**values, sources=tuple(sorted(src.items())), notes=primary.notes + fallback.notes)
 
 
 _QUIET_LOCK = threading.Lock()
@@ -207,6 +282,62 @@ def quiet_stderr():
                 _QUIET_STATE.update(saved=-1, fd=-1)
 
 
+def _layout_name(raw) -> str:
+    """A short name for a RAW file's sensor layout, for the refusal of layouts camcal does not read."""
+    pattern = getattr(raw, "raw_pattern", None)
+    desc = raw.color_desc.decode("ascii", "replace")
+    if pattern is not None and np.shape(pattern) == (6, 6):
+        return "X-Trans (6x6 colour filter array)"
+    if raw.num_colors == 4 and "R" not in desc:
+        return f"a 4-colour {desc} colour filter array"
+    if raw.num_colors != 3:
+        return f"a {raw.num_colors}-colour sensor ({desc})"
+    if pattern is None:
+        return "a sensor without a colour filter array (e.g. Foveon) or a monochrome sensor"
+    return f"a {np.shape(pattern)[0]}x{np.shape(pattern)[1]} colour filter array"
+
+
+MIN_RAW_BYTES_PER_PIXEL = 1 / 64
+"""Smallest file size per declared pixel of a RAW file that holds its image data (1 bit per 8 pixels:
+lossy DNGs hold about 0.4 byte per pixel, files whose image data were stripped 0.002 or less)."""
+
+
+def _check_size_for_pixels(path: Path, width: int, height: int) -> None:
+    """Refuse a RAW file too small to hold the pixels it declares, before LibRaw decodes it: LibRaw then
+    reads past the end of the file and returns zeros or whatever its buffer held before."""
+    size = path.stat().st_size
+    if size < width * height * MIN_RAW_BYTES_PER_PIXEL:
+        raise CamcalError(f"holds no image data: {size} bytes cannot hold its {width}x{height} pixels "
+                          "(the image data were stripped, or the file is truncated)", path)
+
+
+def check_has_data(path: Path, data: np.ndarray, black_dn: float, white_dn: float) -> None:
+    """Refuse a RAW frame that holds no image data (stripped, blank or fully saturated).
+
+    Refused: every pixel 0; every pixel the same value; every pixel at or above the white level;
+    99 % or more of the pixels below the black level (a sensor cannot read below its bias: the
+    image data is missing, as in files whose data were stripped and decode to zeros).
+
+    Raises
+    ------
+    CamcalError naming the file and what is wrong.
+    """
+    lo, hi = int(data.min()), int(data.max())
+    if hi == 0:
+        raise CamcalError("holds no image data: every pixel is 0 (the image data may have been stripped); "
+                          "a frame of zeros is not a dark frame", path)
+    if lo >= white_dn:
+        raise CamcalError(f"holds no usable image data: every pixel is at the white level ({white_dn:g} DN, "
+                          "fully saturated)", path)
+    if lo == hi:
+        raise CamcalError(f"holds no image data: every pixel has the same value ({lo} DN)", path)
+    if black_dn > 0 and lo < black_dn:
+        below = np.count_nonzero(data < black_dn) / data.size
+        if below >= 0.99:
+            raise CamcalError(f"holds no image data: {100 * below:.1f} % of the pixels are below the black level "
+                              f"({black_dn:g} DN; the image data may have been stripped)", path)
+
+
 def _load_raw(path: Path) -> Frame:
     import rawpy
 
@@ -214,41 +345,64 @@ def _load_raw(path: Path) -> Frame:
         with quiet_stderr(), rawpy.imread(str(path)) as raw:
             sizes = raw.sizes
             _check_pixels(path, int(sizes.raw_width), int(sizes.raw_height))
-            if raw.num_colors != 3 or raw.raw_pattern is None or raw.raw_pattern.shape != (2, 2):
-                raise CamcalError("is not a 2x2 Bayer RAW file (unsupported sensor layout)", path)
-            pattern = pattern_from_rawpy(raw.raw_pattern, raw.color_desc)
-            if pattern not in ("RGGB", "BGGR", "GRBG", "GBRG"):
-                raise CamcalError(f"has an unsupported CFA layout {pattern!r}", path)
-            mosaic = np.array(raw.raw_image_visible, dtype=np.uint16, copy=True)
-            per_color = list(raw.black_level_per_channel)
-            rp = np.asarray(raw.raw_pattern)
+            _check_size_for_pixels(path, int(sizes.raw_width), int(sizes.raw_height))
+            if raw.raw_type == rawpy.RawType.Stack:
+                desc = raw.color_desc.decode("ascii", "replace")
+                if raw.num_colors != 3 or any(c not in desc for c in RGB):
+                    raise CamcalError(f"is a linear RAW file of {_layout_name(raw)}; camcal reads linear R, G, B "
+                                      "RAW and 2x2 Bayer mosaics", path)
+                idx = [desc.index(c) for c in RGB]  # stack channel of R, G, B (the 4th is unused for 3 colours)
+                stack = raw.raw_image_visible
+                if stack.ndim != 3 or stack.shape[2] <= max(idx):
+                    raise CamcalError(f"has a linear RAW image of unexpected shape {stack.shape}", path)
+                data = np.ascontiguousarray(stack[..., idx], dtype=np.uint16)
+                per_color = list(raw.black_level_per_channel)  # after unpacking: LibRaw may measure it then
+                layout, pattern = "linear", None
+                black = {c: float(per_color[i]) for c, i in zip(RGB, idx, strict=True)}
+            else:
+                if raw.num_colors != 3 or raw.raw_pattern is None or raw.raw_pattern.shape != (2, 2):
+                    raise CamcalError(f"has {_layout_name(raw)}, which camcal does not read; camcal reads 2x2 "
+                                      "Bayer mosaics and linear R, G, B RAW", path)
+                pattern = pattern_from_rawpy(raw.raw_pattern, raw.color_desc)
+                if pattern not in ("RGGB", "BGGR", "GRBG", "GBRG"):
+                    raise CamcalError(f"has an unsupported CFA layout {pattern!r}", path)
+                data = np.array(raw.raw_image_visible, dtype=np.uint16, copy=True)
+                per_color = list(raw.black_level_per_channel)  # after unpacking: LibRaw may measure it then
+                rp = np.asarray(raw.raw_pattern)
+                layout = "bayer"
             white = float(raw.white_level)
             other = raw.other
-            ts = getattr(other, "timestamp", None)
-            exp = Exposure(
-                exposure_s=_clean(other.shutter_speed),
-                f_number=_clean(other.aperture),
-                iso=_clean(other.iso_speed),
-                capture_time=ts.isoformat() if hasattr(ts, "isoformat") else None,
-            )
+            libraw = {
+                "exposure_s": _clean(other.shutter_speed),
+                "f_number": _clean(other.aperture),
+                "iso": _clean(other.iso_speed),
+                "capture_time": _libraw_time(getattr(other, "timestamp", None)),
+            }
     except rawpy.LibRawFileUnsupportedError:
         raise CamcalError("is not a RAW file LibRaw can decode (unsupported or not an image)", path) from None
     except rawpy.LibRawError as exc:
-        raise CamcalError(f"cannot decode RAW data (damaged or truncated?): {type(exc).__name__}", path) from None
+        raise CamcalError(f"cannot decode RAW data (damaged or truncated? or its image data stripped): "
+                          f"{type(exc).__name__}",
+                          path) from None
     except (OSError, ValueError, MemoryError) as exc:
         raise CamcalError(f"cannot decode RAW data (damaged or truncated?): {exc}", path) from None
-    if mosaic.shape[0] % 2 or mosaic.shape[1] % 2:
-        mosaic = mosaic[: mosaic.shape[0] // 2 * 2, : mosaic.shape[1] // 2 * 2]
-    off = plane_offsets(pattern)
-    black = {name: float(per_color[int(rp[off[name]])]) for name in PLANES}
+    if layout == "bayer":
+        if data.shape[0] % 2 or data.shape[1] % 2:
+            data = data[: data.shape[0] // 2 * 2, : data.shape[1] // 2 * 2]
+        off = plane_offsets(pattern)
+        black = {name: float(per_color[int(rp[off[name]])]) for name in PLANES}
+    check_has_data(path, data, min(black.values()), white)
+    tags = _exif_tags(path)
+    exp = reconcile_libraw(exposure_from_exif(path, tags), tags, libraw)
     return Frame(
-        data=mosaic,
+        data=data,
         kind="raw",
         cfa_pattern=pattern,
         black_level_dn=black,
         white_level_dn=white,
-        exposure=_fill(exp, exposure_from_exif(path)),
+        exposure=exp,
         path=path,
+        layout=layout,
     )
 
 
@@ -304,14 +458,26 @@ def _load_processed(path: Path) -> Frame:
                     return v
             return None
 
-        exp = Exposure(
+        oiio_exp = Exposure(
             exposure_s=_clean(attr("ExposureTime")),
             f_number=_clean(attr("FNumber")),
             iso=_clean(attr("Exif:PhotographicSensitivity", "Exif:ISOSpeedRatings")),
             make=attr("Make"),
             model=attr("Model"),
-            capture_time=_iso_time(attr("Exif:DateTimeOriginal", "DateTime")),
+            capture_time=_iso_time(attr("Exif:DateTimeOriginal")),
         )
+    tags = _exif_tags(path)
+    exif_exp = exposure_from_exif(path, tags)
+    # both read the file's EXIF; a tag exifread sees holding zero stays unknown
+    oiio_exp = dataclasses.replace(
+        oiio_exp,
+        **{k: None for k in TRACKED if tags and _tag_present(tags, k)},
+    )
+    oiio_exp = dataclasses.replace(
+        oiio_exp, sources=tuple(sorted((k, "tag") for k in TRACKED if getattr(oiio_exp, k) is not None))
+    )
+    exp = _fill(exif_exp, oiio_exp)
+    exp = dataclasses.replace(exp, make=oiio_exp.make or exif_exp.make, model=oiio_exp.model or exif_exp.model)
     data = np.ascontiguousarray(data)
     return Frame(
         data=data,
@@ -319,8 +485,9 @@ def _load_processed(path: Path) -> Frame:
         cfa_pattern=None,
         black_level_dn={"R": 0.0, "G": 0.0, "B": 0.0},
         white_level_dn=float(2**bits - 1),
-        exposure=_fill(exp, exposure_from_exif(path)),
+        exposure=exp,
         path=path,
+        layout="processed",
     )
 
 
@@ -332,7 +499,11 @@ def is_raw_path(path: Path) -> bool:
     return path.suffix.lower() not in {".tif", ".tiff", ".jpg", ".jpeg", ".png"}
 
 
-def load_frame(path: str | Path, overrides: dict[str, float | None] | None = None) -> Frame:
+def load_frame(
+    path: str | Path,
+    overrides: dict[str, float | None] | None = None,
+    defaults: dict[str, float] | None = None,
+) -> Frame:
     """Decode one image file into a :class:`~camcal.frame.Frame`.
 
     Parameters
@@ -341,7 +512,10 @@ def load_frame(path: str | Path, overrides: dict[str, float | None] | None = Non
         its extension: JPEG and PNG by magic; TIFF-based files go to LibRaw
         unless named ``.tif``/``.tiff``; anything else goes to LibRaw.
     overrides : exposure fields that replace the file's metadata (a manifest
-        row, see :func:`camcal.manifest.exposure_overrides`).
+        row, see :func:`camcal.manifest.exposure_overrides`), marked ``frames.csv``.
+    defaults : session defaults (exposure fields) for the values the file does not hold,
+        marked ``session``; None (default) reads ``session.toml`` beside the file or in its
+        parent folder (:func:`camcal.manifest.session_defaults_for`); ``{}`` for none.
 
     Raises
     ------
@@ -351,11 +525,14 @@ def load_frame(path: str | Path, overrides: dict[str, float | None] | None = Non
     path = Path(path)
     _check_file(path)
     frame = _load_raw(path) if is_raw_path(path) else _load_processed(path)
+    if defaults is None:
+        defaults = session_defaults_for(path.parent)
+    exp = frame.exposure
+    if defaults:
+        exp = exp.filled("session", **defaults)
     if overrides:
-        import dataclasses
-
-        frame = dataclasses.replace(frame, exposure=frame.exposure.merged(**overrides))
-    return frame
+        exp = exp.merged("frames.csv", **overrides)
+    return frame if exp is frame.exposure else dataclasses.replace(frame, exposure=exp)
 
 
 def list_frames(folder: str | Path) -> list[Path]:

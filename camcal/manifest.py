@@ -183,3 +183,87 @@ def exposure_overrides(rec: dict[str, float | str | None] | None) -> dict[str, f
         "f_number": rec.get("f_number"),
         "temperature_c": rec.get("temperature_C"),
     }
+
+
+# ---- session defaults (session.toml) -------------------------------------------------------------------------
+
+SESSION_DEFAULTS = "session.toml"
+"""Name of the session defaults file: camera-wide facts given once for a whole session (or photo folder)."""
+
+#: Keys of ``session.toml`` and the :class:`camcal.frame.Exposure` field each one fills.
+SESSION_KEYS: dict[str, str] = {
+    "f_number": "f_number",
+    "iso": "iso",
+    "exposure_s": "exposure_s",
+    "temperature_C": "temperature_c",
+}
+
+MAX_SESSION_DEFAULTS_BYTES = 64 * 1024
+
+_DEFAULTS_CACHE: dict[tuple[str, int, int], dict[str, float]] = {}
+
+
+def read_session_defaults(path: str | Path) -> dict[str, float]:
+    """Read a ``session.toml`` into :class:`camcal.frame.Exposure` keywords.
+
+    The file is TOML with top-level keys from :data:`SESSION_KEYS` (``f_number``, ``iso``,
+    ``exposure_s`` in s, ``temperature_C`` in °C), each a number within :data:`PLAUSIBLE_RANGE`.
+    A value fills what a frame's file does not hold (or holds only as LibRaw's reading of a maker
+    header); ``frames.csv`` still overrides it. Unknown keys, tables, non-numbers and implausible
+    values are refused, naming the file and the key.
+
+    Returns
+    -------
+    dict such as ``{"f_number": 2.8}`` (Exposure field names).
+    """
+    import tomllib
+
+    path = Path(path)
+    text = read_text_file(path, "session defaults file", MAX_SESSION_DEFAULTS_BYTES)
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise CamcalError(f"is not valid TOML: {exc}", path) from None
+    out: dict[str, float] = {}
+    for key, value in doc.items():
+        if key not in SESSION_KEYS:
+            raise CamcalError(f"unknown key {key!r} (known: {', '.join(SESSION_KEYS)})", path)
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise CamcalError(f"key {key!r} must be a number, got {value!r}", path)
+        v = float(value)
+        lo, hi = PLAUSIBLE_RANGE[key]
+        if not math.isfinite(v):
+            raise CamcalError(f"key {key!r} is not finite ({value})", path)
+        if key in POSITIVE_COLUMNS and v <= 0:
+            raise CamcalError(f"key {key!r} must be positive, got {value}", path)
+        if not lo <= v <= hi:
+            raise CamcalError(f"key {key!r} value {value} is outside the plausible range [{lo:g}, {hi:g}]", path)
+        out[SESSION_KEYS[key]] = v
+    return out
+
+
+def find_session_defaults(folder: str | Path) -> Path | None:
+    """The ``session.toml`` that applies to the frames of ``folder``: in the folder itself, else in its
+    parent (the session root of a stage folder); None when there is none."""
+    folder = Path(folder)
+    for d in (folder, folder.parent):
+        p = d / SESSION_DEFAULTS
+        if p.exists():
+            return p
+    return None
+
+
+def session_defaults_for(folder: str | Path) -> dict[str, float]:
+    """:func:`read_session_defaults` of :func:`find_session_defaults` (``{}`` when none), cached by
+    file identity (path, size, modification time)."""
+    p = find_session_defaults(folder)
+    if p is None:
+        return {}
+    try:
+        st = p.stat()
+    except OSError as exc:
+        raise CamcalError(f"cannot read session defaults file: {exc.strerror}", p) from None
+    key = (str(p.resolve()), st.st_size, st.st_mtime_ns)
+    if key not in _DEFAULTS_CACHE:
+        _DEFAULTS_CACHE[key] = read_session_defaults(p)
+    return dict(_DEFAULTS_CACHE[key])

@@ -295,6 +295,34 @@ def image_cases() -> list[Case]:
     return cases
 
 
+REALDATA = Path(__file__).resolve().parents[1].parent / "shared" / "realdata"
+
+
+def realdata_images() -> list[Path]:
+    """The image files of ``../shared/realdata`` (none when the folder is absent)."""
+    if not REALDATA.is_dir():
+        return []
+    return sorted(p for p in REALDATA.glob("*/*") if p.parent.name in ("pi", "raw", "jpeg", "stripped"))
+
+
+def real_image_cases() -> list[Case]:
+    """Real files of real cameras (``../shared/realdata``; CI has it; none when absent), as they are.
+
+    Every readable one inspects, and with any other command ends in one line (it is another camera's
+    frame); one whose image data were stripped is refused by every command, naming it.
+    """
+    cases = []
+    for f in realdata_images():
+        rel = f"{f.parent.name}/{f.name}"
+        if f.parent.name == "stripped":
+            cases.append(Case("real_image", "real file, image data stripped", rel,
+                              lambda b, f=f: (f.suffix, f.read_bytes()), ERROR))
+        else:
+            cases.append(Case("real_image", "real file", rel, lambda b, f=f: (f.suffix, f.read_bytes()),
+                              {"inspect": OK, "*": EITHER}))
+    return cases
+
+
 def _csv_rows(text: str) -> list[list[str]]:
     return [ln.split(",") for ln in text.splitlines()]
 
@@ -630,6 +658,20 @@ def session_cases() -> list[Case]:
     add("structure", "sweep-only", lambda s: [shutil.rmtree(s / d) for d in ("bias", "dark", "flat", "linearity")],
         partial)
     add("structure", "output-is-directory", lambda s: None, ERROR)
+    # session.toml, the session defaults (docs/session-layout.md): strict, one line naming it
+    toml = "session.toml"
+    for name, text in (("syntax", b"f_number = = 4\n"), ("unknown-key", b"fnumber = 4\n"),
+                       ("table", b"[camera]\nf_number = 4\n"), ("string", b'f_number = "4"\n'),
+                       ("bool", b"f_number = true\n"), ("zero", b"f_number = 0\n"), ("negative", b"iso = -100\n"),
+                       ("implausible", b"exposure_s = 1e9\n"), ("nan", b"f_number = nan\n"),
+                       ("inf", b"iso = inf\n"), ("duplicate", b"f_number = 4\nf_number = 5.6\n"),
+                       ("not-utf8", b"f_number = 4 # \xff\xfe\n"), ("huge", b"# x\n" * 40000)):
+        add("session defaults", f"session-toml-{name}", lambda s, t=text: (s / toml).write_bytes(t))
+    add("session defaults", "session-toml-is-directory", lambda s: (s / toml).mkdir())
+    add("session defaults", "session-toml-to-dev-zero", lambda s: (s / toml).symlink_to("/dev/zero"))
+    add("session defaults", "session-toml-dangling", lambda s: (s / toml).symlink_to(s / "nothere.toml"), EITHER)
+    add("session defaults", "session-toml-empty", lambda s: (s / toml).write_bytes(b""), OK)
+    add("session defaults", "session-toml-agrees", lambda s: (s / toml).write_text("f_number = 4.0\n"), OK)
     return cases
 
 
@@ -958,6 +1000,12 @@ def _image_apply(ws, b, make):
     return ["apply", b.profile, p, "-o", out, "-j", "1"], [out / f"{p.name}.exr"], p
 
 
+def _image_apply_other_camera(ws, b, make):
+    """A photo of another camera, applied with --allow-other-camera: it is done, or a listed failure (exit 1)."""
+    argv, outputs, p = _image_apply(ws, b, make)
+    return [*argv, "--allow-other-camera"], outputs, p
+
+
 def _image_apply_batch(ws, b, make):
     """A bad photo between two good ones: the good EXRs are written whatever happens to the bad one."""
     argv, outputs, p = _image_apply(ws, b, make)
@@ -1121,6 +1169,9 @@ CONSUMERS: tuple[Consumer, ...] = (
     Consumer("water-band", "water_exr", _water_invert_band, every=3),
     Consumer("water-chl", "chl_csv", _chl_csv_water),
     Consumer("cli", "arguments", _arguments),
+    Consumer("inspect", "real_image", _image_inspect),
+    Consumer("dark", "real_image", _image_dark),
+    Consumer("apply", "real_image", _image_apply_other_camera, failure_code=1),
     Consumer("calibrate", "session", _session_calibrate),
     Consumer("dark", "session", _session_dark, every=2),
 )
@@ -1139,6 +1190,7 @@ CASES: dict[str, list[Case]] = {
     "water_exr": water_exr_cases(),
     "chl_csv": chl_csv_cases(),
     "arguments": argument_cases(),
+    "real_image": real_image_cases(),
 }
 
 
@@ -1219,6 +1271,7 @@ def test_corpus_size_and_controls(base, tmp_path):
         "water_exr": lambda b, ws: ("sub", b.files["water_sub"]),
         "chl_csv": lambda t: t.encode(),
         "arguments": _valid_invert,
+        "real_image": lambda b: (".dng", b.files["dng"]),
     }
     for i, consumer in enumerate(CONSUMERS):
         ws = tmp_path / f"c{i}"

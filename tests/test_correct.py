@@ -235,7 +235,7 @@ def test_bias_only_session_then_apply_says_what_it_cannot_correct(tmp_path):
     assert shown["dark"]["dark_current_dn_per_s"]["G"] is None and shown["dark"]["dark_current_known"] is False
     assert shown["dark"]["read_noise_dn"]["G"] == pytest.approx(1.875, rel=0.05)
     photo = tmp_path / "p.dng"
-    assert run_cli("synth", "photo", photo, "--width", 192, "--height", 128, "--exposure", 0.05).returncode == 0
+    assert run_cli("synth", "photo", photo, "--width", 192, "--height", 128, "--exposure", 0.002).returncode == 0
     proc = run_cli("apply", prof, photo, "-o", tmp_path / "exr")
     assert proc.returncode == 0, proc.stderr
     from camcal.exr import read_exr
@@ -255,6 +255,8 @@ def test_real_pi_dark_frames_as_a_bias_only_session(tmp_path):
     d.mkdir(parents=True)
     for p in PI_DARKS:
         (d / p.name).symlink_to(p)
+    # a fixed-aperture lens: no f-number in the files, the user states it once (docs/session-layout.md)
+    (tmp_path / "S" / "session.toml").write_text("f_number = 1.2\n")
     profile, notes = calibrate_session(tmp_path / "S")
     c = contract(profile)
     frames = []
@@ -291,5 +293,6 @@ def test_real_pi_same_dark_frame_twice_is_named(tmp_path):
     d.mkdir(parents=True)
     (d / "a.dng").symlink_to(PI_DARKS[0])
     (d / "b.dng").symlink_to(PI_DARKS[0])
+    (tmp_path / "S" / "session.toml").write_text("f_number = 1.2\n")
     proc = run_cli("calibrate", tmp_path / "S", "-o", tmp_path / "x.camcal")
     assert_one_line_error(proc, "b.dng", "same pixels as a.dng")

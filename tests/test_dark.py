@@ -125,7 +125,7 @@ def test_errors(session, tmp_path):
     mosaic = np.full((256, 384), 16383, np.uint16)
     write_dng(sat / "dark_002.000s_01.dng", mosaic, cfa_pattern=session[1]["params"]["cfa_pattern"],
               black_level_dn=512.0, white_level_dn=16383, exposure_s=2.0, f_number=4.0, iso=100.0)
-    with pytest.raises(CamcalError, match=r"dark_002.000s_01.dng: dark frame is saturated"):
+    with pytest.raises(CamcalError, match=r"dark_002.000s_01.dng: .*saturated"):
         fit_dark(sat)
     size = _copy(root / "dark", tmp_path / "size", lambda n: n.startswith(("dark_002", "dark_008")))
     SyntheticCamera(SensorParams(width=192, height=128)).write_dng(

@@ -228,7 +228,8 @@ def test_mismatched_sizes_are_refused(tmp_path):
     other = _small_session(tmp_path / "T", level=0.4, seed=2)
     # a frame from a differently sized sensor in the same folder
     cam = SyntheticCamera(SensorParams(width=160, height=96))
-    cam.write_dng(folder / "flat_zzz.dng", Scene.uniform(SPECTRUM), exposure_s=0.05, rng=np.random.default_rng(0))
+    # (exposed to ~40 % of full scale: a saturated frame would be refused for that before its size is compared)
+    cam.write_dng(folder / "flat_zzz.dng", Scene.uniform(SPECTRUM), exposure_s=8e-5, rng=np.random.default_rng(0))
     with pytest.raises(CamcalError, match="mismatched sizes") as err:
         fit_flat(folder)
     assert "flat_zzz.dng" in str(err.value)

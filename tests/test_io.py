@@ -71,7 +71,7 @@ def test_manifest_overrides_file_metadata(tmp_path, camera):
 
 
 def test_missing_metadata_error_names_file_field_and_fix(tmp_path):
-    mosaic = np.zeros((64, 64), np.uint16)
+    mosaic = np.random.default_rng(0).integers(100, 200, (64, 64)).astype(np.uint16)
     path = write_dng(tmp_path / "m.dng", mosaic, cfa_pattern="RGGB", black_level_dn=0, white_level_dn=4095,
                      exposure_s=0.01, f_number=4, iso=0)
     frame = load_frame(path)

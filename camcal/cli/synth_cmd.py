@@ -40,6 +40,9 @@ def register(app: typer.Typer) -> None:
         seed: int = typer.Option(1, help="Random seed."),
         sensitivity: str | None = typer.Option(None, help="Spectral sensitivity: nikon-d5100, sigma-sd-merrill."),
         stages: str = typer.Option("bias,dark,flat,linearity,sweep", help="Comma-separated stages to shoot."),
+        layout: str = typer.Option("bayer", help="RAW layout: bayer (CFA mosaics) or linear (LinearRaw R, G, B)."),
+        fixed_aperture: bool = typer.Option(False, "--fixed-aperture",
+                                            help="No f-number in any file or manifest; one in session.toml."),
     ) -> None:
         """Write a whole calibration session (bias, dark, flat, linearity, sweep) with truth.json."""
         from camcal.synth.session import STAGES, SessionPlan, write_session
@@ -48,6 +51,8 @@ def register(app: typer.Typer) -> None:
         bad = [s for s in chosen if s not in STAGES]
         if bad:
             raise CamcalError(f"unknown stage(s) {bad}; choose from {', '.join(STAGES)}")
+        if layout not in ("bayer", "linear"):
+            raise CamcalError(f"unknown layout {layout!r}; choose bayer or linear")
         cam = _camera(pattern, bits, width, height, seed, sensitivity, preset_name)
         with progress() as bar:
             tasks: dict[str, int] = {}
@@ -57,7 +62,8 @@ def register(app: typer.Typer) -> None:
                     tasks[stage] = bar.add_task(stage, total=total)
                 bar.update(tasks[stage], completed=done)
 
-            out = write_session(outdir, cam, SessionPlan(stages=chosen), progress=tick)
+            plan = SessionPlan(stages=chosen, layout=layout, fixed_aperture=fixed_aperture)
+            out = write_session(outdir, cam, plan, progress=tick)
         console.print(f"wrote session {out} (truth in {out / 'truth.json'})")
 
     @synth.command("photo")

@@ -41,7 +41,10 @@ import numpy as np
 from camcal.errors import CamcalError
 from camcal.frame import PATTERNS, PLANES, merge_planes, plane_offsets, split_planes
 from camcal.spectra import WAVELENGTHS_NM, camera_sensitivities, photon_energy_j
-from camcal.synth.dng import write_dng
+from camcal.synth.dng import write_dng, write_linear_dng
+
+LINEAR_FROM_PLANES: tuple[int, int, int] = (0, 1, 3)
+"""Indices into :data:`camcal.frame.PLANES` of the R, G, B channels of a synthetic linear RAW: R, G1, B."""
 
 
 @dataclass(frozen=True)
@@ -339,11 +342,30 @@ class SyntheticCamera:
         rng: np.random.Generator,
         capture_time: datetime | None = None,
         temperature_c: float | None = None,
+        layout: str = "bayer",
+        tag_f_number: bool = True,
     ) -> Path:
-        """Expose and write a real DNG file (decodable by LibRaw, Exif exposure tags)."""
+        """Expose and write a real DNG file (decodable by LibRaw, Exif exposure tags).
+
+        ``layout="linear"`` writes a LinearRaw DNG instead of the mosaic: the R, G1 and B planes of the
+        same exposure as an (H/2, W/2, 3) R, G, B image (a superpixel demosaic taking G from G1), so
+        that every channel's truth is that of its Bayer plane. ``tag_f_number=False`` writes no FNumber
+        tag (a fixed-aperture camera); the exposure still uses ``f_number``.
+        """
         p = self.params
         iso = p.iso_base if iso is None else iso
         f_number = p.reference_f_number if f_number is None else f_number
+        if layout == "linear":
+            planes = self.expose_planes(scene, exposure_s=exposure_s, iso=iso, f_number=f_number, rng=rng)
+            return write_linear_dng(
+                path, np.moveaxis(planes[list(LINEAR_FROM_PLANES)], 0, -1),
+                black_level_dn=tuple(float(p.black_level_dn[k]) for k in LINEAR_FROM_PLANES),
+                white_level_dn=p.white_dn, exposure_s=exposure_s, f_number=f_number if tag_f_number else None,
+                iso=iso, make=p.make, model=p.model, serial=p.serial, capture_time=capture_time,
+                temperature_c=temperature_c,
+            )
+        if layout != "bayer":
+            raise ValueError(f"layout must be 'bayer' or 'linear', got {layout!r}")
         mosaic = self.expose(scene, exposure_s=exposure_s, iso=iso, f_number=f_number, rng=rng)
         return write_dng(
             path,
@@ -352,7 +374,7 @@ class SyntheticCamera:
             black_level_dn=self._black_by_position(),
             white_level_dn=p.white_dn,
             exposure_s=exposure_s,
-            f_number=f_number,
+            f_number=f_number if tag_f_number else None,
             iso=iso,
             make=p.make,
             model=p.model,
@@ -383,6 +405,7 @@ class SyntheticCamera:
         quality: int = 97,
         capture_time: datetime | None = None,
         colour_matrix: np.ndarray | None = None,
+        tag_f_number: bool = True,
     ) -> Path:
         """Expose and write an 8-bit JPEG as a camera would: linear RGB, colour matrix, tone curve, EXIF.
 
@@ -411,7 +434,7 @@ class SyntheticCamera:
             path,
             np.moveaxis(img, 0, -1),
             exposure_s=exposure_s,
-            f_number=f_number,
+            f_number=f_number if tag_f_number else None,
             iso=iso,
             make=p.make,
             model=p.model,

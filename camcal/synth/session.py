@@ -4,7 +4,14 @@ Layout (see ``docs/session-layout.md``)::
 
     SESSION/
       bias/ dark/ flat/ linearity/ sweep/   frames + frames.csv (sweep: sweep.csv)
+      session.toml                          session defaults (fixed-aperture cameras only: the f-number)
       truth.json                            the ground truth, for tests and the demo
+
+``SessionPlan(layout="linear")`` writes LinearRaw DNGs (R, G, B; see
+:meth:`camcal.synth.camera.SyntheticCamera.write_dng`) in every stage folder instead of mosaics;
+``SessionPlan(fixed_aperture=True)`` writes a camera that records no f-number: no FNumber tag in
+its DNGs and JPEGs, no ``f_number`` column in frames.csv and sweep.csv, and the lens's f-number
+once, in ``session.toml``.
 """
 
 from __future__ import annotations
@@ -66,6 +73,12 @@ class SessionPlan:
     sweep_reference_unc: float = 0.005
     """Relative standard uncertainty of the reference detector, written to sweep.csv."""
     iso: float = 100.0
+    layout: str = "bayer"
+    """RAW layout of the DNGs: ``"bayer"`` (CFA mosaics) or ``"linear"`` (LinearRaw R, G, B at the plane size)."""
+    fixed_aperture: bool = False
+    """A fixed-aperture camera: no f-number in any frame's tags or manifest, one in ``session.toml``."""
+    session_defaults: bool = True
+    """With ``fixed_aperture``, write the f-number to ``session.toml`` (False: the user forgot it)."""
 
 
 def _csv(rows: list[dict[str, object]]) -> str:
@@ -150,6 +163,8 @@ def write_session(
     ``progress(stage, done, total)`` is called after each frame when given.
     """
     plan = plan or SessionPlan()
+    if plan.layout not in ("bayer", "linear"):
+        raise ValueError(f"layout must be 'bayer' or 'linear', got {plan.layout!r}")
     out = Path(outdir)
     out.mkdir(parents=True, exist_ok=True)
     p = camera.params
@@ -163,6 +178,24 @@ def write_session(
 
     truth = camera.truth(plan.iso)
     truth["plan"] = {k: (list(v) if isinstance(v, tuple) else v) for k, v in plan.__dict__.items()}
+    if plan.layout == "linear":
+        truth["layout"] = {"name": "linear", "channels": {"R": "R", "G": "G1", "B": "B"},
+                           "note": "each linear channel is the Bayer plane named here, at the plane size"}
+    tag_n = not plan.fixed_aperture
+
+    class _Cam:  # the camera as the plan shoots it: layout and f-number tag
+        def write_dng(self, path, scene, **kw):
+            return camera.write_dng(path, scene, layout=plan.layout, tag_f_number=tag_n, **kw)
+
+        def write_jpeg(self, path, scene, **kw):
+            return camera.write_jpeg(path, scene, tag_f_number=tag_n, **kw)
+
+    def write_manifest(path: Path, rows: list[dict[str, object]]) -> None:  # no f_number for a fixed lens
+        if plan.fixed_aperture:
+            rows = [{k: v for k, v in r.items() if k != "f_number"} for r in rows]
+        atomic_write_text(path, _csv(rows))
+
+    shoot = _Cam()
 
     if "bias" in plan.stages:
         d = out / "bias"
@@ -170,13 +203,13 @@ def write_session(
         rngs = frame_rngs(p.seed, plan.n_bias, 1)
         for i, rng in enumerate(rngs):
             name = f"bias_{i:03d}.dng"
-            camera.write_dng(d / name, Scene.dark(), exposure_s=plan.bias_exposure_s, iso=plan.iso,
+            shoot.write_dng(d / name, Scene.dark(), exposure_s=plan.bias_exposure_s, iso=plan.iso,
                              f_number=n_ref, rng=rng, capture_time=t0 + timedelta(seconds=next(seq)),
                              temperature_c=plan.temperature_c)
             rows.append({"file": name, "exposure_s": plan.bias_exposure_s, "iso": plan.iso, "f_number": n_ref,
                          "temperature_C": plan.temperature_c})
             note("bias", i, plan.n_bias)
-        atomic_write_text(d / "frames.csv", _csv(rows))
+        write_manifest(d / "frames.csv", rows)
 
     if "dark" in plan.stages:
         d = out / "dark"
@@ -187,13 +220,13 @@ def write_session(
         for t in plan.dark_exposures_s:
             for j in range(plan.n_dark):
                 name = f"dark_{t:07.3f}s_{j:02d}.dng"
-                camera.write_dng(d / name, Scene.dark(), exposure_s=t, iso=plan.iso, f_number=n_ref, rng=rngs[k],
+                shoot.write_dng(d / name, Scene.dark(), exposure_s=t, iso=plan.iso, f_number=n_ref, rng=rngs[k],
                                  capture_time=t0 + timedelta(seconds=next(seq)), temperature_c=plan.temperature_c)
                 rows.append({"file": name, "exposure_s": t, "iso": plan.iso, "f_number": n_ref,
                              "temperature_C": plan.temperature_c})
                 k += 1
                 note("dark", k - 1, total)
-        atomic_write_text(d / "frames.csv", _csv(rows))
+        write_manifest(d / "frames.csv", rows)
 
     if "flat" in plan.stages:
         d = out / "flat"
@@ -203,11 +236,11 @@ def write_session(
         rngs = frame_rngs(p.seed, plan.n_flat, 3)
         for i, rng in enumerate(rngs):
             name = f"flat_{i:03d}.dng"
-            camera.write_dng(d / name, Scene.uniform(spec), exposure_s=t, iso=plan.iso, f_number=n_ref, rng=rng,
+            shoot.write_dng(d / name, Scene.uniform(spec), exposure_s=t, iso=plan.iso, f_number=n_ref, rng=rng,
                              capture_time=t0 + timedelta(seconds=next(seq)))
             rows.append({"file": name, "exposure_s": t, "iso": plan.iso, "f_number": n_ref})
             note("flat", i, plan.n_flat)
-        atomic_write_text(d / "frames.csv", _csv(rows))
+        write_manifest(d / "frames.csv", rows)
         truth["flat"] = {"exposure_s": t, "temperature_k": plan.flat_temperature_k}
 
     if "linearity" in plan.stages:
@@ -220,18 +253,18 @@ def write_session(
         rngs = frame_rngs(p.seed, 2 * len(times), 4)
         for i, t in enumerate(times):
             name = f"lin_{i:03d}.dng"
-            camera.write_dng(d / name, Scene.uniform(spec), exposure_s=t, iso=plan.iso, f_number=n_ref,
+            shoot.write_dng(d / name, Scene.uniform(spec), exposure_s=t, iso=plan.iso, f_number=n_ref,
                              rng=rngs[2 * i], capture_time=t0 + timedelta(seconds=next(seq)))
             rows.append({"file": name, "exposure_s": t, "iso": plan.iso, "f_number": n_ref})
             if plan.linearity_jpeg:
                 jname = f"lin_{i:03d}.jpg"
-                camera.write_jpeg(d / jname, Scene.uniform(spec), exposure_s=t, iso=plan.iso, f_number=n_ref,
+                shoot.write_jpeg(d / jname, Scene.uniform(spec), exposure_s=t, iso=plan.iso, f_number=n_ref,
                                   rng=rngs[2 * i + 1], tone=plan.jpeg_tone, gamma=plan.jpeg_gamma,
                                   capture_time=t0 + timedelta(seconds=next(seq)),
                                   colour_matrix=plan.jpeg_colour_matrix)
                 rows.append({"file": jname, "exposure_s": t, "iso": plan.iso, "f_number": n_ref})
             note("linearity", i, len(times))
-        atomic_write_text(d / "frames.csv", _csv(rows))
+        write_manifest(d / "frames.csv", rows)
         rate = camera.channel_rates_e(spec, n_ref) * camera.dn_per_electron(plan.iso)
         truth["linearity"] = {
             "exposure_s": times,
@@ -249,18 +282,21 @@ def write_session(
         rows = []
         rngs = frame_rngs(p.seed, len(shots), 5)
         for k, (shot, rng) in enumerate(zip(shots, rngs, strict=True)):
-            camera.write_dng(d / shot.name, Scene.uniform(shot.spectrum), exposure_s=shot.exposure_s, iso=plan.iso,
+            shoot.write_dng(d / shot.name, Scene.uniform(shot.spectrum), exposure_s=shot.exposure_s, iso=plan.iso,
                              f_number=n_ref, rng=rng, capture_time=t0 + timedelta(seconds=next(seq)))
             if plan.sweep_jpeg and shot.name.endswith("_00.dng"):  # one twin per wavelength is enough
-                camera.write_jpeg(d / Path(shot.name).with_suffix(".jpg"), Scene.uniform(shot.spectrum),
+                shoot.write_jpeg(d / Path(shot.name).with_suffix(".jpg"), Scene.uniform(shot.spectrum),
                                   exposure_s=shot.exposure_s, iso=plan.iso, f_number=n_ref,
                                   rng=np.random.default_rng(rng.integers(2**63)), tone=plan.jpeg_tone,
                                   gamma=plan.jpeg_gamma, colour_matrix=plan.jpeg_colour_matrix,
                                   capture_time=t0 + timedelta(seconds=next(seq)))
             rows.append(shot.row)
             note("sweep", k, len(shots))
-        atomic_write_text(d / "sweep.csv", _csv(rows))
+        write_manifest(d / "sweep.csv", rows)
         truth["sweep"] = info
 
+    if plan.fixed_aperture and plan.session_defaults:
+        atomic_write_text(out / "session.toml", "# camera-wide facts of this session (camcal session defaults)\n"
+                    f"f_number = {n_ref!r}  # the fixed lens\n")
     save_truth(out / "truth.json", truth)
     return out
