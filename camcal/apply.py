@@ -68,9 +68,11 @@ from camcal.errors import CamcalError
 from camcal.exposure import frame_relative_exposure
 from camcal.frame import PLANES, Frame, plane_offsets
 from camcal.radiance import RadianceModel, radiance_model
+from camcal.region import Region
 
 BAND_UNITS = "W m^-2 sr^-1 nm^-1"
 RESOLUTION_NOTE = "half resolution: one value per 2x2 CFA cell (R, mean of G1 and G2, B), not demosaicked"
+LINEAR_RESOLUTION_NOTE = "full resolution: the linear RAW's own R, G, B planes (already demosaicked by its writer)"
 
 
 def radiance_channel_name(wavelength_nm: float) -> str:
@@ -169,6 +171,8 @@ def prepare(
         flat_planes = profile.flat.gain(with_prnu=with_prnu).astype(np.float32)
         if flat_planes.shape[0] == 4:
             flat_rgb = np.stack([flat_planes[0], 0.5 * (flat_planes[1] + flat_planes[2]), flat_planes[3]])
+        elif getattr(profile.camera, "layout", "bayer") == "linear":  # linear RAW: R, G, B planes
+            flat_rgb = flat_planes
         else:  # a flat fitted on processed RGB frames
             flat_rgb, flat_planes = flat_planes, None
     prnu_rel = None
@@ -217,7 +221,7 @@ def _noise_params(profile, iso: float) -> tuple[np.ndarray | None, np.ndarray | 
         return None, None, 1.0
     scale = float(iso) / dark.iso
     gains = dark.summary().get("gain_dn_per_e_from_dark") or {}
-    k = np.array([float(gains.get(p, 0.0) or 0.0) for p in ("R", "G1", "G2", "B")], np.float32)[:, None, None]
+    k = np.array([float(gains.get(p, 0.0) or 0.0) for p in dark.plane_names], np.float32)[:, None, None]
     rn = dark.read_noise_dn.astype(np.float32) * np.float32(scale)
     return rn * rn, k * np.float32(scale), scale
 
@@ -256,11 +260,18 @@ def _run_bands(work, n_rows: int, threads: int) -> None:
 
 
 def _raw_check(frame: Frame, plan: ApplyPlan) -> None:
-    """Refuse a photo whose planes do not match the profile's maps (another camera, crop or resolution)."""
-    shape = (4, frame.shape[0] // 2, frame.shape[1] // 2)
+    """Refuse a photo whose layout or planes do not match the profile's (another camera, mode, crop or resolution)."""
+    layout = getattr(plan.profile.camera, "layout", "bayer")
+    if frame.layout != layout:
+        raise CamcalError(f"is a {frame.layout} RAW file but the profile was measured on {layout} RAW frames; a "
+                          "profile applies only to photos of its layout", frame.path)
+    if frame.layout == "linear":
+        shape = (3, *frame.shape)
+    else:
+        shape = (4, frame.shape[0] // 2, frame.shape[1] // 2)
+        if frame.shape[0] % 2 or frame.shape[1] % 2:
+            raise CamcalError(f"a CFA mosaic must have even sides, got {frame.shape}", frame.path)
     dark = plan.profile.dark
-    if frame.shape[0] % 2 or frame.shape[1] % 2:
-        raise CamcalError(f"a CFA mosaic must have even sides, got {frame.shape}", frame.path)
     if dark is not None and shape != dark.bias_dn.shape:
         raise CamcalError(f"photo planes {shape[1:]} do not match the profile's dark model "
                           f"{dark.bias_dn.shape[1:]} (another camera, crop or resolution)", frame.path)
@@ -281,8 +292,10 @@ def _raw_pixels(frame: Frame, plan: ApplyPlan, t: float, iso: float, inv_x: floa
     model = plan.model
     cal = plan.calibration
     mosaic = frame.data
-    h, w = frame.shape[0] // 2, frame.shape[1] // 2
-    off = plane_offsets(frame.cfa_pattern)
+    linear = frame.layout == "linear"
+    h, w = frame.shape if linear else (frame.shape[0] // 2, frame.shape[1] // 2)
+    nplanes = 3 if linear else 4
+    off = None if linear else plane_offsets(frame.cfa_pattern)
     white = float(frame.white_level_dn)
     black = frame.black_vector().ravel()
     if cal.dark is None:
@@ -298,30 +311,39 @@ def _raw_pixels(frame: Frame, plan: ApplyPlan, t: float, iso: float, inv_x: floa
 
     def work(r0: int, r1: int) -> None:
         n = r1 - r0
-        planes = np.empty((4, n, w), np.float32)
-        for k, name in enumerate(PLANES):
-            r, c = off[name]
-            planes[k] = mosaic[2 * r0 + r: 2 * r1: 2, c::2]
+        planes = np.empty((nplanes, n, w), np.float32)
+        if linear:
+            for k in range(3):
+                planes[k] = mosaic[r0:r1, :, k]
+        else:
+            for k, name in enumerate(PLANES):
+                r, c = off[name]
+                planes[k] = mosaic[2 * r0 + r: 2 * r1: 2, c::2]
         corr = correct_planes(planes, cal, exposure_s=t, iso=iso, white_level_dn=white, black_level_dn=black,
-                              full_shape=(4, h, w), window=(slice(r0, r1), slice(None)), variance=True,
-                              path=frame.path, inplace=True)
+                              full_shape=(nplanes, h, w), window=(slice(r0, r1), slice(None)), variance=True,
+                              channels=frame.channel_names, path=frame.path, inplace=True)
         planes, invalid, var = corr.signal_dn, corr.invalid, corr.variance_dn2
         np.copyto(planes, nan, where=invalid)
-        # G: mean of the good greens (one defective green leaves the other)
-        g = planes[1] + planes[2]
-        g *= np.float32(0.5)
-        np.copyto(g, planes[2], where=invalid[1])
-        np.copyto(g, planes[1], where=invalid[2])
-        signal = (planes[0], g, planes[3])
-        if var is not None:
-            vg = var[1] + var[2]
-            vg *= np.float32(0.25)
-            np.copyto(vg, var[2], where=invalid[1])
-            np.copyto(vg, var[1], where=invalid[2])
-            var = [var[0], vg, var[3]]
-            if plan.prnu_rel is not None:  # pixel response non-uniformity left uncorrected
-                for i in range(3):
-                    var[i] += (plan.prnu_rel[i] * signal[i]) ** 2
+        if linear:  # R, G, B planes of their own: no greens to merge
+            signal = (planes[0], planes[1], planes[2])
+            if var is not None:
+                var = [var[0], var[1], var[2]]
+        else:
+            # G: mean of the good greens (one defective green leaves the other)
+            g = planes[1] + planes[2]
+            g *= np.float32(0.5)
+            np.copyto(g, planes[2], where=invalid[1])
+            np.copyto(g, planes[1], where=invalid[2])
+            signal = (planes[0], g, planes[3])
+            if var is not None:
+                vg = var[1] + var[2]
+                vg *= np.float32(0.25)
+                np.copyto(vg, var[2], where=invalid[1])
+                np.copyto(vg, var[1], where=invalid[2])
+                var = [var[0], vg, var[3]]
+        if var is not None and plan.prnu_rel is not None:  # pixel response non-uniformity left uncorrected
+            for i in range(3):
+                var[i] += (plan.prnu_rel[i] * signal[i]) ** 2
         o = out[r0:r1]
         for i in range(3):
             np.multiply(signal[i], band_k[i], out=o[..., i])
@@ -350,19 +372,25 @@ def _processed_signal(frame: Frame, plan: ApplyPlan, iso: float, notes: list[str
                           "to read processed photos; use the RAW file", frame.path)
     rp, rr = resp["processed"], resp["raw"]
     values = frame.planes(np.float32)
-    saturated = _bin2((values >= np.float32(frame.white_level_dn)).astype(np.float32)) > 0
+    # processed pixels per RAW plane pixel: 2 for a Bayer profile (half-resolution planes); for a linear-RAW
+    # profile the ratio of the image to the planes (1 when the JPEG has the RAW's size)
+    linear = getattr(profile.camera, "layout", "bayer") == "linear"
+    plane_h = profile.camera.height if linear else profile.camera.height // 2
+    f = 2 if not linear or not plane_h else max(1, values.shape[1] // plane_h)
+    binf = _bin2 if f == 2 else (lambda a: np.asarray(a, np.float32))
+    saturated = binf((values >= np.float32(frame.white_level_dn)).astype(np.float32)) > 0
     lin = rp.linearise(values).astype(np.float32)
     if rp.colour_matrix is not None:  # r = A⁻¹ j: the camera's channel mixing undone (camcal.colour)
-        signal = _bin2(rp.colour_matrix.to_raw(lin))
+        signal = binf(rp.colour_matrix.to_raw(lin))
         notes.append("processed file: RAW-equivalent signal through the profile's colour matrix (fitted on the "
                      "sweep's JPEG twins); valid with the white balance and picture style of the calibration")
     else:
         k = []
         for ch in ("R", "G", "B"):
-            raw_gain = (0.5 * (rr.linear_gain_dn_per_s("G1") + rr.linear_gain_dn_per_s("G2")) if ch == "G"
-                        else rr.linear_gain_dn_per_s(ch))
+            raw_gain = (0.5 * (rr.linear_gain_dn_per_s("G1") + rr.linear_gain_dn_per_s("G2"))
+                        if ch == "G" and "G1" in rr.channels else rr.linear_gain_dn_per_s(ch))
             k.append(raw_gain / rp.linear_gain_dn_per_s(ch))
-        signal = _bin2(lin * np.array(k, np.float32)[:, None, None])
+        signal = binf(lin * np.array(k, np.float32)[:, None, None])
         notes.append("processed file: no colour matrix in the profile, so one gain per channel: assumes the "
                      "camera does not mix its channels (true for the synthetic camera without a matrix, not for "
                      "real ones; calibrate with JPEG twins of the sweep)")
@@ -372,9 +400,12 @@ def _processed_signal(frame: Frame, plan: ApplyPlan, iso: float, notes: list[str
         if read_var.shape[1:] != signal.shape[1:]:
             raise CamcalError(f"photo (half resolution {signal.shape[1:]}) does not match the profile's sensor "
                               f"{read_var.shape[1:]}", frame.path)
-        rv = np.stack([read_var[0], 0.25 * (read_var[1] + read_var[2]), read_var[3]])
-        kk = np.stack([kg[0], 0.5 * (kg[1] + kg[2]), kg[3]])
-        var = rv + kk * np.maximum(signal, 0) * np.array([1.0, 0.5, 1.0], np.float32)[:, None, None]
+        if read_var.shape[0] == 3:  # linear RAW planes R, G, B
+            var = read_var + kg * np.maximum(signal, 0)
+        else:
+            rv = np.stack([read_var[0], 0.25 * (read_var[1] + read_var[2]), read_var[3]])
+            kk = np.stack([kg[0], 0.5 * (kg[1] + kg[2]), kg[3]])
+            var = rv + kk * np.maximum(signal, 0) * np.array([1.0, 0.5, 1.0], np.float32)[:, None, None]
     return signal, var, saturated
 
 
@@ -437,7 +468,7 @@ def apply_prepared(frame: Frame, plan: ApplyPlan, *, allow_other_camera: bool = 
         "camera": {"make": e.make, "model": e.model, "serial": e.serial},
         "profile_camera": {"make": profile.camera.make, "model": profile.camera.model,
                            "serial": profile.camera.serial},
-        "resolution": RESOLUTION_NOTE,
+        "resolution": LINEAR_RESOLUTION_NOTE if frame.layout == "linear" else RESOLUTION_NOTE,
         "invalid": "NaN: defective (dark model) or saturated pixels",
         "notes": notes,
     }
@@ -505,25 +536,13 @@ def apply(
 
 
 # ---- regions of interest ------------------------------------------------------------------------------------------
-def parse_roi(text: str) -> tuple[int, int, int, int]:
-    """``"x,y,w,h"`` (full-resolution photo pixels) -> tuple; CamcalError when malformed."""
-    try:
-        parts = [int(float(v)) for v in text.split(",")]
-    except ValueError:
-        parts = []
-    if len(parts) != 4 or parts[2] <= 0 or parts[3] <= 0 or parts[0] < 0 or parts[1] < 0:
-        raise CamcalError(f"--roi must be x,y,w,h with non-negative x, y and positive w, h (photo pixels), got "
-                          f"{text!r}")
-    return parts[0], parts[1], parts[2], parts[3]
+def roi_mask(shape_hw: tuple[int, int], roi: Region | None = None,
+             mask: np.ndarray | None = None, where: str | Path | None = None, scale: int = 2) -> np.ndarray:
+    """Boolean mask on the output grid (half resolution for Bayer photos: ``scale`` 2; linear RAW: 1).
 
-
-def roi_mask(shape_hw: tuple[int, int], roi: tuple[int, int, int, int] | None = None,
-             mask: np.ndarray | None = None, where: str | Path | None = None) -> np.ndarray:
-    """Boolean mask on the half-resolution output grid.
-
-    ``roi`` is (x, y, w, h) in full-resolution photo pixels (rounded outward to whole 2x2 cells).
-    ``mask`` is a 2-D array at the photo's full resolution (2x the output) or at the output resolution;
-    non-zero marks the region; at full resolution a cell is in when at least half its pixels are.
+    ``roi`` is a :class:`camcal.region.Region` in full-resolution photo pixels (rounded outward to whole
+    output cells). ``mask`` is a 2-D array at the photo's full resolution (2x the output) or at the output
+    resolution; non-zero marks the region; at full resolution a cell is in when at least half its pixels are.
     """
     h, w = shape_hw
     if mask is not None:
@@ -538,13 +557,8 @@ def roi_mask(shape_hw: tuple[int, int], roi: tuple[int, int, int, int] | None = 
             raise CamcalError(f"mask is {m.shape[1]}x{m.shape[0]}; expected the photo's size {2 * w}x{2 * h} "
                               f"or the output's {w}x{h}", where)
     elif roi is not None:
-        x, y, rw, rh = roi
-        r0, r1 = y // 2, -(-(y + rh) // 2)
-        c0, c1 = x // 2, -(-(x + rw) // 2)
-        if r0 >= h or c0 >= w:
-            raise CamcalError(f"ROI {x},{y},{rw},{rh} lies outside the photo ({2 * w}x{2 * h})", where)
         out = np.zeros((h, w), bool)
-        out[r0:min(r1, h), c0:min(c1, w)] = True
+        out[roi.window((h, w), scale, where)] = True
     else:
         raise CamcalError("give an ROI or a mask")
     if not out.any():

@@ -29,6 +29,7 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 from camcal.errors import CamcalError
+from camcal.region import Region
 
 REPORT_CSV = "apply_report.csv"
 ROI_CSV = "roi_stats.csv"
@@ -39,7 +40,7 @@ STATUSES = ("done", "skipped", "failed")
 class BatchOptions:
     """Per-photo options (see :func:`camcal.apply.apply`) and the region for statistics.
 
-    ``roi`` is (x, y, w, h) in photo pixels; ``mask_path`` a mask image (either one, or neither).
+    ``roi`` is a :class:`camcal.region.Region` (photo pixels); ``mask_path`` a mask image (either one, or neither).
     """
 
     wavelength_nm: float = 663.0
@@ -48,7 +49,7 @@ class BatchOptions:
     line_fwhm_nm: float | None = None
     with_prnu: bool = False
     allow_other_camera: bool = False
-    roi: tuple[int, int, int, int] | None = None
+    roi: Region | None = None
     mask_path: str | None = None
     half: bool = False
     compression: str = "zip"
@@ -171,13 +172,15 @@ def _load_mask(options: BatchOptions):
     return read_mask(options.mask_path)
 
 
-def _stats(channels: dict, options: BatchOptions, mask_image, where: Path) -> tuple[dict, ...]:
+def _stats(channels: dict, options: BatchOptions, mask_image, where: Path, meta: dict | None) -> tuple[dict, ...]:
+    """ROI statistics of one output; ``meta`` its metadata (a linear RAW's output is at full resolution)."""
     if options.roi is None and options.mask_path is None:
         return ()
-    from camcal.apply import roi_mask, roi_statistics
+    from camcal.apply import LINEAR_RESOLUTION_NOTE, roi_mask, roi_statistics
 
     shape = next(iter(channels.values())).shape
-    m = roi_mask(shape, options.roi, mask_image, where)
+    scale = 1 if (meta or {}).get("resolution") == LINEAR_RESOLUTION_NOTE else 2
+    m = roi_mask(shape, options.roi, mask_image, where, scale=scale)
     return tuple(roi_statistics(channels, m))
 
 
@@ -212,7 +215,7 @@ def process_photo(photo: str, profile_path: str, outdir: str, options: BatchOpti
         manifest = folder_manifest(src.parent) if (src.parent / "frames.csv").is_file() else {}
         frame = load_frame(src, exposure_overrides(manifest.get(src.name)))
         image = apply_prepared(frame, plan, allow_other_camera=options.allow_other_camera, threads=options.threads)
-        stats = _stats(image.channels, options, mask_image, src)
+        stats = _stats(image.channels, options, mask_image, src, image.metadata)
         write_exr(out, image.channels, image.metadata, half=options.half, compression=options.compression,
                   datetime=exr_datetime(frame.exposure.capture_time))
         return PhotoResult(str(src), str(out), "done", None, time.perf_counter() - t0, stats)
@@ -231,8 +234,8 @@ def _skipped(src: Path, out: Path, options: BatchOptions, mask_image, t0: float)
     if options.roi is not None or options.mask_path is not None:
         from camcal.exr import read_exr
 
-        channels, _ = read_exr(out)
-        stats = _stats(channels, options, mask_image, src)
+        channels, meta = read_exr(out)
+        stats = _stats(channels, options, mask_image, src, meta)
     return PhotoResult(str(src), str(out), "skipped", None, time.perf_counter() - t0, stats)
 
 
@@ -294,8 +297,10 @@ def preflight(profile_path: str | Path, photos: Sequence[Path], options: BatchOp
         # RAW photos of the profile's camera have its sensor size: a region that does not fit it is a
         # bad option of the whole batch (exit 2, naming the mask), not a failure of every photo
         if all(is_raw_path(Path(p)) for p in photos):
-            roi_mask((cam.height // 2, cam.width // 2), options.roi if mask is None else None, mask,
-                     options.mask_path if mask is not None else "--roi")
+            linear = getattr(cam, "layout", "bayer") == "linear"
+            roi_mask((cam.height, cam.width) if linear else (cam.height // 2, cam.width // 2),
+                     options.roi if mask is None else None, mask, options.mask_path if mask is not None else "--roi",
+                     scale=1 if linear else 2)
     if not options.allow_other_camera:
         for p in photos:
             try:
@@ -319,7 +324,7 @@ def _write_reports(outdir: Path, results: list[PhotoResult], options: BatchOptio
     if options.roi is not None or options.mask_path is not None:
         buf = io.StringIO()
         w = csv.writer(buf, lineterminator="\n")
-        region = (f"roi {','.join(map(str, options.roi))}" if options.roi is not None
+        region = (f"roi {options.roi}" if options.roi is not None
                   else f"mask {options.mask_path}")
         w.writerow(["file", "channel", "n", "mean", "median", "sigma", "region"])
         for r in results:

@@ -87,11 +87,15 @@ def camera_identity(session: Path, stages: list[str]) -> CameraIdentity:
         raw = [p for p in frames if p.suffix.lower() not in (".jpg", ".jpeg", ".png", ".tif", ".tiff")]
         f = load_frame((raw or frames)[0])
         h, w = f.shape
-        seen[s] = CameraIdentity(f.exposure.make, f.exposure.model, f.exposure.serial, f.cfa_pattern, w, h)
+        seen[s] = CameraIdentity(f.exposure.make, f.exposure.model, f.exposure.serial, f.cfa_pattern, w, h, f.layout)
     models = {(c.make, c.model) for c in seen.values() if c.model}
     if len(models) > 1:
         raise CamcalError(f"frames from different cameras in one session: {sorted(models)}", session)
-    raw_ids = [c for c in seen.values() if c.cfa_pattern]
+    layouts = {c.layout for c in seen.values() if c.layout != "processed"}
+    if len(layouts) > 1:
+        raise CamcalError(f"RAW frames of different layouts in one session: {sorted(layouts)} (one camera mode per "
+                          "session)", session)
+    raw_ids = [c for c in seen.values() if c.layout != "processed"]
     return (raw_ids or list(seen.values()))[0]
 
 

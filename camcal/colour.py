@@ -30,7 +30,6 @@ import numpy as np
 
 from camcal.correct import Calibration, correct_frame
 from camcal.errors import CamcalError
-from camcal.frame import PLANES
 from camcal.io import is_raw_path, list_frames, load_frame
 from camcal.spectral import central_roi
 
@@ -141,17 +140,22 @@ def fit_colour_matrix(folders: Sequence[str | Path], processed, *, roi_fraction:
     for path, twin in pairs:
         raw = load_frame(path)
         jpg = load_frame(twin)
-        if jpg.kind == "raw" or jpg.shape != raw.shape:
+        hw = (raw.shape[0] // 2, raw.shape[1] // 2) if raw.layout == "bayer" else raw.shape
+        f = jpg.shape[0] // hw[0] if hw[0] else 0  # JPEG pixels per plane pixel: 2 (Bayer), 1 or 2 (linear)
+        if jpg.kind == "raw" or f not in (1, 2) or jpg.shape != (f * hw[0], f * hw[1]) or (
+                raw.layout == "bayer" and f != 2):
             raise CamcalError(f"is not a processed twin of {path.name} (a JPEG of the same size)", twin)
-        x0, y0, x1, y1 = central_roi((raw.shape[0] // 2, raw.shape[1] // 2), roi_fraction)
+        x0, y0, x1, y1 = central_roi(hw, roi_fraction)
         # above the file's black level, not the dark model: the camera renders its JPEG from the RAW data
         # minus its black level, dark current included (long sweep exposures: it matters); clipped pixels
         # masked (camcal.correct)
         corr = correct_frame(raw, Calibration(), window=(slice(y0, y1), slice(x0, x1)))
         raw_clipped = float(corr.saturated_fraction().max())
-        m = dict(zip(PLANES, corr.mean_dn(), strict=True))
-        r_rows.append([m["R"], 0.5 * (m["G1"] + m["G2"]), m["B"]])
-        vals = jpg.planes(np.float32)[:, 2 * y0: 2 * y1, 2 * x0: 2 * x1]
+        m = dict(zip(raw.channel_names, corr.mean_dn(), strict=True))
+        if "G1" in m:
+            m["G"] = 0.5 * (m["G1"] + m["G2"])
+        r_rows.append([m["R"], m["G"], m["B"]])
+        vals = jpg.planes(np.float32)[:, f * y0: f * y1, f * x0: f * x1]
         clipped = np.mean((vals <= 0) | (vals >= jpg.white_level_dn), axis=(1, 2))
         lin = processed.linearise(vals)
         j = np.mean(lin, axis=(1, 2), dtype=np.float64)

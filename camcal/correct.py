@@ -90,7 +90,7 @@ class Calibration:
         k = None
         if getattr(dark, "read_noise_dn", None) is not None and callable(getattr(dark, "summary", None)):
             gains = dark.summary().get("gain_dn_per_e_from_dark") or {}
-            names = PLANES if dark.read_noise_dn.shape[0] == 4 else tuple(gains)
+            names = getattr(dark, "plane_names", PLANES)
             k = np.array([float(gains.get(p, 0.0) or 0.0) for p in names], np.float32)[:, None, None]
         inv = None if gain is None else (1.0 / gain).astype(np.float32)
         return Calibration(dark=dark, flat_gain=gain, defects=defects, inv_flat_gain=inv, noise_gain_dn_per_e=k)

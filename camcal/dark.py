@@ -44,7 +44,7 @@ from scipy.special import chdtri, ndtr
 
 from camcal.correct import Calibration, correct_planes, dark_frame
 from camcal.errors import CamcalError
-from camcal.frame import PLANES, Frame
+from camcal.frame import PATTERNS, PLANES, RGB, Frame
 from camcal.io import exposure_from_exif, folder_files, load_frame
 from camcal.stack import MAD_TO_SIGMA, METHODS, StackResult, combine_frames
 
@@ -78,7 +78,8 @@ class DarkModel:
         from :func:`camcal.flat.dead_pixels`), 4 noisy (temporal variance far above the model).
     iso : float
         ISO of the frames.
-    cfa_pattern : str
+    cfa_pattern : str or None
+        CFA pattern of Bayer frames; None for linear RAW (planes R, G, B at full resolution).
     temperature_c : float or None
         Mean temperature of the dark frames, degC (``temperature_C`` column), when known.
     channels : dict
@@ -99,7 +100,7 @@ class DarkModel:
     read_noise_dn: np.ndarray
     defects: np.ndarray
     iso: float
-    cfa_pattern: str
+    cfa_pattern: str | None
     temperature_c: float | None
     channels: dict = field(default_factory=dict)
     exposure_times_s: tuple[float, ...] = ()
@@ -115,14 +116,26 @@ class DarkModel:
         """
         return dark_frame(self, exposure_s, iso, self.bias_dn.shape)
 
+    @property
+    def plane_names(self) -> tuple[str, ...]:
+        """:data:`camcal.frame.PLANES` for Bayer frames, :data:`camcal.frame.RGB` for linear RAW."""
+        return PLANES if self.bias_dn.shape[0] == 4 else RGB
+
+    @property
+    def layout(self) -> str:
+        """``"bayer"`` or ``"linear"`` (the frames the model was measured on)."""
+        return "bayer" if self.bias_dn.shape[0] == 4 else "linear"
+
     def summary(self) -> dict:
         """JSON-ready summary: per-plane numbers and defect counts."""
-        per = {key: {p: self.channels[p][key] for p in PLANES} for key in next(iter(self.channels.values()))}
+        per = {key: {p: self.channels[p][key] for p in self.plane_names}
+               for key in next(iter(self.channels.values()))}
         for key in ("hot_pixel_count", "dead_pixel_count", "noisy_pixel_count"):
             per[key.replace("_count", "_count_per_plane")] = per.pop(key)
         return {
             "iso": self.iso,
             "cfa_pattern": self.cfa_pattern,
+            "layout": self.layout,
             "temperature_c": self.temperature_c,
             "exposure_times_s": list(self.exposure_times_s),
             "plane_shape": list(self.bias_dn.shape[1:]),
@@ -334,7 +347,7 @@ def fit_dark(
         beta_var = np.where(no_fit, np.inf, beta_var)
 
     channels = _channel_summary(b, b_var, beta, beta_var, var_t, defects, stacks, bias_stack is not None,
-                                noise_gain, noise)
+                                noise_gain, noise, ref.channel_names)
     temps = [e.temperature_c for _, s in stacks for e in s.exposures]
     temperature = float(np.mean(temps)) if temps and all(t is not None for t in temps) else None
     provenance = {
@@ -359,7 +372,7 @@ def fit_dark(
         read_noise_dn=read_noise.astype(np.float32),
         defects=defects,
         iso=float(iso),
-        cfa_pattern=str(ref.cfa_pattern),
+        cfa_pattern=None if ref.cfa_pattern is None else str(ref.cfa_pattern),
         temperature_c=temperature,
         channels=channels,
         exposure_times_s=tuple(float(t) for t, _ in stacks),
@@ -475,7 +488,7 @@ def temporal_noise(stack: StackResult, var_t: np.ndarray, defects: np.ndarray, n
     for k in range(c):
         v = var_t[k][(defects[k] == 0) & np.isfinite(var_t[k])]
         if v.size == 0:
-            raise CamcalError(f"plane {PLANES[k]} has no pixel to measure the temporal noise on",
+            raise CamcalError(f"plane {stack.channel_names[k]} has no pixel to measure the temporal noise on",
                               stack.paths[0] if stack.paths else None)
         v = v[v <= np.quantile(v, 0.999)] if v.size > 1000 else v
         vhat = float(np.mean(v))
@@ -506,7 +519,7 @@ def temporal_noise(stack: StackResult, var_t: np.ndarray, defects: np.ndarray, n
             dsnu[k] = float(np.mean(sds[k]))
             rn_map[k] = np.where(noisy[k], rn_map[k], read[k])
         method = (f"quantised-normal likelihood of {len(frames) - 1} frame pair(s) in planes "
-                  f"{', '.join(PLANES[k] for k in np.flatnonzero(quantised))} (temporal noise below "
+                  f"{', '.join(stack.channel_names[k] for k in np.flatnonzero(quantised))} (temporal noise below "
                   f"{SUB_DN_NOISE:g} DN); elsewhere " + method)
     return TemporalNoise(temporal, read, dsnu, quantised, noisy, rn_map, method)
 
@@ -539,7 +552,7 @@ def fit_bias(
     b = np.asarray(st.value, np.float64)
     n = np.maximum(np.asarray(st.count, np.float64), 1.0)
     channels = {}
-    for k, name in enumerate(PLANES):
+    for k, name in enumerate(st.channel_names):
         good = defects[k] == 0
         bk = b[k][good]
         if noise.quantised[k]:
@@ -567,7 +580,7 @@ def fit_bias(
     return DarkModel(
         bias_dn=b.astype(np.float32), dark_current_dn_per_s=None, dark_current_unc_dn_per_s=None,
         read_noise_dn=noise.read_noise_map_dn.astype(np.float32), defects=defects, iso=float(iso),
-        cfa_pattern=str(st.cfa_pattern), temperature_c=None, channels=channels,
+        cfa_pattern=None if st.cfa_pattern is None else str(st.cfa_pattern), temperature_c=None, channels=channels,
         exposure_times_s=tuple(sorted({float(t) for t in tb if t is not None})),
         black_level_dn=tuple(float(x) for x in st.black_level_dn), white_level_dn=float(st.white_level_dn),
         provenance={
@@ -659,9 +672,9 @@ def _noise_model(stats: list[tuple[float, StackResult]], b: np.ndarray) -> tuple
 
 
 def _channel_summary(b, b_var, beta, beta_var, var_t, defects, stacks, have_bias: bool, gain,
-                     noise: TemporalNoise) -> dict:
+                     noise: TemporalNoise, names: tuple[str, ...]) -> dict:
     out = {}
-    for k, name in enumerate(PLANES):
+    for k, name in enumerate(names):
         good = defects[k] == 0
         bk, betak = b[k][good], beta[k][good]
         med_beta, rs_beta = _robust(betak)
@@ -729,9 +742,10 @@ def dark_to_parts(model: DarkModel) -> tuple[dict, dict[str, np.ndarray]]:
               "dark_current_unc": model.dark_current_unc_dn_per_s, "read_noise": model.read_noise_dn,
               "defects": model.defects.astype(np.float32)}
     maps = {f"{m}.{p}": np.where(np.isfinite(arrays[m][k]), arrays[m][k], np.float32(3.0e38))
-            for m in _MAPS if arrays[m] is not None for k, p in enumerate(PLANES)}
+            for m in _MAPS if arrays[m] is not None for k, p in enumerate(model.plane_names)}
     data = {
-        "iso": model.iso, "cfa_pattern": model.cfa_pattern, "temperature_c": model.temperature_c,
+        "iso": model.iso, "cfa_pattern": model.cfa_pattern, "layout": model.layout,
+        "temperature_c": model.temperature_c,
         "exposure_times_s": list(model.exposure_times_s), "black_level_dn": list(model.black_level_dn),
         "white_level_dn": model.white_level_dn, "channels": model.channels, "summary": model.summary(),
         "dark_current_known": model.dark_current_dn_per_s is not None,
@@ -744,8 +758,6 @@ def dark_to_parts(model: DarkModel) -> tuple[dict, dict[str, np.ndarray]]:
 
 def _check_dark_data(data: dict, where: str | Path | None) -> None:
     """Refuse a dark model's JSON part with values of the wrong type or out of range (one line)."""
-    from camcal.frame import PATTERNS
-
     def number(key: str, *, positive: bool, optional: bool = False) -> None:
         v = data.get(key)
         if v is None and optional:
@@ -759,20 +771,24 @@ def _check_dark_data(data: dict, where: str | Path | None) -> None:
     number("iso", positive=True)
     number("white_level_dn", positive=True, optional=True)
     number("temperature_c", positive=False, optional=True)
-    if data.get("cfa_pattern") not in PATTERNS:
+    linear = data.get("layout") == "linear"
+    if data.get("layout", "bayer") not in ("bayer", "linear"):
+        raise CamcalError(f"malformed dark model: layout {data.get('layout')!r} is not bayer or linear", where)
+    if (data.get("cfa_pattern") is not None) if linear else (data.get("cfa_pattern") not in PATTERNS):
         raise CamcalError(f"malformed dark model: cfa_pattern {data.get('cfa_pattern')!r} is not one of "
-                          f"{', '.join(PATTERNS)}", where)
+                          f"{', '.join(PATTERNS)}" + (" (null for linear RAW)" if linear else ""), where)
+    planes = RGB if linear else PLANES
     for key in ("exposure_times_s", "black_level_dn"):
         v = data.get(key)
         if v is not None and (not isinstance(v, list) or not all(
                 isinstance(t, int | float) and not isinstance(t, bool) and math.isfinite(t) for t in v)):
             raise CamcalError(f"malformed dark model: {key} must be a list of numbers", where)
     ch = data.get("channels")
-    if not isinstance(ch, dict) or not all(isinstance(ch.get(p), dict) and ch[p] for p in PLANES) or len(
-            {tuple(sorted(ch[p])) for p in PLANES}) != 1 or "hot_pixel_count" not in ch[PLANES[0]]:
-        raise CamcalError(f"malformed dark model: channels must hold the same summary numbers for {', '.join(PLANES)}",
+    if not isinstance(ch, dict) or not all(isinstance(ch.get(p), dict) and ch[p] for p in planes) or len(
+            {tuple(sorted(ch[p])) for p in planes}) != 1 or "hot_pixel_count" not in ch[planes[0]]:
+        raise CamcalError(f"malformed dark model: channels must hold the same summary numbers for {', '.join(planes)}",
                           where)
-    for p in PLANES:
+    for p in planes:
         for key, v in ch[p].items():
             if v is not None and (isinstance(v, bool) or not isinstance(v, int | float)):
                 raise CamcalError(f"malformed dark model: channels.{p}.{key} must be a number, got {v!r}", where)
@@ -782,13 +798,14 @@ def dark_from_parts(data: dict, maps: dict[str, np.ndarray], where: str | Path |
     """Inverse of :func:`dark_to_parts`; ``where`` names the file in errors."""
     known = not (isinstance(data, dict) and data.get("dark_current_known") is False)
     names = _MAPS if known else tuple(m for m in _MAPS if not m.startswith("dark_current"))
-    missing = [f"{m}.{p}" for m in names for p in PLANES if f"{m}.{p}" not in maps]
+    planes = RGB if isinstance(data, dict) and data.get("layout") == "linear" else PLANES
+    missing = [f"{m}.{p}" for m in names for p in planes if f"{m}.{p}" not in maps]
     if missing:
         raise CamcalError(f"dark model lacks maps {', '.join(missing[:4])}", where)
     _check_dark_data(data, where)
     try:
         arr: dict[str, np.ndarray | None] = {
-            m: np.stack([maps[f"{m}.{p}"] for p in PLANES]).astype(np.float32) for m in names}
+            m: np.stack([maps[f"{m}.{p}"] for p in planes]).astype(np.float32) for m in names}
         if known:
             arr["dark_current_unc"] = np.where(arr["dark_current_unc"] >= 3.0e38, np.inf, arr["dark_current_unc"])
         else:
@@ -797,7 +814,7 @@ def dark_from_parts(data: dict, maps: dict[str, np.ndarray], where: str | Path |
             bias_dn=arr["bias"], dark_current_dn_per_s=arr["dark_current"],
             dark_current_unc_dn_per_s=arr["dark_current_unc"], read_noise_dn=arr["read_noise"],
             defects=np.rint(arr["defects"]).astype(np.uint8), iso=float(data["iso"]),
-            cfa_pattern=str(data["cfa_pattern"]),
+            cfa_pattern=None if data.get("cfa_pattern") is None else str(data["cfa_pattern"]),
             temperature_c=None if data.get("temperature_c") is None else float(data["temperature_c"]),
             channels=dict(data.get("channels") or {}),
             exposure_times_s=tuple(float(t) for t in data.get("exposure_times_s") or ()),

@@ -655,7 +655,7 @@ def master_flat(
     cal = Calibration.of(dark_model)
     paths, manifest = folder_files(folder)
     first = load_folder_frame(paths[0], manifest)
-    plane_shape = (first.shape[0] // 2, first.shape[1] // 2)
+    plane_shape = (first.shape[0] // 2, first.shape[1] // 2) if first.layout == "bayer" else first.shape
     if dark_model is not None:
         dshape = tuple(np.asarray(dark_model.bias_dn).shape)
         if dshape[-2:] != plane_shape:

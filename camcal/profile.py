@@ -24,7 +24,7 @@ import numpy as np
 from camcal import __version__
 from camcal.container import read_container, write_container
 from camcal.errors import CamcalError
-from camcal.frame import PLANES
+from camcal.frame import PLANES, RGB
 from camcal.store import to_jsonable
 
 FORMAT = "camcal-profile"
@@ -43,6 +43,9 @@ class CameraIdentity:
     cfa_pattern: str | None
     width: int
     height: int
+    layout: str = "bayer"
+    """``"bayer"`` (CFA mosaic), ``"linear"`` (linear multi-channel RAW) or ``"processed"``: the frames the
+    profile was measured on; it is applied only to photos of the same layout."""
 
 
 @dataclass(frozen=True)
@@ -200,7 +203,7 @@ def validate_document(doc: dict, where: str | Path) -> None:
     if spec:
         n = len(spec["wavelength_nm"])
         for part in ("values", "uncertainty"):
-            for plane in PLANES:
+            for plane in (PLANES if "G1" in spec[part] else RGB):
                 if len(spec[part][plane]) != n:
                     raise CamcalError(f"spectral_sensitivity.{part}.{plane} has {len(spec[part][plane])} values, "
                                       f"wavelength_nm has {n}", where)
@@ -230,7 +233,7 @@ def profile_from_document(doc: dict, maps: dict[str, np.ndarray], where: str | P
     prov = doc["provenance"]
     return CalibrationProfile(
         camera=CameraIdentity(cam["make"], cam["model"], cam["serial"], cam["cfa_pattern"], int(cam["width"]),
-                              int(cam["height"])),
+                              int(cam["height"]), str(cam.get("layout") or "bayer")),
         reference_iso=float(doc["reference"]["iso"]),
         reference_f_number=float(doc["reference"]["f_number"]),
         provenance=Provenance(prov["camcal_version"], prov["created_utc"], tuple(prov["inputs"]),
@@ -267,6 +270,8 @@ def _rgb(per_plane: dict | None) -> dict | None:
     """{R, G1, G2, B} -> {R, G, B, G1, G2} with G the mean of G1 and G2."""
     if not per_plane:
         return None
+    if "G1" not in per_plane:  # linear RAW: R, G, B planes
+        return {"R": per_plane.get("R"), "G": per_plane.get("G"), "B": per_plane.get("B"), "G1": None, "G2": None}
     out = {"R": per_plane.get("R"), "B": per_plane.get("B"), "G1": per_plane.get("G1"), "G2": per_plane.get("G2")}
     g1, g2 = per_plane.get("G1"), per_plane.get("G2")
     out["G"] = None if g1 is None or g2 is None else 0.5 * (float(g1) + float(g2))

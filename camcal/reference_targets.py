@@ -55,6 +55,7 @@ from camcal.frame import PLANES, Frame
 from camcal.io import load_frame
 from camcal.manifest import exposure_overrides, read_manifest, safe_member
 from camcal.profile import SCHEMA_VERSION, CalibrationProfile, CameraIdentity, Provenance
+from camcal.region import Region
 from camcal.spectral import DEFAULT_ROI_FRACTION, SpectralSensitivity, central_roi
 from camcal.spectral_files import FileFormat, as_absolute, read_spectral_file, read_table, resample, sha256_of_file
 
@@ -85,7 +86,7 @@ class RegionRate:
     notes: tuple[str, ...] = ()
 
 
-def region_rate(frame: Frame, box: tuple[int, int, int, int] | None, *, dark=None, flat=None,
+def region_rate(frame: Frame, box: Region | tuple[int, int, int, int] | None, *, dark=None, flat=None,
                 reference_iso: float, reference_f_number: float, min_pixels: int = 16) -> RegionRate:
     """Mean corrected DN rate per plane over ``box`` of a RAW photo.
 
@@ -97,7 +98,8 @@ def region_rate(frame: Frame, box: tuple[int, int, int, int] | None, *, dark=Non
     Parameters
     ----------
     frame : a decoded RAW photo.
-    box : (x0, y0, x1, y1), half-open, in half-resolution plane pixels; None: the central
+    box : a :class:`camcal.region.Region` in photo pixels (rounded outward to whole plane pixels), or
+        (x0, y0, x1, y1), half-open, in half-resolution plane pixels; None: the central
         :data:`camcal.spectral.DEFAULT_ROI_FRACTION` of each side.
     dark, flat : camcal.dark.DarkModel, camcal.flat.FlatModel or None.
     """
@@ -106,6 +108,9 @@ def region_rate(frame: Frame, box: tuple[int, int, int, int] | None, *, dark=Non
         raise CamcalError("is not a RAW file; a reference-target photo must be linear RAW data", path)
     x = frame_relative_exposure(frame.exposure, reference_iso, reference_f_number, path)
     shape_hw = (frame.shape[0] // 2, frame.shape[1] // 2)
+    if isinstance(box, Region):
+        ys, xs = box.window(shape_hw, 2, path)
+        box = (xs.start, ys.start, xs.stop, ys.stop)
     x0, y0, x1, y1 = central_roi(shape_hw, DEFAULT_ROI_FRACTION) if box is None else box
     if not (0 <= x0 < x1 <= shape_hw[1] and 0 <= y0 < y1 <= shape_hw[0]):
         raise CamcalError(f"region {box} (plane pixels) lies outside the {shape_hw[1]}x{shape_hw[0]} planes", path)
@@ -409,21 +414,12 @@ def read_targets(targets_csv: str | Path) -> list[tuple[TargetSpectrum, list[tup
         roi_vals = [_number(rec, c, where, csv_path, integer=True) for c in ("roi_x", "roi_y", "roi_w", "roi_h")]
         if any(v is not None for v in roi_vals) and not all(v is not None for v in roi_vals):
             raise CamcalError(f"{where}: give all of roi_x, roi_y, roi_w, roi_h or none", csv_path)
-        roi = None if roi_vals[0] is None else tuple(int(v) for v in roi_vals)  # type: ignore[arg-type]
+        try:
+            roi = None if roi_vals[0] is None else Region(*(int(v) for v in roi_vals))  # type: ignore[misc]
+        except CamcalError as exc:
+            raise CamcalError(f"{where}: {exc.message}", csv_path) from None
         groups[key][1].append((photo, exposure_overrides(rec), roi))
     return list(groups.values())
-
-
-def roi_to_box(roi: tuple[int, int, int, int] | None, where: Path | None = None) -> tuple[int, int, int, int] | None:
-    """(x, y, w, h) in full-resolution pixels -> (x0, y0, x1, y1) in plane pixels (whole 2x2 cells inside)."""
-    if roi is None:
-        return None
-    x, y, w, h = roi
-    x0, y0 = -(-x // 2), -(-y // 2)
-    x1, y1 = (x + w) // 2, (y + h) // 2
-    if x1 <= x0 or y1 <= y0:
-        raise CamcalError(f"region {roi} (x, y, w, h) holds no whole 2x2 CFA cell", where)
-    return x0, y0, x1, y1
 
 
 def observe_targets(targets_csv: str | Path, *, dark=None, flat=None, reference_iso: float,
@@ -434,7 +430,7 @@ def observe_targets(targets_csv: str | Path, *, dark=None, flat=None, reference_
         rates = []
         for path, overrides, roi in photos:
             frame = load_frame(path, overrides)
-            rates.append(region_rate(frame, roi_to_box(roi, path), dark=dark, flat=flat, reference_iso=reference_iso,
+            rates.append(region_rate(frame, roi, dark=dark, flat=flat, reference_iso=reference_iso,
                                      reference_f_number=reference_f_number))
         out.append(TargetObservation(spec, tuple(p for p, _, _ in photos), tuple(rates)))
     return out

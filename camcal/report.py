@@ -387,8 +387,10 @@ def plot_spectral(spec) -> bytes:
         ax1.fill_between(wl, v - u, v + u, color=COLOURS[name], alpha=0.3, lw=0)
         ax1.plot(wl, v, "-", color=COLOURS[name], lw=1.4, marker=".", ms=3, label=name)
         ax3.plot(wl, u, "-", color=COLOURS[name], lw=1.2, label=f"u({name})")
-    g1, g2 = np.asarray(spec.values["G1"], float), np.asarray(spec.values["G2"], float)
-    u1, u2 = np.asarray(spec.uncertainty["G1"], float), np.asarray(spec.uncertainty["G2"], float)
+    # linear RAW has one green plane: the lower-right comparison of the two greens is then empty (G − G)
+    gk1, gk2 = ("G1", "G2") if "G1" in spec.values else ("G", "G")
+    g1, g2 = np.asarray(spec.values[gk1], float), np.asarray(spec.values[gk2], float)
+    u1, u2 = np.asarray(spec.uncertainty[gk1], float), np.asarray(spec.uncertainty[gk2], float)
     for name, v, u in (("G1", g1, u1), ("G2", g2, u2)):
         ax2.fill_between(wl, v - u, v + u, color=COLOURS[name], alpha=0.3, lw=0)
         ax2.plot(wl, v, "-" if name == "G1" else "--", color=COLOURS[name], lw=1.3, label=name)
@@ -503,7 +505,8 @@ def _spectral_section(profile, c: dict) -> str:
     summary = _table(["quantity", "unit", *_RGB], _channel_rows(
         [("peak λ", "nm", peak), ("effective λ", "nm", eff)], _RGB), left=2)
     values = spec.channels()
-    rows = [[f"{wl:g}", *(values[ch][i] for ch in _RGB), *(s[f"{ch}_unc"][i] for ch in ("R", "G", "B"))]
+    rows = [[f"{wl:g}", *(values[ch][i] if ch in values else None for ch in _RGB),  # linear RAW: no G1, G2
+             *(s[f"{ch}_unc"][i] for ch in ("R", "G", "B"))]
             for i, wl in enumerate(s["wavelength_nm"])]
     full = ("<details><summary>c(λ) values ("
             f"{len(rows)} wavelengths)</summary>"

@@ -56,6 +56,7 @@ from camcal.errors import CamcalError
 from camcal.exposure import relative_exposure
 from camcal.frame import PLANES
 from camcal.io import folder_files, load_folder_frame
+from camcal.region import Region
 
 DEFAULT_ROI_FRACTION = 0.10
 """Default ROI: a centred window holding this fraction of each plane's area."""
@@ -299,10 +300,10 @@ class ResponseModel:
                     pearson_r=num(rec["pearson_r"]), rate_dn_per_s=num(rec.get("rate_dn_per_s")),
                     rate_dn_per_s_unc=num(rec.get("rate_dn_per_s_unc")), offset_dn=num(rec.get("offset_dn")),
                 )
-            expected = {"raw": set(PLANES), "processed": {"R", "G", "B"}}.get(str(d["kind"]))
-            if expected is None or set(channels) != expected:
+            expected = {"raw": (set(PLANES), {"R", "G", "B"}), "processed": ({"R", "G", "B"},)}.get(str(d["kind"]))
+            if expected is None or set(channels) not in expected:
                 raise ValueError(f"kind {d['kind']!r} with channels {sorted(channels)}; expected raw R, G1, G2, B "
-                                 "or processed R, G, B")
+                                 "(or R, G, B for linear RAW) or processed R, G, B")
             return ResponseModel(
                 kind=str(d["kind"]), channels=channels, reference_iso=num(d["reference_iso"]),
                 reference_f_number=num(d["reference_f_number"]), tone=d.get("tone"),
@@ -354,7 +355,7 @@ def roi_slices(shape: tuple[int, int], roi: tuple[float, float, float, float]) -
 def measure_series(
     folder: str | Path,
     *,
-    roi: float | tuple[float, float, float, float] | None = None,
+    roi: Region | float | tuple[float, float, float, float] | None = None,
     dark: DarkFrameModel | None = None,
     reference_iso: float | None = None,
     reference_f_number: float | None = None,
@@ -372,7 +373,8 @@ def measure_series(
         Folder without images, unreadable files, missing exposure metadata, bad ROI.
     """
     folder = Path(folder)
-    window = roi_window(roi)
+    region = roi if isinstance(roi, Region) else None
+    window = roi_window(None if region is not None else roi)
     files, manifest = folder_files(folder)
     cal = Calibration.of(dark) if dark is not None else Calibration()
     rows: dict[str, list[dict]] = {}
@@ -381,7 +383,12 @@ def measure_series(
         e = frame.exposure
         t, iso, n = e.require("exposure_s", path), e.require("iso", path), e.require("f_number", path)
         planes = frame.planes(np.float32)
-        ys, xs = roi_slices(planes.shape[1:], window)
+        if region is not None:  # photo pixels -> this frame's planes (half resolution for a Bayer mosaic)
+            ys, xs = region.window(planes.shape[1:], 2 if frame.layout == "bayer" else 1, path)
+            ph, pw = planes.shape[1:]
+            window = (ys.start / ph, ys.stop / ph, xs.start / pw, xs.stop / pw)
+        else:
+            ys, xs = roi_slices(planes.shape[1:], window)
         raw = frame.kind == "raw"
         roi_planes = np.ascontiguousarray(planes[:, ys, xs])
         nc = roi_planes.shape[0]
@@ -785,7 +792,7 @@ def _tone_fit(ch: ChannelResponse, fit: dict, x: np.ndarray, g: np.ndarray, sem:
 def fit_response(
     folder: str | Path,
     *,
-    roi: float | tuple[float, float, float, float] | None = None,
+    roi: Region | float | tuple[float, float, float, float] | None = None,
     dark: DarkFrameModel | None = None,
     reference_iso: float | None = None,
     reference_f_number: float | None = None,
@@ -797,7 +804,8 @@ def fit_response(
     ----------
     folder : a folder of frames of a constant source (``SESSION/linearity``), with an optional
         frames.csv giving ``exposure_s, iso, f_number``.
-    roi : ROI (see :func:`roi_window`); default the central 10 % of each plane's area.
+    roi : a :class:`camcal.region.Region` (photo pixels), a fraction of the area for a centred window (see
+        :func:`roi_window`); default the central 10 % of each plane's area.
     dark : optional dark model (``dark_frame_dn(exposure_s, iso)``) subtracted from RAW frames.
     reference_iso, reference_f_number : the setting x refers to; default the series' most common.
     progress : ``progress(done, total)`` after each frame.

@@ -58,8 +58,9 @@ import numpy as np
 from camcal.correct import Calibration, correct_planes
 from camcal.errors import CamcalError
 from camcal.exposure import frame_relative_exposure
-from camcal.frame import PLANES, Frame, split_planes
+from camcal.frame import PLANES, RGB, Frame, split_planes
 from camcal.io import load_frame
+from camcal.region import Region
 
 SWEEP_CSV = "sweep.csv"
 DEFAULT_REFERENCE_ISO = 100.0
@@ -127,22 +128,34 @@ class SpectralSensitivity:
         if wl.ndim != 1 or wl.size == 0 or np.any(np.diff(wl) <= 0):
             raise CamcalError("spectral sensitivity wavelengths must be a non-empty increasing 1-D array")
         for d in (self.values, self.uncertainty):
-            if set(d) != set(PLANES) or any(np.shape(v) != wl.shape for v in d.values()):
-                raise CamcalError(f"spectral sensitivity needs planes {PLANES} of {wl.size} values each")
+            if set(d) not in (set(PLANES), set(RGB)) or any(np.shape(v) != wl.shape for v in d.values()):
+                raise CamcalError(f"spectral sensitivity needs planes {PLANES} (Bayer) or {RGB} (linear RAW) of "
+                                  f"{wl.size} values each")
+        if set(self.values) != set(self.uncertainty):
+            raise CamcalError("spectral sensitivity values and uncertainties name different planes")
+
+    @property
+    def plane_names(self) -> tuple[str, ...]:
+        """:data:`camcal.frame.PLANES` (Bayer sensors) or :data:`camcal.frame.RGB` (linear RAW)."""
+        return PLANES if "G1" in self.values else RGB
 
     # ---- views ---------------------------------------------------------------------
     def rgb(self) -> dict[str, np.ndarray]:
-        """R, G (mean of G1 and G2), B."""
+        """R, G (mean of G1 and G2 on a Bayer sensor), B."""
         v = self.values
+        if "G1" not in v:
+            return {"R": v["R"], "G": v["G"], "B": v["B"]}
         return {"R": v["R"], "G": 0.5 * (v["G1"] + v["G2"]), "B": v["B"]}
 
     def rgb_uncertainty(self) -> dict[str, np.ndarray]:
         """Standard uncertainty of :meth:`rgb` (G1 and G2 treated as independent)."""
         u = self.uncertainty
+        if "G1" not in u:
+            return {"R": u["R"], "G": u["G"], "B": u["B"]}
         return {"R": u["R"], "G": 0.5 * np.hypot(u["G1"], u["G2"]), "B": u["B"]}
 
     def channels(self) -> dict[str, np.ndarray]:
-        """Planes and RGB together: R, G1, G2, B, G."""
+        """Planes and RGB together: R, G1, G2, B, G (R, G, B for linear RAW)."""
         return {**self.values, "G": self.rgb()["G"]}
 
     def to_colour(self):
@@ -160,8 +173,8 @@ class SpectralSensitivity:
         """colour-science :class:`MultiSpectralDistributions` labelled R, G1, G2, B."""
         import colour
 
-        data = np.column_stack([self.values[p] for p in PLANES])
-        return colour.MultiSpectralDistributions(data, self.wavelength_nm, labels=list(PLANES),
+        data = np.column_stack([self.values[p] for p in self.plane_names])
+        return colour.MultiSpectralDistributions(data, self.wavelength_nm, labels=list(self.plane_names),
                                                  name=f"camcal c(λ) planes [{self.units}]")
 
     def origin(self) -> dict[str, Any]:
@@ -204,7 +217,7 @@ class SpectralSensitivity:
         Zero when deconvolved or when the bandwidth is unknown.
         """
         if self.deconvolved or not self.bandwidth_nm or self.wavelength_nm.size < 4:
-            return {p: np.zeros_like(self.wavelength_nm) for p in PLANES}
+            return {p: np.zeros_like(self.wavelength_nm) for p in self.plane_names}
         from scipy.interpolate import CubicSpline
 
         sigma2 = (self.bandwidth_nm * FWHM_TO_SIGMA) ** 2
@@ -230,9 +243,9 @@ class SpectralSensitivity:
             "effective_bandwidth_nm": self.effective_bandwidth_nm(),
             "max_relative_uncertainty_at_peak": {
                 p: float(self.uncertainty[p][int(np.argmax(self.values[p]))] / max(np.max(self.values[p]), 1e-300))
-                for p in PLANES
+                for p in self.plane_names
             },
-            "slit_bias_rms_of_peak": {p: float(np.sqrt(np.mean(bias[p] ** 2)) / peak) for p in PLANES},
+            "slit_bias_rms_of_peak": {p: float(np.sqrt(np.mean(bias[p] ** 2)) / peak) for p in self.plane_names},
             "notes": list(self.notes),
         }
 
@@ -326,8 +339,8 @@ def _check_roi(roi: tuple[int, int, int, int], shape_hw: tuple[int, int], where:
 @dataclass(frozen=True)
 class _FrameResult:
     row: SweepRow
-    planes: np.ndarray  # (4, hr, wr) float32, dark-subtracted, flat-corrected DN
-    invalid: np.ndarray  # (4, hr, wr) bool: known defects, saturated or clipped (camcal.correct)
+    planes: np.ndarray  # (C, hr, wr) float32, dark-subtracted, flat-corrected DN (C = 4 Bayer, 3 linear RAW)
+    invalid: np.ndarray  # (C, hr, wr) bool: known defects, saturated or clipped (camcal.correct)
     relative_exposure_s: float
     saturated_fraction: float  # of the ROI, worst plane, outside known defects
     defect_saturated: int  # known defects at the white level in the ROI (masked, never counted as saturation)
@@ -343,9 +356,14 @@ def _process_frame(row: SweepRow, cal: Calibration, roi: tuple[int, int, int, in
     x_rel = frame_relative_exposure(frame.exposure, ref_iso, ref_n, row.path)
     x0, y0, x1, y1 = roi
     window = (slice(y0, y1), slice(x0, x1))
-    planes = split_planes(frame.data[2 * y0: 2 * y1, 2 * x0: 2 * x1], frame.cfa_pattern)
-    full = (4, frame.shape[0] // 2, frame.shape[1] // 2)
+    if frame.layout == "bayer":
+        planes = split_planes(frame.data[2 * y0: 2 * y1, 2 * x0: 2 * x1], frame.cfa_pattern)
+        full = (4, frame.shape[0] // 2, frame.shape[1] // 2)
+    else:  # linear RAW: R, G, B at full resolution
+        planes = np.moveaxis(frame.data[y0:y1, x0:x1], -1, 0).astype(np.float32)
+        full = (3, *frame.shape)
     corr = correct_planes(planes, cal, exposure_s=frame.exposure.exposure_s, iso=frame.exposure.iso,
+                          channels=frame.channel_names, cfa_pattern=frame.cfa_pattern,
                           white_level_dn=float(frame.white_level_dn), black_level_dn=frame.black_vector().ravel(),
                           full_shape=full, window=window, path=row.path, inplace=True)
     defect_sat = int(np.count_nonzero(corr.clipped & corr.defective))
@@ -398,13 +416,14 @@ def combine_wavelength(results: Sequence[_FrameResult]) -> tuple[np.ndarray, np.
 
     Returns
     -------
-    value (4,), noise standard uncertainty (4,), relative reference uncertainty (scalar array)
+    value (C,), noise standard uncertainty (C,), relative reference uncertainty (scalar array)
     """
     n = len(results)
-    value = np.empty(4)
-    u_noise = np.empty(4)
+    c = results[0].planes.shape[0]
+    value = np.empty(c)
+    u_noise = np.empty(c)
     scale = np.array([1.0 / (r.relative_exposure_s * r.row.radiance_w_m2_sr) for r in results], np.float32)
-    for p in range(4):
+    for p in range(c):
         y = np.stack([r.planes[p] for r in results])
         y *= scale[:, None, None]
         m = y.sum(axis=0)
@@ -413,7 +432,7 @@ def combine_wavelength(results: Sequence[_FrameResult]) -> tuple[np.ndarray, np.
         mask = _robust_mask(m, valid)
         npix = int(mask.sum())
         if npix == 0:
-            raise CamcalError(f"no valid pixel is left in plane {PLANES[p]} of the ROI at "
+            raise CamcalError(f"no valid pixel is left in plane {p} of the ROI at "
                               f"{results[0].row.wavelength_nm:g} nm (all defective or saturated)",
                               results[0].row.path)
         value[p] = float(np.mean(m, where=mask, dtype=np.float64))
@@ -439,7 +458,7 @@ def measure_sweep(
     *,
     dark=None,
     flat=None,
-    roi: tuple[int, int, int, int] | float | None = None,
+    roi: Region | tuple[int, int, int, int] | float | None = None,
     mode: Literal["relative", "absolute"] = "absolute",
     deconvolve: bool = False,
     slit: Literal["gaussian", "triangular"] = "gaussian",
@@ -464,7 +483,8 @@ def measure_sweep(
     flat : FlatModel or path to ``flat.json``, optional
         The ROI is divided by the smooth gain (1 at the optical centre), so
         absolute values refer to the optical axis. Without it, absolute mode warns.
-    roi : (x0, y0, x1, y1) in half-resolution plane pixels, or a fraction of
+    roi : a :class:`camcal.region.Region` (photo pixels, rounded outward to whole planes' pixels),
+        (x0, y0, x1, y1) in plane pixels (half resolution for Bayer), or a fraction of
         each side for a centred box (default 0.2).
     mode : "absolute" (DN s^-1 per (W m^-2 sr^-1 nm^-1) per nm at the reference
         setting) or "relative" (divided by the largest value over all planes).
@@ -509,10 +529,14 @@ def measure_sweep(
     first = load_frame(rows[0].path, rows[0].overrides)
     if first.kind != "raw":
         raise CamcalError("is not a RAW file; the spectral sweep needs linear RAW data", rows[0].path)
-    shape_hw = (first.shape[0] // 2, first.shape[1] // 2)
+    shape_hw = (first.shape[0] // 2, first.shape[1] // 2) if first.layout == "bayer" else first.shape
     full_shape = first.shape
+    layout, names = first.layout, first.channel_names
     del first
-    if roi is None:
+    if isinstance(roi, Region):
+        ys, xs = roi.window(shape_hw, 2 if layout == "bayer" else 1, Path(sweep_folder))
+        box = (xs.start, ys.start, xs.stop, ys.stop)
+    elif roi is None:
         box = central_roi(shape_hw, DEFAULT_ROI_FRACTION)
     elif isinstance(roi, float | int):
         box = central_roi(shape_hw, float(roi))
@@ -524,6 +548,8 @@ def measure_sweep(
         raise CamcalError(f"flat model planes {cal.flat_gain.shape[1:]} do not match the sweep frames' {shape_hw}",
                           Path(sweep_folder))
     def shape_check(frame: Frame) -> None:
+        if frame.layout != layout:
+            raise CamcalError(f"is a {frame.layout} RAW file, the sweep's first frame is {layout}", frame.path)
         if frame.shape != full_shape:
             raise CamcalError(f"frame is {frame.shape[1]}x{frame.shape[0]} pixels, the sweep's first frame is "
                               f"{full_shape[1]}x{full_shape[0]}", frame.path)
@@ -536,8 +562,8 @@ def measure_sweep(
     for r in rows:
         groups.setdefault(r.wavelength_nm, []).append(r)
     wls = sorted(groups)
-    value = np.empty((4, len(wls)))
-    u_noise = np.empty((4, len(wls)))
+    value = np.empty((len(names), len(wls)))
+    u_noise = np.empty((len(names), len(wls)))
     u_ref = np.zeros(len(wls))
     bw: list[float] = []
     n_used: dict[str, int] = {}
@@ -590,13 +616,13 @@ def measure_sweep(
             raise CamcalError("deconvolution needs a bandwidth_nm value on every sweep.csv row", csv_path)
         out_vals = np.empty_like(value)
         out_unc = np.empty_like(value)
-        for p in range(4):
+        for p in range(len(names)):
             out_vals[p], out_unc[p] = deconvolve_slit(wl_arr, value[p], u_tot[p], np.asarray(bw), slit=slit,
                                                       regularisation=regularisation)
     sens = SpectralSensitivity(
         wavelength_nm=wl_arr,
-        values={p: out_vals[k] for k, p in enumerate(PLANES)},
-        uncertainty={p: out_unc[k] for k, p in enumerate(PLANES)},
+        values={p: out_vals[k] for k, p in enumerate(names)},
+        uncertainty={p: out_unc[k] for k, p in enumerate(names)},
         units=ABSOLUTE_UNITS,
         mode="absolute",
         reference_iso=float(reference_iso),
@@ -748,19 +774,22 @@ def merge_sweeps(a: SpectralSensitivity, b: SpectralSensitivity, *, scale: bool 
 
     k, u_k = 1.0, 0.0
     overlap = (grid >= max(wa[0], wb[0])) & (grid <= min(wa[-1], wb[-1]))
+    planes = a.plane_names
+    if b.plane_names != planes:
+        raise CamcalError(f"cannot merge sweeps of planes {', '.join(planes)} and {', '.join(b.plane_names)}")
     if scale:
         if overlap.sum() < min_overlap:
             raise CamcalError(f"sweeps overlap at {int(overlap.sum())} wavelengths; need {min_overlap} to scale")
-        av = np.concatenate([on(a, p, "values")[0][overlap] for p in PLANES])
-        au = np.concatenate([on(a, p, "uncertainty")[0][overlap] for p in PLANES])
-        bv = np.concatenate([on(b, p, "values")[0][overlap] for p in PLANES])
-        bu = np.concatenate([on(b, p, "uncertainty")[0][overlap] for p in PLANES])
+        av = np.concatenate([on(a, p, "values")[0][overlap] for p in planes])
+        au = np.concatenate([on(a, p, "uncertainty")[0][overlap] for p in planes])
+        bv = np.concatenate([on(b, p, "values")[0][overlap] for p in planes])
+        bu = np.concatenate([on(b, p, "uncertainty")[0][overlap] for p in planes])
         for _ in range(5):
             wgt = 1.0 / np.maximum(au**2 + k**2 * bu**2, 1e-300)
             k = float(np.sum(wgt * av * bv) / np.sum(wgt * bv**2))
         u_k = float(1.0 / math.sqrt(np.sum(wgt * bv**2)))
     vals, uncs = {}, {}
-    for p in PLANES:
+    for p in planes:
         va, ina = on(a, p, "values")
         ua, _ = on(a, p, "uncertainty")
         vb, inb = on(b, p, "values")
@@ -783,8 +812,8 @@ def spectral_to_dict(s: SpectralSensitivity) -> dict[str, Any]:
     from camcal.store import to_jsonable
 
     return to_jsonable({
-        "wavelength_nm": s.wavelength_nm, "values": {p: s.values[p] for p in PLANES},
-        "uncertainty": {p: s.uncertainty[p] for p in PLANES}, "units": s.units, "mode": s.mode,
+        "wavelength_nm": s.wavelength_nm, "values": {p: s.values[p] for p in s.plane_names},
+        "uncertainty": {p: s.uncertainty[p] for p in s.plane_names}, "units": s.units, "mode": s.mode,
         "reference_iso": s.reference_iso, "reference_f_number": s.reference_f_number,
         "bandwidth_nm": s.bandwidth_nm, "deconvolved": s.deconvolved, "n_frames": s.n_frames,
         "notes": list(s.notes), "summary": s.summary(),
@@ -792,13 +821,18 @@ def spectral_to_dict(s: SpectralSensitivity) -> dict[str, Any]:
     })
 
 
+def _planes_of(values: dict) -> tuple[str, ...]:
+    """The plane names a stored curve set uses: R, G1, G2, B (Bayer) or R, G, B (linear RAW)."""
+    return PLANES if "G1" in values else RGB
+
+
 def spectral_from_dict(d: dict[str, Any]) -> SpectralSensitivity:
     """Rebuild a :class:`SpectralSensitivity` from :func:`spectral_to_dict` output."""
     try:
         return SpectralSensitivity(
             wavelength_nm=np.asarray(d["wavelength_nm"], float),
-            values={p: np.asarray(d["values"][p], float) for p in PLANES},
-            uncertainty={p: np.asarray(d["uncertainty"][p], float) for p in PLANES},
+            values={p: np.asarray(d["values"][p], float) for p in _planes_of(d["values"])},
+            uncertainty={p: np.asarray(d["uncertainty"][p], float) for p in _planes_of(d["values"])},
             units=str(d["units"]), mode="absolute" if d["mode"] == "absolute" else "relative",
             reference_iso=float(d["reference_iso"]), reference_f_number=float(d["reference_f_number"]),
             bandwidth_nm=None if d.get("bandwidth_nm") is None else float(d["bandwidth_nm"]),

@@ -14,12 +14,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from camcal.apply import apply, parse_roi, prepare, radiance_channel_name, roi_mask, roi_statistics
+from camcal.apply import apply, prepare, radiance_channel_name, roi_mask, roi_statistics
 from camcal.errors import CamcalError
 from camcal.exr import read_exr
 from camcal.io import load_frame
 from camcal.profile import load_profile
 from camcal.radiance import radiance_model, smooth_error_table
+from camcal.region import Region
 from camcal.spectra import WAVELENGTHS_NM, gaussian_line, planck_radiance
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
 from camcal.synth.session import exposure_for_level
@@ -199,7 +200,7 @@ def test_cli_exr_and_roi_stats(tmp_path, photos, profile_path, profile):
     assert rows[0] == "file,channel,n,mean,median,sigma,region"
     stats = {r.split(",")[1]: r.split(",") for r in rows[1:]}
     assert int(stats["L663"][2]) <= 40 * 30
-    m = roi_mask((128, 192), (100, 60, 80, 60))
+    m = roi_mask((128, 192), Region(100, 60, 80, 60))
     ref = {r["channel"]: r for r in roi_statistics(chans, m)}
     assert float(stats["L663"][3]) == pytest.approx(ref["L663"]["mean"], rel=1e-6)
     assert float(stats["L663"][3]) == pytest.approx(LINE_BAND_W_M2_SR, rel=0.01)
@@ -221,9 +222,9 @@ def test_cli_exr_and_roi_stats(tmp_path, photos, profile_path, profile):
 
 def test_bad_roi_and_profile(tmp_path, photos, profile_path):
     with pytest.raises(CamcalError, match="x,y,w,h"):
-        parse_roi("1,2,3")
+        Region.parse("1,2,3")
     with pytest.raises(CamcalError, match="outside"):
-        roi_mask((128, 192), (1000, 10, 5, 5))
+        roi_mask((128, 192), Region(1000, 10, 5, 5))
     proc = run_cli("apply", profile_path, photos[("line", "raw", 100, 4.0)], "-o", tmp_path, "--roi", "a,b")
     assert_one_line_error(proc, "--roi")
     bad = tmp_path / "bad.camcal"

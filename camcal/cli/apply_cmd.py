@@ -8,6 +8,7 @@ import typer
 
 from camcal.cli.common import console, err_console, print_json, progress
 from camcal.errors import CamcalError
+from camcal.region import Region
 
 
 def register(app: typer.Typer) -> None:
@@ -36,7 +37,6 @@ def register(app: typer.Typer) -> None:
 
         Exit code 0 when every photo has its EXR, 1 when some failed (listed), 2 on bad input.
         """
-        from camcal.apply import parse_roi
         from camcal.batch import BatchOptions, run_batch
 
         if roi is not None and mask is not None:
@@ -45,7 +45,7 @@ def register(app: typer.Typer) -> None:
             raise CamcalError("--jobs must be at least 1")
         opts = BatchOptions(wavelength_nm=wavelength, estimator=estimator, filter_fwhm_nm=filter_fwhm,
                             line_fwhm_nm=line_fwhm, allow_other_camera=allow_other_camera,
-                            roi=parse_roi(roi) if roi is not None else None,
+                            roi=Region.parse(roi) if roi is not None else None,
                             mask_path=None if mask is None else str(mask), half=half)
         with progress() as bar:
             task = bar.add_task("apply", total=None)

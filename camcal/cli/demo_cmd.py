@@ -6,6 +6,8 @@ from pathlib import Path
 
 import typer
 
+from camcal.errors import CamcalError
+
 
 def register(app: typer.Typer) -> None:
     @app.command("demo")
@@ -14,8 +16,13 @@ def register(app: typer.Typer) -> None:
         preset_name: str = typer.Option("default", "--preset",
                                          help="Synthetic camera: default, imx296, hot or offsets "
                                               "(`camcal synth session --help`)."),
+        layout: str = typer.Option("bayer", "--layout",
+                                   help="RAW layout of every synthetic file: bayer (CFA mosaics) or linear "
+                                        "(LinearRaw DNGs with R, G, B planes, as converters and phones write)."),
     ) -> int:
         """Synthesise a calibration session and Secchi-disk photos, run every stage, print truth vs recovered."""
         from camcal.demo import run_demo
 
-        return 0 if run_demo(out, preset_name=preset_name)["ok"] else 1
+        if layout not in ("bayer", "linear"):
+            raise CamcalError(f"unknown layout {layout!r}; choose bayer or linear")
+        return 0 if run_demo(out, preset_name=preset_name, layout=layout)["ok"] else 1

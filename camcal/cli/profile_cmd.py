@@ -26,8 +26,9 @@ def _fmt(v) -> str:
 def print_contract(c: dict, title: str = "profile") -> None:
     """A human summary of the contract object (one table per calibrated stage)."""
     cam = c["camera"]
+    sensor = cam["cfa_pattern"] or f"{cam.get('layout') or 'linear'} RAW"
     console.print(f"[bold]{title}[/bold]: {cam['make']} {cam['model']} (serial {cam['serial']}), "
-                  f"{cam['cfa_pattern']} {cam['width']}x{cam['height']}, reference ISO {c['reference']['iso']:g} "
+                  f"{sensor} {cam['width']}x{cam['height']}, reference ISO {c['reference']['iso']:g} "
                   f"f/{c['reference']['f_number']:g}, schema {c['schema_version']}")
     rows = []
     if c["dark"]:

@@ -84,6 +84,7 @@ def register(app: typer.Typer) -> None:
         seed: int = typer.Option(1),
         sensitivity: str = typer.Option("nikon-d5100"),
         preset_name: str = typer.Option("default", "--preset", help="Camera preset (see `synth session`)."),
+        layout: str = typer.Option("bayer", help="DNG layout: bayer (CFA mosaic) or linear (LinearRaw R, G, B)."),
     ) -> None:
         """Write one synthetic photo of a simple scene as DNG or JPEG."""
         from camcal.spectra import WAVELENGTHS_NM, gaussian_line, planck_radiance
@@ -102,8 +103,10 @@ def register(app: typer.Typer) -> None:
         rng = np.random.default_rng(seed)
         kw = dict(exposure_s=exposure, iso=iso, f_number=f_number, rng=rng)
         suffix = out.suffix.lower()
+        if layout not in ("bayer", "linear"):
+            raise CamcalError(f"unknown layout {layout!r}; choose bayer or linear")
         if suffix == ".dng":
-            cam.write_dng(out, Scene.uniform(spectrum), **kw)
+            cam.write_dng(out, Scene.uniform(spectrum), layout=layout, **kw)
         elif suffix in (".jpg", ".jpeg"):
             cam.write_jpeg(out, Scene.uniform(spectrum), **kw)
         else:

@@ -1,0 +1,75 @@
+"""One region type for every command that takes ``--roi``.
+
+Convention (docs/conventions.md): a region is a rectangle ``x,y,w,h`` in **photo pixels at full
+resolution** — x to the right and y down from the top-left corner of the image, w and h its width and
+height, all whole pixels. Wherever camcal works on a coarser grid (the half-resolution CFA planes of a
+Bayer sensor, the half-resolution radiance EXRs written from them), the region is rounded *outward* to
+whole cells of that grid, so it never loses a pixel the user asked for.
+
+A *centred* region given as a fraction of the area (the default region of the linearity series and the
+sweep) is :meth:`Region.central`; on the command line it is ``--roi-fraction F``, a separate option.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from camcal.errors import CamcalError
+
+Window = tuple[slice, slice]
+"""Rows and columns of an array (a plane or an output image)."""
+
+
+@dataclass(frozen=True)
+class Region:
+    """A rectangle in full-resolution photo pixels: top-left ``(x, y)``, width ``w``, height ``h``."""
+
+    x: int
+    y: int
+    w: int
+    h: int
+
+    def __post_init__(self) -> None:
+        if self.x < 0 or self.y < 0 or self.w <= 0 or self.h <= 0:
+            raise CamcalError(f"a region needs x, y ≥ 0 and w, h > 0 (photo pixels), got "
+                              f"{self.x},{self.y},{self.w},{self.h}")
+
+    def __str__(self) -> str:
+        return f"{self.x},{self.y},{self.w},{self.h}"
+
+    @staticmethod
+    def parse(text: str, option: str = "--roi") -> Region:
+        """``"x,y,w,h"`` (whole photo pixels) → :class:`Region`; one clear error naming ``option`` otherwise."""
+        parts = [p.strip() for p in str(text).split(",")]
+        try:
+            vals = [int(p) for p in parts]
+        except ValueError:
+            vals = []
+        if len(vals) != 4 or vals[0] < 0 or vals[1] < 0 or vals[2] <= 0 or vals[3] <= 0:
+            raise CamcalError(f"{option} must be x,y,w,h: whole photo pixels at full resolution, x, y ≥ 0 and "
+                              f"w, h > 0, got {text!r}")
+        return Region(*vals)
+
+    @staticmethod
+    def central(fraction: float, width: int, height: int) -> Region:
+        """The centred region holding ``fraction`` of the area of a ``width`` x ``height`` photo (side √f)."""
+        f = float(fraction)
+        if not (math.isfinite(f) and 0.0 < f <= 1.0):
+            raise CamcalError(f"a region fraction must be in (0, 1], got {fraction!r}")
+        s = math.sqrt(f)
+        w, h = max(1, round(width * s)), max(1, round(height * s))
+        return Region((width - w) // 2, (height - h) // 2, w, h)
+
+    def window(self, grid_shape: tuple[int, int], pixels_per_cell: int = 1, where=None) -> Window:
+        """Rows and columns of a grid whose cells are ``pixels_per_cell`` photo pixels on a side.
+
+        Rounded outward to whole cells, clipped to the grid; a region that lies outside the grid is an error.
+        """
+        p = int(pixels_per_cell)
+        gh, gw = grid_shape
+        r0, c0 = self.y // p, self.x // p
+        r1, c1 = -(-(self.y + self.h) // p), -(-(self.x + self.w) // p)
+        if r0 >= gh or c0 >= gw:
+            raise CamcalError(f"region {self} (photo pixels) lies outside the photo ({gw * p}x{gh * p})", where)
+        return slice(r0, min(r1, gh)), slice(c0, min(c1, gw))
