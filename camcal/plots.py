@@ -399,6 +399,8 @@ def spectral_figure(spec: SpectralSensitivity, truth: dict[str, np.ndarray] | No
         for name, v in truth.items():
             ax = ax2 if name in ("G1", "G2") else ax1
             ax.plot(twl, np.asarray(v, float), ":", color=colour(name), lw=1.6, label=f"{name} truth")
+        if wl.size > 1:  # the truth may span more than the measurement (the x axis is shared by all four axes)
+            ax1.set_xlim(wl[0], wl[-1])
     unit = "rel." if spec.mode == "relative" else "DN s⁻¹ per W m⁻² sr⁻¹ nm⁻¹"
     ax1.set_title("c(λ): R, G (mean of G1, G2), B; bands ±1 σ"
                   + (", deconvolved" if spec.deconvolved else ""))

@@ -236,8 +236,10 @@ def test_response_figure_points_fit_and_residuals():
 # ---------------------------------------------------------------------------------------------
 def test_spectral_figure_rgb_greens_and_difference():
     spec = make_spectral()
-    truth = {"R": np.exp(-0.5 * ((WL_NM - 602.0) / 35.0) ** 2), "G2": spec.values["G2"]}
-    fig = spectral_figure(spec, truth=truth, truth_wavelength_nm=WL_NM)
+    truth_wl = np.arange(380.0, 781.0, 5.0)  # wider than the measurement
+    truth = {"R": np.exp(-0.5 * ((truth_wl - 602.0) / 35.0) ** 2),
+             "G2": np.exp(-0.5 * ((truth_wl - PEAK_NM["G2"]) / 35.0) ** 2)}
+    fig = spectral_figure(spec, truth=truth, truth_wavelength_nm=truth_wl)
     assert len(fig.axes) == 4
     ax1, ax2, ax3, ax4 = fig.axes
     for name in ("R", "G", "B"):
@@ -260,7 +262,10 @@ def test_spectral_figure_rgb_greens_and_difference():
                                np.hypot(spec.uncertainty["G1"], spec.uncertainty["G2"]), rtol=1e-6, atol=1e-12)
     # truth over the panel of its channel, in the channel's colour
     assert same_color(_line(ax1, "R truth").get_color(), COLOURS["R"])
-    np.testing.assert_allclose(_line(ax2, "G2 truth").get_ydata(), spec.values["G2"])
+    g2_truth = _line(ax2, "G2 truth")
+    np.testing.assert_allclose(np.interp(WL_NM, g2_truth.get_xdata(), g2_truth.get_ydata()), spec.values["G2"],
+                               atol=1e-12)
+    assert all(ax.get_xlim() == (WL_NM[0], WL_NM[-1]) for ax in fig.axes)  # the measured range
     assert "rel." in ax1.get_ylabel()
     with pytest.raises(ValueError, match="truth_wavelength_nm"):
         spectral_figure(spec, truth=truth)
