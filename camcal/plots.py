@@ -19,7 +19,8 @@ Figures, in pipeline order:
 * :func:`response_figure` — seed eq. 12, g = α·x^γ + β: measured ROI means and the fit, and the
   relative residuals;
 * :func:`spectral_figure` — c(λ) (seed §3.1) of R, G, B and of G1, G2 with their standard
-  uncertainties (optionally over a known truth).
+  uncertainties (optionally over a known truth);
+* :func:`seed_ratio_figure` — the seed §5 curves of ``camcal water simulate`` (eq. 10 beside eq. 11).
 
 Colours: :data:`COLOURS` is the one table for the planes (R, G1, G2, B) and the RGB channels
 (R, G, B); :data:`LINESTYLES` tells G2 from G1 where both are drawn.
@@ -416,4 +417,37 @@ def spectral_figure(spec: SpectralSensitivity, truth: dict[str, np.ndarray] | No
         ax.set_xlabel("wavelength λ [nm]")
     if title:
         fig.suptitle(title, fontsize=10)
+    return fig
+
+
+# ---------------------------------------------------------------------------------------------
+# water: seed §5
+# ---------------------------------------------------------------------------------------------
+def seed_ratio_figure(table: np.ndarray, name: str) -> Figure:
+    """One seed §5 curve: L_i/L_s at 663 nm, the exact eq. 10 beside the first-order eq. 11 (log axis).
+
+    Parameters
+    ----------
+    table : (n, 4) array from :func:`camcal.water.simulate.seed_section5_tables`: columns x, exact
+        ratio (eq. 10, E₃ closed form), first-order ratio (eq. 11), relative error of eq. 11.
+    name : ``"depth"`` (x in m, drawn in cm, C = 1e-7 mol/L) or ``"concentration"`` (x in mol/L, d = 20 cm).
+
+    Returns
+    -------
+    Figure
+        One axes with two lines labelled ``"exact (eq. 10, E₃ closed form)"`` and ``"first order (eq. 11)"``.
+    """
+    if name not in ("depth", "concentration"):
+        raise ValueError(f"name must be depth or concentration, got {name!r}")
+    t = np.asarray(table, float)
+    fig = new_figure(6.0, 4.0)
+    ax = fig.subplots()
+    x = t[:, 0] * (100.0 if name == "depth" else 1.0)
+    ax.semilogy(x, t[:, 1], label="exact (eq. 10, E₃ closed form)")
+    ax.semilogy(x, t[:, 2], "--", label="first order (eq. 11)")
+    ax.set_xlabel("depth (cm)" if name == "depth" else "C (mol/L)")
+    ax.set_ylabel("L_i / L_s at 663 nm")
+    ax.set_title("C = 1e-7 mol/L" if name == "depth" else "d = 20 cm")
+    ax.grid(alpha=0.3)
+    ax.legend()
     return fig

@@ -33,11 +33,13 @@ from camcal.plots import (
     flat_figure,
     png_bytes,
     response_figure,
+    seed_ratio_figure,
     spectral_figure,
     write_png,
 )
 from camcal.response import ChannelResponse, ResponseModel
 from camcal.spectral import SpectralSensitivity
+from camcal.water.simulate import seed_section5_tables
 
 ROOT = Path(__file__).resolve().parents[1]
 H, W = 40, 60  # plane pixels
@@ -305,7 +307,8 @@ def test_drawing_keeps_the_users_backend_and_never_touches_pyplot(backend):
         f"assert matplotlib.get_backend() == {backend!r}, matplotlib.get_backend()\n"
         "from tests import test_plots as T\n"
         "figs = [P.dark_figure(T.make_dark()), P.flat_figure(T.make_flat()),\n"
-        "        P.response_figure(T.make_response()[0]), P.spectral_figure(T.make_spectral())]\n"
+        "        P.response_figure(T.make_response()[0]), P.spectral_figure(T.make_spectral()),\n"
+        "        P.seed_ratio_figure(T.seed_section5_tables(points=5)['depth'], 'depth')]\n"
         "assert all(P.png_bytes(f)[:4] == b'\\x89PNG' for f in figs)\n"
         f"assert matplotlib.get_backend() == {backend!r}, matplotlib.get_backend()\n"
         "assert 'matplotlib.pyplot' not in sys.modules, 'pyplot imported'\n"
@@ -342,3 +345,17 @@ def test_no_library_module_sets_the_matplotlib_backend():
                  if re.search(r"matplotlib\.use\(|import matplotlib\.pyplot|from matplotlib import pyplot",
                               p.read_text(encoding="utf-8"))}
     assert offenders <= STILL_SETTING_THE_BACKEND, sorted(offenders - STILL_SETTING_THE_BACKEND)
+
+
+def test_seed_ratio_figure_draws_both_equations():
+    tables = seed_section5_tables(points=11)
+    for name, t in tables.items():
+        fig = seed_ratio_figure(t, name)
+        (ax,) = fig.axes
+        exact, first = _line(ax, "exact (eq. 10, E₃ closed form)"), _line(ax, "first order (eq. 11)")
+        np.testing.assert_allclose(exact.get_ydata(), t[:, 1])
+        np.testing.assert_allclose(first.get_ydata(), t[:, 2])
+        np.testing.assert_allclose(exact.get_xdata(), t[:, 0] * (100 if name == "depth" else 1))
+        assert ax.get_yscale() == "log"
+    with pytest.raises(ValueError, match="depth or concentration"):
+        seed_ratio_figure(tables["depth"], "time")
