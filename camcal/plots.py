@@ -1,7 +1,7 @@
 """Figures of a calibration: matplotlib :class:`~matplotlib.figure.Figure` objects with one colour table.
 
 Every function returns a new ``Figure`` built with ``matplotlib.figure.Figure`` directly: no pyplot
-state, no backend change (``matplotlib.use`` is never called), safe in threads and in a user's
+state, no backend change (the backend is never set), safe in threads and in a user's
 notebook. The callers decide what to do with it:
 
 * the HTML report (:mod:`camcal.report`) encodes it with :func:`png_bytes`;
