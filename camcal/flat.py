@@ -772,28 +772,25 @@ def run_flat_stage(
     flat_folder: str | Path,
     output: str | Path,
     dark=None,
-    *,
-    png: str | Path | None = None,
     **kwargs,
-) -> tuple[FlatModel, Path, Path]:
-    """The ``camcal flat`` stage: master flat, fit, ``output`` JSON + maps EXR, falloff PNG.
+) -> tuple[FlatModel, Path, MasterFlat]:
+    """The ``camcal flat`` stage: master flat, fit, ``output`` JSON + maps EXR.
 
     ``kwargs`` go to :func:`master_flat` (method, sigma, checks, jobs, progress) and
-    :func:`fit_master` (model, downsample, n_terms, degree_2d, with_prnu). ``png`` defaults to
-    ``<output stem>.falloff.png``. Returns (model, JSON path, PNG path).
+    :func:`fit_master` (model, downsample, n_terms, degree_2d, with_prnu). Returns (model, JSON path,
+    master flat); the command draws the falloff plot from the model and the master
+    (:func:`camcal.plots.flat_figure`).
     """
     output = Path(output)
     if output.suffix.lower() != ".json":
         raise CamcalError("the flat model output must be a .json file", output)
-    png = Path(png) if png is not None else output.with_name(output.stem + ".falloff.png")
     mkeys = {"method", "sigma", "checks", "jobs", "progress"}
     _check_options(kwargs.get("model", "radial"), kwargs.get("n_terms", DEFAULT_TERMS))
     dark_model = _resolve_dark(dark)
     mf = master_flat(flat_folder, dark_model, **{k: v for k, v in kwargs.items() if k in mkeys})
     fm = fit_master(mf, dark_model, **{k: v for k, v in kwargs.items() if k not in mkeys})
     path = save_flat(fm, output)
-    plot_falloff(fm, png, master=mf.value)
-    return fm, path, png
+    return fm, path, mf
 
 
 # ---------------------------------------------------------------------------------------------
@@ -858,59 +855,3 @@ def load_flat(path: str | Path) -> FlatModel:
 
     data, maps = load_stage(path, "flat")
     return flat_from_parts(data, maps, path)
-
-
-# ---------------------------------------------------------------------------------------------
-# plot
-# ---------------------------------------------------------------------------------------------
-def plot_falloff(model: FlatModel, path: str | Path, master: np.ndarray | None = None) -> Path:
-    """PNG of the fitted falloff: gain against radius per plane (and the data when given), and a map.
-
-    Parameters
-    ----------
-    model : the fitted model.
-    path : output ``.png`` (written atomically).
-    master : optional (C, h, w) master flat (any scale) to overlay as block means.
-    """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from camcal.atomic import atomic_path
-
-    colours = {"R": "tab:red", "G1": "tab:green", "G2": "darkgreen", "B": "tab:blue", "G": "tab:green"}
-    gain = model.gain()
-    geom = model.geometry
-    h, w = model.shape
-    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.5), constrained_layout=True)
-    r = np.linspace(0.0, 1.0, 200)
-    factor = auto_downsample((h, w), 48)
-    for i, c in enumerate(model.channels):
-        col = colours.get(c, None)
-        ax1.plot(r, radial_gain(r**2, model.k[c]), color=col, label=f"{c} (corner {model.corner_gain()[c]:.3f})")
-        if master is not None:
-            block, bx, by = block_mean(np.asarray(master[i], float), factor)
-            cx, cy = model.centre_px[c]
-            rr = np.sqrt(geom.r2(c, bx, by, cx, cy)).ravel()
-            # the master is on any scale: divide by its level at the optical centre
-            scale = float(np.nanmedian(np.asarray(master[i], float) / np.maximum(gain[i], 1e-6)))
-            ax1.plot(rr, block.ravel() / scale, ".", ms=2, color=col, alpha=0.35)
-    ax1.set_xlabel("r (distance from optical centre / distance to farthest corner)")
-    ax1.set_ylabel("relative illumination g (1 at optical centre)")
-    ax1.set_title("Fitted vignetting (DNG radial model)")
-    ax1.grid(alpha=0.3)
-    ax1.legend(fontsize=8)
-    gi = 1 if len(model.channels) > 1 else 0
-    im = ax2.imshow(gain[gi], origin="upper", cmap="viridis")
-    for c in model.channels:
-        cx, cy = model.centre_px[c]
-        ax2.plot(cx, cy, "+", color=colours.get(c, "w"), ms=10)
-    ax2.set_title(f"gain, plane {model.channels[gi]} ({model.kind} model); + optical centres")
-    ax2.set_xlabel("x (plane px)")
-    ax2.set_ylabel("y (plane px)")
-    fig.colorbar(im, ax=ax2, shrink=0.8)
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
-    return Path(path)

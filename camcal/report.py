@@ -1,8 +1,9 @@
 """The calibration report: one self-contained HTML page for a :class:`camcal.profile.CalibrationProfile`.
 
-The page has no external resources: CSS is inline and every plot is a PNG rendered by matplotlib's
-Agg backend and embedded as a ``data:image/png;base64`` URI, so it can be mailed, archived next to
-the profile, or opened offline. Sections, in pipeline order:
+The page has no external resources: CSS is inline and every plot is a figure of :mod:`camcal.plots`
+encoded as PNG (matplotlib's Agg renderer, no pyplot, no backend change) and embedded as a
+``data:image/png;base64`` URI, so it can be mailed, archived next to the profile, or opened offline.
+Sections, in pipeline order:
 
 * **Dark current** (seed eq. 12, β term; EMVA 1288 §8): histogram of the per-pixel dark current
   β (DN s^-1 at the dark frames' ISO) per CFA plane with the hot pixels drawn separately, and a map
@@ -27,7 +28,6 @@ from __future__ import annotations
 
 import base64
 import html
-import io
 import json
 import math
 from collections import Counter
@@ -35,25 +35,12 @@ from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from camcal import __version__
 from camcal.atomic import atomic_write_text
 from camcal.errors import CamcalError
 from camcal.frame import PLANES
+from camcal.plots import dark_figure, flat_figure, png_bytes, response_figure, spectral_figure
 from camcal.spectral import describe_origin
-
-COLOURS = {"R": "#d62728", "G": "#2ca02c", "G1": "#2ca02c", "G2": "#17632a", "B": "#1f77b4"}
-"""Plot colour per channel."""
-
-HOT_COLOUR = "#ff7f0e"
-"""Colour of hot pixels in the dark plots."""
-
-DPI = 100
-"""Resolution of the embedded PNGs (dots per inch of the matplotlib figure size)."""
-
-MAX_MAP_PX = 600
-"""Maps wider or taller than this (plane pixels) are block-averaged for display."""
 
 STAGE_TITLES = {"dark": "Dark current", "flat": "Vignetting (flat field)", "response": "Response curves",
                 "spectral_sensitivity": "Spectral sensitivity c(λ)"}
@@ -118,37 +105,10 @@ def _channel_rows(spec: Sequence[tuple[str, str, dict | None]], channels: Sequen
     return [[name, unit, *((vals or {}).get(c) for c in channels)] for name, unit, vals in spec]
 
 
-def _figure_png(fig) -> bytes:
-    """PNG bytes of a matplotlib figure (no timestamp metadata, so the output is reproducible)."""
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=DPI, metadata={"Software": None})
-    return buf.getvalue()
-
-
 def _img(png: bytes, alt: str, caption: str) -> str:
     data = base64.b64encode(png).decode("ascii")
     return (f'<figure><img src="data:image/png;base64,{data}" alt="{_esc(alt)}">'
             f"<figcaption>{caption}</figcaption></figure>")
-
-
-def _new_figure(width_in: float, height_in: float):
-    """A matplotlib Figure on the Agg canvas (no pyplot state, thread-safe, no display needed)."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(width_in, height_in), layout="constrained")
-    FigureCanvasAgg(fig)
-    return fig
-
-
-def _display_map(a: np.ndarray) -> tuple[np.ndarray, int]:
-    """Block-mean ``a`` (2-D) down to at most :data:`MAX_MAP_PX` per side; returns (map, factor)."""
-    h, w = a.shape
-    f = max(1, math.ceil(max(h, w) / MAX_MAP_PX))
-    if f == 1:
-        return a, 1
-    hh, ww = h // f, w // f
-    return np.nanmean(a[: hh * f, : ww * f].reshape(hh, f, ww, f), axis=(1, 3)), f
 
 
 _SESSION_FOLDER = {"dark": "bias/ and dark/", "flat": "flat/", "response": "linearity/",
@@ -160,257 +120,6 @@ def _missing(key: str) -> str:
             f'<p class="missing">not calibrated: this profile has no {_esc(STAGE_TITLES[key].lower())} stage. '
             f"<code>camcal calibrate</code> adds it when the session has {_esc(_SESSION_FOLDER[key])} "
             f"folder{'s' if key == 'dark' else ''}.</p></section>")
-
-
-# ---------------------------------------------------------------------------------------------
-# plots
-# ---------------------------------------------------------------------------------------------
-def _dark_bins(normal: np.ndarray, everything: np.ndarray) -> tuple[np.ndarray, float | None]:
-    """Histogram bins for β: linear over the bulk of the pixels, logarithmic out to the hottest pixel.
-
-    Returns (bin edges, symlog linear threshold or None when one linear scale suffices). The bulk is
-    the 0.05–99.95 percentile range of the non-hot pixels; hot pixels are often 10–1000 × the median.
-    """
-    lo_b, hi_b = (np.percentile(normal, [0.05, 99.95]) if normal.size else (0.0, 1.0))
-    lo = float(min(lo_b, everything.min())) if everything.size else float(lo_b)
-    hi = float(everything.max()) if everything.size else float(hi_b)
-    span = max(float(hi_b - lo_b), 1e-12)
-    lo_edge = min(lo, float(lo_b) - 0.1 * span)
-    lin_hi = float(hi_b) + 0.1 * span
-    thresh = max(abs(lin_hi), abs(lo_edge), 1e-12)
-    if hi <= 3.0 * thresh:
-        return np.linspace(lo_edge, max(hi, lin_hi), 120), None
-    linear = np.linspace(lo_edge, thresh, 100)
-    # logarithmic bins whose first width matches the linear ones (no jump in counts per bin at the joint)
-    ratio = 1.0 + (linear[1] - linear[0]) / thresh
-    n_log = int(min(400, max(10, math.ceil(math.log(hi * 1.001 / thresh) / math.log(ratio)))))
-    logpart = np.geomspace(thresh, hi * 1.001, n_log + 1)[1:]
-    return np.concatenate([linear, logpart]), thresh
-
-
-def plot_dark(dark) -> bytes:
-    """Histogram of β per plane (hot pixels separately) and a β map with hot pixels circled; PNG bytes.
-
-    Parameters
-    ----------
-    dark : camcal.dark.DarkModel
-        β = ``dark_current_dn_per_s`` (4, h, w) in DN s^-1; hot pixels are bit 1 of ``defects``.
-    """
-    from matplotlib.colors import Normalize
-
-    from camcal.dark import HOT
-
-    beta = np.asarray(dark.dark_current_dn_per_s, np.float64)
-    hot = (np.asarray(dark.defects) & HOT) != 0
-    fig = _new_figure(11.0, 4.4)
-    ax1, ax2 = fig.subplots(1, 2, width_ratios=[1.05, 1.0])
-    finite = beta[np.isfinite(beta)]
-    normal = beta[np.isfinite(beta) & ~hot]
-    bins, linthresh = _dark_bins(normal if normal.size else finite, finite)
-    styles = {"R": "-", "G1": "-", "G2": "--", "B": "-."}
-    for i, name in enumerate(PLANES[: beta.shape[0]]):
-        vals = beta[i][np.isfinite(beta[i]) & ~hot[i]]
-        counts, _ = np.histogram(vals, bins=bins)
-        ax1.stairs(np.where(counts > 0, counts, np.nan), bins, lw=1.3, ls=styles.get(name, "-"),
-                   color=COLOURS.get(name, "k"), label=f"{name} (median {np.median(vals):.3g})" if vals.size else name)
-    hot_vals = beta[hot & np.isfinite(beta)]
-    if hot_vals.size:
-        counts, _ = np.histogram(hot_vals, bins=bins)
-        ax1.stairs(counts, bins, fill=True, color=HOT_COLOUR, alpha=0.85,
-                   label=f"hot pixels ({hot_vals.size}, all planes)")
-        # a rug along the bottom: a handful of hot pixels in narrow bins would be hard to see
-        ax1.plot(hot_vals, np.full(hot_vals.size, 0.04), "|", ms=14, mew=1.2, color=HOT_COLOUR,
-                 transform=ax1.get_xaxis_transform())
-    if linthresh is not None:
-        ax1.set_xscale("symlog", linthresh=linthresh, linscale=2.0)
-        ax1.axvline(linthresh, color="0.6", lw=0.8, ls=":")
-    ax1.set_yscale("log")
-    ax1.set_xlabel(f"dark current β [DN/s at ISO {dark.iso:g}]")
-    ax1.set_ylabel("pixels per bin")
-    ax1.set_title("β per pixel and plane")
-    ax1.grid(alpha=0.3)
-    ax1.legend(fontsize=8)
-    mean_map = np.nanmean(beta, axis=0)
-    shown, factor = _display_map(mean_map)
-    good = mean_map[np.isfinite(mean_map) & ~hot.any(axis=0)]
-    vmin, vmax = np.percentile(good, [1, 99]) if good.size else (0.0, 1.0)
-    im = ax2.imshow(shown, cmap="magma", norm=Normalize(float(vmin), float(max(vmax, vmin + 1e-9))),
-                    interpolation="nearest", extent=(-0.5, mean_map.shape[1] - 0.5, mean_map.shape[0] - 0.5, -0.5))
-    _, ys, xs = np.nonzero(hot)
-    if xs.size:
-        size = 42 if xs.size <= 100 else 12 if xs.size <= 1000 else 3
-        ax2.scatter(xs, ys, s=size, facecolors="none", edgecolors="#00e5ff", linewidths=1.0 if size > 3 else 0.6,
-                    label=f"hot pixel ({xs.size})")
-        ax2.legend(fontsize=8, loc="upper right")
-    ax2.set_title("β map, mean of the planes" + (f" ({factor}×{factor} blocks)" if factor > 1 else "")
-                  + ", colours 1–99 %")
-    ax2.set_xlabel("x [plane px]")
-    ax2.set_ylabel("y [plane px]")
-    fig.colorbar(im, ax=ax2, shrink=0.85, label="β [DN/s]")
-    return _figure_png(fig)
-
-
-def plot_flat(flat) -> bytes:
-    """Relative illumination against radius per plane and a gain map with optical centres; PNG bytes.
-
-    Parameters
-    ----------
-    flat : camcal.flat.FlatModel
-        The radial model g(r) = 1 + Σ k_i r^(2i+2) (r normalised to the farthest corner) is drawn
-        as a curve; with a 2-D model the binned median of the active gain map is drawn instead.
-    """
-    from camcal.flat import radial_gain
-
-    gain = flat.gain()
-    geom = flat.geometry
-    h, w = flat.shape
-    stride = max(1, math.ceil(math.sqrt(h * w / 4000)))  # ~4000 samples per plane for the cloud
-    yy, xx = np.mgrid[0:h:stride, 0:w:stride].astype(np.float64)
-    fig = _new_figure(11.0, 4.4)
-    ax1, ax2 = fig.subplots(1, 2, width_ratios=[1.05, 1.0])
-    r_grid = np.linspace(0.0, 1.0, 200)
-    corner = flat.corner_gain()
-    for i, name in enumerate(flat.channels):
-        col = COLOURS.get(name, "k")
-        cx, cy = flat.centre_px[name]
-        r = np.sqrt(geom.r2(name, xx, yy, cx, cy)).ravel()
-        g = gain[i, ::stride, ::stride].ravel()
-        # a cloud of the active model over the plane (subsampled), then its curve
-        ax1.plot(r, g, ".", ms=1.5, color=col, alpha=0.15)
-        if flat.kind == "radial":
-            ax1.plot(r_grid, radial_gain(r_grid**2, flat.k[name]), color=col, lw=1.6,
-                     label=f"{name} (corner {corner[name]:.3f})")
-        else:
-            edges = np.linspace(0.0, max(float(r.max()), 1e-9), 41)
-            idx = np.clip(np.digitize(r, edges) - 1, 0, 39)
-            med = np.array([np.median(g[idx == k]) if np.any(idx == k) else np.nan for k in range(40)])
-            ax1.plot(0.5 * (edges[1:] + edges[:-1]), med, color=col, lw=1.6,
-                     label=f"{name} (corner {corner[name]:.3f})")
-    ax1.set_xlabel("r (distance from optical centre / distance to farthest corner)")
-    ax1.set_ylabel("relative illumination g (1 at optical centre)")
-    ax1.set_title(f"vignetting, {flat.kind} model")
-    ax1.grid(alpha=0.3)
-    ax1.legend(fontsize=8)
-    gi = flat.channels.index("G1") if "G1" in flat.channels else (1 if len(flat.channels) > 1 else 0)
-    shown, factor = _display_map(gain[gi].astype(np.float64))
-    im = ax2.imshow(shown, cmap="viridis", interpolation="nearest", extent=(-0.5, w - 0.5, h - 0.5, -0.5))
-    for name in flat.channels:
-        cx, cy = flat.centre_px[name]
-        ax2.plot(cx, cy, "+", color=COLOURS.get(name, "w"), ms=12, mew=1.6, label=f"centre {name}")
-    ax2.legend(fontsize=7, loc="lower right")
-    ax2.set_title(f"gain map, plane {flat.channels[gi]}; + optical centres")
-    ax2.set_xlabel("x [plane px]")
-    ax2.set_ylabel("y [plane px]")
-    fig.colorbar(im, ax=ax2, shrink=0.85, label="g")
-    return _figure_png(fig)
-
-
-def plot_response(model) -> bytes:
-    """Measured points and the eq. 12 fit per channel (log–log), and relative residuals; PNG bytes.
-
-    Parameters
-    ----------
-    model : camcal.response.ResponseModel
-        ``points[ch]`` holds ``x_s`` (relative exposure, s at the reference setting), ``mean_dn`` and
-        ``used``; the fit is ``g = α x^γ + β`` (seed eq. 12).
-    """
-    fig = _new_figure(11.0, 4.6)
-    ax1, ax2 = fig.subplots(1, 2, width_ratios=[1.15, 1.0])
-    any_points = False
-    fitted_residuals: list[np.ndarray] = []
-    for name, ch in model.channels.items():
-        col = COLOURS.get(name, "k")
-        pts = model.points.get(name) or {}
-        x = np.asarray(pts.get("x_s", []), float)
-        g = np.asarray(pts.get("mean_dn", []), float)
-        used = np.asarray(pts.get("used", [True] * len(x)), bool)
-        if not len(x):
-            continue
-        any_points = True
-        ok = x > 0
-        xx = np.geomspace(x[ok].min(), x[ok].max(), 200) if ok.any() else x
-        label = f"{name}: γ={ch.gamma:.4f}, β={ch.beta:.4g} DN"
-        ax1.plot(xx * 1e3, ch.predict(xx), "-", color=col, lw=1.2, alpha=0.8, label=label)
-        ax1.plot(x[used] * 1e3, g[used], "o", color=col, ms=4)
-        ax1.plot(x[~used] * 1e3, g[~used], "o", mfc="none", color=col, ms=6)
-        pred = ch.predict(x)
-        signal = pred - ch.beta
-        rel = 100.0 * (g - pred) / np.where(np.abs(signal) > 0, signal, np.nan)
-        ax2.plot(x[used] * 1e3, rel[used], "o-", color=col, ms=3, lw=0.8, label=name)
-        fitted_residuals.append(rel[used])
-        ax2.plot(x[~used] * 1e3, rel[~used], "o", mfc="none", color=col, ms=5)
-        ax1.axhline(ch.saturation_dn, color=col, ls=":", lw=0.8)
-    if any_points:
-        ax1.set_xscale("log")
-        ax1.set_yscale("log")
-        ax2.set_xscale("log")
-    ax1.plot([], [], "o", mfc="none", color="0.4", label="excluded (saturated/compressed)")
-    ax1.set_xlabel(f"relative exposure x [ms at ISO {model.reference_iso:g}, f/{model.reference_f_number:g}]")
-    ax1.set_ylabel("ROI mean g [DN]")
-    ax1.set_title(f"{model.kind}: data and fit g = α·x^γ + β (dotted: saturation)")
-    ax1.grid(alpha=0.3, which="both")
-    ax1.legend(fontsize=7, loc="upper left")
-    ax2.axhline(0.0, color="0.5", lw=0.8)
-    finite = np.concatenate(fitted_residuals) if fitted_residuals else np.array([])
-    finite = finite[np.isfinite(finite)]
-    lim = max(1.0, 1.3 * float(np.max(np.abs(finite)))) if finite.size else 1.0
-    ax2.set_ylim(-lim, lim)
-    ax2.set_xlabel("relative exposure x [ms]")
-    ax2.set_ylabel("residual [% of g − β]")
-    ax2.set_title("residuals (hollow: excluded, may be off scale)")
-    ax2.grid(alpha=0.3, which="both")
-    ax2.legend(fontsize=8)
-    return _figure_png(fig)
-
-
-def plot_spectral(spec) -> bytes:
-    """c(λ) for R, G, B with ±1 σ bands and G1 against G2, each above its uncertainty panel; PNG bytes.
-
-    Parameters
-    ----------
-    spec : camcal.spectral.SpectralSensitivity
-        Values and standard uncertainties per plane (seed §3.1); G is the mean of G1 and G2 and
-        u(G) = ½·√(u(G1)² + u(G2)²).
-
-    Notes
-    -----
-    Typical uncertainties are below 1 % of the peak, too thin to see as bands at full scale, so the
-    lower panels show u(λ) itself (left) and G2 − G1 with its ±1 σ band (right: the greens agree where
-    the band covers 0).
-    """
-    wl = np.asarray(spec.wavelength_nm, float)
-    rgb, unc = spec.rgb(), spec.rgb_uncertainty()
-    fig = _new_figure(11.0, 5.8)
-    (ax1, ax2), (ax3, ax4) = fig.subplots(2, 2, sharex=True, height_ratios=[2.6, 1.0])
-    for name in ("R", "G", "B"):
-        v, u = np.asarray(rgb[name], float), np.asarray(unc[name], float)
-        ax1.fill_between(wl, v - u, v + u, color=COLOURS[name], alpha=0.3, lw=0)
-        ax1.plot(wl, v, "-", color=COLOURS[name], lw=1.4, marker=".", ms=3, label=name)
-        ax3.plot(wl, u, "-", color=COLOURS[name], lw=1.2, label=f"u({name})")
-    # linear RAW has one green plane: the lower-right comparison of the two greens is then empty (G − G)
-    gk1, gk2 = ("G1", "G2") if "G1" in spec.values else ("G", "G")
-    g1, g2 = np.asarray(spec.values[gk1], float), np.asarray(spec.values[gk2], float)
-    u1, u2 = np.asarray(spec.uncertainty[gk1], float), np.asarray(spec.uncertainty[gk2], float)
-    for name, v, u in (("G1", g1, u1), ("G2", g2, u2)):
-        ax2.fill_between(wl, v - u, v + u, color=COLOURS[name], alpha=0.3, lw=0)
-        ax2.plot(wl, v, "-" if name == "G1" else "--", color=COLOURS[name], lw=1.3, label=name)
-    diff, u_diff = g2 - g1, np.hypot(u1, u2)
-    ax4.fill_between(wl, diff - u_diff, diff + u_diff, color=COLOURS["G2"], alpha=0.3, lw=0, label="±1 σ")
-    ax4.plot(wl, diff, "-", color=COLOURS["G2"], lw=1.2, label="G2 − G1")
-    ax4.axhline(0.0, color="0.5", lw=0.8)
-    unit = "rel." if spec.mode == "relative" else "DN s⁻¹ per W m⁻² sr⁻¹ nm⁻¹"
-    ax1.set_title("c(λ): R, G (mean of G1, G2), B; bands ±1 σ")
-    ax2.set_title("the two green planes G1, G2 (±1 σ)")
-    ax1.set_ylabel(f"c(λ) [{unit}]", fontsize=8)
-    ax2.set_ylabel(f"c(λ) [{unit}]", fontsize=8)
-    ax3.set_ylabel("u(λ)", fontsize=8)
-    ax4.set_ylabel("G2 − G1", fontsize=8)
-    for ax in (ax1, ax2, ax3, ax4):
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=7, ncols=3 if ax in (ax3, ax4) else 1)
-    for ax in (ax3, ax4):
-        ax.set_xlabel("wavelength λ [nm]")
-    return _figure_png(fig)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -435,7 +144,7 @@ def _dark_section(profile, c: dict) -> str:
     sub = (f'<p class="sub">ISO {_num(d["iso"])}, '
            f"{'temperature ' + _num(t) + ' °C' if t is not None else 'temperature unknown'}; "
            f"dark exposures {_num(list(profile.dark.exposure_times_s))} s.</p>")
-    fig = _img(plot_dark(profile.dark), "dark current histogram and map",
+    fig = _img(png_bytes(dark_figure(profile.dark)), "dark current histogram and map",
                "Left: histogram of β per plane (log counts; the β axis is linear up to the dotted line and "
                "logarithmic beyond it), hot pixels in orange. Right: β map, hot pixels circled. "
                "β is the slope of the dark signal with exposure time (seed eq. 12, β term).")
@@ -450,7 +159,7 @@ def _flat_section(profile, c: dict) -> str:
     centre = [[ch, x, y] for ch, (x, y) in f["centre_full_px"].items()]
     k = [[ch, *vals] for ch, vals in profile.flat.k.items()]
     nk = max((len(v) for v in profile.flat.k.values()), default=0)
-    fig = _img(plot_flat(profile.flat), "vignetting: gain against radius and gain map",
+    fig = _img(png_bytes(flat_figure(profile.flat)), "vignetting: gain against radius and gain map",
                "Left: relative illumination g against normalised radius per plane (curves: the fitted model; "
                "dots: the model over the plane). Right: gain map with the optical centres.")
     return (f'<section id="flat"><h2>{STAGE_TITLES["flat"]}</h2>'
@@ -472,7 +181,7 @@ def _response_section(profile, c: dict) -> str:
         model = profile.response[kind]
         label = "RAW" if kind == "raw" else "JPEG / processed" if kind == "processed" else kind
         parts.append(f"<h3>{_esc(label)}</h3>")
-        parts.append(_img(plot_response(model), f"response curves {kind}",
+        parts.append(_img(png_bytes(response_figure(model)), f"response curves {kind}",
                           "Left: ROI means (filled: used by the fit; hollow: excluded) and the fit. "
                           "Right: residuals relative to g − β."))
         rows = []
@@ -513,7 +222,7 @@ def _spectral_section(profile, c: dict) -> str:
             + _table(["λ [nm]", *_RGB, "u(R)", "u(G)", "u(B)"], rows) + "</details>")
     band = "unknown" if spec.bandwidth_nm is None else f"{spec.bandwidth_nm:g} nm"
     notes = "".join(f"<li>{_esc(n)}</li>" for n in spec.notes)
-    fig = _img(plot_spectral(spec), "spectral sensitivity with uncertainty bands",
+    fig = _img(png_bytes(spectral_figure(spec)), "spectral sensitivity with uncertainty bands",
                "Left: c(λ) of R, G (mean of G1 and G2) and B with ±1 standard-uncertainty bands, and below "
                "the standard uncertainty u(λ). Right: the two green planes, and their difference with its "
                "±1 σ band.")

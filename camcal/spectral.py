@@ -842,36 +842,3 @@ def spectral_from_dict(d: dict[str, Any]) -> SpectralSensitivity:
         )
     except (KeyError, TypeError, ValueError) as exc:
         raise CamcalError(f"malformed spectral sensitivity ({type(exc).__name__}: {exc})") from None
-
-
-# ---- plot -------------------------------------------------------------------------------------
-def plot_sensitivity(s: SpectralSensitivity, path: str | Path, *, title: str | None = None,
-                     truth: dict[str, np.ndarray] | None = None, truth_wavelength_nm: np.ndarray | None = None) -> Path:
-    """PNG of c(λ) per plane with ±2u bands (and an optional truth overlay), written atomically."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from camcal.atomic import atomic_path
-
-    colours = {"R": "tab:red", "G1": "tab:green", "G2": "olive", "B": "tab:blue"}
-    fig, ax = plt.subplots(figsize=(8, 4.5), dpi=110)
-    for p in PLANES:
-        v, u = s.values[p], s.uncertainty[p]
-        ax.plot(s.wavelength_nm, v, "--" if p == "G2" else "-o", ms=2.5, color=colours[p], label=p)
-        ax.fill_between(s.wavelength_nm, v - 2 * u, v + 2 * u, color=colours[p], alpha=0.2, lw=0)
-    if truth is not None and truth_wavelength_nm is not None:
-        for k, v in truth.items():
-            ax.plot(truth_wavelength_nm, v, "--", color="k", lw=0.8, label=f"truth {k}")
-    ax.set_xlabel("wavelength (nm)")
-    ax.set_ylabel("c(λ) relative" if s.mode == "relative" else "c(λ) (DN s⁻¹ per W m⁻² sr⁻¹)")
-    ax.set_title(title or f"spectral sensitivity ({s.mode}{', deconvolved' if s.deconvolved else ''})")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, ncol=2)
-    fig.tight_layout()
-    path = Path(path)
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png")
-    plt.close(fig)
-    return path

@@ -132,3 +132,13 @@ def test_real_pi_photos_through_apply_with_a_synthetic_pi_profile(tmp_path):
             red = r.raw_image_visible[1::2, 1::2]  # BGGR: R at (1, 1)
             unsaturated = float(np.mean(red < 1023))
         assert np.isfinite(channels["R"]).mean() == pytest.approx(unsaturated, abs=0.01), p.name
+
+
+def test_linear_profile_report_and_show(linear_session, tmp_path):
+    _, _, _, path = linear_session
+    proc = run_cli("report", path, "-o", tmp_path / "r.html")
+    assert proc.returncode == 0, proc.stderr
+    html = (tmp_path / "r.html").read_text()
+    assert html.count("data:image/png;base64,") >= 4
+    shown = run_cli("profile", "show", path)
+    assert shown.returncode == 0 and "linear RAW 192x128" in shown.stdout

@@ -227,3 +227,22 @@ def test_report_cli_errors(tmp_path, dark_only_profile):
     assert_one_line_error(run_cli("report", bad, "-o", tmp_path / "r.html"), "truncated.camcal")
     assert not (tmp_path / "r.html").exists()
     assert_one_line_error(run_cli("report", dark_only_profile, "-o", tmp_path), "is a folder")
+
+
+def test_bias_only_profile_shows_the_bias(camera, tmp_path):
+    """A bias-only calibration has no dark current (β unknown): the dark figure shows the bias instead."""
+    session = write_session(tmp_path / "S", camera, SessionPlan(stages=("bias",), n_bias=4))
+    prof = tmp_path / "bias.camcal"
+    proc = run_cli("calibrate", session, "-o", prof)
+    assert proc.returncode == 0, proc.stderr
+    assert load_profile(prof).dark.dark_current_dn_per_s is None
+    out = tmp_path / "bias.html"
+    proc = run_cli("report", prof, "-o", out)
+    assert proc.returncode == 0, proc.stderr
+    page = out.read_text(encoding="utf-8")
+    _assert_self_contained(page)
+    (png,) = _images(page)
+    im = Image.open(io.BytesIO(png))
+    im.load()
+    assert im.format == "PNG" and im.width >= 800
+    assert _n_colours(np.asarray(im.convert("RGB"))) > 200

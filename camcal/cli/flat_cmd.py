@@ -32,6 +32,7 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Fit a per-channel vignetting model (DNG radial, optical centre free) and PRNU from flat fields."""
         from camcal.flat import run_flat_stage
+        from camcal.plots import flat_figure, write_png  # local like the stage import: start-up of `camcal`
 
         with progress() as bar:
             task = bar.add_task("flat frames", total=None)
@@ -39,10 +40,12 @@ def register(app: typer.Typer) -> None:
             def tick(done: int, total: int) -> None:
                 bar.update(task, completed=done, total=total)
 
-            fm, path, png_path = run_flat_stage(
-                folder, output, dark, png=png, model=model, downsample=downsample, n_terms=terms, degree_2d=degree,
+            fm, path, master = run_flat_stage(
+                folder, output, dark, model=model, downsample=downsample, n_terms=terms, degree_2d=degree,
                 with_prnu=not no_prnu, method=method, sigma=sigma, jobs=jobs, progress=tick,
             )
+        png_path = write_png(flat_figure(fm, master=master.value),
+                             png if png is not None else output.with_name(output.stem + ".falloff.png"))
         summary = fm.summary()
         if as_json:
             print_json({**summary, "output": str(path), "png": str(png_path)})

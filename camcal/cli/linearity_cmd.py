@@ -27,7 +27,8 @@ def register(app: typer.Typer) -> None:
         as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON instead of a table."),
     ) -> None:
         """Fit g = α·x^γ + β (seed eq. 12) per channel; report linear range, saturation, EMVA 1288 LE, Pearson r."""
-        from camcal.response import fit_response, load_dark_model, plot_response, save_response
+        from camcal.plots import response_figure, write_png  # local like the stage import: start-up of `camcal`
+        from camcal.response import fit_response, load_dark_model, save_response
         from camcal.store import to_jsonable
 
         dark_model = load_dark_model(dark) if dark is not None else None
@@ -43,7 +44,7 @@ def register(app: typer.Typer) -> None:
         plots = []
         if plot:
             for kind, model in models.items():
-                plots.append(str(plot_response(model, out.with_name(f"{out.stem}.{kind}.png"))))
+                plots.append(str(write_png(response_figure(model), out.with_name(f"{out.stem}.{kind}.png"))))
         if as_json:
             print_json(to_jsonable(
                 {"output": str(out), "plots": plots, "models": {k: m.summary() for k, m in models.items()}}

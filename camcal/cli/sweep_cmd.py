@@ -46,7 +46,8 @@ def register(app: typer.Typer) -> None:
         as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
     ) -> None:
         """Measure c(λ) for R, G1, G2, B and write a SPECTACLE CSV and a PNG plot."""
-        from camcal.spectral import measure_sweep, plot_sensitivity, read_sweep
+        from camcal.plots import spectral_figure, write_png  # local like the stage import: start-up of `camcal`
+        from camcal.spectral import measure_sweep, read_sweep
         from camcal.spectral_files import write_spectacle_csv
 
         if output.suffix.lower() != ".csv":
@@ -66,7 +67,7 @@ def register(app: typer.Typer) -> None:
             err_console.print(f"camcal: warning: {msg}", soft_wrap=True, markup=False, highlight=False)
         write_spectacle_csv(result, output)
         png_path = png or output.with_suffix(".png")
-        plot_sensitivity(result, png_path)
+        write_png(spectral_figure(result), png_path)
         summary = result.summary()
         if as_json:
             print_json({**summary, "output": str(output), "png": str(png_path)})
