@@ -22,6 +22,7 @@ import numpy as np
 
 from camcal.errors import CamcalError
 from camcal.frame import PLANES, Exposure, Frame, pattern_from_rawpy, plane_offsets
+from camcal.limits import DEFAULT_MAX_PIXELS, max_pixels  # noqa: F401 (re-exported: camcal.io.max_pixels)
 from camcal.manifest import FRAMES_CSV, exposure_overrides, read_manifest
 
 RAW_EXTENSIONS = {
@@ -30,17 +31,6 @@ RAW_EXTENSIONS = {
 }
 PROCESSED_EXTENSIONS = {".jpg", ".jpeg", ".tif", ".tiff", ".png"}
 IMAGE_EXTENSIONS = RAW_EXTENSIONS | PROCESSED_EXTENSIONS
-
-DEFAULT_MAX_PIXELS = 250_000_000
-
-
-def max_pixels() -> int:
-    """Largest image (in pixels) camcal will allocate; ``CAMCAL_MAX_PIXELS`` overrides."""
-    try:
-        return int(os.environ.get("CAMCAL_MAX_PIXELS", DEFAULT_MAX_PIXELS))
-    except ValueError:
-        return DEFAULT_MAX_PIXELS
-
 
 def _check_pixels(path: Path, width: int, height: int) -> None:
     if width <= 0 or height <= 0:

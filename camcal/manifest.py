@@ -18,6 +18,7 @@ import math
 from pathlib import Path
 
 from camcal.errors import CamcalError
+from camcal.limits import MAX_MANIFEST_BYTES
 
 FRAMES_CSV = "frames.csv"
 
@@ -49,8 +50,6 @@ PLAUSIBLE_RANGE: dict[str, tuple[float, float]] = {
 }
 #: Smallest non-zero value accepted in any numeric column (below it, products and ratios underflow).
 TINY = 1e-30
-
-MAX_MANIFEST_BYTES = 16 * 1024 * 1024
 
 
 def safe_member(folder: str | Path, name: str, manifest: str | Path | None = None) -> Path:

@@ -12,7 +12,8 @@ from camcal.errors import CamcalError
 def written(tmp_path, rng):
     maps = {"dark.bias.R": rng.random((16, 24), dtype=np.float32), "flat.gain.B": rng.random((16, 24),
                                                                                             dtype=np.float32)}
-    doc = {"schema_version": "1.0", "camera": {"make": "camcal"}, "x": [1.5, 2.5]}
+    doc = {"schema_version": "1.0", "camera": {"make": "camcal", "width": 48, "height": 32},
+           "maps": {"dark": ["dark.bias.R"], "flat": ["flat.gain.B"]}, "x": [1.5, 2.5]}
     return write_container(tmp_path / "p.camcal", doc, maps), doc, maps
 
 
