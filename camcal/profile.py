@@ -12,6 +12,7 @@ documented in ``docs/profile-format.md``.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import math
 from dataclasses import dataclass, field
@@ -165,9 +166,16 @@ def profile_to_document(profile: CalibrationProfile) -> tuple[dict, dict[str, np
     return doc, maps
 
 
+@functools.lru_cache(maxsize=1)
 def _schema() -> dict:
+    """The JSON Schema of major version 1 (strict inside every section: see its ``$comment``)."""
     text = resources.files("camcal").joinpath("schemas/profile-1.schema.json").read_text(encoding="utf-8")
     return json.loads(text)
+
+
+def _minor(version: str) -> int:
+    """The minor number of a ``MAJOR.MINOR`` version (validated by the schema's pattern)."""
+    return int(version.split(".")[1])
 
 
 def check_version(doc: dict, where: str | Path) -> None:
@@ -190,12 +198,20 @@ def validate_document(doc: dict, where: str | Path) -> None:
 
     check_version(doc, where)
     validator = jsonschema.Draft202012Validator(_schema())
-    errors = sorted(validator.iter_errors(doc), key=lambda e: list(e.absolute_path))
+    errors = sorted(validator.iter_errors(doc), key=lambda e: [str(p) for p in e.absolute_path])
     if errors:
         err = errors[0]
-        loc = "/".join(str(p) for p in err.absolute_path) or "(top level)"
-        raise CamcalError(f"profile does not follow the schema at {loc}: {' '.join(err.message.split())[:160]}",
-                          where)
+        loc = "/".join(str(p) for p in err.absolute_path)
+        if err.validator == "additionalProperties" and isinstance(err.instance, dict):
+            known = set(err.schema.get("properties", {}))
+            unknown = sorted(str(k) for k in err.instance if k not in known)
+            keys = ", ".join(f"{loc + '/' if loc else ''}{k}" for k in unknown[:3])
+            why = (f"schema {doc['schema_version']} is newer than this camcal {__version__} reads ({SCHEMA_VERSION}); "
+                   "use a newer camcal" if _minor(doc["schema_version"]) > _minor(SCHEMA_VERSION) else
+                   f"schema {doc['schema_version']} has only the keys of docs/profile-format.md")
+            raise CamcalError(f"profile has unknown key{'s' if len(unknown) > 1 else ''} {keys} ({why})", where)
+        raise CamcalError(f"profile does not follow the schema at {loc or '(top level)'}: "
+                          f"{' '.join(err.message.split())[:160]}", where)
     spec = doc.get("spectral_sensitivity")
     if spec:
         n = len(spec["wavelength_nm"])
