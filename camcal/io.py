@@ -22,7 +22,7 @@ import numpy as np
 
 from camcal.errors import CamcalError
 from camcal.frame import PLANES, Exposure, Frame, pattern_from_rawpy, plane_offsets
-from camcal.limits import DEFAULT_MAX_PIXELS, max_pixels  # noqa: F401 (re-exported: camcal.io.max_pixels)
+from camcal.limits import DEFAULT_MAX_PIXELS, check_pixel_density, max_pixels  # noqa: F401 (re-exported)
 from camcal.manifest import FRAMES_CSV, exposure_overrides, read_manifest
 
 RAW_EXTENSIONS = {
@@ -32,6 +32,7 @@ RAW_EXTENSIONS = {
 PROCESSED_EXTENSIONS = {".jpg", ".jpeg", ".tif", ".tiff", ".png"}
 IMAGE_EXTENSIONS = RAW_EXTENSIONS | PROCESSED_EXTENSIONS
 
+
 def _check_pixels(path: Path, width: int, height: int) -> None:
     if width <= 0 or height <= 0:
         raise CamcalError(f"declares an empty image ({width}x{height})", path)
@@ -40,6 +41,7 @@ def _check_pixels(path: Path, width: int, height: int) -> None:
             f"declares {width}x{height} pixels, above the limit of {max_pixels()} (set CAMCAL_MAX_PIXELS to raise it)",
             path,
         )
+    check_pixel_density(path, width * height)
 
 
 def _clean(value) -> float | None:

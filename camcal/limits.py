@@ -30,6 +30,9 @@ MiB = 1024 * 1024
 # ---- images (RAW, JPEG/TIFF/PNG, OpenEXR) --------------------------------------------------------------------
 #: Largest image, in pixels, camcal allocates (RAW mosaic, processed image, EXR); ``CAMCAL_MAX_PIXELS`` overrides.
 DEFAULT_MAX_PIXELS = 250_000_000
+#: RAW/JPEG/TIFF/PNG: most declared pixels per byte of file (a constant 8-bit PNG or JPEG reaches about
+#: 1000; a 2 kB JPEG whose header claims 12000x12000 would otherwise cost 0.9 GB before it fails).
+MAX_PIXELS_PER_FILE_BYTE = 4096
 #: OpenEXR: most channels in one file (a profile's maps.exr has 28; radiance EXRs a few dozen at most).
 MAX_EXR_CHANNELS = 256
 #: OpenEXR: most decoded samples (pixels x channels) per allowed pixel: a profile's maps are 7 full-resolution
@@ -48,8 +51,15 @@ MAX_STAGE_JSON_BYTES = 16 * MiB
 MAX_JSON_DEPTH = 64
 
 # ---- text files (manifests, CSVs) ----------------------------------------------------------------------------
-#: frames.csv, sweep.csv, chlorophyll and spectral-sensitivity CSVs (read with a bounded read).
-MAX_MANIFEST_BYTES = 16 * MiB
+#: frames.csv, sweep.csv, chlorophyll and spectral-sensitivity CSVs (read with a bounded read; real ones:
+#: under 1 MB). 4 MiB of one-character cells still parse in under 300 MB.
+MAX_MANIFEST_BYTES = 4 * MiB
+#: Lines of any text file camcal reads (counted on the bytes, before the text is split).
+MAX_TEXT_LINES = 100_000
+#: Longest line of a CSV (counted on the bytes, before the CSV parser sees it).
+MAX_TEXT_LINE_BYTES = 64 * 1024
+#: Most columns of a manifest (real ones: 4 to 8).
+MAX_CSV_COLUMNS = 64
 
 # ---- the profile container (ZIP) ------------------------------------------------------------------------------
 #: Members a profile may have (profile.json and maps.exr); counted from the end record, before the
@@ -201,3 +211,39 @@ def maps_size_bound(doc: dict) -> tuple[int, str]:
     if n == 0:
         return 0, "no maps listed"
     return int(raw * MAPS_SIZE_FACTOR) + MAPS_SIZE_SLACK_BYTES, f"{n} maps of a {w}x{h} sensor"
+
+
+# ---- images ----------------------------------------------------------------------------------------------------
+def check_pixel_density(path: str | Path, pixels: int) -> None:
+    """Refuse an image header declaring more than :data:`MAX_PIXELS_PER_FILE_BYTE` pixels per byte of file."""
+    try:
+        size = Path(path).stat().st_size
+    except OSError:
+        return  # the decoder reports the unreadable file
+    if pixels > MAX_PIXELS_PER_FILE_BYTE * max(size, 1):
+        raise CamcalError(f"declares {pixels} pixels in a file of {human_bytes(size)}, more than "
+                          f"{MAX_PIXELS_PER_FILE_BYTE} per byte (a damaged or hostile header); refused", path)
+
+
+# ---- text --------------------------------------------------------------------------------------------------------
+_LINE_BREAKS = np.zeros(256, bool)
+_LINE_BREAKS[[0x0A, 0x0B, 0x0C, 0x0D, 0x1C, 0x1D, 0x1E]] = True  # what str.splitlines splits on (ASCII part)
+
+
+def check_text_shape(raw: bytes, where: str | Path, what: str, max_lines: int | None = MAX_TEXT_LINES,
+                     max_line_bytes: int | None = MAX_TEXT_LINE_BYTES) -> None:
+    """Refuse text with more than ``max_lines`` lines or a line longer than ``max_line_bytes``, before it is
+    split or parsed (numpy over the bytes: the line list of 4 MiB of newlines would take 250 MB)."""
+    if max_lines is None and max_line_bytes is None:
+        return
+    brk = _LINE_BREAKS[np.frombuffer(raw, np.uint8)]
+    n = int(np.count_nonzero(brk)) - raw.count(b"\r\n") + sum(raw.count(u) for u in (b"\xc2\x85", b"\xe2\x80\xa8",
+                                                                                   b"\xe2\x80\xa9"))
+    if max_lines is not None and n > max_lines:
+        raise CamcalError(f"{what} has {n} lines, above the limit of {max_lines}; refused", where)
+    if max_line_bytes is not None:
+        ends = np.concatenate(([-1], np.flatnonzero(brk), [len(raw)]))
+        longest = int(np.max(np.diff(ends))) - 1 if len(ends) > 1 else len(raw)
+        if longest > max_line_bytes:
+            raise CamcalError(f"{what} has a line of {human_bytes(longest)}, above the limit of "
+                              f"{human_bytes(max_line_bytes)}; refused", where)

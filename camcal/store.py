@@ -75,7 +75,7 @@ def load_stage(path: str | Path, kind: str) -> tuple[dict, dict[str, np.ndarray]
     from camcal.manifest import read_text_file
 
     path = Path(path)
-    text = read_text_file(path, f"{kind} file", MAX_STAGE_JSON_BYTES)  # limits: camcal.limits
+    text = read_text_file(path, f"{kind} file", MAX_STAGE_JSON_BYTES, max_line_bytes=None)  # camcal.limits
     check_json_depth(text.encode("utf-8"), path, f"{kind} file")
     try:
         doc = json.loads(text)

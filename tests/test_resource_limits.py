@@ -1,0 +1,497 @@
+"""Resource attacks: hostile files that are small on disk but declare huge sizes (issue 19).
+
+Each case builds its hostile input in a temporary folder (a few MB at most; the 3 GiB bomb is 3 MB of
+deflate), runs the real CLI in a subprocess and measures that process alone (``os.wait4``): the run
+must end with exit code 2 (a listed failure, exit 1, for a photo of ``apply``) and one line naming the
+file and the limit broken, within :data:`MAX_PEAK_MB` of peak resident memory and :data:`MAX_CPU_S`
+of CPU time (user + system: unlike wall time it does not depend on what else the machine runs).
+Before the fix, the bomb profile took 6.3 GB and 28-42 s, the deep profile ended in a RecursionError
+(exit 3), and a 2 kB JPEG claiming 12000x12000 pixels took 0.93 GB.
+
+The child runs under an address-space limit (:data:`ADDRESS_SPACE_LIMIT`), so that a regression
+fails the test (MemoryError, exit 3) instead of exhausting the machine.
+
+``test_apply_batch_memory_does_not_grow`` checks bounded memory over a long ``apply`` batch: the
+peak RSS of one process applying a profile to 8 and to 64 small synthetic photos is the same within
+:data:`BATCH_GROWTH_MB`, and below :data:`BATCH_PEAK_MB`.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import resource
+import shutil
+import struct
+import subprocess
+import sys
+import time
+import zipfile
+import zlib
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+from test_bad_inputs import Base, build_base, exr_window_patch, jpeg_sof_patch, tiff_patch
+
+from camcal.container import JSON_MEMBER, MAPS_MEMBER, content_hash
+from camcal.limits import (
+    MAX_CSV_COLUMNS,
+    MAX_JSON_DEPTH,
+    MAX_PROFILE_JSON_BYTES,
+    MAX_STAGE_JSON_BYTES,
+    MAX_TEXT_LINE_BYTES,
+    MAX_TEXT_LINES,
+    json_nesting_depth,
+)
+
+MAX_PEAK_MB = 300.0
+MAX_CPU_S = 2.0
+ADDRESS_SPACE_LIMIT = 3 * 1024**3
+MiB = 1 << 20
+ROOT = Path(__file__).resolve().parents[1]
+
+
+# --------------------------------------------------------------------------------------------------------------
+# measuring one CLI run
+
+
+@dataclass
+class Run:
+    code: int
+    stdout: str
+    stderr: str
+    peak_mb: float
+    cpu_s: float
+    wall_s: float
+
+    @property
+    def lines(self) -> list[str]:
+        return [ln for ln in self.stderr.splitlines() if ln.strip()]
+
+
+def _limit_address_space() -> None:  # runs in the child before exec
+    resource.setrlimit(resource.RLIMIT_AS, (ADDRESS_SPACE_LIMIT, ADDRESS_SPACE_LIMIT))
+
+
+def run_measured(argv: list, env: dict[str, str] | None = None, timeout_s: float = 120.0) -> Run:
+    """Run ``python -m camcal argv`` and measure the child alone: peak RSS (MB) and CPU time (s) from wait4."""
+    out_path, err_path = (Path(os.environ.get("TMPDIR", "/tmp")) / f"camcal-rl-{os.getpid()}-{k}" for k in "oe")
+    t0 = time.perf_counter()
+    with open(out_path, "w+b") as out, open(err_path, "w+b") as err:
+        proc = subprocess.Popen([sys.executable, "-m", "camcal", *map(str, argv)], stdout=out, stderr=err,
+                                cwd=ROOT, env={**os.environ, **(env or {})}, preexec_fn=_limit_address_space)
+        while True:
+            pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
+            if pid:
+                break
+            if time.perf_counter() - t0 > timeout_s:
+                proc.kill()
+                pid, status, usage = os.wait4(proc.pid, 0)
+                break
+            time.sleep(0.01)
+        proc.returncode = os.waitstatus_to_exitcode(status)  # reaped here: Popen must not wait again
+        out.seek(0)
+        err.seek(0)
+        stdout, stderr = out.read().decode(errors="replace"), err.read().decode(errors="replace")
+    out_path.unlink()
+    err_path.unlink()
+    return Run(proc.returncode, stdout, stderr, usage.ru_maxrss / 1024.0, usage.ru_utime + usage.ru_stime,
+               time.perf_counter() - t0)
+
+
+# --------------------------------------------------------------------------------------------------------------
+# building hostile ZIP members without ever holding their expanded size
+
+
+def deflated_zeros(n_mib: int) -> tuple[bytes, int, int]:
+    """Raw deflate of ``n_mib`` MiB of zeros, its CRC-32 and size, built in ~n_mib KB of memory.
+
+    A full flush resets the compressor, so the deflate of every further MiB of zeros is the same
+    1037 bytes: the 3 GiB bomb is 3.2 MB, made in half a second.
+    """
+    comp = zlib.compressobj(9, zlib.DEFLATED, -15)
+    block = comp.compress(bytes(MiB)) + comp.flush(zlib.Z_FULL_FLUSH)
+    crc, zeros = 0, bytes(MiB)
+    for _ in range(n_mib):
+        crc = zlib.crc32(zeros, crc)
+    return block * n_mib + comp.flush(zlib.Z_FINISH), crc, n_mib * MiB
+
+
+def deflated(data: bytes) -> bytes:
+    comp = zlib.compressobj(9, zlib.DEFLATED, -15)
+    return comp.compress(data) + comp.flush()
+
+
+def raw_zip(members: list[tuple[str, int, bytes, int, int]], declared_entries: int | None = None) -> bytes:
+    """A ZIP from already-compressed members ``(name, method, data, crc32, declared size)``.
+
+    ``declared_entries`` overrides the entry count of the end record (a lie about the directory).
+    """
+    out, central = bytearray(), bytearray()
+    for name, method, data, crc, size in members:
+        nb = name.encode()
+        offset = len(out)
+        out += struct.pack("<IHHHHHIIIHH", 0x04034B50, 20, 0, method, 0, 0x21, crc, len(data), size, len(nb), 0)
+        out += nb + data
+        central += struct.pack("<IHHHHHHIIIHHHHHII", 0x02014B50, 20, 20, 0, method, 0, 0x21, crc, len(data), size,
+                               len(nb), 0, 0, 0, 0, 0, offset) + nb
+    n = len(members) if declared_entries is None else declared_entries
+    cd_offset = len(out)
+    out += central + struct.pack("<IHHHHIIH", 0x06054B50, 0, 0, n, n, len(central), cd_offset, 0)
+    return bytes(out)
+
+
+def json_member(doc: dict | bytes, stored: bool = False) -> tuple[str, int, bytes, int, int]:
+    raw = doc if isinstance(doc, bytes) else json.dumps(doc).encode()
+    return JSON_MEMBER, 0 if stored else 8, raw if stored else deflated(raw), zlib.crc32(raw), len(raw)
+
+
+def profile_parts(b: Base) -> tuple[dict, bytes]:
+    with zipfile.ZipFile(io.BytesIO(b.files["profile"])) as zf:
+        return json.loads(zf.read(JSON_MEMBER)), zf.read(MAPS_MEMBER)
+
+
+def rehashed(doc: dict) -> dict:
+    doc = json.loads(json.dumps(doc))
+    doc["integrity"]["content_sha256"] = content_hash(doc)
+    return doc
+
+
+def deep(n: int, opener: bytes = b"[", closer: bytes = b"]", leaf: bytes = b"0") -> bytes:
+    return opener * n + leaf + closer * n
+
+
+# --------------------------------------------------------------------------------------------------------------
+# the cases: each builds a hostile input in ws and returns (argv, the file the error must name, env)
+
+
+@dataclass(frozen=True)
+class Attack:
+    family: str
+    name: str
+    build: Callable[[Path, Base], tuple[list, Path]]
+    fragment: str  # a piece of the limit's message
+    code: int = 2
+    env: dict[str, str] | None = None
+
+
+def _profile_file(ws: Path, data: bytes, name: str = "hostile.camcal") -> Path:
+    p = ws / name
+    p.write_bytes(data)
+    return p
+
+
+def _show(data_fn: Callable[[Base], bytes]) -> Callable[[Path, Base], tuple[list, Path]]:
+    def build(ws: Path, b: Base):
+        p = _profile_file(ws, data_fn(b))
+        return ["profile", "show", "--json", p], p
+    return build
+
+
+def _apply_with(data_fn: Callable[[Base], bytes]) -> Callable[[Path, Base], tuple[list, Path]]:
+    def build(ws: Path, b: Base):
+        p = _profile_file(ws, data_fn(b))
+        photo = ws / "photos" / "a.dng"
+        photo.parent.mkdir()
+        photo.write_bytes(b.files["dng"])
+        return ["apply", p, photo, "-o", ws / "out", "-j", "1"], p
+    return build
+
+
+def _bomb_3gib(b: Base) -> bytes:
+    doc, _ = profile_parts(b)
+    data, crc, size = deflated_zeros(3072)
+    return raw_zip([json_member(doc), (MAPS_MEMBER, 8, data, crc, size)])
+
+
+def _bomb_lying_size(b: Base) -> bytes:
+    """Declares the real maps' size but its deflate stream expands to 1 GiB: zipfile stops at the declared
+    size, the CRC (of the real maps) then fails."""
+    doc, maps = profile_parts(b)
+    data, _, _ = deflated_zeros(1024)
+    return raw_zip([json_member(doc), (MAPS_MEMBER, 8, data, zlib.crc32(maps), len(maps))])
+
+
+def _bomb_matching_size(b: Base) -> bytes:
+    """A bomb that stays under the sensor bound (1 MiB of zeros, hash re-signed): streamed, then refused by the
+    EXR reader (not an EXR) without ever holding the member in memory."""
+    doc, _ = profile_parts(b)
+    data, crc, size = deflated_zeros(1)
+    import hashlib
+
+    doc["integrity"]["maps_sha256"] = hashlib.sha256(bytes(size)).hexdigest()
+    return raw_zip([json_member(rehashed(doc)), (MAPS_MEMBER, 8, data, crc, size)])
+
+
+def _json_bomb(b: Base) -> bytes:
+    spaces = zlib.compressobj(9, zlib.DEFLATED, -15)
+    block = spaces.compress(b" " * MiB) + spaces.flush(zlib.Z_FULL_FLUSH)
+    n = 1024
+    crc, chunk = 0, b" " * MiB
+    for _ in range(n):
+        crc = zlib.crc32(chunk, crc)
+    return raw_zip([(JSON_MEMBER, 8, block * n + spaces.flush(zlib.Z_FINISH), crc, n * MiB)])
+
+
+def _json_wide(b: Base) -> bytes:
+    """Under every size limit: a stored profile.json of 7 MiB holding one array of 3.7 million zeros."""
+    n = (7 * MiB) // 2
+    return raw_zip([json_member(b"[" + b"0," * (n - 1) + b"0]", stored=True)])
+
+
+def _many_members(n: int, lie: bool = False) -> Callable[[Base], bytes]:
+    def make(b: Base) -> bytes:
+        members = [json_member(profile_parts(b)[0])] + [(f"m{i:06d}", 0, b"", 0, 0) for i in range(n)]
+        return raw_zip(members, declared_entries=2 if lie else None)
+    return make
+
+
+def _deep_profile_json(opener: bytes, closer: bytes, leaf: bytes = b"0", inside: bool = False):
+    def make(b: Base) -> bytes:
+        if not inside:
+            return raw_zip([json_member(deep(200_000, opener, closer, leaf), stored=True)])
+        doc, maps = profile_parts(b)
+        doc["dark"]["summary"]["note"] = "@@DEEP@@"
+        text = json.dumps(rehashed(doc)).encode().replace(b'"@@DEEP@@"', deep(200_000, opener, closer, leaf))
+        return raw_zip([json_member(text, stored=True), (MAPS_MEMBER, 0, maps, zlib.crc32(maps), len(maps))])
+    return make
+
+
+def _image(suffix: str, make: Callable[[Base], bytes], command: str = "inspect"):
+    def build(ws: Path, b: Base):
+        p = ws / f"hostile{suffix}"
+        p.write_bytes(make(b))
+        if command == "apply":
+            return ["apply", b.profile, p, "-o", ws / "out", "-j", "1"], p
+        return ["inspect", "--json", p], p
+    return build
+
+
+def _dng_dims(w: int, h: int) -> Callable[[Base], bytes]:
+    return lambda b: tiff_patch(tiff_patch(tiff_patch(b.files["dng"], 256, w), 257, h), 278, h)
+
+
+def _exr_water(make: Callable[[Base, Path], bytes]):
+    def build(ws: Path, b: Base):
+        sub, ref = ws / "hostile.exr", ws / "ref.exr"
+        sub.write_bytes(make(b, ws))
+        ref.write_bytes(b.files["water_ref"])
+        return ["water", "invert", "--submerged", sub, "--reference", ref, "--depth", "20cm", "-o",
+                ws / "out" / "chl.exr"], sub
+    return build
+
+
+def _exr_channels(n: int, shape: tuple[int, int] = (4, 4)):
+    def make(b: Base, ws: Path) -> bytes:
+        from camcal.exr import write_exr
+
+        chans = {f"c{i:03d}": np.zeros(shape, np.float32) for i in range(n)}
+        return write_exr(ws / "many.exr", chans).read_bytes()
+    return make
+
+
+def _exr_uncompressed(xmax: int, ymax: int):
+    def make(b: Base, ws: Path) -> bytes:
+        from camcal.exr import write_exr
+
+        img = np.full((32, 48), 0.5, np.float32)
+        data = write_exr(ws / "none.exr", {"L663": img, "R": img}, compression="none").read_bytes()
+        return exr_window_patch(data, xmax, ymax)
+    return make
+
+
+def _frames_csv(text: Callable[[str], bytes]):
+    def build(ws: Path, b: Base):
+        d = ws / "dark"
+        shutil.copytree(b.session / "dark", d)
+        csv = d / "frames.csv"
+        csv.write_bytes(text(csv.read_text()))
+        return ["dark", d, "--bias", b.session / "bias", "-o", ws / "out" / "dark.json", "-j", "1"], csv
+    return build
+
+
+def _dense_cells(t: str) -> bytes:
+    """Under the size, line and column limits: 4 MiB of two-character cells, 64 per line."""
+    header = "file," + ",".join(f"c{i}" for i in range(MAX_CSV_COLUMNS - 1)) + "\n"
+    row = ",".join(["ab"] * MAX_CSV_COLUMNS) + "\n"
+    return (header + row * ((4 * MiB - len(header) - 10) // len(row))).encode()
+
+
+def _chl_csv(text: bytes):
+    def build(ws: Path, b: Base):
+        csv = ws / "chl.csv"
+        csv.write_bytes(text)
+        sub, ref = ws / "sub.exr", ws / "ref.exr"
+        sub.write_bytes(b.files["water_sub"])
+        ref.write_bytes(b.files["water_ref"])
+        return ["water", "invert", "--submerged", sub, "--reference", ref, "--depth", "20cm", "--profile", b.profile,
+                "--chlorophyll-csv", csv, "-o", ws / "out" / "chl.exr"], csv
+    return build
+
+
+def _stage_json(edit: Callable[[Path], None]):
+    def build(ws: Path, b: Base):
+        m = ws / "models"
+        m.mkdir()
+        dj = m / "dark.json"
+        shutil.copy(b.dark_json, dj)
+        shutil.copy(b.dark_json.with_name("dark.maps.exr"), m / "dark.maps.exr")
+        edit(dj)
+        return ["linearity", b.session / "linearity", "--dark", dj, "-o", ws / "out" / "r.json", "--no-plot"], dj
+    return build
+
+
+def _sparse(size: int) -> Callable[[Path], None]:
+    def edit(p: Path) -> None:
+        with open(p, "r+b") as fh:
+            fh.truncate(size)  # a hole: nothing on disk
+    return edit
+
+
+ATTACKS: tuple[Attack, ...] = (
+    # decompression bombs in profile members
+    Attack("zip bomb", "maps-3GiB-of-zeros-show", _show(_bomb_3gib), "maps.exr declares 3.0 GiB"),
+    Attack("zip bomb", "maps-3GiB-of-zeros-apply", _apply_with(_bomb_3gib), "maps.exr declares 3.0 GiB"),
+    Attack("zip bomb", "maps-1GiB-declared-small", _show(_bomb_lying_size), "corrupted"),
+    Attack("zip bomb", "maps-1MiB-zeros-rehashed", _show(_bomb_matching_size), "maps.exr"),
+    Attack("zip bomb", "json-1GiB-of-spaces", _show(_json_bomb), "profile.json declares 1.0 GiB"),
+    Attack("zip bomb", "json-7MiB-of-zeros-stored", _show(_json_wide), "no integrity record"),
+    # many tiny members, or a directory that lies about their number
+    Attack("many members", "60000-empty-members", _show(_many_members(60_000)), "declares 60001 members"),
+    Attack("many members", "directory-of-20000-declared-2", _show(_many_members(20_000, lie=True)),
+           "ZIP directory declares"),
+    # deep nesting
+    Attack("deep nesting", "profile-json-200000-arrays", _show(_deep_profile_json(b"[", b"]")),
+           "nested 200000 levels deep"),
+    Attack("deep nesting", "profile-json-200000-objects", _show(_deep_profile_json(b'{"a":', b"}")),
+           "nested 200000 levels deep"),
+    Attack("deep nesting", "profile-json-deep-inside-valid-doc", _show(_deep_profile_json(b"[", b"]", inside=True)),
+           "levels deep"),
+    Attack("deep nesting", "profile-json-deep-apply", _apply_with(_deep_profile_json(b"[", b"]")), "levels deep"),
+    Attack("deep nesting", "stage-json-200000-arrays", _stage_json(
+        lambda p: p.write_bytes(p.read_bytes().replace(b'"kind"', deep(200_000) + b', "kind"', 1))),
+        "levels deep"),
+    Attack("oversized file", "stage-json-sparse-20MiB", _stage_json(_sparse(MAX_STAGE_JSON_BYTES + 4 * MiB)),
+           "larger than 16 MiB"),
+    # oversized declared dimensions
+    Attack("declared dimensions", "jpeg-12000x12000-in-2kB", _image(".jpg", lambda b: jpeg_sof_patch(
+        b.files["jpeg"], 12000, 12000)), "per byte"),
+    Attack("declared dimensions", "jpeg-12000x12000-apply", _image(".jpg", lambda b: jpeg_sof_patch(
+        b.files["jpeg"], 12000, 12000), "apply"), "per byte", code=1),
+    Attack("declared dimensions", "tiff-12000x12000-in-25kB", _image(".tif", lambda b: tiff_patch(tiff_patch(
+        b.files["tiff"], 256, 12000), 257, 12000)), "per byte"),
+    Attack("declared dimensions", "dng-12000x12000-in-13kB", _image(".dng", _dng_dims(12000, 12000)), "per byte"),
+    Attack("declared dimensions", "dng-60000x60000", _image(".dng", _dng_dims(60000, 60000)), "above the limit"),
+    Attack("declared dimensions", "exr-3000x3000-window-in-5kB", _exr_water(
+        lambda b, ws: exr_window_patch(b.files["water_sub"], 2999, 2999)), "more than 4096:1"),
+    Attack("declared dimensions", "exr-15000x15000-window", _exr_water(
+        lambda b, ws: exr_window_patch(b.files["water_sub"], 14999, 14999)), "hostile.exr"),
+    Attack("declared dimensions", "exr-uncompressed-1000x1000-in-7kB", _exr_water(_exr_uncompressed(999, 999)),
+           "truncated"),
+    Attack("declared dimensions", "exr-300-channels", _exr_water(_exr_channels(300)), "300 channels"),
+    Attack("declared dimensions", "exr-samples-over-limit", _exr_water(_exr_channels(64, (100, 100))),
+           "samples", env={"CAMCAL_MAX_PIXELS": "50000"}),
+    # huge CSV lines, many lines, many columns
+    Attack("huge csv", "frames-csv-one-3MiB-line", _frames_csv(lambda t: t.encode() + b"x" * (3 * MiB) + b"\n"),
+           "has a line of 3.0 MiB"),
+    Attack("huge csv", "frames-csv-3MiB-of-cells-one-line", _frames_csv(
+        lambda t: t.encode() + b"a," * (3 * MiB // 2) + b"\n"), "has a line of"),
+    Attack("huge csv", "frames-csv-2M-lines", _frames_csv(lambda t: t.encode() + b"\n" * (2 * MiB)),
+           f"above the limit of {MAX_TEXT_LINES}"),
+    Attack("huge csv", "frames-csv-1000-columns", _frames_csv(
+        lambda t: t.replace("\n", "," + ",".join(f"x{i}" for i in range(1000)) + "\n", 1).encode()),
+        "1005 columns"),
+    Attack("huge csv", "frames-csv-4MiB-of-short-cells", _frames_csv(_dense_cells), "frames.csv"),
+    Attack("huge csv", "chlorophyll-csv-one-1MiB-line", _chl_csv(b"wavelength_nm,A_m2_per_mg\n" + b"9" * MiB + b"\n"),
+           "has a line of 1.0 MiB"),
+)
+
+
+@pytest.fixture(scope="module")
+def base(tmp_path_factory) -> Base:
+    return build_base(tmp_path_factory.mktemp("resource-base"))
+
+
+@pytest.mark.parametrize("attack", ATTACKS, ids=[f"{a.family}:{a.name}" for a in ATTACKS])
+def test_resource_attack(attack: Attack, base: Base, tmp_path: Path):
+    argv, hostile = attack.build(tmp_path, base)
+    on_disk = sum(p.stat().st_blocks * 512 for p in tmp_path.rglob("*") if p.is_file())
+    assert on_disk < 32 * MiB, f"the hostile input should be small on disk ({on_disk} B)"
+    run = run_measured(argv, attack.env)
+    assert "Traceback" not in run.stderr, run.stderr
+    assert run.code == attack.code, (run.code, run.stderr)
+    assert len(run.lines) == 1, run.stderr
+    assert run.lines[0].startswith("camcal: error: " if attack.code == 2 else "camcal: failed: "), run.lines[0]
+    assert hostile.name in run.lines[0] and attack.fragment in run.lines[0], run.lines[0]
+    assert run.peak_mb < MAX_PEAK_MB, f"peak RSS {run.peak_mb:.0f} MB"
+    assert run.cpu_s < MAX_CPU_S, f"CPU {run.cpu_s:.2f} s"
+    if attack.code == 2:
+        out = tmp_path / "out"
+        assert not out.exists() or not [p for p in out.rglob("*") if p.is_file()]
+
+
+def test_the_issue_cases_one_line_each(base: Base, tmp_path: Path):
+    """The two cases of the issue, as a user meets them: ``camcal profile show`` on the 3 MB bomb profile and
+    on the profile nested 200 000 levels deep: refused in one line, exit 2, < 2 s CPU and < 300 MB."""
+    bomb = _profile_file(tmp_path, _bomb_3gib(base), "bomb.camcal")
+    assert bomb.stat().st_size < 4 * MiB
+    nested = _profile_file(tmp_path, _deep_profile_json(b"[", b"]")(base), "nested.camcal")
+    for path, fragment in ((bomb, "3.0 GiB"), (nested, "200000 levels deep")):
+        run = run_measured(["profile", "show", path])
+        assert run.code == 2 and len(run.lines) == 1 and path.name in run.lines[0] and fragment in run.lines[0], \
+            run.stderr
+        assert run.peak_mb < 300 and run.cpu_s < 2.0, (run.peak_mb, run.cpu_s)
+
+
+def test_valid_inputs_pass_the_limits(base: Base, tmp_path: Path):
+    """The limits refuse nothing camcal writes: the corpus base profile loads; its depth is far below the limit."""
+    doc, _ = profile_parts(base)
+    assert json_nesting_depth(json.dumps(doc).encode()) < MAX_JSON_DEPTH // 4
+    run = run_measured(["profile", "show", "--json", base.profile])
+    assert run.code == 0, run.stderr
+    assert len(json.dumps(doc)) < MAX_PROFILE_JSON_BYTES // 50
+    lines = (base.session / "sweep" / "sweep.csv").read_bytes().splitlines()
+    assert max(map(len, lines)) < MAX_TEXT_LINE_BYTES
+
+
+@pytest.mark.parametrize("text,depth", [(b"[]", 1), (b"{}", 1), (b'{"a": [1, {"b": []}]}', 4), (b"0", 0),
+                                        (b'["[[[[", "\\"[[["]', 1), (b'{"k\\\\": [[]]}', 3), (b"[[[", 3),
+                                        (b'"unterminated [[[[', 4)])
+def test_json_nesting_depth(text, depth):
+    """Brackets inside strings (with escaped quotes and backslashes) do not count; malformed text still gives a
+    number (the parser refuses it afterwards)."""
+    assert json_nesting_depth(text) == depth
+    assert json_nesting_depth(text, block=2) == depth  # the same across block boundaries
+
+
+# --------------------------------------------------------------------------------------------------------------
+# bounded memory over a long apply batch
+
+BATCH_PEAK_MB = 400.0
+BATCH_GROWTH_MB = 25.0
+
+
+def test_apply_batch_memory_does_not_grow(base: Base, tmp_path: Path):
+    """One ``camcal apply`` process over 8 and over 64 synthetic photos (96x64 DNG, one worker): the peak RSS
+    of the longer batch is within :data:`BATCH_GROWTH_MB` of the shorter one, and below :data:`BATCH_PEAK_MB`.
+
+    A leak of one photo's EXR channels (96x64 float32 x ~10 channels, 0.25 MB) per photo would add 14 MB over
+    the 56 extra photos, and one of the decoded frames and corrections (~1 MB per photo) would add 56 MB: the
+    margin catches the second kind and any larger one.
+    """
+    peaks = {}
+    for n in (8, 64):
+        photos = tmp_path / f"photos{n}"
+        photos.mkdir()
+        for i in range(n):
+            (photos / f"p{i:03d}.dng").write_bytes(base.files["dng"])
+        run = run_measured(["apply", base.profile, photos, "-o", tmp_path / f"out{n}", "-j", "1"], timeout_s=600)
+        assert run.code == 0, run.stderr
+        assert len(list((tmp_path / f"out{n}").glob("*.exr"))) == n
+        peaks[n] = run.peak_mb
+    assert peaks[64] < BATCH_PEAK_MB, peaks
+    assert peaks[64] - peaks[8] < BATCH_GROWTH_MB, peaks
