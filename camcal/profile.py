@@ -173,9 +173,10 @@ def _schema() -> dict:
     return json.loads(text)
 
 
-def _minor(version: str) -> int:
-    """The minor number of a ``MAJOR.MINOR`` version (validated by the schema's pattern)."""
-    return int(version.split(".")[1])
+def _minor(version: object) -> int:
+    """The minor number of a ``MAJOR.MINOR`` version; -1 when it has none."""
+    parts = str(version).split(".")
+    return int(parts[1]) if len(parts) == 2 and parts[1].isdigit() else -1
 
 
 def check_version(doc: dict, where: str | Path) -> None:
@@ -202,13 +203,18 @@ def validate_document(doc: dict, where: str | Path) -> None:
     if errors:
         err = errors[0]
         loc = "/".join(str(p) for p in err.absolute_path)
+        unknown: list[str] = []
         if err.validator == "additionalProperties" and isinstance(err.instance, dict):
             known = set(err.schema.get("properties", {}))
             unknown = sorted(str(k) for k in err.instance if k not in known)
+        elif "propertyNames" in err.schema_path:  # a per-channel object with a key that is not a channel
+            unknown = [str(err.instance)]
+        if unknown:
             keys = ", ".join(f"{loc + '/' if loc else ''}{k}" for k in unknown[:3])
-            why = (f"schema {doc['schema_version']} is newer than this camcal {__version__} reads ({SCHEMA_VERSION}); "
-                   "use a newer camcal" if _minor(doc["schema_version"]) > _minor(SCHEMA_VERSION) else
-                   f"schema {doc['schema_version']} has only the keys of docs/profile-format.md")
+            version = doc.get("schema_version")
+            why = (f"schema {version} is newer than this camcal {__version__} reads ({SCHEMA_VERSION}); "
+                   "use a newer camcal" if _minor(version) > _minor(SCHEMA_VERSION) else
+                   f"schema {version} has only the keys of docs/profile-format.md")
             raise CamcalError(f"profile has unknown key{'s' if len(unknown) > 1 else ''} {keys} ({why})", where)
         raise CamcalError(f"profile does not follow the schema at {loc or '(top level)'}: "
                           f"{' '.join(err.message.split())[:160]}", where)
