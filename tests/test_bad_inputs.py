@@ -511,10 +511,12 @@ def profile_cases() -> list[Case]:
                          ("text-cell", [[1, 0, 0], [0, "x", 0], [0, 0, 1]])):
         add("wrong type", f"colour-matrix-{label}", lambda b, v=value: _rezip(
             _set_path(_profile_parts(b)[0], cm_path, v), _profile_parts(b)[1]))
-    for where in ((), ("camera",), ("dark",), ("reference",)):
+    for where in ((), ("camera",), ("dark",), ("reference",), ("dark", "channels", "R"), ("flat",),
+                  ("flat", "k"), ("response", "raw"), ("response", "raw", "channels", "G1"),
+                  ("response", "processed", "tone", "channels", "G", "srgb"), ("spectral_sensitivity",),
+                  ("spectral_sensitivity", "values"), ("provenance",), ("integrity",)):
         add("extra key", f"extra-in-{'.'.join(where) or 'top'}", lambda b, w=where: _rezip(
-            _set_path(_profile_parts(b)[0], (*w, "surprise"), 1), _profile_parts(b)[1]),
-            ERROR if where == () else EITHER)  # schema 1.x: unknown keys refused at the top level only
+            _set_path(_profile_parts(b)[0], (*w, "surprise"), 1), _profile_parts(b)[1]))  # strict at every level
     return cases
 
 
