@@ -179,8 +179,8 @@ def _check_declared_size(path: Path, spec, max_samples: int | None) -> None:
         raise CamcalError(f"EXR declares {human_bytes(declared)} of uncompressed pixels but the file holds "
                           f"{human_bytes(size)} (truncated)", path)
     if declared > MAX_EXR_EXPANSION * size:
-        raise CamcalError(f"EXR declares {human_bytes(declared)} of pixels in a file of {human_bytes(size)}, more "
-                          f"than {MAX_EXR_EXPANSION}:1; refused", path)
+        raise CamcalError(f"EXR declares {human_bytes(declared)} of pixel data in a file of {human_bytes(size)}, "
+                          f"more than {MAX_EXR_EXPANSION}:1 (a damaged or hostile header); refused", path)
 
 
 def _deinterleave(data: np.ndarray, index: list[int], rows: int = 8) -> np.ndarray:

@@ -30,17 +30,18 @@ MiB = 1024 * 1024
 # ---- images (RAW, JPEG/TIFF/PNG, OpenEXR) --------------------------------------------------------------------
 #: Largest image, in pixels, camcal allocates (RAW mosaic, processed image, EXR); ``CAMCAL_MAX_PIXELS`` overrides.
 DEFAULT_MAX_PIXELS = 250_000_000
-#: RAW/JPEG/TIFF/PNG: most declared pixels per byte of file (a constant 8-bit PNG or JPEG reaches about
-#: 1000; a 2 kB JPEG whose header claims 12000x12000 would otherwise cost 0.9 GB before it fails).
-MAX_PIXELS_PER_FILE_BYTE = 4096
+#: Every image (RAW, JPEG, TIFF, PNG, EXR): most bytes its header declares (pixels x channels x bits per
+#: sample / 8, as stored) per byte of file. zlib's best is about 1030:1, a lossless-JPEG RAW stores at least
+#: one bit per pixel, a constant JPEG about 1 bit per 3 pixels: 4096 is above every real file, and a 2 kB
+#: JPEG whose header claims 12000x12000 pixels (0.93 GB before it failed to decode) is refused from its header.
+MAX_IMAGE_EXPANSION = 4096
 #: OpenEXR: most channels in one file (a profile's maps.exr has 28; radiance EXRs a few dozen at most).
 MAX_EXR_CHANNELS = 256
 #: OpenEXR: most decoded samples (pixels x channels) per allowed pixel: a profile's maps are 7 full-resolution
 #: equivalents (28 channels at a quarter of the pixels).
 EXR_SAMPLES_PER_PIXEL = 8
-#: OpenEXR: most decoded bytes per byte of file for compressed files (zlib's best is about 1030:1; EXR's
-#: own zip of constant data reaches the same). An uncompressed EXR must hold all its pixel bytes.
-MAX_EXR_EXPANSION = 4096
+#: OpenEXR: the same expansion limit; an uncompressed EXR must hold all its pixel bytes.
+MAX_EXR_EXPANSION = MAX_IMAGE_EXPANSION
 
 # ---- JSON (profile.json, stage files, spectral metadata) -----------------------------------------------------
 #: ``profile.json`` inside a profile (real ones: 40 kB to 2 MB).
@@ -214,15 +215,21 @@ def maps_size_bound(doc: dict) -> tuple[int, str]:
 
 
 # ---- images ----------------------------------------------------------------------------------------------------
-def check_pixel_density(path: str | Path, pixels: int) -> None:
-    """Refuse an image header declaring more than :data:`MAX_PIXELS_PER_FILE_BYTE` pixels per byte of file."""
+def declared_image_bytes(spec) -> float:
+    """Bytes an OpenImageIO ``ImageSpec`` declares as stored: pixels x channels x bits per sample / 8."""
+    bits = spec.getattribute("oiio:BitsPerSample") or 8 * spec.format.size()
+    return float(spec.width) * float(spec.height) * spec.nchannels * max(int(bits), 1) / 8.0
+
+
+def check_expansion(path: str | Path, declared_bytes: float) -> None:
+    """Refuse an image header declaring more than :data:`MAX_IMAGE_EXPANSION` bytes per byte of file."""
     try:
         size = Path(path).stat().st_size
     except OSError:
         return  # the decoder reports the unreadable file
-    if pixels > MAX_PIXELS_PER_FILE_BYTE * max(size, 1):
-        raise CamcalError(f"declares {pixels} pixels in a file of {human_bytes(size)}, more than "
-                          f"{MAX_PIXELS_PER_FILE_BYTE} per byte (a damaged or hostile header); refused", path)
+    if declared_bytes > MAX_IMAGE_EXPANSION * max(size, 1):
+        raise CamcalError(f"declares {human_bytes(declared_bytes)} of pixel data in a file of {human_bytes(size)}, "
+                          f"more than {MAX_IMAGE_EXPANSION}:1 (a damaged or hostile header); refused", path)
 
 
 # ---- text --------------------------------------------------------------------------------------------------------

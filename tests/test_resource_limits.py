@@ -388,12 +388,13 @@ ATTACKS: tuple[Attack, ...] = (
            "larger than 16 MiB"),
     # oversized declared dimensions
     Attack("declared dimensions", "jpeg-12000x12000-in-2kB", _image(".jpg", lambda b: jpeg_sof_patch(
-        b.files["jpeg"], 12000, 12000)), "per byte"),
+        b.files["jpeg"], 12000, 12000)), "more than 4096:1"),
     Attack("declared dimensions", "jpeg-12000x12000-apply", _image(".jpg", lambda b: jpeg_sof_patch(
-        b.files["jpeg"], 12000, 12000), "apply"), "per byte", code=1),
+        b.files["jpeg"], 12000, 12000), "apply"), "more than 4096:1", code=1),
     Attack("declared dimensions", "tiff-12000x12000-in-25kB", _image(".tif", lambda b: tiff_patch(tiff_patch(
-        b.files["tiff"], 256, 12000), 257, 12000)), "per byte"),
-    Attack("declared dimensions", "dng-12000x12000-in-13kB", _image(".dng", _dng_dims(12000, 12000)), "per byte"),
+        b.files["tiff"], 256, 12000), 257, 12000)), "more than 4096:1"),
+    Attack("declared dimensions", "dng-12000x12000-in-13kB", _image(".dng", _dng_dims(12000, 12000)),
+           "more than 4096:1"),
     Attack("declared dimensions", "dng-60000x60000", _image(".dng", _dng_dims(60000, 60000)), "above the limit"),
     Attack("declared dimensions", "exr-3000x3000-window-in-5kB", _exr_water(
         lambda b, ws: exr_window_patch(b.files["water_sub"], 2999, 2999)), "more than 4096:1"),
@@ -524,3 +525,28 @@ def test_apply_batch_memory_does_not_grow(batch_session, tmp_path: Path):
         peaks[n] = run.peak_mb
     assert peaks[64] < BATCH_PEAK_MB, peaks
     assert peaks[64] - peaks[8] < BATCH_GROWTH_MB, peaks
+
+
+@pytest.mark.parametrize("name,channels,fmt,attrs", [
+    ("constant.jpg", 3, "uint8", {"quality": 95}), ("constant.png", 1, "uint8", {}),
+    ("constant16.tif", 3, "uint16", {"compression": "zip"}),
+    ("bilevel.tif", 1, "uint8", {"oiio:BitsPerSample": 1, "compression": "zip"})])
+def test_constant_images_pass_the_expansion_limit(tmp_path, name, channels, fmt, attrs):
+    """The most compressible real images (one constant value: a mask, a blank frame) expand about 190:1 (JPEG)
+    to 1000:1 (deflate), well under :data:`camcal.limits.MAX_IMAGE_EXPANSION`."""
+    import OpenImageIO as oiio
+
+    from camcal.io import open_image
+    from camcal.limits import MAX_IMAGE_EXPANSION, declared_image_bytes
+
+    path = tmp_path / name
+    spec = oiio.ImageSpec(1000, 750, channels, getattr(oiio, fmt.upper()))
+    for k, v in attrs.items():
+        spec.attribute(k, v)
+    out = oiio.ImageOutput.create(str(path))
+    assert out.open(str(path), spec), oiio.geterror()
+    assert out.write_image(np.full((750, 1000, channels), 255, getattr(np, fmt)))
+    out.close()
+    with open_image(path) as (_, opened):
+        ratio = declared_image_bytes(opened) / path.stat().st_size
+    assert 50 < ratio < MAX_IMAGE_EXPANSION / 3, ratio
