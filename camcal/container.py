@@ -143,7 +143,7 @@ def read_container(path: str | Path, *, decode_maps: bool = True) -> tuple[dict,
         info = zf.getinfo(MAPS_MEMBER)
         bound, needs = maps_size_bound(doc)
         check_zip_member(path, MAPS_MEMBER, info.file_size, info.compress_size, bound,
-                         f"({needs} need at most {human_bytes(bound)})")
+                         f"({needs}: at most {human_bytes(bound)})")
         mp = Path(tdir) / MAPS_MEMBER
         digest = hashlib.sha256()
         try:

@@ -136,3 +136,26 @@ def test_json_at_the_depth_limit_is_parsed(written):
     _raw_members(path, [(JSON_MEMBER, b'{"a":' * 63 + b"[1]" + b"}" * 63, zipfile.ZIP_STORED)])
     with pytest.raises(CamcalError, match="no integrity record"):  # parsed; refused for what it lacks
         read_container(path)
+
+
+def test_zip64_end_record_is_read(tmp_path):
+    """A ZIP64 end record (written for maps above 4 GiB or more than 65535 members) gives the real counts."""
+    import struct
+
+    from camcal.limits import check_zip_directory, zip_directory_size
+
+    def zip64(entries: int) -> bytes:
+        body = b""
+        cd = b""  # an empty directory is enough for the end records
+        rec = struct.pack("<IQHHIIQQQQ", 0x06064B50, 44, 45, 45, 0, 0, entries, entries, len(cd), len(body))
+        loc = struct.pack("<IIQI", 0x07064B50, 0, len(body) + len(cd), 1)
+        eocd = struct.pack("<IHHHHIIH", 0x06054B50, 0, 0, 0xFFFF, 0xFFFF, 0xFFFFFFFF, 0xFFFFFFFF, 0)
+        return body + cd + rec + loc + eocd
+
+    p = tmp_path / "z64.camcal"
+    p.write_bytes(zip64(70000))
+    assert zip_directory_size(p) == (70000, 0)
+    with pytest.raises(CamcalError, match="declares 70000 members"):
+        check_zip_directory(p)
+    with pytest.raises(CamcalError, match="declares 70000 members"):
+        read_container(p)
