@@ -109,7 +109,7 @@ _JSON_STEP[[ord("["), ord("{")]] = 1
 _JSON_STEP[[ord("]"), ord("}")]] = -1
 
 
-def json_nesting_depth(raw: bytes, block: int = 4 * MiB) -> int:
+def json_nesting_depth(raw: bytes, block: int = MiB) -> int:
     """Deepest nesting of arrays and objects in JSON text ``raw``, without parsing it.
 
     Strings are blanked first (brackets inside them do not count); the depth is the running sum of
