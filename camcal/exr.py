@@ -110,7 +110,8 @@ def read_exr(
 
     The header is checked before any pixel memory is allocated (:mod:`camcal.limits`): at most
     :func:`~camcal.limits.max_pixels` pixels, :data:`~camcal.limits.MAX_EXR_CHANNELS` channels and
-    ``max_samples`` (default :func:`~camcal.limits.max_exr_samples`) pixels x channels; the decoded
+    ``max_samples`` pixels x channels (default :func:`~camcal.limits.max_exr_samples`; a profile passes the
+    bound of its own sensor and map list); the decoded
     bytes may be at most :data:`~camcal.limits.MAX_EXR_EXPANSION` times the file's size (an
     uncompressed file must hold all of them: a short one is truncated).
 
@@ -169,7 +170,7 @@ def _check_declared_size(path: Path, spec, max_samples: int | None) -> None:
                           "(set CAMCAL_MAX_PIXELS to raise it)", path)
     if nch > MAX_EXR_CHANNELS:
         raise CamcalError(f"EXR declares {nch} channels, above the limit of {MAX_EXR_CHANNELS}", path)
-    limit = max_exr_samples() if max_samples is None else min(max_samples, max_exr_samples())
+    limit = max_exr_samples() if max_samples is None else max_samples  # a profile's own bound replaces it
     if w * h * nch > limit:
         raise CamcalError(f"EXR declares {w}x{h} pixels x {nch} channels, above the limit of {limit} samples", path)
     declared = w * h * sum(max(1, int(f.size())) for f in (spec.channelformats or [spec.format] * nch))

@@ -205,7 +205,8 @@ def maps_size_bound(doc: dict) -> tuple[int, str]:
     listed = doc.get("maps") if isinstance(doc, dict) else None
     w = cam.get("width") if isinstance(cam, dict) else None
     h = cam.get("height") if isinstance(cam, dict) else None
-    if not (isinstance(w, int) and isinstance(h, int) and 0 < w and 0 < h and w * h <= max_pixels()):
+    if not (isinstance(w, int) and isinstance(h, int) and 0 < w and 0 < h
+            and w * h <= max(max_pixels(), DEFAULT_MAX_PIXELS)):  # a lowered pixel limit applies to images
         return 0, "no valid camera width and height"
     n = sum(len(v) for v in listed.values() if isinstance(v, list)) if isinstance(listed, dict) else 0
     raw = n * ((w + 1) // 2) * ((h + 1) // 2) * 4
