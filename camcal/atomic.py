@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import contextlib
 import os
+import secrets
 import signal
-import tempfile
 import threading
 from collections.abc import Iterator
 from pathlib import Path
@@ -31,19 +31,32 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     path.parent.mkdir(parents=True, exist_ok=True)
     # Ctrl-C is held back (blocked for this thread) from creating the temporary file until the ``try``
     # that removes it is entered: otherwise an interrupt between the two leaves a .part file behind
+    # The name is registered *before* the file is created: the mask only holds the signal back from this
+    # thread, and another thread (a BLAS or codec pool) may take it, so Python can still raise
+    # KeyboardInterrupt anywhere here; whatever is registered, :func:`remove_pending` removes at exit.
     held = _hold_sigint()
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".part{path.suffix}", dir=path.parent)
-        tmp_path = Path(tmp)
-        with _LOCK:
-            _PENDING.add(tmp_path)
+        while True:
+            tmp_path = path.parent / f".{path.stem}.{secrets.token_hex(4)}.part{path.suffix}"
+            with _LOCK:
+                _PENDING.add(tmp_path)
+            try:
+                fd = os.open(tmp_path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0), 0o600)
+                break
+            except FileExistsError:
+                with _LOCK:
+                    _PENDING.discard(tmp_path)
+            except OSError:  # no permission, no space: nothing was created
+                with _LOCK:
+                    _PENDING.discard(tmp_path)
+                raise
     except BaseException:
         _release_sigint(held)
         raise
     try:
         _release_sigint(held)  # a pending Ctrl-C is raised here, inside the try
         try:
-            os.chmod(tmp_path, 0o666 & ~_umask())  # mkstemp makes 0600; outputs get the usual permissions
+            os.chmod(tmp_path, 0o666 & ~_umask())  # created 0600; outputs get the usual permissions
         finally:
             os.close(fd)
         yield tmp_path

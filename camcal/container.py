@@ -11,16 +11,20 @@ document's canonical JSON (sorted keys, no spaces) *without* the ``integrity``
 member, and ``integrity.maps_sha256``, the SHA-256 of ``maps.exr``. Reading
 refuses archives with other members, oversized members (a zip bomb), invalid
 JSON, NaN/inf, and any hash mismatch. Nothing is ever unpickled or extracted to
-disk except the EXR, which is read from a private temporary folder.
+disk except the EXR, which is streamed (through its hash) into a private temporary folder.
+Every declared size is checked first against :mod:`camcal.limits` (see :func:`read_container`).
 """
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import math
+import struct
 import tempfile
 import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -28,11 +32,18 @@ import numpy as np
 from camcal.atomic import atomic_path
 from camcal.errors import CamcalError
 from camcal.exr import read_exr, write_exr
+from camcal.limits import (
+    MAX_PROFILE_JSON_BYTES,
+    STREAM_BLOCK_BYTES,
+    check_json_depth,
+    check_zip_directory,
+    check_zip_member,
+    human_bytes,
+    maps_size_bound,
+)
 
 JSON_MEMBER = "profile.json"
 MAPS_MEMBER = "maps.exr"
-MAX_JSON_BYTES = 64 * 1024 * 1024
-MAX_MAPS_BYTES = 4 * 1024 * 1024 * 1024
 
 
 def canonical_json(doc: dict) -> bytes:
@@ -86,6 +97,13 @@ def _finite_float(text: str) -> float:
 def read_container(path: str | Path, *, decode_maps: bool = True) -> tuple[dict, dict[str, np.ndarray]]:
     """Read and verify a profile file; returns ``(doc, maps)``. See the module docstring.
 
+    Every declared size is checked against :mod:`camcal.limits` before anything is decompressed or
+    parsed: the number of ZIP members and the size of the ZIP directory (from the end record, before
+    Python's ``zipfile`` reads the directory), each member's declared size and compression ratio,
+    the nesting depth of ``profile.json``, and the declared size of ``maps.exr`` against what the
+    profile's own sensor and map list need. ``maps.exr`` is then streamed (1 MiB blocks) through
+    SHA-256 into a private temporary file; it is decoded only when its hash matches.
+
     ``decode_maps=False``: both hashes are still verified, but ``maps.exr`` is not decoded (``maps`` is
     empty) — for a check of the profile's identity before the work goes to other processes.
     """
@@ -93,51 +111,68 @@ def read_container(path: str | Path, *, decode_maps: bool = True) -> tuple[dict,
     if not path.is_file():
         raise CamcalError("no such profile file", path)
     try:
+        check_zip_directory(path)
         zf = zipfile.ZipFile(path)
-    except (zipfile.BadZipFile, OSError, ValueError):
+    except (zipfile.BadZipFile, OSError, ValueError, EOFError, struct.error):
         raise CamcalError("not a camcal profile (not a ZIP container, or truncated)", path) from None
-    with zf:
+    with zf, tempfile.TemporaryDirectory(prefix="camcal-profile-") as tdir:
         names = [i.filename for i in zf.infolist()]
         if JSON_MEMBER not in names or set(names) - {JSON_MEMBER, MAPS_MEMBER} or len(names) != len(set(names)):
             raise CamcalError(f"not a camcal profile (members {names})", path)
         info = zf.getinfo(JSON_MEMBER)
-        if info.file_size > MAX_JSON_BYTES:
-            raise CamcalError("profile.json is implausibly large; refused", path)
+        check_zip_member(path, JSON_MEMBER, info.file_size, info.compress_size, MAX_PROFILE_JSON_BYTES)
         try:
-            raw = zf.read(JSON_MEMBER)
-            maps_bytes = zf.read(MAPS_MEMBER) if MAPS_MEMBER in names else b""
-        except (zipfile.BadZipFile, OSError, EOFError, zlib_error()) as exc:
-            raise CamcalError(f"profile is corrupted ({exc})", path) from None
-        if MAPS_MEMBER in names and zf.getinfo(MAPS_MEMBER).file_size > MAX_MAPS_BYTES:
-            raise CamcalError("maps.exr is implausibly large; refused", path)
-    try:
-        doc = json.loads(raw.decode("utf-8"), parse_constant=_reject_constant, parse_float=_finite_float)
-    except (UnicodeDecodeError, ValueError) as exc:
-        raise CamcalError(f"profile.json is not valid JSON ({' '.join(str(exc).split())[:100]})", path) from None
-    if not isinstance(doc, dict) or not isinstance(doc.get("integrity"), dict):
-        raise CamcalError("profile.json has no integrity record", path)
-    integ = doc["integrity"]
-    if integ.get("content_sha256") != content_hash(doc):
-        raise CamcalError("content hash mismatch: the profile was modified after it was written", path)
-    expected_maps = integ.get("maps_sha256")
-    if bool(maps_bytes) != bool(expected_maps) or (
-        maps_bytes and hashlib.sha256(maps_bytes).hexdigest() != expected_maps
-    ):
-        raise CamcalError("maps hash mismatch: maps.exr was modified or replaced", path)
-    maps: dict[str, np.ndarray] = {}
-    if maps_bytes and decode_maps:
-        with tempfile.TemporaryDirectory(prefix="camcal-profile-") as tdir:
-            mp = Path(tdir) / MAPS_MEMBER
-            mp.write_bytes(maps_bytes)
-            del maps_bytes  # not held while the maps are decoded (peak memory of a profile load)
-            try:
-                maps, _ = read_exr(mp)
-            except CamcalError as exc:
-                raise CamcalError(f"{MAPS_MEMBER}: {exc.message}", path) from None
+            with zf.open(JSON_MEMBER) as fh:  # bounded even if the declared size lies
+                raw = fh.read(MAX_PROFILE_JSON_BYTES + 1)
+        except (zipfile.BadZipFile, OSError, EOFError, zlib.error, NotImplementedError) as exc:
+            raise CamcalError(f"profile is corrupted ({' '.join(str(exc).split())[:100]})", path) from None
+        if len(raw) > MAX_PROFILE_JSON_BYTES:  # pragma: no cover - zipfile stops at the declared size
+            raise CamcalError(f"{JSON_MEMBER} is larger than {human_bytes(MAX_PROFILE_JSON_BYTES)}; refused", path)
+        doc = parse_json(raw, path, JSON_MEMBER)
+        if not isinstance(doc, dict) or not isinstance(doc.get("integrity"), dict):
+            raise CamcalError("profile.json has no integrity record", path)
+        integ = doc["integrity"]
+        if integ.get("content_sha256") != content_hash(doc):
+            raise CamcalError("content hash mismatch: the profile was modified after it was written", path)
+        expected_maps = integ.get("maps_sha256")
+        has_maps = MAPS_MEMBER in names
+        if has_maps != bool(expected_maps):
+            raise CamcalError("maps hash mismatch: maps.exr was modified or replaced", path)
+        if not has_maps:
+            return doc, {}
+        info = zf.getinfo(MAPS_MEMBER)
+        bound, needs = maps_size_bound(doc)
+        check_zip_member(path, MAPS_MEMBER, info.file_size, info.compress_size, bound,
+                         f"({needs}: at most {human_bytes(bound)})")
+        mp = Path(tdir) / MAPS_MEMBER
+        digest = hashlib.sha256()
+        try:
+            with zf.open(MAPS_MEMBER) as src, (open(mp, "wb") if decode_maps else contextlib.nullcontext()) as dst:
+                for block in iter(lambda: src.read(STREAM_BLOCK_BYTES), b""):
+                    digest.update(block)
+                    if dst is not None:
+                        dst.write(block)
+        except (zipfile.BadZipFile, EOFError, zlib.error, NotImplementedError) as exc:
+            raise CamcalError(f"profile is corrupted ({' '.join(str(exc).split())[:100]})", path) from None
+        if digest.hexdigest() != expected_maps:
+            raise CamcalError("maps hash mismatch: maps.exr was modified or replaced", path)
+        if not decode_maps:
+            return doc, {}
+        try:
+            maps, _ = read_exr(mp, max_samples=bound // 4)
+        except CamcalError as exc:
+            raise CamcalError(f"{MAPS_MEMBER}: {exc.message}", path) from None
     return doc, maps
 
 
-def zlib_error() -> type[Exception]:
-    import zlib
+def parse_json(raw: bytes, where: str | Path, what: str):
+    """Parse UTF-8 JSON ``raw`` after checking its nesting depth; NaN, Infinity and ``1e999`` refused."""
+    check_json_depth(raw, where, what)
+    try:
+        return json.loads(raw.decode("utf-8"), parse_constant=_reject_constant, parse_float=_finite_float)
+    except (UnicodeDecodeError, ValueError) as exc:
+        raise CamcalError(f"{what} is not valid JSON ({' '.join(str(exc).split())[:100]})", where) from None
+    except RecursionError:  # pragma: no cover - the depth check comes first
+        raise CamcalError(f"{what} is nested too deeply; refused", where) from None
 
-    return zlib.error
+

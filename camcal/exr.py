@@ -15,6 +15,7 @@ import numpy as np
 
 from camcal.atomic import atomic_path
 from camcal.errors import CamcalError
+from camcal.limits import MAX_EXR_CHANNELS, MAX_EXR_EXPANSION, human_bytes, max_exr_samples, max_pixels
 
 COMPRESSIONS = ("none", "zip", "zips", "piz", "pxr24", "b44", "dwaa", "dwab", "zstd", "rle")
 
@@ -103,9 +104,16 @@ def write_exr(
 
 
 def read_exr(
-    path: str | Path, channels: list[str] | tuple[str, ...] | None = None
+    path: str | Path, channels: list[str] | tuple[str, ...] | None = None, *, max_samples: int | None = None
 ) -> tuple[dict[str, np.ndarray], dict[str, object]]:
     """Read channels (all, or the named ones) and camcal metadata from an EXR file.
+
+    The header is checked before any pixel memory is allocated (:mod:`camcal.limits`): at most
+    :func:`~camcal.limits.max_pixels` pixels, :data:`~camcal.limits.MAX_EXR_CHANNELS` channels and
+    ``max_samples`` pixels x channels (default :func:`~camcal.limits.max_exr_samples`; a profile passes the
+    bound of its own sensor and map list); the decoded
+    bytes may be at most :data:`~camcal.limits.MAX_EXR_EXPANSION` times the file's size (an
+    uncompressed file must hold all of them: a short one is truncated).
 
     Returns
     -------
@@ -126,13 +134,7 @@ def read_exr(
         if fmt != "openexr":  # OIIO opens any image by its content: a JPEG named .exr is not a radiance map
             raise CamcalError(f"is not an OpenEXR file (it is a {fmt or 'unknown'} image)", path)
         spec = inp.spec()
-        from camcal.io import max_pixels
-
-        if spec.width <= 0 or spec.height <= 0 or spec.nchannels <= 0:
-            raise CamcalError(f"EXR declares an empty image ({spec.width}x{spec.height}x{spec.nchannels})", path)
-        if spec.width * spec.height > max_pixels():  # before any pixel is allocated
-            raise CamcalError(f"EXR declares {spec.width}x{spec.height} pixels, above the limit of {max_pixels()} "
-                              "(set CAMCAL_MAX_PIXELS to raise it)", path)
+        _check_declared_size(path, spec, max_samples)
         names = list(spec.channelnames)
         want = list(channels) if channels is not None else names
         missing = [c for c in want if c not in names]
@@ -156,6 +158,30 @@ def read_exr(
     data = np.asarray(data, dtype=np.float32).reshape(spec.height, spec.width, spec.nchannels)
     planes = _deinterleave(data, [names.index(c) for c in want])
     return dict(zip(want, planes, strict=True)), meta
+
+
+def _check_declared_size(path: Path, spec, max_samples: int | None) -> None:
+    """Refuse an EXR header whose declared pixels, channels or decoded bytes are above the limits."""
+    w, h, nch = spec.width, spec.height, spec.nchannels
+    if w <= 0 or h <= 0 or nch <= 0:
+        raise CamcalError(f"EXR declares an empty image ({w}x{h}x{nch})", path)
+    if w * h > max_pixels():  # before any pixel is allocated
+        raise CamcalError(f"EXR declares {w}x{h} pixels, above the limit of {max_pixels()} "
+                          "(set CAMCAL_MAX_PIXELS to raise it)", path)
+    if nch > MAX_EXR_CHANNELS:
+        raise CamcalError(f"EXR declares {nch} channels, above the limit of {MAX_EXR_CHANNELS}", path)
+    limit = max_exr_samples() if max_samples is None else max_samples  # a profile's own bound replaces it
+    if w * h * nch > limit:
+        raise CamcalError(f"EXR declares {w}x{h} pixels x {nch} channels, above the limit of {limit} samples", path)
+    declared = w * h * sum(max(1, int(f.size())) for f in (spec.channelformats or [spec.format] * nch))
+    size = path.stat().st_size
+    compression = str(spec.getattribute("compression") or "none").lower()
+    if compression == "none" and declared > size:
+        raise CamcalError(f"EXR declares {human_bytes(declared)} of uncompressed pixels but the file holds "
+                          f"{human_bytes(size)} (truncated)", path)
+    if declared > MAX_EXR_EXPANSION * size:
+        raise CamcalError(f"EXR declares {human_bytes(declared)} of pixel data in a file of {human_bytes(size)}, "
+                          f"more than {MAX_EXR_EXPANSION}:1 (a damaged or hostile header); refused", path)
 
 
 def _deinterleave(data: np.ndarray, index: list[int], rows: int = 8) -> np.ndarray:

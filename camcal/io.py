@@ -34,6 +34,7 @@ import numpy as np
 
 from camcal.errors import CamcalError
 from camcal.frame import PLANES, RGB, TRACKED, Exposure, Frame, pattern_from_rawpy, plane_offsets
+from camcal.limits import DEFAULT_MAX_PIXELS, check_expansion, declared_image_bytes, max_pixels  # noqa: F401
 from camcal.manifest import FRAMES_CSV, exposure_overrides, read_manifest, session_defaults_for
 
 RAW_EXTENSIONS = {
@@ -43,18 +44,9 @@ RAW_EXTENSIONS = {
 PROCESSED_EXTENSIONS = {".jpg", ".jpeg", ".tif", ".tiff", ".png"}
 IMAGE_EXTENSIONS = RAW_EXTENSIONS | PROCESSED_EXTENSIONS
 
-DEFAULT_MAX_PIXELS = 250_000_000
 
-
-def max_pixels() -> int:
-    """Largest image (in pixels) camcal will allocate; ``CAMCAL_MAX_PIXELS`` overrides."""
-    try:
-        return int(os.environ.get("CAMCAL_MAX_PIXELS", DEFAULT_MAX_PIXELS))
-    except ValueError:
-        return DEFAULT_MAX_PIXELS
-
-
-def _check_pixels(path: Path, width: int, height: int) -> None:
+def _check_pixels(path: Path, width: int, height: int, stored_bytes: float | None = None) -> None:
+    """The declared size against the limits (camcal.limits); ``stored_bytes`` default: 16-bit mosaic."""
     if width <= 0 or height <= 0:
         raise CamcalError(f"declares an empty image ({width}x{height})", path)
     if width * height > max_pixels():
@@ -62,6 +54,7 @@ def _check_pixels(path: Path, width: int, height: int) -> None:
             f"declares {width}x{height} pixels, above the limit of {max_pixels()} (set CAMCAL_MAX_PIXELS to raise it)",
             path,
         )
+    check_expansion(path, 2.0 * width * height if stored_bytes is None else stored_bytes)
 
 
 def _clean(value) -> float | None:
@@ -425,7 +418,7 @@ def open_image(path: Path, formats: tuple[str, ...] | None = None, what: str = "
         fmt_name = inp.format_name()
         if formats is not None and fmt_name not in formats:
             raise CamcalError(f"is a {fmt_name} file, not {what}", path)
-        _check_pixels(path, spec.width, spec.height)
+        _check_pixels(path, spec.width, spec.height, declared_image_bytes(spec))
         yield inp, spec
     finally:
         inp.close()

@@ -18,6 +18,7 @@ import math
 from pathlib import Path
 
 from camcal.errors import CamcalError
+from camcal.limits import MAX_CSV_COLUMNS, MAX_MANIFEST_BYTES, MAX_TEXT_LINE_BYTES, check_text_shape
 
 FRAMES_CSV = "frames.csv"
 
@@ -49,8 +50,6 @@ PLAUSIBLE_RANGE: dict[str, tuple[float, float]] = {
 }
 #: Smallest non-zero value accepted in any numeric column (below it, products and ratios underflow).
 TINY = 1e-30
-
-MAX_MANIFEST_BYTES = 16 * 1024 * 1024
 
 
 def safe_member(folder: str | Path, name: str, manifest: str | Path | None = None) -> Path:
@@ -93,12 +92,14 @@ def parse_number(text: str, column: str, where: str) -> float:
     return value
 
 
-def read_text_file(path: str | Path, what: str, max_bytes: int = MAX_MANIFEST_BYTES) -> str:
+def read_text_file(path: str | Path, what: str, max_bytes: int = MAX_MANIFEST_BYTES, *,
+                   max_line_bytes: int | None = MAX_TEXT_LINE_BYTES) -> str:
     """The UTF-8 text (BOM allowed) of a small input file, read with a bound.
 
     Refuses (CamcalError naming the file and ``what`` it is) a path that is not a regular file, more
-    than ``max_bytes`` (a device or pipe is never read to its end: its size says nothing), and text
-    that is not UTF-8.
+    than ``max_bytes`` (a device or pipe is never read to its end: its size says nothing), more lines
+    than :data:`camcal.limits.MAX_TEXT_LINES` or a line longer than ``max_line_bytes`` (checked on the
+    bytes, before anything splits or parses them), and text that is not UTF-8.
     """
     path = Path(path)
     try:
@@ -110,6 +111,7 @@ def read_text_file(path: str | Path, what: str, max_bytes: int = MAX_MANIFEST_BY
         raise CamcalError(f"cannot read {what}: {exc.strerror or exc}", path) from None
     if len(raw) > max_bytes:
         raise CamcalError(f"{what} larger than {max_bytes // 1024 // 1024} MiB; refused", path)
+    check_text_shape(raw, path, what, max_line_bytes=max_line_bytes)
     try:
         return raw.decode("utf-8-sig")
     except UnicodeDecodeError:
@@ -142,6 +144,8 @@ def read_manifest(
     except csv.Error as exc:
         raise CamcalError(f"malformed CSV: {exc}", path) from None
     header = [h.strip() for h in rows[0]]
+    if len(header) > MAX_CSV_COLUMNS:
+        raise CamcalError(f"header has {len(header)} columns, above the limit of {MAX_CSV_COLUMNS}", path)
     if len(set(header)) != len(header):
         raise CamcalError(f"duplicate column names in header {header}", path)
     for col in required:

@@ -12,6 +12,7 @@ documented in ``docs/profile-format.md``.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import math
 from dataclasses import dataclass, field
@@ -28,7 +29,8 @@ from camcal.frame import PLANES, RGB
 from camcal.store import to_jsonable
 
 FORMAT = "camcal-profile"
-SCHEMA_VERSION = "1.2"  # 1.1: optional response.processed.colour_matrix; 1.2: optional spectral_sensitivity.source
+SCHEMA_VERSION = "1.3"  # 1.1: optional response.processed.colour_matrix; 1.2: optional spectral_sensitivity.source;
+# 1.3: camera.layout, dark.layout, dark.dark_current_known, dark channels temporal_noise_dn, R, G, B planes (linear RAW)
 SUPPORTED_MAJOR = 1
 SPECTRAL_UNITS_DEFAULT = "DN s^-1 per (W m^-2 sr^-1 nm^-1) per nm at ISO_ref, f/N_ref, on axis"
 
@@ -168,9 +170,17 @@ def profile_to_document(profile: CalibrationProfile) -> tuple[dict, dict[str, np
     return doc, maps
 
 
+@functools.lru_cache(maxsize=1)
 def _schema() -> dict:
+    """The JSON Schema of major version 1 (strict inside every section: see its ``$comment``)."""
     text = resources.files("camcal").joinpath("schemas/profile-1.schema.json").read_text(encoding="utf-8")
     return json.loads(text)
+
+
+def _minor(version: object) -> int:
+    """The minor number of a ``MAJOR.MINOR`` version; -1 when it has none."""
+    parts = str(version).split(".")
+    return int(parts[1]) if len(parts) == 2 and parts[1].isdigit() else -1
 
 
 def check_version(doc: dict, where: str | Path) -> None:
@@ -193,12 +203,30 @@ def validate_document(doc: dict, where: str | Path) -> None:
 
     check_version(doc, where)
     validator = jsonschema.Draft202012Validator(_schema())
-    errors = sorted(validator.iter_errors(doc), key=lambda e: list(e.absolute_path))
+    errors = sorted(validator.iter_errors(doc), key=lambda e: [str(p) for p in e.absolute_path])
     if errors:
         err = errors[0]
-        loc = "/".join(str(p) for p in err.absolute_path) or "(top level)"
-        raise CamcalError(f"profile does not follow the schema at {loc}: {' '.join(err.message.split())[:160]}",
-                          where)
+        while err.validator == "oneOf" and err.context:  # the branch that nearly fits (e.g. Bayer or linear planes)
+            branches: dict[int, list] = {}
+            for sub in err.context:
+                branches.setdefault(int(sub.schema_path[0]), []).append(sub)
+            err = min(branches.values(), key=len)[0]
+        loc = "/".join(str(p) for p in err.absolute_path)
+        unknown: list[str] = []
+        if err.validator == "additionalProperties" and isinstance(err.instance, dict):
+            known = set(err.schema.get("properties", {}))
+            unknown = sorted(str(k) for k in err.instance if k not in known)
+        elif "propertyNames" in err.schema_path:  # a per-channel object with a key that is not a channel
+            unknown = [str(err.instance)]
+        if unknown:
+            keys = ", ".join(f"{loc + '/' if loc else ''}{k}" for k in unknown[:3])
+            version = doc.get("schema_version")
+            why = (f"schema {version} is newer than this camcal {__version__} reads ({SCHEMA_VERSION}); "
+                   "use a newer camcal" if _minor(version) > _minor(SCHEMA_VERSION) else
+                   f"schema {version} has only the keys of docs/profile-format.md")
+            raise CamcalError(f"profile has unknown key{'s' if len(unknown) > 1 else ''} {keys} ({why})", where)
+        raise CamcalError(f"profile does not follow the schema at {loc or '(top level)'}: "
+                          f"{' '.join(err.message.split())[:160]}", where)
     spec = doc.get("spectral_sensitivity")
     if spec:
         n = len(spec["wavelength_nm"])

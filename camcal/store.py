@@ -24,6 +24,7 @@ from camcal import __version__
 from camcal.atomic import atomic_write_text
 from camcal.errors import CamcalError
 from camcal.exr import read_exr, write_exr
+from camcal.limits import MAX_STAGE_JSON_BYTES, check_json_depth
 
 
 def sha256_file(path: str | Path) -> str:
@@ -69,16 +70,13 @@ def save_stage(path: str | Path, kind: str, data: dict, maps: dict[str, np.ndarr
     return path
 
 
-#: Stage JSON files hold summaries and small tables (the maps are in the EXR): 64 MiB is far above any.
-MAX_STAGE_JSON_BYTES = 64 * 1024 * 1024
-
-
 def load_stage(path: str | Path, kind: str) -> tuple[dict, dict[str, np.ndarray]]:
     """Load a stage result written by :func:`save_stage`; check kind and the maps' hash."""
     from camcal.manifest import read_text_file
 
     path = Path(path)
-    text = read_text_file(path, f"{kind} file", MAX_STAGE_JSON_BYTES)
+    text = read_text_file(path, f"{kind} file", MAX_STAGE_JSON_BYTES, max_line_bytes=None)  # camcal.limits
+    check_json_depth(text.encode("utf-8"), path, f"{kind} file")
     try:
         doc = json.loads(text)
     except ValueError as exc:

@@ -269,10 +269,11 @@ def image_cases() -> list[Case]:
             small if w in (1, 48) else ERROR)
         add("huge dimensions", f"jpeg-{w}x{h}",
             lambda b, w=w, h=h: (".jpg", jpeg_sof_patch(b.files["jpeg"], w, h)), EITHER if w in (1, 48) else ERROR)
-    # a valid image above the configured pixel limit
+    # a valid image above the configured pixel limit (2000: above the profile's maps, 48x32 planes, so that apply
+    # lists the photo as failed instead of refusing the profile, whatever ran before in this process)
     for src, suffix in (("dng", ".dng"), ("jpeg", ".jpg"), ("tiff", ".tif")):
         add("pixel limit", f"{src}-over-limit", lambda b, s=src, x=suffix: (x, b.files[s]), ERROR,
-            env={"CAMCAL_MAX_PIXELS": "1000"})
+            env={"CAMCAL_MAX_PIXELS": "2000"})
     # wrong extensions and wrong contents
     add("wrong extension", "jpeg-as-dng", lambda b: (".dng", b.files["jpeg"]), raw_ok)
     add("wrong extension", "jpeg-as-tif", lambda b: (".tif", b.files["jpeg"]), raw_ok)
@@ -539,10 +540,12 @@ def profile_cases() -> list[Case]:
                          ("text-cell", [[1, 0, 0], [0, "x", 0], [0, 0, 1]])):
         add("wrong type", f"colour-matrix-{label}", lambda b, v=value: _rezip(
             _set_path(_profile_parts(b)[0], cm_path, v), _profile_parts(b)[1]))
-    for where in ((), ("camera",), ("dark",), ("reference",)):
+    for where in ((), ("camera",), ("dark",), ("reference",), ("dark", "channels", "R"), ("flat",),
+                  ("flat", "k"), ("response", "raw"), ("response", "raw", "channels", "G1"),
+                  ("response", "processed", "tone", "channels", "G", "srgb"), ("spectral_sensitivity",),
+                  ("spectral_sensitivity", "values"), ("provenance",), ("integrity",)):
         add("extra key", f"extra-in-{'.'.join(where) or 'top'}", lambda b, w=where: _rezip(
-            _set_path(_profile_parts(b)[0], (*w, "surprise"), 1), _profile_parts(b)[1]),
-            ERROR if where == () else EITHER)  # schema 1.x: unknown keys refused at the top level only
+            _set_path(_profile_parts(b)[0], (*w, "surprise"), 1), _profile_parts(b)[1]))  # strict at every level
     return cases
 
 

@@ -12,7 +12,8 @@ from camcal.errors import CamcalError
 def written(tmp_path, rng):
     maps = {"dark.bias.R": rng.random((16, 24), dtype=np.float32), "flat.gain.B": rng.random((16, 24),
                                                                                             dtype=np.float32)}
-    doc = {"schema_version": "1.0", "camera": {"make": "camcal"}, "x": [1.5, 2.5]}
+    doc = {"schema_version": "1.0", "camera": {"make": "camcal", "width": 48, "height": 32},
+           "maps": {"dark": ["dark.bias.R"], "flat": ["flat.gain.B"]}, "x": [1.5, 2.5]}
     return write_container(tmp_path / "p.camcal", doc, maps), doc, maps
 
 
@@ -78,3 +79,83 @@ def test_nan_in_json_is_refused(written):
     _rewrite(path, json_bytes=text.encode())
     with pytest.raises(CamcalError, match="not valid JSON"):
         read_container(path)
+
+
+# ---- limits before work (issue 19) -----------------------------------------------------------------------------
+def _raw_members(path, members):
+    """Rewrite ``path`` with ``(name, bytes, compress_type)`` members."""
+    with zipfile.ZipFile(path, "w") as zf:
+        for name, data, ctype in members:
+            zf.writestr(name, data, compress_type=ctype)
+
+
+def test_maps_larger_than_the_sensor_needs_are_refused_before_reading(written):
+    """The bound comes from the profile's own camera (48x32: planes of 24x16) and map list (2 maps):
+    2 x 24 x 16 x 4 B x 1.05 + 1 MiB. 2 MiB of zeros (6 kB deflated) declares more and is never read."""
+    from camcal.limits import maps_size_bound
+
+    path, doc, _ = written
+    bound, needs = maps_size_bound(doc)
+    assert bound == int(2 * 24 * 16 * 4 * 1.05) + 1024 * 1024 and "2 maps of a 48x32 sensor" in needs
+    with zipfile.ZipFile(path) as zf:
+        j = zf.read(JSON_MEMBER)
+    _raw_members(path, [(JSON_MEMBER, j, zipfile.ZIP_DEFLATED), (MAPS_MEMBER, bytes(2 * 1024 * 1024),
+                                                                 zipfile.ZIP_DEFLATED)])
+    with pytest.raises(CamcalError, match=r"maps.exr declares 2.0 MiB, above the limit of 1.0 MiB \(2 maps"):
+        read_container(path, decode_maps=False)
+
+
+def test_member_ratio_and_json_size_are_refused(written):
+    path = written[0]
+    _raw_members(path, [(JSON_MEMBER, b" " * (9 * 1024 * 1024), zipfile.ZIP_DEFLATED)])
+    with pytest.raises(CamcalError, match="profile.json declares 9.0 MiB, above the limit of 8.0 MiB"):
+        read_container(path)
+    _raw_members(path, [(JSON_MEMBER, b"{" + b" " * (3 * 1024 * 1024) + b"}", zipfile.ZIP_DEFLATED)])
+    with pytest.raises(CamcalError, match="expands .*-fold .* above the limit of 200:1"):
+        read_container(path)
+
+
+def test_too_many_members_refused_from_the_end_record(written):
+    path = written[0]
+    _raw_members(path, [(JSON_MEMBER, b"{}", zipfile.ZIP_STORED)] + [(f"m{i}", b"", zipfile.ZIP_STORED)
+                                                                      for i in range(5)])
+    with pytest.raises(CamcalError, match="declares 6 members, a profile has at most 2"):
+        read_container(path)
+
+
+@pytest.mark.parametrize("text", [b"[" * 100_000 + b"]" * 100_000, b'{"a":' * 65 + b"1" + b"}" * 65])
+def test_deep_json_refused_before_parsing(written, text):
+    path = written[0]
+    _raw_members(path, [(JSON_MEMBER, text, zipfile.ZIP_STORED)])
+    with pytest.raises(CamcalError, match="profile.json is nested .* levels deep, above the limit of 64"):
+        read_container(path)
+
+
+def test_json_at_the_depth_limit_is_parsed(written):
+    path = written[0]
+    _raw_members(path, [(JSON_MEMBER, b'{"a":' * 63 + b"[1]" + b"}" * 63, zipfile.ZIP_STORED)])
+    with pytest.raises(CamcalError, match="no integrity record"):  # parsed; refused for what it lacks
+        read_container(path)
+
+
+def test_zip64_end_record_is_read(tmp_path):
+    """A ZIP64 end record (written for maps above 4 GiB or more than 65535 members) gives the real counts."""
+    import struct
+
+    from camcal.limits import check_zip_directory, zip_directory_size
+
+    def zip64(entries: int) -> bytes:
+        body = b""
+        cd = b""  # an empty directory is enough for the end records
+        rec = struct.pack("<IQHHIIQQQQ", 0x06064B50, 44, 45, 45, 0, 0, entries, entries, len(cd), len(body))
+        loc = struct.pack("<IIQI", 0x07064B50, 0, len(body) + len(cd), 1)
+        eocd = struct.pack("<IHHHHIIH", 0x06054B50, 0, 0, 0xFFFF, 0xFFFF, 0xFFFFFFFF, 0xFFFFFFFF, 0)
+        return body + cd + rec + loc + eocd
+
+    p = tmp_path / "z64.camcal"
+    p.write_bytes(zip64(70000))
+    assert zip_directory_size(p) == (70000, 0)
+    with pytest.raises(CamcalError, match="declares 70000 members"):
+        check_zip_directory(p)
+    with pytest.raises(CamcalError, match="declares 70000 members"):
+        read_container(p)

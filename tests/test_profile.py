@@ -155,3 +155,91 @@ def test_light_load_verifies_but_does_not_decode_maps(profile_path, tmp_path):
         zf.writestr(MAPS_MEMBER, bytes(m))
     with pytest.raises(CamcalError, match="maps hash mismatch"):
         load_profile(bad, with_maps=False)
+
+
+# ---- strict schema inside sections (issue 19) -------------------------------------------------------------------
+def _rehashed_copy(src, dst, edit):
+    from camcal.container import content_hash
+
+    def both(d):
+        edit(d)
+        d["integrity"]["content_sha256"] = content_hash(d)
+
+    _rewrite_json(src, dst, both)
+    return dst
+
+
+def _node(doc, path):
+    for k in path:
+        doc = doc[k]
+    return doc
+
+
+# every object camcal reads back, at every depth (the response path depends on what the session calibrated)
+STRICT_PATHS = (
+    ("camera",), ("reference",), ("dark",), ("dark", "channels", "G1"), ("dark", "units"), ("flat",),
+    ("flat", "centre_px"), ("response",), ("response", "raw"), ("response", "raw", "channels", "G2"),
+    ("response", "processed", "tone"), ("response", "processed", "tone", "channels", "G"),
+    ("response", "processed", "tone", "channels", "G", "srgb"), ("response", "processed", "colour_matrix"),
+    ("spectral_sensitivity",), ("spectral_sensitivity", "values"), ("provenance",), ("provenance", "inputs", 0),
+    ("integrity",),
+)
+
+
+@pytest.mark.parametrize("path", STRICT_PATHS, ids=["/".join(map(str, p)) for p in STRICT_PATHS])
+def test_unknown_key_in_a_section_is_refused_naming_it(profile_path, tmp_path, path):
+    with zipfile.ZipFile(profile_path) as zf:
+        if _node_or_none(json.loads(zf.read(JSON_MEMBER)), path) is None:
+            pytest.skip(f"{path} not in this profile")
+    bad = _rehashed_copy(profile_path, tmp_path / "extra.camcal",
+                         lambda d: _node(d, path).update(surprise=1))
+    key = "/".join(map(str, path)) + "/surprise"
+    with pytest.raises(CamcalError, match=f"unknown key {key} ") as err:
+        load_profile(bad)
+    assert "extra.camcal" in str(err.value) and "\n" not in str(err.value)
+
+
+def _node_or_none(doc, path):
+    try:
+        return _node(doc, path)
+    except (KeyError, IndexError, TypeError):
+        return None
+
+
+def test_unknown_key_cli_one_line(profile_path, tmp_path):
+    bad = _rehashed_copy(profile_path, tmp_path / "extra.camcal", lambda d: d["dark"].update(beta_source="x"))
+    assert_one_line_error(run_cli("profile", "show", bad), "extra.camcal", "unknown key dark/beta_source")
+
+
+def test_newer_minor_version_with_new_keys_says_so(profile_path, tmp_path):
+    def newer(d):
+        d["schema_version"] = "1.9"
+        d["camera"]["lens"] = "50 mm"
+
+    bad = _rehashed_copy(profile_path, tmp_path / "newer.camcal", newer)
+    with pytest.raises(CamcalError, match="unknown key camera/lens .*1.9 is newer.*use a newer camcal"):
+        load_profile(bad)
+
+
+def test_schema_1_0_profile_still_loads(profile_path, tmp_path):
+    """A profile as camcal 1.0 wrote it (no colour matrix, version 1.0) loads under the strict schema; the
+    informational records stay free-form (they are never read back)."""
+    def as_1_0(d):
+        d["schema_version"] = "1.0"
+        if d["response"] and d["response"].get("processed"):
+            d["response"]["processed"].pop("colour_matrix", None)
+        d["dark"]["summary"]["written_by"] = "an older camcal"
+        d["flat"]["info"]["anything"] = {"nested": [1, 2]}
+
+    old = load_profile(_rehashed_copy(profile_path, tmp_path / "old.camcal", as_1_0))
+    assert old.schema_version == "1.0" and old.dark is not None and old.flat is not None
+
+
+def test_profile_without_stages_follows_the_schema():
+    from camcal.profile import CalibrationProfile, CameraIdentity, profile_to_document, validate_document
+
+    p = CalibrationProfile(CameraIdentity("m", "x", None, "RGGB", 96, 64), 100.0, 4.0)
+    doc, maps = profile_to_document(p)
+    assert maps == {} and all(doc[k] is None for k in ("dark", "flat", "response", "spectral_sensitivity"))
+    validate_document({**doc, "integrity": {"algorithm": "sha256", "content_sha256": "0" * 64,
+                                            "maps_sha256": None}}, "p.camcal")
