@@ -23,7 +23,8 @@ from enum import IntEnum
 
 import numpy as np
 
-from camcal.water.models import ClosedForm
+from camcal.errors import CamcalError
+from camcal.water.models import ClosedForm, form_at
 from camcal.water.units import mol_per_L_to_ug_per_L
 
 #: Largest m·τ tabulated (E₃ underflows near 700).
@@ -257,7 +258,8 @@ def invert_ratio(ratio, model, depth_m, *, sigma_ln_ratio=None, method: str = "t
     Parameters
     ----------
     ratio : array, measured L_disk/L_ref (any shape).
-    model : :class:`~camcal.water.models.SeedModel` or :class:`~camcal.water.models.RefinedModel`.
+    model : :class:`~camcal.water.models.SeedModel`, :class:`~camcal.water.models.RefinedModel` (mean or exact
+        transmittance) or :class:`~camcal.water.models.LampModel` (one depth).
     depth_m : disk depth, m (scalar or an array broadcastable to ``ratio``).
     sigma_ln_ratio : relative 1-σ uncertainty of the ratio (σ_r / r), scalar or array; None → NaN σ.
     method : 'table' (fast, for images) or 'newton' (per pixel, the reference).
@@ -267,8 +269,14 @@ def invert_ratio(ratio, model, depth_m, *, sigma_ln_ratio=None, method: str = "t
     :class:`Inversion` (arrays of the shape of ``ratio``).
     """
     r = np.asarray(ratio)
-    cf = model.closed_form()
     scalar_depth = np.ndim(depth_m) == 0 and np.isfinite(depth_m) and float(depth_m) >= MIN_DEPTH_M
+    if hasattr(model, "closed_form_at"):  # the geometry depends on the depth (LampModel)
+        finite = np.asarray(depth_m, float)[np.isfinite(depth_m)]
+        if finite.size and np.ptp(finite) > 0:
+            raise CamcalError(f"the {model.name} model's geometry depends on the depth: invert one depth at a time")
+        cf = form_at(model, float(finite.flat[0]) if finite.size and finite.flat[0] >= MIN_DEPTH_M else 1.0)
+    else:
+        cf = model.closed_form()
     scalar_sigma = sigma_ln_ratio is None or np.ndim(sigma_ln_ratio) == 0
     if method == "table" and scalar_depth and scalar_sigma:
         return _finite_or_reason(_invert_table_scalar(r, model, cf, float(depth_m), sigma_ln_ratio))
