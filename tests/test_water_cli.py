@@ -116,6 +116,10 @@ def test_invert_band_aware_with_profile(profile_path, secchi_exrs, tmp_path):
     out = json.loads(proc.stdout)
     assert out["band_model"]["water_absorption"] == "Pope & Fry 1997"
     assert out["c_ug_per_L"][0] == pytest.approx(truth["c_ug_per_L"], rel=0.01)
+    # the profile's u_c(λ) carried to C (no other input stated): a positive term, and the only one
+    sens = out["sigma_terms_ug_per_L"]["sensitivity"][0]
+    assert set(out["sigma_terms_ug_per_L"]) == {"sensitivity"} and 0 < sens < 0.2 * truth["c_ug_per_L"]
+    assert out["uncertainty"]["dominant"] == "sensitivity" and out["sigma_ug_per_L"][0] == pytest.approx(sens)
     # the narrowband reading of the same broad red channel (ε at 663 nm, in-process) is far off
     rs, _ = read_exr(sub, ["R"])
     rr, _ = read_exr(ref, ["R"])

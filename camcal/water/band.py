@@ -248,7 +248,7 @@ class BandModel:
         total = np.sum(np.clip(np.asarray(self.sensitivity, float), 0, None) * s * dl)
         r = self.spectral_ratio(c_ug_per_L, depth_m)
         b = self.ratio(c_ug_per_L, depth_m)
-        u = np.asarray(sensitivity_sigma, float)
+        u = np.where(np.asarray(self.sensitivity, float) > 0, np.asarray(sensitivity_sigma, float), 0.0)  # clipped c
         return np.sqrt(np.sum(np.square(s * dl * (r - np.asarray(b)[..., None]) * u / total), axis=-1))
 
     def inverse(self, depth_m: float, nodes: int = 800) -> BandInverse:

@@ -18,9 +18,10 @@ Functions, §5.1 (exponential integrals E_n); Mobley, C. D. (1994), Light and Wa
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.optimize import brentq
 from scipy.special import expn
 
 from camcal.water.optics import (
@@ -380,6 +381,14 @@ class LampModel:
         e_air = hd / (x * x + hd * hd) ** 1.5
         return self.albedo * e_water / e_air * self.transmittance_up() / (n * n)
 
+    def toward(self, offset_x_m: float, offset_y_m: float, depth_m: float) -> LampModel:
+        """The same lamp seen from a disk point offset by (x, y) m from the disk centre (x away from the lamp's
+        foot): a LampModel whose lamp angle is that of the refracted ray reaching that point (the geometry
+        depends only on the point's horizontal distance from the lamp's foot). Per-pixel geometry."""
+        x0 = float(self.horizontal_offset_m(depth_m))
+        target = float(np.hypot(x0 + offset_x_m, offset_y_m))
+        return replace(self, lamp_angle_rad=lamp_angle_reaching(self.height_m, depth_m, target, self.n_water))
+
     def closed_form_at(self, depth_m: float) -> ExponentialForm:
         return ExponentialForm(float(self.geometry_factor(depth_m)), float(self.path_factor()))
 
@@ -392,6 +401,18 @@ class LampModel:
     def ratio(self, c_mol_per_L, depth_m):
         """Camera radiance of the submerged disk over that of the dry disk (broadcast over C and d)."""
         return self.geometry_factor(depth_m) * np.exp(-self.path_factor() * self.tau(c_mol_per_L, depth_m))
+
+
+def lamp_angle_reaching(height_m: float, depth_m: float, horizontal_m: float, n_water: float = N_WATER) -> float:
+    """Air zenith angle α (rad) of the lamp ray that reaches depth d at horizontal distance X from the lamp's
+    foot: H tan α + d tan β(α) = X (monotone in α; Brent's method)."""
+    if horizontal_m <= 0:
+        return 0.0
+
+    def miss(a: float) -> float:
+        return height_m * np.tan(a) + depth_m * np.tan(float(snell(a, 1.0, n_water))) - horizontal_m
+
+    return float(brentq(miss, 0.0, np.radians(89.99), xtol=1e-15, rtol=1e-15))
 
 
 def lamp_ratio(c_mol_per_L, depth_m, height_m: float, lamp_angle_rad: float, model: RefinedModel | None = None):
