@@ -55,7 +55,11 @@ def test_simulate_writes_csv_and_png(tmp_path):
     for name in ("depth", "concentration"):
         assert (tmp_path / "sim" / f"ratio_vs_{name}.png").read_bytes()[:4] == b"\x89PNG"
         rows = np.loadtxt(tmp_path / "sim" / f"ratio_vs_{name}.csv", delimiter=",", comments="#", skiprows=2)
-        assert rows.shape[1] == 4 and np.all(np.diff(rows[:, 1]) < 0)
+        assert rows.shape[1] == 5 and np.all(np.diff(rows[:, 1]) < 0)
+    table = (tmp_path / "sim" / "appendix_comparison.md").read_text()
+    assert "appendix as written" in table and table.count("\n") == 2 + 20
+    head = (tmp_path / "sim" / "appendix_comparison.csv").read_text().splitlines()[1].split(",")
+    assert {"error_eq11", "c_appendix_as_written", "error_second_order_exact"} <= set(head)
 
 
 def test_errors_are_one_line(tmp_path):

@@ -362,7 +362,8 @@ def register(app: typer.Typer) -> None:
 
     @water.command("simulate")
     def simulate_cmd(out: Path = typer.Option(..., "-o", "--out", help="Output folder.")) -> None:
-        """Reproduce the seed's §5 curves (CSV + PNG), the exact eq. 10 beside eq. 11."""
+        """Reproduce the seed's §5 curves (CSV + PNG): the exact eq. 10 beside eq. 11 and the appendix's (k, q)
+        model; and the table of C read by eq. 11 and the appendix (as written, corrected, solved) vs the truth."""
         from camcal.water.simulate import simulate_seed_section5
 
         for p in simulate_seed_section5(out):

@@ -236,6 +236,67 @@ class SeedModel:
             return -np.log10(np.asarray(ratio, float) / base) / (
                 2.0 * self.epsilon_L_per_mol_cm * 100.0 * np.asarray(depth_m, float))
 
+    # ---- the seed's appendix (§6.1): the second-order (k, q) formula -------------------------------------
+    def appendix_k_q(self, depth_m, theta0_rad: float = 0.0):
+        """The appendix's angular constants: k = [−cos²θ/2]_θ0^θc = (cos²θ0 − cos²θc)/2 and
+        q = ε d ln10 [(2θ sin 2θ + (1 − 2θ²) cos 2θ)/8]_θ0^θc (per mol/L; d in cm inside ε d).
+
+        They come from expanding 10^(−2εdC/cos θ) ≈ 10^(−2εdC)(1 − εdC ln10 θ²) (1/cos θ ≈ 1 + θ²/2, correct to
+        second order in θ) and integrating against cos θ sin θ (the antiderivative of θ² cos θ sin θ is right).
+        """
+        def f(t):
+            return (2 * t * np.sin(2 * t) + (1 - 2 * t * t) * np.cos(2 * t)) / 8
+
+        k = 0.5 * (np.cos(theta0_rad) ** 2 - np.cos(self.cutoff_rad) ** 2)
+        j = f(self.cutoff_rad) - f(theta0_rad)
+        q = self.epsilon_L_per_mol_cm * 100.0 * np.asarray(depth_m, float) * LN10 * j
+        return float(k), q
+
+    def ratio_second_order(self, c_mol_per_L, depth_m, theta0_rad: float = 0.0):
+        """The appendix's forward model: L_i/L_s = 2ρ 10^(−2εdC) (k − Cq) (negative where Cq > k)."""
+        k, q = self.appendix_k_q(depth_m, theta0_rad)
+        c = np.asarray(c_mol_per_L, float)
+        return 2 * self.albedo * np.exp(-2 * self.tau(c, depth_m)) * (k - c * q)
+
+    def invert_appendix_as_written(self, ratio, depth_m, theta0_rad: float = 0.0):
+        """The appendix's last line, as written: C = [ln(L_i 10^(2εd) / (2ρ L_s)) + k − 1] / (q − ln 10).
+
+        Evaluated with ln(10^(2εd)) = 2εd ln10 (ε d in L/mol, so 10^(2εd) overflows). Errata (docs/water.md):
+        its second line flips the exponent's sign; ln(k − Cq) is replaced by k − Cq − 1 (valid near 1, but
+        k ≤ ½); the C of 10^(−2εdC) is lost, leaving 10^(2εd); the C-terms are collected wrongly (q − ln 10).
+        The result is ≈ 2/J mol/L whatever the data (5.55 mol/L for θc = π/2.1, θ0 = 0).
+        """
+        k, q = self.appendix_k_q(depth_m, theta0_rad)
+        ed = self.epsilon_L_per_mol_cm * 100.0 * np.asarray(depth_m, float)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return (np.log(np.asarray(ratio, float) / (2 * self.albedo)) + 2 * ed * LN10 + k - 1) / (q - LN10)
+
+    def invert_appendix_corrected(self, ratio, depth_m, theta0_rad: float = 0.0):
+        """The appendix's intended algebra, corrected: ln(r/2ρ) = −2 ln10 εdC + ln(k − Cq) with the same
+        linearisation ln(k − Cq) ≈ k − Cq − 1, solved for C: C = (k − 1 − ln(r/2ρ)) / (2 ln10 εd + q)."""
+        k, q = self.appendix_k_q(depth_m, theta0_rad)
+        ed = self.epsilon_L_per_mol_cm * 100.0 * np.asarray(depth_m, float)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return (k - 1 - np.log(np.asarray(ratio, float) / (2 * self.albedo))) / (2 * LN10 * ed + q)
+
+    def invert_second_order(self, ratio, depth_m, theta0_rad: float = 0.0):
+        """The appendix's (k, q) model solved exactly: 2ρ 10^(−2εdC)(k − Cq) = r for C in [0, k/q) (the left
+        side decreases monotonically there; Brent's method per value). NaN where r > 2ρk or r ≤ 0."""
+        k, q = self.appendix_k_q(depth_m, theta0_rad)
+        r, qq = np.broadcast_arrays(np.asarray(ratio, float), np.asarray(q, float))
+        ed = np.broadcast_to(self.epsilon_L_per_mol_cm * 100.0 * np.asarray(depth_m, float), r.shape)
+        out = np.full(r.shape, np.nan)
+        for i in np.ndindex(r.shape):
+            ri, qi, ei = float(r[i]), float(qq[i]), float(ed[i])
+            if not (0 < ri <= 2 * self.albedo * k and qi > 0):
+                continue
+
+            def g(c, ri=ri, qi=qi, ei=ei):
+                return -2 * LN10 * ei * c + np.log(max(k - c * qi, 1e-300)) - np.log(ri / (2 * self.albedo))
+
+            out[i] = brentq(g, 0.0, k / qi, xtol=1e-30, rtol=1e-13)
+        return out
+
 
 @dataclass(frozen=True)
 class RefinedModel:
