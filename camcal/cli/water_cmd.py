@@ -219,7 +219,9 @@ def register(app: typer.Typer) -> None:
         band_channel=typer.Option("R", help="With --profile: the channel whose c(λ) defines the band."),
         illuminant=typer.Option(None, help="With --profile: the light (default D65; lamp model: 'lamp' = 3200 K "
                                 "black body); flat, A, 3000K, ... or a measured lamp CSV (wavelength_nm,value)."),
-        chlorophyll_csv=typer.Option(None, help="With --profile: absorber spectrum CSV (default Bricaud 1998)."),
+        chlorophyll_csv=typer.Option(None, "--absorber-csv", "--chlorophyll-csv", help="With --profile: the "
+                                     "absorber's spectrum (chlorophyll, a dye): CSV of ε(λ) per gram or per mole, "
+                                     "or a measured absorbance (default: Bricaud 1998 chlorophyll)."),
     )
 
     @water.command("forward")

@@ -89,13 +89,50 @@ def solvent_spectrum(wavelengths_nm, epsilon_L_per_g_cm) -> ChlorophyllAbsorptio
     return ChlorophyllAbsorption(wl, specific_absorption_m2_per_mg(1.0) * eps, np.ones_like(wl), "solvent ε(λ)")
 
 
+_MASS_CONC_G_PER_L = {"g/l": 1.0, "mg/l": 1e-3, "ug/l": 1e-6, "µg/l": 1e-6, "mg/m3": 1e-6, "mg/m^3": 1e-6}
+_MOLAR_CONC_MOL_PER_L = {"mol/l": 1.0, "m": 1.0, "mmol/l": 1e-3, "umol/l": 1e-6, "µmol/l": 1e-6}
+
+
+def _csv_metadata(text: str) -> dict[str, str]:
+    """``# key: value`` (or ``# key = value``) comment lines of a CSV, keys lower-case."""
+    meta = {}
+    for ln in text.splitlines():
+        m = re.fullmatch(r"\s*#\s*([A-Za-z_][\w ]*?)\s*[:=]\s*(.+?)\s*", ln)
+        if m:
+            meta[m.group(1).strip().lower().replace(" ", "_")] = m.group(2)
+    return meta
+
+
+def _meta_number(meta: dict, key: str, path: Path, example: str) -> tuple[float, str]:
+    if key not in meta:
+        raise CamcalError(f"absorber CSV needs a '# {key}: {example}' line", path)
+    m = re.fullmatch(r"([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*(\S*)", meta[key].strip())
+    if not m or not np.isfinite(float(m.group(1))) or float(m.group(1)) <= 0:
+        raise CamcalError(f"absorber CSV: '# {key}: {meta[key]}' is not a positive number with a unit "
+                          f"(e.g. {example})", path)
+    return float(m.group(1)), m.group(2).lower()
+
+
 def read_chlorophyll_csv(path: str | Path) -> ChlorophyllAbsorption:
-    """A user spectrum: CSV with ``wavelength_nm`` and either ``epsilon_L_per_g_cm`` (linear) or
-    ``A_m2_per_mg`` and optionally ``E`` (power law); ``#`` lines are comments."""
+    """An absorber's spectrum (chlorophyll, a dye, a pigment standard) from a CSV; ``#`` lines are comments.
+
+    Columns: ``wavelength_nm`` and one of
+
+    - ``epsilon_L_per_g_cm``: decadic specific absorption coefficient (linear, Beer-Lambert);
+    - ``epsilon_L_per_mol_cm``: decadic molar coefficient, with a ``# molar_mass_g_per_mol: 792.85`` line
+      (C is then reported per mass, µg/L);
+    - ``absorbance``: a spectrophotometer's decadic absorbance A(λ) of a known solution, with
+      ``# concentration: 10 mg/L`` (mass: g/L, mg/L, µg/L; or molar: mol/L, mmol/L, µmol/L with a molar mass
+      line) and ``# path_length: 1 cm`` (cm, mm or m) lines: ε = A / (c l) (blank-subtracted A assumed);
+    - ``A_m2_per_mg`` and optionally ``E``: the power law a = A C^E (natural log, m⁻¹, C in mg m⁻³).
+
+    All give a_abs(λ, C) in m⁻¹ with C in µg/L (= mg m⁻³): a = 2.303e-4 ε[L g⁻¹ cm⁻¹] C.
+    """
     from camcal.manifest import read_text_file
 
     path = Path(path)
-    text = read_text_file(path, "chlorophyll absorption CSV")
+    text = read_text_file(path, "absorber (chlorophyll/dye) CSV")
+    meta = _csv_metadata(text)
     lines = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
     if not lines:
         raise CamcalError("chlorophyll CSV is empty (no header row)", path)
@@ -121,11 +158,42 @@ def read_chlorophyll_csv(path: str | Path) -> ChlorophyllAbsorption:
     wl = v[:, header.index("wavelength_nm")]
     if np.any(np.diff(wl) <= 0) or wl[0] <= 0:
         raise CamcalError("chlorophyll CSV: wavelengths must be positive and increasing", path)
+
+    def molar_mass() -> float:
+        m, unit = _meta_number(meta, "molar_mass_g_per_mol", path, "792.85")
+        if unit not in ("", "g/mol"):
+            raise CamcalError(f"absorber CSV: molar mass unit {unit!r}; give g/mol", path)
+        return m
+
+    def linear(eps_g: np.ndarray, column: str, how: str) -> ChlorophyllAbsorption:
+        if np.any(eps_g < 0):
+            raise CamcalError(f"chlorophyll CSV: {column} must not be negative", path)
+        return replace(solvent_spectrum(wl, eps_g), source=f"{path} ({how})")
+
     if "epsilon_L_per_g_cm" in header:
-        eps = v[:, header.index("epsilon_L_per_g_cm")]
-        if np.any(eps < 0):
-            raise CamcalError("chlorophyll CSV: epsilon_L_per_g_cm must not be negative", path)
-        return replace(solvent_spectrum(wl, eps), source=str(path))
+        return linear(v[:, header.index("epsilon_L_per_g_cm")], "epsilon_L_per_g_cm", "ε per gram")
+    if "epsilon_L_per_mol_cm" in header:
+        mm = molar_mass()
+        return linear(v[:, header.index("epsilon_L_per_mol_cm")] / mm, "epsilon_L_per_mol_cm",
+                      f"molar ε, M = {mm:g} g/mol")
+    if "absorbance" in header:
+        c, unit = _meta_number(meta, "concentration", path, "10 mg/L")
+        if unit in _MASS_CONC_G_PER_L:
+            c_g_per_L = c * _MASS_CONC_G_PER_L[unit]
+        elif unit in _MOLAR_CONC_MOL_PER_L:
+            c_g_per_L = c * _MOLAR_CONC_MOL_PER_L[unit] * molar_mass()
+        else:
+            raise CamcalError(f"absorber CSV: concentration unit {unit!r}; use g/L, mg/L, ug/L, mol/L, mmol/L or "
+                              "umol/L", path)
+        ell, lunit = _meta_number(meta, "path_length", path, "1 cm")
+        to_cm = {"cm": 1.0, "mm": 0.1, "m": 100.0, "": 1.0}
+        if lunit not in to_cm:
+            raise CamcalError(f"absorber CSV: path length unit {lunit!r}; use cm, mm or m", path)
+        a = v[:, header.index("absorbance")]
+        if np.any(a < -0.01):
+            raise CamcalError("absorber CSV: absorbance below -0.01 (blank not subtracted correctly?)", path)
+        return linear(np.clip(a, 0.0, None) / (c_g_per_L * ell * to_cm[lunit]), "absorbance",
+                      f"absorbance of {c:g} {unit} over {ell:g} {lunit or 'cm'}")
     if "A_m2_per_mg" in header:
         a = v[:, header.index("A_m2_per_mg")]
         e = v[:, header.index("E")] if "E" in header else np.ones_like(wl)
@@ -134,7 +202,11 @@ def read_chlorophyll_csv(path: str | Path) -> ChlorophyllAbsorption:
         if np.any(e <= 0) or np.any(e > 2):
             raise CamcalError("chlorophyll CSV: the power-law exponent E must be in (0, 2]", path)
         return ChlorophyllAbsorption(wl, a, e, str(path))
-    raise CamcalError("chlorophyll CSV needs an epsilon_L_per_g_cm or an A_m2_per_mg column", path)
+    raise CamcalError("absorber CSV needs an epsilon_L_per_g_cm, epsilon_L_per_mol_cm, absorbance or A_m2_per_mg "
+                      "column", path)
+
+
+read_absorber_csv = read_chlorophyll_csv
 
 
 @dataclass(frozen=True, eq=False)
