@@ -113,6 +113,8 @@ def test_cli_writes_total_and_terms(tmp_path):
                    "--model", "lamp", "--lamp-height", "1m", "--lamp-angle", "20", "--epsilon-unc", "3%")
     out = json.loads(proc.stdout)
     assert set(out["sigma_terms_ug_per_L"]) == {"depth", "epsilon"}
+    assert set(out["uncertainty"]["not_stated"]) == {"lamp_height", "lamp_angle", "ratio"}
+    assert "not_stated" not in unc  # the EXR run stated every input
     # ε ± 3 % is ± 3 % in C (C ∝ 1/ε); the depth term is ≈ C σ_d/d (plus water and geometry)
     assert out["sigma_terms_ug_per_L"]["epsilon"][0] == pytest.approx(0.03 * 89.35, rel=0.01)
     assert out["sigma_ug_per_L"][0] == pytest.approx(np.hypot(out["sigma_terms_ug_per_L"]["epsilon"][0],

@@ -191,6 +191,17 @@ def _band(m, profile, band_channel, illuminant, chlorophyll_csv, background_abso
     return band
 
 
+def _unc_summary(terms: dict, inputs: list) -> dict:
+    """Median of each σ_C term, the dominant one, and the inputs whose uncertainty was not stated."""
+    from camcal.water.uncertainty import dominant
+
+    out = dominant(terms)
+    missing = [q.name for q in inputs if not q.sigma > 0] + ([] if "ratio" in terms else ["ratio"])
+    if missing:
+        out["not_stated"] = missing  # these contribute nothing to σ_C: state them to include them
+    return out
+
+
 def register(app: typer.Typer) -> None:
     water = typer.Typer(help="Rendering equation in a water column; chlorophyll-a inversion.", no_args_is_help=True)
     app.add_typer(water, name="water")
@@ -291,7 +302,7 @@ def register(app: typer.Typer) -> None:
         profile's uncertainty of c(λ); the output names the dominant term.
         """
         from camcal.water.invert import Reason, invert_images, invert_ratio
-        from camcal.water.uncertainty import Uncertain, all_terms, combine, dominant
+        from camcal.water.uncertainty import Uncertain, all_terms, combine
 
         d, d_sig = _depth_unc(depth)
         if relative_sigma is not None and not (np.isfinite(relative_sigma) and relative_sigma >= 0):
@@ -322,7 +333,7 @@ def register(app: typer.Typer) -> None:
             print_json({**meta, "ratio": _json_list(r), "c_mol_per_L": _json_list(inv.c_mol_per_L),
                         "c_ug_per_L": _json_list(inv.c_ug_per_L), "sigma_ug_per_L": _json_list(total),
                         "sigma_terms_ug_per_L": {k: _json_list(v) for k, v in terms.items()},
-                        "uncertainty": dominant(terms),
+                        "uncertainty": _unc_summary(terms, inputs),
                         "reason": [Reason(int(v)).name.lower() for v in inv.reason]})
             return
         if submerged is None or reference is None or out is None:
@@ -351,7 +362,7 @@ def register(app: typer.Typer) -> None:
             terms = all_terms(inv, m, d, inputs)
             total = combine(terms) if terms else inv.sigma_ug_per_L
             bar.advance(task)
-            summary = {**inv.summary(), "uncertainty": dominant(terms)}
+            summary = {**inv.summary(), "uncertainty": _unc_summary(terms, inputs)}
             meta.update({"channel": channel, "reasons": {r.name.lower(): int(r) for r in Reason},
                          "summary": summary})
             channels = {"chl_ug_per_L": inv.c_ug_per_L, "chl_unc_ug_per_L": total,
