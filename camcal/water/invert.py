@@ -293,8 +293,9 @@ def invert_ratio(ratio, model, depth_m, *, sigma_ln_ratio=None, method: str = "t
     good_depth = np.isfinite(depth) & (depth >= MIN_DEPTH_M)
     reason[~good_depth & (reason == 0)] = Reason.BAD_DEPTH
     dd = np.where(good_depth, depth, 1.0)
-    per_c = model.tau(1.0, dd) - model.background_tau(dd)
-    tau_bg = model.background_tau(dd)
+    with np.errstate(over="ignore", invalid="ignore"):  # absurd depths overflow: TOO_DARK via _finite_or_reason
+        per_c = model.tau(1.0, dd) - model.background_tau(dd)
+        tau_bg = model.background_tau(dd)
     with np.errstate(invalid="ignore"):
         excess = tau - tau_bg
         clamp = (reason == 0) & (excess < 0) & (excess >= -1e-9 * np.maximum(tau_bg, 1e-300))
@@ -324,8 +325,9 @@ def _finite_or_reason(inv: Inversion) -> Inversion:
 def _invert_table_scalar(r: np.ndarray, model, cf: ClosedForm, depth_m: float, sigma_ln_ratio) -> Inversion:
     """The image fast path: one depth and one relative σ; chunked, on two threads, fused."""
     table = tau_table(cf)
-    tau_bg = float(model.background_tau(depth_m))
-    per_c = float(model.tau(1.0, depth_m)) - tau_bg  # τ per (mol/L)
+    with np.errstate(over="ignore", invalid="ignore"):  # absurd depths overflow: TOO_DARK via _finite_or_reason
+        tau_bg = float(model.background_tau(depth_m))
+        per_c = float(model.tau(1.0, depth_m)) - tau_bg  # τ per (mol/L)
     to_ug = float(mol_per_L_to_ug_per_L(1.0))
     flat = r.reshape(-1)
     c = np.empty(flat.size)
