@@ -159,3 +159,58 @@ def test_illuminant_names_and_lamp_csv(tmp_path):
         illuminant_spectrum(str(f), wl)
     with pytest.raises(CamcalError, match="unknown illuminant"):
         illuminant_spectrum("candle", wl)
+
+
+def test_per_pixel_geometry_narrowband_is_exact():
+    """Each pixel's own lamp geometry: random pixels of a ratio image made pixel by pixel are read back to 1e-9."""
+    from dataclasses import replace
+
+    from camcal.water.lampfield import PixelGeometry, invert_per_pixel
+    from camcal.water.models import lamp_angle_reaching
+
+    lamp = LampModel(0.5, np.radians(30))
+    geom = PixelGeometry(0.002, (63.5, 47.5), 180.0)
+    x = geom.distances_m((96, 128), lamp, 0.3)
+    idx = np.random.default_rng(0).integers(0, x.size, 60)
+    r = np.full(x.shape, np.nan)
+    for i in idx:
+        r.flat[i] = replace(lamp, lamp_angle_rad=lamp_angle_reaching(0.5, 0.3, float(x.flat[i]))).ratio(1e-7, 0.3)
+    inv = invert_per_pixel(r, lamp, 0.3, geom, sigma_ln_ratio=0.01)
+    np.testing.assert_allclose(inv.c_mol_per_L.flat[idx], 1e-7, rtol=1e-9)
+    assert np.all(inv.reason.flat[idx] == 0) and np.all(inv.sigma_ug_per_L.flat[idx] > 0)
+    # the centre's geometry on the same pixels: off by up to ±2 % at 13 cm from the centre
+    centre = invert_ratio(r, lamp, 0.3).c_mol_per_L.flat[idx]
+    assert 0.01 < np.max(np.abs(centre / 1e-7 - 1)) < 0.05
+    # the lamp's direction matters: the lamp on the other side mirrors the error
+    mirrored = invert_per_pixel(r, lamp, 0.3, PixelGeometry(0.002, (63.5, 47.5), 0.0))
+    assert np.max(np.abs(mirrored.c_mol_per_L.flat[idx] / 1e-7 - 1)) > 0.02
+    with pytest.raises(CamcalError, match="lamp model"):
+        invert_per_pixel(r, RefinedModel(), 0.3, geom)
+
+
+def test_per_pixel_geometry_through_the_cli(tmp_path):
+    from dataclasses import replace
+
+    from camcal.exr import read_exr, write_exr
+    from camcal.water.lampfield import PixelGeometry
+    from camcal.water.models import lamp_angle_reaching
+
+    lamp = LampModel(0.5, np.radians(30))
+    geom = PixelGeometry(0.004, (15.5, 11.5), 180.0)
+    x = geom.distances_m((24, 32), lamp, 0.3)
+    xs = np.unique(x)
+    rs = {v: float(replace(lamp, lamp_angle_rad=lamp_angle_reaching(0.5, 0.3, float(v))).ratio(1e-7, 0.3)) for v in xs}
+    sub = np.vectorize(rs.get)(x).astype(np.float32)
+    write_exr(tmp_path / "s.exr", {"L663": sub})
+    write_exr(tmp_path / "r.exr", {"L663": np.ones_like(sub)})
+    args = ["water", "invert", "--submerged", tmp_path / "s.exr", "--reference", tmp_path / "r.exr", "--depth", "0.3m",
+            "--model", "lamp", "--lamp-height", "0.5m", "--lamp-angle", "30"]
+    proc = run_cli(*args, "--disk-pixel-size", "4mm", "--disk-centre-px", "15.5,11.5", "-o", tmp_path / "c.exr")
+    assert proc.returncode == 0, proc.stderr
+    ch, meta = read_exr(tmp_path / "c.exr", ["chl_ug_per_L"])
+    assert meta["lamp_geometry"]["per_pixel"] is True
+    np.testing.assert_allclose(ch["chl_ug_per_L"], 89.35, rtol=2e-6)  # float32 ratios
+    proc = run_cli(*args, "-o", tmp_path / "c2.exr")
+    ch2, meta2 = read_exr(tmp_path / "c2.exr", ["chl_ug_per_L"])
+    assert meta2["lamp_geometry"]["per_pixel"] is False and np.max(np.abs(ch2["chl_ug_per_L"] / 89.35 - 1)) > 0.01
+    assert_one_line_error(run_cli(*args, "--disk-pixel-size", "4mm", "-o", tmp_path / "c3.exr"), "--disk-centre-px")

@@ -191,6 +191,23 @@ def _band(m, profile, band_channel, illuminant, chlorophyll_csv, background_abso
     return band
 
 
+def _pixel_geometry(model: str, size: str, centre: str | None, direction_deg: float):
+    from camcal.water.lampfield import PixelGeometry
+    from camcal.water.units import parse_length_m
+
+    if model != "lamp":
+        raise CamcalError("--disk-pixel-size (per-pixel geometry) is for --model lamp")
+    if not centre:
+        raise CamcalError("--disk-pixel-size needs --disk-centre-px x,y (the disk centre in EXR pixels)")
+    try:
+        cx, cy = (float(v) for v in centre.split(","))
+    except ValueError:
+        raise CamcalError(f"--disk-centre-px must be x,y in pixels, got {centre!r}") from None
+    if not (np.isfinite(direction_deg) and np.isfinite(cx) and np.isfinite(cy)):
+        raise CamcalError("--disk-centre-px and --lamp-direction must be finite numbers")
+    return PixelGeometry(parse_length_m(size), (cx, cy), float(direction_deg))
+
+
 def _unc_summary(terms: dict, inputs: list) -> dict:
     """Median of each σ_C term, the dominant one, and the inputs whose uncertainty was not stated."""
     from camcal.water.uncertainty import dominant
@@ -292,6 +309,12 @@ def register(app: typer.Typer) -> None:
         background_absorption: float = common["background_absorption"], reflectance: str = common["reflectance"],
         transmittance: str = common["transmittance"], lamp_height: str = common["lamp_height"],
         lamp_angle: str = common["lamp_angle"], epsilon_unc: str = common["epsilon_unc"],
+        disk_pixel_size: str = typer.Option(None, help="lamp, EXR: size of one pixel on the disk plane (e.g. "
+                                            "'0.8mm'): invert each pixel with its own lamp geometry, not the "
+                                            "disk centre's (needs --disk-centre-px)."),
+        disk_centre_px: str = typer.Option(None, help="lamp, per pixel: the disk centre in EXR pixels, 'x,y'."),
+        lamp_direction: float = typer.Option(180.0, help="lamp, per pixel: direction in the image from the disk "
+                                             "centre toward the lamp, degrees from +x toward +y (180: left)."),
     ) -> None:
         """Chlorophyll-a (or dye) per pixel from a submerged and a reference radiance image (or from numbers).
 
@@ -323,6 +346,8 @@ def register(app: typer.Typer) -> None:
             meta.update({"inversion": "narrowband", "epsilon_L_per_mol_cm": m.epsilon_L_per_mol_cm})
             channel = channel or "L663"
         if ratio is not None:
+            if disk_pixel_size is not None:
+                raise CamcalError("--disk-pixel-size needs images (--submerged/--reference), not --ratio")
             r = _list(ratio, _ratio, "ratio")
             if profile is not None:
                 inv = m.inverse(d).concentration(r, sigma_ln_ratio=relative_sigma)
@@ -358,6 +383,13 @@ def register(app: typer.Typer) -> None:
                 kwargs = {"sigma_submerged": sub[sigma_channel], "sigma_reference": ref[sigma_channel]}
             elif relative_sigma is not None:
                 kwargs = {"sigma_submerged": relative_sigma * np.abs(sub[channel].astype(float))}
+            if disk_pixel_size is not None:
+                pg = _pixel_geometry(model, disk_pixel_size, disk_centre_px, lamp_direction)
+                kwargs["pixel_geometry"] = pg
+                meta["lamp_geometry"] = {"per_pixel": True, "metres_per_pixel": pg.metres_per_pixel,
+                                         "disk_centre_px": list(pg.centre_px), "lamp_direction_deg": lamp_direction}
+            elif model == "lamp":
+                meta["lamp_geometry"] = {"per_pixel": False, "note": "every pixel inverted with the disk centre's"}
             inv = invert_images(sub[channel], ref[channel], m, d, roi=region, **kwargs)
             terms = all_terms(inv, m, d, inputs)
             total = combine(terms) if terms else inv.sigma_ug_per_L

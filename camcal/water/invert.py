@@ -368,14 +368,17 @@ def _invert_table_scalar(r: np.ndarray, model, cf: ClosedForm, depth_m: float, s
 
 
 def invert_images(submerged, reference, model, depth_m, *, sigma_submerged=None, sigma_reference=None,
-                  roi: tuple[int, int, int, int] | None = None, method: str = "table") -> Inversion:
+                  roi: tuple[int, int, int, int] | None = None, method: str = "table",
+                  pixel_geometry=None) -> Inversion:
     """Chlorophyll-a map from a submerged-disk radiance image and a reference radiance image.
 
     ``model`` is a SeedModel/RefinedModel (narrowband: the images are radiances at one wavelength) or a
     :class:`camcal.water.band.BandModel` (band-aware: the images are one channel's band radiances or DN
     rates; ``depth_m`` must then be a scalar). ``reference`` may be an image or a scalar; σ arguments are
     1-σ radiance uncertainties in the same units (images or scalars). ``roi`` = (x0, y0, width, height) in
-    pixels: pixels outside get NaN with reason OUTSIDE_ROI.
+    pixels: pixels outside get NaN with reason OUTSIDE_ROI. ``pixel_geometry`` (a
+    :class:`camcal.water.lampfield.PixelGeometry`, lamp model only): invert each pixel with its own lamp
+    geometry instead of the disk centre's.
     """
     sub = np.asarray(submerged, dtype=np.float64)
     ref = np.broadcast_to(np.asarray(reference, dtype=np.float64), sub.shape)
@@ -387,7 +390,9 @@ def invert_images(submerged, reference, model, depth_m, *, sigma_submerged=None,
             rs = 0.0 if sigma_submerged is None else np.asarray(sigma_submerged, float) / sub
             rr = 0.0 if sigma_reference is None else np.asarray(sigma_reference, float) / ref
             sig = np.sqrt(np.square(rs) + np.square(rr))
-    if hasattr(model, "inverse"):  # a BandModel: its tabulated band inverse at this depth
+    if pixel_geometry is not None:  # the lamp model, each pixel's own geometry
+        inv = pixel_geometry.invert(ratio, model, float(depth_m), sigma_ln_ratio=sig)
+    elif hasattr(model, "inverse"):  # a BandModel: its tabulated band inverse at this depth
         inv = model.inverse(float(depth_m)).concentration(ratio, sigma_ln_ratio=sig)
     else:
         inv = invert_ratio(ratio, model, depth_m, sigma_ln_ratio=sig, method=method)
