@@ -76,9 +76,13 @@ def interpolate_term(term_grid: np.ndarray, c_ug_per_L, grid: np.ndarray = C_GRI
 
 
 def combine(terms: dict[str, np.ndarray]) -> np.ndarray:
-    """Root sum of squares of the terms (NaN where any is NaN)."""
+    """Root sum of squares of the terms (NaN where any is NaN), accumulated in place."""
     arrays = [np.asarray(v, float) for v in terms.values()]
-    return np.sqrt(np.sum(np.square(np.broadcast_arrays(*arrays)), axis=0))
+    shape = np.broadcast_shapes(*(a.shape for a in arrays))
+    total = np.zeros(shape)
+    for a in arrays:
+        total += a * a
+    return np.sqrt(total, out=total)
 
 
 def dominant(terms: dict[str, np.ndarray]) -> dict:
@@ -168,17 +172,55 @@ def uncertainty_terms(model, depth_m: float, c_ug_per_L, inputs: list[Uncertain]
     db = derivative_c(model, grid, depth_m)
     if sensitivity_sigma is None:
         sensitivity_sigma = getattr(model, "sensitivity_sigma", None)
-    out = {}
+    tables = {}
     for q in inputs:
         if q.sigma > 0:
-            out[q.name] = interpolate_term(term_sigma_c(forward_for(model, depth_m, q.name), q, grid, db),
-                                           c_ug_per_L, grid)
+            tables[q.name] = term_sigma_c(forward_for(model, depth_m, q.name), q, grid, db)
     if sensitivity_sigma is not None and _is_band(model):
         sb = model.ratio_sigma_from_sensitivity(grid, depth_m, sensitivity_sigma)
         with np.errstate(divide="ignore", invalid="ignore"):
-            out["sensitivity"] = interpolate_term(np.abs(sb / db), c_ug_per_L, grid)
-    return out
+            tables["sensitivity"] = np.abs(sb / db)
+    return interpolate_terms(tables, c_ug_per_L, grid)
 
+
+def interpolate_terms(tables: dict[str, np.ndarray], c_ug_per_L, grid: np.ndarray = C_GRID_UG_PER_L,
+                      ) -> dict[str, np.ndarray]:
+    """Several terms tabulated on a log-uniform ``grid`` at per-pixel C (log-log linear, clamped at the ends,
+    NaN where C is NaN): cell index and weight computed once per pixel for all terms, in chunks of 2¹⁸
+    pixels (bounded temporaries, as the inversion)."""
+    c = np.asarray(c_ug_per_L, float)
+    lg = np.log(grid)
+    uniform = grid.size >= 2 and np.allclose(np.diff(lg), lg[1] - lg[0], rtol=1e-9, atol=0)
+    logs = {}
+    out = {}
+    for name, t in tables.items():
+        t = np.asarray(t, float)
+        if uniform and np.all(np.isfinite(t) & (t > 0)):
+            logs[name] = np.log(t)
+        else:  # a term that vanishes somewhere: the general (slower) path
+            out[name] = interpolate_term(t, c, grid)
+    if not logs:
+        return out
+    flat = c.reshape(-1)
+    res = {name: np.empty(flat.size) for name in logs}
+    inv_step, lo, last = 1.0 / (lg[1] - lg[0]), lg[0], grid.size - 2
+    for s in range(0, flat.size, 1 << 18):
+        cc = flat[s:s + (1 << 18)]
+        finite = np.isfinite(cc)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = np.log(np.clip(np.where(finite, cc, grid[0]), grid[0], grid[-1]))
+        u -= lo
+        u *= inv_step
+        j = np.minimum(u.astype(np.intp), last)
+        u -= j
+        for name, lt in logs.items():
+            v = lt.take(j)
+            v += u * (lt.take(j + 1) - v)
+            np.exp(v, out=v)
+            v[~finite] = np.nan
+            res[name][s:s + cc.size] = v
+    out.update({name: v.reshape(c.shape) for name, v in res.items()})
+    return out
 
 def all_terms(inv, model, depth_m: float, inputs: list[Uncertain]) -> dict[str, np.ndarray]:
     """The σ_C terms (µg/L) of an :class:`camcal.water.invert.Inversion`: 'ratio' (its per-pixel ratio-noise
