@@ -94,26 +94,30 @@ def invert_per_pixel(ratio, model, depth_m: float, geometry: PixelGeometry, *, s
     lo, hi = float(x.min()), float(x.max())
     if hasattr(model, "inverse"):  # band-aware: inverses at uniform distances, C interpolated linearly in X'
         grid = np.linspace(lo, hi, max(nodes, 2)) if hi > lo else np.array([lo, lo + 1e-9])
-        pos = np.clip((x - grid[0]) / (grid[1] - grid[0]), 0, grid.size - 1 - 1e-12)
-        j = pos.astype(int)
-        t = pos - j
-        c = np.zeros(r.shape)
-        sig = np.zeros(r.shape)
-        reason = np.zeros(r.shape, dtype=np.uint8)
-        s = None if sigma_ln_ratio is None else np.broadcast_to(np.asarray(sigma_ln_ratio, float), r.shape)
-        for k, xk in enumerate(grid):
-            wgt = np.where(j == k, 1 - t, np.where(j == k - 1, t, 0.0))
-            use = wgt > 0
-            if not use.any():
+        pos = np.clip((x - grid[0]) / (grid[1] - grid[0]), 0, grid.size - 1 - 1e-12).reshape(-1)
+        cell = pos.astype(np.intp)
+        t = pos - cell
+        inverses = [replace(model, geometry=_at(lamp, d, float(xk))).inverse(d) for xk in grid]
+        flat = r.reshape(-1)
+        s = None if sigma_ln_ratio is None else np.broadcast_to(np.asarray(sigma_ln_ratio, float), r.shape).reshape(-1)
+        c = np.full(flat.size, np.nan)
+        sig = np.full(flat.size, np.nan)
+        reason = np.zeros(flat.size, dtype=np.uint8)
+        for k in range(grid.size - 1):
+            idx = np.flatnonzero(cell == k)
+            if idx.size == 0:
                 continue
-            inv = replace(model, geometry=_at(lamp, d, float(xk))).inverse(d).concentration(
-                r[use], sigma_ln_ratio=None if s is None else s[use])
-            c[use] += wgt[use] * inv.c_ug_per_L
-            sig[use] += wgt[use] * inv.sigma_ug_per_L
-            reason[use] = np.maximum(reason[use], inv.reason)
+            sk = None if s is None else s[idx]
+            a = inverses[k].concentration(flat[idx], sigma_ln_ratio=sk)
+            b = inverses[k + 1].concentration(flat[idx], sigma_ln_ratio=sk)
+            tk = t[idx]
+            c[idx] = (1 - tk) * a.c_ug_per_L + tk * b.c_ug_per_L
+            sig[idx] = (1 - tk) * a.sigma_ug_per_L + tk * b.sigma_ug_per_L
+            reason[idx] = np.maximum(a.reason, b.reason)
         bad = reason != 0
         c[bad] = np.nan
         sig[bad] = np.nan
+        c, sig, reason = c.reshape(r.shape), sig.reshape(r.shape), reason.reshape(r.shape)
         return Inversion(c / mol_per_L_to_ug_per_L(1.0), c, sig, np.full(r.shape, np.nan), reason)
     # narrowband: map each pixel's ratio to the centre's for the same τ (exact for one exponential)
     k_ = np.arange(NARROW_NODES)
