@@ -6,6 +6,8 @@ import json
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.integrate import quad
 
 from camcal.errors import CamcalError
@@ -16,6 +18,7 @@ from camcal.water.invert import Reason, invert_ratio
 from camcal.water.models import ExponentialForm, LampModel, RefinedModel, lamp_ratio
 from camcal.water.optics import fresnel_reflectance, snell
 from tests.conftest import assert_one_line_error, run_cli
+from tests.test_properties import check_inversion
 
 C_MOL = np.array([1e-9, 1e-8, 1e-7, 3e-7, 5e-7])
 
@@ -214,3 +217,23 @@ def test_per_pixel_geometry_through_the_cli(tmp_path):
     ch2, meta2 = read_exr(tmp_path / "c2.exr", ["chl_ug_per_L"])
     assert meta2["lamp_geometry"]["per_pixel"] is False and np.max(np.abs(ch2["chl_ug_per_L"] / 89.35 - 1)) > 0.01
     assert_one_line_error(run_cli(*args, "--disk-pixel-size", "4mm", "-o", tmp_path / "c3.exr"), "--disk-centre-px")
+
+
+def test_epsilon_unc_as_percent_or_fraction():
+    r = repr(float(LampModel(1.0, 0.2).ratio(1e-7, 0.3)))
+    base = ["water", "invert", "--ratio", r, "--depth", "0.3m", "--model", "lamp", "--lamp-height", "1m",
+            "--lamp-angle", str(np.degrees(0.2))]
+    a = json.loads(run_cli(*base, "--epsilon-unc", "3%").stdout)["sigma_terms_ug_per_L"]["epsilon"][0]
+    b = json.loads(run_cli(*base, "--epsilon-unc", "0.03").stdout)["sigma_terms_ug_per_L"]["epsilon"][0]
+    assert a == pytest.approx(b) and a == pytest.approx(0.03 * 89.35, rel=0.01)
+    assert_one_line_error(run_cli(*base, "--epsilon-unc", "lots"), "--epsilon-unc")
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.floats(allow_nan=False, allow_infinity=False), min_size=1, max_size=8),
+       st.floats(allow_nan=False, allow_infinity=False), st.sampled_from(["table", "newton"]), st.booleans())
+def test_lamp_and_exact_models_any_finite_input(ratio, depth, method, lamp):
+    """The same safeguards as the other models: no exception, NaN exactly where a reason is given."""
+    model = LampModel(0.8, 0.3) if lamp else RefinedModel(transmittance="exact")
+    inv = invert_ratio(np.asarray(ratio), model, depth, sigma_ln_ratio=0.01, method=method)
+    check_inversion(inv, ratio, np.asarray(depth, float))

@@ -137,6 +137,15 @@ def _unc_value(value: float, text: str | None, parse, what: str) -> float:
     return float(sig)
 
 
+def _number(what: str):
+    def parse(text: str) -> float:
+        try:
+            return float(text)
+        except ValueError:
+            raise CamcalError(f"cannot read {what} {text!r}: give a number or a percentage") from None
+    return parse
+
+
 def _angle_deg(text: str) -> float:
     t = text.strip().lower().removesuffix("deg").removesuffix("°").strip()
     try:
@@ -172,9 +181,9 @@ def _build(kind, epsilon, albedo, cutoff_deg, view_deg, n_water, water_absorptio
                reflectance, transmittance, h_text, a_deg)
     if kind == "lamp":
         inputs += [Uncertain("lamp_height", m.height_m, h_sig, "m"), Uncertain("lamp_angle", a_deg, a_sig, "deg")]
-    if epsilon_unc is not None:
-        inputs.append(Uncertain("epsilon", 1.0, _unc_value(1.0, epsilon_unc if epsilon_unc.endswith("%") else
-                                                           epsilon_unc + "%", float, "--epsilon-unc"), "relative"))
+    if epsilon_unc is not None:  # '3%' or a fraction '0.03'
+        inputs.append(Uncertain("epsilon", 1.0, _unc_value(1.0, epsilon_unc.strip(), _number("--epsilon-unc"),
+                                                           "--epsilon-unc"), "relative"))
     return m, inputs
 
 
@@ -240,8 +249,8 @@ def register(app: typer.Typer) -> None:
         lamp_height=typer.Option(None, help="lamp: height above the water surface, e.g. '1m' or '1m±0.01m'."),
         lamp_angle=typer.Option(None, help="lamp: air zenith angle of its ray to the disk centre, degrees, "
                                 "e.g. '20' or '20±0.5'."),
-        epsilon_unc=typer.Option(None, help="Relative 1-σ of ε (or of the absorber spectrum with --profile), "
-                                 "e.g. '2%'."),
+        epsilon_unc=typer.Option(None, help="Relative 1-σ of ε (or of the absorber spectrum with --profile): "
+                                 "'3%' or the fraction '0.03'."),
         profile=typer.Option(None, "--profile", help="Calibration profile: band-aware model over its c(λ) "
                              "(images hold band radiances, as `camcal apply` writes)."),
         band_channel=typer.Option("R", help="With --profile: the channel whose c(λ) defines the band."),

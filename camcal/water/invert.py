@@ -274,7 +274,13 @@ def invert_ratio(ratio, model, depth_m, *, sigma_ln_ratio=None, method: str = "t
         finite = np.asarray(depth_m, float)[np.isfinite(depth_m)]
         if finite.size and np.ptp(finite) > 0:
             raise CamcalError(f"the {model.name} model's geometry depends on the depth: invert one depth at a time")
-        cf = form_at(model, float(finite.flat[0]) if finite.size and finite.flat[0] >= MIN_DEPTH_M else 1.0)
+        dep = float(finite.flat[0]) if finite.size and finite.flat[0] >= MIN_DEPTH_M else 1.0
+        with np.errstate(all="ignore"):
+            cf = form_at(model, dep)
+        if not (np.isfinite(cf.ratio_at_zero) and cf.ratio_at_zero > 0 and np.isfinite(cf.slope_at_zero)):
+            cf = form_at(model, 1.0)  # an absurd depth (the geometry overflows): every pixel BAD_DEPTH below
+            depth_m = np.full(np.shape(depth_m), np.nan)
+            scalar_depth = False
     else:
         cf = model.closed_form()
     scalar_sigma = sigma_ln_ratio is None or np.ndim(sigma_ln_ratio) == 0
