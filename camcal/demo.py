@@ -168,7 +168,7 @@ def run_demo(out: str | Path, *, size: tuple[int, int] = (384, 256), preset_name
         "band_R": float(np.nanmedian(ref["R"][core])),
         "true_band_R": true_band_r,
         "ratio": float(np.nanmedian(ratio[core])),
-        "true_ratio": float(scenes.truth["predicted_red_band_ratio"]),
+        "true_ratio": float(scenes.truth["rendered_red_band_ratio"]),  # what the camera saw
         "chl": float(np.nanmedian(inv.c_ug_per_L[core])),
         "true_chl": CHL_UG_PER_L,
     }

@@ -430,14 +430,16 @@ def seed_ratio_figure(table: np.ndarray, name: str) -> Figure:
 
     Parameters
     ----------
-    table : (n, 4) array from :func:`camcal.water.simulate.seed_section5_tables`: columns x, exact
-        ratio (eq. 10, E₃ closed form), first-order ratio (eq. 11), relative error of eq. 11.
+    table : (n, 4) or (n, 5) array from :func:`camcal.water.simulate.seed_section5_tables`: columns x, exact
+        ratio (eq. 10, E₃ closed form), first-order ratio (eq. 11), relative error of eq. 11 and, when
+        present, the second-order ratio of the seed's appendix (k, q) (drawn where positive).
     name : ``"depth"`` (x in m, drawn in cm, C = 1e-7 mol/L) or ``"concentration"`` (x in mol/L, d = 20 cm).
 
     Returns
     -------
     Figure
-        One axes with two lines labelled ``"exact (eq. 10, E₃ closed form)"`` and ``"first order (eq. 11)"``.
+        One axes with lines labelled ``"exact (eq. 10, E₃ closed form)"``, ``"first order (eq. 11)"`` and,
+        with a fifth column, ``"second order (appendix k, q)"``.
     """
     if name not in ("depth", "concentration"):
         raise ValueError(f"name must be depth or concentration, got {name!r}")
@@ -447,6 +449,8 @@ def seed_ratio_figure(table: np.ndarray, name: str) -> Figure:
     x = t[:, 0] * (100.0 if name == "depth" else 1.0)
     ax.semilogy(x, t[:, 1], label="exact (eq. 10, E₃ closed form)")
     ax.semilogy(x, t[:, 2], "--", label="first order (eq. 11)")
+    if t.shape[1] > 4:
+        ax.semilogy(x, np.where(t[:, 4] > 0, t[:, 4], np.nan), ":", label="second order (appendix k, q)")
     ax.set_xlabel("depth (cm)" if name == "depth" else "C (mol/L)")
     ax.set_ylabel("L_i / L_s at 663 nm")
     ax.set_title("C = 1e-7 mol/L" if name == "depth" else "d = 20 cm")

@@ -337,7 +337,7 @@ def test_no_camcal_module_imports_matplotlib_at_import_time():
 
 # modules that still call matplotlib.use; camcal/water/simulate.py is being changed elsewhere (issue 17: it is to
 # draw with a Figure like camcal.plots) — empty this set when it is.
-STILL_SETTING_THE_BACKEND = {"camcal/water/simulate.py"}
+STILL_SETTING_THE_BACKEND: set[str] = set()
 
 
 def test_no_library_module_sets_the_matplotlib_backend():

@@ -55,7 +55,11 @@ def test_simulate_writes_csv_and_png(tmp_path):
     for name in ("depth", "concentration"):
         assert (tmp_path / "sim" / f"ratio_vs_{name}.png").read_bytes()[:4] == b"\x89PNG"
         rows = np.loadtxt(tmp_path / "sim" / f"ratio_vs_{name}.csv", delimiter=",", comments="#", skiprows=2)
-        assert rows.shape[1] == 4 and np.all(np.diff(rows[:, 1]) < 0)
+        assert rows.shape[1] == 5 and np.all(np.diff(rows[:, 1]) < 0)
+    table = (tmp_path / "sim" / "appendix_comparison.md").read_text()
+    assert "appendix as written" in table and table.count("\n") == 2 + 20
+    head = (tmp_path / "sim" / "appendix_comparison.csv").read_text().splitlines()[1].split(",")
+    assert {"error_eq11", "c_appendix_as_written", "error_second_order_exact"} <= set(head)
 
 
 def test_errors_are_one_line(tmp_path):
@@ -116,6 +120,10 @@ def test_invert_band_aware_with_profile(profile_path, secchi_exrs, tmp_path):
     out = json.loads(proc.stdout)
     assert out["band_model"]["water_absorption"] == "Pope & Fry 1997"
     assert out["c_ug_per_L"][0] == pytest.approx(truth["c_ug_per_L"], rel=0.01)
+    # the profile's u_c(λ) carried to C (no other input stated): a positive term, and the only one
+    sens = out["sigma_terms_ug_per_L"]["sensitivity"][0]
+    assert set(out["sigma_terms_ug_per_L"]) == {"sensitivity"} and 0 < sens < 0.2 * truth["c_ug_per_L"]
+    assert out["uncertainty"]["dominant"] == "sensitivity" and out["sigma_ug_per_L"][0] == pytest.approx(sens)
     # the narrowband reading of the same broad red channel (ε at 663 nm, in-process) is far off
     rs, _ = read_exr(sub, ["R"])
     rr, _ = read_exr(ref, ["R"])

@@ -129,3 +129,35 @@ def test_pope_fry_1997_table():
     assert WATER_ABSORPTION_663_PER_M == pytest.approx(0.425, abs=1e-12)
     assert RefinedModel().water_absorption_per_m == WATER_ABSORPTION_663_PER_M
     assert RefinedModel.at_wavelength(680.0).water_absorption_per_m == pytest.approx(0.465)
+
+
+def test_seed_appendix_second_order_formula():
+    """The appendix (§6.1): its (k, q) model checked by quadrature, its last line as written and corrected."""
+    from scipy.integrate import quad
+
+    from camcal.water.simulate import appendix_comparison
+
+    m = SeedModel()
+    d, c, tc = 0.2, 1e-7, m.cutoff_rad
+    k, q = m.appendix_k_q(d)
+    assert k == pytest.approx(0.5 * np.sin(tc) ** 2)
+    ed = m.epsilon_L_per_mol_cm * 20.0  # ε d, d in cm
+    # q/(ε d ln10) = ∫ θ² cos θ sin θ dθ over [0, θc]: the appendix's antiderivative is right
+    j = quad(lambda t: t * t * np.cos(t) * np.sin(t), 0, tc, epsabs=0, epsrel=1e-13)[0]
+    assert q == pytest.approx(ed * np.log(10) * j, rel=1e-12)
+    # its forward model is eq. 10 with the integrand expanded to second order in θ
+    second = 2 * quad(lambda t: 10 ** (-2 * ed * c) * (1 - ed * c * np.log(10) * t * t) * np.cos(t) * np.sin(t),
+                      0, tc, epsabs=0, epsrel=1e-13)[0]
+    assert m.ratio_second_order(c, d) == pytest.approx(second, rel=1e-10)
+    # solved exactly, the (k, q) model inverts itself; read on exact eq. 10 data it is off by +9.4 % here
+    assert m.invert_second_order(m.ratio_second_order(c, d), d) == pytest.approx(c, rel=1e-10)
+    r = m.ratio(c, d)
+    assert m.invert_second_order(r, d) / c - 1 == pytest.approx(0.094, abs=0.001)
+    # the last line as written returns ≈ 2/J mol/L whatever the ratio (10^(2εd) dominates)
+    for rr in (r, 0.5 * r, 1e-3):
+        assert m.invert_appendix_as_written(rr, d) == pytest.approx(2 / j, rel=1e-4)
+    # the corrected algebra inverts the linearised model ln(r/2) = −2 ln10 εdC + (k − Cq − 1) exactly
+    lin = 2 * np.exp(-2 * np.log(10) * ed * c + k - c * q - 1)
+    assert m.invert_appendix_corrected(lin, d) == pytest.approx(c, rel=1e-12)
+    rows = appendix_comparison(m)
+    assert len(rows) == 20 and all(row["error_eq11"] > 0 for row in rows)

@@ -13,35 +13,49 @@ from camcal.errors import CamcalError
 
 
 def _model(kind: str, epsilon: str, albedo: float, cutoff_deg: float | None, view_deg: float, n_water: float,
-           water_absorption: float, background_absorption: float, reflectance: str):
-    from camcal.water.models import SEED_CUTOFF_RAD, RefinedModel, SeedModel
-    from camcal.water.units import parse_epsilon_L_per_mol_cm
+           water_absorption: float, background_absorption: float, reflectance: str, transmittance: str = "mean",
+           lamp_height: str | None = None, lamp_angle_deg: float | None = None):
+    from camcal.water.models import SEED_CUTOFF_RAD, LampModel, RefinedModel, SeedModel
+    from camcal.water.units import parse_epsilon_L_per_mol_cm, parse_length_m
 
     eps = parse_epsilon_L_per_mol_cm(epsilon)
     if not (eps > 0 and 0 < albedo < np.inf):
         raise CamcalError("epsilon and albedo must be positive (and finite)")
     if reflectance not in ("fresnel", "schlick"):
         raise CamcalError(f"unknown reflectance {reflectance!r}; use fresnel or schlick")
+    if transmittance not in ("mean", "exact"):
+        raise CamcalError(f"unknown --transmittance {transmittance!r}; use mean or exact")
     if kind in ("seed", "seed-first-order"):
         cut = SEED_CUTOFF_RAD if cutoff_deg is None else np.radians(cutoff_deg)
         if not 0 < cut < np.pi / 2:
             raise CamcalError("cutoff angle must be between 0 and 90 degrees")
         return SeedModel(eps, albedo, float(cut))
-    if kind == "refined":
-        cut = np.pi / 2 if cutoff_deg is None else np.radians(cutoff_deg)
-        if not 0 < cut <= np.pi / 2:
-            raise CamcalError("cutoff angle must be above 0 and at most 90 degrees")
-        if not 0 <= view_deg < 90:
-            raise CamcalError(f"--view-deg must be from 0 to below 90 degrees (from nadir), got {view_deg!r}")
-        if not 1 <= n_water < 3:
-            raise CamcalError(f"--n-water must be a refractive index from 1 to 3 (water: 1.33), got {n_water!r}")
-        for name, value in (("--water-absorption", water_absorption), ("--background-absorption",
-                                                                        background_absorption)):
-            if not 0 <= value < np.inf:
-                raise CamcalError(f"{name} must be a finite absorption >= 0 per m, got {value!r}")
-        return RefinedModel(eps, albedo, n_water, float(cut), float(np.radians(view_deg)), water_absorption,
-                            background_absorption, reflectance)
-    raise CamcalError(f"unknown model {kind!r}; use seed, seed-first-order or refined")
+    if kind not in ("refined", "lamp"):
+        raise CamcalError(f"unknown model {kind!r}; use seed, seed-first-order, refined or lamp")
+    if not 0 <= view_deg < 90:
+        raise CamcalError(f"--view-deg must be from 0 to below 90 degrees (from nadir), got {view_deg!r}")
+    if not 1 <= n_water < 3:
+        raise CamcalError(f"--n-water must be a refractive index from 1 to 3 (water: 1.33), got {n_water!r}")
+    for name, value in (("--water-absorption", water_absorption), ("--background-absorption",
+                                                                    background_absorption)):
+        if not 0 <= value < np.inf:
+            raise CamcalError(f"{name} must be a finite absorption >= 0 per m, got {value!r}")
+    if kind == "lamp":
+        if lamp_height is None or lamp_angle_deg is None:
+            raise CamcalError("--model lamp needs --lamp-height (above the water surface, e.g. 1m) and --lamp-angle "
+                              "(degrees from the vertical in air)")
+        h = parse_length_m(lamp_height)
+        if not 0.01 <= h <= 100:
+            raise CamcalError(f"--lamp-height {lamp_height!r} is implausible: give 1 cm to 100 m")
+        if not 0 <= lamp_angle_deg < 85:
+            raise CamcalError(f"--lamp-angle must be from 0 to below 85 degrees, got {lamp_angle_deg!r}")
+        return LampModel(h, float(np.radians(lamp_angle_deg)), eps, albedo, n_water, float(np.radians(view_deg)),
+                         water_absorption, background_absorption, reflectance)
+    cut = np.pi / 2 if cutoff_deg is None else np.radians(cutoff_deg)
+    if not 0 < cut <= np.pi / 2:
+        raise CamcalError("cutoff angle must be above 0 and at most 90 degrees")
+    return RefinedModel(eps, albedo, n_water, float(cut), float(np.radians(view_deg)), water_absorption,
+                        background_absorption, reflectance, transmittance)
 
 
 #: Plausible disk depths, m: a micrometre to the deepest ocean (anything else is a typing error).
@@ -98,21 +112,153 @@ def _roi(text: str | None) -> tuple[int, int, int, int] | None:
     return x0, y0, w, h
 
 
+def _split_unc(text: str) -> tuple[str, str | None]:
+    """'0.30m±0.005m' (or '+-') → ('0.30m', '0.005m'); no ± → (text, None)."""
+    for sep in ("±", "+/-", "+-"):
+        if sep in text:
+            a, b = text.split(sep, 1)
+            return a.strip(), b.strip()
+    return text.strip(), None
+
+
+def _unc_value(value: float, text: str | None, parse, what: str) -> float:
+    """A 1-σ from '0.005m', '2%' (of the value) or None (0)."""
+    if text is None:
+        return 0.0
+    if text.endswith("%"):
+        try:
+            sig = abs(value) * float(text[:-1]) / 100.0
+        except ValueError:
+            raise CamcalError(f"cannot read the uncertainty {text!r} of {what}") from None
+    else:
+        sig = parse(text)
+    if not (np.isfinite(sig) and sig >= 0):
+        raise CamcalError(f"the uncertainty of {what} must be a finite number >= 0, got {text!r}")
+    return float(sig)
+
+
+def _number(what: str):
+    def parse(text: str) -> float:
+        try:
+            return float(text)
+        except ValueError:
+            raise CamcalError(f"cannot read {what} {text!r}: give a number or a percentage") from None
+    return parse
+
+
+def _angle_deg(text: str) -> float:
+    t = text.strip().lower().removesuffix("deg").removesuffix("°").strip()
+    try:
+        return float(t)
+    except ValueError:
+        raise CamcalError(f"cannot read the angle {text!r}: give degrees, e.g. 20 or 20±0.5") from None
+
+
+def _depth_unc(text: str) -> tuple[float, float]:
+    from camcal.water.units import parse_length_m
+
+    a, b = _split_unc(text)
+    d = _depth(a)
+    return d, _unc_value(d, b, parse_length_m, "--depth")
+
+
+def _build(kind, epsilon, albedo, cutoff_deg, view_deg, n_water, water_absorption, background_absorption,
+           reflectance, transmittance, lamp_height, lamp_angle, epsilon_unc):
+    """(model, stated inputs other than depth) from the options."""
+    from camcal.water.uncertainty import Uncertain
+    from camcal.water.units import parse_length_m
+
+    inputs = []
+    h_text = a_deg = None
+    if lamp_height is not None:
+        h_text, h_unc = _split_unc(lamp_height)
+        h_sig = _unc_value(parse_length_m(h_text), h_unc, parse_length_m, "--lamp-height")
+    if lamp_angle is not None:
+        a_text, a_unc = _split_unc(lamp_angle)
+        a_deg = _angle_deg(a_text)
+        a_sig = _unc_value(a_deg, a_unc, _angle_deg, "--lamp-angle")
+    m = _model(kind, epsilon, albedo, cutoff_deg, view_deg, n_water, water_absorption, background_absorption,
+               reflectance, transmittance, h_text, a_deg)
+    if kind == "lamp":
+        inputs += [Uncertain("lamp_height", m.height_m, h_sig, "m"), Uncertain("lamp_angle", a_deg, a_sig, "deg")]
+    if epsilon_unc is not None:  # '3%' or a fraction '0.03'
+        inputs.append(Uncertain("epsilon", 1.0, _unc_value(1.0, epsilon_unc.strip(), _number("--epsilon-unc"),
+                                                           "--epsilon-unc"), "relative"))
+    return m, inputs
+
+
+def _band(m, profile, band_channel, illuminant, chlorophyll_csv, background_absorption, meta):
+    """Wrap a geometry in the band model of a profile's channel (illuminant: the lamp for --model lamp)."""
+    from camcal.water.band import band_model_from_profile, read_chlorophyll_csv
+
+    light = illuminant or ("lamp" if getattr(m, "name", "") == "lamp" else "D65")
+    chl = read_chlorophyll_csv(chlorophyll_csv) if chlorophyll_csv else None
+    band = band_model_from_profile(profile, band_channel, geometry=m, chlorophyll=chl, illuminant=light,
+                                   background_absorption_per_m=background_absorption)
+    meta.update({"inversion": "band", "profile": str(profile), "band_channel": band_channel,
+                 "illuminant": light, "band_model": band.describe()})
+    return band
+
+
+def _pixel_geometry(model: str, size: str, centre: str | None, direction_deg: float):
+    from camcal.water.lampfield import PixelGeometry
+    from camcal.water.units import parse_length_m
+
+    if model != "lamp":
+        raise CamcalError("--disk-pixel-size (per-pixel geometry) is for --model lamp")
+    if not centre:
+        raise CamcalError("--disk-pixel-size needs --disk-centre-px x,y (the disk centre in EXR pixels)")
+    try:
+        cx, cy = (float(v) for v in centre.split(","))
+    except ValueError:
+        raise CamcalError(f"--disk-centre-px must be x,y in pixels, got {centre!r}") from None
+    if not (np.isfinite(direction_deg) and np.isfinite(cx) and np.isfinite(cy)):
+        raise CamcalError("--disk-centre-px and --lamp-direction must be finite numbers")
+    return PixelGeometry(parse_length_m(size), (cx, cy), float(direction_deg))
+
+
+def _unc_summary(terms: dict, inputs: list) -> dict:
+    """Median of each σ_C term, the dominant one, and the inputs whose uncertainty was not stated."""
+    from camcal.water.uncertainty import dominant
+
+    out = dominant(terms)
+    missing = [q.name for q in inputs if not q.sigma > 0] + ([] if "ratio" in terms else ["ratio"])
+    if missing:
+        out["not_stated"] = missing  # these contribute nothing to σ_C: state them to include them
+    return out
+
+
 def register(app: typer.Typer) -> None:
     water = typer.Typer(help="Rendering equation in a water column; chlorophyll-a inversion.", no_args_is_help=True)
     app.add_typer(water, name="water")
 
     common = dict(
-        model=typer.Option("seed", "--model", help="seed (eq. 10 exact), seed-first-order (eq. 11), refined."),
+        model=typer.Option("seed", "--model", help="seed (eq. 10 exact), seed-first-order (eq. 11), refined, "
+                           "lamp (seed §4: point lamp over a tank)."),
         epsilon=typer.Option("seed", help="ε: '88L/g/cm', '78628L/mol/cm', or seed|porra1989|jeffrey-humphrey1975."),
         albedo=typer.Option(1.0, help="Disk albedo relative to the reference."),
         cutoff_deg=typer.Option(None, help="Cutoff angle θc, degrees (seed: π/2.1; refined: air-side sky cutoff)."),
-        view_deg=typer.Option(0.0, help="refined: camera view angle from nadir in air, degrees."),
-        n_water=typer.Option(1.33, help="refined: refractive index of water."),
-        water_absorption=typer.Option(0.425, help="refined, narrowband: pure-water absorption, m^-1 "
+        view_deg=typer.Option(0.0, help="refined/lamp: camera view angle from nadir in air, degrees."),
+        n_water=typer.Option(1.33, help="refined/lamp: refractive index of water."),
+        water_absorption=typer.Option(0.425, help="refined/lamp, narrowband: pure-water absorption, m^-1 "
                                        "(Pope & Fry 1997 at 663 nm; --profile uses their full spectrum)."),
-        background_absorption=typer.Option(0.0, help="refined: background (CDOM) absorption, m^-1."),
-        reflectance=typer.Option("fresnel", help="refined: fresnel (exact) or schlick."),
+        background_absorption=typer.Option(0.0, help="refined/lamp: background (CDOM) absorption, m^-1."),
+        reflectance=typer.Option("fresnel", help="refined/lamp: fresnel (exact) or schlick."),
+        transmittance=typer.Option("mean", help="refined: mean (T̄, E₃ closed form) or exact (T(θ) inside the "
+                                   "integral, quadrature)."),
+        lamp_height=typer.Option(None, help="lamp: height above the water surface, e.g. '1m' or '1m±0.01m'."),
+        lamp_angle=typer.Option(None, help="lamp: air zenith angle of its ray to the disk centre, degrees, "
+                                "e.g. '20' or '20±0.5'."),
+        epsilon_unc=typer.Option(None, help="Relative 1-σ of ε (or of the absorber spectrum with --profile): "
+                                 "'3%' or the fraction '0.03'."),
+        profile=typer.Option(None, "--profile", help="Calibration profile: band-aware model over its c(λ) "
+                             "(images hold band radiances, as `camcal apply` writes)."),
+        band_channel=typer.Option("R", help="With --profile: the channel whose c(λ) defines the band."),
+        illuminant=typer.Option(None, help="With --profile: the light (default D65; lamp model: 'lamp' = 3200 K "
+                                "black body); flat, A, 3000K, ... or a measured lamp CSV (wavelength_nm,value)."),
+        chlorophyll_csv=typer.Option(None, "--absorber-csv", "--chlorophyll-csv", help="With --profile: the "
+                                     "absorber's spectrum (chlorophyll, a dye): CSV of ε(λ) per gram or per mole, "
+                                     "or a measured absorbance (default: Bricaud 1998 chlorophyll)."),
     )
 
     @water.command("forward")
@@ -123,12 +269,16 @@ def register(app: typer.Typer) -> None:
         cutoff_deg: float = common["cutoff_deg"], view_deg: float = common["view_deg"],
         n_water: float = common["n_water"], water_absorption: float = common["water_absorption"],
         background_absorption: float = common["background_absorption"], reflectance: str = common["reflectance"],
+        transmittance: str = common["transmittance"], lamp_height: str = common["lamp_height"],
+        lamp_angle: str = common["lamp_angle"], profile: Path = common["profile"],
+        band_channel: str = common["band_channel"], illuminant: str = common["illuminant"],
+        chlorophyll_csv: Path = common["chlorophyll_csv"],
     ) -> None:
         """Predicted ratio (disk radiance over reference) for each concentration and depth, as JSON."""
         from camcal.water.units import mol_per_L_to_ug_per_L, parse_concentration_mol_per_L
 
-        m = _model(model, epsilon, albedo, cutoff_deg, view_deg, n_water, water_absorption, background_absorption,
-                   reflectance)
+        m, _ = _build(model, epsilon, albedo, cutoff_deg, view_deg, n_water, water_absorption,
+                      background_absorption, reflectance, transmittance, lamp_height, lamp_angle, None)
         c = _list(concentration, parse_concentration_mol_per_L, "concentration")
         d = _list(depth, _depth, "depth")
         if np.any(c < 0):
@@ -136,15 +286,21 @@ def register(app: typer.Typer) -> None:
         if np.any(c > MAX_CONCENTRATION_MOL_PER_L):
             raise CamcalError(f"concentration {concentration!r} is implausible: at most "
                               f"{MAX_CONCENTRATION_MOL_PER_L:g} mol/L")
+        meta = {"model": model, "inversion": "narrowband"}
         with np.errstate(all="ignore"):  # extreme optical depths: the ratio underflows to 0 (or NaN -> null)
-            ratio = m.ratio_first_order(c[None, :], d[:, None]) if model == "seed-first-order" else m.ratio(
-                c[None, :], d[:, None])
-        print_json({"model": model, "depth_m": d.tolist(), "c_mol_per_L": c.tolist(),
+            if profile is not None:
+                band = _band(m, profile, band_channel, illuminant, chlorophyll_csv, background_absorption, meta)
+                ratio = np.array([band.ratio(mol_per_L_to_ug_per_L(c), float(dd)) for dd in d])
+            elif model == "seed-first-order":
+                ratio = m.ratio_first_order(c[None, :], d[:, None])
+            else:
+                ratio = m.ratio(c[None, :], d[:, None])
+        print_json({**meta, "depth_m": d.tolist(), "c_mol_per_L": c.tolist(),
                     "c_ug_per_L": mol_per_L_to_ug_per_L(c).tolist(), "ratio": _json_nested(ratio)})
 
     @water.command("invert")
     def invert_cmd(
-        depth: str = typer.Option(..., help="Disk depth: '0.2m' or '20cm'."),
+        depth: str = typer.Option(..., help="Disk depth: '0.2m', '20cm', or with its 1-σ: '0.30m±0.005m'."),
         submerged: Path = typer.Option(None, help="EXR with the submerged disk's radiance."),
         reference: Path = typer.Option(None, help="EXR with the reference radiance (same channel)."),
         channel: str = typer.Option(None, help="EXR channel to read from both files (default L663; R with --profile)."),
@@ -152,52 +308,66 @@ def register(app: typer.Typer) -> None:
         relative_sigma: float = typer.Option(None, help="Relative 1-σ uncertainty of the ratio (instead of maps)."),
         roi: str = typer.Option(None, help="Region x0,y0,width,height in pixels; other pixels become NaN."),
         ratio: str = typer.Option(None, help="Numbers only: comma list of ratios; prints JSON."),
-        out: Path = typer.Option(None, "-o", "--out", help="Output EXR (chl_ug_per_L, chl_unc_ug_per_L, reason)."),
-        profile: Path = typer.Option(None, "--profile", help="Calibration profile: band-aware inversion over its "
-                                     "c(λ) (the images hold band radiances, as `camcal apply` writes)."),
-        band_channel: str = typer.Option("R", help="With --profile: the channel whose c(λ) defines the band."),
-        illuminant: str = typer.Option("D65", help="With --profile: the light's spectrum (flat, D65, A, ...)."),
-        chlorophyll_csv: Path = typer.Option(None, help="With --profile: a_chl(λ) CSV (default Bricaud 1998)."),
+        out: Path = typer.Option(None, "-o", "--out", help="Output EXR (chl_ug_per_L, chl_unc_ug_per_L, the σ "
+                                 "terms chl_unc_<term>_ug_per_L, reason)."),
+        profile: Path = common["profile"], band_channel: str = common["band_channel"],
+        illuminant: str = common["illuminant"], chlorophyll_csv: Path = common["chlorophyll_csv"],
         model: str = common["model"], epsilon: str = common["epsilon"], albedo: float = common["albedo"],
         cutoff_deg: float = common["cutoff_deg"], view_deg: float = common["view_deg"],
         n_water: float = common["n_water"], water_absorption: float = common["water_absorption"],
         background_absorption: float = common["background_absorption"], reflectance: str = common["reflectance"],
+        transmittance: str = common["transmittance"], lamp_height: str = common["lamp_height"],
+        lamp_angle: str = common["lamp_angle"], epsilon_unc: str = common["epsilon_unc"],
+        disk_pixel_size: str = typer.Option(None, help="lamp, EXR: size of one pixel on the disk plane (e.g. "
+                                            "'0.8mm'): invert each pixel with its own lamp geometry, not the "
+                                            "disk centre's (needs --disk-centre-px)."),
+        disk_centre_px: str = typer.Option(None, help="lamp, per pixel: the disk centre in EXR pixels, 'x,y'."),
+        lamp_direction: float = typer.Option(180.0, help="lamp, per pixel: direction in the image from the disk "
+                                             "centre toward the lamp, degrees from +x toward +y (180: left)."),
     ) -> None:
-        """Chlorophyll-a per pixel from a submerged and a reference radiance image (or from numbers).
+        """Chlorophyll-a (or dye) per pixel from a submerged and a reference radiance image (or from numbers).
 
         Narrowband by default (the images are radiances at the wavelength of --epsilon); with --profile,
         band-aware: the ratio is predicted by integrating the model over the profile's c(λ) of
-        --band-channel with Pope & Fry (1997) water (refined model) and a chlorophyll spectrum.
+        --band-channel with Pope & Fry (1997) water (refined and lamp models) and an absorber spectrum.
+        σ_C carries the ratio noise, the stated ± of depth, lamp height and angle, --epsilon-unc and the
+        profile's uncertainty of c(λ); the output names the dominant term.
         """
         from camcal.water.invert import Reason, invert_images, invert_ratio
-        d = _depth(depth)
+        from camcal.water.uncertainty import Uncertain, all_terms, combine
+
+        d, d_sig = _depth_unc(depth)
         if relative_sigma is not None and not (np.isfinite(relative_sigma) and relative_sigma >= 0):
             raise CamcalError(f"--relative-sigma must be a finite number >= 0, got {relative_sigma!r}")
         if model == "seed-first-order":
-            raise CamcalError("invert uses the exact models: choose --model seed or refined")
-        m = _model(model, epsilon, albedo, cutoff_deg, view_deg, n_water, water_absorption, background_absorption,
-                   reflectance)
-        meta = {"model": model, "depth_m": d}
+            raise CamcalError("invert uses the exact models: choose --model seed, refined or lamp")
+        m, inputs = _build(model, epsilon, albedo, cutoff_deg, view_deg, n_water, water_absorption,
+                           background_absorption, reflectance, transmittance, lamp_height, lamp_angle, epsilon_unc)
+        inputs = [Uncertain("depth", d, d_sig, "m"), *inputs]
+        meta = {"model": model, "depth_m": d, "stated_uncertainties": {q.name: {"value": q.value, "sigma": q.sigma,
+                                                                                 "unit": q.unit} for q in inputs}}
+        if model == "refined":
+            meta["transmittance"] = transmittance
         if profile is not None:
-            from camcal.water.band import band_model_from_profile, read_chlorophyll_csv
-
-            chl = read_chlorophyll_csv(chlorophyll_csv) if chlorophyll_csv else None
-            m = band_model_from_profile(profile, band_channel, geometry=m, chlorophyll=chl, illuminant=illuminant,
-                                        background_absorption_per_m=background_absorption)
-            meta.update({"inversion": "band", "profile": str(profile), "band_channel": band_channel,
-                         "illuminant": illuminant, "band_model": m.describe()})
+            m = _band(m, profile, band_channel, illuminant, chlorophyll_csv, background_absorption, meta)
             channel = channel or band_channel
         else:
             meta.update({"inversion": "narrowband", "epsilon_L_per_mol_cm": m.epsilon_L_per_mol_cm})
             channel = channel or "L663"
         if ratio is not None:
+            if disk_pixel_size is not None:
+                raise CamcalError("--disk-pixel-size needs images (--submerged/--reference), not --ratio")
             r = _list(ratio, _ratio, "ratio")
             if profile is not None:
                 inv = m.inverse(d).concentration(r, sigma_ln_ratio=relative_sigma)
             else:
                 inv = invert_ratio(r, m, d, sigma_ln_ratio=relative_sigma)
+            terms = all_terms(inv, m, d, inputs)
+            total = combine(terms) if terms else inv.sigma_ug_per_L
             print_json({**meta, "ratio": _json_list(r), "c_mol_per_L": _json_list(inv.c_mol_per_L),
-                        "c_ug_per_L": _json_list(inv.c_ug_per_L), "sigma_ug_per_L": _json_list(inv.sigma_ug_per_L),
+                        "c_ug_per_L": _json_list(inv.c_ug_per_L), "sigma_ug_per_L": _json_list(total),
+                        "sigma_terms_ug_per_L": {k: _json_list(v) for k, v in terms.items()},
+                        "uncertainty": _unc_summary(terms, inputs),
                         "reason": [Reason(int(v)).name.lower() for v in inv.reason]})
             return
         if submerged is None or reference is None or out is None:
@@ -222,19 +392,32 @@ def register(app: typer.Typer) -> None:
                 kwargs = {"sigma_submerged": sub[sigma_channel], "sigma_reference": ref[sigma_channel]}
             elif relative_sigma is not None:
                 kwargs = {"sigma_submerged": relative_sigma * np.abs(sub[channel].astype(float))}
+            if disk_pixel_size is not None:
+                pg = _pixel_geometry(model, disk_pixel_size, disk_centre_px, lamp_direction)
+                kwargs["pixel_geometry"] = pg
+                meta["lamp_geometry"] = {"per_pixel": True, "metres_per_pixel": pg.metres_per_pixel,
+                                         "disk_centre_px": list(pg.centre_px), "lamp_direction_deg": lamp_direction}
+            elif model == "lamp":
+                meta["lamp_geometry"] = {"per_pixel": False, "note": "every pixel inverted with the disk centre's"}
             inv = invert_images(sub[channel], ref[channel], m, d, roi=region, **kwargs)
+            terms = all_terms(inv, m, d, inputs)
+            total = combine(terms) if terms else inv.sigma_ug_per_L
             bar.advance(task)
+            summary = {**inv.summary(), "uncertainty": _unc_summary(terms, inputs)}
             meta.update({"channel": channel, "reasons": {r.name.lower(): int(r) for r in Reason},
-                         "summary": inv.summary()})
-            write_exr(out, {"chl_ug_per_L": inv.c_ug_per_L, "chl_unc_ug_per_L": inv.sigma_ug_per_L,
-                            "reason": inv.reason.astype(np.float32)}, meta)
+                         "summary": summary})
+            channels = {"chl_ug_per_L": inv.c_ug_per_L, "chl_unc_ug_per_L": total,
+                        **{f"chl_unc_{k}_ug_per_L": v for k, v in terms.items()},
+                        "reason": inv.reason.astype(np.float32)}
+            write_exr(out, channels, meta)
             bar.advance(task)
-        console.print(json.dumps(inv.summary()))
+        console.print(json.dumps(summary))
         console.print(f"wrote {out}")
 
     @water.command("simulate")
     def simulate_cmd(out: Path = typer.Option(..., "-o", "--out", help="Output folder.")) -> None:
-        """Reproduce the seed's §5 curves (CSV + PNG), the exact eq. 10 beside eq. 11."""
+        """Reproduce the seed's §5 curves (CSV + PNG): the exact eq. 10 beside eq. 11 and the appendix's (k, q)
+        model; and the table of C read by eq. 11 and the appendix (as written, corrected, solved) vs the truth."""
         from camcal.water.simulate import simulate_seed_section5
 
         for p in simulate_seed_section5(out):

@@ -7,9 +7,18 @@ wavelength the submerged disk's radiance is the water model's ratio times the re
     L_ref(λ) = ρ E(λ)/π,        L_sub(λ) = R_λ(τ_λ(C, d)) · L_ref(λ),
     τ_λ = [a_w(λ) + a_bg(λ) + a_chl(λ, C)] d,
 
-with R_λ the closed form of the chosen geometry (:class:`camcal.water.models.RefinedModel` by default, or
-the seed's eq. 10), a_w pure water (Pope & Fry 1997), a_chl the band model's chlorophyll spectrum (Bricaud
-et al. 1998 by default) — exactly :meth:`camcal.water.band.BandModel.spectral_ratio`. E(λ) is CIE D65
+with R_λ the ratio of the chosen geometry (:class:`camcal.water.models.RefinedModel` by default, or the
+seed's eq. 10), a_w pure water (Pope & Fry 1997), a_chl the band model's chlorophyll spectrum (Bricaud
+et al. 1998 by default).
+
+R_λ is **rendered independently of the inversion** (``renderer="independent"``, the default): by direct
+numerical integration over the sky's air-side zenith angles (composite Simpson, 4000 intervals), ray by
+ray — each sky ray refracted by Snell, transmitted with its own exact Fresnel T(θ_air), absorbed along its
+own slant path e^(−a(λ) d / cos θ_water), for every wavelength — then reflected by the disk and sent up along
+the camera's view with T_up and e^(−a d/μv) (étendue: cos θ_a dΩ_a = n² cos θ_w dΩ_w, so the n² factors
+cancel). For the seed's geometry it integrates eq. 10 itself over θ. The inversion's E₃ closed forms (with
+the cosine-mean T̄) are not used, so tests that invert these scenes measure the approximation of the mean
+transmittance. ``renderer="closed-form"`` keeps :meth:`camcal.water.band.BandModel.spectral_ratio`. E(λ) is CIE D65
 (colour-science) scaled to a clear-sky global irradiance of 1.2 W m⁻² nm⁻¹ at 560 nm (typical of a high sun;
 e.g. the ASTM G-173 global tilt spectrum is ≈ 1.5 W m⁻² nm⁻¹ near 560 nm). Each scene is a disk (centre,
 radius configurable; anti-aliased edge) on a darker uniform background of albedo ``background_albedo``
@@ -35,6 +44,8 @@ import numpy as np
 from camcal.errors import CamcalError
 from camcal.spectra import WAVELENGTHS_NM
 from camcal.synth.camera import Scene, SyntheticCamera
+from camcal.water.models import SeedModel
+from camcal.water.optics import fresnel_reflectance, schlick_reflectance
 
 #: Clear-sky global horizontal spectral irradiance at 560 nm used to scale D65, W m⁻² nm⁻¹.
 DAYLIGHT_IRRADIANCE_560_W_M2_NM = 1.2
@@ -65,6 +76,45 @@ def disk_weight(shape_hw: tuple[int, int], radius_px: float, centre_xy: tuple[fl
     yy, xx = np.mgrid[0:h, 0:w].astype(float)
     r = np.hypot(xx - cx, yy - cy)
     return np.clip(radius_px - r + 0.5, 0.0, 1.0)
+
+
+#: Simpson intervals of the independent angular integration.
+RENDER_INTERVALS = 4000
+
+
+def independent_spectral_ratio(geometry, absorption_per_m: np.ndarray, depth_m: float,
+                               intervals: int = RENDER_INTERVALS) -> np.ndarray:
+    """Submerged-disk radiance over reference radiance per wavelength, by direct numerical integration over
+    angles (see the module docstring); ``absorption_per_m`` a(λ) (m⁻¹) on any grid, returns the same shape.
+
+    Refined geometry: R = (2/n²) T_up(θv) e^(−a d/μv) ∫_0^θmax T(θa) e^(−a d/cos θw(θa)) cos θa sin θa dθa,
+    θw = arcsin(sin θa / n). Seed geometry (no surface): R = 2ρ ∫_0^θc e^(−2 a d/cos θ) cos θ sin θ dθ.
+    """
+    a = np.asarray(absorption_per_m, float)[..., None]
+    m = intervals + (intervals % 2)
+    simpson = np.ones(m + 1)
+    simpson[1:-1:2], simpson[2:-1:2] = 4.0, 2.0
+    if isinstance(geometry, SeedModel):
+        th = np.linspace(0.0, geometry.cutoff_rad, m + 1)
+        f = np.exp(-2.0 * a * depth_m / np.cos(th)) * np.cos(th) * np.sin(th)
+        return 2.0 * geometry.albedo * np.sum(simpson * f, axis=-1) * (th[1] - th[0]) / 3.0
+    n = geometry.n_water
+    theta_max = min(geometry.sky_cutoff_rad, np.pi / 2)
+    th = np.linspace(0.0, theta_max, m + 1)
+    th_w = np.arcsin(np.sin(th) / n)
+    t_down = 1.0 - fresnel_reflectance(th, 1.0, n) if geometry.reflectance == "fresnel" else \
+        1.0 - _schlick(th, n)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        f = t_down * np.exp(-a * depth_m / np.cos(th_w)) * np.cos(th) * np.sin(th)
+    integral = np.sum(simpson * f, axis=-1) * (th[1] - th[0]) / 3.0
+    view_w = np.arcsin(np.sin(geometry.view_angle_rad) / n)
+    t_up = 1.0 - float(fresnel_reflectance(view_w, n, 1.0)) if geometry.reflectance == "fresnel" else \
+        1.0 - float(_schlick(view_w, n, up=True))
+    return 2.0 * geometry.albedo / (n * n) * t_up * np.exp(-a[..., 0] * depth_m / np.cos(view_w)) * integral
+
+
+def _schlick(theta, n, up: bool = False):
+    return schlick_reflectance(theta, n, 1.0) if up else schlick_reflectance(theta, 1.0, n)
 
 
 @dataclass(frozen=True)
@@ -118,6 +168,7 @@ def secchi_scenes(
     background_absorption_per_m=0.0,
     radius_fraction: float = 0.3,
     centre_xy: tuple[float, float] | None = None,
+    renderer: str = "independent",
 ) -> SecchiScenes:
     """The reference and submerged Secchi-disk scenes for ``camera`` (see the module docstring).
 
@@ -136,6 +187,8 @@ def secchi_scenes(
         geometry, none for the seed's; no CDOM).
     radius_fraction : disk radius as a fraction of half the smaller sensor side.
     centre_xy : disk centre in full-resolution pixels (default: the image centre).
+    renderer : 'independent' (default: numerical integration over angles, ray by ray) or 'closed-form' (the
+        band model's E₃ closed forms, the inversion's own physics).
 
     Returns
     -------
@@ -143,7 +196,7 @@ def secchi_scenes(
     ``predicted_band_ratio`` {R, G, B} (camera's true c(λ)), ``predicted_red_band_ratio``, the disk geometry
     and the light.
     """
-    from camcal.water.band import BandModel
+    from camcal.water.band import BandModel, bricaud_1998
     from camcal.water.units import ug_per_L_to_mol_per_L
 
     c = float(c_ug_per_L)
@@ -170,11 +223,19 @@ def secchi_scenes(
     kw = dict(geometry=geometry, chlorophyll=chlorophyll, background_absorption_per_m=background_absorption_per_m,
               illuminant=l_ref / l_ref.max(), water_absorption_per_m=water_absorption_per_m)
     bands = {ch: BandModel(wl, sens[i], **kw) for i, ch in enumerate("RGB")}
-    r_lambda = bands["R"].spectral_ratio(c, d)
+    if renderer == "closed-form":
+        r_lambda = bands["R"].spectral_ratio(c, d)
+    elif renderer == "independent":
+        chl = (chlorophyll or bricaud_1998()).on(wl)
+        r_lambda = independent_spectral_ratio(geometry, bands["R"].absorption_background() + chl.absorption_per_m(c),
+                                              d)
+    else:
+        raise CamcalError(f"unknown renderer {renderer!r}; use independent or closed-form")
     l_sub = r_lambda * l_ref
     reference = Scene(((weight, l_ref), (1.0 - weight, l_bg)), wl)
     submerged = Scene(((weight, l_sub), (1.0 - weight, l_bg)), wl)
     predicted = {ch: float(b.ratio(c, d)) for ch, b in bands.items()}
+    rendered = {ch: float(np.sum(sens[i] * l_sub) / np.sum(sens[i] * l_ref)) for i, ch in enumerate("RGB")}
     cx, cy = ((p.width - 1) / 2.0, (p.height - 1) / 2.0) if centre_xy is None else centre_xy
     truth = {
         "c_ug_per_L": c,
@@ -184,6 +245,9 @@ def secchi_scenes(
         "band_model": bands["R"].describe(),
         "predicted_band_ratio": predicted,
         "predicted_red_band_ratio": predicted["R"],
+        "renderer": renderer,
+        "rendered_band_ratio": rendered,
+        "rendered_red_band_ratio": rendered["R"],
         "disk_albedo": float(disk_albedo),
         "background_albedo": float(background_albedo),
         "disk_centre_px": [float(cx), float(cy)],

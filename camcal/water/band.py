@@ -23,6 +23,7 @@ Pope, R. M., Fry, E. S. (1997). Applied Optics 36(33), 8710-8723.
 from __future__ import annotations
 
 import functools
+import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -30,9 +31,11 @@ import numpy as np
 from scipy.interpolate import CubicHermiteSpline
 from scipy.special import expn
 
+from camcal.data import read_table
 from camcal.errors import CamcalError
+from camcal.spectra import planck_radiance
 from camcal.water.invert import Inversion, Reason
-from camcal.water.models import ClosedForm, RefinedModel, SeedModel
+from camcal.water.models import ClosedForm, RefinedModel, SeedModel, form_at
 from camcal.water.purewater import pure_water_absorption_per_m
 from camcal.water.units import specific_absorption_m2_per_mg, ug_per_L_to_mol_per_L
 
@@ -86,13 +89,50 @@ def solvent_spectrum(wavelengths_nm, epsilon_L_per_g_cm) -> ChlorophyllAbsorptio
     return ChlorophyllAbsorption(wl, specific_absorption_m2_per_mg(1.0) * eps, np.ones_like(wl), "solvent ε(λ)")
 
 
+_MASS_CONC_G_PER_L = {"g/l": 1.0, "mg/l": 1e-3, "ug/l": 1e-6, "µg/l": 1e-6, "mg/m3": 1e-6, "mg/m^3": 1e-6}
+_MOLAR_CONC_MOL_PER_L = {"mol/l": 1.0, "m": 1.0, "mmol/l": 1e-3, "umol/l": 1e-6, "µmol/l": 1e-6}
+
+
+def _csv_metadata(text: str) -> dict[str, str]:
+    """``# key: value`` (or ``# key = value``) comment lines of a CSV, keys lower-case."""
+    meta = {}
+    for ln in text.splitlines():
+        m = re.fullmatch(r"\s*#\s*([A-Za-z_][\w ]*?)\s*[:=]\s*(.+?)\s*", ln)
+        if m:
+            meta[m.group(1).strip().lower().replace(" ", "_")] = m.group(2)
+    return meta
+
+
+def _meta_number(meta: dict, key: str, path: Path, example: str) -> tuple[float, str]:
+    if key not in meta:
+        raise CamcalError(f"absorber CSV needs a '# {key}: {example}' line", path)
+    m = re.fullmatch(r"([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*(\S*)", meta[key].strip())
+    if not m or not np.isfinite(float(m.group(1))) or float(m.group(1)) <= 0:
+        raise CamcalError(f"absorber CSV: '# {key}: {meta[key]}' is not a positive number with a unit "
+                          f"(e.g. {example})", path)
+    return float(m.group(1)), m.group(2).lower()
+
+
 def read_chlorophyll_csv(path: str | Path) -> ChlorophyllAbsorption:
-    """A user spectrum: CSV with ``wavelength_nm`` and either ``epsilon_L_per_g_cm`` (linear) or
-    ``A_m2_per_mg`` and optionally ``E`` (power law); ``#`` lines are comments."""
+    """An absorber's spectrum (chlorophyll, a dye, a pigment standard) from a CSV; ``#`` lines are comments.
+
+    Columns: ``wavelength_nm`` and one of
+
+    - ``epsilon_L_per_g_cm``: decadic specific absorption coefficient (linear, Beer-Lambert);
+    - ``epsilon_L_per_mol_cm``: decadic molar coefficient, with a ``# molar_mass_g_per_mol: 792.85`` line
+      (C is then reported per mass, µg/L);
+    - ``absorbance``: a spectrophotometer's decadic absorbance A(λ) of a known solution, with
+      ``# concentration: 10 mg/L`` (mass: g/L, mg/L, µg/L; or molar: mol/L, mmol/L, µmol/L with a molar mass
+      line) and ``# path_length: 1 cm`` (cm, mm or m) lines: ε = A / (c l) (blank-subtracted A assumed);
+    - ``A_m2_per_mg`` and optionally ``E``: the power law a = A C^E (natural log, m⁻¹, C in mg m⁻³).
+
+    All give a_abs(λ, C) in m⁻¹ with C in µg/L (= mg m⁻³): a = 2.303e-4 ε[L g⁻¹ cm⁻¹] C.
+    """
     from camcal.manifest import read_text_file
 
     path = Path(path)
-    text = read_text_file(path, "chlorophyll absorption CSV")
+    text = read_text_file(path, "absorber (chlorophyll/dye) CSV")
+    meta = _csv_metadata(text)
     lines = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
     if not lines:
         raise CamcalError("chlorophyll CSV is empty (no header row)", path)
@@ -118,11 +158,42 @@ def read_chlorophyll_csv(path: str | Path) -> ChlorophyllAbsorption:
     wl = v[:, header.index("wavelength_nm")]
     if np.any(np.diff(wl) <= 0) or wl[0] <= 0:
         raise CamcalError("chlorophyll CSV: wavelengths must be positive and increasing", path)
+
+    def molar_mass() -> float:
+        m, unit = _meta_number(meta, "molar_mass_g_per_mol", path, "792.85")
+        if unit not in ("", "g/mol"):
+            raise CamcalError(f"absorber CSV: molar mass unit {unit!r}; give g/mol", path)
+        return m
+
+    def linear(eps_g: np.ndarray, column: str, how: str) -> ChlorophyllAbsorption:
+        if np.any(eps_g < 0):
+            raise CamcalError(f"chlorophyll CSV: {column} must not be negative", path)
+        return replace(solvent_spectrum(wl, eps_g), source=f"{path} ({how})")
+
     if "epsilon_L_per_g_cm" in header:
-        eps = v[:, header.index("epsilon_L_per_g_cm")]
-        if np.any(eps < 0):
-            raise CamcalError("chlorophyll CSV: epsilon_L_per_g_cm must not be negative", path)
-        return replace(solvent_spectrum(wl, eps), source=str(path))
+        return linear(v[:, header.index("epsilon_L_per_g_cm")], "epsilon_L_per_g_cm", "ε per gram")
+    if "epsilon_L_per_mol_cm" in header:
+        mm = molar_mass()
+        return linear(v[:, header.index("epsilon_L_per_mol_cm")] / mm, "epsilon_L_per_mol_cm",
+                      f"molar ε, M = {mm:g} g/mol")
+    if "absorbance" in header:
+        c, unit = _meta_number(meta, "concentration", path, "10 mg/L")
+        if unit in _MASS_CONC_G_PER_L:
+            c_g_per_L = c * _MASS_CONC_G_PER_L[unit]
+        elif unit in _MOLAR_CONC_MOL_PER_L:
+            c_g_per_L = c * _MOLAR_CONC_MOL_PER_L[unit] * molar_mass()
+        else:
+            raise CamcalError(f"absorber CSV: concentration unit {unit!r}; use g/L, mg/L, ug/L, mol/L, mmol/L or "
+                              "umol/L", path)
+        ell, lunit = _meta_number(meta, "path_length", path, "1 cm")
+        to_cm = {"cm": 1.0, "mm": 0.1, "m": 100.0, "": 1.0}
+        if lunit not in to_cm:
+            raise CamcalError(f"absorber CSV: path length unit {lunit!r}; use cm, mm or m", path)
+        a = v[:, header.index("absorbance")]
+        if np.any(a < -0.01):
+            raise CamcalError("absorber CSV: absorbance below -0.01 (blank not subtracted correctly?)", path)
+        return linear(np.clip(a, 0.0, None) / (c_g_per_L * ell * to_cm[lunit]), "absorbance",
+                      f"absorbance of {c:g} {unit} over {ell:g} {lunit or 'cm'}")
     if "A_m2_per_mg" in header:
         a = v[:, header.index("A_m2_per_mg")]
         e = v[:, header.index("E")] if "E" in header else np.ones_like(wl)
@@ -131,7 +202,11 @@ def read_chlorophyll_csv(path: str | Path) -> ChlorophyllAbsorption:
         if np.any(e <= 0) or np.any(e > 2):
             raise CamcalError("chlorophyll CSV: the power-law exponent E must be in (0, 2]", path)
         return ChlorophyllAbsorption(wl, a, e, str(path))
-    raise CamcalError("chlorophyll CSV needs an epsilon_L_per_g_cm or an A_m2_per_mg column", path)
+    raise CamcalError("absorber CSV needs an epsilon_L_per_g_cm, epsilon_L_per_mol_cm, absorbance or A_m2_per_mg "
+                      "column", path)
+
+
+read_absorber_csv = read_chlorophyll_csv
 
 
 @dataclass(frozen=True, eq=False)
@@ -156,12 +231,13 @@ class BandModel:
     background_absorption_per_m: np.ndarray | float = 0.0
     illuminant: np.ndarray | None = None
     water_absorption_per_m: np.ndarray | float | None = None
+    sensitivity_sigma: np.ndarray | None = None  # u_c(λ), standard uncertainty of ``sensitivity`` (same units)
 
     def water_absorption(self) -> np.ndarray:
         """a_w(λ) on ``wavelengths_nm``, m⁻¹ (see the class docstring for the default)."""
         wl = np.asarray(self.wavelengths_nm, float)
         if self.water_absorption_per_m is None:
-            if isinstance(self.geometry, RefinedModel):
+            if getattr(self.geometry, "includes_water", False):
                 return pure_water_absorption_per_m(wl)
             return np.zeros_like(wl)
         return np.broadcast_to(np.asarray(self.water_absorption_per_m, float), wl.shape).copy()
@@ -189,7 +265,11 @@ class BandModel:
         bg = self.absorption_background()
         used = w > 1e-12 * w.max()  # skip wavelengths the channel does not see
         chl = (self.chlorophyll or bricaud_1998()).on(wl[used])
-        return w[used] / np.sum(w[used]), chl, bg[used], self.geometry.closed_form()
+        return w[used] / np.sum(w[used]), chl, bg[used]
+
+    def form(self, depth_m: float):
+        """R(τ) of the geometry at ``depth_m`` (:func:`camcal.water.models.form_at`)."""
+        return form_at(self.geometry, depth_m)
 
     def spectral_ratio(self, c_ug_per_L, depth_m: float) -> np.ndarray:
         """R_λ(τ_λ(C)) on every wavelength of the grid (shape ``C.shape + (n,)``): the per-wavelength ratio
@@ -197,24 +277,30 @@ class BandModel:
         wl = np.asarray(self.wavelengths_nm, float)
         chl = (self.chlorophyll or bricaud_1998()).on(wl)
         tau = (self.absorption_background() + chl.absorption_per_m(c_ug_per_L)) * depth_m
-        return self.geometry.closed_form().ratio(tau)
+        return self.form(depth_m).ratio(tau)
 
     def ratio(self, c_ug_per_L, depth_m: float):
         """Band ratio B(C) at depth ``depth_m`` (m), C in µg/L (any shape)."""
-        w, chl, bg, cf = self._parts
+        w, chl, bg = self._parts
         tau = (bg + chl.absorption_per_m(c_ug_per_L)) * depth_m
-        return np.sum(w * cf.ratio(tau), axis=-1)
+        return np.sum(w * self.form(depth_m).ratio(tau), axis=-1)
 
     def ratio_derivative(self, c_ug_per_L, depth_m: float):
         """dB/dC, per (µg/L): Σ w R'(τ_λ) d ∂a_chl/∂C."""
-        w, chl, bg, cf = self._parts
+        w, chl, bg = self._parts
         tau = (bg + chl.absorption_per_m(c_ug_per_L)) * depth_m
-        return np.sum(w * cf.ratio_derivative(tau) * depth_m * chl.derivative_per_m(c_ug_per_L), axis=-1)
+        return np.sum(w * self.form(depth_m).ratio_derivative(tau) * depth_m * chl.derivative_per_m(c_ug_per_L),
+                      axis=-1)
 
     def ratio_and_derivative(self, c_ug_per_L, depth_m: float):
         """(B(C), dB/dC) in one pass (one evaluation of the exponential integrals)."""
-        w, chl, bg, cf = self._parts
+        w, chl, bg = self._parts
         tau = (bg + chl.absorption_per_m(c_ug_per_L)) * depth_m
+        cf = self.form(depth_m)
+        if not isinstance(cf, ClosedForm):  # exact-transmittance or lamp form: their own ratio and derivative
+            r = cf.ratio(tau)
+            db = np.sum(w * cf.ratio_derivative(tau) * depth_m * chl.derivative_per_m(c_ug_per_L), axis=-1)
+            return np.sum(w * r, axis=-1), db
         x = cf.path_factor * tau
         e3a, e3b = expn(3, x), expn(3, x / cf.mu_c)
         e2a, e2b = expn(2, x), expn(2, x / cf.mu_c)
@@ -224,6 +310,18 @@ class BandModel:
         dr_dtau = -cf.view_factor * r + att * cf.path_factor * (-e2a + cf.mu_c * e2b)
         db = np.sum(w * dr_dtau * depth_m * chl.derivative_per_m(c_ug_per_L), axis=-1)
         return np.sum(w * r, axis=-1), db
+
+    def ratio_sigma_from_sensitivity(self, c_ug_per_L, depth_m: float, sensitivity_sigma) -> np.ndarray:
+        """σ_B from the standard uncertainty u_c(λ) of the channel's c(λ) (independent per wavelength):
+        σ_B² = Σ [S Δλ (R_λ − B) u_c / Σ c S Δλ]² (:mod:`camcal.water.uncertainty`). Shape of C."""
+        wl = np.asarray(self.wavelengths_nm, float)
+        s = np.ones_like(wl) if self.illuminant is None else np.asarray(self.illuminant, float)
+        dl = np.gradient(wl)
+        total = np.sum(np.clip(np.asarray(self.sensitivity, float), 0, None) * s * dl)
+        r = self.spectral_ratio(c_ug_per_L, depth_m)
+        b = self.ratio(c_ug_per_L, depth_m)
+        u = np.where(np.asarray(self.sensitivity, float) > 0, np.asarray(sensitivity_sigma, float), 0.0)  # clipped c
+        return np.sqrt(np.sum(np.square(s * dl * (r - np.asarray(b)[..., None]) * u / total), axis=-1))
 
     def inverse(self, depth_m: float, nodes: int = 800) -> BandInverse:
         """The tabulated inverse at ``depth_m`` (m), cached per depth."""
@@ -242,27 +340,78 @@ class BandModel:
         return {"geometry": getattr(self.geometry, "name", type(self.geometry).__name__),
                 "chlorophyll": (self.chlorophyll or bricaud_1998()).source,
                 "water_absorption": ("Pope & Fry 1997" if self.water_absorption_per_m is None
-                                     and isinstance(self.geometry, RefinedModel) else "given" if
+                                     and getattr(self.geometry, "includes_water", False) else "given" if
                                      self.water_absorption_per_m is not None else "none (seed)"),
                 "effective_wavelength_nm": float(np.sum(w * wl) / np.sum(w)),
                 "wavelength_range_nm": [float(wl[0]), float(wl[-1])]}
 
 
-def illuminant_spectrum(name: str, wavelengths_nm) -> np.ndarray | None:
-    """Relative spectral radiance S(λ) of a named illuminant on ``wavelengths_nm``: 'flat' (None), or a CIE
-    illuminant from colour-science (``colour.SDS_ILLUMINANTS``: 'D65', 'D50', 'A', ...), linear interpolation,
-    normalised to a maximum of 1 on the grid."""
-    if name.lower() in ("flat", "equal", "e", "none"):
-        return None
-    import colour
+def read_spectrum_csv(path: str | Path, what: str = "lamp spectrum CSV") -> tuple[np.ndarray, np.ndarray]:
+    """A measured relative spectrum: CSV with ``wavelength_nm`` and one value column (any name, e.g.
+    ``relative_radiance``); ``#`` lines are comments. Returns (wavelength_nm, values), values ≥ 0, finite."""
+    from camcal.manifest import read_text_file
 
-    key = {k.lower(): k for k in colour.SDS_ILLUMINANTS}.get(name.lower())
-    if key is None:
-        raise CamcalError(f"unknown illuminant {name!r}; use flat, D65, D50, A or another CIE illuminant name")
-    sd = colour.SDS_ILLUMINANTS[key]
+    path = Path(path)
+    text = read_text_file(path, what)
+    lines = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
+    if len(lines) < 3:
+        raise CamcalError(f"{what} needs a header row and at least two rows", path)
+    header = [h.strip() for h in lines[0].split(",")]
+    if len(header) != 2 or header[0] != "wavelength_nm":
+        raise CamcalError(f"{what} needs two columns, wavelength_nm and a value (header is {lines[0].strip()!r})",
+                          path)
+    try:
+        v = np.array([[float(c) for c in ln.split(",")] for ln in lines[1:]], dtype=float)
+    except ValueError:
+        raise CamcalError(f"{what}: a row is not two numbers", path) from None
+    if v.ndim != 2 or v.shape[1] != 2:
+        raise CamcalError(f"{what}: every row needs two numbers", path)
+    if not np.all(np.isfinite(v)) or np.any(v[:, 1] < 0) or not np.any(v[:, 1] > 0):
+        raise CamcalError(f"{what}: values must be finite, >= 0 and not all zero", path)
+    if np.any(np.diff(v[:, 0]) <= 0) or v[0, 0] <= 0:
+        raise CamcalError(f"{what}: wavelengths must be positive and increasing", path)
+    return v[:, 0], v[:, 1]
+
+
+#: Names of the shipped 3200 K lamp spectrum (``calibration_data/lamp_3200K.csv``).
+LAMP_NAMES = ("lamp", "3200k", "lamp_3200k", "lamp-3200k")
+
+
+def illuminant_spectrum(name: str | Path, wavelengths_nm) -> np.ndarray | None:
+    """Relative spectral radiance S(λ) of a light on ``wavelengths_nm``, normalised to a maximum of 1.
+
+    ``name``: 'flat' (None); a CIE illuminant of colour-science (``colour.SDS_ILLUMINANTS``: 'D65', 'D50',
+    'A' (2856 K tungsten), ...); 'lamp' / '3200K' (the shipped 3200 K black body, the default lamp of the
+    tank experiment); 'NNNNK' (a black body at NNNN kelvin, Planck's law); or the path of a measured lamp
+    CSV (:func:`read_spectrum_csv`). Linear interpolation; wavelengths outside a CSV's range are NaN (the
+    caller decides whether the band needs them: :func:`band_model_from_profile` refuses).
+    """
     wl = np.asarray(wavelengths_nm, float)
-    s = np.interp(wl, sd.wavelengths, sd.values)
-    return s / s.max()
+    text = str(name).strip()
+    key = text.lower()
+    if key in ("flat", "equal", "e", "none"):
+        return None
+    if key in LAMP_NAMES:
+        header, v = read_table("lamp_3200K.csv")
+        s = np.interp(wl, v[:, 0], v[:, 1], left=np.nan, right=np.nan)
+    elif re.fullmatch(r"\d+(\.\d*)?k", key):
+        t = float(key[:-1])
+        if not 500 <= t <= 50000:
+            raise CamcalError(f"black-body temperature {text!r} is implausible (500-50000 K)")
+        s = planck_radiance(t, wl)
+    elif key.endswith(".csv") or Path(text).is_file():
+        lw, lv = read_spectrum_csv(text)
+        s = np.interp(wl, lw, lv, left=np.nan, right=np.nan)
+    else:
+        import colour
+
+        ckey = {k.lower(): k for k in colour.SDS_ILLUMINANTS}.get(key)
+        if ckey is None:
+            raise CamcalError(f"unknown illuminant {text!r}; use flat, D65, D50, A, lamp (3200 K), a temperature "
+                              "such as 3000K, another CIE illuminant name or a lamp CSV file")
+        sd = colour.SDS_ILLUMINANTS[ckey]
+        s = np.interp(wl, sd.wavelengths, sd.values)
+    return s / np.nanmax(s)
 
 
 def band_model_from_profile(profile, channel: str = "R", *, geometry=None, chlorophyll=None,
@@ -300,7 +449,15 @@ def band_model_from_profile(profile, channel: str = "R", *, geometry=None, chlor
     if channel not in curves:
         raise CamcalError(f"profile has no channel {channel!r}; use one of {', '.join(sorted(curves))}", where)
     wl = np.asarray(spectral.wavelength_nm, float)
-    s = illuminant_spectrum(illuminant, wl) if isinstance(illuminant, str) else illuminant
+    s = illuminant_spectrum(illuminant, wl) if isinstance(illuminant, str | _Path) else illuminant
+    if s is not None and np.any(np.isnan(s)):  # a measured lamp CSV shorter than the profile's grid
+        c_abs = np.abs(np.asarray(curves[channel], float))
+        need = c_abs >= 0.01 * np.max(c_abs)
+        if np.any(need & np.isnan(s)):
+            raise CamcalError(f"the light's spectrum {str(illuminant)!r} does not cover channel {channel}'s band "
+                              f"({wl[need][0]:g}-{wl[need][-1]:g} nm, c(λ) ≥ 1 % of its peak)",
+                              _Path(illuminant) if _Path(str(illuminant)).is_file() else where)
+        s = np.nan_to_num(s, nan=0.0)
     if chlorophyll is not None:  # outside its table a user spectrum absorbs nothing: it must span the band
         weight = np.abs(np.asarray(curves[channel], float)) * (1.0 if s is None else np.asarray(s, float))
         band = wl[weight >= 0.01 * np.max(weight)] if np.max(weight) > 0 else wl
@@ -309,9 +466,14 @@ def band_model_from_profile(profile, channel: str = "R", *, geometry=None, chlor
             src = _Path(chlorophyll.source) if chlorophyll.source and _Path(chlorophyll.source).is_file() else where
             raise CamcalError(f"the chlorophyll spectrum covers {lo:g}–{hi:g} nm; channel {channel}'s band "
                               f"(c(λ)·illuminant ≥ 1 % of its peak) spans {band[0]:g}–{band[-1]:g} nm", src)
+    uncs = dict(spectral.uncertainty) if hasattr(spectral, "uncertainty") else {}
+    if hasattr(spectral, "rgb_uncertainty"):
+        uncs.update(spectral.rgb_uncertainty())
+    u = uncs.get(channel)
     return BandModel(wl, np.asarray(curves[channel], float), geometry=geometry or RefinedModel(),
                      chlorophyll=chlorophyll, background_absorption_per_m=background_absorption_per_m,
-                     illuminant=s, water_absorption_per_m=water_absorption_per_m)
+                     illuminant=s, water_absorption_per_m=water_absorption_per_m,
+                     sensitivity_sigma=None if u is None else np.asarray(u, float))
 
 
 class BandInverse:

@@ -23,7 +23,8 @@ from enum import IntEnum
 
 import numpy as np
 
-from camcal.water.models import ClosedForm
+from camcal.errors import CamcalError
+from camcal.water.models import ClosedForm, form_at
 from camcal.water.units import mol_per_L_to_ug_per_L
 
 #: Largest m·τ tabulated (E₃ underflows near 700).
@@ -257,7 +258,8 @@ def invert_ratio(ratio, model, depth_m, *, sigma_ln_ratio=None, method: str = "t
     Parameters
     ----------
     ratio : array, measured L_disk/L_ref (any shape).
-    model : :class:`~camcal.water.models.SeedModel` or :class:`~camcal.water.models.RefinedModel`.
+    model : :class:`~camcal.water.models.SeedModel`, :class:`~camcal.water.models.RefinedModel` (mean or exact
+        transmittance) or :class:`~camcal.water.models.LampModel` (one depth).
     depth_m : disk depth, m (scalar or an array broadcastable to ``ratio``).
     sigma_ln_ratio : relative 1-σ uncertainty of the ratio (σ_r / r), scalar or array; None → NaN σ.
     method : 'table' (fast, for images) or 'newton' (per pixel, the reference).
@@ -267,8 +269,20 @@ def invert_ratio(ratio, model, depth_m, *, sigma_ln_ratio=None, method: str = "t
     :class:`Inversion` (arrays of the shape of ``ratio``).
     """
     r = np.asarray(ratio)
-    cf = model.closed_form()
     scalar_depth = np.ndim(depth_m) == 0 and np.isfinite(depth_m) and float(depth_m) >= MIN_DEPTH_M
+    if hasattr(model, "closed_form_at"):  # the geometry depends on the depth (LampModel)
+        finite = np.asarray(depth_m, float)[np.isfinite(depth_m)]
+        if finite.size and np.ptp(finite) > 0:
+            raise CamcalError(f"the {model.name} model's geometry depends on the depth: invert one depth at a time")
+        dep = float(finite.flat[0]) if finite.size and finite.flat[0] >= MIN_DEPTH_M else 1.0
+        with np.errstate(all="ignore"):
+            cf = form_at(model, dep)
+        if not (np.isfinite(cf.ratio_at_zero) and cf.ratio_at_zero > 0 and np.isfinite(cf.slope_at_zero)):
+            cf = form_at(model, 1.0)  # an absurd depth (the geometry overflows): every pixel BAD_DEPTH below
+            depth_m = np.full(np.shape(depth_m), np.nan)
+            scalar_depth = False
+    else:
+        cf = model.closed_form()
     scalar_sigma = sigma_ln_ratio is None or np.ndim(sigma_ln_ratio) == 0
     if method == "table" and scalar_depth and scalar_sigma:
         return _finite_or_reason(_invert_table_scalar(r, model, cf, float(depth_m), sigma_ln_ratio))
@@ -285,8 +299,9 @@ def invert_ratio(ratio, model, depth_m, *, sigma_ln_ratio=None, method: str = "t
     good_depth = np.isfinite(depth) & (depth >= MIN_DEPTH_M)
     reason[~good_depth & (reason == 0)] = Reason.BAD_DEPTH
     dd = np.where(good_depth, depth, 1.0)
-    per_c = model.tau(1.0, dd) - model.background_tau(dd)
-    tau_bg = model.background_tau(dd)
+    with np.errstate(over="ignore", invalid="ignore"):  # absurd depths overflow: TOO_DARK via _finite_or_reason
+        per_c = model.tau(1.0, dd) - model.background_tau(dd)
+        tau_bg = model.background_tau(dd)
     with np.errstate(invalid="ignore"):
         excess = tau - tau_bg
         clamp = (reason == 0) & (excess < 0) & (excess >= -1e-9 * np.maximum(tau_bg, 1e-300))
@@ -316,8 +331,9 @@ def _finite_or_reason(inv: Inversion) -> Inversion:
 def _invert_table_scalar(r: np.ndarray, model, cf: ClosedForm, depth_m: float, sigma_ln_ratio) -> Inversion:
     """The image fast path: one depth and one relative σ; chunked, on two threads, fused."""
     table = tau_table(cf)
-    tau_bg = float(model.background_tau(depth_m))
-    per_c = float(model.tau(1.0, depth_m)) - tau_bg  # τ per (mol/L)
+    with np.errstate(over="ignore", invalid="ignore"):  # absurd depths overflow: TOO_DARK via _finite_or_reason
+        tau_bg = float(model.background_tau(depth_m))
+        per_c = float(model.tau(1.0, depth_m)) - tau_bg  # τ per (mol/L)
     to_ug = float(mol_per_L_to_ug_per_L(1.0))
     flat = r.reshape(-1)
     c = np.empty(flat.size)
@@ -358,14 +374,17 @@ def _invert_table_scalar(r: np.ndarray, model, cf: ClosedForm, depth_m: float, s
 
 
 def invert_images(submerged, reference, model, depth_m, *, sigma_submerged=None, sigma_reference=None,
-                  roi: tuple[int, int, int, int] | None = None, method: str = "table") -> Inversion:
+                  roi: tuple[int, int, int, int] | None = None, method: str = "table",
+                  pixel_geometry=None) -> Inversion:
     """Chlorophyll-a map from a submerged-disk radiance image and a reference radiance image.
 
     ``model`` is a SeedModel/RefinedModel (narrowband: the images are radiances at one wavelength) or a
     :class:`camcal.water.band.BandModel` (band-aware: the images are one channel's band radiances or DN
     rates; ``depth_m`` must then be a scalar). ``reference`` may be an image or a scalar; σ arguments are
     1-σ radiance uncertainties in the same units (images or scalars). ``roi`` = (x0, y0, width, height) in
-    pixels: pixels outside get NaN with reason OUTSIDE_ROI.
+    pixels: pixels outside get NaN with reason OUTSIDE_ROI. ``pixel_geometry`` (a
+    :class:`camcal.water.lampfield.PixelGeometry`, lamp model only): invert each pixel with its own lamp
+    geometry instead of the disk centre's.
     """
     sub = np.asarray(submerged, dtype=np.float64)
     ref = np.broadcast_to(np.asarray(reference, dtype=np.float64), sub.shape)
@@ -377,7 +396,9 @@ def invert_images(submerged, reference, model, depth_m, *, sigma_submerged=None,
             rs = 0.0 if sigma_submerged is None else np.asarray(sigma_submerged, float) / sub
             rr = 0.0 if sigma_reference is None else np.asarray(sigma_reference, float) / ref
             sig = np.sqrt(np.square(rs) + np.square(rr))
-    if hasattr(model, "inverse"):  # a BandModel: its tabulated band inverse at this depth
+    if pixel_geometry is not None:  # the lamp model, each pixel's own geometry
+        inv = pixel_geometry.invert(ratio, model, float(depth_m), sigma_ln_ratio=sig)
+    elif hasattr(model, "inverse"):  # a BandModel: its tabulated band inverse at this depth
         inv = model.inverse(float(depth_m)).concentration(ratio, sigma_ln_ratio=sig)
     else:
         inv = invert_ratio(ratio, model, depth_m, sigma_ln_ratio=sig, method=method)
