@@ -57,7 +57,6 @@ flat-field model error, exposure-metadata error (ISO and f-number are nominal va
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -69,6 +68,7 @@ from camcal.exposure import frame_relative_exposure
 from camcal.frame import PLANES, Frame, plane_offsets
 from camcal.radiance import RadianceModel, radiance_model
 from camcal.region import Region
+from camcal.threads import default_threads
 
 BAND_UNITS = "W m^-2 sr^-1 nm^-1"
 RESOLUTION_NOTE = "half resolution: one value per 2x2 CFA cell (R, mean of G1 and G2, B), not demosaicked"
@@ -228,21 +228,6 @@ def _noise_params(profile, iso: float) -> tuple[np.ndarray | None, np.ndarray | 
 
 #: Half-resolution rows per work unit of the RAW path: a band's temporaries stay in the CPU cache.
 BAND_ROWS = 16
-
-
-def default_threads() -> int:
-    """Threads of one photo's arithmetic: ``CAMCAL_THREADS`` if set, else the usable cores (at most 4)."""
-    env = os.environ.get("CAMCAL_THREADS", "").strip()
-    if env:
-        try:
-            return max(1, int(env))
-        except ValueError:
-            raise CamcalError(f"CAMCAL_THREADS must be a whole number of threads, got {env!r}") from None
-    try:
-        n = len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):
-        n = os.cpu_count() or 1
-    return max(1, min(4, n))
 
 
 def _run_bands(work, n_rows: int, threads: int) -> None:

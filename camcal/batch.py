@@ -30,6 +30,7 @@ from pathlib import Path
 
 from camcal.errors import CamcalError
 from camcal.region import Region
+from camcal.threads import default_threads
 
 REPORT_CSV = "apply_report.csv"
 ROI_CSV = "roi_stats.csv"
@@ -283,7 +284,7 @@ def preflight(profile_path: str | Path, photos: Sequence[Path], options: BatchOp
     Only the EXIF header is read (photos that cannot be read are left to fail in the batch).
     ``with_maps=False`` when workers do the photos: the maps are verified by hash, not decoded here.
     """
-    from camcal.apply import check_camera, default_threads
+    from camcal.apply import check_camera
     from camcal.io import exposure_from_exif
 
     default_threads()  # a bad CAMCAL_THREADS refuses the batch here, not every photo
@@ -396,7 +397,6 @@ def run_batch(
             done(process_photo(*a))
     else:
         workers = min(jobs, len(todo))
-        from camcal.apply import default_threads
 
         _run_pool(_with_threads(todo, max(1, default_threads() // workers)), workers, done)
     ordered = [results[a[0]] for a in args]

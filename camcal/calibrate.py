@@ -7,7 +7,6 @@ hashed (SHA-256) into the profile's provenance.
 
 from __future__ import annotations
 
-import hashlib
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -18,6 +17,7 @@ from camcal import __version__
 from camcal.dark import fit_dark, with_dead_pixels
 from camcal.errors import CamcalError
 from camcal.flat import DEAD_RESPONSE, dead_pixels, fit_flat
+from camcal.hashing import sha256_file
 from camcal.io import IMAGE_EXTENSIONS, folder_manifest, list_frames, load_frame
 from camcal.manifest import SESSION_DEFAULTS, read_manifest
 from camcal.profile import CalibrationProfile, CameraIdentity, Provenance
@@ -59,14 +59,6 @@ def present_stages(session: str | Path) -> list[str]:
     return out
 
 
-def sha256_of(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 def _inputs(session: Path, stages: list[str]) -> list[dict]:
     rows = []
     for s in stages:
@@ -75,7 +67,7 @@ def _inputs(session: Path, stages: list[str]) -> list[dict]:
             if p.is_file() and not p.name.startswith(".") and (
                 p.suffix.lower() in IMAGE_EXTENSIONS or p.suffix.lower() == ".csv"
             ):
-                rows.append({"stage": s, "file": f"{s}/{p.name}", "sha256": sha256_of(p), "bytes": p.stat().st_size})
+                rows.append({"stage": s, "file": f"{s}/{p.name}", "sha256": sha256_file(p), "bytes": p.stat().st_size})
     return rows
 
 

@@ -52,12 +52,13 @@ from camcal.errors import CamcalError
 from camcal.exposure import frame_relative_exposure
 from camcal.flat import load_flat
 from camcal.frame import PLANES, Frame
+from camcal.hashing import sha256_file
 from camcal.io import load_frame
 from camcal.manifest import exposure_overrides, read_manifest, safe_member
 from camcal.profile import SCHEMA_VERSION, CalibrationProfile, CameraIdentity, Provenance
 from camcal.region import Region
 from camcal.spectral import DEFAULT_ROI_FRACTION, SpectralSensitivity, central_roi
-from camcal.spectral_files import FileFormat, as_absolute, read_spectral_file, read_table, resample, sha256_of_file
+from camcal.spectral_files import FileFormat, as_absolute, read_spectral_file, read_table, resample
 
 TARGETS_CSV = "targets.csv"
 #: Below this χ² p-value the targets disagree beyond their noise: the curves do not fit this camera.
@@ -184,7 +185,7 @@ def _column_file(path: Path, what: str) -> tuple[np.ndarray, np.ndarray, np.ndar
 
 def _file_record(path: Path, stage: str, root: Path | None = None) -> dict:
     name = path.name if root is None else path.resolve().relative_to(root.resolve()).as_posix()
-    return {"stage": stage, "file": name, "sha256": sha256_of_file(path), "bytes": path.stat().st_size}
+    return {"stage": stage, "file": name, "sha256": sha256_file(path), "bytes": path.stat().st_size}
 
 
 def radiance_target(name: str, path: str | Path, scale_unc_rel: float = 0.0) -> TargetSpectrum:

@@ -29,7 +29,6 @@ Optics Express 27(14), 19075 (SPECTACLE).
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import io
 import json
 import re
@@ -63,15 +62,6 @@ FileFormat = Literal["auto", "spectacle", "plain"]
 
 _WAVELENGTH_NAMES = {"wavelength", "wavelength_nm", "wavelengths", "lambda", "lambda_nm", "wl", "wl_nm", "nm"}
 _UNC_SUFFIXES = ("_err", "_unc", "_u", "_sigma", "_std")
-
-
-def sha256_of_file(path: str | Path) -> str:
-    """SHA-256 (hex) of a file's bytes."""
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def meta_path(path: str | Path) -> Path:

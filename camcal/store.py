@@ -13,7 +13,6 @@ same two parts into a single file.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 from pathlib import Path
@@ -24,15 +23,8 @@ from camcal import __version__
 from camcal.atomic import atomic_write_text
 from camcal.errors import CamcalError
 from camcal.exr import read_exr, write_exr
+from camcal.hashing import sha256_file
 from camcal.limits import MAX_STAGE_JSON_BYTES, check_json_depth
-
-
-def sha256_file(path: str | Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def to_jsonable(obj):

@@ -23,6 +23,7 @@ from camcal.apply import apply, prepare
 from camcal.errors import CamcalError
 from camcal.exr import read_exr
 from camcal.frame import PLANES
+from camcal.hashing import sha256_file
 from camcal.io import load_frame
 from camcal.profile import contract, load_profile, save_profile
 from camcal.reference_targets import import_spectral, predicted_rate, radiance_target, region_rate
@@ -33,7 +34,6 @@ from camcal.spectral_files import (
     read_curve_table,
     read_spectacle_csv,
     read_spectral_file,
-    sha256_of_file,
     spectacle_array,
     write_spectacle_csv,
 )
@@ -114,10 +114,10 @@ def test_both_real_cameras_load_into_profiles(tmp_path):
                            "6000x4000", "-o", out, "--json")
             assert proc.returncode == 0, proc.stderr
             rec = json.loads(proc.stdout)
-            assert rec["mode"] == "relative" and rec["source"]["sha256"] == sha256_of_file(src)
+            assert rec["mode"] == "relative" and rec["source"]["sha256"] == sha256_file(src)
             p = load_profile(out)
             assert p.spectral.wavelength_nm.size == 176 and p.spectral.wavelength_nm[0] == 380.0
-            assert any(i["sha256"] == sha256_of_file(src) for i in p.provenance.inputs)
+            assert any(i["sha256"] == sha256_file(src) for i in p.provenance.inputs)
             made[src.suffix] = p.spectral
         # the CSV was made from the .dat: the same curves up to one factor
         nz = made[".dat"].values["G1"] > 0
@@ -180,7 +180,7 @@ def test_one_target_gives_k_and_band_radiance_of_the_sweep(targets, profile_path
     np.testing.assert_array_equal(prof.spectral.wavelength_nm, base.spectral.wavelength_nm)
     assert prof.spectral.mode == "absolute"
     src = prof.spectral.origin()
-    assert src["kind"] == "imported" and src["sha256"] == sha256_of_file(d / "truth_rel.csv")
+    assert src["kind"] == "imported" and src["sha256"] == sha256_file(d / "truth_rel.csv")
     assert src["absolute_scale"]["method"] == "reference_targets"
     path = tmp_path / "imp.camcal"
     save_profile(prof, path)

@@ -1,0 +1,51 @@
+"""The one rule for how many threads camcal uses.
+
+``CAMCAL_THREADS`` (a whole number) overrides everything; otherwise the cores this process may run on
+(``os.sched_getaffinity``), at most :data:`MAX_DEFAULT_THREADS` (memory bandwidth, not cores, limits the
+arithmetic beyond that). An explicit request (``--jobs``) is honoured but never above the usable cores.
+Decoding (LibRaw), NumPy and OpenImageIO release the GIL, so threads, not processes, are what camcal uses
+inside one process; a batch of photos divides the cores among its worker processes.
+"""
+
+from __future__ import annotations
+
+import os
+
+from camcal.errors import CamcalError
+
+MAX_DEFAULT_THREADS = 4
+"""Threads used by default, at most."""
+
+
+def usable_cores() -> int:
+    """Cores this process may run on."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
+
+
+def default_threads() -> int:
+    """``CAMCAL_THREADS`` if set, else the usable cores, at most :data:`MAX_DEFAULT_THREADS`.
+
+    Raises
+    ------
+    CamcalError
+        ``CAMCAL_THREADS`` is not a whole number.
+    """
+    env = os.environ.get("CAMCAL_THREADS", "").strip()
+    if env:
+        try:
+            return max(1, int(env))
+        except ValueError:
+            raise CamcalError(f"CAMCAL_THREADS must be a whole number of threads, got {env!r}") from None
+    return max(1, min(MAX_DEFAULT_THREADS, usable_cores()))
+
+
+def thread_count(requested: int | None = None, work_items: int | None = None) -> int:
+    """Threads for one job: ``requested`` (capped at the usable cores) or :func:`default_threads`, and never
+    more than ``work_items`` (the frames or bands there are to share out)."""
+    n = default_threads() if requested is None else max(1, min(int(requested), usable_cores()))
+    if work_items is not None:
+        n = min(n, max(1, int(work_items)))
+    return n
