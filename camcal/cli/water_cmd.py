@@ -10,6 +10,7 @@ import typer
 
 from camcal.cli.common import console, print_json, progress
 from camcal.errors import CamcalError
+from camcal.region import Region, pixels_per_output_cell
 
 
 def _model(kind: str, epsilon: str, albedo: float, cutoff_deg: float | None, view_deg: float, n_water: float,
@@ -98,18 +99,6 @@ def _json_list(values) -> list:
 def _json_nested(values) -> list:
     a = np.asarray(values, dtype=float)
     return np.where(np.isfinite(a), a, None).tolist()
-
-
-def _roi(text: str | None) -> tuple[int, int, int, int] | None:
-    if not text:
-        return None
-    try:
-        x0, y0, w, h = (int(v) for v in text.split(","))
-    except ValueError:
-        raise CamcalError(f"--roi must be x0,y0,width,height in pixels, got {text!r}") from None
-    if w <= 0 or h <= 0 or x0 < 0 or y0 < 0:
-        raise CamcalError(f"--roi must have non-negative origin and positive size, got {text!r}")
-    return x0, y0, w, h
 
 
 def _split_unc(text: str) -> tuple[str, str | None]:
@@ -306,7 +295,10 @@ def register(app: typer.Typer) -> None:
         channel: str = typer.Option(None, help="EXR channel to read from both files (default L663; R with --profile)."),
         sigma_channel: str = typer.Option(None, help="EXR channel with the 1-σ radiance uncertainty (both files)."),
         relative_sigma: float = typer.Option(None, help="Relative 1-σ uncertainty of the ratio (instead of maps)."),
-        roi: str = typer.Option(None, help="Region x0,y0,width,height in pixels; other pixels become NaN."),
+        roi: str = typer.Option(None, "--roi", help="Region x,y,w,h in photo pixels at full resolution (rounded "
+                                "outward to the EXR's grid: half resolution for Bayer photos, from the EXR's "
+                                "'resolution' note; an EXR without one is taken at its own pixels); other "
+                                "pixels become NaN."),
         ratio: str = typer.Option(None, help="Numbers only: comma list of ratios; prints JSON."),
         out: Path = typer.Option(None, "-o", "--out", help="Output EXR (chl_ug_per_L, chl_unc_ug_per_L, the σ "
                                  "terms chl_unc_<term>_ug_per_L, reason)."),
@@ -377,15 +369,19 @@ def register(app: typer.Typer) -> None:
         names = [channel] + ([sigma_channel] if sigma_channel else [])
         with progress() as bar:
             task = bar.add_task("inverting", total=3)
-            sub, _ = read_exr(submerged, names)
+            sub, sub_meta = read_exr(submerged, names)
             ref, _ = read_exr(reference, names)
             (h, w), (rh, rw) = sub[channel].shape, ref[channel].shape
             if (h, w) != (rh, rw):
                 raise CamcalError(f"is {w}x{h} pixels but the reference {reference.name} is {rw}x{rh}; the two images "
                                   "must have one size (same camera, same crop)", submerged)
-            region = _roi(roi)
-            if region is not None and (region[0] >= w or region[1] >= h):
-                raise CamcalError(f"--roi {roi} lies outside the image ({w}x{h} pixels)", submerged)
+            region = None
+            if roi:
+                per_cell = pixels_per_output_cell(sub_meta.get("resolution")) or 1
+                ys, xs = Region.parse(roi).window((h, w), per_cell, submerged)
+                region = (xs.start, ys.start, xs.stop - xs.start, ys.stop - ys.start)
+                meta["roi"] = {"photo_pixels": roi, "exr_pixels_x_y_w_h": list(region),
+                               "photo_pixels_per_exr_pixel": per_cell}
             bar.advance(task)
             kwargs = {}
             if sigma_channel:
