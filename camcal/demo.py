@@ -21,9 +21,9 @@ from pathlib import Path
 import numpy as np
 from rich.table import Table
 
-from camcal.cli.common import console, progress
 from camcal.errors import CamcalError
 from camcal.synth.camera import LINEAR_FROM_PLANES
+from camcal.terminal import console, progress
 
 CHL_UG_PER_L = 60.0
 DEPTH_M = 0.80
