@@ -66,6 +66,7 @@ from camcal.correct import Calibration, correct_planes
 from camcal.errors import CamcalError
 from camcal.exposure import frame_relative_exposure
 from camcal.frame import PLANES, Frame, plane_offsets
+from camcal.io import open_image, read_pixels
 from camcal.radiance import RadianceModel, radiance_model
 from camcal.region import Region
 from camcal.threads import default_threads
@@ -555,7 +556,6 @@ def read_mask(path: str | Path) -> np.ndarray:
     """A mask image (PNG/TIFF/JPEG, any channels) as a 2-D float array."""
     import OpenImageIO as oiio
 
-    from camcal.io import open_image, read_pixels
 
     path = Path(path)
     if not path.is_file():

@@ -52,6 +52,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from camcal.errors import CamcalError
+from camcal.spectra import planck_radiance
 
 RGB = ("R", "G", "B")
 ESTIMATORS = ("narrowband", "smooth")
@@ -203,7 +204,6 @@ def smooth_error_table(wavelength_nm: np.ndarray, c_rgb: dict[str, np.ndarray], 
     """
     import colour
 
-    from camcal.spectra import planck_radiance
 
     wl = np.asarray(wavelength_nm, float)
     c = np.stack([np.asarray(c_rgb[k], float) for k in RGB])

@@ -17,6 +17,7 @@ from collections.abc import Sequence
 import typer
 
 from camcal import __version__
+from camcal.atomic import remove_pending
 from camcal.errors import CamcalError
 
 app = typer.Typer(
@@ -86,7 +87,6 @@ def _usage_error_type() -> type[Exception]:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI; returns the exit code (0 ok, 1 partial failure, 2 user error, 3 internal error)."""
-    from camcal.atomic import remove_pending
 
     try:
         return _main(argv)

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import typer
 
+from camcal.batch import BatchOptions, report_rows, run_batch
 from camcal.cli.common import console, err_console, print_json, progress
 from camcal.errors import CamcalError
 from camcal.region import Region
@@ -37,7 +38,6 @@ def register(app: typer.Typer) -> None:
 
         Exit code 0 when every photo has its EXR, 1 when some failed (listed), 2 on bad input.
         """
-        from camcal.batch import BatchOptions, run_batch
 
         if roi is not None and mask is not None:
             raise CamcalError("give --roi or --mask, not both")
@@ -55,7 +55,6 @@ def register(app: typer.Typer) -> None:
 
             report = run_batch(profile, photos, outdir, opts, jobs=jobs, scheduler=dask_scheduler, progress=tick)
         if json_out:
-            from camcal.batch import report_rows
 
             print_json({"counts": report.counts, "report_csv": report.report_csv, "roi_csv": report.roi_csv,
                         "photos": report_rows(report)})

@@ -9,7 +9,10 @@ from rich.table import Table
 
 from camcal.cli.common import console, print_json, progress
 from camcal.errors import CamcalError
+from camcal.plots import response_figure, write_png
 from camcal.region import Region
+from camcal.response import fit_response, load_dark_model, save_response
+from camcal.store import to_jsonable
 
 
 def register(app: typer.Typer) -> None:
@@ -32,9 +35,6 @@ def register(app: typer.Typer) -> None:
         as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON instead of a table."),
     ) -> None:
         """Fit g = α·x^γ + β (seed eq. 12) per channel; report linear range, saturation, EMVA 1288 LE, Pearson r."""
-        from camcal.plots import response_figure, write_png  # local like the stage import: start-up of `camcal`
-        from camcal.response import fit_response, load_dark_model, save_response
-        from camcal.store import to_jsonable
 
         if roi is not None and roi_fraction is not None:
             raise CamcalError("give --roi or --roi-fraction, not both")

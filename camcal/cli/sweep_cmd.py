@@ -9,7 +9,10 @@ import typer
 
 from camcal.cli.common import console, err_console, print_json, progress
 from camcal.errors import CamcalError
+from camcal.plots import spectral_figure, write_png
 from camcal.region import Region
+from camcal.spectral import measure_sweep, read_sweep
+from camcal.spectral_files import write_spectacle_csv
 
 
 def _side_fraction(area_fraction: float) -> float:
@@ -42,9 +45,6 @@ def register(app: typer.Typer) -> None:
         as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
     ) -> None:
         """Measure c(λ) for R, G1, G2, B and write a SPECTACLE CSV and a PNG plot."""
-        from camcal.plots import spectral_figure, write_png  # local like the stage import: start-up of `camcal`
-        from camcal.spectral import measure_sweep, read_sweep
-        from camcal.spectral_files import write_spectacle_csv
 
         if output.suffix.lower() != ".csv":
             raise CamcalError("output must be a .csv file", output)

@@ -10,14 +10,25 @@ import typer
 
 from camcal.cli.common import console, print_json, progress
 from camcal.errors import CamcalError
+from camcal.exr import read_exr, write_exr
 from camcal.region import Region, pixels_per_output_cell
+from camcal.water.band import band_model_from_profile, read_chlorophyll_csv
+from camcal.water.invert import Reason, invert_images, invert_ratio
+from camcal.water.lampfield import PixelGeometry
+from camcal.water.models import SEED_CUTOFF_RAD, LampModel, RefinedModel, SeedModel
+from camcal.water.simulate import simulate_seed_section5
+from camcal.water.uncertainty import Uncertain, all_terms, combine, dominant
+from camcal.water.units import (
+    mol_per_L_to_ug_per_L,
+    parse_concentration_mol_per_L,
+    parse_epsilon_L_per_mol_cm,
+    parse_length_m,
+)
 
 
 def _model(kind: str, epsilon: str, albedo: float, cutoff_deg: float | None, view_deg: float, n_water: float,
            water_absorption: float, background_absorption: float, reflectance: str, transmittance: str = "mean",
            lamp_height: str | None = None, lamp_angle_deg: float | None = None):
-    from camcal.water.models import SEED_CUTOFF_RAD, LampModel, RefinedModel, SeedModel
-    from camcal.water.units import parse_epsilon_L_per_mol_cm, parse_length_m
 
     eps = parse_epsilon_L_per_mol_cm(epsilon)
     if not (eps > 0 and 0 < albedo < np.inf):
@@ -74,7 +85,6 @@ def _list(text: str, parse, what: str) -> np.ndarray:
 
 def _depth(text: str) -> float:
     """A disk depth in metres: positive and plausible (:data:`DEPTH_RANGE_M`), else CamcalError."""
-    from camcal.water.units import parse_length_m
 
     d = parse_length_m(text)
     if not d > 0:
@@ -144,7 +154,6 @@ def _angle_deg(text: str) -> float:
 
 
 def _depth_unc(text: str) -> tuple[float, float]:
-    from camcal.water.units import parse_length_m
 
     a, b = _split_unc(text)
     d = _depth(a)
@@ -154,8 +163,6 @@ def _depth_unc(text: str) -> tuple[float, float]:
 def _build(kind, epsilon, albedo, cutoff_deg, view_deg, n_water, water_absorption, background_absorption,
            reflectance, transmittance, lamp_height, lamp_angle, epsilon_unc):
     """(model, stated inputs other than depth) from the options."""
-    from camcal.water.uncertainty import Uncertain
-    from camcal.water.units import parse_length_m
 
     inputs = []
     h_text = a_deg = None
@@ -178,7 +185,6 @@ def _build(kind, epsilon, albedo, cutoff_deg, view_deg, n_water, water_absorptio
 
 def _band(m, profile, band_channel, illuminant, chlorophyll_csv, background_absorption, meta):
     """Wrap a geometry in the band model of a profile's channel (illuminant: the lamp for --model lamp)."""
-    from camcal.water.band import band_model_from_profile, read_chlorophyll_csv
 
     light = illuminant or ("lamp" if getattr(m, "name", "") == "lamp" else "D65")
     chl = read_chlorophyll_csv(chlorophyll_csv) if chlorophyll_csv else None
@@ -190,8 +196,6 @@ def _band(m, profile, band_channel, illuminant, chlorophyll_csv, background_abso
 
 
 def _pixel_geometry(model: str, size: str, centre: str | None, direction_deg: float):
-    from camcal.water.lampfield import PixelGeometry
-    from camcal.water.units import parse_length_m
 
     if model != "lamp":
         raise CamcalError("--disk-pixel-size (per-pixel geometry) is for --model lamp")
@@ -208,7 +212,6 @@ def _pixel_geometry(model: str, size: str, centre: str | None, direction_deg: fl
 
 def _unc_summary(terms: dict, inputs: list) -> dict:
     """Median of each σ_C term, the dominant one, and the inputs whose uncertainty was not stated."""
-    from camcal.water.uncertainty import dominant
 
     out = dominant(terms)
     missing = [q.name for q in inputs if not q.sigma > 0] + ([] if "ratio" in terms else ["ratio"])
@@ -264,7 +267,6 @@ def register(app: typer.Typer) -> None:
         chlorophyll_csv: Path = common["chlorophyll_csv"],
     ) -> None:
         """Predicted ratio (disk radiance over reference) for each concentration and depth, as JSON."""
-        from camcal.water.units import mol_per_L_to_ug_per_L, parse_concentration_mol_per_L
 
         m, _ = _build(model, epsilon, albedo, cutoff_deg, view_deg, n_water, water_absorption,
                       background_absorption, reflectance, transmittance, lamp_height, lamp_angle, None)
@@ -325,8 +327,6 @@ def register(app: typer.Typer) -> None:
         σ_C carries the ratio noise, the stated ± of depth, lamp height and angle, --epsilon-unc and the
         profile's uncertainty of c(λ); the output names the dominant term.
         """
-        from camcal.water.invert import Reason, invert_images, invert_ratio
-        from camcal.water.uncertainty import Uncertain, all_terms, combine
 
         d, d_sig = _depth_unc(depth)
         if relative_sigma is not None and not (np.isfinite(relative_sigma) and relative_sigma >= 0):
@@ -364,7 +364,6 @@ def register(app: typer.Typer) -> None:
             return
         if submerged is None or reference is None or out is None:
             raise CamcalError("give --submerged A.exr --reference B.exr -o chl.exr, or --ratio for numbers")
-        from camcal.exr import read_exr, write_exr
 
         names = [channel] + ([sigma_channel] if sigma_channel else [])
         with progress() as bar:
@@ -414,7 +413,6 @@ def register(app: typer.Typer) -> None:
     def simulate_cmd(out: Path = typer.Option(..., "-o", "--out", help="Output folder.")) -> None:
         """Reproduce the seed's §5 curves (CSV + PNG): the exact eq. 10 beside eq. 11 and the appendix's (k, q)
         model; and the table of C read by eq. 11 and the appendix (as written, corrected, solved) vs the truth."""
-        from camcal.water.simulate import simulate_seed_section5
 
         for p in simulate_seed_section5(out):
             console.print(f"wrote {p}")

@@ -38,10 +38,12 @@ from pathlib import Path
 
 import numpy as np
 
+from camcal.atomic import atomic_write_bytes, atomic_write_text
 from camcal.errors import CamcalError
 from camcal.frame import PATTERNS, PLANES, merge_planes, plane_offsets, split_planes
 from camcal.spectra import WAVELENGTHS_NM, camera_sensitivities, photon_energy_j
-from camcal.synth.dng import write_dng, write_linear_dng
+from camcal.synth.dng import encode_exif_app1, write_dng, write_linear_dng
+from camcal.synth.tone import apply_tone
 
 LINEAR_FROM_PLANES: tuple[int, int, int] = (0, 1, 3)
 """Indices into :data:`camcal.frame.PLANES` of the R, G, B channels of a synthetic linear RAW: R, G1, B."""
@@ -415,7 +417,6 @@ class SyntheticCamera:
         tone curve ``tone`` (``"srgb"``: IEC 61966-2-1; ``"power"``: x**gamma), 8-bit quantisation,
         JPEG at ``quality`` with 4:4:4 chroma.
         """
-        from camcal.synth.tone import apply_tone
 
         p = self.params
         iso = p.iso_base if iso is None else iso
@@ -512,8 +513,6 @@ def write_jpeg_file(
 
     import OpenImageIO as oiio
 
-    from camcal.atomic import atomic_write_bytes
-    from camcal.synth.dng import encode_exif_app1
 
     h, w, _ = rgb8.shape
     spec = oiio.ImageSpec(w, h, 3, oiio.UINT8)
@@ -539,7 +538,6 @@ def frame_rngs(seed: int, n: int, stream: int) -> list[np.random.Generator]:
 
 
 def save_truth(path: str | Path, truth: dict) -> Path:
-    from camcal.atomic import atomic_write_text
 
     return atomic_write_text(path, json.dumps(truth, indent=1, sort_keys=True))
 

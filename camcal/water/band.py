@@ -33,8 +33,10 @@ from scipy.special import expn
 
 from camcal.data import read_table
 from camcal.errors import CamcalError
+from camcal.manifest import read_text_file
+from camcal.profile import load_profile
 from camcal.spectra import planck_radiance
-from camcal.water.invert import Inversion, Reason
+from camcal.water.invert import CHUNK, Inversion, Reason, _run_chunks
 from camcal.water.models import ClosedForm, RefinedModel, SeedModel, form_at
 from camcal.water.purewater import pure_water_absorption_per_m
 from camcal.water.units import specific_absorption_m2_per_mg, ug_per_L_to_mol_per_L
@@ -74,7 +76,6 @@ class ChlorophyllAbsorption:
 @functools.lru_cache(maxsize=2)
 def bricaud_1998(kind: str = "ph") -> ChlorophyllAbsorption:
     """Bricaud et al. (1998) A(λ), E(λ), 400-700 nm: ``kind`` 'ph' (phytoplankton) or 'p' (all particles)."""
-    from camcal.data import read_table
 
     header, v = read_table("chlorophyll_a_bricaud_1998.csv")
     a = v[:, header.index(f"A_{kind}_m2_per_mg")]
@@ -128,7 +129,6 @@ def read_chlorophyll_csv(path: str | Path) -> ChlorophyllAbsorption:
 
     All give a_abs(λ, C) in m⁻¹ with C in µg/L (= mg m⁻³): a = 2.303e-4 ε[L g⁻¹ cm⁻¹] C.
     """
-    from camcal.manifest import read_text_file
 
     path = Path(path)
     text = read_text_file(path, "absorber (chlorophyll/dye) CSV")
@@ -349,7 +349,6 @@ class BandModel:
 def read_spectrum_csv(path: str | Path, what: str = "lamp spectrum CSV") -> tuple[np.ndarray, np.ndarray]:
     """A measured relative spectrum: CSV with ``wavelength_nm`` and one value column (any name, e.g.
     ``relative_radiance``); ``#`` lines are comments. Returns (wavelength_nm, values), values ≥ 0, finite."""
-    from camcal.manifest import read_text_file
 
     path = Path(path)
     text = read_text_file(path, what)
@@ -437,7 +436,6 @@ def band_model_from_profile(profile, channel: str = "R", *, geometry=None, chlor
 
     where = None
     if isinstance(profile, str | _Path):
-        from camcal.profile import load_profile
 
         where = _Path(profile)
         profile = load_profile(where)
@@ -559,7 +557,6 @@ class BandInverse:
     def concentration(self, ratio, *, sigma_ln_ratio=None) -> Inversion:
         """C (µg/L and mol/L) per pixel from band ratios, with reasons and propagated σ (σ_ln_ratio: the
         relative 1-σ uncertainty of the ratio, scalar or array)."""
-        from camcal.water.invert import CHUNK, _run_chunks
 
         r = np.asarray(ratio)
         flat = r.reshape(-1)
