@@ -39,7 +39,7 @@ from camcal.apply import (
 )
 from camcal.atomic import atomic_write_text
 from camcal.errors import CamcalError
-from camcal.exr import read_exr, write_exr
+from camcal.exr import read_exr, read_exr_header, write_exr
 from camcal.io import exposure_from_exif, folder_manifest, is_raw_path, list_frames, load_frame
 from camcal.manifest import exposure_overrides
 from camcal.profile import load_profile
@@ -141,28 +141,11 @@ def _plan(profile_path: str, options: BatchOptions, *, with_maps: bool = True):
 
 
 def exr_header(path: Path) -> dict | None:
-    """camcal attributes of an EXR header (no pixels), or None when it cannot be read."""
-    import json
-
-    import OpenImageIO as oiio
-
-    inp = oiio.ImageInput.open(str(path))
-    if inp is None:
-        oiio.geterror()
-        return None
+    """camcal attributes of an EXR header (no pixels), or None when it cannot be read (:func:`read_exr_header`)."""
     try:
-        meta: dict = {}
-        for attr in inp.spec().extra_attribs:
-            if attr.name.startswith("camcal:json:"):
-                try:
-                    meta[attr.name[12:]] = json.loads(attr.value)
-                except (TypeError, ValueError):
-                    return None
-            elif attr.name.startswith("camcal:"):
-                meta[attr.name[7:]] = attr.value
-        return meta
-    finally:
-        inp.close()
+        return read_exr_header(path)
+    except CamcalError:
+        return None
 
 
 def _is_current(out: Path, profile_sha256: str | None, options: BatchOptions) -> bool:

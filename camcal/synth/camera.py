@@ -40,7 +40,7 @@ import numpy as np
 
 from camcal.atomic import atomic_write_bytes, atomic_write_text
 from camcal.errors import CamcalError
-from camcal.frame import PATTERNS, PLANES, merge_planes, plane_offsets, split_planes
+from camcal.frame import PATTERNS, PLANES, merge_planes, plane_offsets, rgb_from_planes, split_planes
 from camcal.spectra import WAVELENGTHS_NM, camera_sensitivities, photon_energy_j
 from camcal.synth.dng import encode_exif_app1, write_dng, write_linear_dng
 from camcal.synth.tone import apply_tone
@@ -330,7 +330,7 @@ class SyntheticCamera:
         p = self.params
         black = np.asarray(p.black_level_dn, float)[:, None, None]
         x = (planes_dn.astype(np.float64) - black) / (p.white_dn - black)
-        return np.clip(np.stack([x[0], 0.5 * (x[1] + x[2]), x[3]]), 0.0, 1.0)
+        return np.clip(rgb_from_planes(x), 0.0, 1.0)
 
     # ---- files ---------------------------------------------------------------------
     def write_dng(
