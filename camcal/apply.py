@@ -553,7 +553,7 @@ def roi_mask(shape_hw: tuple[int, int], roi: Region | None = None,
 
 def read_mask(path: str | Path) -> np.ndarray:
     """A mask image (PNG/TIFF/JPEG, any channels) as a 2-D float array."""
-    import OpenImageIO as oiio
+    import OpenImageIO as oiio  # lazy: ~0.1 s at import, only for image files (benchmarks/RESULTS.md, Start-up)
 
 
     path = Path(path)

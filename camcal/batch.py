@@ -393,7 +393,7 @@ def _with_threads(args: list[tuple], threads: int) -> list[tuple]:
 
 
 def _run_pool(args: list[tuple], jobs: int, done: Callable[[PhotoResult], None]) -> None:
-    import multiprocessing
+    import multiprocessing  # lazy: only a multi-process batch
     from concurrent.futures import ProcessPoolExecutor, as_completed
     from concurrent.futures.process import BrokenProcessPool
 
@@ -411,7 +411,7 @@ def _run_pool(args: list[tuple], jobs: int, done: Callable[[PhotoResult], None])
 
 def _run_dask(args: list[tuple], scheduler, done: Callable[[PhotoResult], None]) -> None:
     try:
-        from dask.distributed import Client, as_completed
+        from dask.distributed import Client, as_completed  # optional dependency (dask), ~0.7 s at import
     except ImportError:
         raise CamcalError("--dask-scheduler needs dask.distributed (pip install 'dask[distributed]')") from None
     own = False

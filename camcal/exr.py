@@ -62,7 +62,7 @@ def write_exr(
     datetime : the header's ``DateTime`` (EXR ``capDate``), ``"YYYY:MM:DD HH:MM:SS"``; by default
         OpenImageIO writes the current time, so two writes of the same data differ in that field.
     """
-    import OpenImageIO as oiio
+    import OpenImageIO as oiio  # lazy: ~0.1 s at import, only for image files (benchmarks/RESULTS.md, Start-up)
 
     if not channels:
         raise CamcalError("no channels to write", path)
@@ -122,7 +122,7 @@ def read_exr(
     (channels, metadata) : ``{name: float32 (H, W)}`` and ``{key: value}`` with the
     ``camcal:`` prefix removed and JSON attributes decoded.
     """
-    import OpenImageIO as oiio
+    import OpenImageIO as oiio  # lazy: ~0.1 s at import, only for image files (benchmarks/RESULTS.md, Start-up)
 
     path = Path(path)
     if not path.is_file():

@@ -511,7 +511,7 @@ def write_jpeg_file(
     """
     import tempfile
 
-    import OpenImageIO as oiio
+    import OpenImageIO as oiio  # lazy: ~0.1 s at import, only for image files (benchmarks/RESULTS.md, Start-up)
 
 
     h, w, _ = rgb8.shape
