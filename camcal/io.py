@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import logging
 import math
 import os
 import sys
@@ -92,8 +93,6 @@ def _magic(path: Path) -> bytes:
 def _exif_tags(path: Path) -> dict[str, object]:
     """EXIF tags via exifread (header only); {} when the file has none or is damaged."""
     try:
-        import logging
-
         import exifread  # lazy: only when a file's EXIF is read
 
         log = logging.getLogger("exifread")  # it logs "File format not recognized." to stderr on non-EXIF files

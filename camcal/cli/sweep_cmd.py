@@ -6,6 +6,7 @@ import warnings
 from pathlib import Path
 
 import typer
+from rich.table import Table
 
 from camcal.cli.common import console, err_console, print_json, progress
 from camcal.errors import CamcalError
@@ -73,8 +74,6 @@ def register(app: typer.Typer) -> None:
         if as_json:
             print_json({**summary, "output": str(output), "png": str(png_path)})
             return
-        from rich.table import Table
-
         table = Table(title=f"spectral sensitivity ({result.mode}, {result.units})")
         for col in ("channel", "peak λ (nm)", "peak value", "λ_eff (nm)", "bandwidth (nm)"):
             table.add_column(col)

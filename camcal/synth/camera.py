@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import tempfile
 from dataclasses import dataclass, field
 from datetime import datetime, timedelta
 from functools import cached_property
@@ -509,8 +510,6 @@ def write_jpeg_file(
     OpenImageIO encodes the pixels (4:4:4 chroma); camcal writes the Exif APP1
     segment itself so that exposure time and f-number are exact rationals.
     """
-    import tempfile
-
     import OpenImageIO as oiio  # lazy: ~0.1 s at import, only for image files (benchmarks/RESULTS.md, Start-up)
 
 

@@ -432,12 +432,10 @@ def band_model_from_profile(profile, channel: str = "R", *, geometry=None, chlor
     CamcalError
         The profile has no spectral stage, or no such channel.
     """
-    from pathlib import Path as _Path
-
     where = None
-    if isinstance(profile, str | _Path):
+    if isinstance(profile, str | Path):
 
-        where = _Path(profile)
+        where = Path(profile)
         profile = load_profile(where)
     spectral = getattr(profile, "spectral", None)
     if spectral is None:
@@ -447,21 +445,21 @@ def band_model_from_profile(profile, channel: str = "R", *, geometry=None, chlor
     if channel not in curves:
         raise CamcalError(f"profile has no channel {channel!r}; use one of {', '.join(sorted(curves))}", where)
     wl = np.asarray(spectral.wavelength_nm, float)
-    s = illuminant_spectrum(illuminant, wl) if isinstance(illuminant, str | _Path) else illuminant
+    s = illuminant_spectrum(illuminant, wl) if isinstance(illuminant, str | Path) else illuminant
     if s is not None and np.any(np.isnan(s)):  # a measured lamp CSV shorter than the profile's grid
         c_abs = np.abs(np.asarray(curves[channel], float))
         need = c_abs >= 0.01 * np.max(c_abs)
         if np.any(need & np.isnan(s)):
             raise CamcalError(f"the light's spectrum {str(illuminant)!r} does not cover channel {channel}'s band "
                               f"({wl[need][0]:g}-{wl[need][-1]:g} nm, c(λ) ≥ 1 % of its peak)",
-                              _Path(illuminant) if _Path(str(illuminant)).is_file() else where)
+                              Path(illuminant) if Path(str(illuminant)).is_file() else where)
         s = np.nan_to_num(s, nan=0.0)
     if chlorophyll is not None:  # outside its table a user spectrum absorbs nothing: it must span the band
         weight = np.abs(np.asarray(curves[channel], float)) * (1.0 if s is None else np.asarray(s, float))
         band = wl[weight >= 0.01 * np.max(weight)] if np.max(weight) > 0 else wl
         lo, hi = float(chlorophyll.wavelengths_nm[0]), float(chlorophyll.wavelengths_nm[-1])
         if lo > band[0] or hi < band[-1]:
-            src = _Path(chlorophyll.source) if chlorophyll.source and _Path(chlorophyll.source).is_file() else where
+            src = Path(chlorophyll.source) if chlorophyll.source and Path(chlorophyll.source).is_file() else where
             raise CamcalError(f"the chlorophyll spectrum covers {lo:g}–{hi:g} nm; channel {channel}'s band "
                               f"(c(λ)·illuminant ≥ 1 % of its peak) spans {band[0]:g}–{band[-1]:g} nm", src)
     uncs = dict(spectral.uncertainty) if hasattr(spectral, "uncertainty") else {}
