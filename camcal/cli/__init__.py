@@ -33,7 +33,6 @@ COMMAND_MODULES = (
     "demo", "inspect", "synth", "dark", "flat", "linearity", "sweep", "calibrate", "profile", "report", "apply",
     "water",
 )
-_registered: set[str] = set()
 
 
 def _version(value: bool) -> None:
@@ -55,9 +54,13 @@ def register_commands(names: Sequence[str] = COMMAND_MODULES) -> None:
     An import error propagates: a command that cannot load is a defect, not an absent command.
     """
     for name in COMMAND_MODULES:  # help order, whatever the order asked
-        if name in names and name not in _registered:
+        if name in names and name not in _registered():
             importlib.import_module(f"camcal.cli.{name}_cmd").register(app)
-            _registered.add(name)
+
+
+def _registered() -> set[str]:
+    """Names of the commands and command groups on :data:`app` (the app itself is the record)."""
+    return {c.name for c in app.registered_commands} | {g.name for g in app.registered_groups}
 
 
 def commands_for(argv: Sequence[str]) -> tuple[str, ...]:
