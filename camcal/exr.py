@@ -16,7 +16,14 @@ import numpy as np
 
 from camcal.atomic import atomic_path
 from camcal.errors import CamcalError
-from camcal.limits import MAX_EXR_CHANNELS, MAX_EXR_EXPANSION, human_bytes, max_exr_samples, max_pixels
+from camcal.limits import (
+    MAX_EXR_CHANNELS,
+    MAX_EXR_EXPANSION,
+    declared_image_bytes,
+    human_bytes,
+    max_exr_samples,
+    max_pixels,
+)
 from camcal.threads import thread_count
 
 COMPRESSIONS = ("none", "zip", "zips", "piz", "pxr24", "b44", "dwaa", "dwab", "zstd", "rle")
@@ -208,7 +215,7 @@ def _check_declared_size(path: Path, spec, max_samples: int | None) -> None:
     limit = max_exr_samples() if max_samples is None else max_samples  # a profile's own bound replaces it
     if w * h * nch > limit:
         raise CamcalError(f"EXR declares {w}x{h} pixels x {nch} channels, above the limit of {limit} samples", path)
-    declared = w * h * sum(max(1, int(f.size())) for f in (spec.channelformats or [spec.format] * nch))
+    declared = declared_image_bytes(spec)
     size = path.stat().st_size
     compression = str(spec.getattribute("compression") or "none").lower()
     if compression == "none" and declared > size:
