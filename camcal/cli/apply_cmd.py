@@ -27,7 +27,8 @@ def register(app: typer.Typer) -> None:
         jobs: int = typer.Option(2, "--jobs", "-j", help="Worker processes of the local pool."),
         dask_scheduler: str | None = typer.Option(None, "--dask-scheduler",
                                                   help="Run on a dask.distributed cluster (tcp://host:8786)."),
-        roi: str | None = typer.Option(None, "--roi", help="x,y,w,h in photo pixels: statistics to roi_stats.csv."),
+        roi: str | None = typer.Option(None, "--roi", help="Region x,y,w,h in photo pixels at full resolution "
+                                       "(rounded outward to the output grid): statistics to roi_stats.csv."),
         mask: Path | None = typer.Option(None, "--mask", help="Mask image (non-zero = in): statistics."),
         allow_other_camera: bool = typer.Option(False, "--allow-other-camera",
                                                 help="Accept photos of another camera model than the profile's."),
