@@ -57,6 +57,7 @@ flat-field model error, exposure-metadata error (ISO and f-number are nominal va
 from __future__ import annotations
 
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -65,7 +66,8 @@ import numpy as np
 from camcal.correct import Calibration, correct_planes
 from camcal.errors import CamcalError
 from camcal.exposure import frame_relative_exposure
-from camcal.frame import PLANES, Frame, plane_offsets
+from camcal.frame import PLANES, Frame, plane_offsets, rgb_from_planes
+from camcal.io import open_image, read_pixels
 from camcal.radiance import RadianceModel, radiance_model
 from camcal.region import Region
 from camcal.threads import default_threads
@@ -170,7 +172,7 @@ def prepare(
     if profile.flat is not None:
         flat_planes = profile.flat.gain(with_prnu=with_prnu).astype(np.float32)
         if flat_planes.shape[0] == 4:
-            flat_rgb = np.stack([flat_planes[0], 0.5 * (flat_planes[1] + flat_planes[2]), flat_planes[3]])
+            flat_rgb = rgb_from_planes(flat_planes)
         elif getattr(profile.camera, "layout", "bayer") == "linear":  # linear RAW: R, G, B planes
             flat_rgb = flat_planes
         else:  # a flat fitted on processed RGB frames
@@ -237,8 +239,6 @@ def _run_bands(work, n_rows: int, threads: int) -> None:
         for b in bands:
             work(*b)
         return
-    from concurrent.futures import ThreadPoolExecutor
-
     with ThreadPoolExecutor(max_workers=min(threads, len(bands))) as pool:
         for _ in pool.map(lambda b: work(*b), bands):
             pass
@@ -389,7 +389,7 @@ def _processed_signal(frame: Frame, plan: ApplyPlan, iso: float, notes: list[str
             var = read_var + kg * np.maximum(signal, 0)
         else:
             rv = np.stack([read_var[0], 0.25 * (read_var[1] + read_var[2]), read_var[3]])
-            kk = np.stack([kg[0], 0.5 * (kg[1] + kg[2]), kg[3]])
+            kk = rgb_from_planes(kg)
             var = rv + kk * np.maximum(signal, 0) * np.array([1.0, 0.5, 1.0], np.float32)[:, None, None]
     return signal, var, saturated
 
@@ -553,9 +553,8 @@ def roi_mask(shape_hw: tuple[int, int], roi: Region | None = None,
 
 def read_mask(path: str | Path) -> np.ndarray:
     """A mask image (PNG/TIFF/JPEG, any channels) as a 2-D float array."""
-    import OpenImageIO as oiio
+    import OpenImageIO as oiio  # lazy: ~0.1 s at import, only for image files (benchmarks/RESULTS.md, Start-up)
 
-    from camcal.io import open_image, read_pixels
 
     path = Path(path)
     if not path.is_file():

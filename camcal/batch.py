@@ -28,7 +28,21 @@ from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
+from camcal.apply import (
+    LINEAR_RESOLUTION_NOTE,
+    apply_prepared,
+    check_camera,
+    prepare,
+    read_mask,
+    roi_mask,
+    roi_statistics,
+)
+from camcal.atomic import atomic_write_text
 from camcal.errors import CamcalError
+from camcal.exr import read_exr, read_exr_header, write_exr
+from camcal.io import exposure_from_exif, folder_manifest, is_raw_path, list_frames, load_frame
+from camcal.manifest import exposure_overrides
+from camcal.profile import load_profile
 from camcal.region import Region
 from camcal.threads import default_threads
 
@@ -111,8 +125,6 @@ def _plan(profile_path: str, options: BatchOptions, *, with_maps: bool = True):
            options.filter_fwhm_nm, options.line_fwhm_nm, options.with_prnu)
     plan = _PLANS.get(key) if with_maps else None
     if plan is None:
-        from camcal.apply import prepare
-        from camcal.profile import load_profile
 
         profile = load_profile(p, with_maps=with_maps)
         try:
@@ -129,28 +141,11 @@ def _plan(profile_path: str, options: BatchOptions, *, with_maps: bool = True):
 
 
 def exr_header(path: Path) -> dict | None:
-    """camcal attributes of an EXR header (no pixels), or None when it cannot be read."""
-    import json
-
-    import OpenImageIO as oiio
-
-    inp = oiio.ImageInput.open(str(path))
-    if inp is None:
-        oiio.geterror()
-        return None
+    """camcal attributes of an EXR header (no pixels), or None when it cannot be read (:func:`read_exr_header`)."""
     try:
-        meta: dict = {}
-        for attr in inp.spec().extra_attribs:
-            if attr.name.startswith("camcal:json:"):
-                try:
-                    meta[attr.name[12:]] = json.loads(attr.value)
-                except (TypeError, ValueError):
-                    return None
-            elif attr.name.startswith("camcal:"):
-                meta[attr.name[7:]] = attr.value
-        return meta
-    finally:
-        inp.close()
+        return read_exr_header(path)
+    except CamcalError:
+        return None
 
 
 def _is_current(out: Path, profile_sha256: str | None, options: BatchOptions) -> bool:
@@ -168,7 +163,6 @@ def _is_current(out: Path, profile_sha256: str | None, options: BatchOptions) ->
 def _load_mask(options: BatchOptions):
     if options.mask_path is None:
         return None
-    from camcal.apply import read_mask
 
     return read_mask(options.mask_path)
 
@@ -177,7 +171,6 @@ def _stats(channels: dict, options: BatchOptions, mask_image, where: Path, meta:
     """ROI statistics of one output; ``meta`` its metadata (a linear RAW's output is at full resolution)."""
     if options.roi is None and options.mask_path is None:
         return ()
-    from camcal.apply import LINEAR_RESOLUTION_NOTE, roi_mask, roi_statistics
 
     shape = next(iter(channels.values())).shape
     scale = 1 if (meta or {}).get("resolution") == LINEAR_RESOLUTION_NOTE else 2
@@ -208,10 +201,6 @@ def process_photo(photo: str, profile_path: str, outdir: str, options: BatchOpti
         mask_image = _load_mask(options)
         if _is_current(out, plan.profile.content_sha256, options):
             return _skipped(src, out, options, mask_image, t0)
-        from camcal.apply import apply_prepared
-        from camcal.exr import write_exr
-        from camcal.io import folder_manifest, load_frame
-        from camcal.manifest import exposure_overrides
 
         manifest = folder_manifest(src.parent) if (src.parent / "frames.csv").is_file() else {}
         frame = load_frame(src, exposure_overrides(manifest.get(src.name)))
@@ -233,7 +222,6 @@ def _skipped(src: Path, out: Path, options: BatchOptions, mask_image, t0: float)
     """A photo whose EXR is current: nothing is computed; ROI statistics are read back from the EXR."""
     stats = ()
     if options.roi is not None or options.mask_path is not None:
-        from camcal.exr import read_exr
 
         channels, meta = read_exr(out)
         stats = _stats(channels, options, mask_image, src, meta)
@@ -257,7 +245,6 @@ def _skip_current(photo: str, outdir: str, options: BatchOptions, mask_image) ->
 # ---- the runner ------------------------------------------------------------------------------------------------------
 def expand_photos(items: Sequence[str | Path]) -> list[Path]:
     """Files as given; folders expanded to their image files (not recursive). Duplicated output names refused."""
-    from camcal.io import list_frames
 
     photos: list[Path] = []
     for item in items:
@@ -284,16 +271,12 @@ def preflight(profile_path: str | Path, photos: Sequence[Path], options: BatchOp
     Only the EXIF header is read (photos that cannot be read are left to fail in the batch).
     ``with_maps=False`` when workers do the photos: the maps are verified by hash, not decoded here.
     """
-    from camcal.apply import check_camera
-    from camcal.io import exposure_from_exif
 
     default_threads()  # a bad CAMCAL_THREADS refuses the batch here, not every photo
     plan = _plan(str(profile_path), options, with_maps=with_maps)
     mask = _load_mask(options) if options.roi is None and options.mask_path is not None else None
     cam = plan.profile.camera
     if (options.roi is not None or mask is not None) and cam.width and cam.height and photos:
-        from camcal.apply import roi_mask
-        from camcal.io import is_raw_path
 
         # RAW photos of the profile's camera have its sensor size: a region that does not fit it is a
         # bad option of the whole batch (exit 2, naming the mask), not a failure of every photo
@@ -313,7 +296,6 @@ def preflight(profile_path: str | Path, photos: Sequence[Path], options: BatchOp
 
 
 def _write_reports(outdir: Path, results: list[PhotoResult], options: BatchOptions) -> tuple[Path, Path | None]:
-    from camcal.atomic import atomic_write_text
 
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
@@ -411,7 +393,7 @@ def _with_threads(args: list[tuple], threads: int) -> list[tuple]:
 
 
 def _run_pool(args: list[tuple], jobs: int, done: Callable[[PhotoResult], None]) -> None:
-    import multiprocessing
+    import multiprocessing  # lazy: only a multi-process batch
     from concurrent.futures import ProcessPoolExecutor, as_completed
     from concurrent.futures.process import BrokenProcessPool
 
@@ -429,7 +411,7 @@ def _run_pool(args: list[tuple], jobs: int, done: Callable[[PhotoResult], None])
 
 def _run_dask(args: list[tuple], scheduler, done: Callable[[PhotoResult], None]) -> None:
     try:
-        from dask.distributed import Client, as_completed
+        from dask.distributed import Client, as_completed  # optional dependency (dask), ~0.7 s at import
     except ImportError:
         raise CamcalError("--dask-scheduler needs dask.distributed (pip install 'dask[distributed]')") from None
     own = False

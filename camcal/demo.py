@@ -21,9 +21,17 @@ from pathlib import Path
 import numpy as np
 from rich.table import Table
 
-from camcal.cli.common import console, progress
+from camcal.batch import BatchOptions, run_batch
+from camcal.calibrate import calibrate_session
 from camcal.errors import CamcalError
-from camcal.synth.camera import LINEAR_FROM_PLANES
+from camcal.exr import read_exr, write_exr
+from camcal.profile import contract, save_profile
+from camcal.report import write_report
+from camcal.synth.camera import LINEAR_FROM_PLANES, SyntheticCamera, frame_rngs, preset
+from camcal.synth.secchi import secchi_scenes, suggest_exposure_s
+from camcal.synth.session import SessionPlan, write_session
+from camcal.terminal import console, progress
+from camcal.water.band import BandInverse, band_model_from_profile
 
 CHL_UG_PER_L = 60.0
 DEPTH_M = 0.80
@@ -97,15 +105,6 @@ def run_demo(out: str | Path, *, size: tuple[int, int] = (384, 256), preset_name
     levels, noise and defects) at the demo's ``size`` (the full IMX296 geometry would take minutes).
     ``layout="linear"`` shoots every frame and photo as a LinearRaw DNG (R, G, B planes) instead of a mosaic.
     """
-    from camcal.batch import BatchOptions, run_batch
-    from camcal.calibrate import calibrate_session
-    from camcal.exr import read_exr, write_exr
-    from camcal.profile import contract, save_profile
-    from camcal.report import write_report
-    from camcal.synth.camera import SyntheticCamera, frame_rngs, preset
-    from camcal.synth.secchi import secchi_scenes, suggest_exposure_s
-    from camcal.synth.session import SessionPlan, write_session
-    from camcal.water.band import BandInverse, band_model_from_profile
 
     t0 = time.perf_counter()
     out = Path(out)

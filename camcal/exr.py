@@ -9,13 +9,22 @@ under ``camcal:json:<name>``. Writes are atomic.
 from __future__ import annotations
 
 import json
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
 from camcal.atomic import atomic_path
 from camcal.errors import CamcalError
-from camcal.limits import MAX_EXR_CHANNELS, MAX_EXR_EXPANSION, human_bytes, max_exr_samples, max_pixels
+from camcal.limits import (
+    MAX_EXR_CHANNELS,
+    MAX_EXR_EXPANSION,
+    declared_image_bytes,
+    human_bytes,
+    max_exr_samples,
+    max_pixels,
+)
+from camcal.threads import thread_count
 
 COMPRESSIONS = ("none", "zip", "zips", "piz", "pxr24", "b44", "dwaa", "dwab", "zstd", "rle")
 
@@ -60,7 +69,7 @@ def write_exr(
     datetime : the header's ``DateTime`` (EXR ``capDate``), ``"YYYY:MM:DD HH:MM:SS"``; by default
         OpenImageIO writes the current time, so two writes of the same data differ in that field.
     """
-    import OpenImageIO as oiio
+    import OpenImageIO as oiio  # lazy: ~0.1 s at import, only for image files (benchmarks/RESULTS.md, Start-up)
 
     if not channels:
         raise CamcalError("no channels to write", path)
@@ -120,7 +129,7 @@ def read_exr(
     (channels, metadata) : ``{name: float32 (H, W)}`` and ``{key: value}`` with the
     ``camcal:`` prefix removed and JSON attributes decoded.
     """
-    import OpenImageIO as oiio
+    import OpenImageIO as oiio  # lazy: ~0.1 s at import, only for image files (benchmarks/RESULTS.md, Start-up)
 
     path = Path(path)
     if not path.is_file():
@@ -144,20 +153,53 @@ def read_exr(
         err = inp.geterror()
         if data is None or err:
             raise CamcalError(f"cannot decode EXR pixels (damaged or truncated?): {err.strip()[:120]}", path)
-        meta: dict[str, object] = {}
-        for attr in spec.extra_attribs:
-            if attr.name.startswith("camcal:json:"):
-                try:
-                    meta[attr.name[len("camcal:json:") :]] = json.loads(attr.value)
-                except (TypeError, ValueError):
-                    raise CamcalError(f"EXR attribute {attr.name} is not valid JSON", path) from None
-            elif attr.name.startswith("camcal:"):
-                meta[attr.name[len("camcal:") :]] = attr.value
+        meta = camcal_attributes(spec, path)
     finally:
         inp.close()
     data = np.asarray(data, dtype=np.float32).reshape(spec.height, spec.width, spec.nchannels)
     planes = _deinterleave(data, [names.index(c) for c in want])
     return dict(zip(want, planes, strict=True)), meta
+
+
+def camcal_attributes(spec, path: str | Path) -> dict[str, object]:
+    """camcal's metadata in an EXR header (an OpenImageIO ``ImageSpec``): the ``camcal:`` attributes with the
+    prefix removed, ``camcal:json:`` ones decoded. The one parser of camcal's EXR metadata.
+
+    Raises
+    ------
+    CamcalError
+        An attribute that should hold JSON does not.
+    """
+    meta: dict[str, object] = {}
+    for attr in spec.extra_attribs:
+        if attr.name.startswith("camcal:json:"):
+            try:
+                meta[attr.name[len("camcal:json:") :]] = json.loads(attr.value)
+            except (TypeError, ValueError):
+                raise CamcalError(f"EXR attribute {attr.name} is not valid JSON", path) from None
+        elif attr.name.startswith("camcal:"):
+            meta[attr.name[len("camcal:") :]] = attr.value
+    return meta
+
+
+def read_exr_header(path: str | Path) -> dict[str, object]:
+    """camcal's metadata of an EXR file from its header alone (no pixels are read); see :func:`camcal_attributes`.
+
+    Raises
+    ------
+    CamcalError
+        The file cannot be opened as an image, or its metadata is damaged.
+    """
+    import OpenImageIO as oiio  # lazy: OpenImageIO costs ~20 ms at start-up (benchmarks/RESULTS.md, Start-up)
+
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        oiio.geterror()
+        raise CamcalError("cannot open as EXR (damaged or not an image)", path)
+    try:
+        return camcal_attributes(inp.spec(), path)
+    finally:
+        inp.close()
 
 
 def _check_declared_size(path: Path, spec, max_samples: int | None) -> None:
@@ -173,7 +215,7 @@ def _check_declared_size(path: Path, spec, max_samples: int | None) -> None:
     limit = max_exr_samples() if max_samples is None else max_samples  # a profile's own bound replaces it
     if w * h * nch > limit:
         raise CamcalError(f"EXR declares {w}x{h} pixels x {nch} channels, above the limit of {limit} samples", path)
-    declared = w * h * sum(max(1, int(f.size())) for f in (spec.channelformats or [spec.format] * nch))
+    declared = declared_image_bytes(spec)
     size = path.stat().st_size
     compression = str(spec.getattribute("compression") or "none").lower()
     if compression == "none" and declared > size:
@@ -186,7 +228,8 @@ def _check_declared_size(path: Path, spec, max_samples: int | None) -> None:
 
 def _deinterleave(data: np.ndarray, index: list[int], rows: int = 8) -> np.ndarray:
     """(H, W, C) interleaved -> (len(index), H, W) channel planes, copied in cache-sized row blocks on
-    two threads (a channel-at-a-time copy strides through the whole image once per channel)."""
+    :func:`camcal.threads.thread_count` threads (a channel-at-a-time copy strides through the whole image once
+    per channel)."""
     h = data.shape[0]
     out = np.empty((len(index), h, data.shape[1]), data.dtype)
     sel = index if index != list(range(data.shape[2])) else slice(None)
@@ -194,12 +237,12 @@ def _deinterleave(data: np.ndarray, index: list[int], rows: int = 8) -> np.ndarr
     def work(y: int) -> None:
         out[:, y: y + rows] = np.moveaxis(data[y: y + rows, :, sel], -1, 0)
 
-    if h <= rows:
-        work(0)
+    threads = thread_count(work_items=-(-h // rows))
+    if threads <= 1:
+        for y in range(0, h, rows):
+            work(y)
     else:
-        from concurrent.futures import ThreadPoolExecutor
-
-        with ThreadPoolExecutor(max_workers=2) as pool:
+        with ThreadPoolExecutor(max_workers=threads) as pool:
             for _ in pool.map(work, range(0, h, rows)):
                 pass
     return out

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import logging
 import math
 import os
 import sys
@@ -92,9 +93,7 @@ def _magic(path: Path) -> bytes:
 def _exif_tags(path: Path) -> dict[str, object]:
     """EXIF tags via exifread (header only); {} when the file has none or is damaged."""
     try:
-        import logging
-
-        import exifread
+        import exifread  # lazy: only when a file's EXIF is read
 
         log = logging.getLogger("exifread")  # it logs "File format not recognized." to stderr on non-EXIF files
         if log.level == logging.NOTSET:
@@ -332,7 +331,7 @@ def check_has_data(path: Path, data: np.ndarray, black_dn: float, white_dn: floa
 
 
 def _load_raw(path: Path) -> Frame:
-    import rawpy
+    import rawpy  # lazy: only when a RAW file is decoded
 
     try:
         with quiet_stderr(), rawpy.imread(str(path)) as raw:
@@ -406,7 +405,7 @@ def open_image(path: Path, formats: tuple[str, ...] | None = None, what: str = "
     C-library messages are silenced; the format must be one of ``formats`` (OpenImageIO opens any
     format it knows whatever the file's name); the declared size must be within :func:`max_pixels`.
     """
-    import OpenImageIO as oiio
+    import OpenImageIO as oiio  # lazy: ~0.1 s at import, only for image files (benchmarks/RESULTS.md, Start-up)
 
     with quiet_stderr():  # libpng/libjpeg print their own messages to fd 2 on damaged files
         inp = oiio.ImageInput.open(str(path))
@@ -435,7 +434,7 @@ def read_pixels(inp, spec, path: Path, nchannels: int, fmt) -> np.ndarray:
 
 
 def _load_processed(path: Path) -> Frame:
-    import OpenImageIO as oiio
+    import OpenImageIO as oiio  # lazy: ~0.1 s at import, only for image files (benchmarks/RESULTS.md, Start-up)
 
     with open_image(path, ("jpeg", "tiff", "png"), "a JPEG, TIFF or PNG image") as (inp, spec):
         if spec.nchannels < 3:

@@ -219,7 +219,14 @@ def maps_size_bound(doc: dict) -> tuple[int, str]:
 
 # ---- images ----------------------------------------------------------------------------------------------------
 def declared_image_bytes(spec) -> float:
-    """Bytes an OpenImageIO ``ImageSpec`` declares as stored: pixels x channels x bits per sample / 8."""
+    """Bytes an OpenImageIO ``ImageSpec`` declares as stored: pixels x channels x bits per sample / 8.
+
+    Channels of different formats (an EXR with half and float channels) count each at its own size. The one
+    rule for image files (:mod:`camcal.io`) and EXRs (:mod:`camcal.exr`).
+    """
+    formats = list(spec.channelformats or [])
+    if len(formats) == spec.nchannels and formats:
+        return float(spec.width) * float(spec.height) * sum(max(1, int(f.size())) for f in formats)
     bits = spec.getattribute("oiio:BitsPerSample") or 8 * spec.format.size()
     return float(spec.width) * float(spec.height) * spec.nchannels * max(int(bits), 1) / 8.0
 

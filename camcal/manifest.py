@@ -15,6 +15,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+import tomllib
 from pathlib import Path
 
 from camcal.errors import CamcalError
@@ -220,8 +221,6 @@ def read_session_defaults(path: str | Path) -> dict[str, float]:
     -------
     dict such as ``{"f_number": 2.8}`` (Exposure field names).
     """
-    import tomllib
-
     path = Path(path)
     text = read_text_file(path, "session defaults file", MAX_SESSION_DEFAULTS_BYTES)
     try:

@@ -52,6 +52,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from camcal.errors import CamcalError
+from camcal.spectra import planck_radiance
 
 RGB = ("R", "G", "B")
 ESTIMATORS = ("narrowband", "smooth")
@@ -92,7 +93,7 @@ def _interp(wl: np.ndarray, values: np.ndarray, at: float, derivative: int = 0) 
         return float("nan")
     if wl.size < 4:
         return float(np.interp(at, wl, values)) if derivative == 0 else 0.0
-    from scipy.interpolate import CubicSpline
+    from scipy.interpolate import CubicSpline  # lazy: scipy.interpolate ~0.4 s at import
 
     return float(CubicSpline(wl, values)(at, derivative))
 
@@ -201,9 +202,8 @@ def smooth_error_table(wavelength_nm: np.ndarray, c_rgb: dict[str, np.ndarray], 
     24 ColorChecker patches (Ohta) under D65 — all from colour-science.
     Returns rows ``{"spectrum", "true", "estimate", "error_pct"}``.
     """
-    import colour
+    import colour  # lazy: colour-science takes ~1-2 s to import (benchmarks/RESULTS.md, Start-up)
 
-    from camcal.spectra import planck_radiance
 
     wl = np.asarray(wavelength_nm, float)
     c = np.stack([np.asarray(c_rgb[k], float) for k in RGB])

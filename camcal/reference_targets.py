@@ -298,7 +298,7 @@ class AbsoluteScale:
 
 def fit_scale(curves: SpectralSensitivity, observations: Sequence[TargetObservation]) -> AbsoluteScale:
     """k per plane from one or more targets (module docstring: estimator, uncertainty, residuals)."""
-    from scipy.stats import chi2 as chi2_dist
+    from scipy.stats import chi2 as chi2_dist  # lazy: scipy.stats ~1-2 s at import (docstring parsing)
 
     if not observations:
         raise CamcalError("no reference-target photos")

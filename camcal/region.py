@@ -73,3 +73,17 @@ class Region:
         if r0 >= gh or c0 >= gw:
             raise CamcalError(f"region {self} (photo pixels) lies outside the photo ({gw * p}x{gh * p})", where)
         return slice(r0, min(r1, gh)), slice(c0, min(c1, gw))
+
+
+def pixels_per_output_cell(resolution: object) -> int | None:
+    """Photo pixels per side of one cell of an image camcal wrote, from its metadata ``"resolution"`` note.
+
+    ``camcal apply`` writes half resolution for Bayer photos (2) and full resolution for linear RAW (1);
+    ``None`` when the note is absent or unknown (an image camcal did not write).
+    """
+    note = str(resolution or "")
+    if note.startswith("half resolution"):
+        return 2
+    if note.startswith("full resolution"):
+        return 1
+    return None

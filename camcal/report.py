@@ -40,6 +40,7 @@ from camcal.atomic import atomic_write_text
 from camcal.errors import CamcalError
 from camcal.frame import PLANES
 from camcal.plots import dark_figure, flat_figure, png_bytes, response_figure, spectral_figure
+from camcal.profile import contract
 from camcal.spectral import describe_origin
 
 STAGE_TITLES = {"dark": "Dark current", "flat": "Vignetting (flat field)", "response": "Response curves",
@@ -291,7 +292,6 @@ def render_report(profile, progress: Callable[[str, int, int], None] | None = No
         A complete HTML5 document: inline CSS, plots as base64 PNG ``data:`` URIs, no scripts and no
         external resources. Pure: the same profile gives the same text (no "generated at" time).
     """
-    from camcal.profile import contract
 
     c = contract(profile)
     cam = c["camera"]

@@ -35,7 +35,7 @@ def camera_sensitivities(name: str, wavelengths_nm: np.ndarray = WAVELENGTHS_NM)
     Outside the measured range the curves are zero (no constant extrapolation).
     Each curve peaks at 1 as published.
     """
-    import colour
+    import colour  # lazy: colour-science takes ~1-2 s to import (benchmarks/RESULTS.md, Start-up)
 
     key = CAMERAS.get(name, name)
     if key not in colour.MSDS_CAMERA_SENSITIVITIES:
@@ -49,7 +49,7 @@ def camera_sensitivities(name: str, wavelengths_nm: np.ndarray = WAVELENGTHS_NM)
     out = np.empty((3, wavelengths_nm.size))
     for i in range(3):
         # cubic (Sprague-like smoothness is not needed for a simulator); zero outside
-        from scipy.interpolate import CubicSpline
+        from scipy.interpolate import CubicSpline  # lazy: scipy.interpolate ~0.4 s at import
 
         spline = CubicSpline(wl, vals[:, i], extrapolate=False)
         y = spline(wavelengths_nm)

@@ -25,6 +25,7 @@ from camcal.errors import CamcalError
 from camcal.exr import read_exr, write_exr
 from camcal.hashing import sha256_file
 from camcal.limits import MAX_STAGE_JSON_BYTES, check_json_depth
+from camcal.manifest import read_text_file
 
 
 def to_jsonable(obj):
@@ -64,7 +65,6 @@ def save_stage(path: str | Path, kind: str, data: dict, maps: dict[str, np.ndarr
 
 def load_stage(path: str | Path, kind: str) -> tuple[dict, dict[str, np.ndarray]]:
     """Load a stage result written by :func:`save_stage`; check kind and the maps' hash."""
-    from camcal.manifest import read_text_file
 
     path = Path(path)
     text = read_text_file(path, f"{kind} file", MAX_STAGE_JSON_BYTES, max_line_bytes=None)  # camcal.limits

@@ -68,3 +68,61 @@ def test_readme_test_command_is_what_ci_runs():
     ci = (ROOT / ".ci" / "run").read_text()
     cmd = re.search(r"```(?:bash|sh)\n# test\n(.+?)\n```", readme, re.S).group(1).strip()
     assert cmd in ci
+
+
+def _python(code: str):
+    import subprocess
+    import sys
+
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, cwd=ROOT)
+
+
+def test_every_command_is_registered():
+    """Registration is an explicit list: each listed module registers its command, and nothing is skipped."""
+    code = (
+        "import typer.main\n"
+        "from camcal.cli import COMMAND_MODULES, app, register_commands\n"
+        "register_commands()\n"
+        "print(' '.join(sorted(typer.main.get_command(app).commands)))\n"
+    )
+    proc = _python(code)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    from camcal.cli import COMMAND_MODULES
+
+    assert proc.stdout.split() == sorted(COMMAND_MODULES)
+    assert sorted(p.stem[: -len("_cmd")] for p in (ROOT / "camcal" / "cli").glob("*_cmd.py")) == sorted(COMMAND_MODULES)
+
+
+def test_a_command_module_that_fails_to_import_is_an_error():
+    code = (
+        "import sys\n"
+        "sys.modules['camcal.cli.water_cmd'] = None  # importing it now raises ImportError\n"
+        "from camcal.cli import main\n"
+        "sys.exit(main(['water', '--help']))\n"
+    )
+    proc = _python(code)
+    assert proc.returncode == 3, (proc.stdout, proc.stderr)
+    assert "camcal.cli.water_cmd" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_start_up_imports_only_the_command_it_runs():
+    """`--version` loads no command module; a command loads its own; the library never imports the CLI."""
+    code = (
+        "import sys\n"
+        "from camcal.cli import main\n"
+        "assert main(['--version']) == 0\n"
+        "loaded = sorted(m for m in sys.modules if m.startswith('camcal.cli.') and m.endswith('_cmd'))\n"
+        "assert loaded == [], loaded\n"
+        "heavy = [m for m in ('scipy', 'colour', 'matplotlib', 'dask', 'OpenImageIO') if m in sys.modules]\n"
+        "assert heavy == [], heavy\n"
+        "main(['inspect', '--help'])\n"
+        "loaded = sorted(m for m in sys.modules if m.startswith('camcal.cli.') and m.endswith('_cmd'))\n"
+        "assert loaded == ['camcal.cli.inspect_cmd'], loaded\n"
+        "import camcal.demo\n"
+        "print('ok')\n"
+    )
+    proc = _python(code)
+    assert proc.returncode == 0 and proc.stdout.strip().endswith("ok"), proc.stderr[-3000:]
+    proc = _python("import sys, camcal.demo, camcal.apply, camcal.batch, camcal.water.invert\n"
+                   "assert not any(m == 'camcal.cli' or m.startswith('camcal.cli.') for m in sys.modules)\n")
+    assert proc.returncode == 0, proc.stderr[-3000:]

@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 
+from camcal.apply import RESOLUTION_NOTE
 from camcal.errors import CamcalError
 from camcal.exr import read_exr, write_exr
 from camcal.io import load_frame
@@ -97,19 +98,21 @@ def secchi_exrs(camera, tmp_path_factory):
 
     for name, scene, spec in (("ref", sc.reference, sc.reference_radiance), ("sub", sc.submerged,
                                                                            sc.submerged_radiance)):
-        write_exr(tmp / f"{name}.exr", {"R": rate(name, scene, suggest_exposure_s(camera, spec))})
+        write_exr(tmp / f"{name}.exr", {"R": rate(name, scene, suggest_exposure_s(camera, spec))},
+                  {"resolution": RESOLUTION_NOTE})  # R-plane pixels: half resolution, as apply writes
     return tmp / "sub.exr", tmp / "ref.exr", sc.truth
 
 
 def test_invert_band_aware_with_profile(profile_path, secchi_exrs, tmp_path):
     sub, ref, truth = secchi_exrs
-    roi = "76,44,40,40"  # R-plane pixels well inside the disk (centre 95.75,63.75; radius 38.4)
+    roi = "152,88,80,80"  # photo pixels = R-plane 76,44,40,40, well inside the disk (centre 95.75,63.75; radius 38.4)
     proc = run_cli("water", "invert", "--submerged", sub, "--reference", ref, "--depth", "80cm", "--model", "refined",
                    "--profile", profile_path, "--roi", roi, "-o", tmp_path / "chl.exr")
     assert proc.returncode == 0, proc.stderr
     ch, meta = read_exr(tmp_path / "chl.exr", ["chl_ug_per_L", "reason"])
     assert meta["inversion"] == "band" and meta["channel"] == "R" and meta["illuminant"] == "D65"
     assert meta["summary"]["valid"] == 1600
+    assert meta["roi"]["exr_pixels_x_y_w_h"] == [76, 44, 40, 40]  # photo pixels halved onto the EXR's grid
     ok = ch["reason"] == 0
     # the profile's c_R (from the noisy sweep) biases C by < 1 % here; ≈ 5 % per-pixel noise averages out
     assert np.median(ch["chl_ug_per_L"][ok]) == pytest.approx(truth["c_ug_per_L"], rel=0.05)

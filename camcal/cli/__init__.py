@@ -1,18 +1,23 @@
 """The ``camcal`` command line: a thin layer that parses arguments and calls the library.
 
-Each command group lives in its own module exposing ``register(app)``.
+Each command group lives in its own module exposing ``register(app)``; :data:`COMMAND_MODULES` lists them
+all, explicitly. A run imports only the module of the command it runs (:func:`register_commands`): importing
+every command module costs ~0.35 s at start-up (benchmarks/RESULTS.md, "Start-up"), most of it scipy and
+the stage modules a ``--version`` or an ``inspect`` never uses. ``--help`` and an unknown command load them
+all. A command module that fails to import is an error, never a silently missing command.
 :func:`main` turns every user error into one line on stderr and exit code 2.
 """
 
 from __future__ import annotations
 
 import importlib
-import importlib.util
 import sys
+from collections.abc import Sequence
 
 import typer
 
 from camcal import __version__
+from camcal.atomic import remove_pending
 from camcal.errors import CamcalError
 
 app = typer.Typer(
@@ -23,7 +28,7 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
 )
 
-#: Command modules, in help order; each defines ``register(app)``.
+#: Commands (``camcal NAME``) in help order; each is implemented by ``camcal.cli.NAME_cmd.register(app)``.
 COMMAND_MODULES = (
     "demo", "inspect", "synth", "dark", "flat", "linearity", "sweep", "calibrate", "profile", "report", "apply",
     "water",
@@ -43,10 +48,35 @@ def _root(
     """camcal: camera calibration for radiometry (see README.md)."""
 
 
-for _name in COMMAND_MODULES:
-    _mod = f"camcal.cli.{_name}_cmd"
-    if importlib.util.find_spec(_mod) is not None:
-        importlib.import_module(_mod).register(app)
+def register_commands(names: Sequence[str] = COMMAND_MODULES) -> None:
+    """Import the command modules ``names`` (default all) and register their commands on :data:`app`, once each.
+
+    An import error propagates: a command that cannot load is a defect, not an absent command.
+    """
+    for name in COMMAND_MODULES:  # help order, whatever the order asked
+        if name in names and name not in _registered():
+            importlib.import_module(f"camcal.cli.{name}_cmd").register(app)
+
+
+def _registered() -> set[str]:
+    """Names of the commands and command groups on :data:`app` (the app itself is the record)."""
+    return {c.name for c in app.registered_commands} | {g.name for g in app.registered_groups}
+
+
+def commands_for(argv: Sequence[str]) -> tuple[str, ...]:
+    """The command modules a run with arguments ``argv`` needs.
+
+    The first argument that is not an option names the command (the root takes only ``--version`` and
+    ``--help``, neither with a value): that command's module alone. ``--version`` with no command needs none;
+    anything else (``--help``, no arguments, an unknown command) needs all, so help lists every command and an
+    unknown name gets its suggestions.
+    """
+    words = [a for a in argv if not a.startswith("-")]
+    if words:
+        return (words[0],) if words[0] in COMMAND_MODULES else COMMAND_MODULES
+    if "--version" in argv and "--help" not in argv:
+        return ()
+    return COMMAND_MODULES
 
 
 def _usage_error_type() -> type[Exception]:
@@ -60,7 +90,6 @@ def _usage_error_type() -> type[Exception]:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI; returns the exit code (0 ok, 1 partial failure, 2 user error, 3 internal error)."""
-    from camcal.atomic import remove_pending
 
     try:
         return _main(argv)
@@ -71,6 +100,7 @@ def main(argv: list[str] | None = None) -> int:
 def _main(argv: list[str] | None) -> int:
     usage_error = _usage_error_type()
     try:
+        register_commands(commands_for(sys.argv[1:] if argv is None else [str(a) for a in argv]))
         result = app(args=argv, prog_name="camcal", standalone_mode=False)
     except typer.Exit as exc:
         return int(exc.exit_code or 0)

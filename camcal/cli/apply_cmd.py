@@ -6,6 +6,7 @@ from pathlib import Path
 
 import typer
 
+from camcal.batch import BatchOptions, report_rows, run_batch
 from camcal.cli.common import console, err_console, print_json, progress
 from camcal.errors import CamcalError
 from camcal.region import Region
@@ -26,7 +27,8 @@ def register(app: typer.Typer) -> None:
         jobs: int = typer.Option(2, "--jobs", "-j", help="Worker processes of the local pool."),
         dask_scheduler: str | None = typer.Option(None, "--dask-scheduler",
                                                   help="Run on a dask.distributed cluster (tcp://host:8786)."),
-        roi: str | None = typer.Option(None, "--roi", help="x,y,w,h in photo pixels: statistics to roi_stats.csv."),
+        roi: str | None = typer.Option(None, "--roi", help="Region x,y,w,h in photo pixels at full resolution "
+                                       "(rounded outward to the output grid): statistics to roi_stats.csv."),
         mask: Path | None = typer.Option(None, "--mask", help="Mask image (non-zero = in): statistics."),
         allow_other_camera: bool = typer.Option(False, "--allow-other-camera",
                                                 help="Accept photos of another camera model than the profile's."),
@@ -37,7 +39,6 @@ def register(app: typer.Typer) -> None:
 
         Exit code 0 when every photo has its EXR, 1 when some failed (listed), 2 on bad input.
         """
-        from camcal.batch import BatchOptions, run_batch
 
         if roi is not None and mask is not None:
             raise CamcalError("give --roi or --mask, not both")
@@ -55,7 +56,6 @@ def register(app: typer.Typer) -> None:
 
             report = run_batch(profile, photos, outdir, opts, jobs=jobs, scheduler=dask_scheduler, progress=tick)
         if json_out:
-            from camcal.batch import report_rows
 
             print_json({"counts": report.counts, "report_csv": report.report_csv, "roi_csv": report.roi_csv,
                         "photos": report_rows(report)})

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import typer
 
+from camcal.demo import run_demo
 from camcal.errors import CamcalError
 
 
@@ -21,7 +22,6 @@ def register(app: typer.Typer) -> None:
                                         "(LinearRaw DNGs with R, G, B planes, as converters and phones write)."),
     ) -> int:
         """Synthesise a calibration session and Secchi-disk photos, run every stage, print truth vs recovered."""
-        from camcal.demo import run_demo
 
         if layout not in ("bayer", "linear"):
             raise CamcalError(f"unknown layout {layout!r}; choose bayer or linear")

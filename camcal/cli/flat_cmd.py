@@ -8,6 +8,8 @@ import typer
 from rich.table import Table
 
 from camcal.cli.common import console, print_json, progress
+from camcal.flat import run_flat_stage
+from camcal.plots import flat_figure, write_png
 
 
 def register(app: typer.Typer) -> None:
@@ -31,8 +33,6 @@ def register(app: typer.Typer) -> None:
         as_json: bool = typer.Option(False, "--json", help="Print the model summary as JSON."),
     ) -> None:
         """Fit a per-channel vignetting model (DNG radial, optical centre free) and PRNU from flat fields."""
-        from camcal.flat import run_flat_stage
-        from camcal.plots import flat_figure, write_png  # local like the stage import: start-up of `camcal`
 
         with progress() as bar:
             task = bar.add_task("flat frames", total=None)

@@ -8,6 +8,11 @@ import typer
 from rich.table import Table
 
 from camcal.cli.common import console, print_json, progress
+from camcal.errors import CamcalError
+from camcal.plots import response_figure, write_png
+from camcal.region import Region
+from camcal.response import fit_response, load_dark_model, save_response
+from camcal.store import to_jsonable
 
 
 def register(app: typer.Typer) -> None:
@@ -15,7 +20,10 @@ def register(app: typer.Typer) -> None:
     def linearity_cmd(
         folder: Path = typer.Argument(..., help="Exposure series of a constant source (SESSION/linearity)."),
         out: Path = typer.Option(..., "-o", "--out", help="Response file to write (.json)."),
-        roi: float = typer.Option(0.10, "--roi", help="Central ROI as a fraction of each plane's area."),
+        roi: str | None = typer.Option(None, "--roi", help="Region x,y,w,h in photo pixels at full resolution "
+                                       "(rounded outward to whole plane pixels)."),
+        roi_fraction: float | None = typer.Option(None, "--roi-fraction", help="A centred region holding this "
+                                                  "fraction of each plane's area (default 0.10)."),
         dark: Path | None = typer.Option(None, "--dark", help="Dark model (camcal dark -o ...) to subtract from RAW."),
         reference_iso: float | None = typer.Option(
             None, "--reference-iso", help="Reference ISO (default: most common)."
@@ -27,10 +35,10 @@ def register(app: typer.Typer) -> None:
         as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON instead of a table."),
     ) -> None:
         """Fit g = α·x^γ + β (seed eq. 12) per channel; report linear range, saturation, EMVA 1288 LE, Pearson r."""
-        from camcal.plots import response_figure, write_png  # local like the stage import: start-up of `camcal`
-        from camcal.response import fit_response, load_dark_model, save_response
-        from camcal.store import to_jsonable
 
+        if roi is not None and roi_fraction is not None:
+            raise CamcalError("give --roi or --roi-fraction, not both")
+        region = Region.parse(roi) if roi is not None else roi_fraction
         dark_model = load_dark_model(dark) if dark is not None else None
         with progress() as bar:
             task = bar.add_task("reading frames", total=None)
@@ -38,7 +46,7 @@ def register(app: typer.Typer) -> None:
             def tick(done: int, total: int) -> None:
                 bar.update(task, completed=done, total=total)
 
-            models = fit_response(folder, roi=roi, dark=dark_model, reference_iso=reference_iso,
+            models = fit_response(folder, roi=region, dark=dark_model, reference_iso=reference_iso,
                                   reference_f_number=reference_f_number, progress=tick)
         save_response(models, out)
         plots = []

@@ -9,7 +9,7 @@ from rich.table import Table
 
 from camcal.cli.common import console, print_json, progress
 from camcal.errors import CamcalError
-from camcal.profile import CameraIdentity, load_profile, save_profile
+from camcal.profile import CameraIdentity, contract, diff_profiles, load_profile, save_profile
 from camcal.reference_targets import import_spectral
 from camcal.spectral import describe_origin
 from camcal.spectral_files import write_spectacle_csv
@@ -103,7 +103,6 @@ def register(app: typer.Typer) -> None:
         as_json: bool = typer.Option(False, "--json", help="Print the JSON contract (docs/profile-format.md)."),
     ) -> None:
         """Show a profile (validated and hash-checked on load)."""
-        from camcal.profile import contract, load_profile
 
         c = contract(load_profile(profile))
         if as_json:
@@ -185,7 +184,6 @@ def register(app: typer.Typer) -> None:
         as_json: bool = typer.Option(False, "--json", help="Print the differences as JSON."),
     ) -> None:
         """List what differs between two profiles (relative change of every number)."""
-        from camcal.profile import diff_profiles, load_profile
 
         rows = diff_profiles(load_profile(a), load_profile(b), rel_tol=rel_tol)
         if as_json:

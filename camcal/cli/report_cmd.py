@@ -7,6 +7,8 @@ from pathlib import Path
 import typer
 
 from camcal.cli.common import console, progress
+from camcal.profile import load_profile
+from camcal.report import write_report
 
 
 def register(app: typer.Typer) -> None:
@@ -17,8 +19,6 @@ def register(app: typer.Typer) -> None:
                                            help="HTML file to write (default: PROFILE with the suffix .html)."),
     ) -> None:
         """Write a self-contained HTML report (plots embedded, no external resources) of a profile."""
-        from camcal.profile import load_profile
-        from camcal.report import write_report
 
         out = output if output is not None else profile.with_suffix(".html")
         loaded = load_profile(profile)

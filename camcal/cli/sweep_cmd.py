@@ -6,23 +6,21 @@ import warnings
 from pathlib import Path
 
 import typer
+from rich.table import Table
 
 from camcal.cli.common import console, err_console, print_json, progress
 from camcal.errors import CamcalError
+from camcal.plots import spectral_figure, write_png
+from camcal.region import Region
+from camcal.spectral import measure_sweep, read_sweep
+from camcal.spectral_files import write_spectacle_csv
 
 
-def _parse_roi(text: str | None) -> tuple[int, int, int, int] | float | None:
-    if text is None:
-        return None
-    parts = [p.strip() for p in text.split(",")]
-    try:
-        if len(parts) == 1:
-            return float(parts[0])
-        if len(parts) == 4:
-            return tuple(int(p) for p in parts)  # type: ignore[return-value]
-    except ValueError:
-        pass
-    raise CamcalError(f"--roi must be x0,y0,x1,y1 (half-resolution plane pixels) or a fraction, got {text!r}")
+def _side_fraction(area_fraction: float) -> float:
+    """``--roi-fraction`` is a fraction of the area (as everywhere); the sweep's centred box takes one of each side."""
+    if not 0.0 < area_fraction <= 1.0:
+        raise CamcalError(f"--roi-fraction must be in (0, 1], got {area_fraction!r}")
+    return area_fraction ** 0.5
 
 
 def register(app: typer.Typer) -> None:
@@ -35,8 +33,10 @@ def register(app: typer.Typer) -> None:
         flat: Path | None = typer.Option(None, "--flat", help="Flat model (camcal flat -o flat.json)."),
         mode: str = typer.Option("absolute", help="absolute (DN s^-1 per W m^-2 sr^-1 at the reference setting) "
                                  "or relative (peak 1)."),
-        roi: str | None = typer.Option(None, help="Region: x0,y0,x1,y1 in half-resolution plane pixels, or a "
-                                       "fraction of each side for a centred box (default 0.2)."),
+        roi: str | None = typer.Option(None, "--roi", help="Region x,y,w,h in photo pixels at full resolution "
+                                       "(rounded outward to whole plane pixels)."),
+        roi_fraction: float | None = typer.Option(None, "--roi-fraction", help="A centred region holding this "
+                                                  "fraction of the area (default 0.04: a fifth of each side)."),
         deconvolve: bool = typer.Option(False, help="Remove the monochromator slit function (needs bandwidth_nm)."),
         slit: str = typer.Option("gaussian", help="Slit function shape for --deconvolve: gaussian or triangular."),
         reference_iso: float = typer.Option(100.0, help="Reference ISO of the absolute result."),
@@ -46,20 +46,22 @@ def register(app: typer.Typer) -> None:
         as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
     ) -> None:
         """Measure c(λ) for R, G1, G2, B and write a SPECTACLE CSV and a PNG plot."""
-        from camcal.plots import spectral_figure, write_png  # local like the stage import: start-up of `camcal`
-        from camcal.spectral import measure_sweep, read_sweep
-        from camcal.spectral_files import write_spectacle_csv
 
         if output.suffix.lower() != ".csv":
             raise CamcalError("output must be a .csv file", output)
         if mode not in ("absolute", "relative"):
             raise CamcalError(f"--mode must be absolute or relative, got {mode!r}")
+        if roi is not None and roi_fraction is not None:
+            raise CamcalError("give --roi or --roi-fraction, not both")
+        region: Region | float | None = Region.parse(roi) if roi is not None else None
+        if roi_fraction is not None:  # measure_sweep takes a fraction of each side: the area's square root
+            region = _side_fraction(roi_fraction)
         total = len(read_sweep(sweep))
         with warnings.catch_warnings(record=True) as caught, progress() as bar:
             warnings.simplefilter("always")
             task = bar.add_task("sweep frames", total=total)
             result = measure_sweep(
-                sweep, dark=dark, flat=flat, roi=_parse_roi(roi), mode=mode, deconvolve=deconvolve,  # type: ignore[arg-type]
+                sweep, dark=dark, flat=flat, roi=region, mode=mode, deconvolve=deconvolve,  # type: ignore[arg-type]
                 slit=slit, reference_iso=reference_iso, reference_f_number=reference_f_number,  # type: ignore[arg-type]
                 jobs=jobs, progress=lambda done, n: bar.update(task, completed=done),
             )
@@ -72,8 +74,6 @@ def register(app: typer.Typer) -> None:
         if as_json:
             print_json({**summary, "output": str(output), "png": str(png_path)})
             return
-        from rich.table import Table
-
         table = Table(title=f"spectral sensitivity ({result.mode}, {result.units})")
         for col in ("channel", "peak λ (nm)", "peak value", "λ_eff (nm)", "bandwidth (nm)"):
             table.add_column(col)

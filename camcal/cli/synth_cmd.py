@@ -9,12 +9,14 @@ import typer
 
 from camcal.cli.common import console, progress
 from camcal.errors import CamcalError
+from camcal.spectra import WAVELENGTHS_NM, gaussian_line, planck_radiance
+from camcal.synth.camera import Scene, SyntheticCamera, preset
+from camcal.synth.session import STAGES, SessionPlan, write_session
 
 
 def _camera(pattern: str | None, bits: int | None, width: int | None, height: int | None, seed: int,
             sensitivity: str | None, preset_name: str = "default"):
     """The synthetic camera: a preset (:data:`camcal.synth.camera.PRESETS`) with the options given."""
-    from camcal.synth.camera import SyntheticCamera, preset
 
     given = {"cfa_pattern": None if pattern is None else pattern.upper(), "bit_depth": bits, "width": width,
              "height": height, "sensitivity": sensitivity}
@@ -45,7 +47,6 @@ def register(app: typer.Typer) -> None:
                                             help="No f-number in any file or manifest; one in session.toml."),
     ) -> None:
         """Write a whole calibration session (bias, dark, flat, linearity, sweep) with truth.json."""
-        from camcal.synth.session import STAGES, SessionPlan, write_session
 
         chosen = tuple(s.strip() for s in stages.split(",") if s.strip())
         bad = [s for s in chosen if s not in STAGES]
@@ -87,8 +88,6 @@ def register(app: typer.Typer) -> None:
         layout: str = typer.Option("bayer", help="DNG layout: bayer (CFA mosaic) or linear (LinearRaw R, G, B)."),
     ) -> None:
         """Write one synthetic photo of a simple scene as DNG or JPEG."""
-        from camcal.spectra import WAVELENGTHS_NM, gaussian_line, planck_radiance
-        from camcal.synth.camera import Scene
 
         cam = _camera(pattern, bits, width, height, seed, sensitivity, preset_name)
         if scene == "uniform":

@@ -10,13 +10,25 @@ import typer
 
 from camcal.cli.common import console, print_json, progress
 from camcal.errors import CamcalError
+from camcal.exr import read_exr, write_exr
+from camcal.region import Region, pixels_per_output_cell
+from camcal.water.band import band_model_from_profile, read_chlorophyll_csv
+from camcal.water.invert import Reason, invert_images, invert_ratio
+from camcal.water.lampfield import PixelGeometry
+from camcal.water.models import SEED_CUTOFF_RAD, LampModel, RefinedModel, SeedModel
+from camcal.water.simulate import simulate_seed_section5
+from camcal.water.uncertainty import Uncertain, all_terms, combine, dominant
+from camcal.water.units import (
+    mol_per_L_to_ug_per_L,
+    parse_concentration_mol_per_L,
+    parse_epsilon_L_per_mol_cm,
+    parse_length_m,
+)
 
 
 def _model(kind: str, epsilon: str, albedo: float, cutoff_deg: float | None, view_deg: float, n_water: float,
            water_absorption: float, background_absorption: float, reflectance: str, transmittance: str = "mean",
            lamp_height: str | None = None, lamp_angle_deg: float | None = None):
-    from camcal.water.models import SEED_CUTOFF_RAD, LampModel, RefinedModel, SeedModel
-    from camcal.water.units import parse_epsilon_L_per_mol_cm, parse_length_m
 
     eps = parse_epsilon_L_per_mol_cm(epsilon)
     if not (eps > 0 and 0 < albedo < np.inf):
@@ -73,7 +85,6 @@ def _list(text: str, parse, what: str) -> np.ndarray:
 
 def _depth(text: str) -> float:
     """A disk depth in metres: positive and plausible (:data:`DEPTH_RANGE_M`), else CamcalError."""
-    from camcal.water.units import parse_length_m
 
     d = parse_length_m(text)
     if not d > 0:
@@ -98,18 +109,6 @@ def _json_list(values) -> list:
 def _json_nested(values) -> list:
     a = np.asarray(values, dtype=float)
     return np.where(np.isfinite(a), a, None).tolist()
-
-
-def _roi(text: str | None) -> tuple[int, int, int, int] | None:
-    if not text:
-        return None
-    try:
-        x0, y0, w, h = (int(v) for v in text.split(","))
-    except ValueError:
-        raise CamcalError(f"--roi must be x0,y0,width,height in pixels, got {text!r}") from None
-    if w <= 0 or h <= 0 or x0 < 0 or y0 < 0:
-        raise CamcalError(f"--roi must have non-negative origin and positive size, got {text!r}")
-    return x0, y0, w, h
 
 
 def _split_unc(text: str) -> tuple[str, str | None]:
@@ -155,7 +154,6 @@ def _angle_deg(text: str) -> float:
 
 
 def _depth_unc(text: str) -> tuple[float, float]:
-    from camcal.water.units import parse_length_m
 
     a, b = _split_unc(text)
     d = _depth(a)
@@ -165,8 +163,6 @@ def _depth_unc(text: str) -> tuple[float, float]:
 def _build(kind, epsilon, albedo, cutoff_deg, view_deg, n_water, water_absorption, background_absorption,
            reflectance, transmittance, lamp_height, lamp_angle, epsilon_unc):
     """(model, stated inputs other than depth) from the options."""
-    from camcal.water.uncertainty import Uncertain
-    from camcal.water.units import parse_length_m
 
     inputs = []
     h_text = a_deg = None
@@ -189,7 +185,6 @@ def _build(kind, epsilon, albedo, cutoff_deg, view_deg, n_water, water_absorptio
 
 def _band(m, profile, band_channel, illuminant, chlorophyll_csv, background_absorption, meta):
     """Wrap a geometry in the band model of a profile's channel (illuminant: the lamp for --model lamp)."""
-    from camcal.water.band import band_model_from_profile, read_chlorophyll_csv
 
     light = illuminant or ("lamp" if getattr(m, "name", "") == "lamp" else "D65")
     chl = read_chlorophyll_csv(chlorophyll_csv) if chlorophyll_csv else None
@@ -201,8 +196,6 @@ def _band(m, profile, band_channel, illuminant, chlorophyll_csv, background_abso
 
 
 def _pixel_geometry(model: str, size: str, centre: str | None, direction_deg: float):
-    from camcal.water.lampfield import PixelGeometry
-    from camcal.water.units import parse_length_m
 
     if model != "lamp":
         raise CamcalError("--disk-pixel-size (per-pixel geometry) is for --model lamp")
@@ -219,7 +212,6 @@ def _pixel_geometry(model: str, size: str, centre: str | None, direction_deg: fl
 
 def _unc_summary(terms: dict, inputs: list) -> dict:
     """Median of each σ_C term, the dominant one, and the inputs whose uncertainty was not stated."""
-    from camcal.water.uncertainty import dominant
 
     out = dominant(terms)
     missing = [q.name for q in inputs if not q.sigma > 0] + ([] if "ratio" in terms else ["ratio"])
@@ -275,7 +267,6 @@ def register(app: typer.Typer) -> None:
         chlorophyll_csv: Path = common["chlorophyll_csv"],
     ) -> None:
         """Predicted ratio (disk radiance over reference) for each concentration and depth, as JSON."""
-        from camcal.water.units import mol_per_L_to_ug_per_L, parse_concentration_mol_per_L
 
         m, _ = _build(model, epsilon, albedo, cutoff_deg, view_deg, n_water, water_absorption,
                       background_absorption, reflectance, transmittance, lamp_height, lamp_angle, None)
@@ -306,7 +297,10 @@ def register(app: typer.Typer) -> None:
         channel: str = typer.Option(None, help="EXR channel to read from both files (default L663; R with --profile)."),
         sigma_channel: str = typer.Option(None, help="EXR channel with the 1-σ radiance uncertainty (both files)."),
         relative_sigma: float = typer.Option(None, help="Relative 1-σ uncertainty of the ratio (instead of maps)."),
-        roi: str = typer.Option(None, help="Region x0,y0,width,height in pixels; other pixels become NaN."),
+        roi: str = typer.Option(None, "--roi", help="Region x,y,w,h in photo pixels at full resolution (rounded "
+                                "outward to the EXR's grid: half resolution for Bayer photos, from the EXR's "
+                                "'resolution' note; an EXR without one is taken at its own pixels); other "
+                                "pixels become NaN."),
         ratio: str = typer.Option(None, help="Numbers only: comma list of ratios; prints JSON."),
         out: Path = typer.Option(None, "-o", "--out", help="Output EXR (chl_ug_per_L, chl_unc_ug_per_L, the σ "
                                  "terms chl_unc_<term>_ug_per_L, reason)."),
@@ -333,8 +327,6 @@ def register(app: typer.Typer) -> None:
         σ_C carries the ratio noise, the stated ± of depth, lamp height and angle, --epsilon-unc and the
         profile's uncertainty of c(λ); the output names the dominant term.
         """
-        from camcal.water.invert import Reason, invert_images, invert_ratio
-        from camcal.water.uncertainty import Uncertain, all_terms, combine
 
         d, d_sig = _depth_unc(depth)
         if relative_sigma is not None and not (np.isfinite(relative_sigma) and relative_sigma >= 0):
@@ -372,20 +364,23 @@ def register(app: typer.Typer) -> None:
             return
         if submerged is None or reference is None or out is None:
             raise CamcalError("give --submerged A.exr --reference B.exr -o chl.exr, or --ratio for numbers")
-        from camcal.exr import read_exr, write_exr
 
         names = [channel] + ([sigma_channel] if sigma_channel else [])
         with progress() as bar:
             task = bar.add_task("inverting", total=3)
-            sub, _ = read_exr(submerged, names)
+            sub, sub_meta = read_exr(submerged, names)
             ref, _ = read_exr(reference, names)
             (h, w), (rh, rw) = sub[channel].shape, ref[channel].shape
             if (h, w) != (rh, rw):
                 raise CamcalError(f"is {w}x{h} pixels but the reference {reference.name} is {rw}x{rh}; the two images "
                                   "must have one size (same camera, same crop)", submerged)
-            region = _roi(roi)
-            if region is not None and (region[0] >= w or region[1] >= h):
-                raise CamcalError(f"--roi {roi} lies outside the image ({w}x{h} pixels)", submerged)
+            region = None
+            if roi:
+                per_cell = pixels_per_output_cell(sub_meta.get("resolution")) or 1
+                ys, xs = Region.parse(roi).window((h, w), per_cell, submerged)
+                region = (xs.start, ys.start, xs.stop - xs.start, ys.stop - ys.start)
+                meta["roi"] = {"photo_pixels": roi, "exr_pixels_x_y_w_h": list(region),
+                               "photo_pixels_per_exr_pixel": per_cell}
             bar.advance(task)
             kwargs = {}
             if sigma_channel:
@@ -418,7 +413,6 @@ def register(app: typer.Typer) -> None:
     def simulate_cmd(out: Path = typer.Option(..., "-o", "--out", help="Output folder.")) -> None:
         """Reproduce the seed's §5 curves (CSV + PNG): the exact eq. 10 beside eq. 11 and the appendix's (k, q)
         model; and the table of C read by eq. 11 and the appendix (as written, corrected, solved) vs the truth."""
-        from camcal.water.simulate import simulate_seed_section5
 
         for p in simulate_seed_section5(out):
             console.print(f"wrote {p}")

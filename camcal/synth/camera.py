@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import tempfile
 from dataclasses import dataclass, field
 from datetime import datetime, timedelta
 from functools import cached_property
@@ -38,10 +39,12 @@ from pathlib import Path
 
 import numpy as np
 
+from camcal.atomic import atomic_write_bytes, atomic_write_text
 from camcal.errors import CamcalError
-from camcal.frame import PATTERNS, PLANES, merge_planes, plane_offsets, split_planes
+from camcal.frame import PATTERNS, PLANES, merge_planes, plane_offsets, rgb_from_planes, split_planes
 from camcal.spectra import WAVELENGTHS_NM, camera_sensitivities, photon_energy_j
-from camcal.synth.dng import write_dng, write_linear_dng
+from camcal.synth.dng import encode_exif_app1, write_dng, write_linear_dng
+from camcal.synth.tone import apply_tone
 
 LINEAR_FROM_PLANES: tuple[int, int, int] = (0, 1, 3)
 """Indices into :data:`camcal.frame.PLANES` of the R, G, B channels of a synthetic linear RAW: R, G1, B."""
@@ -328,7 +331,7 @@ class SyntheticCamera:
         p = self.params
         black = np.asarray(p.black_level_dn, float)[:, None, None]
         x = (planes_dn.astype(np.float64) - black) / (p.white_dn - black)
-        return np.clip(np.stack([x[0], 0.5 * (x[1] + x[2]), x[3]]), 0.0, 1.0)
+        return np.clip(rgb_from_planes(x), 0.0, 1.0)
 
     # ---- files ---------------------------------------------------------------------
     def write_dng(
@@ -415,7 +418,6 @@ class SyntheticCamera:
         tone curve ``tone`` (``"srgb"``: IEC 61966-2-1; ``"power"``: x**gamma), 8-bit quantisation,
         JPEG at ``quality`` with 4:4:4 chroma.
         """
-        from camcal.synth.tone import apply_tone
 
         p = self.params
         iso = p.iso_base if iso is None else iso
@@ -508,12 +510,8 @@ def write_jpeg_file(
     OpenImageIO encodes the pixels (4:4:4 chroma); camcal writes the Exif APP1
     segment itself so that exposure time and f-number are exact rationals.
     """
-    import tempfile
+    import OpenImageIO as oiio  # lazy: ~0.1 s at import, only for image files (benchmarks/RESULTS.md, Start-up)
 
-    import OpenImageIO as oiio
-
-    from camcal.atomic import atomic_write_bytes
-    from camcal.synth.dng import encode_exif_app1
 
     h, w, _ = rgb8.shape
     spec = oiio.ImageSpec(w, h, 3, oiio.UINT8)
@@ -539,7 +537,6 @@ def frame_rngs(seed: int, n: int, stream: int) -> list[np.random.Generator]:
 
 
 def save_truth(path: str | Path, truth: dict) -> Path:
-    from camcal.atomic import atomic_write_text
 
     return atomic_write_text(path, json.dumps(truth, indent=1, sort_keys=True))
 

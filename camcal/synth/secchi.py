@@ -44,8 +44,10 @@ import numpy as np
 from camcal.errors import CamcalError
 from camcal.spectra import WAVELENGTHS_NM
 from camcal.synth.camera import Scene, SyntheticCamera
-from camcal.water.models import SeedModel
+from camcal.water.band import BandModel, bricaud_1998
+from camcal.water.models import RefinedModel, SeedModel
 from camcal.water.optics import fresnel_reflectance, schlick_reflectance
+from camcal.water.units import ug_per_L_to_mol_per_L
 
 #: Clear-sky global horizontal spectral irradiance at 560 nm used to scale D65, W m⁻² nm⁻¹.
 DAYLIGHT_IRRADIANCE_560_W_M2_NM = 1.2
@@ -55,7 +57,7 @@ def daylight_white_radiance(wavelengths_nm: np.ndarray = WAVELENGTHS_NM, *, illu
                             irradiance_560_W_m2_nm: float = DAYLIGHT_IRRADIANCE_560_W_M2_NM) -> np.ndarray:
     """Spectral radiance of a perfect white Lambertian surface, L = E/π (W m⁻² sr⁻¹ nm⁻¹), E a CIE
     illuminant's relative spectrum (colour-science) scaled to ``irradiance_560_W_m2_nm`` at 560 nm."""
-    import colour
+    import colour  # lazy: colour-science takes ~1-2 s to import (benchmarks/RESULTS.md, Start-up)
 
     key = {k.lower(): k for k in colour.SDS_ILLUMINANTS}.get(str(illuminant).lower())
     if key is None:
@@ -141,7 +143,6 @@ class SecchiScenes:
 
 
 def _geometry(model):
-    from camcal.water.models import RefinedModel, SeedModel
 
     if isinstance(model, str):
         if model == "refined":
@@ -196,8 +197,6 @@ def secchi_scenes(
     ``predicted_band_ratio`` {R, G, B} (camera's true c(λ)), ``predicted_red_band_ratio``, the disk geometry
     and the light.
     """
-    from camcal.water.band import BandModel, bricaud_1998
-    from camcal.water.units import ug_per_L_to_mol_per_L
 
     c = float(c_ug_per_L)
     d = float(depth_m)

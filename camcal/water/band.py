@@ -33,8 +33,10 @@ from scipy.special import expn
 
 from camcal.data import read_table
 from camcal.errors import CamcalError
+from camcal.manifest import read_text_file
+from camcal.profile import load_profile
 from camcal.spectra import planck_radiance
-from camcal.water.invert import Inversion, Reason
+from camcal.water.invert import CHUNK, Inversion, Reason, _run_chunks
 from camcal.water.models import ClosedForm, RefinedModel, SeedModel, form_at
 from camcal.water.purewater import pure_water_absorption_per_m
 from camcal.water.units import specific_absorption_m2_per_mg, ug_per_L_to_mol_per_L
@@ -74,7 +76,6 @@ class ChlorophyllAbsorption:
 @functools.lru_cache(maxsize=2)
 def bricaud_1998(kind: str = "ph") -> ChlorophyllAbsorption:
     """Bricaud et al. (1998) A(λ), E(λ), 400-700 nm: ``kind`` 'ph' (phytoplankton) or 'p' (all particles)."""
-    from camcal.data import read_table
 
     header, v = read_table("chlorophyll_a_bricaud_1998.csv")
     a = v[:, header.index(f"A_{kind}_m2_per_mg")]
@@ -128,7 +129,6 @@ def read_chlorophyll_csv(path: str | Path) -> ChlorophyllAbsorption:
 
     All give a_abs(λ, C) in m⁻¹ with C in µg/L (= mg m⁻³): a = 2.303e-4 ε[L g⁻¹ cm⁻¹] C.
     """
-    from camcal.manifest import read_text_file
 
     path = Path(path)
     text = read_text_file(path, "absorber (chlorophyll/dye) CSV")
@@ -349,7 +349,6 @@ class BandModel:
 def read_spectrum_csv(path: str | Path, what: str = "lamp spectrum CSV") -> tuple[np.ndarray, np.ndarray]:
     """A measured relative spectrum: CSV with ``wavelength_nm`` and one value column (any name, e.g.
     ``relative_radiance``); ``#`` lines are comments. Returns (wavelength_nm, values), values ≥ 0, finite."""
-    from camcal.manifest import read_text_file
 
     path = Path(path)
     text = read_text_file(path, what)
@@ -403,7 +402,7 @@ def illuminant_spectrum(name: str | Path, wavelengths_nm) -> np.ndarray | None:
         lw, lv = read_spectrum_csv(text)
         s = np.interp(wl, lw, lv, left=np.nan, right=np.nan)
     else:
-        import colour
+        import colour  # lazy: colour-science takes ~1-2 s to import (benchmarks/RESULTS.md, Start-up)
 
         ckey = {k.lower(): k for k in colour.SDS_ILLUMINANTS}.get(key)
         if ckey is None:
@@ -433,13 +432,10 @@ def band_model_from_profile(profile, channel: str = "R", *, geometry=None, chlor
     CamcalError
         The profile has no spectral stage, or no such channel.
     """
-    from pathlib import Path as _Path
-
     where = None
-    if isinstance(profile, str | _Path):
-        from camcal.profile import load_profile
+    if isinstance(profile, str | Path):
 
-        where = _Path(profile)
+        where = Path(profile)
         profile = load_profile(where)
     spectral = getattr(profile, "spectral", None)
     if spectral is None:
@@ -449,21 +445,21 @@ def band_model_from_profile(profile, channel: str = "R", *, geometry=None, chlor
     if channel not in curves:
         raise CamcalError(f"profile has no channel {channel!r}; use one of {', '.join(sorted(curves))}", where)
     wl = np.asarray(spectral.wavelength_nm, float)
-    s = illuminant_spectrum(illuminant, wl) if isinstance(illuminant, str | _Path) else illuminant
+    s = illuminant_spectrum(illuminant, wl) if isinstance(illuminant, str | Path) else illuminant
     if s is not None and np.any(np.isnan(s)):  # a measured lamp CSV shorter than the profile's grid
         c_abs = np.abs(np.asarray(curves[channel], float))
         need = c_abs >= 0.01 * np.max(c_abs)
         if np.any(need & np.isnan(s)):
             raise CamcalError(f"the light's spectrum {str(illuminant)!r} does not cover channel {channel}'s band "
                               f"({wl[need][0]:g}-{wl[need][-1]:g} nm, c(λ) ≥ 1 % of its peak)",
-                              _Path(illuminant) if _Path(str(illuminant)).is_file() else where)
+                              Path(illuminant) if Path(str(illuminant)).is_file() else where)
         s = np.nan_to_num(s, nan=0.0)
     if chlorophyll is not None:  # outside its table a user spectrum absorbs nothing: it must span the band
         weight = np.abs(np.asarray(curves[channel], float)) * (1.0 if s is None else np.asarray(s, float))
         band = wl[weight >= 0.01 * np.max(weight)] if np.max(weight) > 0 else wl
         lo, hi = float(chlorophyll.wavelengths_nm[0]), float(chlorophyll.wavelengths_nm[-1])
         if lo > band[0] or hi < band[-1]:
-            src = _Path(chlorophyll.source) if chlorophyll.source and _Path(chlorophyll.source).is_file() else where
+            src = Path(chlorophyll.source) if chlorophyll.source and Path(chlorophyll.source).is_file() else where
             raise CamcalError(f"the chlorophyll spectrum covers {lo:g}–{hi:g} nm; channel {channel}'s band "
                               f"(c(λ)·illuminant ≥ 1 % of its peak) spans {band[0]:g}–{band[-1]:g} nm", src)
     uncs = dict(spectral.uncertainty) if hasattr(spectral, "uncertainty") else {}
@@ -559,7 +555,6 @@ class BandInverse:
     def concentration(self, ratio, *, sigma_ln_ratio=None) -> Inversion:
         """C (µg/L and mol/L) per pixel from band ratios, with reasons and propagated σ (σ_ln_ratio: the
         relative 1-σ uncertainty of the ratio, scalar or array)."""
-        from camcal.water.invert import CHUNK, _run_chunks
 
         r = np.asarray(ratio)
         flat = r.reshape(-1)

@@ -18,12 +18,14 @@ The radiance uncertainty propagates as σ_C = |dC/d ln r| σ_ln r, σ_ln r² = (
 from __future__ import annotations
 
 import functools
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from enum import IntEnum
 
 import numpy as np
 
 from camcal.errors import CamcalError
+from camcal.threads import thread_count
 from camcal.water.models import ClosedForm, form_at
 from camcal.water.units import mol_per_L_to_ug_per_L
 
@@ -112,7 +114,7 @@ class _Nodes:
     slope0: float  # −d ln R/dτ at τ = 0
 
 
-#: Pixels per work unit of the image inversion (bounded memory; two threads share the units).
+#: Pixels per work unit of the image inversion (bounded memory; :func:`camcal.threads.thread_count` threads share them).
 CHUNK = 1 << 20
 
 
@@ -211,15 +213,14 @@ class TauTable:
 
 
 def _run_chunks(work, size: int) -> None:
-    """Run ``work(start)`` over chunk starts, on two threads when there is more than one chunk."""
+    """Run ``work(start)`` over chunk starts, on :func:`camcal.threads.thread_count` threads (one per chunk at most)."""
     starts = range(0, size, CHUNK)
-    if size <= CHUNK:
+    threads = thread_count(work_items=len(starts))
+    if threads <= 1:
         for s in starts:
             work(s)
         return
-    from concurrent.futures import ThreadPoolExecutor
-
-    with ThreadPoolExecutor(max_workers=2) as pool:
+    with ThreadPoolExecutor(max_workers=threads) as pool:
         list(pool.map(work, starts))
 
 
@@ -329,7 +330,8 @@ def _finite_or_reason(inv: Inversion) -> Inversion:
 
 
 def _invert_table_scalar(r: np.ndarray, model, cf: ClosedForm, depth_m: float, sigma_ln_ratio) -> Inversion:
-    """The image fast path: one depth and one relative σ; chunked, on two threads, fused."""
+    """The image fast path: one depth and one relative σ; chunked, on :func:`~camcal.threads.thread_count`
+    threads, fused."""
     table = tau_table(cf)
     with np.errstate(over="ignore", invalid="ignore"):  # absurd depths overflow: TOO_DARK via _finite_or_reason
         tau_bg = float(model.background_tau(depth_m))

@@ -17,13 +17,14 @@ import functools
 
 import numpy as np
 
+from camcal.data import read_table
+
 POPE_FRY_FILE = "water_absorption_pope_fry_1997.csv"
 
 
 @functools.lru_cache(maxsize=1)
 def pope_fry_1997() -> tuple[np.ndarray, np.ndarray]:
     """The table as (wavelength_nm, a_w_per_m) arrays (read-only copies)."""
-    from camcal.data import read_table
 
     header, v = read_table(POPE_FRY_FILE)
     wl = v[:, header.index("wavelength_nm")].copy()

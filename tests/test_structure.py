@@ -1,0 +1,88 @@
+"""Structure rules of issue 17 that a test can check: imports where a reader expects them, the library never
+imports the CLI, one ``--roi`` parser."""
+
+from __future__ import annotations
+
+import ast
+import re
+from pathlib import Path
+
+import pytest
+
+from camcal.errors import CamcalError
+from camcal.region import Region, pixels_per_output_cell
+
+ROOT = Path(__file__).resolve().parents[1]
+
+# stage files being reorganised elsewhere (issue 17 items 1-2): they still import camcal modules inside
+# functions. Empty this set as each of them lands.
+STILL_IMPORTING_INSIDE_FUNCTIONS = {
+    "camcal/calibrate.py", "camcal/dark.py", "camcal/flat.py", "camcal/response.py", "camcal/spectral.py",
+    "camcal/colour.py", "camcal/stack.py", "camcal/profile.py", "camcal/session.py", "camcal/cli/calibrate_cmd.py",
+    "camcal/cli/dark_cmd.py",
+}
+
+
+def _local_camcal_imports(path: Path) -> list[tuple[int, str]]:
+    """(line, module) of every ``camcal`` import inside a function of ``path`` with no comment on its line."""
+    text = path.read_text()
+    lines = text.splitlines()
+    found = []
+    for fn in ast.walk(ast.parse(text)):
+        if not isinstance(fn, ast.FunctionDef | ast.AsyncFunctionDef):
+            continue
+        for node in ast.walk(fn):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").split(".")[0] == "camcal":
+                mod = node.module
+            elif isinstance(node, ast.Import) and any(a.name.split(".")[0] == "camcal" for a in node.names):
+                mod = node.names[0].name
+            else:
+                continue
+            if "#" not in lines[node.lineno - 1]:
+                found.append((node.lineno, str(mod)))
+    return found
+
+
+def test_camcal_modules_import_each_other_at_the_top():
+    offenders = {}
+    for p in sorted((ROOT / "camcal").rglob("*.py")):
+        rel = str(p.relative_to(ROOT))
+        if rel in STILL_IMPORTING_INSIDE_FUNCTIONS:
+            continue
+        local = _local_camcal_imports(p)
+        if local:
+            offenders[rel] = local
+    assert offenders == {}
+
+
+def test_the_library_never_imports_the_cli():
+    pattern = re.compile(r"^\s*(from camcal\.cli\b|import camcal\.cli\b)", re.M)
+    offenders = [str(p.relative_to(ROOT)) for p in (ROOT / "camcal").rglob("*.py")
+                 if p.parent.name != "cli" and p.name != "__main__.py" and pattern.search(p.read_text())]
+    assert offenders == []
+
+
+def test_every_roi_option_is_read_by_region_parse():
+    """Every command module with a ``--roi`` option parses it with :meth:`Region.parse` and has no parser of its own."""
+    cli = ROOT / "camcal" / "cli"
+    with_roi = sorted(p.name for p in cli.glob("*_cmd.py") if '"--roi"' in p.read_text())
+    assert with_roi == ["apply_cmd.py", "linearity_cmd.py", "sweep_cmd.py", "water_cmd.py"]
+    for name in with_roi:
+        text = (cli / name).read_text()
+        assert "Region.parse(" in text, name
+        assert not re.search(r"def _(parse_)?roi\b", text), name
+
+
+@pytest.mark.parametrize("text", ["1,2,3", "0,0,0,5", "-1,0,4,4", "1.5,0,4,4", ",,,", "0.1", "a,b,c,d"])
+def test_region_parse_refuses_other_forms(text):
+    with pytest.raises(CamcalError, match="x,y,w,h"):
+        Region.parse(text)
+
+
+def test_photo_pixels_to_an_output_grid():
+    """apply's notes say the grid: half resolution for Bayer photos (2 photo pixels per cell), full for linear."""
+    assert pixels_per_output_cell("half resolution: one value per 2x2 CFA cell") == 2
+    assert pixels_per_output_cell("full resolution: the linear RAW's own R, G, B planes") == 1
+    assert pixels_per_output_cell(None) is None and pixels_per_output_cell("something else") is None
+    # rounded outward: photo pixels 3..8 cover half-resolution cells 1..3 (cells 1, 2, 3)
+    assert Region(3, 3, 5, 5).window((10, 10), 2) == (slice(1, 4), slice(1, 4))
