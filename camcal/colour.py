@@ -31,6 +31,7 @@ import numpy as np
 from camcal.correct import Calibration, correct_frame
 from camcal.errors import CamcalError
 from camcal.io import is_raw_path, list_frames, load_frame
+from camcal.session import StageFrames, folder_of
 from camcal.spectral import central_roi
 
 #: A JPEG channel of a sweep frame is used when fewer than this fraction of its ROI pixels are clipped
@@ -93,10 +94,11 @@ class ColourMatrix:
         return ColourMatrix(m, u, n, r, w)  # type: ignore[arg-type]
 
 
-def twin_pairs(folder: str | Path) -> list[tuple[Path, Path]]:
-    """The RAW frames of ``folder`` that have a processed twin (``<stem>.jpg`` or ``.jpeg``), sorted by name."""
+def twin_pairs(folder: str | Path | StageFrames) -> list[tuple[Path, Path]]:
+    """The RAW frames of ``folder`` (a path, or the session index's :class:`camcal.session.StageFrames`) that
+    have a processed twin (``<stem>.jpg`` or ``.jpeg``), sorted by name."""
     pairs = []
-    for path in list_frames(folder):
+    for path in (folder.paths if isinstance(folder, StageFrames) else list_frames(folder)):
         if not is_raw_path(path):
             continue
         for suffix in (".jpg", ".jpeg", ".JPG", ".JPEG"):
@@ -107,7 +109,7 @@ def twin_pairs(folder: str | Path) -> list[tuple[Path, Path]]:
     return pairs
 
 
-def fit_colour_matrix(folders: Sequence[str | Path], processed, *, roi_fraction: float = 0.2,
+def fit_colour_matrix(folders: Sequence[str | Path | StageFrames], processed, *, roi_fraction: float = 0.2,
                       min_frames: int = 6) -> ColourMatrix | None:
     """Fit the colour matrix A from RAW frames and their JPEG twins (module docstring).
 
@@ -134,7 +136,7 @@ def fit_colour_matrix(folders: Sequence[str | Path], processed, *, roi_fraction:
     pairs = [p for f in folders for p in twin_pairs(f)]
     if not pairs:
         return None
-    where = Path(folders[0])
+    where = folder_of(folders[0])
     r_rows, j_rows, ok_rows = [], [], []
     white = float(processed.white_level_dn)
     for path, twin in pairs:
@@ -187,4 +189,4 @@ def fit_colour_matrix(folders: Sequence[str | Path], processed, *, roi_fraction:
     if abs(np.linalg.det(matrix)) < 1e-12 * float(np.abs(matrix).max()) ** 3:
         raise CamcalError("the fitted colour matrix is singular (the JPEG twins hold too few colours)", where)
     return ColourMatrix(matrix, unc, tuple(n_used), tuple(rms),  # type: ignore[arg-type]
-                        tuple(str(f) for f in folders))
+                        tuple(str(folder_of(f)) for f in folders))

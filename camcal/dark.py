@@ -43,9 +43,10 @@ from scipy.optimize import minimize
 from scipy.special import chdtri, ndtr
 
 from camcal.correct import Calibration, correct_planes, dark_frame
-from camcal.errors import CamcalError
+from camcal.errors import CamcalError, MissingMetadataError
 from camcal.frame import PATTERNS, PLANES, RGB, Frame
-from camcal.io import exposure_from_exif, folder_files, load_frame
+from camcal.io import exposure_from_exif, load_frame
+from camcal.session import StageFrames, folder_of, stage_files
 from camcal.stack import MAD_TO_SIGMA, METHODS, StackResult, combine_frames
 
 HOT, DEAD, NOISY = 1, 2, 4
@@ -150,21 +151,24 @@ class DarkModel:
 # --------------------------------------------------------------------------------------------
 
 
-def _exposure_time(path: Path, manifest: dict) -> float:
-    """Exposure time from the manifest row, else from the file's EXIF header (no decode)."""
-    row = manifest.get(path.name) or {}
-    t = row.get("exposure_s")
-    if t is None:
-        t = exposure_from_exif(path).exposure_s
-    if t is None:
-        from camcal.errors import MissingMetadataError
-
-        raise MissingMetadataError(path, "exposure_s")
-    return float(t)
-
-
-def _files(folder: Path) -> tuple[list[Path], dict]:
-    return folder_files(folder)
+def _exposure_times(source: str | Path | StageFrames, files: list[Path], manifest: dict) -> list[float]:
+    """Exposure time of each frame, s: as the session index resolved it (manifest row > tag > session.toml),
+    else from the manifest row or the file's EXIF header (no decode)."""
+    if isinstance(source, StageFrames):
+        known = {f.path: f.exposure_s for f in source.frames}
+    else:
+        known = {}
+    out = []
+    for path in files:
+        t = known.get(path)
+        if t is None:
+            t = (manifest.get(path.name) or {}).get("exposure_s")
+        if t is None:
+            t = exposure_from_exif(path).exposure_s
+        if t is None:
+            raise MissingMetadataError(path, "exposure_s")
+        out.append(float(t))
+    return out
 
 
 def dark_frame_check(saturation_fraction: float = 0.01) -> Callable[[Frame], None]:
@@ -199,8 +203,8 @@ def _robust(x: np.ndarray) -> tuple[float, float]:
 
 
 def fit_dark(
-    dark_folder: str | Path | None,
-    bias_folder: str | Path | None = None,
+    dark_folder: str | Path | StageFrames | None,
+    bias_folder: str | Path | StageFrames | None = None,
     *,
     method: str = "sigma_clip",
     sigma: float = 3.0,
@@ -216,10 +220,11 @@ def fit_dark(
 
     Parameters
     ----------
-    dark_folder : folder of RAW dark frames at two or more exposure times (one is enough
-        with bias frames), with an optional ``frames.csv`` (``exposure_s``, ``iso``,
-        ``temperature_C``...); None for a bias-only calibration (bias, read noise and noisy
-        pixels; the dark current is then unknown, ``dark_current_dn_per_s`` None).
+    dark_folder : folder (or the session index's :class:`camcal.session.StageFrames`) of RAW dark
+        frames at two or more exposure times (one is enough with bias frames), with an optional
+        ``frames.csv`` (``exposure_s``, ``iso``, ``temperature_C``...); None for a bias-only
+        calibration (bias, read noise and noisy pixels; the dark current
+        is then unknown, ``dark_current_dn_per_s`` None).
     bias_folder : folder of RAW bias frames (shortest exposure, no light), optional.
     method : how each exposure group of darks is combined (:func:`camcal.stack.combine_frames`);
         bias frames are always averaged (``mean``) so their variance is the full temporal variance.
@@ -248,13 +253,14 @@ def fit_dark(
             raise CamcalError("the dark model needs dark frames, bias frames or both")
         return fit_bias(bias_folder, hot_sigma=hot_sigma, noisy_sigma=noisy_sigma,
                         saturation_fraction=saturation_fraction, jobs=jobs, progress=progress)
-    dark_folder = Path(dark_folder)
-    files, manifest = _files(dark_folder)
-    times = [_exposure_time(p, manifest) for p in files]
+    files, manifest = stage_files(dark_folder)
+    times = _exposure_times(dark_folder, files, manifest)
+    dark_folder = folder_of(dark_folder)
     groups: dict[float, list[Path]] = {}
     for p, t in zip(files, times, strict=True):
         groups.setdefault(float(f"{t:.6g}"), []).append(p)
-    bias_files, bias_manifest = _files(Path(bias_folder)) if bias_folder is not None else ([], {})
+    bias_files, bias_manifest = stage_files(bias_folder) if bias_folder is not None else ([], {})
+    bias_folder = folder_of(bias_folder) if bias_folder is not None else None
     if bias_folder is None and len(groups) < 2:
         (t0,) = groups
         raise CamcalError(f"all {len(files)} dark frames have one exposure time ({t0:g} s); the dark-current fit "
@@ -525,7 +531,7 @@ def temporal_noise(stack: StackResult, var_t: np.ndarray, defects: np.ndarray, n
 
 
 def fit_bias(
-    bias_folder: str | Path,
+    bias_folder: str | Path | StageFrames,
     *,
     hot_sigma: float = 6.0,
     noisy_sigma: float = 6.0,
@@ -538,8 +544,8 @@ def fit_bias(
     Two frames are enough. ``hot_sigma`` is recorded but hot pixels need dark frames (their dark
     current), so none are flagged; :mod:`camcal.apply` then subtracts the bias only and says so.
     """
-    bias_folder = Path(bias_folder)
-    files, manifest = _files(bias_folder)
+    files, manifest = stage_files(bias_folder)
+    bias_folder = folder_of(bias_folder)
     if len(files) < 2:
         raise CamcalError(f"a bias-only calibration needs two or more bias frames, found {len(files)}", bias_folder)
     st = combine_frames(files, method="mean", manifest=manifest, check=dark_frame_check(saturation_fraction),

@@ -50,8 +50,9 @@ from camcal.correct import Calibration, correct_frame, correct_planes, require_v
 from camcal.dark import load_dark
 from camcal.errors import CamcalError
 from camcal.frame import PLANES, Frame, plane_offsets
-from camcal.io import folder_files, load_folder_frame
-from camcal.stack import combine_folder
+from camcal.io import load_folder_frame
+from camcal.session import StageFrames, stage_files
+from camcal.stack import combine_frames
 
 N_RADIAL = 5
 """Number of DNG radial coefficients k0..k4."""
@@ -633,7 +634,7 @@ def _resolve_dark(dark):
 
 
 def master_flat(
-    flat_folder: str | Path,
+    flat_folder: str | Path | StageFrames,
     dark=None,
     *,
     method: str = "sigma_clip",
@@ -650,10 +651,9 @@ def master_flat(
     The valid pixels are divided by their per-plane median so lamp drift between frames does not
     bias the combine; the combined master is thus normalised per channel (median ≈ 1).
     """
-    folder = Path(flat_folder)
     dark_model = _resolve_dark(dark)
     cal = Calibration.of(dark_model)
-    paths, manifest = folder_files(folder)
+    paths, manifest = stage_files(flat_folder)
     first = load_folder_frame(paths[0], manifest)
     plane_shape = (first.shape[0] // 2, first.shape[1] // 2) if first.layout == "bayer" else first.shape
     if dark_model is not None:
@@ -684,7 +684,7 @@ def master_flat(
         planes /= med[:, None, None].astype(np.float32)
         return planes
 
-    res = combine_folder(folder, method=method, sigma=sigma, preprocess=preprocess, manifest=manifest, check=check,
+    res = combine_frames(paths, method=method, sigma=sigma, preprocess=preprocess, manifest=manifest, check=check,
                          jobs=jobs, progress=progress)
     # per-plane level in DN: recomputed from the first frame (the check guarantees all are similar)
     level = {c: float(m) for c, m in zip(first.channel_names, corrected(first)[1], strict=True)}
@@ -699,7 +699,7 @@ def master_flat(
 
 
 def fit_flat(
-    flat_folder: str | Path,
+    flat_folder: str | Path | StageFrames,
     dark=None,
     *,
     model: Literal["radial", "2d"] = "radial",

@@ -55,8 +55,9 @@ from camcal.correct import Calibration, DarkFrameModel, correct_planes
 from camcal.errors import CamcalError
 from camcal.exposure import relative_exposure
 from camcal.frame import PLANES
-from camcal.io import folder_files, load_folder_frame
+from camcal.io import load_folder_frame
 from camcal.region import Region
+from camcal.session import StageFrames, folder_of, stage_files
 
 DEFAULT_ROI_FRACTION = 0.10
 """Default ROI: a centred window holding this fraction of each plane's area."""
@@ -353,7 +354,7 @@ def roi_slices(shape: tuple[int, int], roi: tuple[float, float, float, float]) -
 
 
 def measure_series(
-    folder: str | Path,
+    folder: str | Path | StageFrames,
     *,
     roi: Region | float | tuple[float, float, float, float] | None = None,
     dark: DarkFrameModel | None = None,
@@ -372,10 +373,10 @@ def measure_series(
     CamcalError
         Folder without images, unreadable files, missing exposure metadata, bad ROI.
     """
-    folder = Path(folder)
+    files, manifest = stage_files(folder)
+    folder = folder_of(folder)
     region = roi if isinstance(roi, Region) else None
     window = roi_window(None if region is not None else roi)
-    files, manifest = folder_files(folder)
     cal = Calibration.of(dark) if dark is not None else Calibration()
     rows: dict[str, list[dict]] = {}
     for i, path in enumerate(files):
@@ -790,7 +791,7 @@ def _tone_fit(ch: ChannelResponse, fit: dict, x: np.ndarray, g: np.ndarray, sem:
 
 
 def fit_response(
-    folder: str | Path,
+    folder: str | Path | StageFrames,
     *,
     roi: Region | float | tuple[float, float, float, float] | None = None,
     dark: DarkFrameModel | None = None,

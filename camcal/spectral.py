@@ -47,7 +47,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -60,9 +60,10 @@ from camcal.errors import CamcalError
 from camcal.exposure import frame_relative_exposure
 from camcal.frame import PLANES, RGB, Frame, split_planes
 from camcal.io import load_frame
+from camcal.manifest import exposure_overrides, read_manifest, safe_member
 from camcal.region import Region
+from camcal.session import SWEEP_CSV, SWEEP_REQUIRED
 
-SWEEP_CSV = "sweep.csv"
 DEFAULT_REFERENCE_ISO = 100.0
 DEFAULT_REFERENCE_F_NUMBER = 4.0
 DEFAULT_ROI_FRACTION = 0.2
@@ -289,19 +290,24 @@ def read_sweep(sweep_folder: str | Path) -> list[SweepRow]:
         Missing manifest, a row whose frame is missing, a path leaving the folder,
         negative or non-numeric values (from :func:`camcal.manifest.read_manifest`).
     """
-    from camcal.manifest import exposure_overrides, read_manifest, safe_member
-
     folder = Path(sweep_folder)
     if not folder.is_dir():
         raise CamcalError("is not a folder (expected a sweep folder holding sweep.csv)", folder)
     csv_path = folder / SWEEP_CSV
     if not csv_path.is_file():
         raise CamcalError(f"has no {SWEEP_CSV} (columns file,wavelength_nm,radiance_W_m2_sr,...)", folder)
-    rows = read_manifest(csv_path, required=("file", "wavelength_nm", "radiance_W_m2_sr"))
-    if not rows:
+    return sweep_rows(folder, read_manifest(csv_path, required=SWEEP_REQUIRED))
+
+
+def sweep_rows(sweep_folder: str | Path, manifest: Mapping[str, Mapping[str, float | str | None]]) -> list[SweepRow]:
+    """The :class:`SweepRow` of each row of an already read ``sweep.csv`` (:func:`camcal.manifest.read_manifest`,
+    e.g. by :func:`camcal.session.index_session`); every listed frame must exist inside the folder."""
+    folder = Path(sweep_folder)
+    csv_path = folder / SWEEP_CSV
+    if not manifest:
         raise CamcalError("lists no frames", csv_path)
     out = []
-    for name, rec in rows.items():
+    for name, rec in manifest.items():
         path = safe_member(folder, name, csv_path)
         if not path.is_file():
             raise CamcalError(f"lists {name!r} at {rec['wavelength_nm']:g} nm, which is not in the folder", csv_path)
@@ -312,7 +318,7 @@ def read_sweep(sweep_folder: str | Path) -> list[SweepRow]:
             radiance_unc_w_m2_sr=None if rec.get("radiance_unc_W_m2_sr") is None
             else float(rec["radiance_unc_W_m2_sr"]),  # type: ignore[arg-type]
             bandwidth_nm=None if rec.get("bandwidth_nm") is None else float(rec["bandwidth_nm"]),  # type: ignore[arg-type]
-            overrides=exposure_overrides(rec),
+            overrides=exposure_overrides(dict(rec)),
         ))
     return out
 
@@ -456,6 +462,7 @@ def combine_wavelength(results: Sequence[_FrameResult]) -> tuple[np.ndarray, np.
 def measure_sweep(
     sweep_folder: str | Path,
     *,
+    rows: Sequence[SweepRow] | None = None,
     dark=None,
     flat=None,
     roi: Region | tuple[int, int, int, int] | float | None = None,
@@ -477,6 +484,8 @@ def measure_sweep(
     sweep_folder : folder holding the frames and ``sweep.csv`` (columns ``file,
         wavelength_nm, radiance_W_m2_sr`` required; ``radiance_unc_W_m2_sr,
         bandwidth_nm, exposure_s, iso, f_number`` optional).
+    rows : the rows of ``sweep.csv`` already read (:func:`sweep_rows` of the session index's manifest);
+        None reads ``sweep_folder/sweep.csv``.
     dark : DarkModel or path to ``dark.json``, optional
         Subtracted per pixel at each frame's exposure; without it the file's
         black level is subtracted (dark current then biases c(λ) by β/L).
@@ -508,7 +517,7 @@ def measure_sweep(
     """
     if mode not in ("relative", "absolute"):
         raise CamcalError(f"mode must be 'relative' or 'absolute', got {mode!r}")
-    rows = read_sweep(sweep_folder)
+    rows = list(rows) if rows is not None else read_sweep(sweep_folder)
     csv_path = Path(sweep_folder) / SWEEP_CSV
     for r in rows:
         if r.radiance_w_m2_sr <= 0:
