@@ -48,6 +48,7 @@ from camcal.frame import PATTERNS, PLANES, RGB, Frame
 from camcal.io import exposure_from_exif, load_frame
 from camcal.session import StageFrames, folder_of, stage_files
 from camcal.stack import MAD_TO_SIGMA, METHODS, StackResult, combine_frames
+from camcal.store import load_stage, save_stage
 
 HOT, DEAD, NOISY = 1, 2, 4
 """Bits of :attr:`DarkModel.defects`."""
@@ -834,15 +835,20 @@ def dark_from_parts(data: dict, maps: dict[str, np.ndarray], where: str | Path |
 
 def save_dark(model: DarkModel, path: str | Path) -> Path:
     """Write the model as ``path`` (JSON) + ``<stem>.maps.exr`` (maps ``bias.R`` ...), kind ``dark``."""
-    from camcal.store import save_stage
-
     data, maps = dark_to_parts(model)
     return save_stage(path, KIND, data, maps)
 
 
 def load_dark(path: str | Path) -> DarkModel:
-    """Read a model written by :func:`save_dark`."""
-    from camcal.store import load_stage
-
+    """Read a model written by :func:`save_dark` (the one dark-model loader)."""
     data, maps = load_stage(path, KIND)
     return dark_from_parts(data, maps, path)
+
+
+def as_dark_model(dark: DarkModel | str | Path | None) -> DarkModel | None:
+    """A dark model given as itself, as a path (read by :func:`load_dark`) or None."""
+    if dark is None or isinstance(dark, DarkModel):
+        return dark
+    if isinstance(dark, str | Path):
+        return load_dark(dark)
+    return dark  # any object with the DarkModel interface (dark_frame_dn...), e.g. in tests

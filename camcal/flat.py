@@ -47,12 +47,13 @@ from typing import Literal
 import numpy as np
 
 from camcal.correct import Calibration, correct_frame, correct_planes, require_valid
-from camcal.dark import load_dark
+from camcal.dark import DarkModel, as_dark_model
 from camcal.errors import CamcalError
 from camcal.frame import PLANES, Frame, plane_offsets
 from camcal.io import load_folder_frame
 from camcal.session import StageFrames, stage_files
 from camcal.stack import combine_frames
+from camcal.store import load_stage, save_stage
 
 N_RADIAL = 5
 """Number of DNG radial coefficients k0..k4."""
@@ -625,17 +626,9 @@ class MasterFlat:
     exposure_s: tuple[float | None, ...]
 
 
-def _resolve_dark(dark):
-    if dark is None:
-        return None
-    if isinstance(dark, str | Path):
-        return load_dark(dark)
-    return dark
-
-
 def master_flat(
     flat_folder: str | Path | StageFrames,
-    dark=None,
+    dark: DarkModel | str | Path | None = None,
     *,
     method: str = "sigma_clip",
     sigma: float = 3.0,
@@ -651,7 +644,7 @@ def master_flat(
     The valid pixels are divided by their per-plane median so lamp drift between frames does not
     bias the combine; the combined master is thus normalised per channel (median ≈ 1).
     """
-    dark_model = _resolve_dark(dark)
+    dark_model = as_dark_model(dark)
     cal = Calibration.of(dark_model)
     paths, manifest = stage_files(flat_folder)
     first = load_folder_frame(paths[0], manifest)
@@ -700,7 +693,7 @@ def master_flat(
 
 def fit_flat(
     flat_folder: str | Path | StageFrames,
-    dark=None,
+    dark: DarkModel | str | Path | None = None,
     *,
     model: Literal["radial", "2d"] = "radial",
     downsample: int | None = None,
@@ -726,7 +719,7 @@ def fit_flat(
     jobs, progress : passed to :func:`camcal.stack.combine_frames`.
     """
     _check_options(model, n_terms)
-    dark_model = _resolve_dark(dark)
+    dark_model = as_dark_model(dark)
     mf = master_flat(flat_folder, dark_model, method=method, sigma=sigma, checks=checks, jobs=jobs,
                      progress=progress)
     return fit_master(mf, dark_model, model=model, downsample=downsample, n_terms=n_terms, degree_2d=degree_2d,
@@ -735,7 +728,7 @@ def fit_flat(
 
 def fit_master(
     mf: MasterFlat,
-    dark_model=None,
+    dark_model: DarkModel | None = None,
     *,
     model: Literal["radial", "2d"] = "radial",
     downsample: int | None = None,
@@ -771,7 +764,7 @@ def fit_master(
 def run_flat_stage(
     flat_folder: str | Path,
     output: str | Path,
-    dark=None,
+    dark: DarkModel | str | Path | None = None,
     **kwargs,
 ) -> tuple[FlatModel, Path, MasterFlat]:
     """The ``camcal flat`` stage: master flat, fit, ``output`` JSON + maps EXR.
@@ -786,7 +779,7 @@ def run_flat_stage(
         raise CamcalError("the flat model output must be a .json file", output)
     mkeys = {"method", "sigma", "checks", "jobs", "progress"}
     _check_options(kwargs.get("model", "radial"), kwargs.get("n_terms", DEFAULT_TERMS))
-    dark_model = _resolve_dark(dark)
+    dark_model = as_dark_model(dark)
     mf = master_flat(flat_folder, dark_model, **{k: v for k, v in kwargs.items() if k in mkeys})
     fm = fit_master(mf, dark_model, **{k: v for k, v in kwargs.items() if k not in mkeys})
     path = save_flat(fm, output)
@@ -843,15 +836,18 @@ def flat_from_parts(data: dict, maps: dict[str, np.ndarray], where: str | Path |
 
 def save_flat(model: FlatModel, path: str | Path) -> Path:
     """Write ``path`` (JSON) and ``<stem>.maps.exr`` with ``gain.<ch>`` and ``prnu.<ch>`` maps."""
-    from camcal.store import save_stage
-
     data, maps = flat_to_parts(model)
     return save_stage(path, "flat", data, maps)
 
 
 def load_flat(path: str | Path) -> FlatModel:
     """Read a flat model written by :func:`save_flat`."""
-    from camcal.store import load_stage
-
     data, maps = load_stage(path, "flat")
     return flat_from_parts(data, maps, path)
+
+
+def as_flat_model(flat: FlatModel | str | Path | None) -> FlatModel | None:
+    """A flat model given as itself, as a path (read by :func:`load_flat`) or None."""
+    if isinstance(flat, str | Path):
+        return load_flat(flat)
+    return flat

@@ -45,6 +45,7 @@ Hansen, P. C. (2010). Discrete Inverse Problems. SIAM (Tikhonov, GCV).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import warnings
 from collections.abc import Callable, Mapping, Sequence
@@ -56,13 +57,17 @@ from typing import Any, Literal
 import numpy as np
 
 from camcal.correct import Calibration, correct_planes
+from camcal.dark import DarkModel, as_dark_model
 from camcal.errors import CamcalError
 from camcal.exposure import frame_relative_exposure
+from camcal.flat import FlatModel, as_flat_model
 from camcal.frame import PLANES, RGB, Frame, split_planes
 from camcal.io import load_frame
 from camcal.manifest import exposure_overrides, read_manifest, safe_member
 from camcal.region import Region
 from camcal.session import SWEEP_CSV, SWEEP_REQUIRED
+from camcal.store import to_jsonable
+from camcal.threads import thread_count
 
 DEFAULT_REFERENCE_ISO = 100.0
 DEFAULT_REFERENCE_F_NUMBER = 4.0
@@ -376,19 +381,6 @@ def _process_frame(row: SweepRow, cal: Calibration, roi: tuple[int, int, int, in
     return _FrameResult(row, corr.signal_dn, corr.invalid, x_rel, float(corr.saturated_fraction().max()), defect_sat)
 
 
-def _load_model(obj, kind: str):
-    if obj is None or not isinstance(obj, str | Path):
-        return obj
-    try:
-        if kind == "dark":
-            from camcal.dark import load_dark as loader
-        else:
-            from camcal.flat import load_flat as loader
-    except ImportError:
-        raise CamcalError(f"{kind} models need camcal.{kind}, which is not installed", obj) from None
-    return loader(obj)
-
-
 def _robust_mask(m: np.ndarray, valid: np.ndarray | None = None, nsigma: float = 5.0) -> np.ndarray:
     """Valid pixels within ``nsigma`` robust (MAD) sigmas of the plane median; (hr, wr) bool.
 
@@ -463,8 +455,8 @@ def measure_sweep(
     sweep_folder: str | Path,
     *,
     rows: Sequence[SweepRow] | None = None,
-    dark=None,
-    flat=None,
+    dark: DarkModel | str | Path | None = None,
+    flat: FlatModel | str | Path | None = None,
     roi: Region | tuple[int, int, int, int] | float | None = None,
     mode: Literal["relative", "absolute"] = "absolute",
     deconvolve: bool = False,
@@ -523,8 +515,8 @@ def measure_sweep(
         if r.radiance_w_m2_sr <= 0:
             raise CamcalError(f"{r.path.name} at {r.wavelength_nm:g} nm: radiance_W_m2_sr must be positive, "
                               f"got {r.radiance_w_m2_sr:g}", csv_path)
-    dark = _load_model(dark, "dark")
-    flat = _load_model(flat, "flat")
+    dark = as_dark_model(dark)
+    flat = as_flat_model(flat)
     notes: list[str] = []
 
     def warn(msg: str) -> None:
@@ -581,8 +573,9 @@ def measure_sweep(
     done = 0
     total = len(rows)
     ordered = [r for wl in wls for r in groups[wl]]
-    with ThreadPoolExecutor(max_workers=max(1, int(jobs))) as pool:
-        results = pool.map(work, ordered) if jobs > 1 else map(work, ordered)
+    threads = thread_count(jobs, len(ordered))
+    with ThreadPoolExecutor(max_workers=threads) as pool:
+        results = pool.map(work, ordered) if threads > 1 else map(work, ordered)
         it = iter(results)
         for j, wl in enumerate(wls):
             frames: list[_FrameResult] = []
@@ -655,8 +648,6 @@ def to_relative(s: SpectralSensitivity) -> SpectralSensitivity:
 
 
 def _replace(s: SpectralSensitivity, **kw) -> SpectralSensitivity:
-    import dataclasses
-
     return dataclasses.replace(s, **kw)
 
 
@@ -818,8 +809,6 @@ def merge_sweeps(a: SpectralSensitivity, b: SpectralSensitivity, *, scale: bool 
 # ---- serialisation (profiles) -------------------------------------------------------------
 def spectral_to_dict(s: SpectralSensitivity) -> dict[str, Any]:
     """Everything of ``s``, JSON-ready (lists of floats); inverse of :func:`spectral_from_dict`."""
-    from camcal.store import to_jsonable
-
     return to_jsonable({
         "wavelength_nm": s.wavelength_nm, "values": {p: s.values[p] for p in s.plane_names},
         "uncertainty": {p: s.uncertainty[p] for p in s.plane_names}, "units": s.units, "mode": s.mode,
