@@ -83,6 +83,9 @@ class StackResult:
     variance_all : (C, h, w) float32 or None
         Temporal variance (ddof=1) of *all* values, before clipping (``sigma_clip``);
         the same array as ``variance`` for ``mean`` and ``median``.
+    kept_planes : tuple of (C, h, w) arrays
+        The planes of the first ``keep_frames`` frames (in ``paths`` order) as combined (see
+        :func:`combine_frames`), for statistics that need single frames; empty by default.
     """
 
     value: np.ndarray
@@ -100,6 +103,7 @@ class StackResult:
     white_level_dn: float = float("nan")
     frame_shape: tuple[int, int] = (0, 0)
     variance_all: np.ndarray | None = None
+    kept_planes: tuple[np.ndarray, ...] = ()
 
 
 # --------------------------------------------------------------------------------------------
@@ -139,8 +143,9 @@ class _Decoder:
     """
 
     def __init__(self, manifest: dict | None, check: Callable[[Frame], None] | None,
-                 preprocess: Callable[[Frame], np.ndarray] | None) -> None:
+                 preprocess: Callable[[Frame], np.ndarray] | None, keep_frames: int = 0) -> None:
         self.manifest = manifest
+        self.keep_frames = keep_frames
         self.check = check
         self.preprocess = preprocess
         self.manifests: dict[Path, dict] = {}  # per-folder frames.csv when no manifest is given
@@ -200,7 +205,7 @@ class _Decoder:
         _check_same(meta, self.first, Path(path))
         if self.spill_path is not None:
             self.spill_write(index, planes)
-            return meta, None
+            return meta, planes if index < self.keep_frames else None
         return meta, planes
 
 
@@ -288,6 +293,7 @@ def combine_frames(
     progress: Callable[[int, int], None] | None = None,
     band_mb: float = 8.0,
     spill_dir: str | Path | None = None,
+    keep_frames: int = 0,
 ) -> StackResult:
     """Combine frames per pixel and per channel plane, reading each file once.
 
@@ -305,6 +311,8 @@ def combine_frames(
     progress : ``progress(done, total)`` after each decoded frame.
     band_mb : working-set budget of one row band, MB (median / sigma_clip).
     spill_dir : folder for the temporary spill file (default: the system temp folder).
+    keep_frames : keep the planes of the first ``keep_frames`` frames (``StackResult.kept_planes``), so
+        statistics of single frames need no second decode.
 
     Returns
     -------
@@ -326,7 +334,7 @@ def combine_frames(
     n = len(paths)
     jobs = thread_count(jobs, n)
 
-    dec = _Decoder(manifest, check, preprocess)  # this call's settings and spill file, given to the threads
+    dec = _Decoder(manifest, check, preprocess, keep_frames)  # this call's settings, given to the threads
     first_meta, first_planes = dec.decode(0, paths[0])
     dec.first = first_meta
     c, h, w = first_planes.shape
@@ -336,6 +344,7 @@ def combine_frames(
         os.close(fd)
         spill_path = Path(name)
         dec.spill_path = spill_path
+    kept: dict[int, np.ndarray] = {0: first_planes} if keep_frames > 0 else {}
     try:
         metas: list[_Meta | None] = [None] * n
         metas[0] = first_meta
@@ -350,6 +359,8 @@ def combine_frames(
         items = [(i, str(p)) for i, p in enumerate(paths)][1:]
         for done, (meta, planes) in enumerate(_run(items, jobs, dec.worker), start=2):
             metas[meta.index] = meta
+            if meta.index < keep_frames and planes is not None:
+                kept[meta.index] = planes
             if acc is not None and planes is not None:
                 acc.add(planes)
             if progress:
@@ -372,6 +383,7 @@ def combine_frames(
         exposures=tuple(m.exposure for m in metas), paths=paths, channel_names=first_meta.channel_names,
         kind=first_meta.kind, cfa_pattern=first_meta.cfa_pattern, black_level_dn=first_meta.black,
         white_level_dn=first_meta.white, frame_shape=first_meta.frame_shape, variance_all=var_all,
+        kept_planes=tuple(kept[i] for i in sorted(kept)),
     )
 
 
