@@ -507,9 +507,89 @@ def measure_sweep(
         Bad manifest, missing frame, path outside the folder, negative or zero
         radiance, non-RAW frames, mismatched sizes, too few unsaturated frames.
     """
-    if mode not in ("relative", "absolute"):
-        raise CamcalError(f"mode must be 'relative' or 'absolute', got {mode!r}")
+    options = SweepOptions(roi=roi, mode=mode, deconvolve=deconvolve, slit=slit, regularisation=regularisation,
+                           reference_iso=reference_iso, reference_f_number=reference_f_number,
+                           max_saturated_fraction=max_saturated_fraction, min_frames=min_frames)
+    options.check()
     rows = list(rows) if rows is not None else read_sweep(sweep_folder)
+    measured = measure_sweep_settings(sweep_folder, rows, dark=dark, flat=flat, options=options, jobs=jobs,
+                                      progress=progress)
+    return sensitivity_from_settings(measured, options)
+
+
+@dataclass(frozen=True)
+class SweepOptions:
+    """Options of the sweep stage (see :func:`measure_sweep` for each)."""
+
+    roi: Region | tuple[int, int, int, int] | float | None = None
+    mode: Literal["relative", "absolute"] = "absolute"
+    deconvolve: bool = False
+    slit: Literal["gaussian", "triangular"] = "gaussian"
+    regularisation: float | None = None
+    reference_iso: float = DEFAULT_REFERENCE_ISO
+    reference_f_number: float = DEFAULT_REFERENCE_F_NUMBER
+    max_saturated_fraction: float = 1e-3
+    min_frames: int = 1
+
+    def check(self) -> None:
+        if self.mode not in ("relative", "absolute"):
+            raise CamcalError(f"mode must be 'relative' or 'absolute', got {self.mode!r}")
+
+
+@dataclass(frozen=True)
+class SweepSetting:
+    """The measurement at one monochromator setting (the unsaturated frames at one wavelength combined).
+
+    Attributes
+    ----------
+    wavelength_nm : the setting, nm.
+    value : (C,) c per plane before deconvolution, DN s^-1 per (W m^-2 sr^-1 nm^-1) per nm at the reference
+        setting (:func:`combine_wavelength`).
+    noise_unc : (C,) its standard uncertainty from the frames' noise, same unit.
+    reference_unc_rel : relative standard uncertainty of the reference radiance.
+    n_frames : frames used.
+    bandwidth_nm : the row's ``bandwidth_nm`` (nm), None when not given.
+    """
+
+    wavelength_nm: float
+    value: np.ndarray
+    noise_unc: np.ndarray
+    reference_unc_rel: float
+    n_frames: int
+    bandwidth_nm: float | None
+
+
+@dataclass(frozen=True)
+class SweepMeasurement:
+    """What :func:`measure_sweep_settings` read from the sweep's files: one :class:`SweepSetting` per
+    wavelength (ascending), the plane names, notes (skipped frames, saturating defects) and ``sweep.csv``."""
+
+    settings: tuple[SweepSetting, ...]
+    channels: tuple[str, ...]
+    notes: tuple[str, ...]
+    csv_path: Path
+
+
+def measure_sweep_settings(
+    sweep_folder: str | Path,
+    rows: Sequence[SweepRow],
+    *,
+    dark: DarkModel | str | Path | None = None,
+    flat: FlatModel | str | Path | None = None,
+    options: SweepOptions = SweepOptions(),  # noqa: B008
+    jobs: int = 2,
+    progress: Callable[[int, int], None] | None = None,
+) -> SweepMeasurement:
+    """The file step of the sweep: decode every frame of ``rows`` once (in threads), correct its ROI
+    (:mod:`camcal.correct`), skip saturated frames and combine each wavelength (:func:`combine_wavelength`).
+
+    Raises
+    ------
+    CamcalError
+        Negative or zero radiance, non-RAW frames, mismatched sizes, too few unsaturated frames.
+    """
+    reference_iso, reference_f_number = options.reference_iso, options.reference_f_number
+    roi, max_saturated_fraction, min_frames = options.roi, options.max_saturated_fraction, options.min_frames
     csv_path = Path(sweep_folder) / SWEEP_CSV
     for r in rows:
         if r.radiance_w_m2_sr <= 0:
@@ -521,11 +601,10 @@ def measure_sweep(
 
     def warn(msg: str) -> None:
         notes.append(msg)
-        warnings.warn(msg, SweepWarning, stacklevel=3)
+        warnings.warn(msg, SweepWarning, stacklevel=4)
 
-    if mode == "absolute" and flat is None:
+    if options.mode == "absolute" and flat is None:
         warn("no flat model: absolute values refer to the ROI, not the optical axis (vignetting not removed)")
-
     # geometry from the first frame (header decode only once: the first frame is decoded again by the pool)
     first = load_frame(rows[0].path, rows[0].overrides)
     if first.kind != "raw":
@@ -563,11 +642,7 @@ def measure_sweep(
     for r in rows:
         groups.setdefault(r.wavelength_nm, []).append(r)
     wls = sorted(groups)
-    value = np.empty((len(names), len(wls)))
-    u_noise = np.empty((len(names), len(wls)))
-    u_ref = np.zeros(len(wls))
-    bw: list[float] = []
-    n_used: dict[str, int] = {}
+    settings: list[SweepSetting] = []
     defect_saturated: dict[float, int] = {}
     worst: dict[float, float] = {}
     done = 0
@@ -577,7 +652,7 @@ def measure_sweep(
     with ThreadPoolExecutor(max_workers=threads) as pool:
         results = pool.map(work, ordered) if threads > 1 else map(work, ordered)
         it = iter(results)
-        for j, wl in enumerate(wls):
+        for wl in wls:
             frames: list[_FrameResult] = []
             for _ in groups[wl]:
                 res = next(it)
@@ -597,44 +672,62 @@ def measure_sweep(
                 raise CamcalError(f"at {wl:g} nm only {len(frames)} of {len(groups[wl])} frames are unsaturated "
                                   f"({names}: up to {100 * worst.get(wl, 0.0):.2g} % of the ROI saturated outside "
                                   f"known defects); need {max(1, min_frames)}: shorten the exposure", csv_path)
-            value[:, j], u_noise[:, j], u_ref[j] = combine_wavelength(frames)
-            n_used[f"{wl:g}"] = len(frames)
+            v, u, ur = combine_wavelength(frames)
             bws = {r.bandwidth_nm for r in groups[wl] if r.bandwidth_nm is not None}
             if len(bws) > 1:
                 raise CamcalError(f"rows at {wl:g} nm give different bandwidth_nm values {sorted(bws)}", csv_path)
-            if bws:
-                bw.append(bws.pop())
+            settings.append(SweepSetting(wl, np.asarray(v, np.float64), np.asarray(u, np.float64), float(ur),
+                                         len(frames), bws.pop() if bws else None))
             del frames
     if defect_saturated:
         ws = sorted(defect_saturated)
         notes.append(f"hot pixels saturate: up to {max(defect_saturated.values())} known defects of the ROI reach "
                      f"the white level at {ws[0]:g}-{ws[-1]:g} nm; they are masked (frames kept)")
-    wl_arr = np.asarray(wls, float)
+    return SweepMeasurement(tuple(settings), tuple(names), tuple(notes), csv_path)
+
+
+def sensitivity_from_settings(measured: SweepMeasurement, options: SweepOptions = SweepOptions()  # noqa: B008
+                              ) -> SpectralSensitivity:
+    """c(λ) per plane from the per-wavelength measurements (seed §3.1); pure.
+
+    The total uncertainty combines the frames' noise and the reference radiance's relative uncertainty;
+    with ``options.deconvolve`` the slit function is removed (:func:`deconvolve_slit`, ``bandwidth_nm`` needed
+    at every wavelength); ``mode="relative"`` divides by the largest value (:func:`to_relative`).
+    """
+    options.check()
+    names = measured.channels
+    st = measured.settings
+    wl_arr = np.asarray([x.wavelength_nm for x in st], float)
+    value = np.stack([x.value for x in st], axis=1) if st else np.empty((len(names), 0))
+    u_noise = np.stack([x.noise_unc for x in st], axis=1) if st else np.empty((len(names), 0))
+    u_ref = np.asarray([x.reference_unc_rel for x in st], float)
+    bw = [x.bandwidth_nm for x in st if x.bandwidth_nm is not None]
+    n_used = {f"{x.wavelength_nm:g}": x.n_frames for x in st}
     u_tot = np.hypot(u_noise, value * u_ref[None, :])
     bandwidth = float(np.median(bw)) if bw else None
     out_vals, out_unc = value, u_tot
-    if deconvolve:
-        if len(bw) != len(wls):
-            raise CamcalError("deconvolution needs a bandwidth_nm value on every sweep.csv row", csv_path)
+    if options.deconvolve:
+        if len(bw) != len(st):
+            raise CamcalError("deconvolution needs a bandwidth_nm value on every sweep.csv row", measured.csv_path)
         out_vals = np.empty_like(value)
         out_unc = np.empty_like(value)
         for p in range(len(names)):
-            out_vals[p], out_unc[p] = deconvolve_slit(wl_arr, value[p], u_tot[p], np.asarray(bw), slit=slit,
-                                                      regularisation=regularisation)
+            out_vals[p], out_unc[p] = deconvolve_slit(wl_arr, value[p], u_tot[p], np.asarray(bw), slit=options.slit,
+                                                      regularisation=options.regularisation)
     sens = SpectralSensitivity(
         wavelength_nm=wl_arr,
         values={p: out_vals[k] for k, p in enumerate(names)},
         uncertainty={p: out_unc[k] for k, p in enumerate(names)},
         units=ABSOLUTE_UNITS,
         mode="absolute",
-        reference_iso=float(reference_iso),
-        reference_f_number=float(reference_f_number),
+        reference_iso=float(options.reference_iso),
+        reference_f_number=float(options.reference_f_number),
         bandwidth_nm=bandwidth,
-        deconvolved=bool(deconvolve),
+        deconvolved=bool(options.deconvolve),
         n_frames=n_used,
-        notes=tuple(notes),
+        notes=measured.notes,
     )
-    return to_relative(sens) if mode == "relative" else sens
+    return to_relative(sens) if options.mode == "relative" else sens
 
 
 def to_relative(s: SpectralSensitivity) -> SpectralSensitivity:
