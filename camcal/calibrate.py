@@ -15,16 +15,16 @@ from pathlib import Path
 
 from camcal import __version__
 from camcal.colour import fit_colour_matrix, twin_pairs
-from camcal.dark import fit_dark, with_dead_pixels
+from camcal.dark import DarkOptions, fit_dark_stacks, stack_darks, with_dead_pixels
 from camcal.errors import CamcalError
-from camcal.flat import DEAD_RESPONSE, dead_pixels, fit_flat
+from camcal.flat import DEAD_RESPONSE, FlatOptions, dead_pixels, fit_flat_with
 from camcal.hashing import sha256_file
 from camcal.io import IMAGE_EXTENSIONS, load_frame
 from camcal.manifest import SESSION_DEFAULTS
 from camcal.profile import CalibrationProfile, CameraIdentity, Provenance
 from camcal.response import fit_response
 from camcal.session import STAGES, SessionIndex, index_session, present_stages
-from camcal.spectral import measure_sweep, sweep_rows
+from camcal.spectral import SweepOptions, measure_sweep_settings, read_sweep, sensitivity_from_settings, sweep_rows
 
 __all__ = ["STAGES", "CalibrateOptions", "calibrate_session", "camera_identity", "present_stages"]
 
@@ -159,14 +159,16 @@ def calibrate_session(
     response = None
     bias_frames = index.stage("bias")
     if "dark" in stages:
-        dark = fit_dark(index.frames["dark"], bias_frames, method=opts.dark_method, jobs=opts.jobs,
-                        progress=cb("dark"))
+        dark_opts = DarkOptions(method=opts.dark_method)
+        dark = fit_dark_stacks(stack_darks(index.frames["dark"], bias_frames, dark_opts, jobs=opts.jobs,
+                                           progress=cb("dark")), dark_opts)
     elif bias_frames is not None:
-        dark = fit_dark(None, bias_frames, jobs=opts.jobs, progress=cb("bias"))
+        dark = fit_dark_stacks(stack_darks(None, bias_frames, jobs=opts.jobs, progress=cb("bias")))
         notes.append("bias/ without dark/: bias, read noise and noisy pixels calibrated; dark current unknown "
                      "(apply subtracts the bias only; add dark frames at two exposure times to measure it)")
     if "flat" in stages:
-        flat = fit_flat(index.frames["flat"], dark, model=opts.flat_model, jobs=opts.jobs, progress=cb("flat"))
+        flat = fit_flat_with(index.frames["flat"], dark, FlatOptions(model=opts.flat_model), jobs=opts.jobs,
+                             progress=cb("flat"))
         dead = dead_pixels(flat)
         if dark is not None:
             dark = with_dead_pixels(dark, dead, f"flat response below {DEAD_RESPONSE:g} of the model")
@@ -179,9 +181,13 @@ def calibrate_session(
     if "sweep" in stages:
         sweep = index.frames["sweep"]
         rows = sweep_rows(sweep.folder, index.sweep_manifest) if index.sweep_manifest is not None else None
-        spectral = measure_sweep(sweep.folder, rows=rows, dark=dark, flat=flat, mode=opts.sweep_mode,
-                                 deconvolve=opts.deconvolve, reference_iso=ref_iso, reference_f_number=ref_n,
-                                 jobs=opts.jobs, progress=cb("sweep"))
+        sweep_opts = SweepOptions(mode=opts.sweep_mode, deconvolve=opts.deconvolve,  # type: ignore[arg-type]
+                                  reference_iso=ref_iso, reference_f_number=ref_n)
+        sweep_opts.check()
+        measured = measure_sweep_settings(sweep.folder, rows if rows is not None else read_sweep(sweep.folder),
+                                          dark=dark, flat=flat, options=sweep_opts, jobs=opts.jobs,
+                                          progress=cb("sweep"))
+        spectral = sensitivity_from_settings(measured, sweep_opts)
         if flat is None:
             notes.append("sweep without a flat model: c(λ) refers to the region of interest, not the optical axis")
         if response is not None and "processed" in response:

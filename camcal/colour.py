@@ -136,7 +136,22 @@ def fit_colour_matrix(folders: Sequence[str | Path | StageFrames], processed, *,
     pairs = [p for f in folders for p in twin_pairs(f)]
     if not pairs:
         return None
-    where = folder_of(folders[0])
+    r, j, ok = measure_twins(pairs, processed, roi_fraction=roi_fraction)
+    return colour_matrix_from_twins(r, j, ok, min_frames=min_frames, where=folder_of(folders[0]),
+                                    sources=tuple(str(folder_of(f)) for f in folders))
+
+
+def measure_twins(pairs: Sequence[tuple[Path, Path]], processed, *,
+                  roi_fraction: float = 0.2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The file step of the colour matrix: decode each RAW frame and its JPEG twin once and measure the
+    central box.
+
+    Returns
+    -------
+    raw_rgb : (N, 3) RAW means above the file's black level, DN (the two greens averaged).
+    jpeg_lin : (N, 3) linearised JPEG means (``processed.linearise``), DN of the response model.
+    usable : (N, 3) bool, neither channel clipped nor too dark.
+    """
     r_rows, j_rows, ok_rows = [], [], []
     white = float(processed.white_level_dn)
     for path, twin in pairs:
@@ -164,7 +179,16 @@ def fit_colour_matrix(folders: Sequence[str | Path | StageFrames], processed, *,
         j_rows.append(j)
         ok_rows.append((clipped < MAX_CLIPPED_FRACTION) & (j > MIN_LEVEL_FRACTION * white)
                        & (raw_clipped < MAX_CLIPPED_FRACTION))
-    r, j, ok = np.asarray(r_rows), np.asarray(j_rows), np.asarray(ok_rows)
+    return np.asarray(r_rows), np.asarray(j_rows), np.asarray(ok_rows)
+
+
+def colour_matrix_from_twins(r: np.ndarray, j: np.ndarray, ok: np.ndarray, *, min_frames: int = 6,
+                             where: str | Path | None = None, sources: tuple[str, ...] = ()) -> ColourMatrix:
+    """Fit the colour matrix A (module docstring) to twin measurements (:func:`measure_twins`); pure.
+
+    Each processed channel is a weighted least-squares combination of the RAW R, G, B means over its usable
+    frames (relative residuals); ``where`` names the folder in errors, ``sources`` are recorded.
+    """
     matrix = np.empty((3, 3))
     unc = np.empty((3, 3))
     n_used, rms = [], []
@@ -188,5 +212,4 @@ def fit_colour_matrix(folders: Sequence[str | Path | StageFrames], processed, *,
         rms.append(float(np.sqrt(np.mean(res**2))))
     if abs(np.linalg.det(matrix)) < 1e-12 * float(np.abs(matrix).max()) ** 3:
         raise CamcalError("the fitted colour matrix is singular (the JPEG twins hold too few colours)", where)
-    return ColourMatrix(matrix, unc, tuple(n_used), tuple(rms),  # type: ignore[arg-type]
-                        tuple(str(folder_of(f)) for f in folders))
+    return ColourMatrix(matrix, unc, tuple(n_used), tuple(rms), sources)  # type: ignore[arg-type]

@@ -559,6 +559,32 @@ class FlatChecks:
     max_level: float = 0.95
 
 
+@dataclass(frozen=True)
+class FlatOptions:
+    """Options of the flat stage: the combine (:func:`master_flat`) and the fit (:func:`fit_master`).
+
+    Attributes
+    ----------
+    model, downsample, n_terms, degree_2d, with_prnu : the fit, see :func:`fit_flat_planes`.
+    method, sigma : combine method (``mean``, ``median``, ``sigma_clip``) and clip threshold (standard deviations).
+    checks : exposure limits of each flat frame (:class:`FlatChecks`).
+    """
+
+    model: Literal["radial", "2d"] = "radial"
+    downsample: int | None = None
+    n_terms: int = DEFAULT_TERMS
+    degree_2d: int = 4
+    with_prnu: bool = True
+    method: str = "sigma_clip"
+    sigma: float = 3.0
+    checks: FlatChecks = FlatChecks()  # noqa: RUF009 - frozen, so one shared default is safe
+
+    def fit_kwargs(self) -> dict:
+        """The keywords of :func:`fit_master`."""
+        return {"model": self.model, "downsample": self.downsample, "n_terms": self.n_terms,
+                "degree_2d": self.degree_2d, "with_prnu": self.with_prnu}
+
+
 def check_flat_frame(frame: Frame, checks: FlatChecks = FlatChecks(),  # noqa: B008
                      shape: tuple[int, int] | None = None, reference: str | None = None,
                      defects: np.ndarray | None = None) -> None:
@@ -718,12 +744,24 @@ def fit_flat(
     checks : exposure limits (:class:`FlatChecks`).
     jobs, progress : passed to :func:`camcal.stack.combine_frames`.
     """
-    _check_options(model, n_terms)
-    dark_model = as_dark_model(dark)
-    mf = master_flat(flat_folder, dark_model, method=method, sigma=sigma, checks=checks, jobs=jobs,
+    options = FlatOptions(model, downsample, n_terms, degree_2d, with_prnu, method, sigma, checks)
+    return fit_flat_with(flat_folder, as_dark_model(dark), options, jobs=jobs, progress=progress)
+
+
+def fit_flat_with(
+    flat: str | Path | StageFrames,
+    dark: DarkModel | None,
+    options: FlatOptions = FlatOptions(),  # noqa: B008
+    *,
+    jobs: int = 1,
+    progress: Callable | None = None,
+) -> FlatModel:
+    """The flat stage with typed options: :func:`master_flat` (the file step: correct, normalise, combine)
+    then :func:`fit_master` (pure: vignetting model and PRNU)."""
+    _check_options(options.model, options.n_terms)
+    mf = master_flat(flat, dark, method=options.method, sigma=options.sigma, checks=options.checks, jobs=jobs,
                      progress=progress)
-    return fit_master(mf, dark_model, model=model, downsample=downsample, n_terms=n_terms, degree_2d=degree_2d,
-                      with_prnu=with_prnu)
+    return fit_master(mf, dark, **options.fit_kwargs())
 
 
 def fit_master(
