@@ -111,13 +111,18 @@ def _reference(index: SessionIndex, opts: CalibrateOptions) -> tuple[float, floa
         manifest, csv_name = index.manifest_of(s)
         settings: Counter = Counter()
         origin: dict[tuple, tuple[str | None, str | None]] = {}
-        for p in index.frames[s].paths[:64]:
+        for ref in index.frames[s].frames[:64]:
+            p = ref.path
             row = manifest.get(p.name, {})
-            f = load_frame(p)
-            key = (row.get("iso") or f.exposure.iso, row.get("f_number") or f.exposure.f_number)
+            if ref.iso is not None and ref.f_number is not None:  # manifest, tag or session.toml: no decode
+                exp_iso, exp_n, src_iso, src_n = ref.iso, ref.f_number, ref.iso_source, ref.f_number_source
+            else:  # only LibRaw (a maker header) can tell: decode
+                e = load_frame(p).exposure
+                exp_iso, exp_n, src_iso, src_n = e.iso, e.f_number, e.source("iso"), e.source("f_number")
+            key = (row.get("iso") or exp_iso, row.get("f_number") or exp_n)
             settings[key] += 1
-            origin.setdefault(key, (csv_name if row.get("iso") else f.exposure.source("iso"),
-                                    csv_name if row.get("f_number") else f.exposure.source("f_number")))
+            origin.setdefault(key, (csv_name if row.get("iso") else src_iso,
+                                    csv_name if row.get("f_number") else src_n))
         (fi, fn), _ = settings.most_common(1)[0]
         iso, n = iso or fi, n or fn
         for key, value in (("iso", iso), ("f_number", n)):

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from camcal.errors import CamcalError, MissingMetadataError
-from camcal.io import IMAGE_EXTENSIONS, exposure_from_exif, folder_files, list_frames
+from camcal.io import IMAGE_EXTENSIONS, exposure_from_exif, folder_files, is_raw_path, list_frames
 from camcal.manifest import FRAMES_CSV, exposure_overrides, read_manifest, session_defaults_for
 
 STAGES = ("bias", "dark", "flat", "linearity", "sweep")
@@ -43,7 +43,8 @@ class FrameRef:
         :func:`camcal.io.load_frame` when it is decoded.
     exposure_s : exposure time, s; None when only decoding can tell (LibRaw) or nothing holds it.
     exposure_source : where ``exposure_s`` came from: the manifest's name, ``tag`` or ``session``; None when unknown.
-    iso : ISO speed (same precedence), None when unknown before decoding.
+    iso, f_number : ISO speed and f-number (same precedence), None when unknown before decoding.
+    iso_source, f_number_source : where they came from, as ``exposure_source``.
     """
 
     path: Path
@@ -51,6 +52,9 @@ class FrameRef:
     exposure_s: float | None = None
     exposure_source: str | None = None
     iso: float | None = None
+    iso_source: str | None = None
+    f_number: float | None = None
+    f_number_source: str | None = None
 
 
 @dataclass(frozen=True)
@@ -124,14 +128,17 @@ def present_stages(session: str | Path) -> list[str]:
 
 def resolve_exposure(path: Path, row: Row | None, defaults: Mapping[str, float],
                      manifest_name: str = FRAMES_CSV) -> FrameRef:
-    """What is known of one frame's exposure time and ISO without decoding it (module docstring).
+    """What is known of one frame's exposure time, ISO and f-number without decoding it (module docstring).
 
-    The file's EXIF header is read (:func:`camcal.io.exposure_from_exif`); pixels are not.
+    The file's EXIF header is read (:func:`camcal.io.exposure_from_exif`); pixels are not. For a processed
+    image (JPEG, TIFF, PNG) a value the EXIF reader does not find stays unknown here: OpenImageIO may still
+    read it when the file is decoded, and it would rank above ``session.toml``.
     """
+    raw = is_raw_path(path)
     overrides = {k: v for k, v in exposure_overrides(row).items() if v is not None}
     tags = None
     values: dict[str, tuple[float | None, str | None]] = {}
-    for key in ("exposure_s", "iso"):
+    for key in ("exposure_s", "iso", "f_number"):
         if overrides.get(key) is not None:
             values[key] = (float(overrides[key]), manifest_name)
             continue
@@ -140,12 +147,12 @@ def resolve_exposure(path: Path, row: Row | None, defaults: Mapping[str, float],
         v = getattr(tags, key)
         if v is not None:
             values[key] = (float(v), "tag")
-        elif defaults.get(key) is not None:
+        elif raw and defaults.get(key) is not None:
             values[key] = (float(defaults[key]), "session")
         else:
             values[key] = (None, None)
-    return FrameRef(path, exposure_overrides(row) if row else {}, values["exposure_s"][0], values["exposure_s"][1],
-                    values["iso"][0])
+    return FrameRef(path, exposure_overrides(row) if row else {}, *values["exposure_s"], *values["iso"],
+                    *values["f_number"])
 
 
 def index_session(session: str | Path) -> SessionIndex:
