@@ -22,7 +22,7 @@ from camcal.hashing import sha256_file
 from camcal.io import IMAGE_EXTENSIONS, load_frame
 from camcal.manifest import SESSION_DEFAULTS
 from camcal.profile import CalibrationProfile, CameraIdentity, Provenance
-from camcal.response import fit_response
+from camcal.response import fit_series_set, measure_series
 from camcal.session import STAGES, SessionIndex, index_session, present_stages
 from camcal.spectral import SweepOptions, measure_sweep_settings, read_sweep, sensitivity_from_settings, sweep_rows
 
@@ -181,8 +181,8 @@ def calibrate_session(
             notes.append(f"{int(dead.sum())} dead pixels in the flats are not kept: without a dark model the "
                          "profile has no defect map")
     if "linearity" in stages:
-        response = fit_response(index.frames["linearity"], dark=dark, reference_iso=ref_iso,
-                                reference_f_number=ref_n, progress=cb("linearity"))
+        response = fit_series_set(measure_series(index.frames["linearity"], dark=dark, reference_iso=ref_iso,
+                                                 reference_f_number=ref_n, progress=cb("linearity")))
     if "sweep" in stages:
         sweep = index.frames["sweep"]
         rows = sweep_rows(sweep.folder, index.sweep_manifest) if index.sweep_manifest is not None else None

@@ -819,6 +819,16 @@ def fit_response(
     """
     series = measure_series(folder, roi=roi, dark=dark, reference_iso=reference_iso,
                             reference_f_number=reference_f_number, progress=progress)
+    return fit_series_set(series)
+
+
+def fit_series_set(series: dict[str, ExposureSeries]) -> dict[str, ResponseModel]:
+    """Fit every kind of series measured from one folder (:func:`measure_series`); pure.
+
+    A processed frame whose RAW twin clips is masked first (:func:`mask_raw_clipped`), then each kind is
+    fitted with :func:`fit_series` (seed eq. 12).
+    """
+    series = dict(series)
     if "raw" in series and "processed" in series:
         series["processed"] = mask_raw_clipped(series["processed"], series["raw"])
     return {kind: fit_series(s) for kind, s in sorted(series.items())}
