@@ -3,16 +3,21 @@ that need no pixels. Sessions are real DNG/JPEG files written by :mod:`camcal.sy
 
 from __future__ import annotations
 
+import shutil
 import sys
+import warnings
 from collections import Counter
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 import camcal.manifest
 from camcal.calibrate import calibrate_session
+from camcal.dark import DarkOptions, dark_to_parts, fit_dark, fit_dark_stacks, stack_darks
 from camcal.errors import CamcalError
 from camcal.session import StageFrames, index_session
+from camcal.spectral import SweepOptions, measure_sweep, measure_sweep_settings, read_sweep, sensitivity_from_settings
 from camcal.synth.camera import SensorParams, SyntheticCamera
 from camcal.synth.session import SessionPlan, write_session
 
@@ -68,8 +73,6 @@ def test_index_resolves_exposures_with_their_source(small_session):
 
 
 def test_index_checks_without_decoding(tmp_path, small_session):
-    import shutil
-
     s = tmp_path / "S"
     shutil.copytree(small_session, s)
     csv = s / "dark" / "frames.csv"
@@ -89,3 +92,30 @@ def test_index_checks_without_decoding(tmp_path, small_session):
     (s / "sweep" / "sweep.csv").write_text("file,wavelength_nm\nsweep_400.0nm_00.dng,400\n")
     with pytest.raises(CamcalError, match="radiance_W_m2_sr"):
         index_session(s)
+
+
+def test_fits_read_no_file(tmp_path, small_session):
+    """The pure steps work on what the file steps produced after the files are gone, and give what the
+    one-call stage functions give."""
+    s = tmp_path / "S"
+    shutil.copytree(small_session, s)
+    whole = fit_dark(s / "dark", s / "bias", method="median")
+    bias_only = fit_dark(None, s / "bias")
+    opts = DarkOptions(method="median")
+    stacks = stack_darks(s / "dark", s / "bias", opts)
+    stacks_bias = stack_darks(None, s / "bias")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        sweep_opts = SweepOptions(mode="relative")
+        sens = measure_sweep(s / "sweep", dark=whole, mode="relative")
+        measured = measure_sweep_settings(s / "sweep", read_sweep(s / "sweep"), dark=whole, options=sweep_opts)
+    shutil.rmtree(s)
+    for a, b in ((fit_dark_stacks(stacks, opts), whole), (fit_dark_stacks(stacks_bias), bias_only)):
+        (da, ma), (db, mb) = dark_to_parts(a), dark_to_parts(b)
+        assert da == db and ma.keys() == mb.keys()
+        assert all(np.array_equal(ma[k], mb[k], equal_nan=True) for k in ma)
+    again = sensitivity_from_settings(measured, sweep_opts)
+    assert again.plane_names == sens.plane_names and again.mode == "relative"
+    for p in sens.plane_names:
+        assert np.array_equal(again.values[p], sens.values[p]) and np.array_equal(again.uncertainty[p],
+                                                                                   sens.uncertainty[p])
