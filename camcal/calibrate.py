@@ -9,20 +9,24 @@ from __future__ import annotations
 
 from collections import Counter
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from datetime import UTC, datetime
 from pathlib import Path
 
 from camcal import __version__
-from camcal.dark import fit_dark, with_dead_pixels
+from camcal.colour import fit_colour_matrix, twin_pairs
+from camcal.dark import DarkOptions, fit_dark_stacks, stack_darks, with_dead_pixels
 from camcal.errors import CamcalError
-from camcal.flat import DEAD_RESPONSE, dead_pixels, fit_flat
+from camcal.flat import DEAD_RESPONSE, FlatOptions, dead_pixels, fit_flat_with
 from camcal.hashing import sha256_file
-from camcal.io import IMAGE_EXTENSIONS, folder_manifest, list_frames, load_frame
-from camcal.manifest import SESSION_DEFAULTS, read_manifest
+from camcal.io import IMAGE_EXTENSIONS, load_frame
+from camcal.manifest import SESSION_DEFAULTS
 from camcal.profile import CalibrationProfile, CameraIdentity, Provenance
+from camcal.response import fit_series_set, measure_series
+from camcal.session import STAGES, SessionIndex, index_session, present_stages
+from camcal.spectral import SweepOptions, measure_sweep_settings, read_sweep, sensitivity_from_settings, sweep_rows
 
-STAGES = ("bias", "dark", "flat", "linearity", "sweep")
+__all__ = ["STAGES", "CalibrateOptions", "calibrate_session", "camera_identity", "present_stages"]
 
 Progress = Callable[[str, int, int], None]
 
@@ -46,23 +50,10 @@ class CalibrateOptions:
     jobs: int = 2
 
 
-def present_stages(session: str | Path) -> list[str]:
-    """Stage folders of ``session`` that hold at least one image file."""
-    session = Path(session)
-    if not session.is_dir():
-        raise CamcalError("is not a session folder", session)
-    out = []
-    for s in STAGES:
-        d = session / s
-        if d.is_dir() and any(p.suffix.lower() in IMAGE_EXTENSIONS for p in d.iterdir()):
-            out.append(s)
-    return out
-
-
-def _inputs(session: Path, stages: list[str]) -> list[dict]:
+def _inputs(index: SessionIndex) -> list[dict]:
     rows = []
-    for s in stages:
-        d = session / s
+    for s in index.stages:
+        d = index.root / s
         for p in sorted(d.iterdir()):
             if p.is_file() and not p.name.startswith(".") and (
                 p.suffix.lower() in IMAGE_EXTENSIONS or p.suffix.lower() == ".csv"
@@ -71,22 +62,27 @@ def _inputs(session: Path, stages: list[str]) -> list[dict]:
     return rows
 
 
-def camera_identity(session: Path, stages: list[str]) -> CameraIdentity:
-    """Identity from the first RAW frame of the session (else the first frame); all stages must agree."""
+def camera_identity(session: str | Path | SessionIndex, stages: list[str] | None = None) -> CameraIdentity:
+    """Identity from the first RAW frame of the session (else the first frame); all stages must agree.
+
+    ``session`` is a :class:`camcal.session.SessionIndex` (or a folder, indexed here); ``stages`` limits the
+    stages looked at (default: all present).
+    """
+    index = session if isinstance(session, SessionIndex) else index_session(session)
     seen: dict[str, CameraIdentity] = {}
-    for s in stages:
-        frames = list_frames(session / s)
+    for s in stages if stages is not None else index.stages:
+        frames = index.frames[s].paths
         raw = [p for p in frames if p.suffix.lower() not in (".jpg", ".jpeg", ".png", ".tif", ".tiff")]
         f = load_frame((raw or frames)[0])
         h, w = f.shape
         seen[s] = CameraIdentity(f.exposure.make, f.exposure.model, f.exposure.serial, f.cfa_pattern, w, h, f.layout)
     models = {(c.make, c.model) for c in seen.values() if c.model}
     if len(models) > 1:
-        raise CamcalError(f"frames from different cameras in one session: {sorted(models)}", session)
+        raise CamcalError(f"frames from different cameras in one session: {sorted(models)}", index.root)
     layouts = {c.layout for c in seen.values() if c.layout != "processed"}
     if len(layouts) > 1:
         raise CamcalError(f"RAW frames of different layouts in one session: {sorted(layouts)} (one camera mode per "
-                          "session)", session)
+                          "session)", index.root)
     raw_ids = [c for c in seen.values() if c.layout != "processed"]
     return (raw_ids or list(seen.values()))[0]
 
@@ -97,7 +93,7 @@ _REFERENCE_HINT = {
 }
 
 
-def _reference(session: Path, stages: list[str], opts: CalibrateOptions) -> tuple[float, float, list[str]]:
+def _reference(index: SessionIndex, opts: CalibrateOptions) -> tuple[float, float, list[str]]:
     """The reference setting (ISO_ref, N_ref): the options', else the most common setting of the first stage
     present of sweep, linearity, dark, flat, bias (frames.csv / sweep.csv and session.toml applied).
 
@@ -108,23 +104,25 @@ def _reference(session: Path, stages: list[str], opts: CalibrateOptions) -> tupl
     iso, n = opts.reference_iso, opts.reference_f_number
     if iso and n:
         return float(iso), float(n), []
+    session = index.root
     for s in ("sweep", "linearity", "dark", "flat", "bias"):
-        if s not in stages:
+        if s not in index.stages:
             continue
-        manifest = folder_manifest(session / s) if (session / s / "frames.csv").exists() else {}
-        csv_name = "frames.csv"
-        if s == "sweep" and (session / s / "sweep.csv").exists():
-            manifest = read_manifest(session / s / "sweep.csv", required=("file",))
-            csv_name = "sweep.csv"
+        manifest, csv_name = index.manifest_of(s)
         settings: Counter = Counter()
         origin: dict[tuple, tuple[str | None, str | None]] = {}
-        for p in list_frames(session / s)[:64]:
+        for ref in index.frames[s].frames[:64]:
+            p = ref.path
             row = manifest.get(p.name, {})
-            f = load_frame(p)
-            key = (row.get("iso") or f.exposure.iso, row.get("f_number") or f.exposure.f_number)
+            if ref.iso is not None and ref.f_number is not None:  # manifest, tag or session.toml: no decode
+                exp_iso, exp_n, src_iso, src_n = ref.iso, ref.f_number, ref.iso_source, ref.f_number_source
+            else:  # only LibRaw (a maker header) can tell: decode
+                e = load_frame(p).exposure
+                exp_iso, exp_n, src_iso, src_n = e.iso, e.f_number, e.source("iso"), e.source("f_number")
+            key = (row.get("iso") or exp_iso, row.get("f_number") or exp_n)
             settings[key] += 1
-            origin.setdefault(key, (csv_name if row.get("iso") else f.exposure.source("iso"),
-                                    csv_name if row.get("f_number") else f.exposure.source("f_number")))
+            origin.setdefault(key, (csv_name if row.get("iso") else src_iso,
+                                    csv_name if row.get("f_number") else src_n))
         (fi, fn), _ = settings.most_common(1)[0]
         iso, n = iso or fi, n or fn
         for key, value in (("iso", iso), ("f_number", n)):
@@ -148,30 +146,34 @@ def calibrate_session(
 ) -> tuple[CalibrationProfile, list[str]]:
     """Calibrate every stage present in ``session``; returns the profile and notes (skipped stages...).
 
-    ``progress(stage, done, total)`` is called as frames are processed.
+    The session is read once (:func:`camcal.session.index_session`: stage folders, manifests, session
+    defaults); every stage receives its frames from that index. ``progress(stage, done, total)`` is called
+    as frames are processed.
     """
-    session = Path(session)
     opts = options or CalibrateOptions()
-    stages = present_stages(session)
-    if not stages:
-        raise CamcalError("holds none of bias/ dark/ flat/ linearity/ sweep/ with image files", session)
-    camera = camera_identity(session, stages)
-    ref_iso, ref_n, notes = _reference(session, stages, opts)
+    index = index_session(session)
+    session = index.root
+    stages = list(index.stages)
+    camera = camera_identity(index)
+    ref_iso, ref_n, notes = _reference(index, opts)
 
     def cb(stage: str):
         return (lambda done, total: progress(stage, done, total)) if progress else None
 
     dark = flat = spectral = None
     response = None
+    bias_frames = index.stage("bias")
     if "dark" in stages:
-        dark = fit_dark(session / "dark", session / "bias" if "bias" in stages else None, method=opts.dark_method,
-                        jobs=opts.jobs, progress=cb("dark"))
-    elif "bias" in stages:
-        dark = fit_dark(None, session / "bias", jobs=opts.jobs, progress=cb("bias"))
+        dark_opts = DarkOptions(method=opts.dark_method)
+        dark = fit_dark_stacks(stack_darks(index.frames["dark"], bias_frames, dark_opts, jobs=opts.jobs,
+                                           progress=cb("dark")), dark_opts)
+    elif bias_frames is not None:
+        dark = fit_dark_stacks(stack_darks(None, bias_frames, jobs=opts.jobs, progress=cb("bias")))
         notes.append("bias/ without dark/: bias, read noise and noisy pixels calibrated; dark current unknown "
                      "(apply subtracts the bias only; add dark frames at two exposure times to measure it)")
     if "flat" in stages:
-        flat = fit_flat(session / "flat", dark, model=opts.flat_model, jobs=opts.jobs, progress=cb("flat"))
+        flat = fit_flat_with(index.frames["flat"], dark, FlatOptions(model=opts.flat_model), jobs=opts.jobs,
+                             progress=cb("flat"))
         dead = dead_pixels(flat)
         if dark is not None:
             dark = with_dead_pixels(dark, dead, f"flat response below {DEAD_RESPONSE:g} of the model")
@@ -179,25 +181,23 @@ def calibrate_session(
             notes.append(f"{int(dead.sum())} dead pixels in the flats are not kept: without a dark model the "
                          "profile has no defect map")
     if "linearity" in stages:
-        from camcal.response import fit_response
-
-        response = fit_response(session / "linearity", dark=dark, reference_iso=ref_iso, reference_f_number=ref_n,
-                                progress=cb("linearity"))
+        response = fit_series_set(measure_series(index.frames["linearity"], dark=dark, reference_iso=ref_iso,
+                                                 reference_f_number=ref_n, progress=cb("linearity")))
     if "sweep" in stages:
-        from camcal.spectral import measure_sweep
-
-        spectral = measure_sweep(session / "sweep", dark=dark, flat=flat, mode=opts.sweep_mode,
-                                 deconvolve=opts.deconvolve, reference_iso=ref_iso, reference_f_number=ref_n,
-                                 jobs=opts.jobs, progress=cb("sweep"))
+        sweep = index.frames["sweep"]
+        rows = sweep_rows(sweep.folder, index.sweep_manifest) if index.sweep_manifest is not None else None
+        sweep_opts = SweepOptions(mode=opts.sweep_mode, deconvolve=opts.deconvolve,  # type: ignore[arg-type]
+                                  reference_iso=ref_iso, reference_f_number=ref_n)
+        sweep_opts.check()
+        measured = measure_sweep_settings(sweep.folder, rows if rows is not None else read_sweep(sweep.folder),
+                                          dark=dark, flat=flat, options=sweep_opts, jobs=opts.jobs,
+                                          progress=cb("sweep"))
+        spectral = sensitivity_from_settings(measured, sweep_opts)
         if flat is None:
             notes.append("sweep without a flat model: c(λ) refers to the region of interest, not the optical axis")
         if response is not None and "processed" in response:
-            from dataclasses import replace
-
-            from camcal.colour import fit_colour_matrix, twin_pairs
-
-            if twin_pairs(session / "sweep"):  # the sweep's colours; the series adds a broadband one
-                cm = fit_colour_matrix([session / "sweep", session / "linearity"], response["processed"])
+            if twin_pairs(sweep):  # the sweep's colours; the series adds a broadband one
+                cm = fit_colour_matrix([sweep, index.frames["linearity"]], response["processed"])
                 response = {**response, "processed": replace(response["processed"], colour_matrix=cm)}
             else:
                 notes.append("JPEG response without a colour matrix (the sweep has no JPEG twins): JPEG radiance "
@@ -205,7 +205,7 @@ def calibrate_session(
     provenance = Provenance(
         camcal_version=__version__,
         created_utc=datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
-        inputs=tuple(_inputs(session, stages)),
+        inputs=tuple(_inputs(index)),
         options={**asdict(opts), "session": session.name, "stages": stages},
     )
     profile = CalibrationProfile(camera=camera, reference_iso=ref_iso, reference_f_number=ref_n, dark=dark,

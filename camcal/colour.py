@@ -31,6 +31,7 @@ import numpy as np
 from camcal.correct import Calibration, correct_frame
 from camcal.errors import CamcalError
 from camcal.io import is_raw_path, list_frames, load_frame
+from camcal.session import StageFrames, folder_of
 from camcal.spectral import central_roi
 
 #: A JPEG channel of a sweep frame is used when fewer than this fraction of its ROI pixels are clipped
@@ -93,10 +94,11 @@ class ColourMatrix:
         return ColourMatrix(m, u, n, r, w)  # type: ignore[arg-type]
 
 
-def twin_pairs(folder: str | Path) -> list[tuple[Path, Path]]:
-    """The RAW frames of ``folder`` that have a processed twin (``<stem>.jpg`` or ``.jpeg``), sorted by name."""
+def twin_pairs(folder: str | Path | StageFrames) -> list[tuple[Path, Path]]:
+    """The RAW frames of ``folder`` (a path, or the session index's :class:`camcal.session.StageFrames`) that
+    have a processed twin (``<stem>.jpg`` or ``.jpeg``), sorted by name."""
     pairs = []
-    for path in list_frames(folder):
+    for path in (folder.paths if isinstance(folder, StageFrames) else list_frames(folder)):
         if not is_raw_path(path):
             continue
         for suffix in (".jpg", ".jpeg", ".JPG", ".JPEG"):
@@ -107,7 +109,7 @@ def twin_pairs(folder: str | Path) -> list[tuple[Path, Path]]:
     return pairs
 
 
-def fit_colour_matrix(folders: Sequence[str | Path], processed, *, roi_fraction: float = 0.2,
+def fit_colour_matrix(folders: Sequence[str | Path | StageFrames], processed, *, roi_fraction: float = 0.2,
                       min_frames: int = 6) -> ColourMatrix | None:
     """Fit the colour matrix A from RAW frames and their JPEG twins (module docstring).
 
@@ -134,7 +136,22 @@ def fit_colour_matrix(folders: Sequence[str | Path], processed, *, roi_fraction:
     pairs = [p for f in folders for p in twin_pairs(f)]
     if not pairs:
         return None
-    where = Path(folders[0])
+    r, j, ok = measure_twins(pairs, processed, roi_fraction=roi_fraction)
+    return colour_matrix_from_twins(r, j, ok, min_frames=min_frames, where=folder_of(folders[0]),
+                                    sources=tuple(str(folder_of(f)) for f in folders))
+
+
+def measure_twins(pairs: Sequence[tuple[Path, Path]], processed, *,
+                  roi_fraction: float = 0.2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The file step of the colour matrix: decode each RAW frame and its JPEG twin once and measure the
+    central box.
+
+    Returns
+    -------
+    raw_rgb : (N, 3) RAW means above the file's black level, DN (the two greens averaged).
+    jpeg_lin : (N, 3) linearised JPEG means (``processed.linearise``), DN of the response model.
+    usable : (N, 3) bool, neither channel clipped nor too dark.
+    """
     r_rows, j_rows, ok_rows = [], [], []
     white = float(processed.white_level_dn)
     for path, twin in pairs:
@@ -162,7 +179,16 @@ def fit_colour_matrix(folders: Sequence[str | Path], processed, *, roi_fraction:
         j_rows.append(j)
         ok_rows.append((clipped < MAX_CLIPPED_FRACTION) & (j > MIN_LEVEL_FRACTION * white)
                        & (raw_clipped < MAX_CLIPPED_FRACTION))
-    r, j, ok = np.asarray(r_rows), np.asarray(j_rows), np.asarray(ok_rows)
+    return np.asarray(r_rows), np.asarray(j_rows), np.asarray(ok_rows)
+
+
+def colour_matrix_from_twins(r: np.ndarray, j: np.ndarray, ok: np.ndarray, *, min_frames: int = 6,
+                             where: str | Path | None = None, sources: tuple[str, ...] = ()) -> ColourMatrix:
+    """Fit the colour matrix A (module docstring) to twin measurements (:func:`measure_twins`); pure.
+
+    Each processed channel is a weighted least-squares combination of the RAW R, G, B means over its usable
+    frames (relative residuals); ``where`` names the folder in errors, ``sources`` are recorded.
+    """
     matrix = np.empty((3, 3))
     unc = np.empty((3, 3))
     n_used, rms = [], []
@@ -186,5 +212,4 @@ def fit_colour_matrix(folders: Sequence[str | Path], processed, *, roi_fraction:
         rms.append(float(np.sqrt(np.mean(res**2))))
     if abs(np.linalg.det(matrix)) < 1e-12 * float(np.abs(matrix).max()) ** 3:
         raise CamcalError("the fitted colour matrix is singular (the JPEG twins hold too few colours)", where)
-    return ColourMatrix(matrix, unc, tuple(n_used), tuple(rms),  # type: ignore[arg-type]
-                        tuple(str(f) for f in folders))
+    return ColourMatrix(matrix, unc, tuple(n_used), tuple(rms), sources)  # type: ignore[arg-type]

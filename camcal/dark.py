@@ -43,10 +43,12 @@ from scipy.optimize import minimize
 from scipy.special import chdtri, ndtr
 
 from camcal.correct import Calibration, correct_planes, dark_frame
-from camcal.errors import CamcalError
+from camcal.errors import CamcalError, MissingMetadataError
 from camcal.frame import PATTERNS, PLANES, RGB, Frame
-from camcal.io import exposure_from_exif, folder_files, load_frame
+from camcal.io import exposure_from_exif
+from camcal.session import StageFrames, folder_of, stage_files
 from camcal.stack import MAD_TO_SIGMA, METHODS, StackResult, combine_frames
+from camcal.store import load_stage, save_stage
 
 HOT, DEAD, NOISY = 1, 2, 4
 """Bits of :attr:`DarkModel.defects`."""
@@ -150,21 +152,24 @@ class DarkModel:
 # --------------------------------------------------------------------------------------------
 
 
-def _exposure_time(path: Path, manifest: dict) -> float:
-    """Exposure time from the manifest row, else from the file's EXIF header (no decode)."""
-    row = manifest.get(path.name) or {}
-    t = row.get("exposure_s")
-    if t is None:
-        t = exposure_from_exif(path).exposure_s
-    if t is None:
-        from camcal.errors import MissingMetadataError
-
-        raise MissingMetadataError(path, "exposure_s")
-    return float(t)
-
-
-def _files(folder: Path) -> tuple[list[Path], dict]:
-    return folder_files(folder)
+def _exposure_times(source: str | Path | StageFrames, files: list[Path], manifest: dict) -> list[float]:
+    """Exposure time of each frame, s: as the session index resolved it (manifest row > tag > session.toml),
+    else from the manifest row or the file's EXIF header (no decode)."""
+    if isinstance(source, StageFrames):
+        known = {f.path: f.exposure_s for f in source.frames}
+    else:
+        known = {}
+    out = []
+    for path in files:
+        t = known.get(path)
+        if t is None:
+            t = (manifest.get(path.name) or {}).get("exposure_s")
+        if t is None:
+            t = exposure_from_exif(path).exposure_s
+        if t is None:
+            raise MissingMetadataError(path, "exposure_s")
+        out.append(float(t))
+    return out
 
 
 def dark_frame_check(saturation_fraction: float = 0.01) -> Callable[[Frame], None]:
@@ -198,9 +203,153 @@ def _robust(x: np.ndarray) -> tuple[float, float]:
     return med, MAD_TO_SIGMA * float(np.median(np.abs(x - med)))
 
 
+@dataclass(frozen=True)
+class DarkOptions:
+    """Options of the dark fit (recorded in the model's provenance).
+
+    Attributes
+    ----------
+    method : how each exposure group of darks is combined (:func:`camcal.stack.combine_frames`);
+        bias frames are always averaged (``mean``) so their variance is the full temporal variance.
+    sigma : sigma-clipping threshold, standard deviations.
+    hot_sigma, hot_factor : hot if β > median + max(hot_sigma · robust σ_β, (hot_factor - 1) · median).
+    noisy_sigma : noisy if the temporal variance is above the plane's model variance by more than
+        ``noisy_sigma`` standard errors of a variance and by more than the chi-square bound a
+        normal pixel exceeds with probability 1e-6 for the number of frames. Dead pixels are not
+        found here (a zero temporal variance is normal below 1 DN of noise): the flat stage finds
+        them by their response (:func:`camcal.flat.dead_pixels`).
+    saturation_fraction : a frame with more than this fraction of pixels at the white level is refused.
+    bias_prior_frames : weight, in frames, of the black-level prior at t = 0 (no bias frames only).
+    """
+
+    method: str = "sigma_clip"
+    sigma: float = 3.0
+    hot_sigma: float = 6.0
+    hot_factor: float = 5.0
+    noisy_sigma: float = 6.0
+    saturation_fraction: float = 0.01
+    bias_prior_frames: float = 1.0
+
+
+@dataclass(frozen=True)
+class DarkStacks:
+    """The combined frames the dark model is fitted to (made by :func:`stack_darks`).
+
+    Attributes
+    ----------
+    darks : ``(exposure_s, stack)`` per exposure time of the dark frames (s), shortest first; empty for a
+        bias-only calibration.
+    bias : the averaged bias frames, or None.
+    dark_folder, bias_folder, dark_files, bias_files : where the frames came from (provenance only).
+
+    The read-noise stack (bias, else the shortest darks) keeps its first :data:`QUANTISED_FIT_FRAMES`
+    frames (``kept_planes``) for the quantised-noise fit, so fitting decodes nothing.
+    """
+
+    darks: tuple[tuple[float, StackResult], ...]
+    bias: StackResult | None
+    dark_folder: Path | None = None
+    bias_folder: Path | None = None
+    dark_files: tuple[str, ...] = ()
+    bias_files: tuple[str, ...] = ()
+
+    @property
+    def read_noise_stack(self) -> StackResult:
+        return self.bias if self.bias is not None else self.darks[0][1]
+
+
+def _progress_from(progress: Callable[[int, int], None] | None, offset: int,
+                   total: int) -> Callable[[int, int], None] | None:
+    """``progress`` of one stack among several: its frames counted after ``offset`` of ``total``."""
+    if progress is None:
+        return None
+
+    def cb(i: int, _n: int) -> None:
+        progress(offset + i, total)
+
+    return cb
+
+
+def _check_stacks(stacks: list[StackResult], where: Path) -> float:
+    """One frame size, CFA pattern and ISO over all stacks; returns the ISO."""
+    ref = stacks[0]
+    for st in stacks:
+        if st.frame_shape != ref.frame_shape or st.cfa_pattern != ref.cfa_pattern:
+            h, w = st.frame_shape
+            h0, w0 = ref.frame_shape
+            raise CamcalError(f"frame size {w}x{h} ({st.cfa_pattern}) differs from the first dark frame's "
+                              f"{w0}x{h0} ({ref.cfa_pattern})", st.paths[0])
+    return _same_iso(stacks, where)
+
+
+def stack_darks(
+    dark: str | Path | StageFrames | None,
+    bias: str | Path | StageFrames | None = None,
+    options: DarkOptions = DarkOptions(),  # noqa: B008
+    *,
+    jobs: int = 1,
+    progress: Callable[[int, int], None] | None = None,
+) -> DarkStacks:
+    """The file step of the dark stage: list the frames, group the darks by exposure time, combine each group
+    and the bias frames (:func:`camcal.stack.combine_frames`), check sizes, patterns and ISO.
+
+    ``dark`` / ``bias`` : folders or the session index's :class:`camcal.session.StageFrames`.
+
+    Raises
+    ------
+    CamcalError
+        Non-RAW or saturated frames, frames of different sizes/patterns/ISO, a single dark
+        exposure time without bias frames, fewer than two frames for a bias-only model, missing exposure times.
+    """
+    if options.method not in METHODS:
+        raise CamcalError(f"unknown combination method {options.method!r}; choose from {', '.join(METHODS)}")
+    check = dark_frame_check(options.saturation_fraction)
+    if dark is None:
+        if bias is None:
+            raise CamcalError("the dark model needs dark frames, bias frames or both")
+        files, manifest = stage_files(bias)
+        bias_folder = folder_of(bias)
+        if len(files) < 2:
+            raise CamcalError(f"a bias-only calibration needs two or more bias frames, found {len(files)}",
+                              bias_folder)
+        st = combine_frames(files, method="mean", manifest=manifest, check=check, jobs=jobs, progress=progress,
+                            keep_frames=QUANTISED_FIT_FRAMES)
+        _check_stacks([st], bias_folder)
+        return DarkStacks((), st, None, bias_folder, (), tuple(p.name for p in files))
+    files, manifest = stage_files(dark)
+    times = _exposure_times(dark, files, manifest)
+    dark_folder = folder_of(dark)
+    groups: dict[float, list[Path]] = {}
+    for p, t in zip(files, times, strict=True):
+        groups.setdefault(float(f"{t:.6g}"), []).append(p)
+    bias_files, bias_manifest = stage_files(bias) if bias is not None else ([], {})
+    bias_folder = folder_of(bias) if bias is not None else None
+    if bias_folder is None and len(groups) < 2:
+        (t0,) = groups
+        raise CamcalError(f"all {len(files)} dark frames have one exposure time ({t0:g} s); the dark-current fit "
+                          "needs two or more exposure times, or bias frames (--bias)", dark_folder)
+    total = len(files) + len(bias_files)
+    done = 0
+    bias_stack = None
+    if bias_files:
+        bias_stack = combine_frames(bias_files, method="mean", manifest=bias_manifest, check=check, jobs=jobs,
+                                    progress=_progress_from(progress, 0, total), keep_frames=QUANTISED_FIT_FRAMES)
+        done = len(bias_files)
+    darks: list[tuple[float, StackResult]] = []
+    for i, t in enumerate(sorted(groups)):
+        keep = QUANTISED_FIT_FRAMES if i == 0 and bias_stack is None else 0  # the read-noise stack
+        st = combine_frames(groups[t], method=options.method, sigma=options.sigma, manifest=manifest, check=check,
+                            jobs=jobs, progress=_progress_from(progress, done, total), keep_frames=keep)
+        done += len(groups[t])
+        darks.append((t, st))
+    _check_stacks([s for _, s in darks] + ([bias_stack] if bias_stack is not None else []), dark_folder)
+    return DarkStacks(tuple(darks), bias_stack, dark_folder, bias_folder, tuple(p.name for p in files),
+                      tuple(p.name for p in bias_files))
+
+
 def fit_dark(
-    dark_folder: str | Path | None,
-    bias_folder: str | Path | None = None,
+    dark_folder: str | Path | StageFrames | None,
+    bias_folder: str | Path | StageFrames | None = None,
     *,
     method: str = "sigma_clip",
     sigma: float = 3.0,
@@ -212,27 +361,20 @@ def fit_dark(
     jobs: int = 1,
     progress: Callable[[int, int], None] | None = None,
 ) -> DarkModel:
-    """Fit the dark model from a folder of dark frames (and optionally bias frames).
+    """Fit the dark model from dark frames (and optionally bias frames): :func:`stack_darks` (files), then
+    :func:`fit_dark_stacks` (maths).
 
     Parameters
     ----------
-    dark_folder : folder of RAW dark frames at two or more exposure times (one is enough
-        with bias frames), with an optional ``frames.csv`` (``exposure_s``, ``iso``,
-        ``temperature_C``...); None for a bias-only calibration (bias, read noise and noisy
-        pixels; the dark current is then unknown, ``dark_current_dn_per_s`` None).
+    dark_folder : folder (or the session index's :class:`camcal.session.StageFrames`) of RAW dark
+        frames at two or more exposure times (one is enough with bias frames), with an optional
+        ``frames.csv`` (``exposure_s``, ``iso``, ``temperature_C``...); None for a bias-only
+        calibration (bias, read noise and noisy pixels; the dark current
+        is then unknown, ``dark_current_dn_per_s`` None).
     bias_folder : folder of RAW bias frames (shortest exposure, no light), optional.
-    method : how each exposure group of darks is combined (:func:`camcal.stack.combine_frames`);
-        bias frames are always averaged (``mean``) so their variance is the full temporal variance.
-    sigma : sigma-clipping threshold.
-    hot_sigma, hot_factor : hot if β > median + max(hot_sigma · robust σ_β, (hot_factor - 1) · median).
-    noisy_sigma : noisy if the temporal variance is above the plane's model variance by more than
-        ``noisy_sigma`` standard errors of a variance and by more than the chi-square bound a
-        normal pixel exceeds with probability 1e-6 for the number of frames. Dead pixels are not
-        found here (a zero temporal variance is normal below 1 DN of noise): the flat stage finds
-        them by their response (:func:`camcal.flat.dead_pixels`).
-    saturation_fraction : a frame with more than this fraction of pixels at the white level is refused.
-    bias_prior_frames : weight, in frames, of the black-level prior at t = 0 (no bias frames only).
-    jobs : 1 or 2 (decode pool and band threads).
+    method, sigma, hot_sigma, hot_factor, noisy_sigma, saturation_fraction, bias_prior_frames :
+        see :class:`DarkOptions`.
+    jobs : decoding threads (:func:`camcal.threads.thread_count`).
     progress : ``progress(done, total)`` over all frames.
 
     Raises
@@ -241,57 +383,28 @@ def fit_dark(
         Non-RAW or saturated frames, frames of different sizes/patterns/ISO, a single dark
         exposure time without bias frames, missing exposure times.
     """
-    if method not in METHODS:
-        raise CamcalError(f"unknown combination method {method!r}; choose from {', '.join(METHODS)}")
-    if dark_folder is None:
-        if bias_folder is None:
-            raise CamcalError("the dark model needs dark frames, bias frames or both")
-        return fit_bias(bias_folder, hot_sigma=hot_sigma, noisy_sigma=noisy_sigma,
-                        saturation_fraction=saturation_fraction, jobs=jobs, progress=progress)
-    dark_folder = Path(dark_folder)
-    files, manifest = _files(dark_folder)
-    times = [_exposure_time(p, manifest) for p in files]
-    groups: dict[float, list[Path]] = {}
-    for p, t in zip(files, times, strict=True):
-        groups.setdefault(float(f"{t:.6g}"), []).append(p)
-    bias_files, bias_manifest = _files(Path(bias_folder)) if bias_folder is not None else ([], {})
-    if bias_folder is None and len(groups) < 2:
-        (t0,) = groups
-        raise CamcalError(f"all {len(files)} dark frames have one exposure time ({t0:g} s); the dark-current fit "
-                          "needs two or more exposure times, or bias frames (--bias)", dark_folder)
-    total = len(files) + len(bias_files)
-    done = [0]
+    options = DarkOptions(method, sigma, hot_sigma, hot_factor, noisy_sigma, saturation_fraction, bias_prior_frames)
+    return fit_dark_stacks(stack_darks(dark_folder, bias_folder, options, jobs=jobs, progress=progress), options)
 
-    def sub_progress(offset: int) -> Callable[[int, int], None] | None:
-        if progress is None:
-            return None
 
-        def cb(i: int, _n: int) -> None:
-            progress(offset + i, total)
+def fit_dark_stacks(stacks: DarkStacks, options: DarkOptions = DarkOptions()) -> DarkModel:  # noqa: B008
+    """Fit the dark model to combined dark (and bias) frames: pure, no file is read.
 
-        return cb
-
-    check = dark_frame_check(saturation_fraction)
-    bias_stack = None
-    if bias_files:
-        bias_stack = combine_frames(bias_files, method="mean", manifest=bias_manifest, check=check, jobs=jobs,
-                                    progress=sub_progress(0))
-        done[0] = len(bias_files)
-    stacks: list[tuple[float, StackResult]] = []
-    for t in sorted(groups):
-        st = combine_frames(groups[t], method=method, sigma=sigma, manifest=manifest, check=check, jobs=jobs,
-                            progress=sub_progress(done[0]))
-        done[0] += len(groups[t])
-        stacks.append((t, st))
-    ref = stacks[0][1]
-    for st in [s for _, s in stacks] + ([bias_stack] if bias_stack is not None else []):
-        if st.frame_shape != ref.frame_shape or st.cfa_pattern != ref.cfa_pattern:
-            h, w = st.frame_shape
-            h0, w0 = ref.frame_shape
-            raise CamcalError(f"frame size {w}x{h} ({st.cfa_pattern}) differs from the first dark frame's "
-                              f"{w0}x{h0} ({ref.cfa_pattern})", st.paths[0])
-    iso = _same_iso([s for _, s in stacks] + ([bias_stack] if bias_stack is not None else []), dark_folder)
-
+    Per pixel, level = b + β·t by weighted least squares over the exposure groups (:func:`_fit_lines`; the
+    black level as a prior at t = 0 without bias frames); uncertainties from a per-plane photon-transfer
+    noise model (EMVA 1288 §4.3); hot pixels from β, noisy pixels and the read noise from the temporal
+    noise of the read-noise stack (:func:`temporal_noise`). Without dark stacks, a bias-only model.
+    """
+    if not stacks.darks:
+        return _fit_bias_stack(stacks.bias, stacks.bias_folder, options)  # type: ignore[arg-type]
+    hot_sigma, hot_factor, noisy_sigma = options.hot_sigma, options.hot_factor, options.noisy_sigma
+    saturation_fraction, bias_prior_frames = options.saturation_fraction, options.bias_prior_frames
+    bias_stack = stacks.bias
+    stack_list = list(stacks.darks)
+    ref = stack_list[0][1]
+    method, sigma = options.method, options.sigma
+    iso = _same_iso([s for _, s in stack_list] + ([bias_stack] if bias_stack is not None else []),
+                    stacks.dark_folder)  # type: ignore[arg-type]
     black = np.asarray(ref.black_level_dn, np.float64)[:, None, None]
     white = ref.white_level_dn
     # observations (t, level, frames used, per-frame temporal variance)
@@ -299,7 +412,7 @@ def fit_dark(
     if bias_stack is not None:
         tb = float(np.median([e.exposure_s or 0.0 for e in bias_stack.exposures]))
         obs.append((tb, bias_stack.value, bias_stack.count, bias_stack.variance))
-    for t, st in stacks:
+    for t, st in stack_list:
         obs.append((t, st.value, st.count, st.variance))
     # fill missing variances (single frames) with the channel median of the group
     filled = []
@@ -319,7 +432,7 @@ def fit_dark(
     # uncertainties use a noise model per plane instead: var(level) = v0 + g · (level - bias), the
     # photon-transfer line of the dark signal (EMVA 1288 §4.3: dark current from mean and variance),
     # g the system gain in DN per electron, v0 the read-noise variance.
-    dark_stats = [(t, st) for t, st in stacks] + ([(0.0, bias_stack)] if bias_stack is not None else [])
+    dark_stats = [(t, st) for t, st in stack_list] + ([(0.0, bias_stack)] if bias_stack is not None else [])
     noise_v0, noise_gain = _noise_model(dark_stats, b)
     modelled = []
     for t, y, n, _v in filled:
@@ -328,8 +441,8 @@ def fit_dark(
     _, beta_var, _, b_var, _ = _fit_lines(modelled, white)
 
     # read noise: per-pixel temporal variance of the bias (or shortest dark), quantisation removed
-    rn_stack = bias_stack if bias_stack is not None else stacks[0][1]
-    var_t = np.asarray(bias_stack.variance if bias_stack is not None else stacks[0][1].variance_all, np.float64)
+    rn_stack = bias_stack if bias_stack is not None else stack_list[0][1]
+    var_t = np.asarray(bias_stack.variance if bias_stack is not None else stack_list[0][1].variance_all, np.float64)
     defects = np.zeros(beta.shape, np.uint8)
     for k in range(beta.shape[0]):
         med_b, rs_b = _robust(beta[k])
@@ -341,21 +454,21 @@ def fit_dark(
     # pixels without a fit (saturated in all but one group): β lower bound from saturation
     no_fit = ~np.isfinite(beta)
     if np.any(no_fit):
-        t_min = min(t for t, _ in stacks)
+        t_min = min(t for t, _ in stack_list)
         beta = np.where(no_fit, (white - np.where(np.isfinite(b), b, black)) / t_min, beta)
         b = np.where(np.isfinite(b), b, np.broadcast_to(black, b.shape))
         beta_var = np.where(no_fit, np.inf, beta_var)
 
-    channels = _channel_summary(b, b_var, beta, beta_var, var_t, defects, stacks, bias_stack is not None,
+    channels = _channel_summary(b, b_var, beta, beta_var, var_t, defects, stack_list, bias_stack is not None,
                                 noise_gain, noise, ref.channel_names)
-    temps = [e.temperature_c for _, s in stacks for e in s.exposures]
+    temps = [e.temperature_c for _, s in stack_list for e in s.exposures]
     temperature = float(np.mean(temps)) if temps and all(t is not None for t in temps) else None
     provenance = {
-        "dark_folder": str(dark_folder),
-        "bias_folder": None if bias_folder is None else str(bias_folder),
-        "dark_files": [p.name for p in files],
-        "bias_files": [p.name for p in bias_files],
-        "frames_per_exposure": {f"{t:g}": len(groups[t]) for t in sorted(groups)},
+        "dark_folder": str(stacks.dark_folder),
+        "bias_folder": None if stacks.bias_folder is None else str(stacks.bias_folder),
+        "dark_files": list(stacks.dark_files),
+        "bias_files": list(stacks.bias_files),
+        "frames_per_exposure": {f"{t:g}": st.n_frames for t, st in stack_list},
         "temperature_range_c": [min(temps), max(temps)] if temperature is not None else None,
         "options": {"method": method, "sigma": sigma, "hot_sigma": hot_sigma, "hot_factor": hot_factor,
                     "noisy_sigma": noisy_sigma, "saturation_fraction": saturation_fraction,
@@ -363,7 +476,7 @@ def fit_dark(
         "read_noise_method": noise.method,
         "bias_source": "bias frames" if bias_stack is not None else "fit of dark frames, black level as prior",
         "read_noise_source": "bias frames" if bias_stack is not None
-        else f"shortest dark ({stacks[0][0]:g} s), per-plane value extrapolated to t = 0",
+        else f"shortest dark ({stack_list[0][0]:g} s), per-plane value extrapolated to t = 0",
     }
     return DarkModel(
         bias_dn=b.astype(np.float32),
@@ -375,7 +488,7 @@ def fit_dark(
         cfa_pattern=None if ref.cfa_pattern is None else str(ref.cfa_pattern),
         temperature_c=temperature,
         channels=channels,
-        exposure_times_s=tuple(float(t) for t, _ in stacks),
+        exposure_times_s=tuple(float(t) for t, _ in stack_list),
         black_level_dn=tuple(float(x) for x in ref.black_level_dn),
         white_level_dn=float(white),
         provenance=provenance,
@@ -476,7 +589,7 @@ def temporal_noise(stack: StackResult, var_t: np.ndarray, defects: np.ndarray, n
     variance (√(2/dof)). A zero temporal variance is not a defect: below 1 DN of noise most pixels
     read one value in every frame. Where the temporal noise is below :data:`SUB_DN_NOISE`, the read
     noise is :func:`quantised_noise_fit` of consecutive frame pairs (the first
-    :data:`QUANTISED_FIT_FRAMES` frames of the stack, decoded again), else ``√(var − 1/12)``.
+    :data:`QUANTISED_FIT_FRAMES` frames of the stack, ``stack.kept_planes``), else ``√(var − 1/12)``.
     """
     c = var_t.shape[0]
     dof = float(np.median(stack.count)) - 1.0
@@ -501,14 +614,12 @@ def temporal_noise(stack: StackResult, var_t: np.ndarray, defects: np.ndarray, n
     quantised = temporal < SUB_DN_NOISE
     method = "per-pixel temporal variance minus the quantisation variance 1/12 DN² (EMVA 1288 eq. 4)"
     if quantised.any():
-        paths = list(stack.paths[:QUANTISED_FIT_FRAMES])
-        if len(paths) < 2:
+        if len(stack.paths) < 2:
             raise CamcalError("the read noise needs two or more frames of one exposure",
                               stack.paths[0] if stack.paths else None)
-        frames = []
-        for path in paths:
-            f = load_frame(path)
-            frames.append(f.planes(dtype=f.data.dtype))
+        frames = list(stack.kept_planes[:QUANTISED_FIT_FRAMES])  # kept by combine_frames: no second decode
+        if len(frames) < 2:
+            raise ValueError("the read-noise stack must keep its first frames (combine_frames(keep_frames=...))")
         sig = np.zeros((c, len(frames) - 1))
         sds = np.zeros((c, len(frames) - 1))
         for k in np.flatnonzero(quantised):
@@ -525,7 +636,7 @@ def temporal_noise(stack: StackResult, var_t: np.ndarray, defects: np.ndarray, n
 
 
 def fit_bias(
-    bias_folder: str | Path,
+    bias_folder: str | Path | StageFrames,
     *,
     hot_sigma: float = 6.0,
     noisy_sigma: float = 6.0,
@@ -537,14 +648,17 @@ def fit_bias(
 
     Two frames are enough. ``hot_sigma`` is recorded but hot pixels need dark frames (their dark
     current), so none are flagged; :mod:`camcal.apply` then subtracts the bias only and says so.
+    :func:`stack_darks` (files), then :func:`fit_dark_stacks` (maths).
     """
-    bias_folder = Path(bias_folder)
-    files, manifest = _files(bias_folder)
-    if len(files) < 2:
-        raise CamcalError(f"a bias-only calibration needs two or more bias frames, found {len(files)}", bias_folder)
-    st = combine_frames(files, method="mean", manifest=manifest, check=dark_frame_check(saturation_fraction),
-                        jobs=jobs, progress=progress)
-    iso = _same_iso([st], bias_folder)
+    options = DarkOptions(hot_sigma=hot_sigma, noisy_sigma=noisy_sigma, saturation_fraction=saturation_fraction)
+    return fit_dark_stacks(stack_darks(None, bias_folder, options, jobs=jobs, progress=progress), options)
+
+
+def _fit_bias_stack(st: StackResult, bias_folder: Path | None, options: DarkOptions) -> DarkModel:
+    """The bias-only model of averaged bias frames (see :func:`fit_bias`); pure."""
+    hot_sigma, noisy_sigma, saturation_fraction = options.hot_sigma, options.noisy_sigma, options.saturation_fraction
+    files = st.paths
+    iso = _same_iso([st], bias_folder)  # type: ignore[arg-type]
     var_t = np.asarray(st.variance, np.float64)
     defects = np.zeros(var_t.shape, np.uint8)
     noise = temporal_noise(st, var_t, defects, noisy_sigma)
@@ -828,15 +942,20 @@ def dark_from_parts(data: dict, maps: dict[str, np.ndarray], where: str | Path |
 
 def save_dark(model: DarkModel, path: str | Path) -> Path:
     """Write the model as ``path`` (JSON) + ``<stem>.maps.exr`` (maps ``bias.R`` ...), kind ``dark``."""
-    from camcal.store import save_stage
-
     data, maps = dark_to_parts(model)
     return save_stage(path, KIND, data, maps)
 
 
 def load_dark(path: str | Path) -> DarkModel:
-    """Read a model written by :func:`save_dark`."""
-    from camcal.store import load_stage
-
+    """Read a model written by :func:`save_dark` (the one dark-model loader)."""
     data, maps = load_stage(path, KIND)
     return dark_from_parts(data, maps, path)
+
+
+def as_dark_model(dark: DarkModel | str | Path | None) -> DarkModel | None:
+    """A dark model given as itself, as a path (read by :func:`load_dark`) or None."""
+    if dark is None or isinstance(dark, DarkModel):
+        return dark
+    if isinstance(dark, str | Path):
+        return load_dark(dark)
+    return dark  # any object with the DarkModel interface (dark_frame_dn...), e.g. in tests

@@ -47,11 +47,13 @@ from typing import Literal
 import numpy as np
 
 from camcal.correct import Calibration, correct_frame, correct_planes, require_valid
-from camcal.dark import load_dark
+from camcal.dark import DarkModel, as_dark_model
 from camcal.errors import CamcalError
 from camcal.frame import PLANES, Frame, plane_offsets
-from camcal.io import folder_files, load_folder_frame
-from camcal.stack import combine_folder
+from camcal.io import load_folder_frame
+from camcal.session import StageFrames, stage_files
+from camcal.stack import combine_frames
+from camcal.store import load_stage, save_stage
 
 N_RADIAL = 5
 """Number of DNG radial coefficients k0..k4."""
@@ -557,6 +559,32 @@ class FlatChecks:
     max_level: float = 0.95
 
 
+@dataclass(frozen=True)
+class FlatOptions:
+    """Options of the flat stage: the combine (:func:`master_flat`) and the fit (:func:`fit_master`).
+
+    Attributes
+    ----------
+    model, downsample, n_terms, degree_2d, with_prnu : the fit, see :func:`fit_flat_planes`.
+    method, sigma : combine method (``mean``, ``median``, ``sigma_clip``) and clip threshold (standard deviations).
+    checks : exposure limits of each flat frame (:class:`FlatChecks`).
+    """
+
+    model: Literal["radial", "2d"] = "radial"
+    downsample: int | None = None
+    n_terms: int = DEFAULT_TERMS
+    degree_2d: int = 4
+    with_prnu: bool = True
+    method: str = "sigma_clip"
+    sigma: float = 3.0
+    checks: FlatChecks = FlatChecks()  # noqa: RUF009 - frozen, so one shared default is safe
+
+    def fit_kwargs(self) -> dict:
+        """The keywords of :func:`fit_master`."""
+        return {"model": self.model, "downsample": self.downsample, "n_terms": self.n_terms,
+                "degree_2d": self.degree_2d, "with_prnu": self.with_prnu}
+
+
 def check_flat_frame(frame: Frame, checks: FlatChecks = FlatChecks(),  # noqa: B008
                      shape: tuple[int, int] | None = None, reference: str | None = None,
                      defects: np.ndarray | None = None) -> None:
@@ -624,17 +652,9 @@ class MasterFlat:
     exposure_s: tuple[float | None, ...]
 
 
-def _resolve_dark(dark):
-    if dark is None:
-        return None
-    if isinstance(dark, str | Path):
-        return load_dark(dark)
-    return dark
-
-
 def master_flat(
-    flat_folder: str | Path,
-    dark=None,
+    flat_folder: str | Path | StageFrames,
+    dark: DarkModel | str | Path | None = None,
     *,
     method: str = "sigma_clip",
     sigma: float = 3.0,
@@ -650,10 +670,9 @@ def master_flat(
     The valid pixels are divided by their per-plane median so lamp drift between frames does not
     bias the combine; the combined master is thus normalised per channel (median ≈ 1).
     """
-    folder = Path(flat_folder)
-    dark_model = _resolve_dark(dark)
+    dark_model = as_dark_model(dark)
     cal = Calibration.of(dark_model)
-    paths, manifest = folder_files(folder)
+    paths, manifest = stage_files(flat_folder)
     first = load_folder_frame(paths[0], manifest)
     plane_shape = (first.shape[0] // 2, first.shape[1] // 2) if first.layout == "bayer" else first.shape
     if dark_model is not None:
@@ -684,7 +703,7 @@ def master_flat(
         planes /= med[:, None, None].astype(np.float32)
         return planes
 
-    res = combine_folder(folder, method=method, sigma=sigma, preprocess=preprocess, manifest=manifest, check=check,
+    res = combine_frames(paths, method=method, sigma=sigma, preprocess=preprocess, manifest=manifest, check=check,
                          jobs=jobs, progress=progress)
     # per-plane level in DN: recomputed from the first frame (the check guarantees all are similar)
     level = {c: float(m) for c, m in zip(first.channel_names, corrected(first)[1], strict=True)}
@@ -699,8 +718,8 @@ def master_flat(
 
 
 def fit_flat(
-    flat_folder: str | Path,
-    dark=None,
+    flat_folder: str | Path | StageFrames,
+    dark: DarkModel | str | Path | None = None,
     *,
     model: Literal["radial", "2d"] = "radial",
     downsample: int | None = None,
@@ -725,17 +744,29 @@ def fit_flat(
     checks : exposure limits (:class:`FlatChecks`).
     jobs, progress : passed to :func:`camcal.stack.combine_frames`.
     """
-    _check_options(model, n_terms)
-    dark_model = _resolve_dark(dark)
-    mf = master_flat(flat_folder, dark_model, method=method, sigma=sigma, checks=checks, jobs=jobs,
+    options = FlatOptions(model, downsample, n_terms, degree_2d, with_prnu, method, sigma, checks)
+    return fit_flat_with(flat_folder, as_dark_model(dark), options, jobs=jobs, progress=progress)
+
+
+def fit_flat_with(
+    flat: str | Path | StageFrames,
+    dark: DarkModel | None,
+    options: FlatOptions = FlatOptions(),  # noqa: B008
+    *,
+    jobs: int = 1,
+    progress: Callable | None = None,
+) -> FlatModel:
+    """The flat stage with typed options: :func:`master_flat` (the file step: correct, normalise, combine)
+    then :func:`fit_master` (pure: vignetting model and PRNU)."""
+    _check_options(options.model, options.n_terms)
+    mf = master_flat(flat, dark, method=options.method, sigma=options.sigma, checks=options.checks, jobs=jobs,
                      progress=progress)
-    return fit_master(mf, dark_model, model=model, downsample=downsample, n_terms=n_terms, degree_2d=degree_2d,
-                      with_prnu=with_prnu)
+    return fit_master(mf, dark, **options.fit_kwargs())
 
 
 def fit_master(
     mf: MasterFlat,
-    dark_model=None,
+    dark_model: DarkModel | None = None,
     *,
     model: Literal["radial", "2d"] = "radial",
     downsample: int | None = None,
@@ -771,7 +802,7 @@ def fit_master(
 def run_flat_stage(
     flat_folder: str | Path,
     output: str | Path,
-    dark=None,
+    dark: DarkModel | str | Path | None = None,
     **kwargs,
 ) -> tuple[FlatModel, Path, MasterFlat]:
     """The ``camcal flat`` stage: master flat, fit, ``output`` JSON + maps EXR.
@@ -786,7 +817,7 @@ def run_flat_stage(
         raise CamcalError("the flat model output must be a .json file", output)
     mkeys = {"method", "sigma", "checks", "jobs", "progress"}
     _check_options(kwargs.get("model", "radial"), kwargs.get("n_terms", DEFAULT_TERMS))
-    dark_model = _resolve_dark(dark)
+    dark_model = as_dark_model(dark)
     mf = master_flat(flat_folder, dark_model, **{k: v for k, v in kwargs.items() if k in mkeys})
     fm = fit_master(mf, dark_model, **{k: v for k, v in kwargs.items() if k not in mkeys})
     path = save_flat(fm, output)
@@ -843,15 +874,18 @@ def flat_from_parts(data: dict, maps: dict[str, np.ndarray], where: str | Path |
 
 def save_flat(model: FlatModel, path: str | Path) -> Path:
     """Write ``path`` (JSON) and ``<stem>.maps.exr`` with ``gain.<ch>`` and ``prnu.<ch>`` maps."""
-    from camcal.store import save_stage
-
     data, maps = flat_to_parts(model)
     return save_stage(path, "flat", data, maps)
 
 
 def load_flat(path: str | Path) -> FlatModel:
     """Read a flat model written by :func:`save_flat`."""
-    from camcal.store import load_stage
-
     data, maps = load_stage(path, "flat")
     return flat_from_parts(data, maps, path)
+
+
+def as_flat_model(flat: FlatModel | str | Path | None) -> FlatModel | None:
+    """A flat model given as itself, as a path (read by :func:`load_flat`) or None."""
+    if isinstance(flat, str | Path):
+        return load_flat(flat)
+    return flat

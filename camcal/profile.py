@@ -24,8 +24,12 @@ import numpy as np
 
 from camcal import __version__
 from camcal.container import read_container, write_container
+from camcal.dark import DarkModel, dark_from_parts, dark_to_parts
 from camcal.errors import CamcalError
+from camcal.flat import FlatModel, flat_from_parts, flat_to_parts
 from camcal.frame import PLANES, RGB
+from camcal.response import ResponseModel
+from camcal.spectral import SpectralSensitivity, spectral_from_dict, spectral_to_dict
 from camcal.store import to_jsonable
 
 FORMAT = "camcal-profile"
@@ -83,10 +87,10 @@ class CalibrationProfile:
     camera: CameraIdentity
     reference_iso: float
     reference_f_number: float
-    dark: Any = None
-    flat: Any = None
-    response: dict[str, Any] | None = None
-    spectral: Any = None
+    dark: DarkModel | None = None
+    flat: FlatModel | None = None
+    response: dict[str, ResponseModel] | None = None
+    spectral: SpectralSensitivity | None = None
     provenance: Provenance = field(default_factory=lambda: Provenance(__version__, ""))
     schema_version: str = SCHEMA_VERSION
     content_sha256: str | None = None
@@ -99,18 +103,12 @@ class CalibrationProfile:
 # ---- stage codecs: model <-> (JSON part, maps) ------------------------------------------------------------
 def _stage_to_parts(name: str, model) -> tuple[dict, dict[str, np.ndarray]]:
     if name == "dark":
-        from camcal.dark import dark_to_parts
-
         return dark_to_parts(model)
     if name == "flat":
-        from camcal.flat import flat_to_parts
-
         return flat_to_parts(model)
     if name == "response":
         return {k: m.to_dict() for k, m in model.items()}, {}
     if name == "spectral_sensitivity":
-        from camcal.spectral import spectral_to_dict
-
         return spectral_to_dict(model), {}
     raise ValueError(name)
 
@@ -118,20 +116,12 @@ def _stage_to_parts(name: str, model) -> tuple[dict, dict[str, np.ndarray]]:
 def _stage_from_parts(name: str, data: dict, maps: dict[str, np.ndarray], where: Path):
     try:
         if name == "dark":
-            from camcal.dark import dark_from_parts
-
             return dark_from_parts(data, maps, where)
         if name == "flat":
-            from camcal.flat import flat_from_parts
-
             return flat_from_parts(data, maps, where)
         if name == "response":
-            from camcal.response import ResponseModel
-
             return {k: ResponseModel.from_dict(v) for k, v in data.items()}
         if name == "spectral_sensitivity":
-            from camcal.spectral import spectral_from_dict
-
             return spectral_from_dict(data)
     except CamcalError as exc:
         raise CamcalError(f"{name} section: {exc.message}", where) from None

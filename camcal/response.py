@@ -52,11 +52,14 @@ import numpy as np
 
 from camcal.colour import ColourMatrix
 from camcal.correct import Calibration, DarkFrameModel, correct_planes
+from camcal.dark import DarkModel, load_dark
 from camcal.errors import CamcalError
 from camcal.exposure import relative_exposure
 from camcal.frame import PLANES
-from camcal.io import folder_files, load_folder_frame
+from camcal.io import load_folder_frame
 from camcal.region import Region
+from camcal.session import StageFrames, folder_of, stage_files
+from camcal.store import load_stage, save_stage
 
 DEFAULT_ROI_FRACTION = 0.10
 """Default ROI: a centred window holding this fraction of each plane's area."""
@@ -353,7 +356,7 @@ def roi_slices(shape: tuple[int, int], roi: tuple[float, float, float, float]) -
 
 
 def measure_series(
-    folder: str | Path,
+    folder: str | Path | StageFrames,
     *,
     roi: Region | float | tuple[float, float, float, float] | None = None,
     dark: DarkFrameModel | None = None,
@@ -372,10 +375,10 @@ def measure_series(
     CamcalError
         Folder without images, unreadable files, missing exposure metadata, bad ROI.
     """
-    folder = Path(folder)
+    files, manifest = stage_files(folder)
+    folder = folder_of(folder)
     region = roi if isinstance(roi, Region) else None
     window = roi_window(None if region is not None else roi)
-    files, manifest = folder_files(folder)
     cal = Calibration.of(dark) if dark is not None else Calibration()
     rows: dict[str, list[dict]] = {}
     for i, path in enumerate(files):
@@ -790,7 +793,7 @@ def _tone_fit(ch: ChannelResponse, fit: dict, x: np.ndarray, g: np.ndarray, sem:
 
 
 def fit_response(
-    folder: str | Path,
+    folder: str | Path | StageFrames,
     *,
     roi: Region | float | tuple[float, float, float, float] | None = None,
     dark: DarkFrameModel | None = None,
@@ -816,6 +819,16 @@ def fit_response(
     """
     series = measure_series(folder, roi=roi, dark=dark, reference_iso=reference_iso,
                             reference_f_number=reference_f_number, progress=progress)
+    return fit_series_set(series)
+
+
+def fit_series_set(series: dict[str, ExposureSeries]) -> dict[str, ResponseModel]:
+    """Fit every kind of series measured from one folder (:func:`measure_series`); pure.
+
+    A processed frame whose RAW twin clips is masked first (:func:`mask_raw_clipped`), then each kind is
+    fitted with :func:`fit_series` (seed eq. 12).
+    """
+    series = dict(series)
     if "raw" in series and "processed" in series:
         series["processed"] = mask_raw_clipped(series["processed"], series["raw"])
     return {kind: fit_series(s) for kind, s in sorted(series.items())}
@@ -843,8 +856,6 @@ def mask_raw_clipped(processed: ExposureSeries, raw: ExposureSeries) -> Exposure
 
 def save_response(models: dict[str, ResponseModel] | ResponseModel, path: str | Path) -> Path:
     """Write response models as a camcal stage file (kind ``response``, JSON only)."""
-    from camcal.store import save_stage
-
     if isinstance(models, ResponseModel):
         models = {models.kind: models}
     return save_stage(path, RESPONSE_KIND, {"models": {k: m.to_dict() for k, m in models.items()}})
@@ -852,8 +863,6 @@ def save_response(models: dict[str, ResponseModel] | ResponseModel, path: str | 
 
 def load_response(path: str | Path) -> dict[str, ResponseModel]:
     """Read what :func:`save_response` wrote: ``{kind: ResponseModel}``."""
-    from camcal.store import load_stage
-
     data, _ = load_stage(path, RESPONSE_KIND)
     models = data.get("models")
     if not isinstance(models, dict) or not models:
@@ -864,23 +873,6 @@ def load_response(path: str | Path) -> dict[str, ResponseModel]:
         raise CamcalError(exc.message, path) from None
 
 
-def load_dark_model(path: str | Path) -> DarkFrameModel:
-    """Load a dark model written by the dark stage (``camcal.dark``), for dark subtraction."""
-    try:
-        import camcal.dark as dark_mod
-    except ImportError:
-        raise CamcalError("dark models need camcal.dark, which this installation lacks", path) from None
-    for name in ("load_dark", "load_dark_model"):
-        fn = getattr(dark_mod, name, None)
-        if callable(fn):
-            model = fn(path)
-            break
-    else:
-        cls = getattr(dark_mod, "DarkModel", None)
-        loader = getattr(cls, "load", None)
-        if not callable(loader):
-            raise CamcalError("camcal.dark offers no loader (load_dark / DarkModel.load)", path)
-        model = loader(path)
-    if not callable(getattr(model, "dark_frame_dn", None)):
-        raise CamcalError("the dark model has no dark_frame_dn(exposure_s, iso)", path)
-    return model
+def load_dark_model(path: str | Path) -> DarkModel:
+    """Compatibility name of :func:`camcal.dark.load_dark` (the one dark-model loader), used by ``camcal linearity``."""
+    return load_dark(path)

@@ -45,9 +45,10 @@ Hansen, P. C. (2010). Discrete Inverse Problems. SIAM (Tikhonov, GCV).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -56,13 +57,18 @@ from typing import Any, Literal
 import numpy as np
 
 from camcal.correct import Calibration, correct_planes
+from camcal.dark import DarkModel, as_dark_model
 from camcal.errors import CamcalError
 from camcal.exposure import frame_relative_exposure
+from camcal.flat import FlatModel, as_flat_model
 from camcal.frame import PLANES, RGB, Frame, split_planes
 from camcal.io import load_frame
+from camcal.manifest import exposure_overrides, read_manifest, safe_member
 from camcal.region import Region
+from camcal.session import SWEEP_CSV, SWEEP_REQUIRED
+from camcal.store import to_jsonable
+from camcal.threads import thread_count
 
-SWEEP_CSV = "sweep.csv"
 DEFAULT_REFERENCE_ISO = 100.0
 DEFAULT_REFERENCE_F_NUMBER = 4.0
 DEFAULT_ROI_FRACTION = 0.2
@@ -289,19 +295,24 @@ def read_sweep(sweep_folder: str | Path) -> list[SweepRow]:
         Missing manifest, a row whose frame is missing, a path leaving the folder,
         negative or non-numeric values (from :func:`camcal.manifest.read_manifest`).
     """
-    from camcal.manifest import exposure_overrides, read_manifest, safe_member
-
     folder = Path(sweep_folder)
     if not folder.is_dir():
         raise CamcalError("is not a folder (expected a sweep folder holding sweep.csv)", folder)
     csv_path = folder / SWEEP_CSV
     if not csv_path.is_file():
         raise CamcalError(f"has no {SWEEP_CSV} (columns file,wavelength_nm,radiance_W_m2_sr,...)", folder)
-    rows = read_manifest(csv_path, required=("file", "wavelength_nm", "radiance_W_m2_sr"))
-    if not rows:
+    return sweep_rows(folder, read_manifest(csv_path, required=SWEEP_REQUIRED))
+
+
+def sweep_rows(sweep_folder: str | Path, manifest: Mapping[str, Mapping[str, float | str | None]]) -> list[SweepRow]:
+    """The :class:`SweepRow` of each row of an already read ``sweep.csv`` (:func:`camcal.manifest.read_manifest`,
+    e.g. by :func:`camcal.session.index_session`); every listed frame must exist inside the folder."""
+    folder = Path(sweep_folder)
+    csv_path = folder / SWEEP_CSV
+    if not manifest:
         raise CamcalError("lists no frames", csv_path)
     out = []
-    for name, rec in rows.items():
+    for name, rec in manifest.items():
         path = safe_member(folder, name, csv_path)
         if not path.is_file():
             raise CamcalError(f"lists {name!r} at {rec['wavelength_nm']:g} nm, which is not in the folder", csv_path)
@@ -312,7 +323,7 @@ def read_sweep(sweep_folder: str | Path) -> list[SweepRow]:
             radiance_unc_w_m2_sr=None if rec.get("radiance_unc_W_m2_sr") is None
             else float(rec["radiance_unc_W_m2_sr"]),  # type: ignore[arg-type]
             bandwidth_nm=None if rec.get("bandwidth_nm") is None else float(rec["bandwidth_nm"]),  # type: ignore[arg-type]
-            overrides=exposure_overrides(rec),
+            overrides=exposure_overrides(dict(rec)),
         ))
     return out
 
@@ -368,19 +379,6 @@ def _process_frame(row: SweepRow, cal: Calibration, roi: tuple[int, int, int, in
                           full_shape=full, window=window, path=row.path, inplace=True)
     defect_sat = int(np.count_nonzero(corr.clipped & corr.defective))
     return _FrameResult(row, corr.signal_dn, corr.invalid, x_rel, float(corr.saturated_fraction().max()), defect_sat)
-
-
-def _load_model(obj, kind: str):
-    if obj is None or not isinstance(obj, str | Path):
-        return obj
-    try:
-        if kind == "dark":
-            from camcal.dark import load_dark as loader
-        else:
-            from camcal.flat import load_flat as loader
-    except ImportError:
-        raise CamcalError(f"{kind} models need camcal.{kind}, which is not installed", obj) from None
-    return loader(obj)
 
 
 def _robust_mask(m: np.ndarray, valid: np.ndarray | None = None, nsigma: float = 5.0) -> np.ndarray:
@@ -456,8 +454,9 @@ def combine_wavelength(results: Sequence[_FrameResult]) -> tuple[np.ndarray, np.
 def measure_sweep(
     sweep_folder: str | Path,
     *,
-    dark=None,
-    flat=None,
+    rows: Sequence[SweepRow] | None = None,
+    dark: DarkModel | str | Path | None = None,
+    flat: FlatModel | str | Path | None = None,
     roi: Region | tuple[int, int, int, int] | float | None = None,
     mode: Literal["relative", "absolute"] = "absolute",
     deconvolve: bool = False,
@@ -477,6 +476,8 @@ def measure_sweep(
     sweep_folder : folder holding the frames and ``sweep.csv`` (columns ``file,
         wavelength_nm, radiance_W_m2_sr`` required; ``radiance_unc_W_m2_sr,
         bandwidth_nm, exposure_s, iso, f_number`` optional).
+    rows : the rows of ``sweep.csv`` already read (:func:`sweep_rows` of the session index's manifest);
+        None reads ``sweep_folder/sweep.csv``.
     dark : DarkModel or path to ``dark.json``, optional
         Subtracted per pixel at each frame's exposure; without it the file's
         black level is subtracted (dark current then biases c(λ) by β/L).
@@ -506,25 +507,104 @@ def measure_sweep(
         Bad manifest, missing frame, path outside the folder, negative or zero
         radiance, non-RAW frames, mismatched sizes, too few unsaturated frames.
     """
-    if mode not in ("relative", "absolute"):
-        raise CamcalError(f"mode must be 'relative' or 'absolute', got {mode!r}")
-    rows = read_sweep(sweep_folder)
+    options = SweepOptions(roi=roi, mode=mode, deconvolve=deconvolve, slit=slit, regularisation=regularisation,
+                           reference_iso=reference_iso, reference_f_number=reference_f_number,
+                           max_saturated_fraction=max_saturated_fraction, min_frames=min_frames)
+    options.check()
+    rows = list(rows) if rows is not None else read_sweep(sweep_folder)
+    measured = measure_sweep_settings(sweep_folder, rows, dark=dark, flat=flat, options=options, jobs=jobs,
+                                      progress=progress)
+    return sensitivity_from_settings(measured, options)
+
+
+@dataclass(frozen=True)
+class SweepOptions:
+    """Options of the sweep stage (see :func:`measure_sweep` for each)."""
+
+    roi: Region | tuple[int, int, int, int] | float | None = None
+    mode: Literal["relative", "absolute"] = "absolute"
+    deconvolve: bool = False
+    slit: Literal["gaussian", "triangular"] = "gaussian"
+    regularisation: float | None = None
+    reference_iso: float = DEFAULT_REFERENCE_ISO
+    reference_f_number: float = DEFAULT_REFERENCE_F_NUMBER
+    max_saturated_fraction: float = 1e-3
+    min_frames: int = 1
+
+    def check(self) -> None:
+        if self.mode not in ("relative", "absolute"):
+            raise CamcalError(f"mode must be 'relative' or 'absolute', got {self.mode!r}")
+
+
+@dataclass(frozen=True)
+class SweepSetting:
+    """The measurement at one monochromator setting (the unsaturated frames at one wavelength combined).
+
+    Attributes
+    ----------
+    wavelength_nm : the setting, nm.
+    value : (C,) c per plane before deconvolution, DN s^-1 per (W m^-2 sr^-1 nm^-1) per nm at the reference
+        setting (:func:`combine_wavelength`).
+    noise_unc : (C,) its standard uncertainty from the frames' noise, same unit.
+    reference_unc_rel : relative standard uncertainty of the reference radiance.
+    n_frames : frames used.
+    bandwidth_nm : the row's ``bandwidth_nm`` (nm), None when not given.
+    """
+
+    wavelength_nm: float
+    value: np.ndarray
+    noise_unc: np.ndarray
+    reference_unc_rel: float
+    n_frames: int
+    bandwidth_nm: float | None
+
+
+@dataclass(frozen=True)
+class SweepMeasurement:
+    """What :func:`measure_sweep_settings` read from the sweep's files: one :class:`SweepSetting` per
+    wavelength (ascending), the plane names, notes (skipped frames, saturating defects) and ``sweep.csv``."""
+
+    settings: tuple[SweepSetting, ...]
+    channels: tuple[str, ...]
+    notes: tuple[str, ...]
+    csv_path: Path
+
+
+def measure_sweep_settings(
+    sweep_folder: str | Path,
+    rows: Sequence[SweepRow],
+    *,
+    dark: DarkModel | str | Path | None = None,
+    flat: FlatModel | str | Path | None = None,
+    options: SweepOptions = SweepOptions(),  # noqa: B008
+    jobs: int = 2,
+    progress: Callable[[int, int], None] | None = None,
+) -> SweepMeasurement:
+    """The file step of the sweep: decode every frame of ``rows`` once (in threads), correct its ROI
+    (:mod:`camcal.correct`), skip saturated frames and combine each wavelength (:func:`combine_wavelength`).
+
+    Raises
+    ------
+    CamcalError
+        Negative or zero radiance, non-RAW frames, mismatched sizes, too few unsaturated frames.
+    """
+    reference_iso, reference_f_number = options.reference_iso, options.reference_f_number
+    roi, max_saturated_fraction, min_frames = options.roi, options.max_saturated_fraction, options.min_frames
     csv_path = Path(sweep_folder) / SWEEP_CSV
     for r in rows:
         if r.radiance_w_m2_sr <= 0:
             raise CamcalError(f"{r.path.name} at {r.wavelength_nm:g} nm: radiance_W_m2_sr must be positive, "
                               f"got {r.radiance_w_m2_sr:g}", csv_path)
-    dark = _load_model(dark, "dark")
-    flat = _load_model(flat, "flat")
+    dark = as_dark_model(dark)
+    flat = as_flat_model(flat)
     notes: list[str] = []
 
     def warn(msg: str) -> None:
         notes.append(msg)
-        warnings.warn(msg, SweepWarning, stacklevel=3)
+        warnings.warn(msg, SweepWarning, stacklevel=4)
 
-    if mode == "absolute" and flat is None:
+    if options.mode == "absolute" and flat is None:
         warn("no flat model: absolute values refer to the ROI, not the optical axis (vignetting not removed)")
-
     # geometry from the first frame (header decode only once: the first frame is decoded again by the pool)
     first = load_frame(rows[0].path, rows[0].overrides)
     if first.kind != "raw":
@@ -562,20 +642,17 @@ def measure_sweep(
     for r in rows:
         groups.setdefault(r.wavelength_nm, []).append(r)
     wls = sorted(groups)
-    value = np.empty((len(names), len(wls)))
-    u_noise = np.empty((len(names), len(wls)))
-    u_ref = np.zeros(len(wls))
-    bw: list[float] = []
-    n_used: dict[str, int] = {}
+    settings: list[SweepSetting] = []
     defect_saturated: dict[float, int] = {}
     worst: dict[float, float] = {}
     done = 0
     total = len(rows)
     ordered = [r for wl in wls for r in groups[wl]]
-    with ThreadPoolExecutor(max_workers=max(1, int(jobs))) as pool:
-        results = pool.map(work, ordered) if jobs > 1 else map(work, ordered)
+    threads = thread_count(jobs, len(ordered))
+    with ThreadPoolExecutor(max_workers=threads) as pool:
+        results = pool.map(work, ordered) if threads > 1 else map(work, ordered)
         it = iter(results)
-        for j, wl in enumerate(wls):
+        for wl in wls:
             frames: list[_FrameResult] = []
             for _ in groups[wl]:
                 res = next(it)
@@ -595,44 +672,62 @@ def measure_sweep(
                 raise CamcalError(f"at {wl:g} nm only {len(frames)} of {len(groups[wl])} frames are unsaturated "
                                   f"({names}: up to {100 * worst.get(wl, 0.0):.2g} % of the ROI saturated outside "
                                   f"known defects); need {max(1, min_frames)}: shorten the exposure", csv_path)
-            value[:, j], u_noise[:, j], u_ref[j] = combine_wavelength(frames)
-            n_used[f"{wl:g}"] = len(frames)
+            v, u, ur = combine_wavelength(frames)
             bws = {r.bandwidth_nm for r in groups[wl] if r.bandwidth_nm is not None}
             if len(bws) > 1:
                 raise CamcalError(f"rows at {wl:g} nm give different bandwidth_nm values {sorted(bws)}", csv_path)
-            if bws:
-                bw.append(bws.pop())
+            settings.append(SweepSetting(wl, np.asarray(v, np.float64), np.asarray(u, np.float64), float(ur),
+                                         len(frames), bws.pop() if bws else None))
             del frames
     if defect_saturated:
         ws = sorted(defect_saturated)
         notes.append(f"hot pixels saturate: up to {max(defect_saturated.values())} known defects of the ROI reach "
                      f"the white level at {ws[0]:g}-{ws[-1]:g} nm; they are masked (frames kept)")
-    wl_arr = np.asarray(wls, float)
+    return SweepMeasurement(tuple(settings), tuple(names), tuple(notes), csv_path)
+
+
+def sensitivity_from_settings(measured: SweepMeasurement, options: SweepOptions = SweepOptions()  # noqa: B008
+                              ) -> SpectralSensitivity:
+    """c(λ) per plane from the per-wavelength measurements (seed §3.1); pure.
+
+    The total uncertainty combines the frames' noise and the reference radiance's relative uncertainty;
+    with ``options.deconvolve`` the slit function is removed (:func:`deconvolve_slit`, ``bandwidth_nm`` needed
+    at every wavelength); ``mode="relative"`` divides by the largest value (:func:`to_relative`).
+    """
+    options.check()
+    names = measured.channels
+    st = measured.settings
+    wl_arr = np.asarray([x.wavelength_nm for x in st], float)
+    value = np.stack([x.value for x in st], axis=1) if st else np.empty((len(names), 0))
+    u_noise = np.stack([x.noise_unc for x in st], axis=1) if st else np.empty((len(names), 0))
+    u_ref = np.asarray([x.reference_unc_rel for x in st], float)
+    bw = [x.bandwidth_nm for x in st if x.bandwidth_nm is not None]
+    n_used = {f"{x.wavelength_nm:g}": x.n_frames for x in st}
     u_tot = np.hypot(u_noise, value * u_ref[None, :])
     bandwidth = float(np.median(bw)) if bw else None
     out_vals, out_unc = value, u_tot
-    if deconvolve:
-        if len(bw) != len(wls):
-            raise CamcalError("deconvolution needs a bandwidth_nm value on every sweep.csv row", csv_path)
+    if options.deconvolve:
+        if len(bw) != len(st):
+            raise CamcalError("deconvolution needs a bandwidth_nm value on every sweep.csv row", measured.csv_path)
         out_vals = np.empty_like(value)
         out_unc = np.empty_like(value)
         for p in range(len(names)):
-            out_vals[p], out_unc[p] = deconvolve_slit(wl_arr, value[p], u_tot[p], np.asarray(bw), slit=slit,
-                                                      regularisation=regularisation)
+            out_vals[p], out_unc[p] = deconvolve_slit(wl_arr, value[p], u_tot[p], np.asarray(bw), slit=options.slit,
+                                                      regularisation=options.regularisation)
     sens = SpectralSensitivity(
         wavelength_nm=wl_arr,
         values={p: out_vals[k] for k, p in enumerate(names)},
         uncertainty={p: out_unc[k] for k, p in enumerate(names)},
         units=ABSOLUTE_UNITS,
         mode="absolute",
-        reference_iso=float(reference_iso),
-        reference_f_number=float(reference_f_number),
+        reference_iso=float(options.reference_iso),
+        reference_f_number=float(options.reference_f_number),
         bandwidth_nm=bandwidth,
-        deconvolved=bool(deconvolve),
+        deconvolved=bool(options.deconvolve),
         n_frames=n_used,
-        notes=tuple(notes),
+        notes=measured.notes,
     )
-    return to_relative(sens) if mode == "relative" else sens
+    return to_relative(sens) if options.mode == "relative" else sens
 
 
 def to_relative(s: SpectralSensitivity) -> SpectralSensitivity:
@@ -646,8 +741,6 @@ def to_relative(s: SpectralSensitivity) -> SpectralSensitivity:
 
 
 def _replace(s: SpectralSensitivity, **kw) -> SpectralSensitivity:
-    import dataclasses
-
     return dataclasses.replace(s, **kw)
 
 
@@ -809,8 +902,6 @@ def merge_sweeps(a: SpectralSensitivity, b: SpectralSensitivity, *, scale: bool 
 # ---- serialisation (profiles) -------------------------------------------------------------
 def spectral_to_dict(s: SpectralSensitivity) -> dict[str, Any]:
     """Everything of ``s``, JSON-ready (lists of floats); inverse of :func:`spectral_from_dict`."""
-    from camcal.store import to_jsonable
-
     return to_jsonable({
         "wavelength_nm": s.wavelength_nm, "values": {p: s.values[p] for p in s.plane_names},
         "uncertainty": {p: s.uncertainty[p] for p in s.plane_names}, "units": s.units, "mode": s.mode,

@@ -30,7 +30,7 @@ import os
 import tempfile
 import threading
 from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -39,6 +39,7 @@ import numpy as np
 from camcal.errors import CamcalError
 from camcal.frame import Exposure, Frame
 from camcal.io import folder_files, folder_manifest, load_folder_frame
+from camcal.threads import thread_count
 
 METHODS = ("mean", "median", "sigma_clip")
 MAD_TO_SIGMA = 1.4826
@@ -82,6 +83,9 @@ class StackResult:
     variance_all : (C, h, w) float32 or None
         Temporal variance (ddof=1) of *all* values, before clipping (``sigma_clip``);
         the same array as ``variance`` for ``mean`` and ``median``.
+    kept_planes : tuple of (C, h, w) arrays
+        The planes of the first ``keep_frames`` frames (in ``paths`` order) as combined (see
+        :func:`combine_frames`), for statistics that need single frames; empty by default.
     """
 
     value: np.ndarray
@@ -99,15 +103,11 @@ class StackResult:
     white_level_dn: float = float("nan")
     frame_shape: tuple[int, int] = (0, 0)
     variance_all: np.ndarray | None = None
+    kept_planes: tuple[np.ndarray, ...] = ()
 
 
 # --------------------------------------------------------------------------------------------
-# decoding (parent or forked worker)
-
-_STATE: dict = {}
-_SPILL_LOCK = threading.Lock()
-"""Decode settings shared with forked workers (closures need not be picklable with fork)."""
-
+# decoding (in the calling thread and the decode threads)
 
 @dataclass(frozen=True)
 class _Meta:
@@ -124,31 +124,6 @@ class _Meta:
     """BLAKE2b digest of the decoded pixels: two frames with the same digest are copies."""
 
 
-def _manifest_for(path: Path) -> dict:
-    cache = _STATE.setdefault("manifests", {})
-    folder = path.parent
-    if folder not in cache:
-        cache[folder] = folder_manifest(folder)
-    return cache[folder]
-
-
-def _decode(index: int, path: Path) -> tuple[_Meta, np.ndarray]:
-    manifest = _STATE.get("manifest")
-    frame: Frame = load_folder_frame(path, manifest if manifest is not None else _manifest_for(path))
-    check = _STATE.get("check")
-    if check is not None:
-        check(frame)
-    pre = _STATE.get("preprocess")
-    # default planes keep the file's integer type (uint8/uint16): exact, half the bytes to move and spill
-    planes = frame.planes(dtype=frame.data.dtype) if pre is None else np.asarray(pre(frame), dtype=np.float32)
-    if planes.ndim != 3:
-        raise CamcalError(f"preprocessing gave an array of shape {planes.shape}, expected (C, h, w)", path)
-    meta = _Meta(index, frame.exposure, frame.kind, frame.cfa_pattern, frame.channel_names,
-                 tuple(float(v) for v in frame.black_vector().ravel()), float(frame.white_level_dn), frame.shape,
-                 tuple(planes.shape), hashlib.blake2b(np.ascontiguousarray(frame.data), digest_size=16).digest())
-    return meta, planes
-
-
 def _check_same(meta: _Meta, first: _Meta, path: Path) -> None:
     if meta.frame_shape != first.frame_shape or meta.planes_shape != first.planes_shape:
         h, w = meta.frame_shape
@@ -161,31 +136,77 @@ def _check_same(meta: _Meta, first: _Meta, path: Path) -> None:
         raise CamcalError(f"CFA pattern {meta.cfa_pattern} differs from the first frame's {first.cfa_pattern}", path)
 
 
-def _spill_write(index: int, planes: np.ndarray) -> None:
-    dtype = _STATE["spill_dtype"]
-    data = planes.astype(dtype, copy=False) if planes.dtype != dtype else planes
-    buf = np.ascontiguousarray(data).view(np.uint8).reshape(-1)
-    offset = index * buf.nbytes
-    with _SPILL_LOCK:
-        fd = _STATE.get("spill_fd")
-        if fd is None:
-            fd = os.open(_STATE["spill_path"], os.O_WRONLY)
-            _STATE["spill_fd"] = fd
-    done = 0
-    while done < buf.nbytes:
-        done += os.pwrite(fd, buf[done:], offset + done)
+class _Decoder:
+    """The decode settings and spill file of one :func:`combine_frames` call, passed to its decode threads.
 
+    One object per call (no module-global state): two stacks combined at once in one process do not share it.
+    """
 
-def _worker(item: tuple[int, str]) -> tuple[_Meta, np.ndarray | None]:
-    """Decode one frame in a pool worker; spill it (median/clip) or return it (mean)."""
-    index, path = item
-    meta, planes = _decode(index, Path(path))
-    first: _Meta = _STATE["first"]
-    _check_same(meta, first, Path(path))
-    if _STATE["spill_path"] is not None:
-        _spill_write(index, planes)
-        return meta, None
-    return meta, planes
+    def __init__(self, manifest: dict | None, check: Callable[[Frame], None] | None,
+                 preprocess: Callable[[Frame], np.ndarray] | None, keep_frames: int = 0) -> None:
+        self.manifest = manifest
+        self.keep_frames = keep_frames
+        self.check = check
+        self.preprocess = preprocess
+        self.manifests: dict[Path, dict] = {}  # per-folder frames.csv when no manifest is given
+        self.first: _Meta | None = None
+        self.spill_path: Path | None = None
+        self.spill_dtype = np.dtype(np.uint16 if preprocess is None else np.float32)
+        self.spill_fd: int | None = None
+        self.lock = threading.Lock()
+
+    def _manifest_for(self, path: Path) -> dict:
+        if self.manifest is not None:
+            return self.manifest
+        with self.lock:
+            folder = path.parent
+            if folder not in self.manifests:
+                self.manifests[folder] = folder_manifest(folder)
+            return self.manifests[folder]
+
+    def decode(self, index: int, path: Path) -> tuple[_Meta, np.ndarray]:
+        frame: Frame = load_folder_frame(path, self._manifest_for(path))
+        if self.check is not None:
+            self.check(frame)
+        pre = self.preprocess
+        # default planes keep the file's integer type (uint8/uint16): exact, half the bytes to move and spill
+        planes = frame.planes(dtype=frame.data.dtype) if pre is None else np.asarray(pre(frame), dtype=np.float32)
+        if planes.ndim != 3:
+            raise CamcalError(f"preprocessing gave an array of shape {planes.shape}, expected (C, h, w)", path)
+        meta = _Meta(index, frame.exposure, frame.kind, frame.cfa_pattern, frame.channel_names,
+                     tuple(float(v) for v in frame.black_vector().ravel()), float(frame.white_level_dn), frame.shape,
+                     tuple(planes.shape), hashlib.blake2b(np.ascontiguousarray(frame.data), digest_size=16).digest())
+        return meta, planes
+
+    def spill_write(self, index: int, planes: np.ndarray) -> None:
+        dtype = self.spill_dtype
+        data = planes.astype(dtype, copy=False) if planes.dtype != dtype else planes
+        buf = np.ascontiguousarray(data).view(np.uint8).reshape(-1)
+        offset = index * buf.nbytes
+        with self.lock:
+            if self.spill_fd is None:
+                self.spill_fd = os.open(self.spill_path, os.O_WRONLY)
+            fd = self.spill_fd
+        done = 0
+        while done < buf.nbytes:
+            done += os.pwrite(fd, buf[done:], offset + done)
+
+    def close_spill(self) -> None:
+        with self.lock:
+            fd, self.spill_fd = self.spill_fd, None
+        if fd is not None:
+            os.close(fd)
+
+    def worker(self, item: tuple[int, str]) -> tuple[_Meta, np.ndarray | None]:
+        """Decode one frame in a pool thread; spill it (median/clip) or return it (mean)."""
+        index, path = item
+        meta, planes = self.decode(index, Path(path))
+        assert self.first is not None  # set from frame 0 before any worker runs
+        _check_same(meta, self.first, Path(path))
+        if self.spill_path is not None:
+            self.spill_write(index, planes)
+            return meta, planes if index < self.keep_frames else None
+        return meta, planes
 
 
 # --------------------------------------------------------------------------------------------
@@ -272,6 +293,7 @@ def combine_frames(
     progress: Callable[[int, int], None] | None = None,
     band_mb: float = 8.0,
     spill_dir: str | Path | None = None,
+    keep_frames: int = 0,
 ) -> StackResult:
     """Combine frames per pixel and per channel plane, reading each file once.
 
@@ -285,10 +307,12 @@ def combine_frames(
     manifest : ``frames.csv`` rows (:func:`camcal.io.folder_manifest`) applied to every file;
         None reads each file's own folder manifest.
     check : called with each decoded frame; raise :class:`CamcalError` to refuse it.
-    jobs : 1, or 2 to decode in 2 threads and compute band statistics in 2 threads.
+    jobs : threads to decode and to compute band statistics in (:func:`camcal.threads.thread_count`).
     progress : ``progress(done, total)`` after each decoded frame.
     band_mb : working-set budget of one row band, MB (median / sigma_clip).
     spill_dir : folder for the temporary spill file (default: the system temp folder).
+    keep_frames : keep the planes of the first ``keep_frames`` frames (``StackResult.kept_planes``), so
+        statistics of single frames need no second decode.
 
     Returns
     -------
@@ -308,64 +332,58 @@ def combine_frames(
     if not np.isfinite(sigma) or sigma <= 0:
         raise CamcalError(f"sigma must be a positive number, got {sigma}")
     n = len(paths)
-    jobs = max(1, min(int(jobs), 2, n))
+    jobs = thread_count(jobs, n)
 
-    _STATE.clear()
-    _STATE.update(manifest=manifest, check=check, preprocess=preprocess, spill_path=None)
+    dec = _Decoder(manifest, check, preprocess, keep_frames)  # this call's settings, given to the threads
+    first_meta, first_planes = dec.decode(0, paths[0])
+    dec.first = first_meta
+    c, h, w = first_planes.shape
+    spill_path = None
+    if method != "mean":
+        fd, name = tempfile.mkstemp(prefix="camcal-stack-", suffix=".raw", dir=spill_dir)
+        os.close(fd)
+        spill_path = Path(name)
+        dec.spill_path = spill_path
+    kept: dict[int, np.ndarray] = {0: first_planes} if keep_frames > 0 else {}
     try:
-        first_meta, first_planes = _decode(0, paths[0])
-        _STATE["first"] = first_meta
-        c, h, w = first_planes.shape
-        spill_path = None
-        if method != "mean":
-            integer = preprocess is None
-            _STATE["spill_dtype"] = np.dtype(np.uint16 if integer else np.float32)
-            fd, name = tempfile.mkstemp(prefix="camcal-stack-", suffix=".raw", dir=spill_dir)
-            os.close(fd)
-            spill_path = Path(name)
-            _STATE["spill_path"] = str(spill_path)
-        try:
-            metas: list[_Meta | None] = [None] * n
-            metas[0] = first_meta
-            acc = _Welford((c, h, w)) if method == "mean" else None
-            if acc is not None:
-                acc.add(first_planes)
-            else:
-                _spill_write(0, first_planes)
-            del first_planes
+        metas: list[_Meta | None] = [None] * n
+        metas[0] = first_meta
+        acc = _Welford((c, h, w)) if method == "mean" else None
+        if acc is not None:
+            acc.add(first_planes)
+        else:
+            dec.spill_write(0, first_planes)
+        del first_planes
+        if progress:
+            progress(1, n)
+        items = [(i, str(p)) for i, p in enumerate(paths)][1:]
+        for done, (meta, planes) in enumerate(_run(items, jobs, dec.worker), start=2):
+            metas[meta.index] = meta
+            if meta.index < keep_frames and planes is not None:
+                kept[meta.index] = planes
+            if acc is not None and planes is not None:
+                acc.add(planes)
             if progress:
-                progress(1, n)
-            items = [(i, str(p)) for i, p in enumerate(paths)][1:]
-            for done, (meta, planes) in enumerate(_run(items, jobs), start=2):
-                metas[meta.index] = meta
-                if acc is not None and planes is not None:
-                    acc.add(planes)
-                if progress:
-                    progress(done, n)
-            fd = _STATE.pop("spill_fd", None)
-            if fd is not None:
-                os.close(fd)
-            _refuse_copies(metas, paths)
-            if acc is not None:
-                value, mean, var, count = acc.result()
-                var_all = var
-            else:
-                value, mean, var, count, var_all = _bands(spill_path, n, (c, h, w), _STATE["spill_dtype"], method,
-                                                          sigma, jobs, band_mb)
-        finally:
-            fd = _STATE.pop("spill_fd", None)
-            if fd is not None:
-                os.close(fd)
-            if spill_path is not None:
-                spill_path.unlink(missing_ok=True)
+                progress(done, n)
+        dec.close_spill()
+        _refuse_copies(metas, paths)
+        if acc is not None:
+            value, mean, var, count = acc.result()
+            var_all = var
+        else:
+            value, mean, var, count, var_all = _bands(spill_path, n, (c, h, w), dec.spill_dtype, method,
+                                                      sigma, jobs, band_mb)
     finally:
-        _STATE.clear()
+        dec.close_spill()
+        if spill_path is not None:
+            spill_path.unlink(missing_ok=True)
     count_dtype = np.int16 if n < 2**15 else np.int32
     return StackResult(
         value=value, mean=mean, variance=var, count=count.astype(count_dtype), n_frames=n, method=method,
         exposures=tuple(m.exposure for m in metas), paths=paths, channel_names=first_meta.channel_names,
         kind=first_meta.kind, cfa_pattern=first_meta.cfa_pattern, black_level_dn=first_meta.black,
         white_level_dn=first_meta.white, frame_shape=first_meta.frame_shape, variance_all=var_all,
+        kept_planes=tuple(kept[i] for i in sorted(kept)),
     )
 
 
@@ -381,7 +399,7 @@ def _refuse_copies(metas: list[_Meta | None], paths: tuple[Path, ...]) -> None:
                               "each frame of a stack must be a separate exposure", paths[i])
 
 
-def _run(items: list[tuple[int, str]], jobs: int):
+def _run(items: list[tuple[int, str]], jobs: int, worker: Callable[[tuple[int, str]], tuple[_Meta, np.ndarray | None]]):
     """Yield ``(meta, planes-or-None)`` per item, decoding ``jobs`` frames at a time in threads.
 
     LibRaw and OpenImageIO release the GIL while reading and decoding, so threads
@@ -392,16 +410,14 @@ def _run(items: list[tuple[int, str]], jobs: int):
     """
     if jobs <= 1 or len(items) <= 1:
         for item in items:
-            yield _worker(item)
+            yield worker(item)
         return
-    from concurrent.futures import FIRST_COMPLETED, wait
-
     pending: set = set()
     queue = iter(items)
     with ThreadPoolExecutor(jobs, thread_name_prefix="camcal-decode") as pool:
         try:
             for item in queue:
-                pending.add(pool.submit(_worker, item))
+                pending.add(pool.submit(worker, item))
                 if len(pending) >= 2 * jobs:
                     done, pending = wait(pending, return_when=FIRST_COMPLETED)
                     for fut in done:

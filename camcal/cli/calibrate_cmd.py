@@ -20,10 +20,12 @@ def register(app: typer.Typer) -> None:
         flat_model: str = typer.Option("radial", help="Vignetting model: radial or 2d."),
         sweep_mode: str = typer.Option("absolute", help="c(λ) units: absolute or relative."),
         deconvolve: bool = typer.Option(False, help="Deconvolve the monochromator slit from c(λ)."),
-        jobs: int = typer.Option(2, "--jobs", "-j", help="Worker processes (1 or 2)."),
+        jobs: int = typer.Option(2, "--jobs", "-j", help="Decoding threads (capped at the usable cores)."),
     ) -> None:
         """Run every calibration stage whose folder exists and write one profile."""
+        # imported when the command runs, not when `camcal` starts (start-up time of every command)
         from camcal.calibrate import CalibrateOptions, calibrate_session
+        from camcal.cli.profile_cmd import print_contract
         from camcal.profile import contract, save_profile
 
         opts = CalibrateOptions(reference_iso=reference_iso, reference_f_number=reference_f_number,
@@ -43,7 +45,5 @@ def register(app: typer.Typer) -> None:
         messages = [" ".join(str(w.message).split()) for w in caught if issubclass(w.category, UserWarning)]
         for msg in dict.fromkeys([*notes, *messages]):
             err_console.print(f"camcal: warning: {msg}", soft_wrap=True, markup=False, highlight=False)
-        from camcal.cli.profile_cmd import print_contract
-
         print_contract(contract(profile), title=f"profile → {output}")
         console.print(f"wrote {output} (sha256 {profile.content_sha256[:16]}…)")

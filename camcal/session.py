@@ -1,0 +1,217 @@
+"""The session index: a calibration session read once.
+
+:func:`index_session` scans a session folder (the stage folders present), reads every manifest once
+(``frames.csv`` of each stage, ``sweep/sweep.csv``) and the session defaults (``session.toml``), resolves
+what each frame's exposure is known to be without decoding it, and checks what can be checked without
+pixels (manifest rows naming files that are not there, missing exposure times of dark frames, dark and
+bias frames at different ISO settings). The stages then receive :class:`StageFrames` (paths and their
+manifest rows) from it instead of folder paths, so no stage lists a folder or reads a manifest again.
+
+Precedence of an exposure value (as :func:`camcal.io.load_frame` applies it at decode time): the
+manifest row (``frames.csv``, or ``sweep.csv`` for the sweep) > the file's tag > ``session.toml`` >
+LibRaw's reading of a maker header. The last needs the file opened by LibRaw, so the index leaves such a
+value unknown (None, no source); decoding fills it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from camcal.errors import CamcalError, MissingMetadataError
+from camcal.io import IMAGE_EXTENSIONS, exposure_from_exif, folder_files, is_raw_path, list_frames
+from camcal.manifest import FRAMES_CSV, exposure_overrides, read_manifest, session_defaults_for
+
+STAGES = ("bias", "dark", "flat", "linearity", "sweep")
+"""Stage folders of a session, in calibration order."""
+
+SWEEP_CSV = "sweep.csv"
+SWEEP_REQUIRED = ("file", "wavelength_nm", "radiance_W_m2_sr")
+
+Row = Mapping[str, "float | str | None"]
+
+
+@dataclass(frozen=True)
+class FrameRef:
+    """One frame of a stage: its path, its manifest row and what is known of its exposure before decoding.
+
+    Attributes
+    ----------
+    path : the image file.
+    overrides : exposure fields of its manifest row (:func:`camcal.manifest.exposure_overrides`), given to
+        :func:`camcal.io.load_frame` when it is decoded.
+    exposure_s : exposure time, s; None when only decoding can tell (LibRaw) or nothing holds it.
+    exposure_source : where ``exposure_s`` came from: the manifest's name, ``tag`` or ``session``; None when unknown.
+    iso, f_number : ISO speed and f-number (same precedence), None when unknown before decoding.
+    iso_source, f_number_source : where they came from, as ``exposure_source``.
+    """
+
+    path: Path
+    overrides: Mapping[str, float | None] = field(default_factory=dict)
+    exposure_s: float | None = None
+    exposure_source: str | None = None
+    iso: float | None = None
+    iso_source: str | None = None
+    f_number: float | None = None
+    f_number_source: str | None = None
+
+
+@dataclass(frozen=True)
+class StageFrames:
+    """The frames of one stage folder with its manifest rows (read once, by :func:`index_session`).
+
+    Stages accept this wherever they accept a folder path (:func:`stage_files`).
+    """
+
+    stage: str
+    folder: Path
+    frames: tuple[FrameRef, ...]
+    manifest: Mapping[str, Row]
+    """``frames.csv`` rows keyed by file name ({} when the folder has none)."""
+
+    @property
+    def paths(self) -> list[Path]:
+        return [f.path for f in self.frames]
+
+    def __fspath__(self) -> str:  # provenance and messages name the folder, as they did with folder paths
+        return str(self.folder)
+
+    def __str__(self) -> str:
+        return str(self.folder)
+
+
+@dataclass(frozen=True)
+class SessionIndex:
+    """One calibration session, read once (see the module docstring).
+
+    Attributes
+    ----------
+    root : the session folder.
+    stages : stage folders holding image files, in :data:`STAGES` order.
+    defaults : ``session.toml`` values (:class:`camcal.frame.Exposure` field names), {} when absent.
+    frames : per stage, its :class:`StageFrames`.
+    sweep_manifest : ``sweep/sweep.csv`` rows, None when the session has no sweep or the sweep no ``sweep.csv``.
+    """
+
+    root: Path
+    stages: tuple[str, ...]
+    defaults: Mapping[str, float]
+    frames: Mapping[str, StageFrames]
+    sweep_manifest: Mapping[str, Row] | None = None
+
+    def stage(self, name: str) -> StageFrames | None:
+        """The frames of stage ``name``; None when the session does not hold it."""
+        return self.frames.get(name)
+
+    def manifest_of(self, name: str) -> tuple[Mapping[str, Row], str]:
+        """The manifest rows that give stage ``name``'s exposures and the manifest's file name: ``sweep.csv``
+        for a sweep that has one, else ``frames.csv``."""
+        if name == "sweep" and self.sweep_manifest is not None:
+            return self.sweep_manifest, SWEEP_CSV
+        sf = self.frames.get(name)
+        return (sf.manifest if sf is not None else {}), FRAMES_CSV
+
+
+def present_stages(session: str | Path) -> list[str]:
+    """Stage folders of ``session`` that hold at least one image file."""
+    session = Path(session)
+    if not session.is_dir():
+        raise CamcalError("is not a session folder", session)
+    out = []
+    for s in STAGES:
+        d = session / s
+        if d.is_dir() and any(p.suffix.lower() in IMAGE_EXTENSIONS for p in d.iterdir()):
+            out.append(s)
+    return out
+
+
+def resolve_exposure(path: Path, row: Row | None, defaults: Mapping[str, float],
+                     manifest_name: str = FRAMES_CSV) -> FrameRef:
+    """What is known of one frame's exposure time, ISO and f-number without decoding it (module docstring).
+
+    The file's EXIF header is read (:func:`camcal.io.exposure_from_exif`); pixels are not. For a processed
+    image (JPEG, TIFF, PNG) a value the EXIF reader does not find stays unknown here: OpenImageIO may still
+    read it when the file is decoded, and it would rank above ``session.toml``.
+    """
+    raw = is_raw_path(path)
+    overrides = {k: v for k, v in exposure_overrides(row).items() if v is not None}
+    tags = None
+    values: dict[str, tuple[float | None, str | None]] = {}
+    for key in ("exposure_s", "iso", "f_number"):
+        if overrides.get(key) is not None:
+            values[key] = (float(overrides[key]), manifest_name)
+            continue
+        if tags is None:
+            tags = exposure_from_exif(path)
+        v = getattr(tags, key)
+        if v is not None:
+            values[key] = (float(v), "tag")
+        elif raw and defaults.get(key) is not None:
+            values[key] = (float(defaults[key]), "session")
+        else:
+            values[key] = (None, None)
+    return FrameRef(path, exposure_overrides(row) if row else {}, *values["exposure_s"], *values["iso"],
+                    *values["f_number"])
+
+
+def index_session(session: str | Path) -> SessionIndex:
+    """Scan ``session``, read its manifests and defaults once, resolve exposures and check them.
+
+    Raises
+    ------
+    CamcalError
+        Not a folder, no stage folder with images, a ``frames.csv`` row naming a file that is not an image of
+        its folder, a bad manifest or ``session.toml``, a dark frame without an exposure time, dark and bias
+        frames at different ISO settings.
+    """
+    root = Path(session)
+    stages = present_stages(root)
+    if not stages:
+        raise CamcalError("holds none of bias/ dark/ flat/ linearity/ sweep/ with image files", root)
+    defaults = session_defaults_for(root / stages[0])
+    sweep_manifest = None
+    frames: dict[str, StageFrames] = {}
+    for s in stages:
+        folder = root / s
+        if s == "sweep":
+            # the sweep's frames are the rows of sweep.csv (camcal.spectral); its folder may hold more (twins)
+            files = list_frames(folder)
+            manifest = read_manifest(folder / FRAMES_CSV) if (folder / FRAMES_CSV).exists() else {}
+            if (folder / SWEEP_CSV).exists():
+                sweep_manifest = read_manifest(folder / SWEEP_CSV, required=SWEEP_REQUIRED)
+        else:
+            files, manifest = folder_files(folder)
+        rows, name = (sweep_manifest, SWEEP_CSV) if s == "sweep" and sweep_manifest is not None else (manifest,
+                                                                                                      FRAMES_CSV)
+        refs = tuple(resolve_exposure(p, rows.get(p.name), defaults, name) for p in files)
+        frames[s] = StageFrames(s, folder, refs, manifest)
+    index = SessionIndex(root, tuple(stages), dict(defaults), frames, sweep_manifest)
+    _check(index)
+    return index
+
+
+def _check(index: SessionIndex) -> None:
+    """Checks that need no pixels: dark exposure times known, one ISO for dark and bias frames."""
+    dark, bias = index.stage("dark"), index.stage("bias")
+    if dark is not None:
+        for f in dark.frames:
+            if f.exposure_s is None:
+                raise MissingMetadataError(f.path, "exposure_s")
+    isos = {f.iso for sf in (dark, bias) if sf is not None for f in sf.frames}
+    if None not in isos and len(isos) > 1:  # unknown ISOs: decoding decides (camcal.dark)
+        raise CamcalError(f"frames mix ISO settings {sorted(isos)}; take bias and dark frames at one ISO",
+                          (dark or bias).folder)  # type: ignore[union-attr]
+
+
+def stage_files(source: str | Path | StageFrames) -> tuple[list[Path], dict[str, Row]]:
+    """The image files of a stage and their manifest rows: from a :class:`StageFrames` as indexed, or read
+    from a folder (:func:`camcal.io.folder_files`) for callers that hold only a path."""
+    if isinstance(source, StageFrames):
+        return source.paths, dict(source.manifest)
+    return folder_files(source)
+
+
+def folder_of(source: str | Path | StageFrames) -> Path:
+    """The folder of a stage source (a path or :class:`StageFrames`)."""
+    return source.folder if isinstance(source, StageFrames) else Path(source)
