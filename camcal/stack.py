@@ -121,7 +121,7 @@ class _Meta:
     frame_shape: tuple[int, int]
     planes_shape: tuple[int, ...]
     digest: bytes = b""
-    """BLAKE2b digest of the decoded pixels: two frames with the same digest are copies."""
+    """Digest of the decoded pixels (:func:`_digest`): two frames with the same digest are copies."""
 
 
 def _check_same(meta: _Meta, first: _Meta, path: Path) -> None:
@@ -175,7 +175,7 @@ class _Decoder:
             raise CamcalError(f"preprocessing gave an array of shape {planes.shape}, expected (C, h, w)", path)
         meta = _Meta(index, frame.exposure, frame.kind, frame.cfa_pattern, frame.channel_names,
                      tuple(float(v) for v in frame.black_vector().ravel()), float(frame.white_level_dn), frame.shape,
-                     tuple(planes.shape), hashlib.blake2b(np.ascontiguousarray(frame.data), digest_size=16).digest())
+                     tuple(planes.shape), _digest(frame.data))
         return meta, planes
 
     def spill_write(self, index: int, planes: np.ndarray) -> None:
@@ -385,6 +385,18 @@ def combine_frames(
         white_level_dn=first_meta.white, frame_shape=first_meta.frame_shape, variance_all=var_all,
         kept_planes=tuple(kept[i] for i in sorted(kept)),
     )
+
+
+DIGEST_STRIDE = 16
+"""Every 16th value enters a frame's digest (5 ms for 12 MP instead of 40 ms for every value): two separate
+exposures never agree on 750 000 noisy values, even below 1 DN of noise (57 % agree per pixel on the IMX296)."""
+
+
+def _digest(data: np.ndarray) -> bytes:
+    """BLAKE2b of every :data:`DIGEST_STRIDE`-th value of a decoded frame (its shape and type included)."""
+    h = hashlib.blake2b(repr((data.shape, data.dtype.str)).encode(), digest_size=16)
+    h.update(np.ascontiguousarray(data.reshape(-1)[::DIGEST_STRIDE]))
+    return h.digest()
 
 
 def _refuse_copies(metas: list[_Meta | None], paths: tuple[Path, ...]) -> None:

@@ -7,7 +7,10 @@ from pathlib import Path
 
 import typer
 
+from camcal.calibrate import CalibrateOptions, calibrate_session
 from camcal.cli.common import console, err_console, progress
+from camcal.cli.profile_cmd import print_contract
+from camcal.profile import contract, save_profile
 
 
 def register(app: typer.Typer) -> None:
@@ -23,11 +26,6 @@ def register(app: typer.Typer) -> None:
         jobs: int = typer.Option(2, "--jobs", "-j", help="Decoding threads (capped at the usable cores)."),
     ) -> None:
         """Run every calibration stage whose folder exists and write one profile."""
-        # imported when the command runs, not when `camcal` starts (start-up time of every command)
-        from camcal.calibrate import CalibrateOptions, calibrate_session
-        from camcal.cli.profile_cmd import print_contract
-        from camcal.profile import contract, save_profile
-
         opts = CalibrateOptions(reference_iso=reference_iso, reference_f_number=reference_f_number,
                                 flat_model=flat_model, sweep_mode=sweep_mode, deconvolve=deconvolve, jobs=jobs)
         with warnings.catch_warnings(record=True) as caught, progress() as bar:
