@@ -23,6 +23,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+import os
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, replace
@@ -353,7 +354,9 @@ def run_batch(
     plan = preflight(profile_path, paths, options, with_maps=scheduler is None and jobs <= 1)
     outdir.mkdir(parents=True, exist_ok=True)
     profile_path = str(Path(profile_path).resolve())
-    args = [(str(p.resolve()), profile_path, str(outdir.resolve()), options) for p in paths]
+    # absolute, not resolved: a photo reached through a symbolic link keeps its folder's frames.csv and
+    # session.toml (the folder the user named), not those beside the link's target
+    args = [(os.path.abspath(p), profile_path, str(outdir.resolve()), options) for p in paths]
     total = len(args)
     results: dict[str, PhotoResult] = {}
 

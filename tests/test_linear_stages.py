@@ -8,7 +8,6 @@ vignetting model 0.5 % everywhere, γ 0.005, c(λ) 1 % RMS of the peak, band rad
 from __future__ import annotations
 
 import json
-import shutil
 from pathlib import Path
 
 import numpy as np
@@ -114,8 +113,8 @@ def test_real_pi_photos_through_apply_with_a_synthetic_pi_profile(tmp_path):
     assert proc.returncode == 0, proc.stderr
     photos = tmp_path / "photos"
     photos.mkdir()
-    for p in PI_PHOTOS:  # copies in a temporary folder (never in the repository)
-        shutil.copy(p, photos / p.name)
+    for p in PI_PHOTOS:  # links from a temporary folder: its session.toml applies, not one beside the targets
+        (photos / p.name).symlink_to(p)
     proc = run_cli("apply", prof, photos, "-o", tmp_path / "out", "--allow-other-camera")
     assert proc.returncode == 1 and "f_number" in proc.stderr  # no f-number anywhere: every photo listed
     (photos / "session.toml").write_text("f_number = 1.2\n")
