@@ -38,9 +38,6 @@ from camcal.frame import PLANES, Frame, split_planes
 Window = tuple[slice, slice]
 """Rows and columns of a plane, plane pixels (half resolution for CFA mosaics)."""
 
-DEFECT_HOT, DEFECT_DEAD, DEFECT_NOISY = 1, 2, 4
-"""Bits of a defect map (:attr:`camcal.dark.DarkModel.defects`)."""
-
 
 @runtime_checkable
 class DarkFrameModel(Protocol):
