@@ -544,7 +544,10 @@ class FlatChecks:
     Attributes
     ----------
     max_clipped_fraction : float
-        Largest fraction of pixels at or above the white level (saturated) a flat may have.
+        Largest fraction of pixels at or above the white level (saturated) a flat may have outside the
+        known defects. Fewer are masked (left out of the combine and the fit, :mod:`camcal.correct`): stray
+        saturated pixels (hot pixels without a dark model, a speck of glare) do not cost the frame; more mean
+        an over-exposed region, whose masking would bias the falloff there.
     min_level : float
         Smallest median signal of the weakest plane, as a fraction of the range white − black.
         Below it the flat is too dark for a useful SNR (5 % of a 14-bit range is ~800 DN,
@@ -554,7 +557,7 @@ class FlatChecks:
         bright centre risks the non-linear top of the sensor's range.
     """
 
-    max_clipped_fraction: float = 1e-4
+    max_clipped_fraction: float = 1e-2
     min_level: float = 0.05
     max_level: float = 0.95
 
