@@ -52,7 +52,6 @@ import numpy as np
 
 from camcal.colour import ColourMatrix
 from camcal.correct import Calibration, DarkFrameModel, correct_planes
-from camcal.dark import DarkModel, load_dark
 from camcal.errors import CamcalError
 from camcal.exposure import relative_exposure
 from camcal.frame import PLANES
@@ -872,7 +871,3 @@ def load_response(path: str | Path) -> dict[str, ResponseModel]:
     except CamcalError as exc:
         raise CamcalError(exc.message, path) from None
 
-
-def load_dark_model(path: str | Path) -> DarkModel:
-    """Compatibility name of :func:`camcal.dark.load_dark` (the one dark-model loader), used by ``camcal linearity``."""
-    return load_dark(path)

@@ -8,10 +8,11 @@ import typer
 from rich.table import Table
 
 from camcal.cli.common import console, print_json, progress
+from camcal.dark import load_dark
 from camcal.errors import CamcalError
 from camcal.plots import response_figure, write_png
 from camcal.region import Region
-from camcal.response import fit_response, load_dark_model, save_response
+from camcal.response import fit_response, save_response
 from camcal.store import to_jsonable
 
 
@@ -39,7 +40,7 @@ def register(app: typer.Typer) -> None:
         if roi is not None and roi_fraction is not None:
             raise CamcalError("give --roi or --roi-fraction, not both")
         region = Region.parse(roi) if roi is not None else roi_fraction
-        dark_model = load_dark_model(dark) if dark is not None else None
+        dark_model = load_dark(dark) if dark is not None else None
         with progress() as bar:
             task = bar.add_task("reading frames", total=None)
 
