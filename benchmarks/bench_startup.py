@@ -46,12 +46,50 @@ DECODE = ("import sys, rawpy\n"
           "        r.raw_image_visible.copy()\n")
 
 
-#: What a ``camcal calibrate`` run imports (``python -X importtime``), without doing anything.
-CALIBRATE_IMPORTS = ("from camcal.cli import register_commands, commands_for\n"
-                     "register_commands(commands_for(['calibrate']))\n"
-                     "import camcal.calibrate, camcal.colour, camcal.container, camcal.dark, camcal.exr, camcal.flat\n"
-                     "import camcal.profile, camcal.reference_targets, camcal.response, camcal.spectral, camcal.stack\n"
-                     "import camcal.spectral_files, camcal.store, jsonschema, OpenImageIO, scipy.interpolate\n")
+#: Records every module a real ``camcal calibrate`` run loads (``sys.modules`` at its end), as JSON on stdout.
+LOADED = ("import json, sys\n"
+          "from camcal.cli import run\n"
+          "sys.argv = ['camcal', 'calibrate', sys.argv[1], '-o', sys.argv[2]]\n"
+          "try:\n"
+          "    run()\n"
+          "except SystemExit as e:\n"
+          "    assert not e.code, e.code\n"
+          "sys.stdout.flush()\n"
+          "print('\\nMODULES ' + json.dumps(sorted(sys.modules)))\n")
+
+#: Imports the modules of a list (one name per line in the file argv[1]), as a calibrate run loads them.
+IMPORT_LIST = ("import importlib, sys\n"
+               "for m in open(sys.argv[1]).read().split():\n"
+               "    try:\n"
+               "        importlib.import_module(m)\n"
+               "    except Exception:\n"
+               "        pass\n")
+
+#: The third-party libraries every calibrate loads whatever camcal does: numpy and rawpy (the baseline loads them
+#: too), the CLI (Typer, Rich), profile validation (jsonschema), the profile's maps (OpenImageIO), EXIF (exifread).
+FLOOR = "import numpy, rawpy, typer, rich.progress, jsonschema, OpenImageIO, exifread"
+
+#: ``calibrate_session`` + ``save_profile`` inside one process after every import, printed as seconds.
+WORK_ONLY = ("import sys, time\n"
+        "from camcal.calibrate import CalibrateOptions, calibrate_session\n"
+        "from camcal.profile import save_profile\n"
+        "calibrate_session(sys.argv[1])  # loads whatever is lazily imported\n"
+        "t = time.perf_counter()\n"
+        "profile, _ = calibrate_session(sys.argv[1])\n"
+        "save_profile(profile, sys.argv[2])\n"
+        "print(time.perf_counter() - t)\n")
+
+
+def loaded_modules(folder: Path, env: dict[str, str], tmp: Path) -> list[str]:
+    """Every module a ``camcal calibrate`` of ``folder`` loads (its ``sys.modules`` at the end)."""
+    proc = subprocess.run([sys.executable, "-c", LOADED, str(folder), str(tmp / "loaded.camcal")],
+                          capture_output=True, text=True, env=env, cwd=tmp)
+    if proc.returncode != 0 or "MODULES " not in proc.stdout:
+        raise SystemExit(f"calibrate failed: {proc.stderr[-2000:]}")
+    import json
+
+    names = json.loads(proc.stdout.rsplit("MODULES ", 1)[1])
+    return [m for m in names if m not in ("__main__", "__mp_main__") and not m.startswith("_")]
 
 
 def session() -> tuple[Path, list[Path]]:
@@ -86,13 +124,16 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         listing = Path(tmp) / "files.txt"
         listing.write_text("\n".join(str(p) for p in dngs))
+        modules = loaded_modules(folder, env, Path(tmp))
+        (Path(tmp) / "modules.txt").write_text("\n".join(modules))
         cmds = {
             "version": [py, "-m", "camcal", "--version"],
             "inspect": [py, "-m", "camcal", "inspect", str(dngs[0])],
             "inspect start-up": [py, "-c", "from camcal.cli import register_commands, commands_for\n"
                                  "register_commands(commands_for(['inspect']))"],
             "calibrate": [py, "-m", "camcal", "calibrate", str(folder), "-o", str(Path(tmp) / "p.camcal")],
-            "calibrate start-up": [py, "-c", CALIBRATE_IMPORTS],
+            "calibrate start-up": [py, "-c", IMPORT_LIST, str(Path(tmp) / "modules.txt")],
+            "floor": [py, "-c", FLOOR],
             "decode": [py, "-c", DECODE, str(listing)],
             "pass": [py, "-c", "pass"],
         }
@@ -102,9 +143,13 @@ def main() -> None:
             for k in ("version", "inspect", "calibrate"):  # an older tree has no commands_for: no start-up row
                 cmds[f"{k} before"], envs[f"{k} before"] = cmds[k], old
         times: dict[str, list[float]] = {k: [] for k in cmds}
+        work: list[float] = []
         for _ in range(args.runs):
             for name, argv in cmds.items():
                 times[name].append(timed(argv, envs[name], Path(tmp)))
+            proc = subprocess.run([py, "-c", WORK_ONLY, str(folder), str(Path(tmp) / "w.camcal")], capture_output=True,
+                                  text=True, env=env, cwd=tmp, check=True)
+            work.append(float(proc.stdout.split()[-1]))
     med = {k: statistics.median(v) for k, v in times.items()}
     load = os.getloadavg()[0]
     print(f"### start-up and a small session, {date.today()}\n")
@@ -115,7 +160,8 @@ def main() -> None:
     labels = {"version": "`camcal --version`", "inspect": "`camcal inspect` one DNG",
               "inspect start-up": "`inspect`'s start-up alone: interpreter, imports, registration (no file)",
               "calibrate": "`camcal calibrate` 116 DNGs 320x240",
-              "calibrate start-up": "`calibrate`'s imports alone (every module a calibrate run imports, no file)",
+              "calibrate start-up": "`calibrate`'s imports alone (every module a calibrate run loads, no file)",
+              "floor": "the third-party imports alone: numpy, rawpy, typer, rich, jsonschema, OpenImageIO, exifread",
               "decode": "baseline: python + rawpy decode of "
               "the 116 DNGs", "pass": "`python -c pass`"}
     for k in ("version", "inspect", "calibrate"):
@@ -124,6 +170,12 @@ def main() -> None:
     for k, label in labels.items():
         runs = ", ".join(f"{t:.2f}" for t in times[k])
         print(f"| {label} | {med[k]:.3f} | {runs} | {med[k] / med['decode']:.2f} |")
+    heavy = sorted({m.split(".")[0] for m in modules} & {"scipy", "skimage", "colour", "matplotlib", "dask"})
+    print(f"| `calibrate`'s work alone: `calibrate_session` + `save_profile` in one process after every import "
+          f"| {statistics.median(work):.3f} | {', '.join(f'{t:.2f}' for t in work)} | "
+          f"{statistics.median(work) / med['decode']:.2f} |")
+    print(f"\nA calibrate run loads {len(modules)} modules; of scipy, scikit-image, colour-science, matplotlib and "
+          f"dask it loads: {', '.join(heavy) or 'none'}.")
     print(f"\nStart-up above the interpreter's: `--version` {med['version'] - med['pass']:.3f} s, `inspect` "
           f"{med['inspect'] - med['pass']:.3f} s (of which start-up {med['inspect start-up'] - med['pass']:.3f} s); "
           "calibrate / bare decode = "

@@ -263,12 +263,16 @@ def profile_from_document(doc: dict, maps: dict[str, np.ndarray], where: str | P
 
 
 def save_profile(profile: CalibrationProfile, path: str | Path) -> CalibrationProfile:
-    """Write ``profile`` to ``path`` (atomically); returns it with ``content_sha256`` set."""
+    """Write ``profile`` to ``path`` (atomically); returns it with ``content_sha256`` set.
+
+    The document is validated against the schema before anything is written; the written file is read back
+    and both of its hashes verified (the maps are not decoded again: they were encoded from arrays in hand).
+    """
     doc, maps = profile_to_document(profile)
     validate_document({**doc, "integrity": {"algorithm": "sha256", "content_sha256": "0" * 64,
                                             "maps_sha256": None}}, path)
     write_container(path, doc, maps)
-    written, _ = read_container(path)
+    written, _ = read_container(path, decode_maps=False)
     return dataclasses.replace(profile, content_sha256=written["integrity"]["content_sha256"])
 
 

@@ -4,7 +4,10 @@ imports the CLI, one ``--roi`` parser."""
 from __future__ import annotations
 
 import ast
+import json
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -82,3 +85,23 @@ def test_photo_pixels_to_an_output_grid():
     assert pixels_per_output_cell(None) is None and pixels_per_output_cell("something else") is None
     # rounded outward: photo pixels 3..8 cover half-resolution cells 1..3 (cells 1, 2, 3)
     assert Region(3, 3, 5, 5).window((10, 10), 2) == (slice(1, 4), slice(1, 4))
+
+
+def test_a_calibrate_run_loads_no_scipy(session_dir, tmp_path):
+    """Issue 17 item 7: calibrate's small fits are numpy-only (camcal.special, camcal.optimize, camcal.spline), so
+    a calibrate run does not pay scipy's import (0.25-0.3 s, benchmarks/RESULTS.md, Start-up). The session is
+    the full synthetic one (every stage, JPEG twins and the colour matrix)."""
+    code = ("import json, sys\n"
+            "from camcal.cli import run\n"
+            "sys.argv = ['camcal', 'calibrate', sys.argv[1], '-o', sys.argv[2]]\n"
+            "try:\n"
+            "    run()\n"
+            "except SystemExit as e:\n"
+            "    assert not e.code, e.code\n"
+            "heavy = ('scipy', 'skimage', 'colour', 'matplotlib', 'dask')\n"
+            "print('LOADED', json.dumps(sorted({m.split('.')[0] for m in sys.modules} & set(heavy))))\n")
+    proc = subprocess.run([sys.executable, "-c", code, str(session_dir), str(tmp_path / "p.camcal")],
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    assert (tmp_path / "p.camcal").is_file()
+    assert json.loads(proc.stdout.rsplit("LOADED", 1)[1]) == []
