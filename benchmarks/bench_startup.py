@@ -51,7 +51,7 @@ CALIBRATE_IMPORTS = ("from camcal.cli import register_commands, commands_for\n"
                      "register_commands(commands_for(['calibrate']))\n"
                      "import camcal.calibrate, camcal.colour, camcal.container, camcal.dark, camcal.exr, camcal.flat\n"
                      "import camcal.profile, camcal.reference_targets, camcal.response, camcal.spectral, camcal.stack\n"
-                     "import camcal.spectral_files, camcal.store, jsonschema, OpenImageIO, scipy.interpolate\n")
+                     "import camcal.spectral_files, camcal.spline, camcal.store, jsonschema, OpenImageIO\n")
 
 
 def session() -> tuple[Path, list[Path]]:
