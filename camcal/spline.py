@@ -30,7 +30,7 @@ solver). Without pivoting is safe here: the interior rows are strictly diagonall
 either end condition every pivot is positive and, after the first row, each ratio upper/pivot that the
 back substitution multiplies by is below 1 in magnitude; the rounding error grows with the ratio of
 neighbouring knot spacings, as scipy's does
-(``tests/test_spline.py``: agreement to 1e-14 for ratios up to 100, 1e-12 at 10^4). Each piece is then
+(``tests/test_spline.py``: agreement with scipy to 1e-14 for ratios up to 100, 1e-12 at 10^4). Each piece is then
 the cubic Hermite polynomial of its end values and slopes (as ``scipy.interpolate.CubicHermiteSpline``),
 stored like ``scipy.interpolate.PPoly``: coefficients of (x − x_i)³, (x − x_i)², (x − x_i), 1.
 
