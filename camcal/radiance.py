@@ -89,7 +89,7 @@ FWHM_TO_SIGMA = 1.0 / (2.0 * np.sqrt(2.0 * np.log(2.0)))
 
 
 def _interp(wl: np.ndarray, values: np.ndarray, at: float, derivative: int = 0) -> float:
-    """Cubic-spline value (or derivative) of a sampled curve at ``at``; NaN outside the samples."""
+    """Not-a-knot cubic-spline value (or derivative) of a sampled curve at ``at`` (camcal.spline); NaN outside."""
     if not wl[0] <= at <= wl[-1]:
         return float("nan")
     if wl.size < 4:

@@ -221,6 +221,8 @@ class SpectralSensitivity:
     def slit_bias(self) -> dict[str, np.ndarray]:
         """Second-order estimate of (c ⊛ φ − c) per plane, same units: (σ²/2)·c'' (Gaussian slit).
 
+        c'' is that of the not-a-knot cubic spline through the nodes (:func:`camcal.spline.cubic_spline`).
+
         Zero when deconvolved or when the bandwidth is unknown.
         """
         if self.deconvolved or not self.bandwidth_nm or self.wavelength_nm.size < 4:
