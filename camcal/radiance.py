@@ -53,6 +53,7 @@ import numpy as np
 
 from camcal.errors import CamcalError
 from camcal.spectra import planck_radiance
+from camcal.spline import cubic_spline
 
 RGB = ("R", "G", "B")
 ESTIMATORS = ("narrowband", "smooth")
@@ -88,14 +89,12 @@ FWHM_TO_SIGMA = 1.0 / (2.0 * np.sqrt(2.0 * np.log(2.0)))
 
 
 def _interp(wl: np.ndarray, values: np.ndarray, at: float, derivative: int = 0) -> float:
-    """Cubic-spline value (or derivative) of a sampled curve at ``at``; NaN outside the samples."""
+    """Not-a-knot cubic-spline value (or derivative) of a sampled curve at ``at`` (camcal.spline); NaN outside."""
     if not wl[0] <= at <= wl[-1]:
         return float("nan")
     if wl.size < 4:
         return float(np.interp(at, wl, values)) if derivative == 0 else 0.0
-    from scipy.interpolate import CubicSpline  # lazy: scipy.interpolate ~0.4 s at import
-
-    return float(CubicSpline(wl, values)(at, derivative))
+    return float(cubic_spline(wl, values)(at, derivative))
 
 
 def smooth_operator(wavelength_nm: np.ndarray, c: np.ndarray, length_nm: float = 60.0, eps: float = 1e-6) -> np.ndarray:

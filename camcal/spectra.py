@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from camcal.errors import CamcalError
+from camcal.spline import cubic_spline
 
 #: Default wavelength grid of the synthetic camera, nm.
 WAVELENGTHS_NM = np.arange(380.0, 781.0, 1.0)
@@ -49,9 +50,7 @@ def camera_sensitivities(name: str, wavelengths_nm: np.ndarray = WAVELENGTHS_NM)
     out = np.empty((3, wavelengths_nm.size))
     for i in range(3):
         # cubic (Sprague-like smoothness is not needed for a simulator); zero outside
-        from scipy.interpolate import CubicSpline  # lazy: scipy.interpolate ~0.4 s at import
-
-        spline = CubicSpline(wl, vals[:, i], extrapolate=False)
+        spline = cubic_spline(wl, vals[:, i], extrapolate=False)
         y = spline(wavelengths_nm)
         out[i] = np.clip(np.nan_to_num(y, nan=0.0), 0.0, None)
     return out
