@@ -667,8 +667,10 @@ def least_squares(
 def covariance_from_jacobian(jac: np.ndarray) -> np.ndarray:
     """``pinv(JᵀJ)`` through the SVD of J, singular values ≤ ε·max(m, n)·s₀ dropped (as ``curve_fit``).
 
-    Returns an (n, n) array of ``inf`` when the result has NaN (covariance not estimable).
+    Returns an (n, n) array of ``inf`` when J or the result is not finite (covariance not estimable).
     """
+    if not np.all(np.isfinite(jac)):
+        return np.full((jac.shape[1], jac.shape[1]), np.inf)
     _, s, vt = np.linalg.svd(jac, full_matrices=False)
     threshold = EPS * max(jac.shape) * s[0]
     s = s[s > threshold]

@@ -69,9 +69,9 @@ def _erf_small(x: np.ndarray) -> np.ndarray:
 def _erfc_large(a: np.ndarray) -> np.ndarray:
     """erfc(a) for |a| >= 1: ``exp(−a²) P(|a|)/Q(|a|)`` (R/S beyond 8), reflected for a < 0 (Cephes)."""
     x = np.abs(a)
-    z = -a * a
-    under = z < -_MAXLOG
     with np.errstate(over="ignore", under="ignore", invalid="ignore"):
+        z = -a * a
+        under = z < -_MAXLOG
         ez = np.exp(z)
         mid = x < 8.0
         p = np.where(mid, _polevl(x, _P), _polevl(x, _R))
