@@ -569,8 +569,8 @@ def quantised_noise_fit(first: np.ndarray, second: np.ndarray, eps: float = 1e-4
         m, o, lsd, ls = p
         sd, sg = np.exp(lsd), np.exp(ls)
         mu = m + sd * nodes
-        p1 = np.diff(ndtr((edges[None, :] - mu[:, None]) / sg), axis=1)
-        p2 = np.diff(ndtr((edges[None, :] - (mu[:, None] + o)) / sg), axis=1)
+        cdf = ndtr(np.stack([(edges[None, :] - mu[:, None]) / sg, (edges[None, :] - (mu[:, None] + o)) / sg]))
+        p1, p2 = np.diff(cdf[0], axis=1), np.diff(cdf[1], axis=1)  # one ndtr call: half the numpy overhead
         prob = np.einsum("q,qi,qj->ij", weights, p1, p2)
         prob = (1 - eps) * prob + eps / (n * n)
         return -float(np.sum(hist * np.log(prob)))

@@ -228,10 +228,12 @@ _MESSAGES = {
 
 
 def _norm(v: np.ndarray) -> float:
+    """Euclidean norm."""
     return float(np.linalg.norm(v))
 
 
 def _in_bounds(x: np.ndarray, lb: np.ndarray, ub: np.ndarray) -> bool:
+    """lb ≤ x ≤ ub everywhere."""
     return bool(np.all((x >= lb) & (x <= ub)))
 
 
@@ -370,7 +372,9 @@ def _evaluate_quadratic(jh: np.ndarray, g: np.ndarray, s: np.ndarray, diag: np.n
     return 0.5 * (float(np.dot(js, js)) + float(np.dot(s * diag, s))) + float(np.dot(s, g))
 
 
-def _select_step(x, jh, diag_h, g_h, p, p_h, d, delta, lb, ub, theta):
+def _select_step(x: np.ndarray, jh: np.ndarray, diag_h: np.ndarray, g_h: np.ndarray, p: np.ndarray,
+                 p_h: np.ndarray, d: np.ndarray, delta: float, lb: np.ndarray, ub: np.ndarray,
+                 theta: float) -> tuple[np.ndarray, np.ndarray, float]:
     """The best of the trust-region step (cut back at a bound), its reflection and the scaled gradient step.
 
     Branch, Coleman & Li (1999) §3; as scipy ``_lsq.trf.select_step``.
@@ -478,7 +482,8 @@ def forward_difference_jacobian(fun: Callable[[np.ndarray], np.ndarray], x: np.n
     return jt.T
 
 
-def _prepare_bounds(bounds, n: int) -> tuple[np.ndarray, np.ndarray]:
+def _prepare_bounds(bounds: tuple, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(lb, ub) as float arrays of shape (n,) (scalars repeated)."""
     lb, ub = (np.asarray(b, dtype=float) for b in bounds)
     lb = np.resize(lb, n) if lb.ndim == 0 else lb
     ub = np.resize(ub, n) if ub.ndim == 0 else ub
