@@ -21,9 +21,9 @@ R, G1, G2, B; ``processed`` channels R, G, B):
 2. saturation: a frame is saturated in a channel when more than 0.1 % of its
    ROI pixels sit at the white level; the top points are also trimmed while
    they fall below the fit by more than 1 % (full-well compression);
-3. a weighted least-squares fit of eq. 12 (``scipy.optimize.curve_fit``,
-   weights from the ROI standard error, uncertainties scaled by the reduced
-   χ² when it exceeds 1);
+3. a weighted least-squares fit of eq. 12 (:func:`camcal.optimize.curve_fit`, bounded
+   Trust Region Reflective as ``scipy.optimize.curve_fit``; weights from the ROI
+   standard error, uncertainties scaled by the reduced χ² when it exceeds 1);
 4. the EMVA 1288 linearity error (release 3.1 / 4.0, §6.x "Linearity"):
    a straight line μ = a·x + b fitted minimising the *relative* deviations over
    the points between 5 % and 95 % of the saturation signal,
@@ -56,6 +56,7 @@ from camcal.errors import CamcalError
 from camcal.exposure import relative_exposure
 from camcal.frame import PLANES
 from camcal.io import load_folder_frame
+from camcal.optimize import curve_fit, least_squares
 from camcal.region import Region
 from camcal.session import StageFrames, folder_of, stage_files
 from camcal.store import load_stage, save_stage
@@ -489,8 +490,6 @@ def fit_eq12(x_s: np.ndarray, g_dn: np.ndarray, sigma_dn: np.ndarray, *, gamma0:
     -------
     dict with alpha, gamma, beta, their ``_unc``, ``chi2_red``, ``rms_dn``.
     """
-    from scipy.optimize import OptimizeWarning, curve_fit
-
     x = np.asarray(x_s, float)
     g = np.asarray(g_dn, float)
     s = np.maximum(np.asarray(sigma_dn, float), 1e-9 * max(1.0, float(np.max(np.abs(g)))))
@@ -511,11 +510,10 @@ def fit_eq12(x_s: np.ndarray, g_dn: np.ndarray, sigma_dn: np.ndarray, *, gamma0:
     lo = [0.0, 0.02, -np.inf]
     hi = [np.inf, 10.0, np.inf]
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore", OptimizeWarning)
         warnings.simplefilter("ignore", RuntimeWarning)
         try:
-            popt, pcov = curve_fit(_eq12, u, g, p0=[max(a0, 1e-12), gam0, b0], sigma=s, absolute_sigma=True,
-                                   bounds=(lo, hi), method="trf", x_scale="jac", max_nfev=20000)
+            popt, pcov = curve_fit(_eq12, u, g, [max(a0, 1e-12), gam0, b0], sigma=s, bounds=(lo, hi),
+                                   x_scale="jac", max_nfev=20000)
         except (RuntimeError, ValueError) as exc:
             raise CamcalError(f"the fit of eq. 12 did not converge ({exc})") from None
     a, gam, b = (float(v) for v in popt)
@@ -613,9 +611,12 @@ def srgb_form_decode(v: np.ndarray, p: float, a: float = SRGB_OFFSET_A) -> np.nd
 
 def fit_srgb_form(x_s: np.ndarray, g_dn: np.ndarray, sigma_dn: np.ndarray, white_dn: float, p0: float,
                   x_white0: float) -> dict:
-    """Fit g/W = V((x/x_w), p) of the sRGB form (free exponent p, white exposure x_w in s)."""
-    from scipy.optimize import least_squares
+    """Fit g/W = V((x/x_w), p) of the sRGB form (free exponent p, white exposure x_w in s).
 
+    Weighted least squares in (p, ln x_w) with 0.05 ≤ p ≤ 0.99 by :func:`camcal.optimize.least_squares`
+    (Trust Region Reflective, as ``scipy.optimize.least_squares``, ``x_scale="jac"``); the exponent's
+    uncertainty from ``inv(JᵀJ)`` at the solution, scaled by the reduced χ² when above 1.
+    """
     x = np.asarray(x_s, float)
     g = np.asarray(g_dn, float)
     s = np.maximum(np.asarray(sigma_dn, float), 1e-6)
