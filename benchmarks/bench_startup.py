@@ -15,7 +15,9 @@ Every figure is a whole process (``python -m camcal ...``), as a user runs it:
 The runs are interleaved (a, b, c, baseline, pass; repeated ``--runs`` times) so that the load of the shared
 machine falls on all of them alike; the medians are reported. ``--before DIR`` also times (a)–(c) of the camcal
 found in DIR (a source tree, e.g. an older commit from ``git archive``), interleaved with the rest.
-The session is written once into ``benchmarks/_work/startup_session/`` (git-ignored).
+The session is written once into ``benchmarks/_work/startup_session/`` (git-ignored). Every process runs from
+byte-code, as an installed camcal does (pip compiles it on install): an untimed warm-up round writes it to
+``benchmarks/_work/pycache/`` (``PYTHONPYCACHEPREFIX``), whatever ``PYTHONDONTWRITEBYTECODE`` says.
 """
 
 from __future__ import annotations
@@ -119,7 +121,11 @@ def main() -> None:
     ap.add_argument("--before", type=Path, default=None, help="source tree of an older camcal to time too")
     args = ap.parse_args()
     folder, dngs = session()
-    env = {**os.environ, "PYTHONPATH": str(ROOT.parent)}
+    # byte-code as an installed camcal has it (pip compiles on install): written once to a cache folder by the
+    # warm-up round, whatever PYTHONDONTWRITEBYTECODE the shell sets (else every run recompiles camcal's sources)
+    base = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+    base["PYTHONPYCACHEPREFIX"] = str(ROOT / "_work" / "pycache")
+    env = {**base, "PYTHONPATH": str(ROOT.parent)}
     py = sys.executable
     with tempfile.TemporaryDirectory() as tmp:
         listing = Path(tmp) / "files.txt"
@@ -139,11 +145,13 @@ def main() -> None:
         }
         envs = dict.fromkeys(cmds, env)
         if args.before is not None:
-            old = {**os.environ, "PYTHONPATH": str(args.before.resolve())}
+            old = {**base, "PYTHONPATH": str(args.before.resolve())}
             for k in ("version", "inspect", "calibrate"):  # an older tree has no commands_for: no start-up row
                 cmds[f"{k} before"], envs[f"{k} before"] = cmds[k], old
         times: dict[str, list[float]] = {k: [] for k in cmds}
         work: list[float] = []
+        for name, argv in cmds.items():  # warm-up round, not timed: writes the byte-code cache
+            timed(argv, envs[name], Path(tmp))
         for _ in range(args.runs):
             for name, argv in cmds.items():
                 times[name].append(timed(argv, envs[name], Path(tmp)))

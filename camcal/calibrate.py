@@ -39,6 +39,9 @@ class CalibrateOptions:
     the setting of the sweep frames (where the absolute calibration is measured),
     else the most common one of the linearity series, else of the darks (flats, bias).
     Never defaulted silently: when unknown, calibration stops saying what to add.
+
+    ``jobs``: decoding threads; None chooses them (:func:`camcal.threads.thread_count`: the usable cores, at most
+    4, and one thread for frames under 0.25 megapixels, where a pool costs more than it gains).
     """
 
     reference_iso: float | None = None
@@ -47,7 +50,7 @@ class CalibrateOptions:
     flat_model: str = "radial"
     sweep_mode: str = "absolute"
     deconvolve: bool = False
-    jobs: int = 2
+    jobs: int | None = None
 
 
 def _inputs(index: SessionIndex) -> list[dict]:

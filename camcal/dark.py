@@ -287,7 +287,7 @@ def stack_darks(
     bias: str | Path | StageFrames | None = None,
     options: DarkOptions = DarkOptions(),  # noqa: B008
     *,
-    jobs: int = 1,
+    jobs: int | None = 1,
     progress: Callable[[int, int], None] | None = None,
 ) -> DarkStacks:
     """The file step of the dark stage: list the frames, group the darks by exposure time, combine each group
@@ -358,7 +358,7 @@ def fit_dark(
     noisy_sigma: float = 6.0,
     saturation_fraction: float = 0.01,
     bias_prior_frames: float = 1.0,
-    jobs: int = 1,
+    jobs: int | None = 1,
     progress: Callable[[int, int], None] | None = None,
 ) -> DarkModel:
     """Fit the dark model from dark frames (and optionally bias frames): :func:`stack_darks` (files), then
@@ -641,7 +641,7 @@ def fit_bias(
     hot_sigma: float = 6.0,
     noisy_sigma: float = 6.0,
     saturation_fraction: float = 0.01,
-    jobs: int = 1,
+    jobs: int | None = 1,
     progress: Callable[[int, int], None] | None = None,
 ) -> DarkModel:
     """A bias-only dark model: bias, read noise, DSNU and noisy pixels; dark current unknown (None).

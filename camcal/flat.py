@@ -664,7 +664,7 @@ def master_flat(
     method: str = "sigma_clip",
     sigma: float = 3.0,
     checks: FlatChecks = FlatChecks(),  # noqa: B008
-    jobs: int = 1,
+    jobs: int | None = 1,
     progress: Callable | None = None,
 ) -> MasterFlat:
     """Correct, normalise and combine every flat of a folder (streaming, :mod:`camcal.stack`).
@@ -734,7 +734,7 @@ def fit_flat(
     method: str = "sigma_clip",
     sigma: float = 3.0,
     checks: FlatChecks = FlatChecks(),  # noqa: B008
-    jobs: int = 1,
+    jobs: int | None = 1,
     progress: Callable | None = None,
 ) -> FlatModel:
     """Master flat of a folder, then the vignetting model and PRNU (see :func:`fit_flat_planes`).
@@ -758,7 +758,7 @@ def fit_flat_with(
     dark: DarkModel | None,
     options: FlatOptions = FlatOptions(),  # noqa: B008
     *,
-    jobs: int = 1,
+    jobs: int | None = 1,
     progress: Callable | None = None,
 ) -> FlatModel:
     """The flat stage with typed options: :func:`master_flat` (the file step: correct, normalise, combine)

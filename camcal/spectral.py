@@ -467,7 +467,7 @@ def measure_sweep(
     reference_f_number: float = DEFAULT_REFERENCE_F_NUMBER,
     max_saturated_fraction: float = 1e-3,
     min_frames: int = 1,
-    jobs: int = 2,
+    jobs: int | None = 2,
     progress: Callable[[int, int], None] | None = None,
 ) -> SpectralSensitivity:
     """Measure c(λ) per CFA plane from ``SWEEP/`` and its ``sweep.csv`` (seed §3.1).
@@ -499,7 +499,7 @@ def measure_sweep(
     max_saturated_fraction : a frame with more than this fraction of clipped ROI
         pixels is skipped with a :class:`SweepWarning`.
     min_frames : frames that must remain per wavelength after skipping.
-    jobs : decoding threads (LibRaw releases the GIL).
+    jobs : decoding threads (LibRaw releases the GIL); None: automatic (:func:`camcal.threads.thread_count`).
     progress : ``progress(done, total)`` after each frame.
 
     Raises
@@ -578,7 +578,7 @@ def measure_sweep_settings(
     dark: DarkModel | str | Path | None = None,
     flat: FlatModel | str | Path | None = None,
     options: SweepOptions = SweepOptions(),  # noqa: B008
-    jobs: int = 2,
+    jobs: int | None = 2,
     progress: Callable[[int, int], None] | None = None,
 ) -> SweepMeasurement:
     """The file step of the sweep: decode every frame of ``rows`` once (in threads), correct its ROI
@@ -649,7 +649,7 @@ def measure_sweep_settings(
     done = 0
     total = len(rows)
     ordered = [r for wl in wls for r in groups[wl]]
-    threads = thread_count(jobs, len(ordered))
+    threads = thread_count(jobs, len(ordered), full_shape[0] * full_shape[1])
     with ThreadPoolExecutor(max_workers=threads) as pool:
         results = pool.map(work, ordered) if threads > 1 else map(work, ordered)
         it = iter(results)

@@ -289,7 +289,7 @@ def combine_frames(
     preprocess: Callable[[Frame], np.ndarray] | None = None,
     manifest: dict | None = None,
     check: Callable[[Frame], None] | None = None,
-    jobs: int = 1,
+    jobs: int | None = 1,
     progress: Callable[[int, int], None] | None = None,
     band_mb: float = 8.0,
     spill_dir: str | Path | None = None,
@@ -307,7 +307,8 @@ def combine_frames(
     manifest : ``frames.csv`` rows (:func:`camcal.io.folder_manifest`) applied to every file;
         None reads each file's own folder manifest.
     check : called with each decoded frame; raise :class:`CamcalError` to refuse it.
-    jobs : threads to decode and to compute band statistics in (:func:`camcal.threads.thread_count`).
+    jobs : threads to decode and to compute band statistics in; None: automatic, from the first frame's size
+        (:func:`camcal.threads.thread_count`).
     progress : ``progress(done, total)`` after each decoded frame.
     band_mb : working-set budget of one row band, MB (median / sigma_clip).
     spill_dir : folder for the temporary spill file (default: the system temp folder).
@@ -332,11 +333,11 @@ def combine_frames(
     if not np.isfinite(sigma) or sigma <= 0:
         raise CamcalError(f"sigma must be a positive number, got {sigma}")
     n = len(paths)
-    jobs = thread_count(jobs, n)
 
     dec = _Decoder(manifest, check, preprocess, keep_frames)  # this call's settings, given to the threads
     first_meta, first_planes = dec.decode(0, paths[0])
     dec.first = first_meta
+    jobs = thread_count(jobs, n, first_meta.frame_shape[0] * first_meta.frame_shape[1])
     c, h, w = first_planes.shape
     spill_path = None
     if method != "mean":

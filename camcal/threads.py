@@ -16,6 +16,13 @@ from camcal.errors import CamcalError
 MAX_DEFAULT_THREADS = 4
 """Threads used by default, at most."""
 
+SMALL_FRAME_PIXELS = 250_000
+"""Below this many pixels per frame, frames are decoded in one thread unless more are asked for explicitly.
+
+Reading a small frame is mostly Python holding the GIL (EXIF, checks, small numpy calls), so a pool's hand-off
+costs more than the decode it overlaps. Measured (benchmarks/RESULTS.md, Start-up): 2 threads take 1.15x the
+time of one at 320x240, 0.86x at 640x480, 0.60x at 1456x1088, 0.49x at 2900x2000."""
+
 
 def usable_cores() -> int:
     """Cores this process may run on."""
@@ -42,10 +49,18 @@ def default_threads() -> int:
     return max(1, min(MAX_DEFAULT_THREADS, usable_cores()))
 
 
-def thread_count(requested: int | None = None, work_items: int | None = None) -> int:
+def thread_count(requested: int | None = None, work_items: int | None = None,
+                 frame_pixels: int | None = None) -> int:
     """Threads for one job: ``requested`` (capped at the usable cores) or :func:`default_threads`, and never
-    more than ``work_items`` (the frames or bands there are to share out)."""
-    n = default_threads() if requested is None else max(1, min(int(requested), usable_cores()))
+    more than ``work_items`` (the frames or bands there are to share out).
+
+    ``requested=None`` (automatic) with ``frame_pixels`` below :data:`SMALL_FRAME_PIXELS` gives one thread,
+    unless ``CAMCAL_THREADS`` is set; an explicit request is honoured whatever the frame size."""
+    if requested is None:
+        small = frame_pixels is not None and frame_pixels < SMALL_FRAME_PIXELS
+        n = 1 if small and not os.environ.get("CAMCAL_THREADS", "").strip() else default_threads()
+    else:
+        n = max(1, min(int(requested), usable_cores()))
     if work_items is not None:
         n = min(n, max(1, int(work_items)))
     return n

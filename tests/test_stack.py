@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from camcal import threads
 from camcal.errors import CamcalError
 from camcal.io import load_frame
 from camcal.stack import combine_folder, combine_frames
@@ -108,3 +109,27 @@ def test_errors(stack_dir, tmp_path):
     with pytest.raises(CamcalError, match="x.dng"):
         combine_frames([files[0], bad])
     assert not list(tmp_path.glob("camcal-stack-*"))
+
+
+def test_the_thread_rule(monkeypatch):
+    """Automatic (None): one thread for frames under SMALL_FRAME_PIXELS (a pool costs more than it gains there,
+    benchmarks/RESULTS.md), the default count above; an explicit request and CAMCAL_THREADS are honoured."""
+    monkeypatch.delenv("CAMCAL_THREADS", raising=False)
+    monkeypatch.setattr(threads, "usable_cores", lambda: 2)
+    small, large = threads.SMALL_FRAME_PIXELS - 1, threads.SMALL_FRAME_PIXELS
+    assert threads.thread_count(None, 50, small) == 1
+    assert threads.thread_count(None, 50, large) == 2
+    assert threads.thread_count(None, 50) == 2  # size unknown: the default
+    assert threads.thread_count(2, 50, small) == 2  # asked for: honoured
+    assert threads.thread_count(8, 50, small) == 2  # but never above the usable cores
+    assert threads.thread_count(None, 1, large) == 1  # never more than the work items
+    monkeypatch.setenv("CAMCAL_THREADS", "3")
+    assert threads.thread_count(None, 50, small) == 3
+
+
+def test_automatic_threads_give_the_same_stack(stack_dir):
+    files, _ = _cube(stack_dir[0])
+    auto = combine_frames(files, method="sigma_clip", jobs=None, band_mb=0.1)
+    two = combine_frames(files, method="sigma_clip", jobs=2, band_mb=0.1)
+    np.testing.assert_array_equal(auto.value, two.value)
+    np.testing.assert_array_equal(auto.count, two.count)

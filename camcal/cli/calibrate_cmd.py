@@ -23,7 +23,8 @@ def register(app: typer.Typer) -> None:
         flat_model: str = typer.Option("radial", help="Vignetting model: radial or 2d."),
         sweep_mode: str = typer.Option("absolute", help="c(λ) units: absolute or relative."),
         deconvolve: bool = typer.Option(False, help="Deconvolve the monochromator slit from c(λ)."),
-        jobs: int = typer.Option(2, "--jobs", "-j", help="Decoding threads (capped at the usable cores)."),
+        jobs: int | None = typer.Option(None, "--jobs", "-j", min=1,
+                                        help="Decoding threads (capped at the usable cores; default: automatic)."),
     ) -> None:
         """Run every calibration stage whose folder exists and write one profile."""
         opts = CalibrateOptions(reference_iso=reference_iso, reference_f_number=reference_f_number,
