@@ -20,8 +20,8 @@ SMALL_FRAME_PIXELS = 250_000
 """Below this many pixels per frame, frames are decoded in one thread unless more are asked for explicitly.
 
 Reading a small frame is mostly Python holding the GIL (EXIF, checks, small numpy calls), so a pool's hand-off
-costs more than the decode it overlaps. Measured (benchmarks/RESULTS.md, Start-up): 2 threads take 1.15x the
-time of one at 320x240, 0.86x at 640x480, 0.60x at 1456x1088, 0.49x at 2900x2000."""
+costs more than the decode it overlaps. Measured (``benchmarks/bench_threads.py``, RESULTS.md "Start-up"):
+2 threads take 1.08x the time of one at 320x240, 0.82x at 640x480, 0.60x at 1456x1088, 0.51x at 2900x2000."""
 
 
 def usable_cores() -> int:
