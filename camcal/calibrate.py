@@ -19,7 +19,7 @@ from camcal.dark import DarkOptions, fit_dark_stacks, stack_darks, with_dead_pix
 from camcal.errors import CamcalError
 from camcal.flat import DEAD_RESPONSE, FlatOptions, dead_pixels, fit_flat_with
 from camcal.hashing import sha256_file
-from camcal.io import IMAGE_EXTENSIONS, load_frame
+from camcal.io import load_frame
 from camcal.manifest import SESSION_DEFAULTS
 from camcal.profile import CalibrationProfile, CameraIdentity, Provenance
 from camcal.response import fit_series_set, measure_series
@@ -54,15 +54,9 @@ class CalibrateOptions:
 
 
 def _inputs(index: SessionIndex) -> list[dict]:
-    rows = []
-    for s in index.stages:
-        d = index.root / s
-        for p in sorted(d.iterdir()):
-            if p.is_file() and not p.name.startswith(".") and (
-                p.suffix.lower() in IMAGE_EXTENSIONS or p.suffix.lower() == ".csv"
-            ):
-                rows.append({"stage": s, "file": f"{s}/{p.name}", "sha256": sha256_file(p), "bytes": p.stat().st_size})
-    return rows
+    """Provenance rows (stage, file, SHA-256, bytes) of every input file the session index found."""
+    return [{"stage": s, "file": f"{s}/{p.name}", "sha256": sha256_file(p), "bytes": p.stat().st_size}
+            for s in index.stages for p in index.inputs.get(s, ())]
 
 
 def camera_identity(session: str | Path | SessionIndex, stages: list[str] | None = None) -> CameraIdentity:

@@ -92,6 +92,8 @@ class SessionIndex:
     defaults : ``session.toml`` values (:class:`camcal.frame.Exposure` field names), {} when absent.
     frames : per stage, its :class:`StageFrames`.
     sweep_manifest : ``sweep/sweep.csv`` rows, None when the session has no sweep or the sweep no ``sweep.csv``.
+    inputs : per stage, every file of its folder a calibration may read (images and ``.csv`` files, hidden files
+        left out), sorted by name: what the profile's provenance hashes.
     """
 
     root: Path
@@ -99,6 +101,7 @@ class SessionIndex:
     defaults: Mapping[str, float]
     frames: Mapping[str, StageFrames]
     sweep_manifest: Mapping[str, Row] | None = None
+    inputs: Mapping[str, tuple[Path, ...]] = field(default_factory=dict)
 
     def stage(self, name: str) -> StageFrames | None:
         """The frames of stage ``name``; None when the session does not hold it."""
@@ -186,7 +189,10 @@ def index_session(session: str | Path) -> SessionIndex:
                                                                                                       FRAMES_CSV)
         refs = tuple(resolve_exposure(p, rows.get(p.name), defaults, name) for p in files)
         frames[s] = StageFrames(s, folder, refs, manifest)
-    index = SessionIndex(root, tuple(stages), dict(defaults), frames, sweep_manifest)
+    inputs = {s: tuple(p for p in sorted((root / s).iterdir()) if p.is_file() and not p.name.startswith(".")
+                       and (p.suffix.lower() in IMAGE_EXTENSIONS or p.suffix.lower() == ".csv"))
+              for s in stages}
+    index = SessionIndex(root, tuple(stages), dict(defaults), frames, sweep_manifest, inputs)
     _check(index)
     return index
 
