@@ -4,10 +4,10 @@
 fitting a small session; docs/architecture.md, "Start-up"). The few special functions the
 calibration stages need live here:
 
-- :func:`ndtr`, :func:`erf`, :func:`erfc`: the Cephes rational approximations (S. L. Moshier,
-  *Methods and Programs for Mathematical Functions*, 1989; Cephes Math Library 2.9, ``ndtr.c``),
-  the same coefficients and branches as ``scipy.special.ndtr`` / ``erf`` / ``erfc`` (scipy's xsf
-  ``cephes/ndtr.h``), vectorised over numpy arrays. Relative error ≤ ~1e-15 where the result is
+- :func:`ndtr`: the normal CDF through the Cephes rational approximations of erf and erfc (S. L.
+  Moshier, *Methods and Programs for Mathematical Functions*, 1989; Cephes Math Library 2.9, ``ndtr.c``),
+  the same coefficients and branches as ``scipy.special.ndtr`` (scipy's xsf ``cephes/ndtr.h``),
+  vectorised over numpy arrays. Relative error ≤ ~1e-15 where the result is
   above ~1e-300, except the usual ~|x|²·ε of ``exp(−x²)`` far in the lower tail, as in scipy.
 - :func:`gammainc_upper` (regularised upper incomplete gamma Q(a, x)): the power series of P for
   x < a + 1 and the Legendre continued fraction of Q (modified Lentz) otherwise (Press et al.,
@@ -42,65 +42,6 @@ _T = (9.60497373987051638749e0, 9.00260197203842689217e1, 2.23200534594684319226
       7.00332514112805075473e3, 5.55923013010394962768e4)
 _U = (3.35617141647503099647e1, 5.21357949780152679795e2, 4.59432382970980127987e3,
       2.26290000613890934246e4, 4.92673942608635921086e4)
-
-
-def _polevl(x: np.ndarray, coef: tuple[float, ...]) -> np.ndarray:
-    """Horner evaluation of ``coef[0] x^n + ... + coef[n]`` (Cephes ``polevl``)."""
-    ans = np.full_like(x, coef[0])
-    for c in coef[1:]:
-        ans = ans * x + c
-    return ans
-
-
-def _p1evl(x: np.ndarray, coef: tuple[float, ...]) -> np.ndarray:
-    """Horner evaluation with an implicit leading coefficient 1 (Cephes ``p1evl``)."""
-    ans = x + coef[0]
-    for c in coef[1:]:
-        ans = ans * x + c
-    return ans
-
-
-def _erf_small(x: np.ndarray) -> np.ndarray:
-    """erf(x) for |x| <= 1: ``x T(x²) / U(x²)`` (Cephes)."""
-    z = x * x
-    return x * _polevl(z, _T) / _p1evl(z, _U)
-
-
-def _erfc_large(a: np.ndarray) -> np.ndarray:
-    """erfc(a) for |a| >= 1: ``exp(−a²) P(|a|)/Q(|a|)`` (R/S beyond 8), reflected for a < 0 (Cephes)."""
-    x = np.abs(a)
-    with np.errstate(over="ignore", under="ignore", invalid="ignore"):
-        z = -a * a
-        under = z < -_MAXLOG
-        ez = np.exp(z)
-        mid = x < 8.0
-        p = np.where(mid, _polevl(x, _P), _polevl(x, _R))
-        q = np.where(mid, _p1evl(x, _Q), _p1evl(x, _S))
-        y = (ez * p) / q
-    y = np.where(a < 0, 2.0 - y, y)
-    return np.where(under | (y == 0.0), np.where(a < 0, 2.0, 0.0), y)
-
-
-def erf(x: np.ndarray | float) -> np.ndarray:
-    """Error function, vectorised (Cephes ``erf``; matches ``scipy.special.erf``).
-
-    ``erf(x) = 2/√π ∫₀ˣ exp(−t²) dt``: a rational approximation for |x| ≤ 1, ``1 − erfc(x)`` beyond.
-    """
-    x = np.asarray(x, dtype=np.float64)
-    ax = np.abs(x)
-    small = _erf_small(np.where(ax <= 1.0, ax, 0.0))
-    large = 1.0 - _erfc_large(np.where(ax > 1.0, ax, 1.0))
-    y = np.where(ax <= 1.0, small, large)
-    return np.where(np.isnan(x), np.nan, np.copysign(y, x))
-
-
-def erfc(x: np.ndarray | float) -> np.ndarray:
-    """Complementary error function ``1 − erf(x)``, vectorised (Cephes ``erfc``; matches ``scipy.special.erfc``)."""
-    x = np.asarray(x, dtype=np.float64)
-    ax = np.abs(x)
-    inner = 1.0 - erf(np.where(ax < 1.0, x, 0.0))
-    outer = _erfc_large(np.where(ax < 1.0, 1.0, x))
-    return np.where(np.isnan(x), np.nan, np.where(ax < 1.0, inner, outer))
 
 
 def _pad9(coef: tuple[float, ...], leading_one: bool = False) -> tuple[float, ...]:
