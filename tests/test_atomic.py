@@ -67,11 +67,11 @@ def _start(*args: str, env: dict[str, str] | None = None) -> subprocess.Popen:
                             text=True, cwd=ROOT, env={**os.environ, **(env or {})})
 
 
-def _interrupt_when(proc: subprocess.Popen, ready, timeout_s: float = 120.0) -> tuple[int, str]:
+def _interrupt_when(proc: subprocess.Popen, ready, timeout_s: float = 120.0, poll_s: float = 0.02) -> tuple[int, str]:
     """Send SIGINT once ``ready()`` is true (the command is mid-way); return (exit code, stderr)."""
     t0 = time.monotonic()
     while not ready() and proc.poll() is None and time.monotonic() - t0 < timeout_s:
-        time.sleep(0.02)
+        time.sleep(poll_s)
     if proc.poll() is None:
         proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=timeout_s)
@@ -104,7 +104,7 @@ def small_session(tmp_path_factory) -> Path:
     from camcal.synth.session import SessionPlan, write_session
 
     return write_session(tmp_path_factory.mktemp("atomic") / "S", SyntheticCamera(SensorParams(width=128, height=96)),
-                         SessionPlan(n_bias=4, n_dark=3, n_flat=4, linearity_steps=11, sweep_step_nm=25.0, n_sweep=1))
+                         SessionPlan(n_bias=4, n_dark=12, n_flat=4, linearity_steps=11, sweep_step_nm=25.0, n_sweep=1))
 
 
 def test_sigint_during_calibrate_then_rerun(small_session, tmp_path):
@@ -113,7 +113,8 @@ def test_sigint_during_calibrate_then_rerun(small_session, tmp_path):
     spill.mkdir()
     # mid-way: the dark stage is stacking frames (its spill file exists in the private TMPDIR)
     proc = _start("calibrate", str(small_session), "-o", str(out), "-j", "1", env={"TMPDIR": str(spill)})
-    code, err = _interrupt_when(proc, lambda: any(spill.glob("camcal-stack-*")))
+    # the spill file lives while a dark group is stacked (12 frames, a few ms each): poll often to catch it
+    code, err = _interrupt_when(proc, lambda: any(spill.glob("camcal-stack-*")), poll_s=0.002)
     if code == 0:
         pytest.skip("calibrate finished before the interrupt (machine too fast for this probe)")
     assert code == 130, (code, err)
