@@ -10,6 +10,7 @@ import contextlib
 import os
 import secrets
 import signal
+import tempfile
 import threading
 from collections.abc import Iterator
 from pathlib import Path
@@ -68,6 +69,39 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     finally:
         with _LOCK:
             _PENDING.discard(tmp_path)
+
+
+@contextlib.contextmanager
+def scratch_file(prefix: str, suffix: str = "", folder: str | Path | None = None) -> Iterator[Path]:
+    """Yield the path of a new, empty, private temporary file; it is removed when the block ends, however it ends.
+
+    ``folder`` defaults to the system temporary folder. As :func:`atomic_path`'s temporary files, its name is
+    registered before the file is created, so an interrupt between the creation and the block (where no
+    ``finally`` of the caller runs yet) still has it removed by :func:`remove_pending` (the CLI calls it at exit).
+    """
+    base = Path(folder) if folder is not None else Path(tempfile.gettempdir())
+    while True:
+        path = base / f"{prefix}{secrets.token_hex(6)}{suffix}"
+        with _LOCK:
+            _PENDING.add(path)
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0), 0o600)
+            break
+        except FileExistsError:
+            with _LOCK:
+                _PENDING.discard(path)
+        except OSError:  # no permission, no space: nothing was created
+            with _LOCK:
+                _PENDING.discard(path)
+            raise
+    try:
+        os.close(fd)
+        yield path
+    finally:
+        with contextlib.suppress(OSError):
+            path.unlink()
+        with _LOCK:
+            _PENDING.discard(path)
 
 
 def remove_pending() -> int:

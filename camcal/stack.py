@@ -25,9 +25,9 @@ those of the kept values too (for ``mean`` and ``median`` every value is used).
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
-import tempfile
 import threading
 from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
@@ -36,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
+from camcal.atomic import scratch_file
 from camcal.errors import CamcalError
 from camcal.frame import Exposure, Frame
 from camcal.io import folder_files, folder_manifest, load_folder_frame
@@ -339,45 +340,41 @@ def combine_frames(
     dec.first = first_meta
     jobs = thread_count(jobs, n, first_meta.frame_shape[0] * first_meta.frame_shape[1])
     c, h, w = first_planes.shape
-    spill_path = None
-    if method != "mean":
-        fd, name = tempfile.mkstemp(prefix="camcal-stack-", suffix=".raw", dir=spill_dir)
-        os.close(fd)
-        spill_path = Path(name)
-        dec.spill_path = spill_path
     kept: dict[int, np.ndarray] = {0: first_planes} if keep_frames > 0 else {}
-    try:
-        metas: list[_Meta | None] = [None] * n
-        metas[0] = first_meta
-        acc = _Welford((c, h, w)) if method == "mean" else None
-        if acc is not None:
-            acc.add(first_planes)
-        else:
-            dec.spill_write(0, first_planes)
-        del first_planes
-        if progress:
-            progress(1, n)
-        items = [(i, str(p)) for i, p in enumerate(paths)][1:]
-        for done, (meta, planes) in enumerate(_run(items, jobs, dec.worker), start=2):
-            metas[meta.index] = meta
-            if meta.index < keep_frames and planes is not None:
-                kept[meta.index] = planes
-            if acc is not None and planes is not None:
-                acc.add(planes)
+    # median / sigma_clip spill every frame to a private file, removed however the block ends
+    spill = scratch_file("camcal-stack-", ".raw", spill_dir) if method != "mean" else contextlib.nullcontext()
+    with spill as spill_path:
+        dec.spill_path = spill_path
+        try:
+            metas: list[_Meta | None] = [None] * n
+            metas[0] = first_meta
+            acc = _Welford((c, h, w)) if method == "mean" else None
+            if acc is not None:
+                acc.add(first_planes)
+            else:
+                dec.spill_write(0, first_planes)
+            del first_planes
             if progress:
-                progress(done, n)
-        dec.close_spill()
-        _refuse_copies(metas, paths)
-        if acc is not None:
-            value, mean, var, count = acc.result()
-            var_all = var
-        else:
-            value, mean, var, count, var_all = _bands(spill_path, n, (c, h, w), dec.spill_dtype, method,
-                                                      sigma, jobs, band_mb)
-    finally:
-        dec.close_spill()
-        if spill_path is not None:
-            spill_path.unlink(missing_ok=True)
+                progress(1, n)
+            items = [(i, str(p)) for i, p in enumerate(paths)][1:]
+            for done, (meta, planes) in enumerate(_run(items, jobs, dec.worker), start=2):
+                metas[meta.index] = meta
+                if meta.index < keep_frames and planes is not None:
+                    kept[meta.index] = planes
+                if acc is not None and planes is not None:
+                    acc.add(planes)
+                if progress:
+                    progress(done, n)
+            dec.close_spill()
+            _refuse_copies(metas, paths)
+            if acc is not None:
+                value, mean, var, count = acc.result()
+                var_all = var
+            else:
+                value, mean, var, count, var_all = _bands(spill_path, n, (c, h, w), dec.spill_dtype, method,
+                                                          sigma, jobs, band_mb)
+        finally:
+            dec.close_spill()
     count_dtype = np.int16 if n < 2**15 else np.int32
     return StackResult(
         value=value, mean=mean, variance=var, count=count.astype(count_dtype), n_frames=n, method=method,

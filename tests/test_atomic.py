@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from camcal.atomic import remove_pending, scratch_file
 from camcal.errors import CamcalError
 from camcal.exr import read_exr, write_exr
 from camcal.io import load_frame
@@ -169,3 +170,22 @@ def test_interrupt_between_enter_and_with_block_leaves_no_part_file(tmp_path):
     assert remove_pending() == 1
     assert not partials(tmp_path) and not (tmp_path / "out.dng").exists()
     assert (tmp_path / "done.txt").read_text() == "x"
+
+
+def test_scratch_file_is_removed_however_the_block_ends(tmp_path):
+    with scratch_file("camcal-stack-", ".raw", tmp_path) as p:
+        assert p.is_file() and p.stat().st_size == 0 and p.name.startswith("camcal-stack-")
+        assert (p.stat().st_mode & 0o777) == 0o600  # private
+    assert not p.exists()
+    with pytest.raises(KeyboardInterrupt), scratch_file("camcal-stack-", ".raw", tmp_path) as q:
+        raise KeyboardInterrupt
+    assert not q.exists() and not list(tmp_path.iterdir())
+
+
+def test_scratch_file_is_registered_before_the_block(tmp_path):
+    """An interrupt between creation and the caller's block: remove_pending (the CLI calls it at exit) removes it."""
+    cm = scratch_file("camcal-stack-", ".raw", tmp_path)
+    p = cm.__enter__()  # entered, never exited: what an interrupt right after creation leaves
+    assert p.is_file()
+    assert remove_pending() >= 1
+    assert not p.exists()
