@@ -41,7 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from camcal.correct import Calibration, correct_planes, dark_frame
-from camcal.errors import CamcalError, MissingMetadataError
+from camcal.errors import CamcalError, MissingMetadataError, TooFewFrames
 from camcal.frame import PATTERNS, PLANES, RGB, Frame
 from camcal.io import exposure_from_exif
 from camcal.optimize import nelder_mead
@@ -310,8 +310,8 @@ def stack_darks(
         files, manifest = stage_files(bias)
         bias_folder = folder_of(bias)
         if len(files) < 2:
-            raise CamcalError(f"a bias-only calibration needs two or more bias frames, found {len(files)}",
-                              bias_folder)
+            raise TooFewFrames("bias", "frames (a bias-only calibration measures the read noise between frames)",
+                               2, len(files), path=bias_folder)
         st = combine_frames(files, method="mean", manifest=manifest, check=check, jobs=jobs, progress=progress,
                             keep_frames=QUANTISED_FIT_FRAMES)
         _check_stacks([st], bias_folder)
@@ -325,9 +325,12 @@ def stack_darks(
     bias_files, bias_manifest = stage_files(bias) if bias is not None else ([], {})
     bias_folder = folder_of(bias) if bias is not None else None
     if bias_folder is None and len(groups) < 2:
+        if not groups:
+            raise TooFewFrames("dark", "frames", 1, 0, path=dark_folder)
         (t0,) = groups
-        raise CamcalError(f"all {len(files)} dark frames have one exposure time ({t0:g} s); the dark-current fit "
-                          "needs two or more exposure times, or bias frames (--bias)", dark_folder)
+        raise TooFewFrames("dark", "exposure times (or bias frames)", 2, 1,
+                           f"all {len(files)} dark frames have one exposure time ({t0:g} s); the dark-current fit "
+                           "needs two or more exposure times, or bias frames (--bias)", dark_folder)
     total = len(files) + len(bias_files)
     done = 0
     bias_stack = None
