@@ -320,6 +320,10 @@ def calibrate_session(
             else:
                 notes.append("JPEG response without a colour matrix (the sweep has no JPEG twins): JPEG radiance "
                              "assumes the camera does not mix its channels")
+    if dark is None and flat is None and not response and spectral is None:
+        why = "; ".join(f"{r['reason']}" for r in record.not_calibrated) or "no stage was calibrated"
+        gone = "; ".join(f"{v.stage}/{v.file}: {v.reason}" for v in record.left_out[:3])
+        raise CamcalError(f"no stage could be calibrated: {why}" + (f" (left out: {gone})" if gone else ""), session)
     provenance = Provenance(
         camcal_version=__version__,
         created_utc=datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
