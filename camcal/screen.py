@@ -13,7 +13,7 @@ Reasons, in the order they are judged (the first that applies is given; docs/rel
 - ``duplicate: the same pixels as <file> (a copy of one exposure); the first copy is kept``.
 - ``another camera: ...`` / ``another layout: ...`` / ``another size: ...``: the frame's make and model,
   RAW layout or size differ from the session's (the most common among its RAW frames; processed
-  images are compared with the processed images of the session).
+  images are compared with the session camera's own processed images, else with its Bayer frames' size).
 - the stage's own frame check (:data:`StageCheck`), e.g. ``not RAW: ...``, ``saturated: ...``: a dark
   frame with light in it, a flat saturated beyond use or too dark, a sweep row that is not a RAW file.
 
@@ -193,8 +193,10 @@ def screen_session(index: SessionIndex, checks: Mapping[str, StageCheck] | None 
     camera = _most_common([(f.make, f.model) for f in raw or readable]) if readable else (None, None)
     layout = _most_common([f.layout for f in raw]) if raw else None
     raw_shape = _most_common([f.shape for f in raw if f.layout == layout]) if raw else None
-    processed = [f for f in readable if f.kind != "raw"]
-    processed_shape = _most_common([f.shape for f in processed]) if processed else None
+    # processed images: the size of the session camera's own (JPEG twins), else of its Bayer RAW frames (a camera
+    # writes its JPEGs at the sensor's size; a linear RAW frame's size says nothing of them)
+    own = [f.shape for f in readable if f.kind != "raw" and (f.make, f.model) == camera]
+    processed_shape = _most_common(own) if own else (raw_shape if layout == "bayer" else None)
 
     verdicts: list[Verdict] = []
     kept: dict[str, list] = {s: [] for s in index.stages}
