@@ -63,7 +63,7 @@ def register(app: typer.Typer) -> None:
             err_console.print(f"camcal: failed: stage {rec['stage']} not calibrated: {rec['reason']}",
                               soft_wrap=True, markup=False, highlight=False)
         if prov.left_out:
-            err_console.print(f"camcal: {len(prov.left_out)} frame(s) left out (listed above; --strict refuses "
-                              "such a session)", soft_wrap=True, markup=False, highlight=False)
+            err_console.print(f"camcal: warning: {len(prov.left_out)} frame(s) left out (listed above; --strict "
+                              "refuses such a session)", soft_wrap=True, markup=False, highlight=False)
         if prov.not_calibrated:
             raise typer.Exit(1)
