@@ -269,8 +269,12 @@ def calibrate_session(
     bias_frames = index.stage("bias") if "bias" in stages else None
     if "dark" in stages:
         dark_opts = DarkOptions(method=opts.dark_method)
-        dark = record.attempt("dark", lambda: fit_dark_stacks(stack_darks(
-            index.frames["dark"], bias_frames, dark_opts, jobs=opts.jobs, progress=cb("dark")), dark_opts))
+        def fit_darks():
+            stacks = stack_darks(index.frames["dark"], bias_frames, dark_opts, jobs=opts.jobs, progress=cb("dark"))
+            record.leave_out([Verdict("dark", name, reason) for name, reason in stacks.left_out])
+            return fit_dark_stacks(stacks, dark_opts)
+
+        dark = record.attempt("dark", fit_darks)
     if dark is None and bias_frames is not None:
         dark = record.attempt("bias", lambda: fit_dark_stacks(stack_darks(None, bias_frames, jobs=opts.jobs,
                                                                           progress=cb("bias"))))

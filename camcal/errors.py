@@ -61,3 +61,8 @@ class TooFewFrames(CamcalError):
         self.stage, self.what, self.needed, self.remaining = stage, what, int(needed), int(remaining)
         tail = f" ({detail})" if detail else ""
         super().__init__(f"the {stage} stage needs at least {needed} usable {what}, {remaining} remain{tail}", path)
+
+
+class FrameLeftOut(UserWarning):
+    """A stage left a frame out and goes on without it (``camcal calibrate`` lists these in its summary table
+    and the profile's ``provenance.left_out`` rather than as warnings)."""

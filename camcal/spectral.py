@@ -58,7 +58,7 @@ import numpy as np
 
 from camcal.correct import Calibration, correct_planes
 from camcal.dark import DarkModel, as_dark_model
-from camcal.errors import CamcalError, TooFewFrames
+from camcal.errors import CamcalError, FrameLeftOut, TooFewFrames
 from camcal.exposure import frame_relative_exposure
 from camcal.flat import FlatModel, as_flat_model
 from camcal.frame import PLANES, RGB, Frame, split_planes
@@ -82,7 +82,7 @@ class SweepWarning(UserWarning):
     """A recoverable problem in a sweep (a skipped saturated frame, a missing flat)."""
 
 
-class LeftOutWarning(SweepWarning):
+class LeftOutWarning(SweepWarning, FrameLeftOut):
     """A sweep frame left out (saturated, or no light recorded); ``camcal calibrate`` lists these in its table."""
 
 

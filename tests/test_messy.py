@@ -116,6 +116,17 @@ def test_sweep_frame_with_shutter_closed_is_left_out(tiny, tiny_camera):
     assert profile.spectral is not None and profile.spectral.n_frames["550"] == 1  # its lit repeat is used
 
 
+def test_dark_frame_alone_at_its_exposure_time_is_left_out(tiny):
+    """Two darks at 2 s, one of them unreadable: the other has no temporal noise to measure alone, so it is left out
+    too, and the dark current is fitted from 16 s and the bias frames."""
+    (tiny / "dark" / "dark_002.000s_01.dng").write_bytes(b"II*\x00 truncated")
+    profile, _ = calibrate_session(tiny)
+    left = {r["file"]: r["reason"] for r in profile.provenance.left_out}
+    assert left["dark/dark_002.000s_01.dng"].startswith("unreadable: ")
+    assert left["dark/dark_002.000s_00.dng"].startswith("alone at its exposure time (2 s)")
+    assert len(left) == 2 and profile.dark is not None and profile.dark.dark_current_dn_per_s is not None
+
+
 def test_too_few_sweep_wavelengths_writes_the_profile_without_c_and_exits_1(tiny, tmp_path):
     """A 50 nm sweep from 400 to 700 nm has 7 wavelengths; with 4 of them unreadable, 3 remain of the 4 needed."""
     for wl in (450, 500, 550, 600):

@@ -10,8 +10,8 @@ import typer
 from camcal.calibrate import CalibrateOptions, calibrate_session
 from camcal.cli.common import console, err_console, progress
 from camcal.cli.profile_cmd import print_contract
+from camcal.errors import FrameLeftOut
 from camcal.profile import contract, save_profile
-from camcal.spectral import LeftOutWarning
 
 
 def register(app: typer.Typer) -> None:
@@ -53,7 +53,7 @@ def register(app: typer.Typer) -> None:
         # stage warnings (e.g. the sweep's) and notes, one line each, without repeats
         # (left-out frames are in the summary's table, not repeated as warnings)
         messages = [" ".join(str(w.message).split()) for w in caught
-                    if issubclass(w.category, UserWarning) and not issubclass(w.category, LeftOutWarning)]
+                    if issubclass(w.category, UserWarning) and not issubclass(w.category, FrameLeftOut)]
         for msg in dict.fromkeys([*notes, *messages]):
             err_console.print(f"camcal: warning: {msg}", soft_wrap=True, markup=False, highlight=False)
         print_contract(contract(profile), title=f"profile → {output}")
