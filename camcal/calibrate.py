@@ -26,7 +26,14 @@ from camcal.profile import CalibrationProfile, CameraIdentity, Provenance
 from camcal.response import fit_series_set, measure_series
 from camcal.screen import Screening, StageCheck, Verdict, screen_session
 from camcal.session import STAGES, SessionIndex, index_session, present_stages
-from camcal.spectral import SweepOptions, measure_sweep_settings, read_sweep, sensitivity_from_settings, sweep_rows
+from camcal.spectral import (
+    SweepOptions,
+    measure_sweep_settings,
+    read_sweep,
+    require_wavelengths,
+    sensitivity_from_settings,
+    sweep_rows,
+)
 
 __all__ = ["NORMALISING_STAGES", "STAGES", "CalibrateOptions", "calibrate_session", "camera_identity",
            "present_stages"]
@@ -312,6 +319,7 @@ def calibrate_session(
             measured = measure_sweep_settings(sweep.folder, rows, dark=dark, flat=flat, options=sweep_opts,
                                               jobs=opts.jobs, progress=cb("sweep"))
             record.leave_out([Verdict("sweep", name, reason) for name, reason in measured.left_out])
+            require_wavelengths(measured)
             return sensitivity_from_settings(measured, sweep_opts)
 
         spectral = record.attempt("sweep", fit_sweep)

@@ -50,7 +50,7 @@ def describe(path: str | Path) -> dict[str, object]:
         "capture_time": e.capture_time,
         "saturated_pct": round(sat, 3),
         "saturated": ("fully saturated: every value at the white level" if sat >= 100.0 else
-                      f"{sat:.3g} % of the values at the white level" if sat >= 25.0 else None),
+                      f"{min(sat, 99.99):.4g} % of the values at the white level" if sat >= 25.0 else None),
         "sources": {name: e.source(name) for name in TRACKED},
         "notes": list(e.notes),
         "error": None,

@@ -377,7 +377,8 @@ def contract(profile: CalibrationProfile) -> dict:
                                           "fitted_range_dn": {c: [_finite(v) for v in ch.linear_range_dn]
                                                               for c, ch in m.channels.items()},
                                           "fitted_exposure_s": {c: [_finite(v) for v in ch.fitted_exposure_s]
-                                                                for c, ch in m.channels.items()}}
+                                                                for c, ch in m.channels.items()},
+                                          "saturated_files": m.saturated_files()}
                                       for k, m in profile.response.items()}}
     else:
         out["response"] = None

@@ -210,7 +210,9 @@ def _response_section(profile, c: dict) -> str:
                      + _table(["channel", "saturation level [DN]", "reached at exposure [s]", "fitted range [DN]",
                                "fitted exposures [s]"], sat_rows)
                      + '<p class="sub">Frames at or past saturation end the linear range and are not fitted '
-                       "(EMVA 1288 saturation point); exposures are relative, in s at the reference setting.</p>")
+                       "(EMVA 1288 saturation point); exposures are relative, in s at the reference setting."
+                     + (f" Saturated frames: {_esc(', '.join(model.saturated_files()))}."
+                        if model.saturated_files() else "") + "</p>")
         parts.append(f'<p class="sub">dark subtracted: {"yes" if model.dark_subtracted else "no"}; '
                      f"white level {_num(model.white_level_dn)} DN.</p>")
         cm = getattr(model, "colour_matrix", None)

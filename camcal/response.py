@@ -260,6 +260,16 @@ class ResponseModel:
                 out[k] = _detone(v[k], ch, self.tone["channels"][name], self.white_level_dn)  # type: ignore[index]
         return np.moveaxis(out, 0, channel_axis)
 
+    def saturated_files(self) -> list[str]:
+        """Files of the series at or past saturation in any channel: they end the linear range and are not fitted
+        (from :attr:`points`; [] when none saturated or the points were not kept)."""
+        out: dict[str, None] = {}
+        for pts in self.points.values():
+            for name, sat in zip(pts.get("files") or (), pts.get("saturated") or (), strict=False):
+                if sat:
+                    out[str(name)] = None
+        return list(out)
+
     def summary(self) -> dict:
         """JSON-ready summary: per channel α, γ, β with uncertainties, ranges, LE, r; tone fit."""
         chans = {}

@@ -87,8 +87,10 @@ class LeftOutWarning(SweepWarning, FrameLeftOut):
 
 
 MIN_WAVELENGTHS = 4
-"""Fewest wavelengths a sweep must keep: c(λ) is read off its samples with a not-a-knot cubic spline
-(:mod:`camcal.radiance`), which needs four."""
+"""Fewest wavelengths a calibration's c(λ) must keep (:func:`require_wavelengths`, ``camcal calibrate``): the
+profile's c(λ) is read off its samples with a not-a-knot cubic spline (:mod:`camcal.radiance`), which needs four;
+with fewer, radiance falls back to linear interpolation, biased by the curve's curvature. ``camcal sweep`` on
+its own measures whatever wavelengths it is given (at least one)."""
 
 NO_LIGHT_FRACTION = 0.05
 """A sweep frame whose signal per unit exposure and reference radiance is below this fraction of what its repeats
@@ -591,6 +593,8 @@ class SweepMeasurement:
     csv_path: Path
     left_out: tuple[tuple[str, str], ...] = ()
     """(file name, reason) of the frames left out: saturated in the ROI, or no light recorded."""
+    n_listed: int = 0
+    """Wavelengths listed in ``sweep.csv``."""
 
 
 def measure_sweep_settings(
@@ -738,11 +742,20 @@ def measure_sweep_settings(
                      f"the white level at {ws[0]:g}-{ws[-1]:g} nm; they are masked (frames kept)")
     if dropped:
         notes.append(f"{len(dropped)} wavelength(s) without a usable frame dropped from c(λ): {', '.join(dropped)}")
-    if len(settings) < MIN_WAVELENGTHS:
-        raise TooFewFrames("sweep", "wavelengths", MIN_WAVELENGTHS, len(settings),
-                           f"{len(wls)} in sweep.csv; c(λ) is read with a cubic spline, which needs "
-                           f"{MIN_WAVELENGTHS}" + (f"; dropped: {', '.join(dropped)}" if dropped else ""), csv_path)
-    return SweepMeasurement(tuple(settings), tuple(names), tuple(notes), csv_path, tuple(left_out))
+    if not settings:
+        raise TooFewFrames("sweep", "wavelengths", 1, 0, f"{len(wls)} in sweep.csv; dropped: {', '.join(dropped)}",
+                           csv_path)
+    return SweepMeasurement(tuple(settings), tuple(names), tuple(notes), csv_path, tuple(left_out), len(wls))
+
+
+def require_wavelengths(measured: SweepMeasurement, needed: int = MIN_WAVELENGTHS) -> None:
+    """Raise :class:`TooFewFrames` when fewer than ``needed`` wavelengths of the sweep have a usable frame."""
+    have = len(measured.settings)
+    if have < needed:
+        raise TooFewFrames("sweep", "wavelengths", needed, have,
+                           f"{measured.n_listed} in sweep.csv; c(λ) is read with a not-a-knot cubic spline, which "
+                           f"needs {needed}" + "".join(f"; {n}" for n in measured.notes if "dropped" in n),
+                           measured.csv_path)
 
 
 def frame_signal(res: _FrameResult) -> tuple[float, float]:

@@ -62,6 +62,10 @@ def print_contract(c: dict, title: str = "profile") -> None:
     stages = [k for k in ("dark", "flat", "response", "spectral_sensitivity") if c[k] is None]
     if stages:
         console.print(f"not calibrated: {', '.join(stages)}")
+    for kind, m in ((c["response"] or {}).get("models") or {}).items():
+        if m.get("saturated_files"):
+            console.print(f"saturated {kind} frames (end of the linear range, not fitted): "
+                          f"{', '.join(m['saturated_files'])}", soft_wrap=True, markup=False, highlight=False)
     prov = c.get("provenance") or {}
     for rec in prov.get("not_calibrated") or []:
         console.print(f"stage {rec['stage']} not calibrated: {rec['reason']}", soft_wrap=True, markup=False,
