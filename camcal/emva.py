@@ -644,3 +644,45 @@ def build_sheet(*, channels: tuple[str, ...], iso: float, dark_stacks=None, dark
     elif spectral is not None and not pixel_pitch_um:
         notes.append("quantum efficiency not computed: give pixel_pitch_um in session.toml")
     return EmvaSheet(float(iso), out, tuple(ptc_rows), spatial, qe, tuple(notes))
+
+
+def sheet_rows(sheet: EmvaSheet) -> list[tuple[str, str, str, dict[str, float | None]]]:
+    """The rows of an EMVA 1288 summary sheet, in the standard's order: (section, quantity, unit, per plane).
+
+    Used by ``camcal profile show --emva`` and the HTML report; values are None where unknown.
+    """
+    ch = sheet.channels
+
+    def col(key: str, scale: float = 1.0) -> dict[str, float | None]:
+        return {c: (None if v.get(key) is None else float(v[key]) * scale) for c, v in ch.items()}
+
+    def inv(key: str) -> dict[str, float | None]:
+        return {c: (None if not v.get(key) else 1.0 / float(v[key])) for c, v in ch.items()}
+
+    rows = [
+        ("sensitivity", "overall system gain K", "DN/e⁻", col("K_dn_per_e")),
+        ("sensitivity", "uncertainty of K", "DN/e⁻", col("K_unc_dn_per_e")),
+        ("sensitivity", "1/K", "e⁻/DN", inv("K_dn_per_e")),
+        ("sensitivity", "temporal dark noise σ_y.dark", "DN", col("dark_noise_dn")),
+        ("sensitivity", "read noise σ_d·K (quantisation removed)", "DN", col("read_noise_dn")),
+        ("sensitivity", "read noise σ_d", "e⁻", col("read_noise_e")),
+        ("sensitivity", "absolute sensitivity threshold μ_e.min", "e⁻", col("threshold_e")),
+        ("sensitivity", "saturation capacity μ_y.sat", "DN", col("saturation_dn")),
+        ("sensitivity", "saturation capacity μ_e.sat", "e⁻", col("saturation_e")),
+        ("sensitivity", "SNR_max", "", col("snr_max")),
+        ("sensitivity", "SNR_max", "dB", col("snr_max_db")),
+        ("sensitivity", "dynamic range DR", "dB", col("dynamic_range_db")),
+        ("linearity", "linearity error LE", "%", col("linearity_error_pct")),
+        ("linearity", "LE min", "%", col("linearity_error_min_pct")),
+        ("linearity", "LE max", "%", col("linearity_error_max_pct")),
+        ("dark current", "dark current", "DN/s", col("dark_current_dn_per_s")),
+        ("dark current", "dark current", "e⁻/s", col("dark_current_e_per_s")),
+        ("nonuniformity", "DSNU_1288", "DN", col("dsnu_dn")),
+        ("nonuniformity", "uncertainty of DSNU", "DN", col("dsnu_unc_dn")),
+        ("nonuniformity", "DSNU_1288", "e⁻", col("dsnu_e")),
+        ("nonuniformity", "PRNU_1288", "%", col("prnu_pct")),
+        ("nonuniformity", "uncertainty of PRNU", "%", col("prnu_unc_pct")),
+        ("nonuniformity", "noise left in the flat map", "%", col("flat_map_noise_pct")),
+        ("nonuniformity", "flats for map noise < PRNU", "frames", col("flats_for_noise_below_prnu")),
+    ]
+    return rows

@@ -25,7 +25,7 @@ import numpy as np
 from camcal import __version__
 from camcal.container import read_container, write_container
 from camcal.dark import DarkModel, dark_from_parts, dark_to_parts
-from camcal.emva import EmvaSheet
+from camcal.emva import SHEET_KEYS, EmvaSheet
 from camcal.errors import CamcalError
 from camcal.flat import FlatModel, flat_from_parts, flat_to_parts
 from camcal.frame import PLANES, RGB
@@ -386,6 +386,12 @@ def contract(profile: CalibrationProfile) -> dict:
         }
     else:
         out["spectral_sensitivity"] = None
+    if profile.emva is not None:  # per plane, as in the profile file (planes R, G1, G2, B or R, G, B)
+        out["emva1288"] = {"iso": profile.emva.iso,
+                           "channels": {c: {k: v.get(k) for k in SHEET_KEYS} | {"K_source": v.get("K_source")}
+                                        for c, v in profile.emva.channels.items()}}
+    else:
+        out["emva1288"] = None
     p = profile.provenance
     out["provenance"] = {"camcal_version": p.camcal_version, "created_utc": p.created_utc, "n_inputs": len(p.inputs),
                          "options": p.options}
