@@ -35,7 +35,6 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import stats
 
 QUANTISATION_VAR_DN2 = 1.0 / 12.0
 """σ²_q of integer data, DN² (EMVA 1288 linear model, eq. 4)."""
@@ -143,7 +142,8 @@ def photon_transfer(exposure_s: np.ndarray, signal_dn: np.ndarray, variance_dn2:
     variance_dn2 : (n,) temporal variance of each pair, DN².
     dark_variance_dn2 : σ²_y.dark at zero exposure (read noise² + 1/12, DN²) from the dark frames; with it K is the
         slope through that point, as the standard fits ``σ²_y − σ²_y.dark = K(μ_y − μ_y.dark)`` through the origin;
-        without, the intercept is fitted too (``scipy.stats.linregress``).
+        without, the intercept is fitted too (``numpy.polyfit`` with its covariance; ``camcal calibrate`` loads
+        no scipy).
     dark_signal_dn : (n,) dark signal at each point (β·t, DN), subtracted for the responsivity, the saturation
         signal μ_y.sat − μ_y.dark and the 70 % fit limit (the standard's μ_y − μ_y.dark); None: 0.
 
@@ -176,8 +176,8 @@ def photon_transfer(exposure_s: np.ndarray, signal_dn: np.ndarray, variance_dn2:
     else:
         if sel.sum() < 3:
             raise ValueError("photon transfer without a dark variance needs three or more frame pairs")
-        lr = stats.linregress(ys, vs)
-        k, k_unc, v0, fitted = float(lr.slope), float(lr.stderr), float(lr.intercept), True
+        k, v0, k_unc = _line(ys, vs)
+        fitted = True
     # responsivity: the photo signal against exposure through the origin
     ps = photo[sel]
     r = float(np.sum(xs * ps) / np.sum(xs * xs))
@@ -187,6 +187,16 @@ def photon_transfer(exposure_s: np.ndarray, signal_dn: np.ndarray, variance_dn2:
         saturation_dn=r * float(x[isat]), saturation_exposure_s=float(x[isat]), responsivity_dn_per_s=r,
         exposure_s=x, signal_dn=y, variance_dn2=v, photo_signal_dn=photo,
     )
+
+
+def _line(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
+    """Unweighted straight line y = a·x + b (``numpy.polyfit``): a, b and the standard error of a (covariance
+    scaled by the residuals over n − 2 degrees of freedom; NaN with two points)."""
+    if x.size >= 3:
+        (a, b), cov = np.polyfit(x, y, 1, cov=True)
+        return float(a), float(b), float(math.sqrt(max(cov[0, 0], 0.0)))
+    a, b = np.polyfit(x, y, 1)
+    return float(a), float(b), float("nan")
 
 
 @dataclass(frozen=True)
@@ -211,8 +221,7 @@ def dark_temporal(exposure_s: np.ndarray, variance_dn2: np.ndarray) -> DarkTempo
     t = np.asarray(exposure_s, float)
     v = np.asarray(variance_dn2, float)
     if np.unique(t).size >= 3:
-        lr = stats.linregress(t, v)
-        v0, slope = float(lr.intercept), float(lr.slope)
+        slope, v0, _ = _line(t, v)
     else:
         i = int(np.argmin(t))
         v0, slope = float(v[i]), float("nan")
@@ -506,7 +515,9 @@ def build_sheet(*, channels: tuple[str, ...], iso: float, dark_stacks=None, dark
             tb = float(np.median([e.exposure_s or 0.0 for e in dark_stacks.bias.exposures]))
             groups.append((tb, dark_stacks.bias))
         groups = [(t, s) for t, s in groups if s.n_frames >= 2]
-        for k, c in enumerate(channels):
+        if not groups:
+            notes.append("no dark exposure with two or more frames: temporal dark noise and DSNU unknown")
+        for k, c in enumerate(channels if groups else ()):
             good = np.ones(groups[0][1].value.shape[1:], bool) if defects is None else ~defects[k]
             ts = [t for t, _ in groups]
             vs = [float(np.mean(np.asarray(s.variance_all if s.variance_all is not None else s.variance,
