@@ -35,6 +35,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import stats
 
 QUANTISATION_VAR_DN2 = 1.0 / 12.0
 """σ²_q of integer data, DN² (EMVA 1288 linear model, eq. 4)."""
@@ -142,8 +143,7 @@ def photon_transfer(exposure_s: np.ndarray, signal_dn: np.ndarray, variance_dn2:
     variance_dn2 : (n,) temporal variance of each pair, DN².
     dark_variance_dn2 : σ²_y.dark at zero exposure (read noise² + 1/12, DN²) from the dark frames; with it K is the
         slope through that point, as the standard fits ``σ²_y − σ²_y.dark = K(μ_y − μ_y.dark)`` through the origin;
-        without, the intercept is fitted too (``numpy.polyfit`` with its covariance; ``camcal calibrate`` loads
-        no scipy).
+        without, the intercept is fitted too (``scipy.stats.linregress``).
     dark_signal_dn : (n,) dark signal at each point (β·t, DN), subtracted for the responsivity, the saturation
         signal μ_y.sat − μ_y.dark and the 70 % fit limit (the standard's μ_y − μ_y.dark); None: 0.
 
@@ -190,13 +190,13 @@ def photon_transfer(exposure_s: np.ndarray, signal_dn: np.ndarray, variance_dn2:
 
 
 def _line(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
-    """Unweighted straight line y = a·x + b (``numpy.polyfit``): a, b and the standard error of a (covariance
-    scaled by the residuals over n − 2 degrees of freedom; NaN with two points)."""
+    """Unweighted straight line y = a·x + b (``scipy.stats.linregress``): a, b and the standard error of a
+    (residuals over n − 2 degrees of freedom; NaN with two points)."""
     if x.size >= 3:
-        (a, b), cov = np.polyfit(x, y, 1, cov=True)
-        return float(a), float(b), float(math.sqrt(max(cov[0, 0], 0.0)))
-    a, b = np.polyfit(x, y, 1)
-    return float(a), float(b), float("nan")
+        lr = stats.linregress(x, y)
+        return float(lr.slope), float(lr.intercept), float(lr.stderr)
+    a = (y[-1] - y[0]) / (x[-1] - x[0])
+    return float(a), float(y[0] - a * x[0]), float("nan")
 
 
 @dataclass(frozen=True)
