@@ -607,7 +607,10 @@ def build_sheet(*, channels: tuple[str, ...], iso: float, dark_stacks=None, dark
                 row["read_noise_e"] = row["read_noise_dn"] / k_
             if row.get("dsnu_dn") is not None:
                 row["dsnu_e"] = row["dsnu_dn"] / k_
-            beta = (summary.get(c) or {}).get("dark_current_dn_per_s")
+            info = summary.get(c) or {}
+            # EMVA 1288 takes the dark current from the mean dark signal: the plane mean of the per-pixel slopes
+            # (good pixels), which is the slope of the mean; the dark model's headline figure is their median
+            beta = info.get("dark_current_mean_dn_per_s", info.get("dark_current_dn_per_s"))
             if beta is not None:
                 row["dark_current_dn_per_s"] = _num(beta)
                 row["dark_current_e_per_s"] = _num(beta / k_)
