@@ -74,6 +74,37 @@ def test_correct_planes_against_independent_formulas(rng):
     assert plain.invalid[1, 0, 0] and plain.saturated[1, 0, 0]
 
 
+class _Flat:
+    def __init__(self, gain):
+        self._gain = gain
+
+    def gain(self, with_prnu: bool = False):
+        return self._gain
+
+
+@pytest.mark.parametrize("how", ["of", "gain_only"])
+def test_correction_divides_by_the_flat_gain(how):
+    """s = (d − bias − β t S/S_dark) / g with g from a flat model (Calibration.of) or given alone."""
+    rng = np.random.default_rng(3)
+    shape = (4, 5, 7)
+
+    class Dark:
+        bias_dn = (500 + rng.normal(0, 1, shape)).astype(np.float32)
+        dark_current_dn_per_s = rng.uniform(1, 3, shape).astype(np.float32)
+        iso = 100.0
+
+        def dark_frame_dn(self, exposure_s, iso):  # not used: the maps are
+            raise AssertionError
+
+    gain = rng.uniform(0.5, 0.9, shape).astype(np.float32)
+    cal = Calibration.of(Dark(), _Flat(gain)) if how == "of" else Calibration(dark=Dark(), flat_gain=gain)
+    raw = rng.uniform(800, 3000, shape).astype(np.float32)
+    out = correct_planes(raw.copy(), cal, exposure_s=4.0, iso=400.0, white_level_dn=4095,
+                         black_level_dn=np.full(4, 512.0))
+    expect = (raw.astype(np.float64) - Dark.bias_dn - Dark.dark_current_dn_per_s * 4.0 * 4.0) / gain
+    np.testing.assert_allclose(out.signal_dn, expect, rtol=1e-5)
+
+
 def test_correct_planes_on_a_window_equals_the_whole_frame(rng):
     shape = (4, 10, 12)
     dark = _Dark(shape, rng)
