@@ -177,3 +177,56 @@ def test_hemispheric_transmittance_against_quadrature():
     for tmax in (np.pi / 2, 1.0):
         num = quad(lambda a: fresnel_t_from_air(a) * np.cos(a) * np.sin(a), 0, tmax, epsabs=0, epsrel=1e-12)[0]
         assert hemispheric_transmittance(tmax) == pytest.approx(num / (0.5 * np.sin(tmax) ** 2), rel=1e-9)
+
+
+def test_lamp_model_off_axis_with_chlorophyll_matches_a_ray_trace():
+    """Seed §4's point lamp at 0.5 rad, camera at 0.3 rad, C ≠ 0: the model's ratio against irradiances from an
+    independent ray trace, E_w = I T(α) e^(−τ/cos β) sin α / (X dX/dα) with X(α) traced and dX/dα by central
+    differences, and the inverse-square law with the cosine for the dry disk."""
+    h, alpha, view, d, c = 0.8, 0.5, 0.3, 0.3, 1e-7
+    m = LampModel(height_m=h, lamp_angle_rad=alpha, view_angle_rad=view, background_absorption_per_m=0.2)
+    n = N_WATER
+
+    def x_of(a):  # horizontal distance from the lamp's foot where the refracted ray reaches depth d
+        b = np.arcsin(np.sin(a) / n)
+        return h * np.tan(a) + d * np.tan(b)
+
+    da = 1e-5
+    dx = (x_of(alpha + da) - x_of(alpha - da)) / (2 * da)
+    x = x_of(alpha)
+    beta = np.arcsin(np.sin(alpha) / n)
+    tau = (m.water_absorption_per_m + 0.2 + np.log(10) * m.epsilon_L_per_mol_cm * c * 100) * d
+    e_w = fresnel_t_from_air(alpha) * np.exp(-tau / np.cos(beta)) * np.sin(alpha) / (x * dx)
+    r = np.hypot(x, h + d)
+    e_air = (h + d) / r**3
+    mu_v = np.sqrt(1 - (np.sin(view) / n) ** 2)
+    expect = e_w / e_air * fresnel_t_from_air(view) * np.exp(-tau / mu_v) / n**2
+    # tolerance: the central difference's truncation error, O(da²) ≈ 1e-10 relative
+    assert float(m.ratio(c, d)) == pytest.approx(expect, rel=1e-8)
+
+
+@pytest.mark.parametrize("line_fwhm_nm", [1.0, 9.0])
+def test_narrowband_slit_correction_against_gaussian_convolutions(line_fwhm_nm):
+    """The narrowband estimator reads c ⊛ line at λ0 from a curve measured through a 5 nm slit (c ⊛ slit).
+
+    With a Gaussian sensitivity c = exp(−(λ−μ)²/2s²) both convolutions are closed forms (variances add):
+    (c ⊛ g_σ)(λ) = s/√(s²+σ²) · exp(−(λ−μ)²/2(s²+σ²)). The estimator's second-order correction must give the
+    rate of a unit line within 2e-4 (the neglected fourth-order term and the spline's c''; measured 6e-5); the
+    correction itself is 0.2-0.5 % at 663 nm on this curve.
+    """
+    from camcal.radiance import radiance_model
+
+    wl = np.arange(400.0, 721.0, 5.0)
+    mu, s, slit = 620.0, 30.0, 5.0
+    f2s = 1 / (2 * np.sqrt(2 * np.log(2)))
+
+    def conv(lam, fwhm):
+        v = s * s + (fwhm * f2s) ** 2
+        return 50.0 * s / np.sqrt(v) * np.exp(-((lam - mu) ** 2) / (2 * v))
+
+    c = {"R": conv(wl, slit), "G": 0.1 * conv(wl - 90, slit), "B": 0.05 * conv(wl - 180, slit)}
+    model = radiance_model(wl, c, None, 663.0, "narrowband", line_fwhm_nm=line_fwhm_nm, slit_fwhm_nm=slit)
+    assert model.channel == "R"
+    rate = conv(663.0, line_fwhm_nm)  # DN/s of a line of unit in-band radiance
+    assert model.weights[0] * rate == pytest.approx(1.0, abs=2e-4)  # measured 4e-5 (1 nm), 6e-5 (9 nm)
+    assert abs(rate / conv(663.0, slit) - 1) > 2e-3  # the correction matters at this precision
