@@ -230,3 +230,35 @@ def test_narrowband_slit_correction_against_gaussian_convolutions(line_fwhm_nm):
     rate = conv(663.0, line_fwhm_nm)  # DN/s of a line of unit in-band radiance
     assert model.weights[0] * rate == pytest.approx(1.0, abs=2e-4)  # measured 4e-5 (1 nm), 6e-5 (9 nm)
     assert abs(rate / conv(663.0, slit) - 1) > 2e-3  # the correction matters at this precision
+
+
+def test_schlick_from_the_water_side_uses_the_air_side_angle():
+    """Schlick from below (n1 > n2) is R0 + (1 − R0)(1 − cos θ_air)⁵ with θ_air from Snell, so it equals Schlick
+    from above at that angle (reciprocity); R0 = ((n − 1)/(n + 1))² = 0.02006 for n = 1.33."""
+    from camcal.water.optics import schlick_reflectance
+
+    r0 = (0.33 / 2.33) ** 2
+    for theta_w in (0.3, 0.6, 0.8):
+        theta_a = np.arcsin(N_WATER * np.sin(theta_w))
+        expect = r0 + (1 - r0) * (1 - np.cos(theta_a)) ** 5
+        assert float(schlick_reflectance(theta_w, N_WATER, 1.0)) == pytest.approx(expect, rel=1e-12)
+        assert float(schlick_reflectance(theta_a, 1.0, N_WATER)) == pytest.approx(expect, rel=1e-12)
+    # the refined model with Schlick: T_up at an oblique view from the air-side angle
+    view = 0.9
+    expect = 1 - (r0 + (1 - r0) * (1 - np.cos(view)) ** 5)
+    assert RefinedModel(view_angle_rad=view, reflectance="schlick").transmittance_up() == pytest.approx(expect)
+
+
+def test_radiance_into_water_is_n2_t_l():
+    """The n² law into the water at an oblique air angle: L_w = n² T(θa) L_air (Mobley 1994 §4.3)."""
+    from camcal.water.optics import radiance_into_water
+
+    assert float(radiance_into_water(2.0, 0.7)) == pytest.approx(2.0 * N_WATER**2 * fresnel_t_from_air(0.7),
+                                                                 rel=1e-12)
+    r0 = (0.33 / 2.33) ** 2
+    schlick_t = 1 - (r0 + (1 - r0) * (1 - np.cos(0.7)) ** 5)
+    assert float(radiance_into_water(2.0, 0.7, method="schlick")) == pytest.approx(2.0 * N_WATER**2 * schlick_t,
+                                                                                   rel=1e-12)
+    theta_w = np.arcsin(np.sin(0.7) / N_WATER)
+    assert float(radiance_out_of_water(2.0, theta_w, method="schlick")) == pytest.approx(2.0 * schlick_t / N_WATER**2,
+                                                                                        rel=1e-12)
