@@ -13,15 +13,27 @@ from dataclasses import asdict, dataclass, field, replace
 from datetime import UTC, datetime
 from pathlib import Path
 
+import numpy as np
+
 from camcal import __version__
 from camcal.colour import fit_colour_matrix, twin_pairs
 from camcal.dark import DarkOptions, dark_frame_check, fit_dark_stacks, stack_darks, with_dead_pixels
+from camcal.emva import build_sheet
 from camcal.errors import CamcalError, TooFewFrames
-from camcal.flat import DEAD_RESPONSE, FlatChecks, FlatOptions, check_flat_frame, dead_pixels, fit_flat_with
+from camcal.flat import (
+    DEAD_RESPONSE,
+    FlatChecks,
+    FlatOptions,
+    check_flat_frame,
+    dead_pixels,
+    fit_master,
+    flat_prnu,
+    master_flat,
+)
 from camcal.frame import Frame
 from camcal.hashing import sha256_file
 from camcal.io import load_frame
-from camcal.manifest import SESSION_DEFAULTS
+from camcal.manifest import SESSION_DEFAULTS, session_camera_facts
 from camcal.profile import CalibrationProfile, CameraIdentity, Provenance
 from camcal.response import fit_series_set, measure_series
 from camcal.screen import Screening, StageCheck, Verdict, screen_session
@@ -177,6 +189,14 @@ def _reference(index: SessionIndex, opts: CalibrateOptions,
                       "--reference-f-number", session)
 
 
+def _flat_mask(master, dark):
+    """Pixels left out of the flat's PRNU: masked in every frame, and the dark model's defects."""
+    mask = ~np.isfinite(master.value)
+    if dark is not None and dark.defects.shape == mask.shape:
+        mask |= dark.defects != 0
+    return mask
+
+
 def stage_checks(options: CalibrateOptions | None = None) -> dict[str, StageCheck]:
     """Each stage's own check of one frame, run when the session is screened (:func:`camcal.screen.screen_session`):
     dark and bias frames RAW and not saturated; flats RAW, well exposed and not saturated beyond use
@@ -273,26 +293,42 @@ def calibrate_session(
 
     dark = flat = spectral = None
     response = None
+    dark_stacks = master = prnu = pairs = series = None
     bias_frames = index.stage("bias") if "bias" in stages else None
     if "dark" in stages:
         dark_opts = DarkOptions(method=opts.dark_method)
+
         def fit_darks():
+            nonlocal dark_stacks
             stacks = stack_darks(index.frames["dark"], bias_frames, dark_opts, jobs=opts.jobs, progress=cb("dark"))
             record.leave_out([Verdict("dark", name, reason) for name, reason in stacks.left_out])
+            dark_stacks = stacks
             return fit_dark_stacks(stacks, dark_opts)
 
         dark = record.attempt("dark", fit_darks)
     if dark is None and bias_frames is not None:
-        dark = record.attempt("bias", lambda: fit_dark_stacks(stack_darks(None, bias_frames, jobs=opts.jobs,
-                                                                          progress=cb("bias"))))
+        def fit_bias():
+            nonlocal dark_stacks
+            dark_stacks = stack_darks(None, bias_frames, jobs=opts.jobs, progress=cb("bias"))
+            return fit_dark_stacks(dark_stacks)
+
+        dark = record.attempt("bias", fit_bias)
         if dark is not None:
             notes.append("bias/ without dark/: bias, read noise and noisy pixels calibrated; dark current unknown "
                          "(apply subtracts the bias only; add dark frames at two exposure times to measure it)")
     if "flat" in stages:
-        flat = record.attempt("flat", lambda: fit_flat_with(index.frames["flat"], dark,
-                                                             FlatOptions(model=opts.flat_model), jobs=opts.jobs,
-                                                             progress=cb("flat")))
+        flat_opts = FlatOptions(model=opts.flat_model)
+
+        def fit_flat():
+            nonlocal master
+            master = master_flat(index.frames["flat"], dark, method=flat_opts.method, sigma=flat_opts.sigma,
+                                 checks=flat_opts.checks, jobs=opts.jobs, progress=cb("flat"))
+            return fit_master(master, dark, **flat_opts.fit_kwargs())
+
+        flat = record.attempt("flat", fit_flat)
         if flat is not None:
+            if master is not None and master.mean_all is not None:
+                prnu = flat_prnu(master, flat, _flat_mask(master, dark))
             dead = dead_pixels(flat)
             if dark is not None:
                 dark = with_dead_pixels(dark, dead, f"flat response below {DEAD_RESPONSE:g} of the model")
@@ -300,9 +336,14 @@ def calibrate_session(
                 notes.append(f"{int(dead.sum())} dead pixels in the flats are not kept: without a dark model the "
                              "profile has no defect map")
     if "linearity" in stages:
-        response = record.attempt("linearity", lambda: fit_series_set(measure_series(
-            index.frames["linearity"], dark=dark, reference_iso=ref_iso, reference_f_number=ref_n,
-            progress=cb("linearity"))))
+        def fit_linearity():
+            nonlocal series, pairs
+            series = measure_series(index.frames["linearity"], dark=dark, reference_iso=ref_iso,
+                                    reference_f_number=ref_n, progress=cb("linearity"))
+            pairs = series["raw"].pairs if "raw" in series else None
+            return fit_series_set(series)
+
+        response = record.attempt("linearity", fit_linearity)
     if "sweep" in stages:
         sweep = index.frames["sweep"]
         kept_names = {p.name for p in sweep.paths}
@@ -336,6 +377,14 @@ def calibrate_session(
         why = "; ".join(f"{r['reason']}" for r in record.not_calibrated) or "no stage was calibrated"
         gone = "; ".join(f"{v.stage}/{v.file}: {v.reason}" for v in record.left_out[:3])
         raise CamcalError(f"no stage could be calibrated: {why}" + (f" (left out: {gone})" if gone else ""), session)
+    emva = None
+    if dark is not None or pairs is not None or prnu is not None:
+        channels = dark.plane_names if dark is not None else (flat.channels if flat is not None else
+                                                              tuple(series["raw"].channels))  # type: ignore[index]
+        emva = build_sheet(channels=tuple(channels), iso=dark.iso if dark is not None else ref_iso,
+                           dark_stacks=dark_stacks, dark=dark, master_flat=master, flat_prnu=prnu, pairs=pairs,
+                           spectral=spectral, pixel_pitch_um=session_camera_facts(session / stages[0]).get(
+                               "pixel_pitch_um"))
     provenance = Provenance(
         camcal_version=__version__,
         created_utc=datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
@@ -345,5 +394,6 @@ def calibrate_session(
         not_calibrated=tuple(record.not_calibrated),
     )
     profile = CalibrationProfile(camera=camera, reference_iso=ref_iso, reference_f_number=ref_n, dark=dark,
-                                 flat=flat, response=response, spectral=spectral, provenance=provenance)
+                                 flat=flat, response=response, spectral=spectral, emva=emva,
+                                 provenance=provenance)
     return profile, notes
