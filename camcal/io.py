@@ -591,6 +591,8 @@ def _load_processed(path: Path) -> Frame:
             model=attr("Model"),
             capture_time=_iso_time(attr("Exif:DateTimeOriginal")),
         )
+        icc = spec.getattribute("ICCProfile")
+        icc_name = icc_description(None if icc is None else np.asarray(icc, np.uint8).tobytes())
     tags = _exif_tags(path)
     exif_exp = exposure_from_exif(path, tags)
     # both read the file's EXIF; a tag exifread sees holding zero stays unknown
@@ -613,6 +615,7 @@ def _load_processed(path: Path) -> Frame:
         exposure=exp,
         path=path,
         layout="processed",
+        icc_profile=icc_name,
     )
 
 
