@@ -348,20 +348,6 @@ def _raw_pixels(frame: Frame, plan: ApplyPlan, t: float, iso: float, inv_x: floa
     return out
 
 
-def rescale_to_response(file_white_dn: float, response_white_dn: float) -> float:
-    """Factor that brings a processed file's values onto the scale of the response it is read with.
-
-    A processed response is fitted on the calibration's files (an 8-bit JPEG: white 255 DN); a photo of
-    another bit depth from the same camera (a 10-bit HEIC: white 1023 DN) holds the same tone-encoded
-    fraction v/W, so its values are multiplied by W_response / W_file. 1 when the white levels agree or one
-    of them is unknown.
-    """
-    if not (math.isfinite(file_white_dn) and math.isfinite(response_white_dn)) or file_white_dn <= 0:
-        return 1.0
-    ratio = float(response_white_dn) / float(file_white_dn)
-    return 1.0 if abs(ratio - 1.0) < 1e-9 else ratio
-
-
 def _processed_signal(frame: Frame, plan: ApplyPlan, iso: float, notes: list[str]):
     """Processed RGB -> (RAW-equivalent signal (3,h,w) binned, variance or None, invalid (3,h,w))."""
     profile = plan.profile
@@ -378,13 +364,12 @@ def _processed_signal(frame: Frame, plan: ApplyPlan, iso: float, notes: list[str
     f = 2 if not linear or not plane_h else max(1, values.shape[1] // plane_h)
     binf = _bin2 if f == 2 else (lambda a: np.asarray(a, np.float32))
     saturated = binf((values >= np.float32(frame.white_level_dn)).astype(np.float32)) > 0
-    scale = rescale_to_response(frame.white_level_dn, rp.white_level_dn)
+    scale = rp.value_scale(frame.white_level_dn)
     if scale != 1.0:  # e.g. a 10-bit HEIC read against the response of the calibration's 8-bit JPEGs
-        values *= np.float32(scale)
         notes.append(f"processed file of white level {frame.white_level_dn:g} DN read against a response measured "
                      f"on files of white level {rp.white_level_dn:g} DN: values scaled by {scale:.6g}, assuming "
                      "the same tone curve at the other bit depth")
-    lin = rp.linearise(values).astype(np.float32)
+    lin = rp.linearise(values, white_level_dn=frame.white_level_dn).astype(np.float32)
     if rp.colour_matrix is not None:  # r = A⁻¹ j: the camera's channel mixing undone (camcal.colour)
         signal = binf(rp.colour_matrix.to_raw(lin))
         notes.append("processed file: RAW-equivalent signal through the profile's colour matrix (fitted on the "

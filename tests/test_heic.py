@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from camcal.apply import apply, rescale_to_response
+from camcal.apply import apply
 from camcal.errors import CamcalError
 from camcal.exr import read_exr
 from camcal.inspect import describe
@@ -123,10 +123,13 @@ def test_synthetic_heic_radiance_within_3pct(heic_photos, profile, camera, bits)
                                                                      rel=0.01)
 
 
-def test_rescale_to_response():
-    assert rescale_to_response(1023.0, 255.0) == pytest.approx(255 / 1023)
-    assert rescale_to_response(255.0, 255.0) == 1.0
-    assert rescale_to_response(1023.0, float("nan")) == 1.0
+def test_value_scale_of_other_bit_depths(profile):
+    proc, raw = profile.response["processed"], profile.response["raw"]
+    assert proc.white_level_dn == 255.0
+    assert proc.value_scale(1023.0) == pytest.approx(255 / 1023)
+    assert proc.value_scale(255.0) == 1.0 and proc.value_scale(None) == 1.0 and raw.value_scale(1023.0) == 1.0
+    v = np.array([[40.0], [128.0], [200.0]])
+    assert np.allclose(proc.linearise(v * 1023 / 255, white_level_dn=1023.0), proc.linearise(v))
 
 
 def test_heic_exposure_series_through_the_processed_response(tmp_path):
