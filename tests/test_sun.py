@@ -355,3 +355,19 @@ def test_exif_tags_csv_dates_match(inspected):
         rel = f"{path.parent.name}/{path.name}"
         cell = rows[rel]["datetime_original_tag"]
         assert inspected[path.name]["capture_time"] == cell.replace(":", "-", 2).replace(" ", "T"), rel
+
+
+def test_synth_photo_cli_writes_place_and_time(tmp_path):
+    out = tmp_path / "field.heic"
+    proc = run_cli("synth", "photo", out, "--width", "64", "--height", "64", "--utc", "2026-06-21T10:30:00Z",
+                   "--utc-offset", "+02:00", "--gps", "47.37,8.54,408", "--heic-bits", "10")
+    assert proc.returncode == 0, proc.stderr
+    e = load_frame(out).exposure
+    assert e.utc_offset == "+02:00" and e.altitude_m == 408.0
+    assert e.latitude_deg == pytest.approx(47.37, abs=1e-9) and e.longitude_deg == pytest.approx(8.54, abs=1e-9)
+    assert e.capture_time == "2026-06-21T12:30:00" and e.gps_time_utc == "2026-06-21T10:30:00+00:00"
+    truth = sun_position(datetime(2026, 6, 21, 10, 30, tzinfo=UTC), 47.37, 8.54, 408.0)
+    assert photo_sun(out).zenith_deg == pytest.approx(truth.zenith_deg, abs=1e-6)
+    assert_one_line_error(run_cli("synth", "photo", tmp_path / "x.jpg", "--utc", "noon"), "--utc")
+    assert_one_line_error(run_cli("synth", "photo", tmp_path / "x.jpg", "--utc", "2026-06-21T10:30:00",
+                                  "--gps", "95,8"), "--gps")
