@@ -29,7 +29,7 @@ refers to the on-axis sensitivity (``docs/conventions.md``).
 Fitting (fast whatever the sensor size): each plane is block-averaged to about
 64 blocks along its long side; for a trial centre the model is linear in
 (A, A·k0, ..., A·k4), so a bounded trust-region least squares
-(:func:`camcal.optimize.least_squares`, Trust Region Reflective) searches only the
+(:func:`scipy.optimize.least_squares`, Trust Region Reflective) searches only the
 centre (variable projection) and a weighted linear solve gives the rest.
 Residuals are relative (data/model − 1): shot noise and PRNU both scale with
 the signal. An optional smooth 2-D model (a Legendre series in x and y) serves
@@ -46,13 +46,13 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
+from scipy.optimize import least_squares
 
 from camcal.correct import Calibration, correct_frame, correct_planes, require_valid
 from camcal.dark import DarkModel, as_dark_model
 from camcal.errors import CamcalError
 from camcal.frame import PLANES, Frame, plane_offsets
 from camcal.io import load_folder_frame
-from camcal.optimize import least_squares
 from camcal.session import StageFrames, stage_files
 from camcal.stack import combine_frames
 from camcal.store import load_stage, save_stage
@@ -331,8 +331,8 @@ def fit_radial_plane(
     """Fit A·g(r) to one downsampled plane, optical centre free.
 
     Variable projection: for a trial centre, (A, A·k0, ..., A·k_{n-1}) follow from a linear solve
-    weighted by 1/data (relative residuals); :func:`camcal.optimize.least_squares` (Trust Region
-    Reflective, Branch, Coleman & Li 1999, as ``scipy.optimize.least_squares``) moves the centre within
+    weighted by 1/data (relative residuals); :func:`scipy.optimize.least_squares` (Trust Region
+    Reflective, Branch, Coleman & Li 1999) moves the centre within
     the plane, forward differences of relative step 1e-4.
 
     Returns

@@ -21,8 +21,8 @@ R, G1, G2, B; ``processed`` channels R, G, B):
 2. saturation: a frame is saturated in a channel when more than 0.1 % of its
    ROI pixels sit at the white level; the top points are also trimmed while
    they fall below the fit by more than 1 % (full-well compression);
-3. a weighted least-squares fit of eq. 12 (:func:`camcal.optimize.curve_fit`, bounded
-   Trust Region Reflective as ``scipy.optimize.curve_fit``; weights from the ROI
+3. a weighted least-squares fit of eq. 12 (:func:`scipy.optimize.curve_fit`, bounded
+   Trust Region Reflective; weights from the ROI
    standard error, uncertainties scaled by the reduced χ² when it exceeds 1);
 4. the EMVA 1288 linearity error (release 3.1 / 4.0, §6.x "Linearity"):
    a straight line μ = a·x + b fitted minimising the *relative* deviations over
@@ -49,6 +49,7 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
+from scipy.optimize import OptimizeWarning, curve_fit, least_squares
 
 from camcal.colour import ColourMatrix
 from camcal.correct import Calibration, DarkFrameModel, correct_planes
@@ -56,7 +57,6 @@ from camcal.errors import CamcalError
 from camcal.exposure import relative_exposure
 from camcal.frame import PLANES
 from camcal.io import load_folder_frame
-from camcal.optimize import curve_fit, least_squares
 from camcal.region import Region
 from camcal.session import StageFrames, folder_of, stage_files
 from camcal.store import load_stage, save_stage
@@ -533,9 +533,10 @@ def fit_eq12(x_s: np.ndarray, g_dn: np.ndarray, sigma_dn: np.ndarray, *, gamma0:
     hi = [np.inf, 10.0, np.inf]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
+        warnings.simplefilter("ignore", OptimizeWarning)  # a covariance that cannot be estimated is inf
         try:
-            popt, pcov = curve_fit(_eq12, u, g, [max(a0, 1e-12), gam0, b0], sigma=s, bounds=(lo, hi),
-                                   x_scale="jac", max_nfev=20000)
+            popt, pcov = curve_fit(_eq12, u, g, [max(a0, 1e-12), gam0, b0], sigma=s, absolute_sigma=True,
+                                   bounds=(lo, hi), method="trf", x_scale="jac", max_nfev=20000)
         except (RuntimeError, ValueError) as exc:
             raise CamcalError(f"the fit of eq. 12 did not converge ({exc})") from None
     a, gam, b = (float(v) for v in popt)
@@ -635,8 +636,8 @@ def fit_srgb_form(x_s: np.ndarray, g_dn: np.ndarray, sigma_dn: np.ndarray, white
                   x_white0: float) -> dict:
     """Fit g/W = V((x/x_w), p) of the sRGB form (free exponent p, white exposure x_w in s).
 
-    Weighted least squares in (p, ln x_w) with 0.05 ≤ p ≤ 0.99 by :func:`camcal.optimize.least_squares`
-    (Trust Region Reflective, as ``scipy.optimize.least_squares``, ``x_scale="jac"``); the exponent's
+    Weighted least squares in (p, ln x_w) with 0.05 ≤ p ≤ 0.99 by :func:`scipy.optimize.least_squares`
+    (Trust Region Reflective, ``x_scale="jac"``); the exponent's
     uncertainty from ``inv(JᵀJ)`` at the solution, scaled by the reduced χ² when above 1.
     """
     x = np.asarray(x_s, float)
