@@ -152,8 +152,11 @@ def _exif_tags(path: Path) -> dict[str, object]:
 
     HEIF files: the EXIF block libheif takes out of the file, read by exifread.
     """
-    if is_heif(path):
-        return _exif_from_block(_heif_exif_block(path))
+    try:
+        if is_heif(path):
+            return _exif_from_block(_heif_exif_block(path))
+    except CamcalError:  # unreadable: the decoder reports it; metadata is optional here
+        return {}
     try:
         exifread = _exif_reader()
         with open(path, "rb") as fh:

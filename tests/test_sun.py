@@ -15,6 +15,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import json
+import struct
 from datetime import UTC, datetime, timedelta
 from fractions import Fraction
 from pathlib import Path
@@ -39,7 +40,8 @@ from camcal.sun import (
     sun_position,
 )
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
-from camcal.synth.exif import PlaceTime
+from camcal.synth.exif import _ASCII, _IFD, _LONG, _RATIONAL, PlaceTime
+from camcal.synth.heic import write_heic
 from camcal.synth.session import exposure_for_level
 from tests.conftest import assert_one_line_error, run_cli
 
@@ -371,3 +373,51 @@ def test_synth_photo_cli_writes_place_and_time(tmp_path):
     assert_one_line_error(run_cli("synth", "photo", tmp_path / "x.jpg", "--utc", "noon"), "--utc")
     assert_one_line_error(run_cli("synth", "photo", tmp_path / "x.jpg", "--utc", "2026-06-21T10:30:00",
                                   "--gps", "95,8"), "--gps")
+
+
+def _tiff(exif_entries: dict, gps_entries: dict) -> bytes:
+    """An EXIF block (TIFF structure) with the given Exif and GPS entries {tag: (type, values)}."""
+    ifd0, exif, gps = _IFD(), _IFD(), _IFD()
+    ifd0.add(271, _ASCII, "camcal")
+    ifd0.add(272, _ASCII, "Odd GPS")
+    ifd0.add(34665, _LONG, [0])
+    ifd0.add(34853, _LONG, [0])
+    for tag, (ftype, values) in exif_entries.items():
+        exif.add(tag, ftype, values)
+    for tag, (ftype, values) in gps_entries.items():
+        gps.add(tag, ftype, values)
+    exif_off = 8 + ifd0.total_size()
+    exif_off += exif_off & 1
+    gps_off = exif_off + exif.total_size()
+    gps_off += gps_off & 1
+    ifd0.add(34665, _LONG, [exif_off])
+    ifd0.add(34853, _LONG, [gps_off])
+    out = bytearray(b"II*\x00" + struct.pack("<I", 8)) + ifd0.pack(8)
+    out += b"\x00" * (exif_off - len(out)) + exif.pack(exif_off)
+    out += b"\x00" * (gps_off - len(out)) + gps.pack(gps_off)
+    return bytes(out)
+
+
+def test_gps_and_offset_tags_that_cannot_be_used_are_unknown_with_a_note(tmp_path):
+    """Real receivers write 0°, 0° without a fix; some files lack the N/S letter, the GPS date, or hold an
+    offset that is no zone. Each is unknown (never a guess), with a note; the photo then asks for --sun."""
+    when = (_ASCII, "2026:06:21 12:30:00")
+    cases = {
+        "null-island": ({36867: when, 36881: (_ASCII, "CET")},
+                        {1: (_ASCII, "N"), 2: (_RATIONAL, [0.0, 0.0, 0.0]), 3: (_ASCII, "E"),
+                         4: (_RATIONAL, [0.0, 0.0, 0.0]), 7: (_RATIONAL, [10.0, 30.0, 0.0])}),
+        "no-ref": ({36867: when}, {2: (_RATIONAL, [47.0, 22.0, 0.0]), 4: (_RATIONAL, [8.0, 32.0, 0.0])}),
+    }
+    img = np.full((64, 64, 3), 90, np.uint8)
+    for name, (exif_entries, gps_entries) in cases.items():
+        p = write_heic(tmp_path / f"{name}.heic", img, exif=_tiff(exif_entries, gps_entries))
+        e = load_frame(p).exposure
+        assert e.latitude_deg is None and e.longitude_deg is None and e.gps_time_utc is None, name
+        assert e.utc_offset is None and e.capture_time == "2026-06-21T12:30:00", name
+        notes = " | ".join(e.notes)
+        if name == "null-island":
+            assert "0°, 0°" in notes and "GPS time stamp without a GPS date" in notes and "'CET'" in notes, notes
+        else:
+            assert "without its N/S or E/W reference" in notes, notes
+        with pytest.raises(CamcalError, match=r"no time zone .* and no GPS position; give --sun"):
+            photo_sun(p)
