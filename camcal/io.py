@@ -690,7 +690,7 @@ def is_raw_path(path: Path) -> bool:
 def load_frame(
     path: str | Path,
     overrides: dict[str, float | None] | None = None,
-    defaults: dict[str, float] | None = None,
+    defaults: dict[str, float | str] | None = None,
 ) -> Frame:
     """Decode one image file into a :class:`~camcal.frame.Frame`.
 
