@@ -176,6 +176,9 @@ def test_real_heic_apply_writes_radiance(tmp_path, profile):
     assert all(np.nanmedian(channels[c]) > 0 for c in "RGB")
     assert float(np.median(channels["L663"][good])) > 0
     assert meta["source_name"] == photo.name and prof.content_sha256
+    # the photo's place and time travel with its radiance (for the sun of a later inversion)
+    assert meta["exposure"]["gps_time_utc"] == "2019-03-21T16:04:21.010000+00:00"
+    assert meta["place"]["latitude_deg"] == pytest.approx(41.2203, abs=1e-6)
 
 
 def test_heic_detected_by_content_and_damaged_refused(tmp_path):
