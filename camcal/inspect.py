@@ -6,7 +6,7 @@ from pathlib import Path
 
 from camcal.errors import CamcalError
 from camcal.frame import PLACE_TIME, TRACKED
-from camcal.io import load_frame
+from camcal.io import load_frame, saturated_fraction
 from camcal.sun import SunPosition, photo_time_utc, sun_from_metadata
 
 SUN_KEYS = ("zenith_deg", "azimuth_deg", "apparent_zenith_deg", "source")
@@ -34,11 +34,12 @@ def describe(path: str | Path, sun: SunPosition | None = None) -> dict[str, obje
     exposure_value_s (ISO·t/N², s), make, model, serial, capture_time (the camera clock, no zone),
     utc_offset (``+HH:MM``), capture_time_utc, time_source (:func:`camcal.sun.photo_time_utc`),
     latitude_deg, longitude_deg, altitude_m (GPS), sun (``zenith_deg``, ``azimuth_deg``,
-    ``apparent_zenith_deg``, ``source``, ``utc``, ``reason`` when unknown), sources (where each of
-    exposure_s, f_number, iso, capture_time, utc_offset, gps_time_utc, latitude_deg, longitude_deg,
-    altitude_m came from: ``tag``, ``libraw``, ``frames.csv``, ``session``; null when unknown), notes
-    (disagreements between readers, values set aside, a GPS date that disagrees with the local date),
-    error (null).
+    ``apparent_zenith_deg``, ``source``, ``utc``, ``reason`` when unknown), saturated_pct (percent of the
+    values at or above the white level), saturated (a note when a quarter of them or more are: "fully
+    saturated" or the percentage; null otherwise), sources (where each of exposure_s, f_number, iso,
+    capture_time, utc_offset, gps_time_utc, latitude_deg, longitude_deg, altitude_m came from: ``tag``,
+    ``libraw``, ``frames.csv``, ``session``; null when unknown), notes (disagreements between readers, values
+    set aside, a GPS date that disagrees with the local date), error (null).
 
     An unknown value is null (None): never a library's placeholder. Session defaults
     (``session.toml`` beside the file or in its parent folder) apply, marked ``session``.
@@ -47,6 +48,7 @@ def describe(path: str | Path, sun: SunPosition | None = None) -> dict[str, obje
     f = load_frame(path)
     e = f.exposure
     h, w = f.shape
+    sat = 100.0 * saturated_fraction(f.data, f.white_level_dn)
     ev = e.iso * e.exposure_s / e.f_number**2 if (e.iso and e.exposure_s and e.f_number) else None
     when = photo_time_utc(e)
     bits = int(f.white_level_dn).bit_length() if f.kind == "processed" else None
@@ -78,6 +80,9 @@ def describe(path: str | Path, sun: SunPosition | None = None) -> dict[str, obje
         "longitude_deg": e.longitude_deg,
         "altitude_m": e.altitude_m,
         "sun": describe_sun(e, path, sun),
+        "saturated_pct": round(sat, 3),
+        "saturated": ("fully saturated: every value at the white level" if sat >= 100.0 else
+                      f"{min(sat, 99.99):.4g} % of the values at the white level" if sat >= 25.0 else None),
         "sources": {name: e.source(name) for name in (*TRACKED, *PLACE_TIME)},
         "notes": list(e.notes) + [n for n in when.notes if not n.startswith("no ")],
         "error": None,
