@@ -36,7 +36,7 @@ from camcal.water.band import band_model_from_profile
 from camcal.water.disk import DiskFit, disk_from_roi, find_disk, region_mean
 from camcal.water.field import FieldBandModel, FieldGeometry
 from camcal.water.invert import Reason
-from camcal.water.uncertainty import Uncertain, combine, uncertainty_terms
+from camcal.water.uncertainty import Uncertain, combine, solve_c, uncertainty_terms
 
 #: Terms that differ from photo to photo (independent); the rest are shared by all photos of a survey.
 INDEPENDENT_TERMS = ("ratio", "depth")
@@ -99,6 +99,19 @@ class SecchiResult:
     meta: dict
 
 
+def invert_one(model: FieldBandModel, ratio: float, depth_m: float) -> tuple[float, str]:
+    """C (µg/L) of one band ratio at one depth by Brent's method on ln C (:func:`camcal.water.uncertainty.solve_c`),
+    and the reason ('ok', or the :class:`camcal.water.invert.Reason` name when no C explains it)."""
+    if not np.isfinite(ratio):
+        return float("nan"), Reason.NOT_FINITE.name.lower()
+    if ratio <= 0:
+        return float("nan"), Reason.NOT_POSITIVE.name.lower()
+    if ratio > float(model.ratio(0.0, depth_m)):
+        return float("nan"), Reason.ABOVE_CLEAR_WATER.name.lower()
+    c = solve_c(lambda cc: model.ratio(cc, depth_m), ratio)
+    return (c, "ok") if np.isfinite(c) else (c, Reason.TOO_DARK.name.lower())
+
+
 def _combined(shots: list[Shot]) -> tuple[float, float, dict]:
     ok = [s for s in shots if s.error is None and np.isfinite(s.c_ug_per_L) and s.sigma_ug_per_L > 0]
     if not ok:
@@ -117,7 +130,7 @@ def _combined(shots: list[Shot]) -> tuple[float, float, dict]:
 def run_secchi(profile_path: str | Path, reference: str | Path, submerged: list, depths: list[tuple[float, float]],
                *, sky, geometry: FieldGeometry, inputs: list[Uncertain], channel: str = "R", chlorophyll=None,
                background_absorption_per_m: float = 0.0, roi: Region | None = None,
-               progress=None) -> SecchiResult:
+               sun_zeniths_deg: list | None = None, progress=None) -> SecchiResult:
     """The whole stage (module docstring). ``depths`` one (d, σ_d) in m per submerged photo; ``sky`` a
     ClearSky/MeasuredSky/OvercastSky; ``inputs`` the stated uncertainties other than depth and the ratio
     (names of :data:`camcal.water.uncertainty.FIELD_INPUTS` and 'epsilon'). Per-photo failures are kept in the
@@ -136,28 +149,41 @@ def run_secchi(profile_path: str | Path, reference: str | Path, submerged: list,
     if not (np.isfinite(ref.disk_radiance) and ref.disk_radiance > 0):
         raise CamcalError("the reference disk has no positive radiance", ref.path)
     shots = []
-    for path, (d, sd) in zip(submerged, depths, strict=True):
+    models: dict[float, FieldBandModel] = {}
+    zeniths = sun_zeniths_deg or [None] * len(submerged)
+    base_model = model
+    for path, (d, sd), zen in zip(submerged, depths, zeniths, strict=True):
         s = Shot(Path(path), "submerged", d, sd)
+        model = base_model
+        if zen is not None and sky.kind != "overcast":  # this photo's own sun (--sun auto)
+            key = round(float(zen), 3)
+            if key not in models:
+                models[key] = base_model.varied("sun_zenith", key)
+            model = models[key]
+            inputs = [replace(q, value=key) if q.name == "sun_zenith" else q for q in inputs]
         try:
             measure_photo(s, plan, channel, roi, surround=True)
             sig = s.disk_radiance - s.surround_radiance
             s.ratio = sig / ref.disk_radiance
             s.sigma_ln_ratio = float(np.sqrt((s.disk_se ** 2 + s.surround_se ** 2) / sig ** 2
                                              + (ref.disk_se / ref.disk_radiance) ** 2)) if sig > 0 else float("nan")
-            inv = model.inverse(d).concentration(np.array([s.ratio]), sigma_ln_ratio=np.array([s.sigma_ln_ratio]))
-            s.reason = Reason(int(inv.reason[0])).name.lower()
-            s.c_ug_per_L = float(inv.c_ug_per_L[0])
-            terms = {"ratio": np.asarray(inv.sigma_ug_per_L, float)}
-            terms.update(uncertainty_terms(model, d, inv.c_ug_per_L, [Uncertain("depth", d, sd, "m"), *inputs]))
-            s.terms = {k: float(np.asarray(v).reshape(-1)[0]) for k, v in terms.items()}
-            s.sigma_ug_per_L = float(combine({k: np.array(v) for k, v in s.terms.items()}))
-            if inv.reason[0] != 0:
+            s.c_ug_per_L, s.reason = invert_one(model, s.ratio, d)
+            if s.reason != "ok":
                 s.error = f"{s.path}: no concentration explains the ratio {s.ratio:.4g} ({s.reason})"
+            else:
+                b, db = model.ratio_and_derivative(np.array([s.c_ug_per_L]), d)
+                terms = {"ratio": np.array([s.sigma_ln_ratio * float(b[0]) / abs(float(db[0]))])}
+                grid = s.c_ug_per_L * np.array([0.999, 1.0, 1.001])  # one C: a three-node log-uniform grid
+                terms.update(uncertainty_terms(model, d, np.array([s.c_ug_per_L]),
+                                               [Uncertain("depth", d, sd, "m"), *inputs], grid=grid))
+                s.terms = {k: float(np.asarray(v).reshape(-1)[0]) for k, v in terms.items()}
+                s.sigma_ug_per_L = float(combine({k: np.array(v) for k, v in s.terms.items()}))
         except CamcalError as exc:
             s.error = str(exc)
         shots.append(s)
         if progress:
             progress()
+    model = base_model
     c, sigma, terms = _combined(shots)
     dom = max(terms, key=terms.get) if terms else None
     meta = {"band_model": model.describe(), "stated_uncertainties": {q.name: {"value": q.value, "sigma": q.sigma,

@@ -12,6 +12,7 @@ from camcal.cli.water_cmd import _depth_unc, _number, _split_unc, _unc_value
 from camcal.errors import CamcalError
 from camcal.region import Region
 from camcal.secchi import result_json, run_secchi, write_diagnostics
+from camcal.sun import parse_sun_option, photo_sun
 from camcal.water.band import read_chlorophyll_csv
 from camcal.water.field import (
     DEFAULT_AOD_500NM,
@@ -28,17 +29,6 @@ DIFFUSE_SIGMA = 0.2
 AEROSOL_SIGMA = 0.05
 
 
-def parse_sun(text: str) -> tuple[float, float]:
-    """'ZENITH,AZIMUTH' in degrees → (zenith, azimuth); one clear error otherwise."""
-    try:
-        z, a = (float(v) for v in text.split(","))
-    except ValueError:
-        raise CamcalError(f"--sun must be auto or ZENITH,AZIMUTH in degrees (e.g. 40,180), got {text!r}") from None
-    if not (0 <= z < 90 and np.isfinite(a)):
-        raise CamcalError(f"--sun zenith must be from 0 to below 90 degrees, got {text!r}")
-    return z, a % 360.0
-
-
 def _percent(text: str, what: str) -> float:
     return _unc_value(1.0, text.strip(), _number(what), what)
 
@@ -53,8 +43,10 @@ def register(app: typer.Typer) -> None:
                                              "for several; one --depth each)."),
         depth: list[str] = typer.Option(..., "--depth", help="Disk depth per submerged photo: '0.5m', '50cm', "
                                         "or with its 1-σ '0.5m±5mm'."),
-        sun: str = typer.Option("auto", "--sun", help="auto (from the photo's time and GPS) or ZENITH,AZIMUTH "
-                                "in degrees."),
+        sun: str = typer.Option("auto", "--sun", help="auto (each photo's own sun from its EXIF time and GPS "
+                                "position) or ZENITH,AZIMUTH in degrees (azimuth clockwise from north)."),
+        utc_offset: str = typer.Option(None, help="--sun auto: the camera clock's offset from UTC, +HH:MM, for "
+                                       "photos without GPS time or OffsetTimeOriginal."),
         sun_unc: float = typer.Option(SUN_SIGMA_DEG, help="1-σ of the sun's zenith angle, degrees."),
         sky: str = typer.Option("clear", "--sky", help="clear (SPECTRL2 sun and sky) or overcast (diffuse only)."),
         sky_csv: Path = typer.Option(None, help="Measured sky: CSV wavelength_nm, direct_horizontal, "
@@ -97,15 +89,19 @@ def register(app: typer.Typer) -> None:
                 and 0 <= view_deg < 90):
             raise CamcalError("--albedo must be > 0, --n-water 1-3, --background-absorption >= 0, --view-deg 0-90")
         inputs = []
+        suns = None
+        sun_meta: dict = {"source": "not used (overcast)"}
         if sky == "overcast":
             light = OvercastSky()
-            source = "not used (overcast)"
         else:
             if sun.strip().lower() == "auto":
-                raise CamcalError("--sun auto needs the photos' capture time and GPS position, which this camcal "
-                                  "cannot read yet: give --sun ZENITH,AZIMUTH in degrees", reference)
-            zen, azi = parse_sun(sun)
-            source = "--sun"
+                ref_sun = photo_sun(reference, utc_offset=utc_offset)
+                suns = [photo_sun(p, utc_offset=utc_offset) for p in submerged]
+                sun_meta = {"reference": ref_sun.to_dict(), "submerged": [s.to_dict() for s in suns]}
+            else:
+                ref_sun = parse_sun_option(sun)
+                sun_meta = ref_sun.to_dict()
+            zen = ref_sun.apparent_zenith_deg  # the direction the light arrives from
             inputs.append(Uncertain("sun_zenith", zen, float(sun_unc), "deg"))
             a_text, a_unc = _split_unc(aerosol)
             aod = _number("--aerosol")(a_text)
@@ -127,10 +123,9 @@ def register(app: typer.Typer) -> None:
             res = run_secchi(profile, reference, list(submerged), depths, sky=light, geometry=geometry,
                              inputs=inputs, channel=band_channel, chlorophyll=chl,
                              background_absorption_per_m=background_absorption, roi=region,
+                             sun_zeniths_deg=None if suns is None else [s.apparent_zenith_deg for s in suns],
                              progress=lambda: bar.advance(task))
-        res.meta["sun"] = {"source": source, **({"zenith_deg": light.sun_zenith_deg} if sky != "overcast" else {})}
-        if sky != "overcast":
-            res.meta["sun"]["azimuth_deg"] = azi
+        res.meta["sun"] = sun_meta
         page = write_diagnostics(res, out, band_channel) if out is not None else None
         failed = [s for s in res.submerged if s.error]
         if as_json:

@@ -41,12 +41,12 @@ from datetime import datetime
 from pathlib import Path
 
 import numpy as np
-import pvlib
 
 from camcal.data import read_table
 from camcal.errors import CamcalError
 from camcal.spectra import WAVELENGTHS_NM
 from camcal.synth.camera import Scene, SyntheticCamera, save_truth
+from camcal.synth.exif import PlaceTime
 from camcal.synth.secchi import disk_weight, suggest_exposure_s
 
 #: Solid angle of the sun's disk, sr (0.265° angular radius).
@@ -99,6 +99,8 @@ class SunSky:
 
     def spectra(self, wavelengths_nm=WAVELENGTHS_NM) -> tuple[np.ndarray, np.ndarray]:
         """(DNI, DHI) in W m⁻² nm⁻¹ on ``wavelengths_nm`` (linear interpolation of SPECTRL2's grid)."""
+        import pvlib  # lazy: pvlib brings pandas, about a second at import, only for the sun
+
         z = float(self.sun_zenith_deg)
         s = pvlib.spectrum.spectrl2(apparent_zenith=z, aoi=z, surface_tilt=0.0, ground_albedo=0.06,
                                     surface_pressure=self.pressure_Pa,
@@ -200,10 +202,12 @@ def sunlit_scenes(camera: SyntheticCamera, *, sky: SunSky, c_ug_per_L: float, de
 
 def write_sunlit_pair(outdir: str | Path, camera: SyntheticCamera, scenes: SunlitScenes, *, stem: str,
                       rng: np.random.Generator, capture_time: datetime | None = None, fill: float = 0.5,
-                      formats: tuple[str, ...] = ("dng",), write_reference: bool = True) -> dict:
+                      formats: tuple[str, ...] = ("dng",), write_reference: bool = True,
+                      place: PlaceTime | None = None) -> dict:
     """Photograph one rendered shot: ``{stem}_ref.<ext>`` (unless ``write_reference`` is False) and
-    ``{stem}_sub.<ext>`` for each of ``formats`` ('dng', 'jpg'); each exposed for ``fill`` of the well on the
-    disk. Returns {kind: {ext: path}, 'exposure_s': {...}}."""
+    ``{stem}_sub.<ext>`` for each of ``formats`` ('dng', 'jpg', 'heic'); each exposed for ``fill`` of the well
+    on the disk; ``place`` writes the GPS position and time (:class:`camcal.synth.exif.PlaceTime`).
+    Returns {kind: {ext: path}, 'exposure_s': {...}}."""
     out = Path(outdir)
     out.mkdir(parents=True, exist_ok=True)
     files: dict = {"exposure_s": {}}
@@ -215,26 +219,30 @@ def write_sunlit_pair(outdir: str | Path, camera: SyntheticCamera, scenes: Sunli
         files["exposure_s"][kind] = t
         for ext in formats:
             path = out / f"{stem}_{kind}.{ext}"
+            kw = dict(exposure_s=t, rng=rng, capture_time=capture_time, place=place)
             if ext == "dng":
-                camera.write_dng(path, scene, exposure_s=t, rng=rng, capture_time=capture_time)
+                camera.write_dng(path, scene, **kw)
             elif ext in ("jpg", "jpeg"):
-                camera.write_jpeg(path, scene, exposure_s=t, rng=rng, capture_time=capture_time)
+                camera.write_jpeg(path, scene, **kw)
+            elif ext == "heic":
+                camera.write_heic(path, scene, **kw)
             else:
-                raise CamcalError(f"unknown photo format {ext!r}; use dng or jpg")
+                raise CamcalError(f"unknown photo format {ext!r}; use dng, jpg or heic")
             files.setdefault(kind, {})[ext] = str(path)
     return files
 
 
 def write_sunlit_survey(outdir: str | Path, camera: SyntheticCamera, *, sky: SunSky, depths_m, c_ug_per_L: float,
                         rng: np.random.Generator, formats: tuple[str, ...] = ("dng",),
-                        capture_time: datetime | None = None, **scene_kwargs) -> dict:
+                        capture_time: datetime | None = None, place: PlaceTime | None = None,
+                        **scene_kwargs) -> dict:
     """One reference and one submerged photo per depth under one sky; ``truth.json`` beside them."""
     out = Path(outdir)
     shots = []
     for i, d in enumerate(depths_m):
         sc = sunlit_scenes(camera, sky=sky, c_ug_per_L=c_ug_per_L, depth_m=d, **scene_kwargs)
         files = write_sunlit_pair(out, camera, sc, stem=f"d{d:g}m", rng=rng, formats=formats,
-                                  capture_time=capture_time, write_reference=i == 0)
+                                  capture_time=capture_time, write_reference=i == 0, place=place)
         shots.append({"depth_m": float(d), "files": files, "truth": sc.truth})
     truth = {"c_ug_per_L": float(c_ug_per_L), "sky": {k: getattr(sky, k) for k in sky.__dataclass_fields__},
              "shots": shots, "camera": camera.truth()}
