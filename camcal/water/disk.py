@@ -112,10 +112,10 @@ def find_disk(image: np.ndarray, *, scale: int = 1, min_radius_px: float = 12.0,
     if finite.sum() < 64:
         raise CamcalError("no disk found: the image holds no valid pixels", where)
     vals = img[finite]
-    clip = np.percentile(vals, 99.5)
-    if not clip > np.percentile(vals, 0.5):
+    if not vals.max() > vals.min():
         raise CamcalError("no disk found: the image is uniform", where)
-    t = filters.threshold_otsu(np.minimum(vals, clip))
+    clipped = np.minimum(vals, np.percentile(vals, 99.5))
+    t = filters.threshold_otsu(clipped if clipped.max() > clipped.min() else vals)
     bright = finite & (img > t)
     disk_level = float(np.median(img[bright])) if bright.any() else np.inf
     # invalid clusters (not isolated defects) and very bright pixels are glints
