@@ -247,3 +247,14 @@ def test_raw_photos_on_the_scene_grid(camera, profile_path, tmp_path):
                 errors.append((z, c, s.depth_m, s.c_ug_per_L / c - 1, abs(s.c_ug_per_L - c) / s.sigma_ug_per_L))
     assert max(abs(e[3]) for e in errors) < 0.03, errors
     assert all(e[4] <= 2 for e in errors), errors
+
+
+def test_roi_gives_the_interior_by_hand():
+    from camcal.region import Region
+    from camcal.water.disk import disk_from_roi
+
+    img = np.ones((64, 96))
+    fit = disk_from_roi(img, Region(40, 20, 20, 10), scale=2)  # photo pixels → cells 20..29 x 10..14
+    assert fit.interior.sum() == 10 * 5 and fit.interior[10:15, 20:30].all()
+    assert fit.surround.any() and not (fit.surround & fit.interior).any()
+    assert fit.centre_photo_px == pytest.approx((49.5, 24.5))
