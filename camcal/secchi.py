@@ -76,7 +76,7 @@ def measure_photo(shot: Shot, plan, channel: str, roi: Region | None, surround: 
     else:
         fit = find_disk(finder, scale=scale, where=shot.path)
     band = img.channels[channel]
-    shot.fit, shot.channels = fit, {k: img.channels[k] for k in ("R", "G", "B")}
+    shot.fit, shot.channels = fit, {k: img.channels[k] for k in {"G", channel}}  # for the diagnostic page
     shot.notes += list(fit.notes) + list(img.metadata.get("notes", []))
     shot.disk_radiance, shot.disk_se, _ = region_mean(band, fit.interior)
     if surround:
