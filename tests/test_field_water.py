@@ -78,7 +78,7 @@ def test_field_uncertainty_terms_respond(red):
 
 
 # ---- photos: the disk finder and the command ------------------------------------------------------------------
-#: A June morning on a lake at 47° N, 8° E (clock at UTC+2): the sun stands at about 40° from the zenith.
+#: A June morning on a lake at 47° N, 8° E (clock at UTC+2): the sun stands 47.8° from the zenith.
 PLACE = PlaceTime(utc=datetime(2026, 6, 21, 8, 0), utc_offset_min=120, latitude_deg=47.0, longitude_deg=8.0,
                   altitude_m=400.0)
 
