@@ -437,11 +437,13 @@ def _check_size_for_pixels(path: Path, width: int, height: int) -> None:
 
 
 def check_has_data(path: Path, data: np.ndarray, black_dn: float, white_dn: float) -> None:
-    """Refuse a RAW frame that holds no image data (stripped, blank or fully saturated).
+    """Refuse a RAW frame that holds no image data (stripped or blank).
 
-    Refused: every pixel 0; every pixel the same value; every pixel at or above the white level;
-    99 % or more of the pixels below the black level (a sensor cannot read below its bias: the
-    image data is missing, as in files whose data were stripped and decode to zeros).
+    Refused: every pixel 0; every pixel the same value below the white level; 99 % or more of the
+    pixels below the black level (a sensor cannot read below its bias: the image data is missing, as in
+    files whose data were stripped and decode to zeros). A frame with every pixel at or above the white
+    level is an image (over-exposed), not a file without data: it is read, and each stage decides what
+    its saturation means (:func:`saturated_fraction`; a linearity series ends there, a flat is left out).
 
     Raises
     ------
@@ -451,9 +453,8 @@ def check_has_data(path: Path, data: np.ndarray, black_dn: float, white_dn: floa
     if hi == 0:
         raise CamcalError("holds no image data: every pixel is 0 (the image data may have been stripped); "
                           "a frame of zeros is not a dark frame", path)
-    if lo >= white_dn:
-        raise CamcalError(f"holds no usable image data: every pixel is at the white level ({white_dn:g} DN, "
-                          "fully saturated)", path)
+    if lo >= white_dn:  # fully saturated: an over-exposed image, not a file without data
+        return
     if lo == hi:
         raise CamcalError(f"holds no image data: every pixel has the same value ({lo} DN)", path)
     if black_dn > 0 and lo < black_dn:
@@ -461,6 +462,11 @@ def check_has_data(path: Path, data: np.ndarray, black_dn: float, white_dn: floa
         if below >= 0.99:
             raise CamcalError(f"holds no image data: {100 * below:.1f} % of the pixels are below the black level "
                               f"({black_dn:g} DN; the image data may have been stripped)", path)
+
+
+def saturated_fraction(data: np.ndarray, white_dn: float) -> float:
+    """Fraction of the values of ``data`` at or above the white level ``white_dn`` (0…1)."""
+    return float(np.count_nonzero(data >= white_dn)) / max(int(data.size), 1)
 
 
 def _load_raw(path: Path) -> Frame:

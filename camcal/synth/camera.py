@@ -393,6 +393,10 @@ class SyntheticCamera:
             place=place,
         )
 
+    def black_by_position(self) -> tuple[float, float, float, float]:
+        """Black level (DN) of each 2x2 mosaic position, row-major: what a DNG's BlackLevel tag holds."""
+        return self._black_by_position()
+
     def _black_by_position(self) -> tuple[float, float, float, float]:
         off = plane_offsets(self.params.cfa_pattern)
         pos = [0.0] * 4
