@@ -24,8 +24,8 @@ from camcal.spectra import gaussian_line
 from camcal.stack import StackResult
 from camcal.synth.camera import Scene
 from camcal.synth.session import exposure_for_level
-from camcal.water.models import LampModel, RefinedModel
-from camcal.water.optics import hemispheric_transmittance, radiance_out_of_water
+from camcal.water.models import LampModel, RefinedModel, lamp_ratio
+from camcal.water.optics import hemispheric_transmittance, radiance_out_of_water, transmittance
 
 N_WATER = 1.33
 
@@ -56,6 +56,7 @@ def test_upward_transmittance_at_oblique_views_is_fresnel_from_air_by_reciprocit
     Both models; at 1 rad the swapped-index formula gives 0.9762 instead of 0.9507 (2.7 %).
     """
     expect = fresnel_t_from_air(view_air_rad)
+    assert float(transmittance(view_air_rad)) == pytest.approx(expect, rel=1e-12)  # defaults: air → water, Fresnel
     assert RefinedModel(view_angle_rad=view_air_rad).transmittance_up() == pytest.approx(expect, rel=1e-12)
     assert LampModel(view_angle_rad=view_air_rad).transmittance_up() == pytest.approx(expect, rel=1e-12)
     # the n² law out of the water along that ray: L_air = T L_w / n²
@@ -179,13 +180,22 @@ def test_hemispheric_transmittance_against_quadrature():
         assert hemispheric_transmittance(tmax) == pytest.approx(num / (0.5 * np.sin(tmax) ** 2), rel=1e-9)
 
 
-def test_lamp_model_off_axis_with_chlorophyll_matches_a_ray_trace():
+def schlick_t_from_air(theta_air_rad: float, n: float = N_WATER) -> float:
+    """1 − Schlick's R at the air-side angle (either direction, Schlick 1994)."""
+    r0 = ((n - 1) / (n + 1)) ** 2
+    return float(1 - (r0 + (1 - r0) * (1 - np.cos(theta_air_rad)) ** 5))
+
+
+@pytest.mark.parametrize("reflectance", ["fresnel", "schlick"])
+def test_lamp_model_off_axis_with_chlorophyll_matches_a_ray_trace(reflectance):
     """Seed §4's point lamp at 0.5 rad, camera at 0.3 rad, C ≠ 0: the model's ratio against irradiances from an
     independent ray trace, E_w = I T(α) e^(−τ/cos β) sin α / (X dX/dα) with X(α) traced and dX/dα by central
     differences, and the inverse-square law with the cosine for the dry disk."""
     h, alpha, view, d, c = 0.8, 0.5, 0.3, 0.3, 1e-7
-    m = LampModel(height_m=h, lamp_angle_rad=alpha, view_angle_rad=view, background_absorption_per_m=0.2)
+    m = LampModel(height_m=h, lamp_angle_rad=alpha, view_angle_rad=view, background_absorption_per_m=0.2,
+                  reflectance=reflectance)
     n = N_WATER
+    t_air = fresnel_t_from_air if reflectance == "fresnel" else schlick_t_from_air
 
     def x_of(a):  # horizontal distance from the lamp's foot where the refracted ray reaches depth d
         b = np.arcsin(np.sin(a) / n)
@@ -196,13 +206,15 @@ def test_lamp_model_off_axis_with_chlorophyll_matches_a_ray_trace():
     x = x_of(alpha)
     beta = np.arcsin(np.sin(alpha) / n)
     tau = (m.water_absorption_per_m + 0.2 + np.log(10) * m.epsilon_L_per_mol_cm * c * 100) * d
-    e_w = fresnel_t_from_air(alpha) * np.exp(-tau / np.cos(beta)) * np.sin(alpha) / (x * dx)
+    e_w = t_air(alpha) * np.exp(-tau / np.cos(beta)) * np.sin(alpha) / (x * dx)
     r = np.hypot(x, h + d)
     e_air = (h + d) / r**3
     mu_v = np.sqrt(1 - (np.sin(view) / n) ** 2)
-    expect = e_w / e_air * fresnel_t_from_air(view) * np.exp(-tau / mu_v) / n**2
+    expect = e_w / e_air * t_air(view) * np.exp(-tau / mu_v) / n**2
     # tolerance: the central difference's truncation error, O(da²) ≈ 1e-10 relative
     assert float(m.ratio(c, d)) == pytest.approx(expect, rel=1e-8)
+    optics = RefinedModel(view_angle_rad=view, background_absorption_per_m=0.2, reflectance=reflectance)
+    assert float(lamp_ratio(c, d, h, alpha, optics)) == pytest.approx(expect, rel=1e-8)
 
 
 @pytest.mark.parametrize("line_fwhm_nm", [1.0, 9.0])
