@@ -205,14 +205,14 @@ SESSION_KEYS: dict[str, str] = {
     "temperature_C": "temperature_c",
 }
 
-#: Keys of ``session.toml`` that state facts of the camera rather than of each frame (not Exposure fields):
-#: ``pixel_pitch_um``, the pixel pitch in µm (the quantum efficiency of :mod:`camcal.emva` needs the pixel area).
-CAMERA_KEYS: tuple[str, ...] = ("pixel_pitch_um",)
-
 SESSION_TEXT_KEYS: dict[str, str] = {"utc_offset": "utc_offset"}
 """Text keys of ``session.toml``: ``utc_offset``, the camera clock's offset from UTC as ``"+HH:MM"``
 (local time = UTC + offset), used to place a photo in time when its file holds no GPS time and no
 OffsetTimeOriginal (see docs/conventions.md, "Time and the sun")."""
+
+#: Keys of ``session.toml`` that state facts of the camera rather than of each frame (not Exposure fields):
+#: ``pixel_pitch_um``, the pixel pitch in µm (the quantum efficiency of :mod:`camcal.emva` needs the pixel area).
+CAMERA_KEYS: tuple[str, ...] = ("pixel_pitch_um",)
 
 MAX_SESSION_DEFAULTS_BYTES = 64 * 1024
 
@@ -254,7 +254,7 @@ def _read_session_toml(path: Path) -> tuple[dict[str, float | str], dict[str, fl
             out[SESSION_TEXT_KEYS[key]] = value.strip()
             continue
         if key not in SESSION_KEYS and key not in CAMERA_KEYS:
-            known = ", ".join([*SESSION_KEYS, *CAMERA_KEYS, *SESSION_TEXT_KEYS])
+            known = ", ".join([*SESSION_KEYS, *SESSION_TEXT_KEYS, *CAMERA_KEYS])
             raise CamcalError(f"unknown key {key!r} (known: {known})", path)
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise CamcalError(f"key {key!r} must be a number, got {value!r}", path)
