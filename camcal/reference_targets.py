@@ -261,18 +261,20 @@ def predicted_rate(curves: SpectralSensitivity, target: TargetSpectrum) -> tuple
     return p, u
 
 
-#: Correlation length of a curve's uncertainty over wavelength (Gaussian), nm: the scale on which two measurements
-#: of one camera model differ (docs/spectral.md, the borrowed-curve uncertainty).
-CURVE_CORRELATION_NM = 20.0
+#: Correlation of a curve's uncertainty over wavelength: (weight, Gaussian length in nm) of two components,
+#: ρ(Δλ) = Σ w exp(−Δλ²/(2ℓ²)). Fitted to the differences between independent measurements of one camera model
+#: (the pairs of camcal.borrowed_uncertainty, in units of f: autocorrelation 0.62 at 10–20 nm, 0.43 at 40 nm,
+#: 0.28 at 60 nm, 0.12 at 80 nm, 0.03 at 100 nm; docs/spectral.md).
+CURVE_CORRELATION = ((0.38, 5.0), (0.62, 50.0))
 
 
 def curve_covariance(curves: SpectralSensitivity, targets: Sequence[TargetSpectrum],
-                     correlation_nm: float = CURVE_CORRELATION_NM) -> np.ndarray:
+                     correlation: tuple[tuple[float, float], ...] = CURVE_CORRELATION) -> np.ndarray:
     """Covariance of P_j = ∫ c_rel L_j dλ between targets caused by the curves' own u(c), (C, n, n).
 
-    u(c)(λ) is taken as correlated over wavelength with ρ(Δλ) = exp(−Δλ²/(2 ℓ²)), ℓ = ``correlation_nm``:
-    Cov(P_j, P_l) = Σ_λ Σ_λ' w_λ L_j(λ) u(λ) ρ(λ − λ') u(λ') L_l(λ') w_λ' (trapezoid weights w). A scale error
-    common to all wavelengths would be absorbed by k; this leaves the colour-dependent part to the χ².
+    u(c)(λ) is taken as correlated over wavelength with ρ(Δλ) = Σ w exp(−Δλ²/(2ℓ²)) (:data:`CURVE_CORRELATION`):
+    Cov(P_j, P_l) = Σ_λ Σ_λ' w_λ L_j(λ) u(λ) ρ(λ − λ') u(λ') L_l(λ') w_λ' (trapezoid weights w). The part of it
+    common to all targets is absorbed by k; the colour-dependent rest goes into the χ².
     """
     wl = curves.wavelength_nm
     n = len(targets)
@@ -286,7 +288,8 @@ def curve_covariance(curves: SpectralSensitivity, targets: Sequence[TargetSpectr
     w[1:] += dw / 2
     L = np.array([np.where((wl >= t.wavelength_nm[0]) & (wl <= t.wavelength_nm[-1]),
                            np.interp(wl, t.wavelength_nm, t.radiance), 0.0) for t in targets])  # (n, m)
-    rho = np.exp(-0.5 * ((wl[:, None] - wl[None, :]) / correlation_nm) ** 2)
+    dl = wl[:, None] - wl[None, :]
+    rho = sum(wt * np.exp(-0.5 * (dl / ell) ** 2) for wt, ell in correlation)
     for i, q in enumerate(names):
         a = L * (w * curves.uncertainty[q])[None, :]  # (n, m)
         out[i] = a @ rho @ a.T
@@ -507,7 +510,7 @@ def library_match(name: str, *, base: CalibrationProfile | None = None, targets:
     else of the first target photo (its EXIF), else of ``camera``."""
     if name != "auto":
         return find_camera(name)
-    for ident, where in ((base.camera if base else None, "the --into profile"), (camera, "--make/--model")):
+    for ident in (base.camera if base else None, camera):
         if ident is not None and ident.model:
             return find_camera(make=ident.make, model=ident.model)
     if targets is not None:
