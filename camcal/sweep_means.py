@@ -23,7 +23,8 @@ it by at most 5.5e-4 of the peak on both open cameras (tests/test_sweep_means.py
 Uncertainty, from the repeats:
 
 - several lit readings at one wavelength (rows of the CSV layout): c is their mean, u(c) the standard error
-  of the mean of the per-reading c;
+  of the mean of the per-reading c, but never below what the dark repeats predict for that mean (below: a
+  few repeats may scatter little by chance);
 - one reading per wavelength (the open data): the readings' noise is estimated from the repeated dark
   readings over the whole sweep: σ = 1.4826·MAD(successive differences)/√2 per channel and for the
   reference (at least 1/√12 count for integer counter readings: their quantisation), u(d)² = σ²(1 + 1/n_dark)
@@ -310,9 +311,10 @@ def reduce_sweep(readings: SweepReadings, method: Method = "camcal") -> SweepRed
         n = int(sel.sum())
         n_read[k] = n
         out_c[k] = c[sel].mean(axis=0)
-        if n >= 2:
+        if n >= 2:  # the repeats' scatter, never below the noise the dark repeats predict (few repeats scatter)
             repeated = True
-            out_u[k] = c[sel].std(axis=0, ddof=1) / math.sqrt(n)
+            floor = np.sqrt(np.mean(u_single[sel] ** 2, axis=0) / n)
+            out_u[k] = np.maximum(c[sel].std(axis=0, ddof=1) / math.sqrt(n), floor)
         else:
             out_u[k] = u_single[sel][0]
     notes = [f"sweep means ({readings.name}): c = (lit − dark) / ((reference − its dark) / responsivity), "
