@@ -34,12 +34,15 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
 
 import numpy as np
 
 from camcal.data import read_table
 from camcal.errors import CamcalError
 from camcal.frame import RGB
+from camcal.hashing import sha256_file
 from camcal.spectral import SpectralSensitivity
 
 #: The shipped table (relative to the ``calibration_data`` package).
@@ -127,6 +130,11 @@ def shipped_borrowed_uncertainty() -> BorrowedUncertainty:
     if header != ["wavelength_nm", "R", "G", "B"]:
         raise CamcalError(f"shipped table {TABLE} has columns {header}, expected wavelength_nm, R, G, B")
     return BorrowedUncertainty(values[:, 0], {ch: values[:, i + 1] for i, ch in enumerate(RGB)})
+
+
+def shipped_table_sha256() -> str:
+    """SHA-256 of the shipped table (a profile records the one its u(c) was made with)."""
+    return sha256_file(Path(str(resources.files("calibration_data").joinpath(TABLE))))
 
 
 def with_borrowed_uncertainty(curves: SpectralSensitivity, table: BorrowedUncertainty | None = None

@@ -38,7 +38,7 @@ import jsonschema
 import numpy as np
 
 from camcal.borrowed_uncertainty import TABLE as BORROWED_TABLE
-from camcal.borrowed_uncertainty import with_borrowed_uncertainty
+from camcal.borrowed_uncertainty import shipped_table_sha256, with_borrowed_uncertainty
 from camcal.errors import CamcalError
 from camcal.frame import PLANES, RGB
 from camcal.hashing import sha256_file
@@ -260,12 +260,11 @@ def library_curves(match: Match, layout: str = "bayer", *, folder: str | Path | 
                                  uncertainty={p: np.zeros_like(wl) for p in planes}, units=RELATIVE_UNITS,
                                  mode="relative", notes=tuple(notes))
     curves = with_borrowed_uncertainty(curves)
-    table_path = Path(str(resources.files("calibration_data").joinpath(BORROWED_TABLE)))
     record = {"name": match.camera.name, "make": match.camera.make, "model": match.camera.model,
               "file": match.camera.file, "sha256": sha256_file(path), "collection": COLLECTION,
               "creator": match.camera.creator, "equipment": match.camera.equipment,
               "license": match.camera.license, "matched": f"{match.query!r} ({match.how})",
-              "borrowed_uncertainty": {"table": BORROWED_TABLE, "sha256": sha256_file(table_path),
+              "borrowed_uncertainty": {"table": BORROWED_TABLE, "sha256": shipped_table_sha256(),
                                        "description": "standard uncertainty of a model's curve used on another "
                                        "unit, fraction of each channel's peak (docs/spectral.md)"}}
     return curves, record, path

@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
-from camcal.borrowed_uncertainty import borrowed_table_rows, shipped_borrowed_uncertainty
+from camcal.borrowed_uncertainty import borrowed_table_rows, shipped_borrowed_uncertainty, shipped_table_sha256
 from camcal.cli.common import console, print_json, progress
 from camcal.errors import CamcalError
 from camcal.profile import CameraIdentity, contract, diff_profiles, load_profile, save_profile
@@ -95,6 +95,9 @@ def print_borrowed_uncertainty(lib: dict) -> None:
     console.print(t)
     console.print(f"from {rec.get('table')} (SHA-256 {str(rec.get('sha256'))[:12]}…): the spread between independent "
                   "measurements of one camera model; outside 400–700 nm the end values apply", soft_wrap=True)
+    if rec.get("sha256") != shipped_table_sha256():
+        console.print("[red]the profile was made with another version of this table; the rows above are this camcal's"
+                      "[/red]", soft_wrap=True)
 
 
 def _parse_size(text: str | None) -> tuple[int, int] | None:
