@@ -44,6 +44,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy import stats
 
 from camcal import __version__
 from camcal.correct import Calibration, correct_frame
@@ -58,7 +59,6 @@ from camcal.io import load_frame
 from camcal.manifest import exposure_overrides, read_manifest, safe_member
 from camcal.profile import SCHEMA_VERSION, CalibrationProfile, CameraIdentity, Provenance
 from camcal.region import Region
-from camcal.special import chi2_sf
 from camcal.spectral import DEFAULT_ROI_FRACTION, SpectralSensitivity, central_roi
 from camcal.spectral_files import FileFormat, as_absolute, read_spectral_file, read_table, resample
 
@@ -392,7 +392,7 @@ def fit_scale(curves: SpectralSensitivity, observations: Sequence[TargetObservat
         res = r[:, i] - k[i] * p[:, i]
         chi2 += float(res @ np.linalg.solve(np.diag(var[:, i]) + k[i] ** 2 * cov_c[i], res))
     dof = len(names) * (n - 1)
-    pv = chi2_sf(chi2, dof)
+    pv = float(stats.chi2.sf(chi2, dof))
     worst = float(np.max(np.abs(resid)))
     basis = "their noise and the curves' u(c)" if np.any(cov_c) else "their noise"
     if pv >= CONSISTENCY_P:
