@@ -163,6 +163,10 @@ def prepare(
     spectral = profile.spectral
     if spectral is None:
         raise CamcalError("the profile has no spectral sensitivity (sweep stage); radiance needs c(λ)")
+    if profile.reference_iso is None or profile.reference_f_number is None:
+        raise CamcalError("the profile holds no reference ISO and f-number (no stage of its calibration normalised "
+                          "exposure); radiance needs them: calibrate again with --reference-iso and "
+                          "--reference-f-number, or with 'iso' and 'f_number' in session.toml")
     if spectral.mode != "absolute":
         raise CamcalError("the profile's spectral sensitivity is relative; radiance needs an absolute c(λ) "
                           "(calibrate with --sweep-mode absolute)")

@@ -34,10 +34,12 @@ from camcal.spectral import SpectralSensitivity, spectral_from_dict, spectral_to
 from camcal.store import to_jsonable
 
 FORMAT = "camcal-profile"
-SCHEMA_VERSION = "1.5"  # 1.1: optional response.processed.colour_matrix; 1.2: optional spectral_sensitivity.source;
+SCHEMA_VERSION = "1.6"  # 1.1: optional response.processed.colour_matrix; 1.2: optional spectral_sensitivity.source;
 # 1.3: camera.layout, dark.layout, dark.dark_current_known, dark channels temporal_noise_dn, R, G, B planes (linear RAW)
 # 1.4: optional emva1288 section (EMVA 1288 summary: K from photon transfer, DSNU, PRNU, saturation, SNR, DR, LE)
-# 1.5: spectral_sensitivity.source kinds "library" and "sweep_means" and source.library (the curve-library entry)
+# 1.5: provenance.left_out and provenance.not_calibrated; reference iso / f_number may be null (no stage
+# normalised exposure); response channels saturation_exposure_s and fitted_exposure_s
+# 1.6: spectral_sensitivity.source kinds "library" and "sweep_means" and source.library (the curve-library entry)
 SUPPORTED_MAJOR = 1
 SPECTRAL_UNITS_DEFAULT = "DN s^-1 per (W m^-2 sr^-1 nm^-1) per nm at ISO_ref, f/N_ref, on axis"
 
@@ -65,6 +67,10 @@ class Provenance:
     created_utc: str
     inputs: tuple[dict, ...] = ()
     options: dict = field(default_factory=dict)
+    left_out: tuple[dict, ...] = ()
+    """Frames the calibration did not use: ``{"file": "stage/name", "stage", "reason"}`` (:mod:`camcal.screen`)."""
+    not_calibrated: tuple[dict, ...] = ()
+    """Stages present in the session but not calibrated: ``{"stage", "reason"}`` (too few usable frames)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -74,8 +80,9 @@ class CalibrationProfile:
     Attributes
     ----------
     camera : CameraIdentity
-    reference_iso, reference_f_number : float
-        The reference setting every DN rate is normalised to (seed §2.1).
+    reference_iso, reference_f_number : float or None
+        The reference setting every DN rate is normalised to (seed §2.1); None when unknown and no stage
+        normalised exposure (a bias/dark/flat-only profile: apply then refuses it).
     dark : camcal.dark.DarkModel or None
     flat : camcal.flat.FlatModel or None
     response : dict of camcal.response.ResponseModel, keyed ``raw`` / ``processed``, or None
@@ -91,8 +98,8 @@ class CalibrationProfile:
     """
 
     camera: CameraIdentity
-    reference_iso: float
-    reference_f_number: float
+    reference_iso: float | None
+    reference_f_number: float | None
     dark: DarkModel | None = None
     flat: FlatModel | None = None
     response: dict[str, ResponseModel] | None = None
@@ -140,13 +147,18 @@ def _stage_from_parts(name: str, data: dict, maps: dict[str, np.ndarray], where:
 _STAGE_ATTR = {"dark": "dark", "flat": "flat", "response": "response", "spectral_sensitivity": "spectral"}
 
 
+def _float_or_none(v: float | None) -> float | None:
+    return None if v is None else float(v)
+
+
 def profile_to_document(profile: CalibrationProfile) -> tuple[dict, dict[str, np.ndarray]]:
     """The JSON document (without integrity) and the prefixed maps of a profile."""
     doc: dict[str, Any] = {
         "format": FORMAT,
         "schema_version": profile.schema_version,
         "camera": dataclasses.asdict(profile.camera),
-        "reference": {"iso": float(profile.reference_iso), "f_number": float(profile.reference_f_number)},
+        "reference": {"iso": _float_or_none(profile.reference_iso),
+                      "f_number": _float_or_none(profile.reference_f_number)},
     }
     maps: dict[str, np.ndarray] = {}
     names: dict[str, list[str]] = {}
@@ -162,8 +174,13 @@ def profile_to_document(profile: CalibrationProfile) -> tuple[dict, dict[str, np
             maps.update({f"{key}.{m}": np.asarray(a, np.float32) for m, a in stage_maps.items()})
     doc["emva1288"] = None if profile.emva is None else to_jsonable(profile.emva.to_dict())
     p = profile.provenance
-    doc["provenance"] = to_jsonable({"camcal_version": p.camcal_version, "created_utc": p.created_utc,
-                                     "inputs": list(p.inputs), "options": p.options})
+    prov = {"camcal_version": p.camcal_version, "created_utc": p.created_utc, "inputs": list(p.inputs),
+            "options": p.options}
+    if p.left_out:
+        prov["left_out"] = [dict(r) for r in p.left_out]
+    if p.not_calibrated:
+        prov["not_calibrated"] = [dict(r) for r in p.not_calibrated]
+    doc["provenance"] = to_jsonable(prov)
     doc["maps"] = names
     return doc, maps
 
@@ -266,10 +283,11 @@ def profile_from_document(doc: dict, maps: dict[str, np.ndarray], where: str | P
     return CalibrationProfile(
         camera=CameraIdentity(cam["make"], cam["model"], cam["serial"], cam["cfa_pattern"], int(cam["width"]),
                               int(cam["height"]), str(cam.get("layout") or "bayer")),
-        reference_iso=float(doc["reference"]["iso"]),
-        reference_f_number=float(doc["reference"]["f_number"]),
+        reference_iso=_float_or_none(doc["reference"]["iso"]),
+        reference_f_number=_float_or_none(doc["reference"]["f_number"]),
         provenance=Provenance(prov["camcal_version"], prov["created_utc"], tuple(prov["inputs"]),
-                              dict(prov["options"])),
+                              dict(prov["options"]), tuple(prov.get("left_out", ())),
+                              tuple(prov.get("not_calibrated", ()))),
         schema_version=doc["schema_version"],
         content_sha256=doc.get("integrity", {}).get("content_sha256"),
         emva=emva,
@@ -368,7 +386,14 @@ def contract(profile: CalibrationProfile) -> dict:
         out["response"] = {"kind": primary.kind, "gamma": per(primary, "gamma"), "alpha": per(primary, "alpha"),
                            "beta": per(primary, "beta"),
                            "models": {k: {"gamma": per(m, "gamma"), "alpha": per(m, "alpha"), "beta": per(m, "beta"),
-                                          "linearity_error_pct": per(m, "linearity_error_pct")}
+                                          "linearity_error_pct": per(m, "linearity_error_pct"),
+                                          "saturation_dn": per(m, "saturation_dn"),
+                                          "saturation_exposure_s": per(m, "saturation_exposure_s"),
+                                          "fitted_range_dn": {c: [_finite(v) for v in ch.linear_range_dn]
+                                                              for c, ch in m.channels.items()},
+                                          "fitted_exposure_s": {c: [_finite(v) for v in ch.fitted_exposure_s]
+                                                                for c, ch in m.channels.items()},
+                                          "saturated_files": m.saturated_files()}
                                       for k, m in profile.response.items()}}
     else:
         out["response"] = None
@@ -395,7 +420,8 @@ def contract(profile: CalibrationProfile) -> dict:
         out["emva1288"] = None
     p = profile.provenance
     out["provenance"] = {"camcal_version": p.camcal_version, "created_utc": p.created_utc, "n_inputs": len(p.inputs),
-                         "options": p.options}
+                         "options": p.options, "left_out": [dict(r) for r in p.left_out],
+                         "not_calibrated": [dict(r) for r in p.not_calibrated]}
     return to_jsonable(out)
 
 

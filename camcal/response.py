@@ -54,7 +54,7 @@ from scipy.optimize import OptimizeWarning, curve_fit, least_squares
 from camcal.colour import ColourMatrix
 from camcal.correct import Calibration, DarkFrameModel, correct_planes
 from camcal.emva import linearity_error, pair_statistics
-from camcal.errors import CamcalError
+from camcal.errors import CamcalError, TooFewFrames
 from camcal.exposure import relative_exposure
 from camcal.frame import PLANES
 from camcal.io import load_folder_frame
@@ -129,6 +129,11 @@ class ChannelResponse:
     rate_dn_per_s: float = float("nan")
     rate_dn_per_s_unc: float = float("nan")
     offset_dn: float = float("nan")
+    saturation_exposure_s: float = float("nan")
+    """Relative exposure (s at the reference setting) of the first frame saturated in this channel: where the
+    series reached :attr:`saturation_dn`; NaN when no frame saturated (:class:`Saturation`)."""
+    fitted_exposure_s: tuple[float, float] = (float("nan"), float("nan"))
+    """Lowest and highest relative exposure (s at the reference setting) of the points the fit used."""
 
     def predict(self, x_s: np.ndarray | float) -> np.ndarray:
         """g(x) of eq. 12 for relative exposure ``x_s`` (s)."""
@@ -290,12 +295,23 @@ class ResponseModel:
                 out[k] = _detone(v[k], ch, self.tone["channels"][name], self.white_level_dn)  # type: ignore[index]
         return np.moveaxis(out, 0, channel_axis)
 
+    def saturated_files(self) -> list[str]:
+        """Files of the series at or past saturation in any channel: they end the linear range and are not fitted
+        (from :attr:`points`; [] when none saturated or the points were not kept)."""
+        out: dict[str, None] = {}
+        for pts in self.points.values():
+            for name, sat in zip(pts.get("files") or (), pts.get("saturated") or (), strict=False):
+                if sat:
+                    out[str(name)] = None
+        return list(out)
+
     def summary(self) -> dict:
         """JSON-ready summary: per channel α, γ, β with uncertainties, ranges, LE, r; tone fit."""
         chans = {}
         for name, ch in self.channels.items():
             rec = asdict(ch)
             rec["linear_range_dn"] = list(ch.linear_range_dn)
+            rec["fitted_exposure_s"] = list(ch.fitted_exposure_s)
             rec["linear_pearson_r_ok"] = bool(ch.pearson_r >= 0.98)
             chans[name] = rec
         out = {
@@ -337,6 +353,8 @@ class ResponseModel:
                     saturation_dn=num(rec["saturation_dn"]), linearity_error_pct=num(rec["linearity_error_pct"]),
                     pearson_r=num(rec["pearson_r"]), rate_dn_per_s=num(rec.get("rate_dn_per_s")),
                     rate_dn_per_s_unc=num(rec.get("rate_dn_per_s_unc")), offset_dn=num(rec.get("offset_dn")),
+                    saturation_exposure_s=num(rec.get("saturation_exposure_s")),
+                    fitted_exposure_s=tuple(num(v) for v in rec.get("fitted_exposure_s") or (None, None)),
                 )
             expected = {"raw": (set(PLANES), {"R", "G", "B"}), "processed": ({"R", "G", "B"},)}.get(str(d["kind"]))
             if expected is None or set(channels) not in expected:
@@ -351,6 +369,53 @@ class ResponseModel:
             )
         except (KeyError, TypeError, ValueError, IndexError) as exc:
             raise CamcalError(f"malformed response model ({type(exc).__name__}: {exc})") from None
+
+
+@dataclass(frozen=True)
+class Saturation:
+    """Where one channel of an exposure series saturates, as EMVA 1288 reports the saturation point.
+
+    Frames at or past saturation are data: they mark the end of the linear range and are not fitted.
+
+    Attributes
+    ----------
+    level_dn : float
+        Saturation level, DN as recorded: the largest ROI value of the saturated frames, else the white level.
+    exposure_s : float
+        Relative exposure (s at the reference setting) of the first saturated frame; NaN when none saturated.
+        The last fitted exposure (``fitted_exposure_s[1]``) and this one bracket the saturation exposure.
+    reached : bool
+        Whether any frame of the series saturated in this channel.
+    n_saturated : int
+        Frames at or past saturation (more than :data:`SATURATED_PIXEL_FRACTION` of the ROI clipped).
+    fitted_range_dn, fitted_exposure_s : (float, float)
+        Lowest and highest ROI mean (DN) and relative exposure (s) of the points the fit used.
+    """
+
+    level_dn: float
+    exposure_s: float
+    reached: bool
+    n_saturated: int
+    fitted_range_dn: tuple[float, float]
+    fitted_exposure_s: tuple[float, float]
+
+
+def saturation_point(x_s: np.ndarray, mean_dn: np.ndarray, max_dn: np.ndarray, saturated: np.ndarray,
+                     used: np.ndarray, white_level_dn: float) -> Saturation:
+    """The :class:`Saturation` of one channel of a series (arrays of shape (n,), frames sorted by exposure).
+
+    ``x_s``: relative exposure, s; ``mean_dn``: ROI means as fitted; ``max_dn``: largest ROI value as recorded;
+    ``saturated``: frames at or past saturation; ``used``: frames the fit used (unsaturated, uncompressed).
+    """
+    x_s, mean_dn, max_dn = (np.asarray(a, float) for a in (x_s, mean_dn, max_dn))
+    saturated, used = np.asarray(saturated, bool), np.asarray(used, bool)
+    reached = bool(saturated.any())
+    level = float(np.max(max_dn[saturated])) if reached else float(white_level_dn)
+    x_sat = float(np.min(x_s[saturated])) if reached else float("nan")
+    g, x = mean_dn[used], x_s[used]
+    return Saturation(level, x_sat, reached, int(saturated.sum()),
+                      (float(g.min()), float(g.max())) if g.size else (float("nan"),) * 2,  # type: ignore[arg-type]
+                      (float(x.min()), float(x.max())) if x.size else (float("nan"),) * 2)  # type: ignore[arg-type]
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -733,12 +798,14 @@ def fit_series(series: ExposureSeries) -> ResponseModel:
     where = series.folder
     n_distinct = len(np.unique(series.x_s))
     if n_distinct < MIN_EXPOSURES:
-        raise CamcalError(
+        raise TooFewFrames(
+            "linearity", "distinct exposures", MIN_EXPOSURES, n_distinct,
             f"{series.kind} series has {n_distinct} distinct exposure(s); the fit of eq. 12 (α, γ, β) needs at "
             f"least {MIN_EXPOSURES}", where)
     saturated = series.clipped_fraction > SATURATED_PIXEL_FRACTION  # (n, C)
     if saturated.all():
-        raise CamcalError(
+        raise TooFewFrames(
+            "linearity", "unsaturated exposures", MIN_EXPOSURES, 0,
             f"all {len(series.files)} {series.kind} frames are saturated (more than "
             f"{SATURATED_PIXEL_FRACTION:.1%} of ROI pixels at the white level {series.white_level_dn:g} DN); "
             "shorten the exposures", where)
@@ -749,11 +816,10 @@ def fit_series(series: ExposureSeries) -> ResponseModel:
     for c, name in enumerate(series.channels):
         ok = ~saturated[:, c]
         n_ok = len(np.unique(series.x_s[ok]))
-        if n_ok == 0:
-            raise CamcalError(f"all {series.kind} frames are saturated in channel {name}; shorten the exposures",
-                              where)
         if n_ok < MIN_EXPOSURES:
-            raise CamcalError(
+            raise TooFewFrames(
+                "linearity", "unsaturated exposures", MIN_EXPOSURES, n_ok,
+                f"all {series.kind} frames are saturated in channel {name}; shorten the exposures" if n_ok == 0 else
                 f"{series.kind} channel {name} has only {n_ok} unsaturated exposure(s); the fit of eq. 12 needs "
                 f"at least {MIN_EXPOSURES}", where)
         _check_monotone(series, c, ok)
@@ -775,10 +841,8 @@ def fit_series(series: ExposureSeries) -> ResponseModel:
             break
         idx = np.flatnonzero(used)
         x_used, g_used = series.x_s[idx], series.mean_dn[idx, c]
-        if saturated[:, c].any():
-            sat = float(np.max(series.max_dn[saturated[:, c], c]))
-        else:
-            sat = white
+        point = saturation_point(series.x_s, series.mean_dn[:, c], series.max_dn[:, c], saturated[:, c], used, white)
+        sat = point.level_dn
         if series.dark_subtracted:
             sat_signal = sat - float(series.black_level_dn[c]) if series.kind == "raw" else sat - fit["beta"]
         else:
@@ -788,10 +852,11 @@ def fit_series(series: ExposureSeries) -> ResponseModel:
         channels[name] = ChannelResponse(
             alpha=fit["alpha"], alpha_unc=fit["alpha_unc"], gamma=fit["gamma"], gamma_unc=fit["gamma_unc"],
             beta=fit["beta"], beta_unc=fit["beta_unc"],
-            linear_range_dn=(float(g_used.min()), float(g_used.max())),
+            linear_range_dn=point.fitted_range_dn,
             saturation_dn=sat, linearity_error_pct=le, pearson_r=_pearson(x_used, g_used),
             rate_dn_per_s=rate.get("rate", float("nan")), rate_dn_per_s_unc=rate.get("rate_unc", float("nan")),
-            offset_dn=rate.get("offset", float("nan")),
+            offset_dn=rate.get("offset", float("nan")), saturation_exposure_s=point.exposure_s,
+            fitted_exposure_s=point.fitted_exposure_s,
         )
         points[name] = {
             "files": list(series.files), "x_s": series.x_s.tolist(), "mean_dn": series.mean_dn[:, c].tolist(),

@@ -127,7 +127,7 @@ class _Meta:
     frame_shape: tuple[int, int]
     planes_shape: tuple[int, ...]
     digest: bytes = b""
-    """Digest of the decoded pixels (:func:`_digest`): two frames with the same digest are copies."""
+    """Digest of the decoded pixels (:func:`frame_digest`): two frames with the same digest are copies."""
 
 
 def _check_same(meta: _Meta, first: _Meta, path: Path) -> None:
@@ -181,7 +181,7 @@ class _Decoder:
             raise CamcalError(f"preprocessing gave an array of shape {planes.shape}, expected (C, h, w)", path)
         meta = _Meta(index, frame.exposure, frame.kind, frame.cfa_pattern, frame.channel_names,
                      tuple(float(v) for v in frame.black_vector().ravel()), float(frame.white_level_dn), frame.shape,
-                     tuple(planes.shape), _digest(frame.data))
+                     tuple(planes.shape), frame_digest(frame.data))
         return meta, planes
 
     def spill_write(self, index: int, planes: np.ndarray) -> None:
@@ -396,7 +396,7 @@ DIGEST_STRIDE = 16
 exposures never agree on 750 000 noisy values, even below 1 DN of noise (57 % agree per pixel on the IMX296)."""
 
 
-def _digest(data: np.ndarray) -> bytes:
+def frame_digest(data: np.ndarray) -> bytes:
     """BLAKE2b of every :data:`DIGEST_STRIDE`-th value of a decoded frame (its shape and type included)."""
     h = hashlib.blake2b(repr((data.shape, data.dtype.str)).encode(), digest_size=16)
     h.update(np.ascontiguousarray(data.reshape(-1)[::DIGEST_STRIDE]))

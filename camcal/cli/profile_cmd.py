@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import typer
+from rich.markup import escape
 from rich.table import Table
 
 from camcal.borrowed_uncertainty import borrowed_table_rows, shipped_borrowed_uncertainty, shipped_table_sha256
@@ -29,9 +30,11 @@ def print_contract(c: dict, title: str = "profile") -> None:
     """A human summary of the contract object (one table per calibrated stage)."""
     cam = c["camera"]
     sensor = cam["cfa_pattern"] or f"{cam.get('layout') or 'linear'} RAW"
+    iso, n = c["reference"]["iso"], c["reference"]["f_number"]
+    ref = (f"reference ISO {iso:g} f/{n:g}" if iso is not None and n is not None else
+           "no reference setting (no stage normalised exposure)")
     console.print(f"[bold]{title}[/bold]: {cam['make']} {cam['model']} (serial {cam['serial']}), "
-                  f"{sensor} {cam['width']}x{cam['height']}, reference ISO {c['reference']['iso']:g} "
-                  f"f/{c['reference']['f_number']:g}, schema {c['schema_version']}")
+                  f"{sensor} {cam['width']}x{cam['height']}, {ref}, schema {c['schema_version']}")
     rows = []
     if c["dark"]:
         d = c["dark"]
@@ -45,6 +48,10 @@ def print_contract(c: dict, title: str = "profile") -> None:
         for k, m in r["models"].items():
             if k != r["kind"]:
                 rows += [(f"γ ({k})", "", m["gamma"])]
+        primary = r["models"].get(r["kind"]) or {}
+        if primary.get("saturation_dn"):
+            rows += [(f"saturation ({r['kind']})", "DN", primary["saturation_dn"]),
+                     (f"saturation reached at ({r['kind']})", "s", primary.get("saturation_exposure_s"))]
     if c["spectral_sensitivity"]:
         s = c["spectral_sensitivity"]
         rows += [("peak λ", "nm", s["peak_wavelength_nm"]), ("effective λ", "nm", s["effective_wavelength_nm"])]
@@ -57,6 +64,15 @@ def print_contract(c: dict, title: str = "profile") -> None:
     stages = [k for k in ("dark", "flat", "response", "spectral_sensitivity") if c[k] is None]
     if stages:
         console.print(f"not calibrated: {', '.join(stages)}")
+    for kind, m in ((c["response"] or {}).get("models") or {}).items():
+        if m.get("saturated_files"):
+            console.print(f"saturated {kind} frames (end of the linear range, not fitted): "
+                          f"{', '.join(m['saturated_files'])}", soft_wrap=True, markup=False, highlight=False)
+    prov = c.get("provenance") or {}
+    for rec in prov.get("not_calibrated") or []:
+        console.print(f"stage {rec['stage']} not calibrated: {rec['reason']}", soft_wrap=True, markup=False,
+                      highlight=False)
+    print_left_out(prov.get("left_out") or [])
     if c["dark"]:
         d = c["dark"]
         console.print(f"defects: hot pixels {d['hot_pixel_count']}, dead pixels {d['dead_pixel_count']}, "
@@ -65,6 +81,17 @@ def print_contract(c: dict, title: str = "profile") -> None:
             console.print("dark current: unknown (bias-only calibration)")
     if c["spectral_sensitivity"]:
         print_spectral_source(c["spectral_sensitivity"]["source"])
+
+
+def print_left_out(rows: list[dict]) -> None:
+    """The frames a calibration left out, as a table (stage, file, reason); nothing when none were."""
+    if not rows:
+        return
+    table = Table("stage", "file", "reason", title=f"left out: {len(rows)} frame{'s' if len(rows) != 1 else ''}",
+                  title_justify="left")
+    for r in rows:
+        table.add_row(escape(r["stage"]), escape(r["file"]), escape(r["reason"]))
+    console.print(table)
 
 
 def print_emva(sheet: EmvaSheet, title: str = "profile") -> None:
