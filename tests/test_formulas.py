@@ -191,6 +191,10 @@ def test_hemispheric_transmittance_against_quadrature():
     for tmax in (np.pi / 2, 1.0):
         num = quad(lambda a: fresnel_t_from_air(a) * np.cos(a) * np.sin(a), 0, tmax, epsabs=0, epsrel=1e-12)[0]
         assert hemispheric_transmittance(tmax) == pytest.approx(num / (0.5 * np.sin(tmax) ** 2), rel=1e-9)
+    # a sky cutoff below the horizon is the full sky
+    full = 2 * quad(lambda a: fresnel_t_from_air(a) * np.cos(a) * np.sin(a), 0, np.pi / 2, epsabs=0, epsrel=1e-12)[0]
+    assert RefinedModel(sky_cutoff_rad=2.0).transmittance_down_mean() == pytest.approx(full, rel=1e-9)
+    assert RefinedModel(sky_cutoff_rad=2.0).water_cutoff_rad() == pytest.approx(np.arcsin(1 / N_WATER), rel=1e-12)
 
 
 @pytest.mark.parametrize("reflectance", ["fresnel", "schlick"])
