@@ -346,3 +346,8 @@ def test_refracted_angles_use_the_models_refractive_index():
         assert m.transmittance_up() == pytest.approx(fresnel_t_from_air(0.7, n), rel=1e-12)
     assert LampModel(n_water=n, lamp_angle_rad=0.7).refracted_angle_rad() == pytest.approx(
         np.arcsin(np.sin(0.7) / n), rel=1e-12)
+
+
+def test_unknown_transmittance_mode_is_named():
+    with pytest.raises(ValueError, match="unknown transmittance 'approx'"):
+        RefinedModel(transmittance="approx").closed_form()
