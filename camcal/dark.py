@@ -34,19 +34,21 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from scipy.optimize import minimize
+from scipy.special import ndtr
+from scipy.stats import chi2
 
 from camcal.correct import Calibration, correct_planes, dark_frame
-from camcal.errors import CamcalError, MissingMetadataError
+from camcal.errors import CamcalError, FrameLeftOut, MissingMetadataError, TooFewFrames
 from camcal.frame import PATTERNS, PLANES, RGB, Frame
 from camcal.io import exposure_from_exif
-from camcal.optimize import nelder_mead
 from camcal.session import StageFrames, folder_of, stage_files
-from camcal.special import chi2_isf, ndtr
 from camcal.stack import MAD_TO_SIGMA, METHODS, StackResult, combine_frames
 from camcal.store import load_stage, save_stage
 
@@ -252,6 +254,8 @@ class DarkStacks:
     bias_folder: Path | None = None
     dark_files: tuple[str, ...] = ()
     bias_files: tuple[str, ...] = ()
+    left_out: tuple[tuple[str, str], ...] = ()
+    """(file name, reason) of dark frames not stacked: a frame alone at its exposure time."""
 
     @property
     def read_noise_stack(self) -> StackResult:
@@ -310,8 +314,8 @@ def stack_darks(
         files, manifest = stage_files(bias)
         bias_folder = folder_of(bias)
         if len(files) < 2:
-            raise CamcalError(f"a bias-only calibration needs two or more bias frames, found {len(files)}",
-                              bias_folder)
+            raise TooFewFrames("bias", "frames (a bias-only calibration measures the read noise between frames)",
+                               2, len(files), path=bias_folder)
         st = combine_frames(files, method="mean", manifest=manifest, check=check, jobs=jobs, progress=progress,
                             keep_frames=QUANTISED_FIT_FRAMES)
         _check_stacks([st], bias_folder)
@@ -322,12 +326,25 @@ def stack_darks(
     groups: dict[float, list[Path]] = {}
     for p, t in zip(files, times, strict=True):
         groups.setdefault(float(f"{t:.6g}"), []).append(p)
+    # a frame alone at its exposure time has no temporal noise to measure: left out while other times have two
+    lone = {t: g for t, g in groups.items() if len(g) < 2}
+    left_out: tuple[tuple[str, str], ...] = ()
+    if lone and len(lone) < len(groups):
+        left_out = tuple((g[0].name, f"alone at its exposure time ({t:g} s): the dark model measures the temporal "
+                                     "noise of each exposure time from two or more frames") for t, g in lone.items())
+        for name, reason in left_out:
+            warnings.warn(f"left out: {name}: {reason}", FrameLeftOut, stacklevel=2)
+        groups = {t: g for t, g in groups.items() if t not in lone}
+        files = [p for p in files if all(p.name != n for n, _ in left_out)]
     bias_files, bias_manifest = stage_files(bias) if bias is not None else ([], {})
     bias_folder = folder_of(bias) if bias is not None else None
     if bias_folder is None and len(groups) < 2:
+        if not groups:
+            raise TooFewFrames("dark", "frames", 1, 0, path=dark_folder)
         (t0,) = groups
-        raise CamcalError(f"all {len(files)} dark frames have one exposure time ({t0:g} s); the dark-current fit "
-                          "needs two or more exposure times, or bias frames (--bias)", dark_folder)
+        raise TooFewFrames("dark", "exposure times (or bias frames)", 2, 1,
+                           f"all {len(files)} dark frames have one exposure time ({t0:g} s); the dark-current fit "
+                           "needs two or more exposure times, or bias frames (--bias)", dark_folder)
     total = len(files) + len(bias_files)
     done = 0
     bias_stack = None
@@ -344,7 +361,7 @@ def stack_darks(
         darks.append((t, st))
     _check_stacks([s for _, s in darks] + ([bias_stack] if bias_stack is not None else []), dark_folder)
     return DarkStacks(tuple(darks), bias_stack, dark_folder, bias_folder, tuple(p.name for p in files),
-                      tuple(p.name for p in bias_files))
+                      tuple(p.name for p in bias_files), left_out)
 
 
 def fit_dark(
@@ -534,9 +551,9 @@ def quantised_noise_fit(first: np.ndarray, second: np.ndarray, eps: float = 1e-4
     Each pixel records ``k_f = round(μ + o_f + σ·z_f)`` in frame f: μ its own mean (spread over the plane as a
     normal distribution of standard deviation ``dsnu``), o_f a frame offset (jitter) and z_f standard normal.
     The joint histogram of the pairs (k_1, k_2) is fitted by maximum likelihood of this model (cell
-    probabilities integrated exactly over the rounding with the normal CDF :func:`camcal.special.ndtr`,
+    probabilities integrated exactly over the rounding with the normal CDF :func:`scipy.special.ndtr`,
     Gauss–Hermite over μ), with a small uniform outlier weight ``eps``, minimised by the Nelder–Mead simplex
-    (:func:`camcal.optimize.nelder_mead`, as scipy's). This is right where ``var − 1/12`` (Sheppard's
+    (:func:`scipy.optimize.minimize`, ``method="Nelder-Mead"``). This is right where ``var − 1/12`` (Sheppard's
     correction, EMVA 1288 eq. 4) is not: when σ and the spread of the pixel means are both below ~0.5 DN, so
     that the fractional parts of μ are not uniform (a 10-bit IMX296 at black level 60: σ ≈ 0.38 DN, while
     ``var − 1/12`` gives 0.35–0.38 and the raw temporal standard deviation 0.45–0.48).
@@ -575,7 +592,8 @@ def quantised_noise_fit(first: np.ndarray, second: np.ndarray, eps: float = 1e-4
         prob = (1 - eps) * prob + eps / (n * n)
         return -float(np.sum(hist * np.log(prob)))
 
-    res = nelder_mead(nll, [m0, float(d.mean()), np.log(sd0), np.log(s0)], xatol=1e-5, fatol=1e-4, maxiter=4000)
+    res = minimize(nll, [m0, float(d.mean()), np.log(sd0), np.log(s0)], method="Nelder-Mead",
+                   options={"xatol": 1e-5, "fatol": 1e-4, "maxiter": 4000})
     _, o, lsd, ls = res.x
     return float(np.exp(ls)), float(np.exp(lsd)), float(o)
 
@@ -586,7 +604,7 @@ def temporal_noise(stack: StackResult, var_t: np.ndarray, defects: np.ndarray, n
     Per plane, the model variance v̂ is the mean per-pixel temporal variance over good pixels (the top 0.1 %
     left out). A pixel is *noisy* when its variance exceeds v̂ by more than the chi-square bound a normal pixel
     passes with probability 1e-6 and by ``noisy_sigma`` standard errors of a variance (√(2/dof)); the chi-square
-    quantile is :func:`camcal.special.chi2_isf`. A zero temporal variance is not a defect: below 1 DN of noise
+    quantile is ``scipy.stats.chi2.isf``. A zero temporal variance is not a defect: below 1 DN of noise
     most pixels read one value in every frame. Where the temporal noise is below :data:`SUB_DN_NOISE`, the read
     noise is :func:`quantised_noise_fit` of consecutive frame pairs (the first :data:`QUANTISED_FIT_FRAMES`
     frames of the stack, ``stack.kept_planes``), else ``√(var − 1/12)``.
@@ -595,7 +613,7 @@ def temporal_noise(stack: StackResult, var_t: np.ndarray, defects: np.ndarray, n
     dof = float(np.median(stack.count)) - 1.0
     bound = 1.0
     if dof >= 1:
-        bound = max(chi2_isf(1e-6, dof) / dof, 1.0 + noisy_sigma * math.sqrt(2.0 / dof))
+        bound = max(float(chi2.isf(1e-6, dof)) / dof, 1.0 + noisy_sigma * math.sqrt(2.0 / dof))
     temporal = np.zeros(c)
     noisy = np.zeros(var_t.shape, bool)
     for k in range(c):
