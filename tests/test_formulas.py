@@ -24,8 +24,8 @@ from camcal.spectra import gaussian_line
 from camcal.stack import StackResult
 from camcal.synth.camera import Scene
 from camcal.synth.session import exposure_for_level
-from camcal.water.models import LampModel, RefinedModel
-from camcal.water.optics import hemispheric_transmittance, radiance_out_of_water
+from camcal.water.models import LampModel, RefinedModel, lamp_ratio
+from camcal.water.optics import hemispheric_transmittance, radiance_out_of_water, transmittance
 
 N_WATER = 1.33
 
@@ -47,6 +47,12 @@ def fresnel_t_from_air(theta_air_rad: float, n: float = N_WATER) -> float:
     return float(0.5 * k * (ts * ts + tp * tp))
 
 
+def schlick_t_from_air(theta_air_rad: float, n: float = N_WATER) -> float:
+    """1 − Schlick's R at the air-side angle (either direction, Schlick 1994)."""
+    r0 = ((n - 1) / (n + 1)) ** 2
+    return float(1 - (r0 + (1 - r0) * (1 - np.cos(theta_air_rad)) ** 5))
+
+
 # ---- 1. the three mutations that survived the suite ---------------------------------------------------------
 
 @pytest.mark.parametrize("view_air_rad", [0.5, 1.0])
@@ -56,6 +62,7 @@ def test_upward_transmittance_at_oblique_views_is_fresnel_from_air_by_reciprocit
     Both models; at 1 rad the swapped-index formula gives 0.9762 instead of 0.9507 (2.7 %).
     """
     expect = fresnel_t_from_air(view_air_rad)
+    assert float(transmittance(view_air_rad)) == pytest.approx(expect, rel=1e-12)  # defaults: air → water, Fresnel
     assert RefinedModel(view_angle_rad=view_air_rad).transmittance_up() == pytest.approx(expect, rel=1e-12)
     assert LampModel(view_angle_rad=view_air_rad).transmittance_up() == pytest.approx(expect, rel=1e-12)
     # the n² law out of the water along that ray: L_air = T L_w / n²
@@ -133,42 +140,49 @@ def test_long_dim_photo_at_f8_gives_the_true_radiance(tmp_path, camera, profile_
 
 # ---- water: the refined model against an independent rendering --------------------------------------------
 
-def _render_refined(c_mol_per_L, depth_m, *, view_air_rad, a_bg_per_m, a_w_per_m, eps, exact: bool):
-    """Radiance ratio of a white disk under a uniform full sky, rendered by quadrature over the in-water cone.
+def _render_refined(c_mol_per_L, depth_m, *, view_air_rad, a_bg_per_m, a_w_per_m, eps, exact: bool, albedo=1.0,
+                    sky_cutoff_rad=np.pi / 2, n=N_WATER, reflectance="fresnel"):
+    """Radiance ratio of a Lambertian disk under a uniform sky (air zenith angles up to ``sky_cutoff_rad``),
+    rendered by quadrature over the refracted cone in the water.
 
-    Downwelling: in-water radiance n² T(θa) L_sky in the refracted cone; the disk (Lambertian, albedo 1)
-    reflects E/π with E = ∫ L e^(−τ/μ) μ dΩ; upwelling along the view T(θa,view)/n² e^(−τ/μv); the reference
-    is the same disk in air, radiance L_sky. With ``exact`` False the sky's T(θ) is replaced by its
-    cosine-weighted mean over the air hemisphere (what the closed form does).
+    Downwelling: in-water radiance n² T(θa) L_sky in the refracted cone; the disk (albedo ρ) reflects ρE/π with
+    E = ∫ L e^(−τ/μ) μ dΩ; upwelling along the view T(θa,view)/n² e^(−τ/μv); the reference is a white disk in air
+    under the same sky, radiance L_sky. With ``exact`` False the sky's T(θ) is replaced by its cosine-weighted
+    mean over the sky's air angles (what the closed form does).
     """
-    n = N_WATER
+    t_air = fresnel_t_from_air if reflectance == "fresnel" else schlick_t_from_air
     tau = (a_w_per_m + a_bg_per_m + np.log(10) * eps * c_mol_per_L * 100) * depth_m
-    theta_c = np.arcsin(1 / n)
-    tbar = 2 * quad(lambda a: fresnel_t_from_air(a) * np.cos(a) * np.sin(a), 0, np.pi / 2, epsabs=0,
-                    epsrel=1e-12, limit=200)[0]
+    theta_c = np.arcsin(np.sin(sky_cutoff_rad) / n)
+    tbar = quad(lambda a: t_air(a, n) * np.cos(a) * np.sin(a), 0, sky_cutoff_rad, epsabs=0, epsrel=1e-12,
+                limit=200)[0] / (0.5 * np.sin(sky_cutoff_rad) ** 2)
 
     def t_down(theta_w):
-        return fresnel_t_from_air(np.arcsin(min(n * np.sin(theta_w), 1.0))) if exact else tbar
+        return t_air(np.arcsin(min(n * np.sin(theta_w), 1.0)), n) if exact else tbar
 
     e = 2 * np.pi * quad(lambda th: n * n * t_down(th) * np.exp(-tau / np.cos(th)) * np.cos(th) * np.sin(th),
                          0, theta_c, epsabs=0, epsrel=1e-12, limit=200)[0]
     mu_v = np.sqrt(1 - (np.sin(view_air_rad) / n) ** 2)
-    return e / np.pi * fresnel_t_from_air(view_air_rad) / (n * n) * np.exp(-tau / mu_v)
+    return albedo * e / np.pi * t_air(view_air_rad, n) / (n * n) * np.exp(-tau / mu_v)
 
 
 @pytest.mark.parametrize("transmittance", ["mean", "exact"])
-def test_refined_model_off_nadir_with_chlorophyll_matches_a_rendering(transmittance):
+@pytest.mark.parametrize("optics", ["full sky, Fresnel", "sky cone of 1.1 rad, Schlick, n = 1.34, albedo 0.7"])
+def test_refined_model_off_nadir_with_chlorophyll_matches_a_rendering(transmittance, optics):
     """Off nadir (0.6 rad), C = 2e-7 mol/L, background absorption: the E₃ closed form (or the Gauss-Legendre
-    form) against the radiance transfer integrated by adaptive quadrature.
+    form) against the radiance transfer integrated by adaptive quadrature; also with a sky cone narrower than the
+    hemisphere, Schlick's reflectance, another refractive index and a grey disk.
 
     Tolerance: 1e-9 for the closed form (exact in E₃); 1e-6 for the Gauss-Legendre form, whose 128 nodes in μ
     converge slowly on T(θ)'s square-root edge at the critical angle (measured 1.6e-7).
     """
-    kw = dict(view_angle_rad=0.6, background_absorption_per_m=0.3, water_absorption_per_m=0.425)
-    m = RefinedModel(transmittance=transmittance, **kw)
+    extra = {} if optics.startswith("full") else dict(albedo=0.7, sky_cutoff_rad=1.1, n_water=1.34,
+                                                       reflectance="schlick")
+    m = RefinedModel(transmittance=transmittance, view_angle_rad=0.6, background_absorption_per_m=0.3,
+                     water_absorption_per_m=0.425, **extra)
+    render = {k if k != "n_water" else "n": v for k, v in extra.items()}
     for c, d in ((2e-7, 0.25), (5e-8, 0.6)):
         expect = _render_refined(c, d, view_air_rad=0.6, a_bg_per_m=0.3, a_w_per_m=0.425,
-                                 eps=m.epsilon_L_per_mol_cm, exact=transmittance == "exact")
+                                 eps=m.epsilon_L_per_mol_cm, exact=transmittance == "exact", **render)
         assert float(m.ratio(c, d)) == pytest.approx(expect, rel=1e-9 if transmittance == "mean" else 1e-6)
 
 
@@ -177,15 +191,22 @@ def test_hemispheric_transmittance_against_quadrature():
     for tmax in (np.pi / 2, 1.0):
         num = quad(lambda a: fresnel_t_from_air(a) * np.cos(a) * np.sin(a), 0, tmax, epsabs=0, epsrel=1e-12)[0]
         assert hemispheric_transmittance(tmax) == pytest.approx(num / (0.5 * np.sin(tmax) ** 2), rel=1e-9)
+    # a sky cutoff below the horizon is the full sky
+    full = 2 * quad(lambda a: fresnel_t_from_air(a) * np.cos(a) * np.sin(a), 0, np.pi / 2, epsabs=0, epsrel=1e-12)[0]
+    assert RefinedModel(sky_cutoff_rad=2.0).transmittance_down_mean() == pytest.approx(full, rel=1e-9)
+    assert RefinedModel(sky_cutoff_rad=2.0).water_cutoff_rad() == pytest.approx(np.arcsin(1 / N_WATER), rel=1e-12)
 
 
-def test_lamp_model_off_axis_with_chlorophyll_matches_a_ray_trace():
+@pytest.mark.parametrize("reflectance", ["fresnel", "schlick"])
+def test_lamp_model_off_axis_with_chlorophyll_matches_a_ray_trace(reflectance):
     """Seed §4's point lamp at 0.5 rad, camera at 0.3 rad, C ≠ 0: the model's ratio against irradiances from an
     independent ray trace, E_w = I T(α) e^(−τ/cos β) sin α / (X dX/dα) with X(α) traced and dX/dα by central
     differences, and the inverse-square law with the cosine for the dry disk."""
     h, alpha, view, d, c = 0.8, 0.5, 0.3, 0.3, 1e-7
-    m = LampModel(height_m=h, lamp_angle_rad=alpha, view_angle_rad=view, background_absorption_per_m=0.2)
+    m = LampModel(height_m=h, lamp_angle_rad=alpha, view_angle_rad=view, background_absorption_per_m=0.2,
+                  reflectance=reflectance)
     n = N_WATER
+    t_air = fresnel_t_from_air if reflectance == "fresnel" else schlick_t_from_air
 
     def x_of(a):  # horizontal distance from the lamp's foot where the refracted ray reaches depth d
         b = np.arcsin(np.sin(a) / n)
@@ -196,13 +217,15 @@ def test_lamp_model_off_axis_with_chlorophyll_matches_a_ray_trace():
     x = x_of(alpha)
     beta = np.arcsin(np.sin(alpha) / n)
     tau = (m.water_absorption_per_m + 0.2 + np.log(10) * m.epsilon_L_per_mol_cm * c * 100) * d
-    e_w = fresnel_t_from_air(alpha) * np.exp(-tau / np.cos(beta)) * np.sin(alpha) / (x * dx)
+    e_w = t_air(alpha) * np.exp(-tau / np.cos(beta)) * np.sin(alpha) / (x * dx)
     r = np.hypot(x, h + d)
     e_air = (h + d) / r**3
     mu_v = np.sqrt(1 - (np.sin(view) / n) ** 2)
-    expect = e_w / e_air * fresnel_t_from_air(view) * np.exp(-tau / mu_v) / n**2
+    expect = e_w / e_air * t_air(view) * np.exp(-tau / mu_v) / n**2
     # tolerance: the central difference's truncation error, O(da²) ≈ 1e-10 relative
     assert float(m.ratio(c, d)) == pytest.approx(expect, rel=1e-8)
+    optics = RefinedModel(view_angle_rad=view, background_absorption_per_m=0.2, reflectance=reflectance)
+    assert float(lamp_ratio(c, d, h, alpha, optics)) == pytest.approx(expect, rel=1e-8)
 
 
 @pytest.mark.parametrize("line_fwhm_nm", [1.0, 9.0])
@@ -262,3 +285,69 @@ def test_radiance_into_water_is_n2_t_l():
     theta_w = np.arcsin(np.sin(0.7) / N_WATER)
     assert float(radiance_out_of_water(2.0, theta_w, method="schlick")) == pytest.approx(2.0 * schlick_t / N_WATER**2,
                                                                                         rel=1e-12)
+
+
+def test_seed_first_and_second_order_off_axis_with_albedo():
+    """Eq. 11 and the appendix's (k, q) model from a start angle θ0 = 0.2 rad with ρ = 0.6, against the seed's
+    integrand in decadic form integrated over [θ0, θc] (second order: 10^(−2A)(1 − A ln10 θ²))."""
+    from camcal.water.models import SeedModel
+
+    m = SeedModel(albedo=0.6)
+    c, d, th0 = 1e-7, 0.2, 0.2
+    a = m.epsilon_L_per_mol_cm * c * d * 100
+    tc = m.cutoff_rad
+    first = 0.6 * (np.cos(th0) ** 2 - np.cos(tc) ** 2) * 10 ** (-2 * a)
+    assert m.ratio_first_order(c, d, th0) == pytest.approx(first, rel=1e-12)
+    second = 2 * 0.6 * quad(lambda t: 10 ** (-2 * a) * (1 - a * np.log(10) * t * t) * np.cos(t) * np.sin(t), th0, tc,
+                            epsabs=0, epsrel=1e-13)[0]
+    assert m.ratio_second_order(c, d, th0) == pytest.approx(second, rel=1e-10)
+
+
+@pytest.mark.parametrize("transmittance", ["mean", "exact"])
+def test_ratio_derivatives_against_central_differences(transmittance):
+    """dR/dτ of the refined model's form (E₃ closed form or Gauss-Legendre) and of the lamp's exponential form,
+    against a central difference of R (step 1e-5: truncation ≈ 1e-10 relative)."""
+    forms = [RefinedModel(view_angle_rad=0.4, transmittance=transmittance).closed_form(),
+             LampModel(height_m=0.7, lamp_angle_rad=0.4, view_angle_rad=0.2).closed_form_at(0.3)]
+    h = 1e-5
+    for f in forms:
+        for tau in (0.3, 1.7):
+            num = (f.ratio(tau + h) - f.ratio(tau - h)) / (2 * h)
+            assert float(f.ratio_derivative(tau)) == pytest.approx(float(num), rel=1e-7)
+            assert float(f.dlog_ratio_dtau(tau)) == pytest.approx(float(num / f.ratio(tau)), rel=1e-7)
+
+
+def test_lamp_toward_a_disk_point_aims_the_ray_there():
+    """Per-pixel geometry: the lamp angle of ``toward(dx, dy, d)`` sends the refracted ray (traced here) to the
+    horizontal distance √((X0 + dx)² + dy²) from the lamp's foot; the other settings are kept."""
+    h, d, n = 0.9, 0.25, N_WATER
+    lamp = LampModel(height_m=h, lamp_angle_rad=0.35, view_angle_rad=0.1, background_absorption_per_m=0.1)
+    x0 = h * np.tan(0.35) + d * np.tan(np.arcsin(np.sin(0.35) / n))
+    for dx, dy in ((0.04, 0.0), (-0.03, 0.05)):
+        aim = lamp.toward(dx, dy, d)
+        a = aim.lamp_angle_rad
+        landed = h * np.tan(a) + d * np.tan(np.arcsin(np.sin(a) / n))
+        assert landed == pytest.approx(np.hypot(x0 + dx, dy), rel=1e-10)
+        assert (aim.height_m, aim.view_angle_rad, aim.background_absorption_per_m) == (h, 0.1, 0.1)
+
+
+def test_refined_model_at_a_wavelength_keeps_the_other_settings():
+    m = RefinedModel.at_wavelength(680.0, view_angle_rad=0.3, background_absorption_per_m=0.2)
+    assert (m.view_angle_rad, m.background_absorption_per_m) == (0.3, 0.2)
+    assert m.water_absorption_per_m == pytest.approx(0.465)  # Pope & Fry (1997) at 680 nm, m⁻¹
+
+
+def test_refracted_angles_use_the_models_refractive_index():
+    """Snell with n = 1.34 (sea water) rather than the default 1.33, for the view, the lamp ray and T_up."""
+    n = 1.34
+    for m in (RefinedModel(n_water=n, view_angle_rad=0.7), LampModel(n_water=n, view_angle_rad=0.7,
+                                                                      lamp_angle_rad=0.7)):
+        assert m.view_water_rad() == pytest.approx(np.arcsin(np.sin(0.7) / n), rel=1e-12)
+        assert m.transmittance_up() == pytest.approx(fresnel_t_from_air(0.7, n), rel=1e-12)
+    assert LampModel(n_water=n, lamp_angle_rad=0.7).refracted_angle_rad() == pytest.approx(
+        np.arcsin(np.sin(0.7) / n), rel=1e-12)
+
+
+def test_unknown_transmittance_mode_is_named():
+    with pytest.raises(ValueError, match="unknown transmittance 'approx'"):
+        RefinedModel(transmittance="approx").closed_form()

@@ -83,18 +83,27 @@ def test_seed_section5_range():
 
 
 def test_seed_path_is_down_and_up():
-    """Eq. 10's light goes down to the disk and back up: e^(−2τ/cos θ) in the integral (path factor 2), and
-    10^(−2εdC) in the first-order eq. 11. Given τ, so that only the path factor is under test."""
+    """Eq. 10's light goes down to the disk and back up: e^(−2τ/cos θ) in the integral (path factor 2). Given τ,
+    so that only the path factor is under test (the chlorophyll τ has its own test below)."""
     m = SeedModel(albedo=0.8)
     tc = m.cutoff_rad
     for tau in (0.05, 0.7, 2.5):
         ref = 2 * 0.8 * quad(lambda t, tau=tau: np.exp(-2 * tau / np.cos(t)) * np.cos(t) * np.sin(t), 0, tc,
                              epsabs=0, epsrel=1e-13, limit=200)[0]
         assert m.closed_form().ratio(tau) == pytest.approx(ref, rel=1e-10)
-    # first order: ρ (1 − cos²θc) 10^(−2 A), A = ε C d the decadic absorbance of one vertical pass (d in cm)
+
+
+def test_seed_eq10_and_eq11_against_their_decadic_forms():
+    """End to end at C ≠ 0: eq. 10 by quadrature in the seed's own decadic form 2ρ∫10^(−2A/cos θ) cos θ sin θ dθ,
+    and eq. 11's first order ρ (1 − cos²θc) 10^(−2A), A = ε C d the decadic absorbance of one vertical pass
+    (d in cm). Fails with any of the three errors above."""
+    m = SeedModel(albedo=0.8)
     c, d = 2e-7, 0.3
     a = EPSILON_SEED_L_PER_MOL_CM * c * d * 100
-    expect = 0.8 * (1 - np.cos(tc) ** 2) * 10 ** (-2 * a)
+    ref = 2 * 0.8 * quad(lambda t: 10 ** (-2 * a / np.cos(t)) * np.cos(t) * np.sin(t), 0, m.cutoff_rad, epsabs=0,
+                         epsrel=1e-13, limit=200)[0]
+    assert m.ratio(c, d) == pytest.approx(ref, rel=1e-10)
+    expect = 0.8 * (1 - np.cos(m.cutoff_rad) ** 2) * 10 ** (-2 * a)
     assert m.ratio_first_order(c, d) == pytest.approx(expect, rel=1e-12)
 
 
@@ -106,11 +115,6 @@ def test_chlorophyll_optical_depth_is_natural_log_of_the_decadic_absorbance():
     assert np.exp(-SeedModel().tau(c, d)) == pytest.approx(10 ** (-a), rel=1e-12)
     rm = RefinedModel(water_absorption_per_m=0.0)
     assert np.exp(-rm.tau(c, d)) == pytest.approx(10 ** (-a), rel=1e-12)
-    # the seed's eq. 10 by quadrature in its own decadic form, at C ≠ 0
-    m = SeedModel()
-    ref = 2 * quad(lambda t: 10 ** (-2 * a / np.cos(t)) * np.cos(t) * np.sin(t), 0, m.cutoff_rad, epsabs=0,
-                   epsrel=1e-13, limit=200)[0]
-    assert m.ratio(c, d) == pytest.approx(ref, rel=1e-10)
 
 
 def test_chlorophyll_a_molar_mass_from_standard_atomic_weights():
