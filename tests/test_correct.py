@@ -142,6 +142,9 @@ def test_variance_on_a_window_below_and_near_the_bias(rng):
     var = (np.maximum(above_bias, 0) * kdn * 2.0 + dark.read_noise_dn.astype(np.float64) ** 2 * 4.0) / gain**2
     assert np.any(above_bias[:, win[0], win[1]] < 0) and np.any((above_bias > 0) & (above_bias < 1))
     np.testing.assert_allclose(out.variance_dn2, var[:, win[0], win[1]], rtol=1e-4)
+    plain = correct_planes(raw.copy(), cal, exposure_s=t, iso=iso, white_level_dn=4095,
+                           black_level_dn=np.full(4, 512.0))
+    assert plain.variance_dn2 is None  # computed only when asked for (the hot path of apply skips it)
 
 
 def test_require_valid_says_why(rng):
