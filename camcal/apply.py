@@ -369,7 +369,12 @@ def _processed_signal(frame: Frame, plan: ApplyPlan, iso: float, notes: list[str
     f = 2 if not linear or not plane_h else max(1, values.shape[1] // plane_h)
     binf = _bin2 if f == 2 else (lambda a: np.asarray(a, np.float32))
     saturated = binf((values >= np.float32(frame.white_level_dn)).astype(np.float32)) > 0
-    lin = rp.linearise(values).astype(np.float32)
+    scale = rp.value_scale(frame.white_level_dn)
+    if scale != 1.0:  # e.g. a 10-bit HEIC read against the response of the calibration's 8-bit JPEGs
+        notes.append(f"processed file of white level {frame.white_level_dn:g} DN read against a response measured "
+                     f"on files of white level {rp.white_level_dn:g} DN: values scaled by {scale:.6g}, assuming "
+                     "the same tone curve at the other bit depth")
+    lin = rp.linearise(values, white_level_dn=frame.white_level_dn).astype(np.float32)
     if rp.colour_matrix is not None:  # r = A⁻¹ j: the camera's channel mixing undone (camcal.colour)
         signal = binf(rp.colour_matrix.to_raw(lin))
         notes.append("processed file: RAW-equivalent signal through the profile's colour matrix (fitted on the "
@@ -453,9 +458,11 @@ def apply_prepared(frame: Frame, plan: ApplyPlan, *, allow_other_camera: bool = 
         "source_name": path.name if path is not None else None,
         "kind": frame.kind,
         "exposure": {"exposure_s": e.exposure_s, "iso": e.iso, "f_number": e.f_number,
-                     "capture_time": e.capture_time, "relative_exposure_s": x,
+                     "capture_time": e.capture_time, "utc_offset": e.utc_offset, "gps_time_utc": e.gps_time_utc,
+                     "relative_exposure_s": x,
                      "reference_iso": profile.reference_iso, "reference_f_number": profile.reference_f_number},
         "camera": {"make": e.make, "model": e.model, "serial": e.serial},
+        "place": {"latitude_deg": e.latitude_deg, "longitude_deg": e.longitude_deg, "altitude_m": e.altitude_m},
         "profile_camera": {"make": profile.camera.make, "model": profile.camera.model,
                            "serial": profile.camera.serial},
         "resolution": LINEAR_RESOLUTION_NOTE if frame.layout == "linear" else RESOLUTION_NOTE,

@@ -96,12 +96,12 @@ class ColourMatrix:
 
 def twin_pairs(folder: str | Path | StageFrames) -> list[tuple[Path, Path]]:
     """The RAW frames of ``folder`` (a path, or the session index's :class:`camcal.session.StageFrames`) that
-    have a processed twin (``<stem>.jpg`` or ``.jpeg``), sorted by name."""
+    have a processed twin (``<stem>.jpg`` or ``.jpeg``, else ``.heic`` or ``.heif``), sorted by name."""
     pairs = []
     for path in (folder.paths if isinstance(folder, StageFrames) else list_frames(folder)):
         if not is_raw_path(path):
             continue
-        for suffix in (".jpg", ".jpeg", ".JPG", ".JPEG"):
+        for suffix in (".jpg", ".jpeg", ".JPG", ".JPEG", ".heic", ".HEIC", ".heif", ".HEIF"):
             twin = path.with_suffix(suffix)
             if twin.is_file():
                 pairs.append((path, twin))
@@ -174,7 +174,7 @@ def measure_twins(pairs: Sequence[tuple[Path, Path]], processed, *,
         r_rows.append([m["R"], m["G"], m["B"]])
         vals = jpg.planes(np.float32)[:, f * y0: f * y1, f * x0: f * x1]
         clipped = np.mean((vals <= 0) | (vals >= jpg.white_level_dn), axis=(1, 2))
-        lin = processed.linearise(vals)
+        lin = processed.linearise(vals, white_level_dn=jpg.white_level_dn)
         j = np.mean(lin, axis=(1, 2), dtype=np.float64)
         j_rows.append(j)
         ok_rows.append((clipped < MAX_CLIPPED_FRACTION) & (j > MIN_LEVEL_FRACTION * white)

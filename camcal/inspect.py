@@ -5,30 +5,53 @@ from __future__ import annotations
 from pathlib import Path
 
 from camcal.errors import CamcalError
-from camcal.frame import TRACKED
+from camcal.frame import PLACE_TIME, TRACKED
 from camcal.io import load_frame, saturated_fraction
+from camcal.sun import SunPosition, photo_time_utc, sun_from_metadata
+
+SUN_KEYS = ("zenith_deg", "azimuth_deg", "apparent_zenith_deg", "source")
+"""Keys of the ``sun`` object of :func:`describe` (and rows ``sun.<key>`` of the table)."""
 
 
-def describe(path: str | Path) -> dict[str, object]:
+def describe_sun(exposure, path, sun: SunPosition | None = None) -> dict[str, object]:
+    """The ``sun`` object of :func:`describe`: ``sun`` when given (``--sun``), else from the photo's metadata;
+    with unknown angles (null) and a ``reason`` when the photo cannot place it."""
+    if sun is None:
+        try:
+            sun = sun_from_metadata(exposure, path=None)
+        except CamcalError as exc:
+            return {**dict.fromkeys(SUN_KEYS), "reason": exc.message}
+    d = sun.to_dict()
+    return {k: d[k] for k in (*SUN_KEYS, "utc")} | {"reason": None}
+
+
+def describe(path: str | Path, sun: SunPosition | None = None) -> dict[str, object]:
     """Decode ``path`` and return its layout and exposure metadata as a JSON-ready dict.
 
     Keys: file, kind (raw/processed), layout (bayer/linear/processed), format, width, height,
-    channels (plane names), cfa_pattern, black_level_dn (per plane), white_level_dn,
-    exposure_s, f_number, iso, exposure_value_s (ISO·t/N², s), make, model, serial,
-    capture_time, saturated_pct (percent of the values at or above the white level), saturated (a note
-    when a quarter of them or more are: "fully saturated" or the percentage; null otherwise), sources
-    (where each of exposure_s, f_number, iso, capture_time came from:
-    ``tag``, ``libraw``, ``frames.csv``, ``session``; null when unknown), notes (disagreements
-    between readers, values set aside), error (null).
+    channels (plane names), cfa_pattern, black_level_dn (per plane), white_level_dn, bit_depth,
+    icc_profile (processed images: the embedded profile's description), exposure_s, f_number, iso,
+    exposure_value_s (ISO·t/N², s), make, model, serial, capture_time (the camera clock, no zone),
+    utc_offset (``+HH:MM``), capture_time_utc, time_source (:func:`camcal.sun.photo_time_utc`),
+    latitude_deg, longitude_deg, altitude_m (GPS), sun (``zenith_deg``, ``azimuth_deg``,
+    ``apparent_zenith_deg``, ``source``, ``utc``, ``reason`` when unknown), saturated_pct (percent of the
+    values at or above the white level), saturated (a note when a quarter of them or more are: "fully
+    saturated" or the percentage; null otherwise), sources (where each of exposure_s, f_number, iso,
+    capture_time, utc_offset, gps_time_utc, latitude_deg, longitude_deg, altitude_m came from: ``tag``,
+    ``libraw``, ``frames.csv``, ``session``; null when unknown), notes (disagreements between readers, values
+    set aside, a GPS date that disagrees with the local date), error (null).
 
     An unknown value is null (None): never a library's placeholder. Session defaults
     (``session.toml`` beside the file or in its parent folder) apply, marked ``session``.
+    ``sun`` (``--sun ZENITH,AZIMUTH``) replaces the sun computed from the photo.
     """
     f = load_frame(path)
     e = f.exposure
     h, w = f.shape
     sat = 100.0 * saturated_fraction(f.data, f.white_level_dn)
     ev = e.iso * e.exposure_s / e.f_number**2 if (e.iso and e.exposure_s and e.f_number) else None
+    when = photo_time_utc(e)
+    bits = int(f.white_level_dn).bit_length() if f.kind == "processed" else None
     return {
         "file": str(path),
         "kind": f.kind,
@@ -40,6 +63,8 @@ def describe(path: str | Path) -> dict[str, object]:
         "cfa_pattern": f.cfa_pattern,
         "black_level_dn": f.black_level_dn,
         "white_level_dn": f.white_level_dn,
+        "bit_depth": bits,
+        "icc_profile": f.icc_profile,
         "exposure_s": e.exposure_s,
         "f_number": e.f_number,
         "iso": e.iso,
@@ -48,16 +73,24 @@ def describe(path: str | Path) -> dict[str, object]:
         "model": e.model,
         "serial": e.serial,
         "capture_time": e.capture_time,
+        "utc_offset": e.utc_offset,
+        "capture_time_utc": None if when.utc is None else when.utc.isoformat(),
+        "time_source": when.source,
+        "latitude_deg": e.latitude_deg,
+        "longitude_deg": e.longitude_deg,
+        "altitude_m": e.altitude_m,
+        "sun": describe_sun(e, path, sun),
         "saturated_pct": round(sat, 3),
         "saturated": ("fully saturated: every value at the white level" if sat >= 100.0 else
                       f"{min(sat, 99.99):.4g} % of the values at the white level" if sat >= 25.0 else None),
-        "sources": {name: e.source(name) for name in TRACKED},
-        "notes": list(e.notes),
+        "sources": {name: e.source(name) for name in (*TRACKED, *PLACE_TIME)},
+        "notes": list(e.notes) + [n for n in when.notes if not n.startswith("no ")],
         "error": None,
     }
 
 
-def describe_many(paths: list[str | Path]) -> tuple[list[dict[str, object]], list[dict[str, str]]]:
+def describe_many(paths: list[str | Path], sun: SunPosition | None = None
+                  ) -> tuple[list[dict[str, object]], list[dict[str, str]]]:
     """:func:`describe` every file; one that cannot be read does not stop the others.
 
     Returns
@@ -69,7 +102,7 @@ def describe_many(paths: list[str | Path]) -> tuple[list[dict[str, object]], lis
     failures: list[dict[str, str]] = []
     for p in paths:
         try:
-            entries.append(describe(p))
+            entries.append(describe(p, sun))
         except CamcalError as exc:
             failures.append({"file": str(p), "error": str(exc)})
             entries.append(failures[-1])  # type: ignore[arg-type]

@@ -152,8 +152,11 @@ def _exif_tags(path: Path) -> dict[str, object]:
 
     HEIF files: the EXIF block libheif takes out of the file, read by exifread.
     """
-    if is_heif(path):
-        return _exif_from_block(_heif_exif_block(path))
+    try:
+        if is_heif(path):
+            return _exif_from_block(_heif_exif_block(path))
+    except CamcalError:  # unreadable: the decoder reports it; metadata is optional here
+        return {}
     try:
         exifread = _exif_reader()
         with open(path, "rb") as fh:
@@ -597,6 +600,8 @@ def _load_processed(path: Path) -> Frame:
             model=attr("Model"),
             capture_time=_iso_time(attr("Exif:DateTimeOriginal")),
         )
+        icc = spec.getattribute("ICCProfile")
+        icc_name = icc_description(None if icc is None else np.asarray(icc, np.uint8).tobytes())
     tags = _exif_tags(path)
     exif_exp = exposure_from_exif(path, tags)
     # both read the file's EXIF; a tag exifread sees holding zero stays unknown
@@ -619,6 +624,7 @@ def _load_processed(path: Path) -> Frame:
         exposure=exp,
         path=path,
         layout="processed",
+        icc_profile=icc_name,
     )
 
 
@@ -690,7 +696,7 @@ def is_raw_path(path: Path) -> bool:
 def load_frame(
     path: str | Path,
     overrides: dict[str, float | None] | None = None,
-    defaults: dict[str, float] | None = None,
+    defaults: dict[str, float | str] | None = None,
 ) -> Frame:
     """Decode one image file into a :class:`~camcal.frame.Frame`.
 

@@ -48,6 +48,8 @@ MAX_EXR_EXPANSION = MAX_IMAGE_EXPANSION
 MAX_PROFILE_JSON_BYTES = 8 * MiB
 #: A stage JSON file beside its maps EXR (dark.json, flat.json, response JSON; real ones: under 1 MB).
 MAX_STAGE_JSON_BYTES = 16 * MiB
+#: A camera-curve file of the curve library (rawtoaces-data's are 8 to 20 kB; a 1 nm table of 2000 rows is 200 kB).
+MAX_CURVE_JSON_BYTES = 1 * MiB
 #: Deepest nesting of arrays/objects in any JSON camcal reads (real profiles: 7).
 MAX_JSON_DEPTH = 64
 

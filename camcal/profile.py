@@ -34,11 +34,12 @@ from camcal.spectral import SpectralSensitivity, spectral_from_dict, spectral_to
 from camcal.store import to_jsonable
 
 FORMAT = "camcal-profile"
-SCHEMA_VERSION = "1.5"  # 1.1: optional response.processed.colour_matrix; 1.2: optional spectral_sensitivity.source;
+SCHEMA_VERSION = "1.6"  # 1.1: optional response.processed.colour_matrix; 1.2: optional spectral_sensitivity.source;
 # 1.3: camera.layout, dark.layout, dark.dark_current_known, dark channels temporal_noise_dn, R, G, B planes (linear RAW)
 # 1.4: optional emva1288 section (EMVA 1288 summary: K from photon transfer, DSNU, PRNU, saturation, SNR, DR, LE)
 # 1.5: provenance.left_out and provenance.not_calibrated; reference iso / f_number may be null (no stage
 # normalised exposure); response channels saturation_exposure_s and fitted_exposure_s
+# 1.6: spectral_sensitivity.source kinds "library" and "sweep_means" and source.library (the curve-library entry)
 SUPPORTED_MAJOR = 1
 SPECTRAL_UNITS_DEFAULT = "DN s^-1 per (W m^-2 sr^-1 nm^-1) per nm at ISO_ref, f/N_ref, on axis"
 

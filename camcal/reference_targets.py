@@ -48,6 +48,7 @@ from scipy import stats
 
 from camcal import __version__
 from camcal.correct import Calibration, correct_frame
+from camcal.curve_library import Match, find_camera, library_curves, with_layout
 from camcal.dark import load_dark
 from camcal.errors import CamcalError
 from camcal.exposure import frame_relative_exposure
@@ -72,13 +73,14 @@ RADIANCE_UNITS = "W m^-2 sr^-1 nm^-1"
 # ---- the one region measurement --------------------------------------------------------------------------
 @dataclass(frozen=True)
 class RegionRate:
-    """Corrected DN rate of a photo's region per CFA plane (R, G1, G2, B), at the reference setting.
+    """Corrected DN rate of a photo's region per plane, at the reference setting.
 
-    rate_dn_per_s : (4,) mean over the region, DN s^-1 at (ISO_ref, N_ref), on axis (flat applied).
-    rate_unc_dn_per_s : (4,) standard error of that mean (spatial scatter / √n), DN s^-1.
-    n_pixels : (4,) pixels used (saturated, defective and > 5 robust σ outliers left out).
+    rate_dn_per_s : (C,) mean over the region, DN s^-1 at (ISO_ref, N_ref), on axis (flat applied).
+    rate_unc_dn_per_s : (C,) standard error of that mean (spatial scatter / √n), DN s^-1.
+    n_pixels : (C,) pixels used (saturated, defective and > 5 robust σ outliers left out).
     relative_exposure_s : x = (ISO·t/N²)/(ISO_ref/N_ref²), s.
     notes : what was (not) corrected.
+    channels : the C planes: R, G1, G2, B (Bayer) or R, G, B (linear RAW).
     """
 
     rate_dn_per_s: np.ndarray
@@ -86,11 +88,12 @@ class RegionRate:
     n_pixels: np.ndarray
     relative_exposure_s: float
     notes: tuple[str, ...] = ()
+    channels: tuple[str, ...] = PLANES
 
 
 def region_rate(frame: Frame, box: Region | tuple[int, int, int, int] | None, *, dark=None, flat=None,
                 reference_iso: float, reference_f_number: float, min_pixels: int = 16) -> RegionRate:
-    """Mean corrected DN rate per plane over ``box`` of a RAW photo.
+    """Mean corrected DN rate per plane over ``box`` of a RAW photo (Bayer: R, G1, G2, B; linear RAW: R, G, B).
 
     As in ``camcal apply``, through the one correction path (:func:`camcal.correct.correct_frame`): planes −
     dark model at the photo's exposure and ISO (without a model the file's black level), divided by the flat
@@ -101,7 +104,7 @@ def region_rate(frame: Frame, box: Region | tuple[int, int, int, int] | None, *,
     ----------
     frame : a decoded RAW photo.
     box : a :class:`camcal.region.Region` in photo pixels (rounded outward to whole plane pixels), or
-        (x0, y0, x1, y1), half-open, in half-resolution plane pixels; None: the central
+        (x0, y0, x1, y1), half-open, in plane pixels (half resolution on a Bayer sensor); None: the central
         :data:`camcal.spectral.DEFAULT_ROI_FRACTION` of each side.
     dark, flat : camcal.dark.DarkModel, camcal.flat.FlatModel or None.
     """
@@ -109,9 +112,10 @@ def region_rate(frame: Frame, box: Region | tuple[int, int, int, int] | None, *,
     if frame.kind != "raw":
         raise CamcalError("is not a RAW file; a reference-target photo must be linear RAW data", path)
     x = frame_relative_exposure(frame.exposure, reference_iso, reference_f_number, path)
-    shape_hw = (frame.shape[0] // 2, frame.shape[1] // 2)
+    linear = frame.layout == "linear"
+    shape_hw = tuple(frame.shape) if linear else (frame.shape[0] // 2, frame.shape[1] // 2)
     if isinstance(box, Region):
-        ys, xs = box.window(shape_hw, 2, path)
+        ys, xs = box.window(shape_hw, 1 if linear else 2, path)
         box = (xs.start, ys.start, xs.stop, ys.stop)
     x0, y0, x1, y1 = central_roi(shape_hw, DEFAULT_ROI_FRACTION) if box is None else box
     if not (0 <= x0 < x1 <= shape_hw[1] and 0 <= y0 < y1 <= shape_hw[0]):
@@ -127,10 +131,12 @@ def region_rate(frame: Frame, box: Region | tuple[int, int, int, int] | None, *,
         raise CamcalError(exc.message, path) from None
     planes, bad = corr.signal_dn, corr.invalid
     y0, y1, x0, x1 = 0, planes.shape[1], 0, planes.shape[2]
-    rate = np.empty(4)
-    unc = np.empty(4)
-    npix = np.zeros(4, int)
-    for k in range(4):
+    names = tuple(frame.channel_names)
+    nc = planes.shape[0]
+    rate = np.empty(nc)
+    unc = np.empty(nc)
+    npix = np.zeros(nc, int)
+    for k in range(nc):
         v = planes[k, y0:y1, x0:x1][~bad[k, y0:y1, x0:x1]].astype(np.float64) / x
         if v.size:
             med = np.median(v)
@@ -138,12 +144,12 @@ def region_rate(frame: Frame, box: Region | tuple[int, int, int, int] | None, *,
             if mad > 0:
                 v = v[np.abs(v - med) <= 5.0 * mad]
         if v.size < min_pixels:
-            raise CamcalError(f"plane {PLANES[k]}: only {v.size} usable pixels in the region (saturated or "
+            raise CamcalError(f"plane {names[k]}: only {v.size} usable pixels in the region (saturated or "
                               f"defective); need {min_pixels}", path)
         rate[k] = float(np.mean(v))
         unc[k] = float(np.std(v, ddof=1) / math.sqrt(v.size))
         npix[k] = v.size
-    return RegionRate(rate, unc, npix, x, tuple(notes))
+    return RegionRate(rate, unc, npix, x, tuple(notes), names)
 
 
 # ---- target spectra ----------------------------------------------------------------------------------------
@@ -224,7 +230,8 @@ def reflectance_target(name: str, reflectance_path: str | Path, irradiance_path:
 
 
 def predicted_rate(curves: SpectralSensitivity, target: TargetSpectrum) -> tuple[np.ndarray, np.ndarray]:
-    """P_i = ∫ c_rel,i(λ) L(λ) dλ per plane and its standard uncertainty (trapezoid on the curves' grid).
+    """P_i = ∫ c_rel,i(λ) L(λ) dλ per plane (``curves.plane_names``) and its standard uncertainty (trapezoid
+    on the curves' grid) from the target's spectrum.
 
     L is interpolated linearly onto the curves' wavelengths. Raises when the target's spectrum leaves
     more than :data:`MAX_UNCOVERED` of a channel's ∫c uncovered.
@@ -233,9 +240,10 @@ def predicted_rate(curves: SpectralSensitivity, target: TargetSpectrum) -> tuple
     inside = (wl >= target.wavelength_nm[0]) & (wl <= target.wavelength_nm[-1])
     L = np.where(inside, np.interp(wl, target.wavelength_nm, target.radiance), 0.0)
     uL = np.where(inside, np.interp(wl, target.wavelength_nm, target.radiance_unc), 0.0)
-    p = np.empty(4)
-    u = np.empty(4)
-    for k, plane in enumerate(PLANES):
+    names = curves.plane_names
+    p = np.empty(len(names))
+    u = np.empty(len(names))
+    for k, plane in enumerate(names):
         c = np.clip(curves.values[plane], 0.0, None)
         total = np.trapezoid(c, wl)
         if total <= 0:
@@ -251,6 +259,41 @@ def predicted_rate(curves: SpectralSensitivity, target: TargetSpectrum) -> tuple
         if p[k] <= 0:
             raise CamcalError(f"target {target.name!r} gives no signal in plane {plane} (∫ c L dλ = 0)")
     return p, u
+
+
+#: Correlation of a curve's uncertainty over wavelength: (weight, Gaussian length in nm) of two components,
+#: ρ(Δλ) = Σ w exp(−Δλ²/(2ℓ²)). Fitted to the differences between independent measurements of one camera model
+#: (the pairs of camcal.borrowed_uncertainty, in units of f: autocorrelation 0.62 at 10–20 nm, 0.43 at 40 nm,
+#: 0.28 at 60 nm, 0.12 at 80 nm, 0.03 at 100 nm; docs/spectral.md).
+CURVE_CORRELATION = ((0.38, 5.0), (0.62, 50.0))
+
+
+def curve_covariance(curves: SpectralSensitivity, targets: Sequence[TargetSpectrum],
+                     correlation: tuple[tuple[float, float], ...] = CURVE_CORRELATION) -> np.ndarray:
+    """Covariance of P_j = ∫ c_rel L_j dλ between targets caused by the curves' own u(c), (C, n, n).
+
+    u(c)(λ) is taken as correlated over wavelength with ρ(Δλ) = Σ w exp(−Δλ²/(2ℓ²)) (:data:`CURVE_CORRELATION`):
+    Cov(P_j, P_l) = Σ_λ Σ_λ' w_λ L_j(λ) u(λ) ρ(λ − λ') u(λ') L_l(λ') w_λ' (trapezoid weights w). The part of it
+    common to all targets is absorbed by k; the colour-dependent rest goes into the χ².
+    """
+    wl = curves.wavelength_nm
+    n = len(targets)
+    names = curves.plane_names
+    out = np.zeros((len(names), n, n))
+    if wl.size < 2 or not any(np.any(curves.uncertainty[q] > 0) for q in names):
+        return out
+    w = np.zeros_like(wl)
+    dw = np.diff(wl)
+    w[:-1] += dw / 2
+    w[1:] += dw / 2
+    L = np.array([np.where((wl >= t.wavelength_nm[0]) & (wl <= t.wavelength_nm[-1]),
+                           np.interp(wl, t.wavelength_nm, t.radiance), 0.0) for t in targets])  # (n, m)
+    dl = wl[:, None] - wl[None, :]
+    rho = sum(wt * np.exp(-0.5 * (dl / ell) ** 2) for wt, ell in correlation)
+    for i, q in enumerate(names):
+        a = L * (w * curves.uncertainty[q])[None, :]  # (n, m)
+        out[i] = a @ rho @ a.T
+    return out
 
 
 # ---- observations and the fit --------------------------------------------------------------------------------
@@ -301,13 +344,19 @@ def fit_scale(curves: SpectralSensitivity, observations: Sequence[TargetObservat
     """k per plane from one or more targets (module docstring: estimator, uncertainty, residuals)."""
     if not observations:
         raise CamcalError("no reference-target photos")
+    names = curves.plane_names
+    for ob in observations:
+        for rr in ob.rates:
+            if tuple(rr.channels) != tuple(names):
+                raise CamcalError(f"the curves have planes {', '.join(names)}, the photos of target "
+                                  f"{ob.target.name!r} {', '.join(rr.channels)}")
     n = len(observations)
     rates, urates, preds, upreds = [], [], [], []
     for ob in observations:
         r, ur = ob.rate()
         p, up = predicted_rate(curves, ob.target)
         rates.append(r), urates.append(ur), preds.append(p), upreds.append(up)
-    r, ur, p, up = (np.array(a) for a in (rates, urates, preds, upreds))  # (n, 4)
+    r, ur, p, up = (np.array(a) for a in (rates, urates, preds, upreds))  # (n, C)
     rel_p = up / p
     k = (r * p).sum(0) / (p * p).sum(0)
     for _ in range(6):
@@ -317,34 +366,40 @@ def fit_scale(curves: SpectralSensitivity, observations: Sequence[TargetObservat
     var = ur**2 + (k * p * rel_p) ** 2
     w = 1.0 / np.maximum(var, 1e-300)
     u_k = 1.0 / np.sqrt((w * p * p).sum(0))
-    z = (r - k * p) / np.sqrt(var)
+    cov_c = curve_covariance(curves, [ob.target for ob in observations])  # (C, n, n), the curves' own u(c)
+    var_tot = var + (k**2) * np.einsum("ijj->ji", cov_c)
+    z = (r - k * p) / np.sqrt(var_tot)
     resid = r / (k * p) - 1.0
     rows = []
     for j, ob in enumerate(observations):
         rows.append({"name": ob.target.name, "description": ob.target.description,
                      "photos": [q.name for q in ob.photos],
-                     "rate_dn_per_s": dict(zip(PLANES, r[j].tolist(), strict=True)),
-                     "rate_unc_dn_per_s": dict(zip(PLANES, ur[j].tolist(), strict=True)),
-                     "predicted": dict(zip(PLANES, p[j].tolist(), strict=True)),
-                     "predicted_unc_rel": dict(zip(PLANES, rel_p[j].tolist(), strict=True)),
-                     "residual_rel": dict(zip(PLANES, resid[j].tolist(), strict=True)),
-                     "z": dict(zip(PLANES, z[j].tolist(), strict=True))})
-    kd = dict(zip(PLANES, k.tolist(), strict=True))
-    ud = dict(zip(PLANES, u_k.tolist(), strict=True))
+                     "rate_dn_per_s": dict(zip(names, r[j].tolist(), strict=True)),
+                     "rate_unc_dn_per_s": dict(zip(names, ur[j].tolist(), strict=True)),
+                     "predicted": dict(zip(names, p[j].tolist(), strict=True)),
+                     "predicted_unc_rel": dict(zip(names, rel_p[j].tolist(), strict=True)),
+                     "residual_rel": dict(zip(names, resid[j].tolist(), strict=True)),
+                     "z": dict(zip(names, z[j].tolist(), strict=True))})
+    kd = dict(zip(names, k.tolist(), strict=True))
+    ud = dict(zip(names, u_k.tolist(), strict=True))
     if n == 1:
         rel = max(u_k / k)
         return AbsoluteScale(kd, ud, tuple(rows), None, 0, None, None,
                              f"one target: k set to ±{100 * rel:.2g} % (largest plane); a second target of another "
                              "colour would test whether the relative curves belong to this camera")
-    chi2 = float((z**2).sum())
-    dof = 4 * (n - 1)
+    chi2 = 0.0
+    for i in range(len(names)):  # χ² with the full covariance: photo noise + the curves' u(c), correlated over λ
+        res = r[:, i] - k[i] * p[:, i]
+        chi2 += float(res @ np.linalg.solve(np.diag(var[:, i]) + k[i] ** 2 * cov_c[i], res))
+    dof = len(names) * (n - 1)
     pv = float(stats.chi2.sf(chi2, dof))
     worst = float(np.max(np.abs(resid)))
+    basis = "their noise and the curves' u(c)" if np.any(cov_c) else "their noise"
     if pv >= CONSISTENCY_P:
-        verdict = (f"{n} targets agree within their noise (χ²/dof = {chi2 / dof:.3g}, p = {pv:.2g}; largest "
+        verdict = (f"{n} targets agree within {basis} (χ²/dof = {chi2 / dof:.3g}, p = {pv:.2g}; largest "
                    f"residual {100 * worst:.2g} %): the relative curves fit this camera")
     else:
-        verdict = (f"{n} targets disagree beyond their noise (χ²/dof = {chi2 / dof:.3g}, p = {pv:.2g}; largest "
+        verdict = (f"{n} targets disagree beyond {basis} (χ²/dof = {chi2 / dof:.3g}, p = {pv:.2g}; largest "
                    f"residual {100 * worst:.2g} %): the relative curves do not belong to this camera, or a "
                    "target's spectrum or the photos are wrong")
     return AbsoluteScale(kd, ud, tuple(rows), chi2, dof, pv, pv >= CONSISTENCY_P, verdict)
@@ -353,8 +408,9 @@ def fit_scale(curves: SpectralSensitivity, observations: Sequence[TargetObservat
 def scale_curves(curves: SpectralSensitivity, scale: AbsoluteScale, reference_iso: float,
                  reference_f_number: float) -> SpectralSensitivity:
     """Absolute c_i = k_i c_rel,i with u(c)² = (k u_rel)² + (c_rel u_k)² (u_k correlated over λ)."""
-    values = {p: scale.k[p] * curves.values[p] for p in PLANES}
-    unc = {p: np.hypot(scale.k[p] * curves.uncertainty[p], scale.k_unc[p] * curves.values[p]) for p in PLANES}
+    names = curves.plane_names
+    values = {p: scale.k[p] * curves.values[p] for p in names}
+    unc = {p: np.hypot(scale.k[p] * curves.uncertainty[p], scale.k_unc[p] * curves.values[p]) for p in names}
     out = dataclasses.replace(curves, values=values, uncertainty=unc,
                               notes=(*curves.notes, *scale.notes, scale.verdict))
     return as_absolute(out, reference_iso, reference_f_number)
@@ -441,8 +497,40 @@ def _model(obj, loader):
     return loader(obj) if isinstance(obj, str | Path) else obj
 
 
+def _first_photo(targets: str | Path) -> Frame:
+    """The first photo of ``targets.csv`` (its camera's make, model and layout)."""
+    groups = read_targets(targets)
+    path, overrides, _ = groups[0][1][0]
+    return load_frame(path, overrides)
+
+
+def library_match(name: str, *, base: CalibrationProfile | None = None, targets: str | Path | None = None,
+                  camera: CameraIdentity | None = None) -> Match:
+    """The curve-library camera for ``name``: a model name, or ``"auto"``: the make and model of ``base``'s camera,
+    else of the first target photo (its EXIF), else of ``camera``."""
+    if name != "auto":
+        return find_camera(name)
+    for ident in (base.camera if base else None, camera):
+        if ident is not None and ident.model:
+            return find_camera(make=ident.make, model=ident.model)
+    if targets is not None:
+        e = _first_photo(targets).exposure
+        if e.model:
+            return find_camera(make=e.make, model=e.model)
+    raise CamcalError("--camera auto: neither the profile nor the target photos name a camera model; give the model, "
+                      "e.g. --camera \"Canon EOS 5D Mark III\"")
+
+
+def _layout_of(base: CalibrationProfile | None, targets: str | Path | None, camera: CameraIdentity | None) -> str:
+    if base is not None:
+        return base.camera.layout
+    if targets is not None:
+        return "linear" if _first_photo(targets).layout == "linear" else "bayer"
+    return camera.layout if camera is not None else "bayer"
+
+
 def import_spectral(
-    curves_path: str | Path,
+    curves_path: str | Path | None = None,
     *,
     fmt: FileFormat = "auto",
     base: CalibrationProfile | None = None,
@@ -453,12 +541,17 @@ def import_spectral(
     dark=None,
     flat=None,
     camera: CameraIdentity | None = None,
+    library_camera: str | None = None,
 ) -> tuple[CalibrationProfile, AbsoluteScale | None]:
     """A profile whose spectral sensitivity comes from ``curves_path``, absolute through targets if given.
 
     Parameters
     ----------
-    curves_path : SPECTACLE CSV or plain table (:func:`camcal.spectral_files.read_spectral_file`).
+    curves_path : SPECTACLE CSV or plain table (:func:`camcal.spectral_files.read_spectral_file`); None with
+        ``library_camera``.
+    library_camera : a camera of the bundled curve library (:mod:`camcal.curve_library`), or ``"auto"`` (the make
+        and model of ``base``, else of the target photos); its relative curves carry the borrowed-curve
+        uncertainty (:mod:`camcal.borrowed_uncertainty`) and the profile names the library entry as its source.
     base : an existing profile to put the curves into (dark, flat, response and camera kept; its spectral
         sensitivity replaced; the curves resampled to its wavelength grid when it has one).
     targets : ``targets.csv`` (or its folder) of reference-target photos: the curves are taken as relative
@@ -472,8 +565,21 @@ def import_spectral(
     -------
     (profile, scale or None). The profile is not saved.
     """
-    path = Path(curves_path)
-    curves, used = read_spectral_file(path, fmt)
+    library_record = None
+    if library_camera is not None:
+        if curves_path is not None:
+            raise CamcalError("give a curve file or a library camera (--camera), not both")
+        if absolute:
+            raise CamcalError("the library's curves are relative: set their scale with reference targets")
+        match = library_match(library_camera, base=base, targets=targets, camera=camera)
+        curves, library_record, path = library_curves(match, _layout_of(base, targets, camera))
+        used = "rawtoaces"
+    elif curves_path is None:
+        raise CamcalError("give a curve file or a library camera (--camera)")
+    else:
+        path = Path(curves_path)
+        curves, used = read_spectral_file(path, fmt)
+        curves = with_layout(curves, _layout_of(base, targets, camera))
     ref_iso = reference_iso or (base.reference_iso if base else None) or (
         curves.reference_iso if curves.mode == "absolute" else 100.0)
     ref_n = reference_f_number or (base.reference_f_number if base else None) or (
@@ -499,7 +605,8 @@ def import_spectral(
             first = load_frame(obs[0].photos[0])
             h, w = first.shape
             e = first.exposure
-            camera = CameraIdentity(e.make, e.model, e.serial, first.cfa_pattern, w, h)
+            camera = CameraIdentity(e.make, e.model, e.serial, first.cfa_pattern, w, h,
+                                    "linear" if first.layout == "linear" else "bayer")
     elif absolute or curves.mode == "absolute":
         if curves.mode != "absolute":
             curves = as_absolute(curves, ref_iso, ref_n)
@@ -513,13 +620,16 @@ def import_spectral(
     grid_notes: list[str] = []
     if base is not None and base.spectral is not None:
         curves, grid_notes = resample(curves, base.spectral.wavelength_nm)
-    source = {"kind": "imported", "file": path.name, "sha256": inputs[0]["sha256"], "format": used,
-              "absolute_scale": absolute_scale}
+    source = {"kind": "library" if library_record else "imported", "file": path.name, "sha256": inputs[0]["sha256"],
+              "format": used, "absolute_scale": absolute_scale}
+    if library_record:
+        source["library"] = library_record
     if grid_notes:
         source["notes"] = grid_notes
     curves = dataclasses.replace(curves, source=source, reference_iso=float(ref_iso),
                                  reference_f_number=float(ref_n))
-    options = {"spectral_import": {"file": path.name, "format": used, "targets": None if targets is None
+    options = {"spectral_import": {"file": path.name, "format": used, "camera": library_camera,
+                                   "targets": None if targets is None
                                    else Path(targets).name, "absolute": bool(absolute),
                                    "reference_iso": ref_iso, "reference_f_number": ref_n}}
     created = datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")

@@ -259,7 +259,24 @@ class ResponseModel:
             return float(ch.rate_dn_per_s if math.isfinite(ch.rate_dn_per_s) else ch.alpha)
         return float(self.tone["channels"][channel]["linear_gain_dn_per_s"])  # type: ignore[index]
 
-    def linearise(self, values: np.ndarray, channel_axis: int = 0) -> np.ndarray:
+    def value_scale(self, file_white_dn: float | None) -> float:
+        """Processed only: the factor that brings a file's values onto the scale this response was fitted on.
+
+        A processed response is fitted on the calibration's files (8-bit JPEGs: white 255 DN); a photo of
+        another bit depth from the same camera (a 10-bit HEIC: white 1023 DN) holds the same tone-encoded
+        fraction v/W, so its values are multiplied by W_response / W_file, assuming the camera applies the
+        same tone curve at both depths. 1 for RAW, when the white levels agree, or when one is unknown.
+        """
+        if self.kind != "processed" or file_white_dn is None:
+            return 1.0
+        w_file, w_resp = float(file_white_dn), float(self.white_level_dn)
+        if not (math.isfinite(w_file) and math.isfinite(w_resp)) or w_file <= 0 or w_resp <= 0:
+            return 1.0
+        ratio = w_resp / w_file
+        return 1.0 if abs(ratio - 1.0) < 1e-9 else ratio
+
+    def linearise(self, values: np.ndarray, channel_axis: int = 0, *,
+                  white_level_dn: float | None = None) -> np.ndarray:
         """Pixel values -> linear signal proportional to exposure.
 
         Parameters
@@ -267,6 +284,8 @@ class ResponseModel:
         values : array with the channels along ``channel_axis`` (4 for raw in R, G1, G2, B order,
             3 for processed in R, G, B order), DN as in the files.
         channel_axis : axis holding the channels.
+        white_level_dn : processed only: the white level of the file the values come from, when it may differ
+            from the response's (:meth:`value_scale`); None: the values are on the response's scale.
 
         Returns
         -------
@@ -279,6 +298,9 @@ class ResponseModel:
         :meth:`linear_gain_dn_per_s`. Values below the curve's offset map to 0.
         """
         v = np.asarray(values, dtype=np.float64)
+        scale = self.value_scale(white_level_dn)
+        if scale != 1.0:
+            v = v * scale
         names = list(self.channels)
         v = np.moveaxis(v, channel_axis, 0)
         if v.shape[0] != len(names):

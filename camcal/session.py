@@ -98,7 +98,7 @@ class SessionIndex:
 
     root: Path
     stages: tuple[str, ...]
-    defaults: Mapping[str, float]
+    defaults: Mapping[str, float | str]
     frames: Mapping[str, StageFrames]
     sweep_manifest: Mapping[str, Row] | None = None
     inputs: Mapping[str, tuple[Path, ...]] = field(default_factory=dict)
@@ -129,7 +129,7 @@ def present_stages(session: str | Path) -> list[str]:
     return out
 
 
-def resolve_exposure(path: Path, row: Row | None, defaults: Mapping[str, float],
+def resolve_exposure(path: Path, row: Row | None, defaults: Mapping[str, float | str],
                      manifest_name: str = FRAMES_CSV) -> FrameRef:
     """What is known of one frame's exposure time, ISO and f-number without decoding it (module docstring).
 

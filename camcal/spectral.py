@@ -282,6 +282,10 @@ def describe_origin(src: dict[str, Any]) -> tuple[str, str]:
     """(where c(λ) came from, how its absolute scale was set) from :meth:`SpectralSensitivity.origin`."""
     if src.get("kind") == "sweep":
         where = "monochromator sweep (camcal sweep / calibrate)"
+    elif src.get("kind") == "library":
+        lib = src.get("library") or {}
+        where = (f"curve library: {lib.get('name')} ({lib.get('file')}, {lib.get('collection')}; measured by "
+                 f"{lib.get('creator') or 'unknown'}, {lib.get('license')}), matched from {lib.get('matched')}")
     else:
         where = (f"imported from {src.get('file')} ({src.get('format')} format, SHA-256 "
                  f"{str(src.get('sha256'))[:12]}…)")

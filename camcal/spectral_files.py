@@ -319,8 +319,8 @@ def resample(s: SpectralSensitivity, grid_nm: np.ndarray) -> tuple[SpectralSensi
     wl = s.wavelength_nm
     return dataclasses.replace(
         s, wavelength_nm=inside,
-        values={p: np.interp(inside, wl, s.values[p]) for p in PLANES},
-        uncertainty={p: np.interp(inside, wl, s.uncertainty[p]) for p in PLANES},
+        values={p: np.interp(inside, wl, s.values[p]) for p in s.plane_names},
+        uncertainty={p: np.interp(inside, wl, s.uncertainty[p]) for p in s.plane_names},
         notes=(*s.notes, *notes)), notes
 
 

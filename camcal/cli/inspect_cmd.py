@@ -8,15 +8,26 @@ import typer
 from rich.table import Table
 
 from camcal.cli.common import console, err_console, print_json
-from camcal.frame import TRACKED
-from camcal.inspect import describe, describe_many
+from camcal.frame import PLACE_TIME, TRACKED
+from camcal.inspect import SUN_KEYS, describe, describe_many
+from camcal.sun import parse_sun_option
 
-_UNITS = {"exposure_s": " s", "exposure_value_s": " s", "white_level_dn": " DN"}
+_UNITS = {"exposure_s": " s", "exposure_value_s": " s", "white_level_dn": " DN", "latitude_deg": "°",
+          "longitude_deg": "°", "altitude_m": " m", "zenith_deg": "°", "azimuth_deg": "°",
+          "apparent_zenith_deg": "°"}
+
+
+def _sun_rows(sun: dict) -> list[tuple[str, str]]:
+    if sun.get("source") is None:
+        return [(f"sun.{k}", "unknown") for k in SUN_KEYS[:2]] + [("sun.source", f"— ({sun.get('reason')})")]
+    return [(f"sun.{k}", f"{sun[k]:.3f}{_UNITS[k]}" if k != "source" else str(sun[k])) for k in SUN_KEYS]
 
 
 def _cell(key: str, info: dict) -> str:
     value = info[key]
-    if key in TRACKED:
+    if key == "capture_time_utc":
+        return "unknown" if value is None else f"{value}  ({info['time_source']})"
+    if key in TRACKED or key in PLACE_TIME:
         src = info["sources"][key]
         return "unknown" if value is None else f"{value}{_UNITS.get(key, '')}  ({src})"
     if value is None:
@@ -29,16 +40,22 @@ def _cell(key: str, info: dict) -> str:
 def register(app: typer.Typer) -> None:
     @app.command("inspect")
     def inspect_cmd(
-        files: list[Path] = typer.Argument(..., help="RAW, JPEG, TIFF or PNG files."),
+        files: list[Path] = typer.Argument(..., help="RAW, JPEG, HEIC/HEIF, TIFF or PNG files."),
         as_json: bool = typer.Option(False, "--json", help="Print machine-readable JSON (a list, one object a file)."),
+        sun_text: str | None = typer.Option(None, "--sun", metavar="ZENITH,AZIMUTH",
+                                            help="The sun's zenith angle and azimuth (degrees, azimuth clockwise "
+                                                 "from north), replacing the one computed from the photos' "
+                                                 "capture time and GPS position."),
     ) -> None:
-        """Show layout, CFA pattern, black/white levels, size and exposure metadata (value and source) of images.
+        """Show layout, CFA pattern, black/white levels, size, exposure metadata (value and source), capture
+        time (local, offset, UTC and its source), GPS position and the sun's position of images.
 
         Every readable file is reported; unreadable ones are listed (exit code 1 when some failed,
         2 when the only file given cannot be read).
         """
+        sun = parse_sun_option(sun_text) if sun_text is not None else None
         # one file: its error is the command's (exit 2); several: every readable one is reported
-        entries, failures = ([describe(files[0])], []) if len(files) == 1 else describe_many(files)
+        entries, failures = ([describe(files[0], sun)], []) if len(files) == 1 else describe_many(files, sun)
         if as_json:
             print_json(entries)
         else:
@@ -47,7 +64,10 @@ def register(app: typer.Typer) -> None:
                     continue
                 table = Table(title=str(info["file"]), show_header=False, title_justify="left")
                 for key in info:
-                    if key not in ("file", "sources", "error"):
+                    if key == "sun":
+                        for row in _sun_rows(info["sun"]):
+                            table.add_row(*row)
+                    elif key not in ("file", "sources", "error", "time_source"):
                         table.add_row(key, _cell(key, info))
                 console.print(table)
             if failures:

@@ -8,6 +8,7 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
+from camcal.borrowed_uncertainty import borrowed_table_rows, shipped_borrowed_uncertainty, shipped_table_sha256
 from camcal.cli.common import console, print_json, progress
 from camcal.emva import STANDARD, EmvaSheet, sheet_rows
 from camcal.errors import CamcalError
@@ -134,13 +135,32 @@ def print_spectral_source(src: dict) -> None:
     console.print(f"absolute scale: {how}", soft_wrap=True)
     a = src.get("absolute_scale") or {}
     if a.get("method") == "reference_targets":
-        table = Table("target", "photos", *(f"residual {p}" for p in ("R", "G1", "G2", "B")), title_justify="left")
+        planes = list(a["k"])
+        table = Table("target", "photos", *(f"residual {p}" for p in planes), title_justify="left")
         for t in a.get("targets") or []:
             table.add_row(t["name"], str(len(t.get("photos") or [])),
-                          *(f"{100 * t['residual_rel'][p]:+.3g} %" for p in ("R", "G1", "G2", "B")))
+                          *(f"{100 * t['residual_rel'][p]:+.3g} %" for p in planes))
         console.print(table)
-        console.print("k: " + ", ".join(f"{p} {a['k'][p]:.6g} ± {a['k_unc'][p]:.2g}" for p in ("R", "G1", "G2", "B")),
+        console.print("k: " + ", ".join(f"{p} {a['k'][p]:.6g} ± {a['k_unc'][p]:.2g}" for p in planes),
                       soft_wrap=True)
+    if src.get("library"):
+        print_borrowed_uncertainty(src["library"])
+
+
+def print_borrowed_uncertainty(lib: dict) -> None:
+    """The borrowed-curve uncertainty table a library-based profile's u(c) includes (docs/spectral.md)."""
+    table = shipped_borrowed_uncertainty()
+    rec = lib.get("borrowed_uncertainty") or {}
+    t = Table("λ (nm)", "u(c) R", "u(c) G", "u(c) B", title_justify="left",
+              title="borrowed-curve uncertainty u(c), % of each channel's peak (in the profile's u(c))")
+    for w, r, g, b in borrowed_table_rows(table):
+        t.add_row(f"{w:g}", f"{100 * r:.1f}", f"{100 * g:.1f}", f"{100 * b:.1f}")
+    console.print(t)
+    console.print(f"from {rec.get('table')} (SHA-256 {str(rec.get('sha256'))[:12]}…): the spread between independent "
+                  "measurements of one camera model; outside 400–700 nm the end values apply", soft_wrap=True)
+    if rec.get("sha256") != shipped_table_sha256():
+        console.print("[red]the profile was made with another version of this table; the rows above are this camcal's"
+                      "[/red]", soft_wrap=True)
 
 
 def _parse_size(text: str | None) -> tuple[int, int] | None:
@@ -186,8 +206,12 @@ def register(app: typer.Typer) -> None:
 
     @prof.command("import-spectral")
     def import_cmd(
-        curves: Path = typer.Argument(..., help="Spectral curves: a SPECTACLE CSV, or a plain table "
-                                      "wavelength_nm,R,G,B[,R_unc,G_unc,B_unc] (CSV, or space-separated .dat)."),
+        curves: Path | None = typer.Argument(None, help="Spectral curves: a SPECTACLE CSV, or a plain table "
+                                             "wavelength_nm,R,G,B[,R_unc,G_unc,B_unc] (CSV, or space-separated "
+                                             ".dat). Omit with --camera."),
+        camera_name: str | None = typer.Option(None, "--camera", help="Take the curves from the bundled library "
+                                               "(camcal curves list): a model, e.g. \"Canon EOS 5D Mark III\", or "
+                                               "auto (the make and model of --into or of the target photos)."),
         output: Path = typer.Option(..., "-o", "--output", help="Profile to write (.camcal)."),
         into: Path | None = typer.Option(None, "--into", help="Existing profile: keep its dark, flat, response and "
                                          "camera, replace its c(λ) (resampled to its wavelength grid)."),
@@ -211,6 +235,8 @@ def register(app: typer.Typer) -> None:
             raise CamcalError("output must be a .camcal file", output)
         if fmt not in ("auto", "spectacle", "plain"):
             raise CamcalError(f"--format must be auto, spectacle or plain, got {fmt!r}")
+        if (curves is None) == (camera_name is None):
+            raise CamcalError("give a curve file or --camera (the bundled library), one of them")
         if absolute and targets is not None:
             raise CamcalError("--absolute and --targets exclude each other: targets set the scale of relative curves")
         base = load_profile(into) if into is not None else None
@@ -224,7 +250,7 @@ def register(app: typer.Typer) -> None:
             bar.add_task("import spectral curves", total=None)
             prof, _ = import_spectral(curves, fmt=fmt, base=base, targets=targets, absolute=absolute,  # type: ignore[arg-type]
                                       reference_iso=reference_iso, reference_f_number=reference_f_number,
-                                      dark=dark, flat=flat, camera=camera)
+                                      dark=dark, flat=flat, camera=camera, library_camera=camera_name)
         saved = save_profile(prof, output)
         src = saved.spectral.origin()
         if as_json:

@@ -2,18 +2,22 @@
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 from pathlib import Path
 
+import numpy as np
 import typer
 from rich.table import Table
 
 from camcal.cli.common import console, err_console, print_json, progress
+from camcal.curve_library import with_layout
 from camcal.errors import CamcalError
 from camcal.plots import spectral_figure, write_png
 from camcal.region import Region
 from camcal.spectral import measure_sweep, read_sweep
 from camcal.spectral_files import write_spectacle_csv
+from camcal.sweep_means import sweep_means_sensitivity
 
 
 def _side_fraction(area_fraction: float) -> float:
@@ -23,10 +27,39 @@ def _side_fraction(area_fraction: float) -> float:
     return area_fraction ** 0.5
 
 
+def _means(means: Path, responsivity: Path | None, reduction: str, output: Path, png: Path | None,
+           as_json: bool) -> None:
+    if reduction not in ("camcal", "publisher"):
+        raise CamcalError(f"--reduction must be camcal or publisher, got {reduction!r}")
+    sens, red, readings = sweep_means_sensitivity(means, responsivity, reduction)  # type: ignore[arg-type]
+    sens = with_layout(dataclasses.replace(sens, source={
+        "kind": "sweep_means", "file": means.name, "sha256": readings.files[0]["sha256"], "format": "sweep_means",
+        "absolute_scale": {"method": "none", "description": "relative: the reference detector's responsivity is "
+                           "relative"}, "notes": [f"{f['file']} {f['sha256']}" for f in readings.files]}), "bayer")
+    write_spectacle_csv(sens, output)
+    png_path = png or output.with_suffix(".png")
+    write_png(spectral_figure(sens), png_path)
+    summary = sens.summary()
+    if as_json:
+        print_json({**summary, "output": str(output), "png": str(png_path), "reduction": reduction,
+                    "peak_response": {k: float(v.max()) for k, v in red.response.items()}})
+        return
+    table = Table(title=f"spectral sensitivity from sweep means ({reduction} reduction, relative)")
+    for col in ("channel", "peak λ (nm)", "peak response", "u at peak (%)", "λ_eff (nm)"):
+        table.add_column(col)
+    for ch, v in red.response.items():
+        k = int(np.argmax(v))
+        table.add_row(ch, f"{red.wavelength_nm[k]:g}", f"{v[k]:.5g}", f"{100 * red.uncertainty[ch][k] / v[k]:.2g}",
+                      f"{summary['effective_wavelength_nm'].get(ch, summary['effective_wavelength_nm']['G']):.1f}")
+    console.print(table)
+    console.print(f"wrote {output} (+ {output.stem}.meta.json) and {png_path}")
+
+
 def register(app: typer.Typer) -> None:
     @app.command("sweep")
     def sweep_cmd(
-        sweep: Path = typer.Argument(..., help="Sweep folder holding the frames and sweep.csv."),
+        sweep: Path | None = typer.Argument(None, help="Sweep folder holding the frames and sweep.csv (omit with "
+                                            "--means)."),
         output: Path = typer.Option(..., "-o", "--output", help="Output CSV (SPECTACLE layout); metadata goes to "
                                     "<stem>.meta.json beside it."),
         dark: Path | None = typer.Option(None, "--dark", help="Dark model (camcal dark -o dark.json)."),
@@ -44,11 +77,24 @@ def register(app: typer.Typer) -> None:
         png: Path | None = typer.Option(None, help="Plot of c(λ) (default <output stem>.png)."),
         jobs: int = typer.Option(2, help="Decoding threads."),
         as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
+        means: Path | None = typer.Option(None, "--means", help="A sweep measured elsewhere, as per-step channel "
+                                          "means: a CSV wavelength_nm,state,R,G,B,reference (docs/spectral.md) or "
+                                          "an open-data <name>_info.txt with _camera.dat and _diode.dat beside it."),
+        responsivity: Path | None = typer.Option(None, "--responsivity", help="With --means: the reference "
+                                                 "detector's responsivity, wavelength_nm,responsivity (default for "
+                                                 "an info.txt: the file its line 4 names, beside it)."),
+        reduction: str = typer.Option("camcal", "--reduction", help="With --means: camcal (dark = mean of the "
+                                      "darks around each lit reading) or publisher (dark before, clipped at 0)."),
     ) -> None:
         """Measure c(λ) for R, G1, G2, B and write a SPECTACLE CSV and a PNG plot."""
 
         if output.suffix.lower() != ".csv":
             raise CamcalError("output must be a .csv file", output)
+        if (sweep is None) == (means is None):
+            raise CamcalError("give a sweep folder or --means FILE, one of them")
+        if means is not None:
+            _means(means, responsivity, reduction, output, png, as_json)
+            return
         if mode not in ("absolute", "relative"):
             raise CamcalError(f"--mode must be absolute or relative, got {mode!r}")
         if roi is not None and roi_fraction is not None:

@@ -1,4 +1,4 @@
-"""``camcal synth session|photo``: write real synthetic DNG/JPEG files from known parameters."""
+"""``camcal synth session|photo``: write real synthetic DNG/JPEG/HEIC files from known parameters."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ from camcal.cli.common import console, progress
 from camcal.errors import CamcalError
 from camcal.spectra import WAVELENGTHS_NM, gaussian_line, planck_radiance
 from camcal.synth.camera import Scene, SyntheticCamera, preset
+from camcal.synth.exif import place_time_from_text
 from camcal.synth.messy import plant_problems
 from camcal.synth.session import STAGES, SessionPlan, write_session
 
@@ -83,7 +84,7 @@ def register(app: typer.Typer) -> None:
 
     @synth.command("photo")
     def photo_cmd(
-        out: Path = typer.Argument(..., help="Output file: .dng or .jpg."),
+        out: Path = typer.Argument(..., help="Output file: .dng, .jpg or .heic."),
         scene: str = typer.Option("uniform", help="uniform (flat spectrum), line (monochromator), lamp (black body)."),
         radiance: float = typer.Option(0.02, help="uniform: W m-2 sr-1 nm-1; line: band W m-2 sr-1; lamp: peak."),
         wavelength: float = typer.Option(663.0, help="line centre, nm."),
@@ -100,8 +101,24 @@ def register(app: typer.Typer) -> None:
         sensitivity: str = typer.Option("nikon-d5100"),
         preset_name: str = typer.Option("default", "--preset", help="Camera preset (see `synth session`)."),
         layout: str = typer.Option("bayer", help="DNG layout: bayer (CFA mosaic) or linear (LinearRaw R, G, B)."),
+        heic_bits: int = typer.Option(8, "--heic-bits", help="HEIC bit depth: 8 or 10."),
+        utc: str | None = typer.Option(None, "--utc", help="Capture instant, ISO 8601 (2026-06-21T10:30:00Z): "
+                                                            "written as DateTimeOriginal in the camera's zone, "
+                                                            "OffsetTimeOriginal and the GPS time stamp."),
+        utc_offset: str = typer.Option("+00:00", "--utc-offset", help="The camera clock's zone, +HH:MM "
+                                                                       "(with --utc)."),
+        gps: str | None = typer.Option(None, "--gps", help="GPS position LAT,LON[,ALT_M] (degrees north, east; "
+                                                            "m), with --utc."),
+        gps_time: bool = typer.Option(True, "--gps-time/--no-gps-time", help="Write the GPS time stamp (--utc)."),
+        offset_tag: bool = typer.Option(True, "--offset-tag/--no-offset-tag",
+                                        help="Write OffsetTimeOriginal (--utc)."),
     ) -> None:
-        """Write one synthetic photo of a simple scene as DNG or JPEG."""
+        """Write one synthetic photo of a simple scene as DNG, JPEG or HEIC, optionally with its capture time
+        and GPS position in the EXIF (--utc, --utc-offset, --gps)."""
+        if gps is not None and utc is None:
+            raise CamcalError("--gps needs --utc (the capture instant)")
+        place = (place_time_from_text(utc, gps, utc_offset, write_offset=offset_tag, write_gps_time=gps_time)
+                 if utc is not None else None)
 
         cam = _camera(pattern, bits, width, height, seed, sensitivity, preset_name)
         if scene == "uniform":
@@ -114,7 +131,7 @@ def register(app: typer.Typer) -> None:
         else:
             raise CamcalError(f"unknown scene {scene!r}; choose uniform, line or lamp")
         rng = np.random.default_rng(seed)
-        kw = dict(exposure_s=exposure, iso=iso, f_number=f_number, rng=rng)
+        kw = dict(exposure_s=exposure, iso=iso, f_number=f_number, rng=rng, place=place)
         suffix = out.suffix.lower()
         if layout not in ("bayer", "linear"):
             raise CamcalError(f"unknown layout {layout!r}; choose bayer or linear")
@@ -122,6 +139,10 @@ def register(app: typer.Typer) -> None:
             cam.write_dng(out, Scene.uniform(spectrum), layout=layout, **kw)
         elif suffix in (".jpg", ".jpeg"):
             cam.write_jpeg(out, Scene.uniform(spectrum), **kw)
+        elif suffix in (".heic", ".heif"):
+            if heic_bits not in (8, 10):
+                raise CamcalError(f"--heic-bits must be 8 or 10, got {heic_bits}")
+            cam.write_heic(out, Scene.uniform(spectrum), bits=heic_bits, **kw)
         else:
-            raise CamcalError("output must end in .dng or .jpg", out)
+            raise CamcalError("output must end in .dng, .jpg or .heic", out)
         console.print(f"wrote {out}")

@@ -22,6 +22,9 @@ from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
 from fractions import Fraction
 
+from camcal.errors import CamcalError
+from camcal.manifest import parse_utc_offset
+
 # TIFF field types
 _BYTE, _ASCII, _SHORT, _LONG, _RATIONAL, _UNDEFINED, _SRATIONAL = 1, 2, 3, 4, 5, 7, 10
 _TYPE_SIZE = {_BYTE: 1, _ASCII: 1, _SHORT: 2, _LONG: 4, _RATIONAL: 8, _UNDEFINED: 1, _SRATIONAL: 8}
@@ -155,6 +158,39 @@ class PlaceTime:
     @property
     def has_gps(self) -> bool:
         return (self.latitude_deg is not None and self.longitude_deg is not None) or self.write_gps_time
+
+
+def place_time_from_text(utc: str, gps: str | None = None, utc_offset: str = "+00:00", *,
+                         write_offset: bool = True, write_gps_time: bool = True) -> PlaceTime:
+    """A :class:`PlaceTime` from command-line text: ``utc`` an ISO 8601 instant (``2026-06-21T10:30:00Z``; a
+    time without a zone is UTC), ``gps`` ``LAT,LON`` or ``LAT,LON,ALT_M`` (degrees north and east, metres),
+    ``utc_offset`` the camera clock's zone ``+HH:MM``.
+
+    Raises
+    ------
+    CamcalError
+        Any part that does not parse or is out of range, in one line.
+    """
+    try:
+        when = datetime.fromisoformat(utc.strip().replace("Z", "+00:00").replace("z", "+00:00"))
+    except ValueError:
+        raise CamcalError(f"--utc {utc!r}: expected an ISO 8601 time such as 2026-06-21T10:30:00Z") from None
+    minutes = parse_utc_offset(utc_offset)
+    if minutes is None:
+        raise CamcalError(f"--utc-offset {utc_offset!r}: expected +HH:MM between -12:00 and +14:00")
+    lat = lon = alt = None
+    if gps is not None:
+        try:
+            parts = [float(x) for x in gps.split(",")]
+            if len(parts) not in (2, 3):
+                raise ValueError
+        except ValueError:
+            raise CamcalError(f"--gps {gps!r}: expected LAT,LON or LAT,LON,ALT_M (degrees, metres)") from None
+        lat, lon = parts[0], parts[1]
+        alt = parts[2] if len(parts) == 3 else None
+        if not (-90 <= lat <= 90 and -180 <= lon <= 180) or (lat == 0 and lon == 0):
+            raise CamcalError(f"--gps {gps!r}: latitude must be in [-90, 90], longitude in [-180, 180], not 0,0")
+    return PlaceTime(when, minutes, lat, lon, alt, write_offset=write_offset, write_gps_time=write_gps_time)
 
 
 def _dms(value_deg: float) -> list[float]:

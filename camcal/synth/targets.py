@@ -65,6 +65,7 @@ def write_target_photos(
     stated_unc_rel: float = 0.002,
     seed: int = 18,
     reflectance: dict[str, tuple[np.ndarray, np.ndarray]] | None = None,
+    layout: str = "bayer",
 ) -> Path:
     """Photograph each target (real DNGs) and write its spectrum file and ``targets.csv``; returns the CSV.
 
@@ -77,6 +78,7 @@ def write_target_photos(
     n_photos : photos per target.
     level : brightest channel's level on axis, fraction of full scale.
     stated_unc_rel : the relative uncertainty the "spectroradiometer" states (column ``scale_unc_rel``).
+    layout : ``"bayer"`` (CFA DNGs) or ``"linear"`` (LinearRaw DNGs of R, G1, B: a linear-RAW camera).
     """
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
@@ -102,7 +104,7 @@ def write_target_photos(
         for k in range(n_photos):
             photo = f"{name}_{k:02d}.dng"
             camera.write_dng(folder / photo, Scene.uniform(radiance), exposure_s=t, iso=iso, f_number=n,
-                             rng=next(rngs))
+                             rng=next(rngs), layout=layout)
             rows.append({"file": photo, "target": name, "radiance": files.get("radiance", ""),
                          "reflectance": files.get("reflectance", ""), "irradiance": files.get("irradiance", ""),
                          "scale_unc_rel": stated_unc_rel})
