@@ -20,7 +20,8 @@ def register(app: typer.Typer) -> None:
         output: Path = typer.Option(..., "-o", "--output", help="Output dark model (.json, maps beside it)."),
         method: str = typer.Option("sigma_clip", "--method", help="Combination of darks: mean, median, sigma_clip."),
         sigma: float = typer.Option(3.0, "--sigma", help="Sigma-clipping threshold."),
-        jobs: int = typer.Option(2, "--jobs", "-j", help="Decoding threads (capped at the usable cores)."),
+        jobs: int = typer.Option(2, "--jobs", "-j", help="CPU cores to use (decoding threads; "
+                                                         "capped at the usable cores)."),
         as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON instead of a table."),
     ) -> None:
         """Fit bias, read noise, dark current and defects from bias and dark frames."""

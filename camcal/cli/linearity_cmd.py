@@ -20,7 +20,7 @@ def register(app: typer.Typer) -> None:
     @app.command("linearity")
     def linearity_cmd(
         folder: Path = typer.Argument(..., help="Exposure series of a constant source (SESSION/linearity)."),
-        out: Path = typer.Option(..., "-o", "--out", help="Response file to write (.json)."),
+        out: Path = typer.Option(..., "-o", "--output", help="Response file to write (.json)."),
         roi: str | None = typer.Option(None, "--roi", help="Region x,y,w,h in photo pixels at full resolution "
                                        "(rounded outward to whole plane pixels)."),
         roi_fraction: float | None = typer.Option(None, "--roi-fraction", help="A centred region holding this "

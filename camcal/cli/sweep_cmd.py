@@ -8,7 +8,7 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
-from camcal.cli.common import console, err_console, print_json, progress
+from camcal.cli.common import console, err_console, plot_path, print_json, progress
 from camcal.errors import CamcalError
 from camcal.plots import spectral_figure, write_png
 from camcal.region import Region
@@ -31,7 +31,8 @@ def register(app: typer.Typer) -> None:
                                     "<stem>.meta.json beside it."),
         dark: Path | None = typer.Option(None, "--dark", help="Dark model (camcal dark -o dark.json)."),
         flat: Path | None = typer.Option(None, "--flat", help="Flat model (camcal flat -o flat.json)."),
-        mode: str = typer.Option("absolute", help="absolute (DN s^-1 per W m^-2 sr^-1 at the reference setting) "
+        mode: str = typer.Option("absolute", "--sweep-mode", help="absolute (DN s^-1 per W m^-2 sr^-1 at the "
+                                 "reference setting) "
                                  "or relative (peak 1)."),
         roi: str | None = typer.Option(None, "--roi", help="Region x,y,w,h in photo pixels at full resolution "
                                        "(rounded outward to whole plane pixels)."),
@@ -41,8 +42,9 @@ def register(app: typer.Typer) -> None:
         slit: str = typer.Option("gaussian", help="Slit function shape for --deconvolve: gaussian or triangular."),
         reference_iso: float = typer.Option(100.0, help="Reference ISO of the absolute result."),
         reference_f_number: float = typer.Option(4.0, help="Reference f-number of the absolute result."),
-        png: Path | None = typer.Option(None, help="Plot of c(λ) (default <output stem>.png)."),
-        jobs: int = typer.Option(2, help="Decoding threads."),
+        plot: bool = typer.Option(True, "--plot/--no-plot", help="Write the plot of c(λ) to <output stem>.png."),
+        png: Path | None = typer.Option(None, "--png", hidden=True, help="Deprecated: the plot's path."),
+        jobs: int = typer.Option(2, "--jobs", "-j", min=1, help="CPU cores to use (decoding threads)."),
         as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
     ) -> None:
         """Measure c(λ) for R, G1, G2, B and write a SPECTACLE CSV and a PNG plot."""
@@ -50,7 +52,7 @@ def register(app: typer.Typer) -> None:
         if output.suffix.lower() != ".csv":
             raise CamcalError("output must be a .csv file", output)
         if mode not in ("absolute", "relative"):
-            raise CamcalError(f"--mode must be absolute or relative, got {mode!r}")
+            raise CamcalError(f"--sweep-mode must be absolute or relative, got {mode!r}")
         if roi is not None and roi_fraction is not None:
             raise CamcalError("give --roi or --roi-fraction, not both")
         region: Region | float | None = Region.parse(roi) if roi is not None else None
@@ -68,8 +70,9 @@ def register(app: typer.Typer) -> None:
         for msg in dict.fromkeys(" ".join(str(w.message).split()) for w in caught):
             err_console.print(f"camcal: warning: {msg}", soft_wrap=True, markup=False, highlight=False)
         write_spectacle_csv(result, output)
-        png_path = png or output.with_suffix(".png")
-        write_png(spectral_figure(result), png_path)
+        png_path = plot_path(png, plot, output.with_suffix(".png"))
+        if png_path is not None:
+            write_png(spectral_figure(result), png_path)
         summary = result.summary()
         if as_json:
             print_json({**summary, "output": str(output), "png": str(png_path)})
@@ -83,4 +86,4 @@ def register(app: typer.Typer) -> None:
                           f"{summary['effective_wavelength_nm'][ch]:.1f}",
                           f"{summary['effective_bandwidth_nm'][ch]:.1f}")
         console.print(table)
-        console.print(f"wrote {output} (+ {output.stem}.meta.json) and {png_path}")
+        console.print(f"wrote {output} (+ {output.stem}.meta.json)" + (f" and {png_path}" if png_path else ""))
