@@ -176,7 +176,14 @@ def _stats(channels: dict, options: BatchOptions, mask_image, where: Path, meta:
     shape = next(iter(channels.values())).shape
     scale = 1 if (meta or {}).get("resolution") == LINEAR_RESOLUTION_NOTE else 2
     m = roi_mask(shape, options.roi, mask_image, where, scale=scale)
-    return tuple(roi_statistics(channels, m))
+    return tuple(roi_statistics({k: channels[k] for k in sorted(channels, key=_channel_order)}, m))
+
+
+def _channel_order(name: str) -> tuple:
+    """One row order for a fresh result and one read back from its EXR: R, G, B, L<λ>, L<λ>_unc, R_unc, G_unc, B_unc."""
+    rgb = {"R": 0, "G": 1, "B": 2}
+    base = name.removesuffix("_unc")
+    return (name.endswith("_unc") and base in rgb, rgb.get(base, 3), name.endswith("_unc"), name)
 
 
 def exr_datetime(capture_time: str | None) -> str:
