@@ -66,6 +66,7 @@ from pathlib import Path
 
 import numpy as np
 
+from camcal.camera_id import Sensor, match, sensor_of, sensor_of_profile
 from camcal.correct import Calibration, correct_planes
 from camcal.errors import CamcalError
 from camcal.exposure import frame_relative_exposure
@@ -220,19 +221,24 @@ def prepare(
     return ApplyPlan(profile, model, flat_planes, flat_rgb, options, prnu_rel, cal, rgb_cal)
 
 
-def check_camera(exposure, profile, path: Path | None, allow_other_camera: bool = False) -> list[str]:
-    """Refuse a photo from another camera model than the profile's (make and model); returns notes.
+def check_camera(exposure, profile, path: Path | None, allow_other_camera: bool = False,
+                 frame: Frame | None = None) -> list[str]:
+    """Refuse a photo from another camera than the profile's; returns notes.
 
+    One camera under two software names passes (:mod:`camcal.camera_id`: the make normalised, a writer's
+    placeholder model such as PiDNG's with the same sensor geometry, CFA and layout), with a note.
     A photo without make/model metadata cannot be checked: a note says so.
     """
     cam = profile.camera
     make, model = exposure.make, exposure.model
     if not make and not model:
         return ["photo has no camera make/model metadata: camera not checked"]
-    same = (str(make or "").strip().lower(), str(model or "").strip().lower()) == (
-        str(cam.make or "").strip().lower(), str(cam.model or "").strip().lower())
+    photo = Sensor(make, model)
+    if frame is not None and frame.layout != "processed":  # a JPEG's size and levels are not the RAW's
+        photo = replace(sensor_of(frame), make=make, model=model)
+    same, note = match(photo, sensor_of_profile(cam))
     if same:
-        return []
+        return [note] if note else []
     msg = f"photo is from {make} {model}, the profile is for {cam.make} {cam.model}"
     if not allow_other_camera:
         raise CamcalError(f"{msg}; use a profile of this camera (or --allow-other-camera)", path)
@@ -440,7 +446,7 @@ def apply_prepared(frame: Frame, plan: ApplyPlan, *, allow_other_camera: bool = 
     """
     profile = plan.profile
     path = frame.path
-    notes = check_camera(frame.exposure, profile, path, allow_other_camera)
+    notes = check_camera(frame.exposure, profile, path, allow_other_camera, frame)
     x = frame_relative_exposure(frame.exposure, profile.reference_iso, profile.reference_f_number, path)
     t = frame.exposure.require("exposure_s", path)
     iso = frame.exposure.require("iso", path)

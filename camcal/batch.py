@@ -39,6 +39,7 @@ from camcal.apply import (
     roi_statistics,
 )
 from camcal.atomic import atomic_write_text
+from camcal.camera_id import Sensor, could_match, sensor_of_profile
 from camcal.errors import CamcalError
 from camcal.exr import read_exr, read_exr_header, write_exr
 from camcal.io import exposure_from_exif, folder_manifest, is_raw_path, list_frames, load_frame
@@ -299,6 +300,9 @@ def preflight(profile_path: str | Path, photos: Sequence[Path], options: BatchOp
                 exp = exposure_from_exif(p)
             except Exception:  # noqa: BLE001 - unreadable files fail later, per photo
                 continue
+            if exp.make or exp.model:
+                if could_match(Sensor(exp.make, exp.model), sensor_of_profile(plan.profile.camera)):
+                    continue  # one camera, perhaps under a writer's name: the photo's own check decides
             check_camera(exp, plan.profile, p, False)
     return plan
 

@@ -43,6 +43,7 @@ import numpy as np
 from camcal.correct import Calibration, correct_planes, dark_frame
 from camcal.errors import CamcalError, MissingMetadataError
 from camcal.frame import PATTERNS, PLANES, RGB, Frame
+from camcal.hashing import sha256_file
 from camcal.io import exposure_from_exif
 from camcal.optimize import nelder_mead
 from camcal.session import StageFrames, folder_of, stage_files
@@ -282,6 +283,36 @@ def _check_stacks(stacks: list[StackResult], where: Path) -> float:
     return _same_iso(stacks, where)
 
 
+def refuse_shared_frames(dark_files: list[Path], bias_files: list[Path]) -> None:
+    """Refuse a frame given both as a dark and as a bias frame (the same file, or a copy of it).
+
+    The same exposure counted twice fits a dark current of exactly zero with zero uncertainty, which reads like
+    a measurement. A copy is found by content: files of equal size are compared by their SHA-256.
+
+    Raises
+    ------
+    CamcalError
+        Naming both files.
+    """
+    if not dark_files or not bias_files:
+        return
+    by_size: dict[int, list[Path]] = {}
+    for p in bias_files:
+        by_size.setdefault(p.stat().st_size, []).append(p)
+    hashes: dict[Path, str] = {}
+
+    def digest(p: Path) -> str:
+        if p not in hashes:
+            hashes[p] = sha256_file(p)
+        return hashes[p]
+
+    for d in dark_files:
+        for b in by_size.get(d.stat().st_size, ()):
+            if d.resolve() == b.resolve() or digest(d) == digest(b):
+                raise CamcalError(f"is given twice: as a dark frame and as the bias frame {b} (the same exposure "
+                                  "cannot be both); give each frame once", d)
+
+
 def stack_darks(
     dark: str | Path | StageFrames | None,
     bias: str | Path | StageFrames | None = None,
@@ -324,6 +355,7 @@ def stack_darks(
         groups.setdefault(float(f"{t:.6g}"), []).append(p)
     bias_files, bias_manifest = stage_files(bias) if bias is not None else ([], {})
     bias_folder = folder_of(bias) if bias is not None else None
+    refuse_shared_frames(files, bias_files)
     if bias_folder is None and len(groups) < 2:
         (t0,) = groups
         raise CamcalError(f"all {len(files)} dark frames have one exposure time ({t0:g} s); the dark-current fit "

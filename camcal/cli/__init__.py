@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import importlib
 import sys
+import warnings
 from collections.abc import Sequence
 
 import typer
@@ -100,6 +101,9 @@ def main(argv: list[str] | None = None) -> int:
 
 def _main(argv: list[str] | None) -> int:
     usage_error = _usage_error_type()
+    # floating-point warnings (an empty slice, 0/0 in a masked pixel) are handled where they arise (NaN with a
+    # reason, a refused frame); the user sees results and one-line errors, never numpy's warnings
+    warnings.filterwarnings("ignore", category=RuntimeWarning)
     try:
         args = rewrite(sys.argv[1:] if argv is None else [str(a) for a in argv])
         register_commands(commands_for(args))

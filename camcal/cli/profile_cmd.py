@@ -27,7 +27,7 @@ def print_contract(c: dict, title: str = "profile") -> None:
     """A human summary of the contract object (one table per calibrated stage)."""
     cam = c["camera"]
     sensor = cam["cfa_pattern"] or f"{cam.get('layout') or 'linear'} RAW"
-    console.print(f"[bold]{title}[/bold]: {cam['make']} {cam['model']} (serial {cam['serial']}), "
+    console.print(f"[bold]{title}[/bold]: {cam['make']} {cam['model']} (serial {cam['serial'] or 'unknown'}), "
                   f"{sensor} {cam['width']}x{cam['height']}, reference ISO {c['reference']['iso']:g} "
                   f"f/{c['reference']['f_number']:g}, schema {c['schema_version']}")
     rows = []
@@ -53,6 +53,8 @@ def print_contract(c: dict, title: str = "profile") -> None:
         table.add_row(name, unit, *(_fmt((vals or {}).get(ch)) for ch in ("R", "G", "B")))
     console.print(table)
     stages = [k for k in ("dark", "flat", "response", "spectral_sensitivity") if c[k] is None]
+    if c["dark"] and all(v is None for v in (c["dark"].get("dark_current_dn_per_s") or {}).values()):
+        stages.insert(0, "dark current (bias frames only)")
     if stages:
         console.print(f"not calibrated: {', '.join(stages)}")
     if c["dark"]:
