@@ -78,3 +78,25 @@ def test_dark_bias_alone_and_frames_given_twice(session_dir, tmp_path):
     proc = run_cli("dark", tmp_path / "dark", "--bias", session_dir / "bias", "-o", tmp_path / "d.json", "-j", "1")
     assert_one_line_error(proc, "given twice", first.name)
     assert_one_line_error(run_cli("dark", "-o", tmp_path / "d.json"), "--bias")
+
+
+def test_inspect_reads_frames_csv_through_the_session_index(session_dir, tmp_path):
+    root = tmp_path / "S"
+    (root / "dark").mkdir(parents=True)
+    frames = sorted((session_dir / "dark").glob("*.dng"))[:4]
+    for p in frames:
+        shutil.copy(p, root / "dark" / p.name)
+    rows = (session_dir / "dark" / "frames.csv").read_text().splitlines()
+    keep = [rows[0]] + [r for r in rows[1:] if r.split(",")[0] in {p.name for p in frames}]
+    first = keep[1].split(",")
+    tag_s = float(first[1])
+    first[1] = repr(tag_s + 0.5)  # the manifest says otherwise than the file's tag
+    (root / "dark" / "frames.csv").write_text("\n".join([keep[0], ",".join(first), *keep[2:]]) + "\n")
+    proc = run_cli("inspect", root / "dark" / frames[0].name, "--json")
+    assert proc.returncode == 0, proc.stderr
+    info = json.loads(proc.stdout)[0]
+    assert info["exposure_s"] == tag_s + 0.5 and info["sources"]["exposure_s"] == "frames.csv"
+    # a file outside any session: its own tag
+    shutil.copy(frames[0], tmp_path / frames[0].name)
+    info = json.loads(run_cli("inspect", tmp_path / frames[0].name, "--json").stdout)[0]
+    assert info["exposure_s"] == tag_s and info["sources"]["exposure_s"] == "tag"
