@@ -110,7 +110,7 @@ def test_both_real_cameras_load_into_profiles(tmp_path):
         made = {}
         for src in (dat, csv):
             out = tmp_path / f"{src.stem}.camcal"
-            proc = run_cli("profile", "import-spectral", src, "--make", "X", "--model", dat.stem, "--size",
+            proc = run_cli("profile", "import-spectral", src, "--make", "X", "--camera-model", dat.stem, "--size",
                            "6000x4000", "-o", out, "--json")
             assert proc.returncode == 0, proc.stderr
             rec = json.loads(proc.stdout)

@@ -27,6 +27,7 @@ DEPRECATED: dict[tuple[str, ...], dict[str, str]] = {
     ("flat",): {"--model": "--vignetting-model"},
     ("sweep",): {"--mode": "--sweep-mode"},
     ("calibrate",): {"--flat-model": "--vignetting-model"},
+    ("profile", "import-spectral"): {"--model": "--camera-model"},
 }
 
 

@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
-from camcal.cli.common import console, print_json, progress
+from camcal.cli.common import console, fraction, print_json, progress
 from camcal.errors import CamcalError
 from camcal.profile import CameraIdentity, contract, diff_profiles, load_profile, save_profile
 from camcal.reference_targets import import_spectral
@@ -130,7 +130,8 @@ def register(app: typer.Typer) -> None:
         dark: Path | None = typer.Option(None, "--dark", help="Dark model for the target photos (camcal dark)."),
         flat: Path | None = typer.Option(None, "--flat", help="Flat model for the target photos (camcal flat)."),
         make: str | None = typer.Option(None, help="Camera make of a new profile without photos."),
-        model: str | None = typer.Option(None, help="Camera model of a new profile without photos."),
+        model: str | None = typer.Option(None, "--camera-model", help="Camera model of a new profile without "
+                                         "photos."),
         size: str | None = typer.Option(None, help="Sensor size WIDTHxHEIGHT of a new profile without photos."),
         as_json: bool = typer.Option(False, "--json", help="Print the spectral source record as JSON."),
     ) -> None:
@@ -182,7 +183,8 @@ def register(app: typer.Typer) -> None:
     def diff_cmd(
         a: Path = typer.Argument(..., help="First profile."),
         b: Path = typer.Argument(..., help="Second profile."),
-        rel_tol: float = typer.Option(0.0, help="Ignore relative changes up to this size."),
+        rel_tol: float = typer.Option(0.0, parser=fraction, help="Ignore relative changes up to this size "
+                                      "('1%' or 0.01)."),
         as_json: bool = typer.Option(False, "--json", help="Print the differences as JSON."),
     ) -> None:
         """List what differs between two profiles (relative change of every number)."""

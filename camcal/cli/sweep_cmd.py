@@ -8,7 +8,7 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
-from camcal.cli.common import console, err_console, plot_path, print_json, progress
+from camcal.cli.common import console, err_console, fraction, plot_path, print_json, progress
 from camcal.errors import CamcalError
 from camcal.plots import spectral_figure, write_png
 from camcal.region import Region
@@ -36,7 +36,8 @@ def register(app: typer.Typer) -> None:
                                  "or relative (peak 1)."),
         roi: str | None = typer.Option(None, "--roi", help="Region x,y,w,h in photo pixels at full resolution "
                                        "(rounded outward to whole plane pixels)."),
-        roi_fraction: float | None = typer.Option(None, "--roi-fraction", help="A centred region holding this "
+        roi_fraction: float | None = typer.Option(None, "--roi-fraction", parser=fraction, help="('4%' or 0.04) "
+                                                  "A centred region holding this "
                                                   "fraction of the area (default 0.04: a fifth of each side)."),
         deconvolve: bool = typer.Option(False, help="Remove the monochromator slit function (needs bandwidth_nm)."),
         slit: str = typer.Option("gaussian", help="Slit function shape for --deconvolve: gaussian or triangular."),

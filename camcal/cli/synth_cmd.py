@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import typer
 
-from camcal.cli.common import console, progress
+from camcal.cli.common import console, one_output, progress
 from camcal.errors import CamcalError
 from camcal.spectra import WAVELENGTHS_NM, gaussian_line, planck_radiance
 from camcal.synth.camera import Scene, SyntheticCamera, preset
@@ -29,7 +29,8 @@ def register(app: typer.Typer) -> None:
 
     @synth.command("session")
     def session_cmd(
-        outdir: Path = typer.Argument(..., help="Session folder to create."),
+        outdir_arg: Path | None = typer.Argument(None, metavar="SESSION", help="Session folder to create (or -o)."),
+        outdir_opt: Path | None = typer.Option(None, "-o", "--output", help="Session folder to create."),
         preset_name: str = typer.Option("default", "--preset",
                                          help="Camera preset: default, imx296 (10-bit, sub-DN read noise, "
                                               "black 60, 1456x1088 BGGR), hot (0.3 % hot pixels that saturate "
@@ -47,6 +48,7 @@ def register(app: typer.Typer) -> None:
                                             help="No f-number in any file or manifest; one in session.toml."),
     ) -> None:
         """Write a whole calibration session (bias, dark, flat, linearity, sweep) with truth.json."""
+        outdir = one_output(outdir_arg, outdir_opt, "the session folder")
 
         chosen = tuple(s.strip() for s in stages.split(",") if s.strip())
         bad = [s for s in chosen if s not in STAGES]
@@ -69,7 +71,8 @@ def register(app: typer.Typer) -> None:
 
     @synth.command("photo")
     def photo_cmd(
-        out: Path = typer.Argument(..., help="Output file: .dng or .jpg."),
+        out_arg: Path | None = typer.Argument(None, metavar="FILE", help="Output file: .dng or .jpg (or -o)."),
+        out_opt: Path | None = typer.Option(None, "-o", "--output", help="Output file: .dng or .jpg."),
         scene: str = typer.Option("uniform", help="uniform (flat spectrum), line (monochromator), lamp (black body)."),
         radiance: float = typer.Option(0.02, help="uniform: W m-2 sr-1 nm-1; line: band W m-2 sr-1; lamp: peak."),
         wavelength: float = typer.Option(663.0, help="line centre, nm."),
@@ -88,6 +91,7 @@ def register(app: typer.Typer) -> None:
         layout: str = typer.Option("bayer", help="DNG layout: bayer (CFA mosaic) or linear (LinearRaw R, G, B)."),
     ) -> None:
         """Write one synthetic photo of a simple scene as DNG or JPEG."""
+        out = one_output(out_arg, out_opt, "the output file")
 
         cam = _camera(pattern, bits, width, height, seed, sensitivity, preset_name)
         if scene == "uniform":

@@ -196,19 +196,27 @@ def _band(m, profile, band_channel, illuminant, chlorophyll_csv, background_abso
     return band
 
 
-def _pixel_geometry(model: str, size: str, centre: str | None, direction_deg: float):
+def _pixel_geometry(model: str, size: str, centre: str | None, direction_deg: float, per_cell: int = 1):
+    """The per-pixel lamp geometry on the EXR's grid from options in photo pixels.
+
+    ``--disk-pixel-size`` is one photo pixel's size on the disk plane and ``--disk-centre-px`` the disk centre in
+    photo pixels (full resolution, as every pixel option); an EXR cell holds ``per_cell`` × ``per_cell`` photo
+    pixels, its centre at photo coordinate per_cell·i + (per_cell − 1)/2.
+    """
 
     if model != "lamp":
         raise CamcalError("--disk-pixel-size (per-pixel geometry) is for --water-model lamp")
     if not centre:
-        raise CamcalError("--disk-pixel-size needs --disk-centre-px x,y (the disk centre in EXR pixels)")
+        raise CamcalError("--disk-pixel-size needs --disk-centre-px x,y (the disk centre in photo pixels)")
     try:
         cx, cy = (float(v) for v in centre.split(","))
     except ValueError:
         raise CamcalError(f"--disk-centre-px must be x,y in pixels, got {centre!r}") from None
     if not (np.isfinite(direction_deg) and np.isfinite(cx) and np.isfinite(cy)):
         raise CamcalError("--disk-centre-px and --lamp-direction must be finite numbers")
-    return PixelGeometry(parse_length_m(size), (cx, cy), float(direction_deg))
+    k = float(per_cell)
+    return PixelGeometry(parse_length_m(size) * k, ((cx - (k - 1) / 2) / k, (cy - (k - 1) / 2) / k),
+                         float(direction_deg))
 
 
 def _unc_summary(terms: dict, inputs: list) -> dict:
@@ -358,10 +366,11 @@ def register(app: typer.Typer) -> None:
         background_absorption: float = common["background_absorption"], reflectance: str = common["reflectance"],
         transmittance: str = common["transmittance"], lamp_height: str = common["lamp_height"],
         lamp_angle: str = common["lamp_angle"], epsilon_unc: str = common["epsilon_unc"],
-        disk_pixel_size: str = typer.Option(None, help="lamp, EXR: size of one pixel on the disk plane (e.g. "
-                                            "'0.8mm'): invert each pixel with its own lamp geometry, not the "
-                                            "disk centre's (needs --disk-centre-px)."),
-        disk_centre_px: str = typer.Option(None, help="lamp, per pixel: the disk centre in EXR pixels, 'x,y'."),
+        disk_pixel_size: str = typer.Option(None, help="lamp, EXR: size of one photo pixel on the disk plane "
+                                            "(e.g. '0.4mm'): invert each pixel with its own lamp geometry, not "
+                                            "the disk centre's (needs --disk-centre-px)."),
+        disk_centre_px: str = typer.Option(None, help="lamp, per pixel: the disk centre in photo pixels at full "
+                                           "resolution, 'x,y'."),
         lamp_direction: float = typer.Option(180.0, help="lamp, per pixel: direction in the image from the disk "
                                              "centre toward the lamp, degrees from +x toward +y (180: left)."),
     ) -> None:
@@ -423,8 +432,8 @@ def register(app: typer.Typer) -> None:
                 raise CamcalError(f"is {w}x{h} pixels but the reference {reference.name} is {rw}x{rh}; the two images "
                                   "must have one size (same camera, same crop)", submerged)
             region = None
+            per_cell = pixels_per_output_cell(sub_meta.get("resolution")) or 1
             if roi:
-                per_cell = pixels_per_output_cell(sub_meta.get("resolution")) or 1
                 ys, xs = Region.parse(roi).window((h, w), per_cell, submerged)
                 region = (xs.start, ys.start, xs.stop - xs.start, ys.stop - ys.start)
                 meta["roi"] = {"photo_pixels": roi, "exr_pixels_x_y_w_h": list(region),
@@ -436,7 +445,7 @@ def register(app: typer.Typer) -> None:
             elif relative_sigma is not None:
                 kwargs = {"sigma_submerged": relative_sigma * np.abs(sub[channel].astype(float))}
             if disk_pixel_size is not None:
-                pg = _pixel_geometry(model, disk_pixel_size, disk_centre_px, lamp_direction)
+                pg = _pixel_geometry(model, disk_pixel_size, disk_centre_px, lamp_direction, per_cell)
                 kwargs["pixel_geometry"] = pg
                 meta["lamp_geometry"] = {"per_pixel": True, "metres_per_pixel": pg.metres_per_pixel,
                                          "disk_centre_px": list(pg.centre_px), "lamp_direction_deg": lamp_direction}
