@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import warnings
+from collections import Counter
 from pathlib import Path
 
 import typer
@@ -10,8 +11,10 @@ from rich.table import Table
 
 from camcal.cli.common import console, err_console, fraction, plot_path, print_json, progress
 from camcal.errors import CamcalError
+from camcal.manifest import session_defaults_for
 from camcal.plots import spectral_figure, write_png
 from camcal.region import Region
+from camcal.session import resolve_exposure
 from camcal.spectral import measure_sweep, read_sweep
 from camcal.spectral_files import write_spectacle_csv
 
@@ -21,6 +24,28 @@ def _side_fraction(area_fraction: float) -> float:
     if not 0.0 < area_fraction <= 1.0:
         raise CamcalError(f"--roi-fraction must be in (0, 1], got {area_fraction!r}")
     return area_fraction ** 0.5
+
+
+def _frames_setting(folder: Path, rows) -> tuple[float, float]:
+    """The sweep frames' most common (ISO, f-number), from sweep.csv, the tags and session.toml: never a default.
+
+    Raises
+    ------
+    CamcalError
+        When a value is unknown, saying what to add.
+    """
+    defaults = session_defaults_for(folder)
+    seen: Counter = Counter()
+    for row in rows:
+        ref = resolve_exposure(row.path, row.overrides, defaults, "sweep.csv")
+        seen[(ref.iso, ref.f_number)] += 1
+    (iso, n), _ = seen.most_common(1)[0]
+    for value, what, column, option in ((iso, "ISO", "iso", "--reference-iso"),
+                                        (n, "f-number", "f_number", "--reference-f-number")):
+        if value is None:
+            raise CamcalError(f"the reference {what} is unknown: the sweep frames hold none (no tag, no {column} "
+                              f"column in sweep.csv, no session.toml); add one or pass {option}", folder)
+    return float(iso), float(n)
 
 
 def register(app: typer.Typer) -> None:
@@ -41,8 +66,10 @@ def register(app: typer.Typer) -> None:
                                                   "fraction of the area (default 0.04: a fifth of each side)."),
         deconvolve: bool = typer.Option(False, help="Remove the monochromator slit function (needs bandwidth_nm)."),
         slit: str = typer.Option("gaussian", help="Slit function shape for --deconvolve: gaussian or triangular."),
-        reference_iso: float = typer.Option(100.0, help="Reference ISO of the absolute result."),
-        reference_f_number: float = typer.Option(4.0, help="Reference f-number of the absolute result."),
+        reference_iso: float | None = typer.Option(None, help="Reference ISO of the absolute result (default: the "
+                                                   "sweep frames' most common ISO)."),
+        reference_f_number: float | None = typer.Option(None, help="Reference f-number of the absolute result "
+                                                        "(default: the sweep frames' most common f-number)."),
         plot: bool = typer.Option(True, "--plot/--no-plot", help="Write the plot of c(λ) to <output stem>.png."),
         png: Path | None = typer.Option(None, "--png", hidden=True, help="Deprecated: the plot's path."),
         jobs: int = typer.Option(2, "--jobs", "-j", min=1, help="CPU cores to use (decoding threads)."),
@@ -59,7 +86,12 @@ def register(app: typer.Typer) -> None:
         region: Region | float | None = Region.parse(roi) if roi is not None else None
         if roi_fraction is not None:  # measure_sweep takes a fraction of each side: the area's square root
             region = _side_fraction(roi_fraction)
-        total = len(read_sweep(sweep))
+        rows = read_sweep(sweep)
+        total = len(rows)
+        if reference_iso is None or reference_f_number is None:
+            iso, n = _frames_setting(sweep, rows)
+            reference_iso = iso if reference_iso is None else reference_iso
+            reference_f_number = n if reference_f_number is None else reference_f_number
         with warnings.catch_warnings(record=True) as caught, progress() as bar:
             warnings.simplefilter("always")
             task = bar.add_task("sweep frames", total=total)
