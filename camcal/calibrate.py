@@ -13,15 +13,18 @@ from dataclasses import asdict, dataclass, replace
 from datetime import UTC, datetime
 from pathlib import Path
 
+import numpy as np
+
 from camcal import __version__
 from camcal.camera_id import Sensor, match, preferred, sensor_of
 from camcal.colour import fit_colour_matrix, twin_pairs
 from camcal.dark import DarkOptions, fit_dark_stacks, stack_darks, with_dead_pixels
+from camcal.emva import build_sheet
 from camcal.errors import CamcalError
-from camcal.flat import DEAD_RESPONSE, FlatOptions, dead_pixels, fit_flat_with
+from camcal.flat import DEAD_RESPONSE, FlatOptions, dead_pixels, fit_master, flat_prnu, master_flat
 from camcal.hashing import sha256_file
 from camcal.io import load_frame
-from camcal.manifest import SESSION_DEFAULTS
+from camcal.manifest import SESSION_DEFAULTS, session_camera_facts
 from camcal.profile import CalibrationProfile, CameraIdentity, Provenance
 from camcal.response import fit_series_set, measure_series
 from camcal.session import STAGES, SessionIndex, index_session, present_stages
@@ -148,6 +151,14 @@ def _reference(index: SessionIndex, opts: CalibrateOptions) -> tuple[float, floa
                       "--reference-f-number", session)
 
 
+def _flat_mask(master, dark):
+    """Pixels left out of the flat's PRNU: masked in every frame, and the dark model's defects."""
+    mask = ~np.isfinite(master.value)
+    if dark is not None and dark.defects.shape == mask.shape:
+        mask |= dark.defects != 0
+    return mask
+
+
 def calibrate_session(
     session: str | Path, options: CalibrateOptions | None = None, progress: Progress | None = None
 ) -> tuple[CalibrationProfile, list[str]]:
@@ -169,18 +180,24 @@ def calibrate_session(
 
     dark = flat = spectral = None
     response = None
+    dark_stacks = master = prnu = pairs = None
     bias_frames = index.stage("bias")
     if "dark" in stages:
         dark_opts = DarkOptions(method=opts.dark_method)
-        dark = fit_dark_stacks(stack_darks(index.frames["dark"], bias_frames, dark_opts, jobs=opts.jobs,
-                                           progress=cb("dark")), dark_opts)
+        dark_stacks = stack_darks(index.frames["dark"], bias_frames, dark_opts, jobs=opts.jobs, progress=cb("dark"))
+        dark = fit_dark_stacks(dark_stacks, dark_opts)
     elif bias_frames is not None:
-        dark = fit_dark_stacks(stack_darks(None, bias_frames, jobs=opts.jobs, progress=cb("bias")))
+        dark_stacks = stack_darks(None, bias_frames, jobs=opts.jobs, progress=cb("bias"))
+        dark = fit_dark_stacks(dark_stacks)
         notes.append("bias/ without dark/: bias, read noise and noisy pixels calibrated; dark current unknown "
                      "(apply subtracts the bias only; add dark frames at two exposure times to measure it)")
     if "flat" in stages:
-        flat = fit_flat_with(index.frames["flat"], dark, FlatOptions(model=opts.flat_model), jobs=opts.jobs,
-                             progress=cb("flat"))
+        flat_opts = FlatOptions(model=opts.flat_model)
+        master = master_flat(index.frames["flat"], dark, method=flat_opts.method, sigma=flat_opts.sigma,
+                             checks=flat_opts.checks, jobs=opts.jobs, progress=cb("flat"))
+        flat = fit_master(master, dark, **flat_opts.fit_kwargs())
+        if master.mean_all is not None:
+            prnu = flat_prnu(master, flat, _flat_mask(master, dark))
         dead = dead_pixels(flat)
         if dark is not None:
             dark = with_dead_pixels(dark, dead, f"flat response below {DEAD_RESPONSE:g} of the model")
@@ -188,8 +205,10 @@ def calibrate_session(
             notes.append(f"{int(dead.sum())} dead pixels in the flats are not kept: without a dark model the "
                          "profile has no defect map")
     if "linearity" in stages:
-        response = fit_series_set(measure_series(index.frames["linearity"], dark=dark, reference_iso=ref_iso,
-                                                 reference_f_number=ref_n, progress=cb("linearity")))
+        series = measure_series(index.frames["linearity"], dark=dark, reference_iso=ref_iso,
+                                reference_f_number=ref_n, progress=cb("linearity"))
+        pairs = series["raw"].pairs if "raw" in series else None
+        response = fit_series_set(series)
     if "sweep" in stages:
         sweep = index.frames["sweep"]
         rows = sweep_rows(sweep.folder, index.sweep_manifest) if index.sweep_manifest is not None else None
@@ -209,6 +228,14 @@ def calibrate_session(
             else:
                 notes.append("JPEG response without a colour matrix (the sweep has no JPEG twins): JPEG radiance "
                              "assumes the camera does not mix its channels")
+    emva = None
+    if dark is not None or pairs is not None or prnu is not None:
+        channels = dark.plane_names if dark is not None else (flat.channels if flat is not None else
+                                                              tuple(series["raw"].channels))
+        emva = build_sheet(channels=tuple(channels), iso=dark.iso if dark is not None else ref_iso,
+                           dark_stacks=dark_stacks, dark=dark, master_flat=master, flat_prnu=prnu, pairs=pairs,
+                           spectral=spectral, pixel_pitch_um=session_camera_facts(session / stages[0]).get(
+                               "pixel_pitch_um"))
     provenance = Provenance(
         camcal_version=__version__,
         created_utc=datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
@@ -216,5 +243,6 @@ def calibrate_session(
         options={**asdict(opts), "session": session.name, "stages": stages},
     )
     profile = CalibrationProfile(camera=camera, reference_iso=ref_iso, reference_f_number=ref_n, dark=dark,
-                                 flat=flat, response=response, spectral=spectral, provenance=provenance)
+                                 flat=flat, response=response, spectral=spectral, emva=emva,
+                                 provenance=provenance)
     return profile, notes

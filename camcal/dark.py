@@ -39,15 +39,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from scipy.optimize import minimize
+from scipy.special import ndtr
+from scipy.stats import chi2
 
 from camcal.correct import Calibration, correct_planes, dark_frame
 from camcal.errors import CamcalError, MissingMetadataError
 from camcal.frame import PATTERNS, PLANES, RGB, Frame
 from camcal.hashing import sha256_file
 from camcal.io import exposure_from_exif
-from camcal.optimize import nelder_mead
 from camcal.session import StageFrames, folder_of, stage_files
-from camcal.special import chi2_isf, ndtr
 from camcal.stack import MAD_TO_SIGMA, METHODS, StackResult, combine_frames
 from camcal.store import load_stage, save_stage
 
@@ -566,9 +567,9 @@ def quantised_noise_fit(first: np.ndarray, second: np.ndarray, eps: float = 1e-4
     Each pixel records ``k_f = round(μ + o_f + σ·z_f)`` in frame f: μ its own mean (spread over the plane as a
     normal distribution of standard deviation ``dsnu``), o_f a frame offset (jitter) and z_f standard normal.
     The joint histogram of the pairs (k_1, k_2) is fitted by maximum likelihood of this model (cell
-    probabilities integrated exactly over the rounding with the normal CDF :func:`camcal.special.ndtr`,
+    probabilities integrated exactly over the rounding with the normal CDF :func:`scipy.special.ndtr`,
     Gauss–Hermite over μ), with a small uniform outlier weight ``eps``, minimised by the Nelder–Mead simplex
-    (:func:`camcal.optimize.nelder_mead`, as scipy's). This is right where ``var − 1/12`` (Sheppard's
+    (:func:`scipy.optimize.minimize`, ``method="Nelder-Mead"``). This is right where ``var − 1/12`` (Sheppard's
     correction, EMVA 1288 eq. 4) is not: when σ and the spread of the pixel means are both below ~0.5 DN, so
     that the fractional parts of μ are not uniform (a 10-bit IMX296 at black level 60: σ ≈ 0.38 DN, while
     ``var − 1/12`` gives 0.35–0.38 and the raw temporal standard deviation 0.45–0.48).
@@ -607,7 +608,8 @@ def quantised_noise_fit(first: np.ndarray, second: np.ndarray, eps: float = 1e-4
         prob = (1 - eps) * prob + eps / (n * n)
         return -float(np.sum(hist * np.log(prob)))
 
-    res = nelder_mead(nll, [m0, float(d.mean()), np.log(sd0), np.log(s0)], xatol=1e-5, fatol=1e-4, maxiter=4000)
+    res = minimize(nll, [m0, float(d.mean()), np.log(sd0), np.log(s0)], method="Nelder-Mead",
+                   options={"xatol": 1e-5, "fatol": 1e-4, "maxiter": 4000})
     _, o, lsd, ls = res.x
     return float(np.exp(ls)), float(np.exp(lsd)), float(o)
 
@@ -618,7 +620,7 @@ def temporal_noise(stack: StackResult, var_t: np.ndarray, defects: np.ndarray, n
     Per plane, the model variance v̂ is the mean per-pixel temporal variance over good pixels (the top 0.1 %
     left out). A pixel is *noisy* when its variance exceeds v̂ by more than the chi-square bound a normal pixel
     passes with probability 1e-6 and by ``noisy_sigma`` standard errors of a variance (√(2/dof)); the chi-square
-    quantile is :func:`camcal.special.chi2_isf`. A zero temporal variance is not a defect: below 1 DN of noise
+    quantile is ``scipy.stats.chi2.isf``. A zero temporal variance is not a defect: below 1 DN of noise
     most pixels read one value in every frame. Where the temporal noise is below :data:`SUB_DN_NOISE`, the read
     noise is :func:`quantised_noise_fit` of consecutive frame pairs (the first :data:`QUANTISED_FIT_FRAMES`
     frames of the stack, ``stack.kept_planes``), else ``√(var − 1/12)``.
@@ -627,7 +629,7 @@ def temporal_noise(stack: StackResult, var_t: np.ndarray, defects: np.ndarray, n
     dof = float(np.median(stack.count)) - 1.0
     bound = 1.0
     if dof >= 1:
-        bound = max(chi2_isf(1e-6, dof) / dof, 1.0 + noisy_sigma * math.sqrt(2.0 / dof))
+        bound = max(float(chi2.isf(1e-6, dof)) / dof, 1.0 + noisy_sigma * math.sqrt(2.0 / dof))
     temporal = np.zeros(c)
     noisy = np.zeros(var_t.shape, bool)
     for k in range(c):

@@ -44,6 +44,7 @@ PLAUSIBLE_RANGE: dict[str, tuple[float, float]] = {
     "iso": (1.0, 1e7),
     "f_number": (0.5, 1000.0),
     "temperature_C": (-273.15, 500.0),
+    "pixel_pitch_um": (0.1, 100.0),
     "wavelength_nm": (100.0, 3000.0),
     "bandwidth_nm": (1e-3, 1000.0),
     "radiance_W_m2_sr": (0.0, 1e30),
@@ -203,13 +204,18 @@ SESSION_KEYS: dict[str, str] = {
     "temperature_C": "temperature_c",
 }
 
+#: Keys of ``session.toml`` that state facts of the camera rather than of each frame (not Exposure fields):
+#: ``pixel_pitch_um``, the pixel pitch in µm (the quantum efficiency of :mod:`camcal.emva` needs the pixel area).
+CAMERA_KEYS: tuple[str, ...] = ("pixel_pitch_um",)
+
 MAX_SESSION_DEFAULTS_BYTES = 64 * 1024
 
-_DEFAULTS_CACHE: dict[tuple[str, int, int], dict[str, float]] = {}
+_DEFAULTS_CACHE: dict[tuple[str, int, int], tuple[dict[str, float], dict[str, float]]] = {}
 
 
 def read_session_defaults(path: str | Path) -> dict[str, float]:
-    """Read a ``session.toml`` into :class:`camcal.frame.Exposure` keywords.
+    """Read a ``session.toml`` into :class:`camcal.frame.Exposure` keywords (camera facts,
+    :data:`CAMERA_KEYS`, are checked too and left to :func:`session_camera_facts`).
 
     The file is TOML with top-level keys from :data:`SESSION_KEYS` (``f_number``, ``iso``,
     ``exposure_s`` in s, ``temperature_C`` in °C), each a number within :data:`PLAUSIBLE_RANGE`.
@@ -221,16 +227,21 @@ def read_session_defaults(path: str | Path) -> dict[str, float]:
     -------
     dict such as ``{"f_number": 2.8}`` (Exposure field names).
     """
-    path = Path(path)
+    return _read_session_toml(Path(path))[0]
+
+
+def _read_session_toml(path: Path) -> tuple[dict[str, float], dict[str, float]]:
+    """(Exposure keywords, camera facts) of a ``session.toml`` (see :func:`read_session_defaults`)."""
     text = read_text_file(path, "session defaults file", MAX_SESSION_DEFAULTS_BYTES)
     try:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise CamcalError(f"is not valid TOML: {exc}", path) from None
     out: dict[str, float] = {}
+    camera: dict[str, float] = {}
     for key, value in doc.items():
-        if key not in SESSION_KEYS:
-            raise CamcalError(f"unknown key {key!r} (known: {', '.join(SESSION_KEYS)})", path)
+        if key not in SESSION_KEYS and key not in CAMERA_KEYS:
+            raise CamcalError(f"unknown key {key!r} (known: {', '.join([*SESSION_KEYS, *CAMERA_KEYS])})", path)
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise CamcalError(f"key {key!r} must be a number, got {value!r}", path)
         v = float(value)
@@ -241,8 +252,11 @@ def read_session_defaults(path: str | Path) -> dict[str, float]:
             raise CamcalError(f"key {key!r} must be positive, got {value}", path)
         if not lo <= v <= hi:
             raise CamcalError(f"key {key!r} value {value} is outside the plausible range [{lo:g}, {hi:g}]", path)
-        out[SESSION_KEYS[key]] = v
-    return out
+        if key in CAMERA_KEYS:
+            camera[key] = v
+        else:
+            out[SESSION_KEYS[key]] = v
+    return out, camera
 
 
 def find_session_defaults(folder: str | Path) -> Path | None:
@@ -256,17 +270,27 @@ def find_session_defaults(folder: str | Path) -> Path | None:
     return None
 
 
-def session_defaults_for(folder: str | Path) -> dict[str, float]:
-    """:func:`read_session_defaults` of :func:`find_session_defaults` (``{}`` when none), cached by
-    file identity (path, size, modification time)."""
+def _session_toml_for(folder: str | Path) -> tuple[dict[str, float], dict[str, float]]:
     p = find_session_defaults(folder)
     if p is None:
-        return {}
+        return {}, {}
     try:
         st = p.stat()
     except OSError as exc:
         raise CamcalError(f"cannot read session defaults file: {exc.strerror}", p) from None
     key = (str(p.resolve()), st.st_size, st.st_mtime_ns)
     if key not in _DEFAULTS_CACHE:
-        _DEFAULTS_CACHE[key] = read_session_defaults(p)
-    return dict(_DEFAULTS_CACHE[key])
+        _DEFAULTS_CACHE[key] = _read_session_toml(p)
+    return _DEFAULTS_CACHE[key]
+
+
+def session_defaults_for(folder: str | Path) -> dict[str, float]:
+    """:func:`read_session_defaults` of :func:`find_session_defaults` (``{}`` when none), cached by
+    file identity (path, size, modification time)."""
+    return dict(_session_toml_for(folder)[0])
+
+
+def session_camera_facts(folder: str | Path) -> dict[str, float]:
+    """The camera facts (:data:`CAMERA_KEYS`, e.g. ``{"pixel_pitch_um": 3.45}``) of the ``session.toml`` that
+    applies to ``folder`` (:func:`find_session_defaults`); ``{}`` when none."""
+    return dict(_session_toml_for(folder)[1])

@@ -25,6 +25,7 @@ import numpy as np
 from camcal import __version__
 from camcal.container import read_container, write_container
 from camcal.dark import DarkModel, dark_from_parts, dark_to_parts
+from camcal.emva import SHEET_KEYS, EmvaSheet
 from camcal.errors import CamcalError
 from camcal.flat import FlatModel, flat_from_parts, flat_to_parts
 from camcal.frame import PLANES, RGB
@@ -33,8 +34,9 @@ from camcal.spectral import SpectralSensitivity, spectral_from_dict, spectral_to
 from camcal.store import to_jsonable
 
 FORMAT = "camcal-profile"
-SCHEMA_VERSION = "1.3"  # 1.1: optional response.processed.colour_matrix; 1.2: optional spectral_sensitivity.source;
+SCHEMA_VERSION = "1.4"  # 1.1: optional response.processed.colour_matrix; 1.2: optional spectral_sensitivity.source;
 # 1.3: camera.layout, dark.layout, dark.dark_current_known, dark channels temporal_noise_dn, R, G, B planes (linear RAW)
+# 1.4: optional emva1288 section (EMVA 1288 summary: K from photon transfer, DSNU, PRNU, saturation, SNR, DR, LE)
 SUPPORTED_MAJOR = 1
 SPECTRAL_UNITS_DEFAULT = "DN s^-1 per (W m^-2 sr^-1 nm^-1) per nm at ISO_ref, f/N_ref, on axis"
 
@@ -78,6 +80,9 @@ class CalibrationProfile:
     response : dict of camcal.response.ResponseModel, keyed ``raw`` / ``processed``, or None
     spectral : camcal.spectral.SpectralSensitivity or None
         Absolute c(λ) in DN s^-1 per (W m^-2 sr^-1 nm^-1) per nm at the reference setting, on axis.
+    emva : camcal.emva.EmvaSheet or None
+        The EMVA 1288 summary (system gain K from photon transfer, DSNU, PRNU, saturation, SNR_max, dynamic
+        range, linearity error); the noise model uses its K (:meth:`camcal.correct.Calibration.of`).
     provenance : Provenance
     schema_version : str
     content_sha256 : str or None
@@ -91,6 +96,7 @@ class CalibrationProfile:
     flat: FlatModel | None = None
     response: dict[str, ResponseModel] | None = None
     spectral: SpectralSensitivity | None = None
+    emva: EmvaSheet | None = None
     provenance: Provenance = field(default_factory=lambda: Provenance(__version__, ""))
     schema_version: str = SCHEMA_VERSION
     content_sha256: str | None = None
@@ -153,6 +159,7 @@ def profile_to_document(profile: CalibrationProfile) -> tuple[dict, dict[str, np
         if stage_maps:
             names[key] = [f"{key}.{m}" for m in stage_maps]
             maps.update({f"{key}.{m}": np.asarray(a, np.float32) for m, a in stage_maps.items()})
+    doc["emva1288"] = None if profile.emva is None else to_jsonable(profile.emva.to_dict())
     p = profile.provenance
     doc["provenance"] = to_jsonable({"camcal_version": p.camcal_version, "created_utc": p.created_utc,
                                      "inputs": list(p.inputs), "options": p.options})
@@ -249,6 +256,12 @@ def profile_from_document(doc: dict, maps: dict[str, np.ndarray], where: str | P
         stages[attr] = _stage_from_parts(key, data, stage_maps, where)
     cam = doc["camera"]
     prov = doc["provenance"]
+    emva = None
+    if doc.get("emva1288"):
+        try:
+            emva = EmvaSheet.from_dict(doc["emva1288"])
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+            raise CamcalError(f"emva1288 section is malformed ({type(exc).__name__}: {exc})", where) from None
     return CalibrationProfile(
         camera=CameraIdentity(cam["make"], cam["model"], cam["serial"], cam["cfa_pattern"], int(cam["width"]),
                               int(cam["height"]), str(cam.get("layout") or "bayer")),
@@ -258,6 +271,7 @@ def profile_from_document(doc: dict, maps: dict[str, np.ndarray], where: str | P
                               dict(prov["options"])),
         schema_version=doc["schema_version"],
         content_sha256=doc.get("integrity", {}).get("content_sha256"),
+        emva=emva,
         **stages,
     )
 
@@ -372,6 +386,12 @@ def contract(profile: CalibrationProfile) -> dict:
         }
     else:
         out["spectral_sensitivity"] = None
+    if profile.emva is not None:  # per plane, as in the profile file (planes R, G1, G2, B or R, G, B)
+        out["emva1288"] = {"iso": profile.emva.iso,
+                           "channels": {c: {k: v.get(k) for k in SHEET_KEYS} | {"K_source": v.get("K_source")}
+                                        for c, v in profile.emva.channels.items()}}
+    else:
+        out["emva1288"] = None
     p = profile.provenance
     out["provenance"] = {"camcal_version": p.camcal_version, "created_utc": p.created_utc, "n_inputs": len(p.inputs),
                          "options": p.options}

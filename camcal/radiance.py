@@ -50,10 +50,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.interpolate import CubicSpline
 
 from camcal.errors import CamcalError
 from camcal.spectra import planck_radiance
-from camcal.spline import cubic_spline
 
 RGB = ("R", "G", "B")
 ESTIMATORS = ("narrowband", "smooth")
@@ -93,12 +93,12 @@ FWHM_TO_SIGMA = 1.0 / (2.0 * np.sqrt(2.0 * np.log(2.0)))
 
 
 def _interp(wl: np.ndarray, values: np.ndarray, at: float, derivative: int = 0) -> float:
-    """Not-a-knot cubic-spline value (or derivative) of a sampled curve at ``at`` (camcal.spline); NaN outside."""
+    """Not-a-knot cubic-spline value (or derivative) of a sampled curve at ``at`` (scipy CubicSpline); NaN outside."""
     if not wl[0] <= at <= wl[-1]:
         return float("nan")
     if wl.size < 4:
         return float(np.interp(at, wl, values)) if derivative == 0 else 0.0
-    return float(cubic_spline(wl, values)(at, derivative))
+    return float(CubicSpline(wl, values)(at, derivative))
 
 
 def smooth_operator(wavelength_nm: np.ndarray, c: np.ndarray, length_nm: float = 60.0, eps: float = 1e-6) -> np.ndarray:

@@ -44,6 +44,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy import stats
 
 from camcal import __version__
 from camcal.correct import Calibration, correct_frame
@@ -57,7 +58,6 @@ from camcal.io import load_frame
 from camcal.manifest import exposure_overrides, read_manifest, safe_member
 from camcal.profile import SCHEMA_VERSION, CalibrationProfile, CameraIdentity, Provenance
 from camcal.region import Region
-from camcal.special import chi2_sf
 from camcal.spectral import DEFAULT_ROI_FRACTION, SpectralSensitivity, central_roi
 from camcal.spectral_files import FileFormat, as_absolute, read_spectral_file, read_table, resample
 
@@ -338,7 +338,7 @@ def fit_scale(curves: SpectralSensitivity, observations: Sequence[TargetObservat
                              "colour would test whether the relative curves belong to this camera")
     chi2 = float((z**2).sum())
     dof = 4 * (n - 1)
-    pv = chi2_sf(chi2, dof)
+    pv = float(stats.chi2.sf(chi2, dof))
     worst = float(np.max(np.abs(resid)))
     if pv >= CONSISTENCY_P:
         verdict = (f"{n} targets agree within their noise (χ²/dof = {chi2 / dof:.3g}, p = {pv:.2g}; largest "

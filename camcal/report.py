@@ -16,6 +16,10 @@ Sections, in pipeline order:
   and the relative residuals; one figure per kind (RAW, processed/JPEG).
 * **Spectral sensitivity** c(λ) (seed §3.1): R, G (mean of G1 and G2), B with ±1 standard
   uncertainty bands, and G1 against G2.
+* **EMVA 1288 summary** (release 4.0): the standard's data-sheet figures per plane, in its order
+  (:func:`camcal.emva.sheet_rows`): system gain K from photon transfer, temporal dark noise, absolute
+  sensitivity threshold, saturation capacity, SNR_max, dynamic range, linearity error, dark current,
+  DSNU and PRNU with their uncertainties, the noise left in the flat map.
 * Tables of the numbers of the JSON contract (:func:`camcal.profile.contract`), the contract itself,
   and the provenance (camcal version, creation date, input files, options, content hash).
 
@@ -37,6 +41,7 @@ from typing import Any
 
 from camcal import __version__
 from camcal.atomic import atomic_write_text
+from camcal.emva import STANDARD, sheet_rows
 from camcal.errors import CamcalError
 from camcal.frame import PLANES
 from camcal.plots import dark_figure, flat_figure, png_bytes, response_figure, spectral_figure
@@ -253,6 +258,43 @@ def _spectral_source_html(src: dict) -> str:
     return out
 
 
+def _emva_section(profile) -> str:
+    """The EMVA 1288 summary sheet: operating point, then the figures per plane in the standard's order."""
+    sheet = profile.emva
+    planes = list(sheet.channels)
+    sp = sheet.spatial
+    point = [["standard", STANDARD], ["ISO", f"{sheet.iso:g}"]]
+    for row in sheet.photon_transfer:
+        point.append([f"photon transfer, ISO {row['iso']:g}", f"{row.get('pairs', 0)} frame pairs of the "
+                      "linearity series, K fitted up to 70 % of saturation"])
+    if sp.get("dsnu_frames"):
+        point.append(["DSNU", f"average of {sp['dsnu_frames']} dark frames at {sp['dsnu_exposure_s']:g} s, "
+                      "temporal noise / L removed (eq. 36)"])
+    if sp.get("prnu_frames"):
+        point.append(["PRNU", f"average of {sp['prnu_frames']} flats about the vignetting model, temporal noise / L "
+                      "removed (eq. 36)"])
+    rows = [[name if i == 0 or name != prev else "", q, unit, *(vals.get(p) for p in planes)]
+            for i, ((name, q, unit, vals), prev) in enumerate(zip(sheet_rows(sheet),
+                                                                  [None, *(r[0] for r in sheet_rows(sheet))],
+                                                                  strict=False))]
+    qe = ""
+    if sheet.quantum_efficiency:
+        q = sheet.quantum_efficiency
+        wl = q["wavelength_nm"]
+        step = max(1, len(wl) // 12)
+        qrows = [[f"{wl[i]:g}", *(None if q["values"].get(p) is None or q["values"][p][i] is None
+                                  else 100 * q["values"][p][i] for p in planes)] for i in range(0, len(wl), step)]
+        qe = (f"<h3>Quantum efficiency η(λ) (lens included; pixel pitch {q['pixel_pitch_um']:g} µm)</h3>"
+              + _table(["λ (nm)", *[f"{p} (%)" for p in planes]], qrows))
+    notes = "".join(f"<li>{_esc(n)}</li>" for n in sheet.notes)
+    return ('<section id="emva1288"><h2>EMVA 1288 summary</h2>'
+            '<p class="sub">Figures as EMVA Standard 1288 release 4.0 defines them (docs/dark.md, docs/flat.md); '
+            "K from the mean–variance line of the linearity series' frame pairs.</p>"
+            + _table(["operating point", "value"], point, left=2)
+            + _table(["section", "quantity", "unit", *planes], rows, left=3) + qe
+            + (f"<p>Notes:</p><ul>{notes}</ul>" if notes else "") + "</section>")
+
+
 def _provenance_section(profile, c: dict) -> str:
     p = profile.provenance
     by_stage = Counter(str(i.get("stage", "?")) if isinstance(i, dict) else "?" for i in p.inputs)
@@ -315,6 +357,7 @@ def render_report(profile, progress: Callable[[str, int, int], None] | None = No
             f'<p class="sub">profile created {_esc(c["provenance"]["created_utc"] or "at an unknown time")} '
             f"with camcal {_esc(c['provenance']['camcal_version'])}; report by camcal {_esc(__version__)}.</p>",
             "<nav>" + "".join(f'<a href="#{k}">{_esc(STAGE_TITLES[k])}</a>' for k in stages)
+            + ('<a href="#emva1288">EMVA 1288</a>' if getattr(profile, "emva", None) is not None else "")
             + '<a href="#provenance">Provenance</a></nav>',
             f'<div class="stages">{badges}</div>',
             _table(["camera", "value"], head_rows, left=2)]
@@ -324,6 +367,8 @@ def render_report(profile, progress: Callable[[str, int, int], None] | None = No
             progress(STAGE_TITLES[key], done, total)
         present = getattr(profile, attr) is not None and (key != "response" or bool(profile.response))
         body.append(section(profile, c) if present else _missing(key))
+    if getattr(profile, "emva", None) is not None:
+        body.append(_emva_section(profile))
     if progress is not None:
         progress("provenance", total - 1, total)
     body.append(_provenance_section(profile, c))

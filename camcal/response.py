@@ -21,8 +21,8 @@ R, G1, G2, B; ``processed`` channels R, G, B):
 2. saturation: a frame is saturated in a channel when more than 0.1 % of its
    ROI pixels sit at the white level; the top points are also trimmed while
    they fall below the fit by more than 1 % (full-well compression);
-3. a weighted least-squares fit of eq. 12 (:func:`camcal.optimize.curve_fit`, bounded
-   Trust Region Reflective as ``scipy.optimize.curve_fit``; weights from the ROI
+3. a weighted least-squares fit of eq. 12 (:func:`scipy.optimize.curve_fit`, bounded
+   Trust Region Reflective; weights from the ROI
    standard error, uncertainties scaled by the reduced χ² when it exceeds 1);
 4. the EMVA 1288 linearity error (release 3.1 / 4.0, §6.x "Linearity"):
    a straight line μ = a·x + b fitted minimising the *relative* deviations over
@@ -49,14 +49,15 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
+from scipy.optimize import OptimizeWarning, curve_fit, least_squares
 
 from camcal.colour import ColourMatrix
 from camcal.correct import Calibration, DarkFrameModel, correct_planes
+from camcal.emva import linearity_error, pair_statistics
 from camcal.errors import CamcalError
 from camcal.exposure import relative_exposure
 from camcal.frame import PLANES
 from camcal.io import load_folder_frame
-from camcal.optimize import curve_fit, least_squares
 from camcal.region import Region
 from camcal.session import StageFrames, folder_of, stage_files
 from camcal.store import load_stage, save_stage
@@ -155,6 +156,7 @@ class ExposureSeries:
     black_level_dn : black level per channel from the file's metadata, DN
     dark_subtracted : whether a dark model was subtracted
     roi : (y0, y1, x0, x1) fractions of the plane
+    pairs : RAW only: the frame pairs of the photon-transfer method (:class:`PairStatistics`), or None
     """
 
     kind: str
@@ -175,6 +177,39 @@ class ExposureSeries:
     dark_subtracted: bool = False
     roi: tuple[float, float, float, float] = (0.0, 1.0, 0.0, 1.0)
     folder: str | None = None
+    pairs: PairStatistics | None = None
+
+
+@dataclass(frozen=True)
+class PairStatistics:
+    """Whole-plane statistics of consecutive RAW frame pairs at one setting (EMVA 1288 photon transfer).
+
+    Arrays are (m,) per pair or (m, C) per pair and channel, in the order the pairs were read.
+
+    Attributes
+    ----------
+    exposure_s, iso, f_number : the setting of each pair.
+    mean_dn : mean of both frames above the zero-exposure dark level (the dark model's bias map, else the
+        file's black level), DN; the dark signal β·t is *included* (its electrons are Poisson too).
+    variance_dn2 : temporal variance ½·var(y_A − y_B), DN² (:func:`camcal.emva.pair_statistics`).
+    files : the two file names of each pair.
+    bias_source : ``"dark model"`` or ``"black level"``.
+    """
+
+    exposure_s: np.ndarray
+    iso: np.ndarray
+    f_number: np.ndarray
+    mean_dn: np.ndarray
+    variance_dn2: np.ndarray
+    files: tuple[tuple[str, str], ...]
+    bias_source: str
+
+
+def _pair_planes(planes: np.ndarray, bias: np.ndarray | None, black: np.ndarray) -> np.ndarray:
+    """Full planes above the zero-exposure dark level, float32."""
+    out = np.asarray(planes, np.float32).copy()
+    out -= bias if bias is not None else black.astype(np.float32)
+    return out
 
 
 @dataclass(frozen=True)
@@ -381,11 +416,31 @@ def measure_series(
     window = roi_window(None if region is not None else roi)
     cal = Calibration.of(dark) if dark is not None else Calibration()
     rows: dict[str, list[dict]] = {}
+    bias = None if dark is None or getattr(dark, "bias_dn", None) is None else np.asarray(dark.bias_dn, np.float32)
+    defects = cal.defects
+    pairs: list[dict] = []
+    previous: tuple | None = None  # (setting, planes above dark, file name) of an unpaired RAW frame
     for i, path in enumerate(files):
         frame = load_folder_frame(path, manifest)
         e = frame.exposure
         t, iso, n = e.require("exposure_s", path), e.require("iso", path), e.require("f_number", path)
         planes = frame.planes(np.float32)
+        if frame.kind == "raw":
+            # photon transfer: consecutive frames at one setting form a pair (one frame held at a time)
+            b = bias if bias is not None and bias.shape == planes.shape else None
+            above = _pair_planes(planes, b, frame.black_vector())
+            setting = (float(t), float(iso), float(n), above.shape)
+            if previous is not None and previous[0] == setting:
+                valid = None if defects is None or defects.shape != above.shape else ~defects
+                stats_ = [pair_statistics(previous[1][k], above[k], None if valid is None else valid[k])
+                          for k in range(above.shape[0])]
+                pairs.append({"t": t, "iso": iso, "n": n, "mean": [m for m, _ in stats_],
+                              "var": [v for _, v in stats_], "files": (previous[2], path.name),
+                              "bias": "dark model" if b is not None else "black level"})
+                previous = None
+            else:
+                previous = (setting, above, path.name)
+            del above
         if region is not None:  # photo pixels -> this frame's planes (half resolution for a Bayer mosaic)
             ys, xs = region.window(planes.shape[1:], 2 if frame.layout == "bayer" else 1, path)
             ph, pw = planes.shape[1:]
@@ -427,6 +482,12 @@ def measure_series(
     for kind, rs in rows.items():
         out[kind] = _series_from_rows(kind, rs, window, dark is not None and kind == "raw", folder,
                                       reference_iso, reference_f_number)
+    if pairs and "raw" in out:
+        out["raw"] = replace(out["raw"], pairs=PairStatistics(
+            exposure_s=np.array([p["t"] for p in pairs], float), iso=np.array([p["iso"] for p in pairs], float),
+            f_number=np.array([p["n"] for p in pairs], float), mean_dn=np.array([p["mean"] for p in pairs], float),
+            variance_dn2=np.array([p["var"] for p in pairs], float), files=tuple(p["files"] for p in pairs),
+            bias_source=pairs[0]["bias"]))
     return out
 
 
@@ -511,9 +572,10 @@ def fit_eq12(x_s: np.ndarray, g_dn: np.ndarray, sigma_dn: np.ndarray, *, gamma0:
     hi = [np.inf, 10.0, np.inf]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
+        warnings.simplefilter("ignore", OptimizeWarning)  # a covariance that cannot be estimated is inf
         try:
-            popt, pcov = curve_fit(_eq12, u, g, [max(a0, 1e-12), gam0, b0], sigma=s, bounds=(lo, hi),
-                                   x_scale="jac", max_nfev=20000)
+            popt, pcov = curve_fit(_eq12, u, g, [max(a0, 1e-12), gam0, b0], sigma=s, absolute_sigma=True,
+                                   bounds=(lo, hi), method="trf", x_scale="jac", max_nfev=20000)
         except (RuntimeError, ValueError) as exc:
             raise CamcalError(f"the fit of eq. 12 did not converge ({exc})") from None
     a, gam, b = (float(v) for v in popt)
@@ -552,27 +614,9 @@ def fit_line(x_s: np.ndarray, g_dn: np.ndarray, sigma_dn: np.ndarray) -> dict:
 
 
 def emva_linearity_error(x_s: np.ndarray, signal_dn: np.ndarray, saturation_signal_dn: float) -> float:
-    """EMVA 1288 linearity error LE, percent.
-
-    ``signal_dn`` is the mean signal above dark (μ_y − μ_y.dark). A line
-    μ = a·x + b is fitted minimising the relative deviations (weights 1/μ²)
-    over the points between 5 % and 95 % of ``saturation_signal_dn``;
-    δ_i = 100 (μ_i − (a x_i + b)) / (a x_i + b) and LE = (max δ − min δ) / 2.
-    When fewer than three points lie in that range all positive points are used.
-    """
-    x = np.asarray(x_s, float)
-    y = np.asarray(signal_dn, float)
-    sel = (y >= 0.05 * saturation_signal_dn) & (y <= 0.95 * saturation_signal_dn)
-    if sel.sum() < 3:
-        sel = y > 0
-    if sel.sum() < 2:
-        return float("nan")
-    xs, ys = x[sel], y[sel]
-    design = np.stack([xs / ys, 1.0 / ys], axis=1)
-    (a, b), *_ = np.linalg.lstsq(design, np.ones_like(ys), rcond=None)
-    fit = a * xs + b
-    dev = 100.0 * (ys - fit) / fit
-    return float((dev.max() - dev.min()) / 2.0)
+    """EMVA 1288 linearity error LE, percent (:func:`camcal.emva.linearity_error`): a line fitted minimising the
+    relative deviations between 5 % and 95 % of ``saturation_signal_dn``, LE = (max δ − min δ) / 2."""
+    return linearity_error(x_s, signal_dn, saturation_signal_dn).error_pct
 
 
 def _pearson(x: np.ndarray, y: np.ndarray) -> float:
@@ -613,8 +657,8 @@ def fit_srgb_form(x_s: np.ndarray, g_dn: np.ndarray, sigma_dn: np.ndarray, white
                   x_white0: float) -> dict:
     """Fit g/W = V((x/x_w), p) of the sRGB form (free exponent p, white exposure x_w in s).
 
-    Weighted least squares in (p, ln x_w) with 0.05 ≤ p ≤ 0.99 by :func:`camcal.optimize.least_squares`
-    (Trust Region Reflective, as ``scipy.optimize.least_squares``, ``x_scale="jac"``); the exponent's
+    Weighted least squares in (p, ln x_w) with 0.05 ≤ p ≤ 0.99 by :func:`scipy.optimize.least_squares`
+    (Trust Region Reflective, ``x_scale="jac"``); the exponent's
     uncertainty from ``inv(JᵀJ)`` at the solution, scaled by the reduced χ² when above 1.
     """
     x = np.asarray(x_s, float)

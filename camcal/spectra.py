@@ -15,9 +15,9 @@ data set for camera spectral sensitivity estimation. JOSA A 32(3), 381-391
 from __future__ import annotations
 
 import numpy as np
+from scipy.interpolate import CubicSpline
 
 from camcal.errors import CamcalError
-from camcal.spline import cubic_spline
 
 #: Default wavelength grid of the synthetic camera, nm.
 WAVELENGTHS_NM = np.arange(380.0, 781.0, 1.0)
@@ -50,7 +50,7 @@ def camera_sensitivities(name: str, wavelengths_nm: np.ndarray = WAVELENGTHS_NM)
     out = np.empty((3, wavelengths_nm.size))
     for i in range(3):
         # cubic (Sprague-like smoothness is not needed for a simulator); zero outside
-        spline = cubic_spline(wl, vals[:, i], extrapolate=False)
+        spline = CubicSpline(wl, vals[:, i], extrapolate=False)
         y = spline(wavelengths_nm)
         out[i] = np.clip(np.nan_to_num(y, nan=0.0), 0.0, None)
     return out

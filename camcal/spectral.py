@@ -55,6 +55,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
+from scipy.interpolate import CubicSpline
 
 from camcal.correct import Calibration, correct_planes
 from camcal.dark import DarkModel, as_dark_model
@@ -66,7 +67,6 @@ from camcal.io import load_frame
 from camcal.manifest import exposure_overrides, read_manifest, safe_member
 from camcal.region import Region
 from camcal.session import SWEEP_CSV, SWEEP_REQUIRED
-from camcal.spline import cubic_spline
 from camcal.store import to_jsonable
 from camcal.threads import thread_count
 
@@ -221,14 +221,14 @@ class SpectralSensitivity:
     def slit_bias(self) -> dict[str, np.ndarray]:
         """Second-order estimate of (c ⊛ φ − c) per plane, same units: (σ²/2)·c'' (Gaussian slit).
 
-        c'' is that of the not-a-knot cubic spline through the nodes (:func:`camcal.spline.cubic_spline`).
+        c'' is that of the not-a-knot cubic spline through the nodes (:class:`scipy.interpolate.CubicSpline`).
 
         Zero when deconvolved or when the bandwidth is unknown.
         """
         if self.deconvolved or not self.bandwidth_nm or self.wavelength_nm.size < 4:
             return {p: np.zeros_like(self.wavelength_nm) for p in self.plane_names}
         sigma2 = (self.bandwidth_nm * FWHM_TO_SIGMA) ** 2
-        return {p: 0.5 * sigma2 * cubic_spline(self.wavelength_nm, v)(self.wavelength_nm, 2)
+        return {p: 0.5 * sigma2 * CubicSpline(self.wavelength_nm, v)(self.wavelength_nm, 2)
                 for p, v in self.values.items()}
 
     def summary(self) -> dict[str, Any]:
@@ -768,7 +768,7 @@ def slit_matrix(wavelength_nm: np.ndarray, fwhm_nm: np.ndarray | float, shape: s
     fwhm = np.broadcast_to(np.asarray(fwhm_nm, float), wl.shape)
     reach = 3.0 * float(fwhm.max())
     fine = np.arange(wl[0] - reach, wl[-1] + reach + step_nm / 2, step_nm)
-    basis = cubic_spline(wl, np.eye(wl.size), "natural")(np.clip(fine, wl[0], wl[-1]))  # (nf, n)
+    basis = CubicSpline(wl, np.eye(wl.size), bc_type="natural")(np.clip(fine, wl[0], wl[-1]))  # (nf, n)
     phi = slit_function(fine[None, :] - wl[:, None], fwhm[:, None], shape)  # (n, nf)
     phi /= np.trapezoid(phi, fine, axis=1)[:, None]
     weights = np.full(fine.size, step_nm)

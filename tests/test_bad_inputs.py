@@ -903,7 +903,7 @@ def argument_cases() -> list[Case]:
     def demo_out_is_file(b: Base, ws: Path):
         f = ws / "not-a-folder"
         f.write_text("x")
-        return ["demo", "--out", f], [], f
+        return ["demo", "-o", f], [], f
     add("output", "demo-out-is-file", demo_out_is_file)
     return cases
 

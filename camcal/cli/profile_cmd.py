@@ -8,6 +8,7 @@ import typer
 from rich.table import Table
 
 from camcal.cli.common import console, fraction, print_json, progress
+from camcal.emva import STANDARD, EmvaSheet, sheet_rows
 from camcal.errors import CamcalError
 from camcal.profile import CameraIdentity, contract, diff_profiles, load_profile, save_profile
 from camcal.reference_targets import import_spectral
@@ -67,6 +68,41 @@ def print_contract(c: dict, title: str = "profile") -> None:
         print_spectral_source(c["spectral_sensitivity"]["source"])
 
 
+def print_emva(sheet: EmvaSheet, title: str = "profile") -> None:
+    """The EMVA 1288 summary sheet: one column per plane, rows in the standard's order."""
+    console.print(f"[bold]{title}[/bold]: {STANDARD} summary at ISO {sheet.iso:g}")
+    planes = list(sheet.channels)
+    table = Table(show_header=True, title_justify="left")
+    for col in ("section", "quantity", "unit", *planes):
+        table.add_column(col, justify="left" if col in ("section", "quantity", "unit") else "right")
+    last = None
+    for section, name, unit, vals in sheet_rows(sheet):
+        table.add_row(section if section != last else "", name, unit, *(_fmt(vals.get(p)) for p in planes))
+        last = section
+    console.print(table)
+    sp = sheet.spatial
+    if sp.get("dsnu_frames"):
+        console.print(f"DSNU from the average of {sp['dsnu_frames']} dark frames at {sp['dsnu_exposure_s']:g} s; "
+                      f"PRNU from {sp.get('prnu_frames', '—')} flats (EMVA 1288 eq. 36: temporal noise / L removed)")
+    for row in sheet.photon_transfer:
+        ks = ", ".join(f"{p} {v['K_dn_per_e']:.4g} ± {v['K_unc_dn_per_e']:.2g}" for p, v in row["channels"].items()
+                       if v and v.get("K_dn_per_e") is not None and v.get("K_unc_dn_per_e") is not None)
+        console.print(f"photon transfer at ISO {row['iso']:g} ({row.get('pairs', 0)} frame pairs): K {ks} DN/e⁻",
+                      soft_wrap=True)
+    qe = sheet.quantum_efficiency
+    if qe:
+        peaks = []
+        for p, v in qe["values"].items():
+            arr = [x if x is not None else float("nan") for x in v]
+            if arr:
+                i = max(range(len(arr)), key=lambda j: arr[j] if arr[j] == arr[j] else -1.0)
+                peaks.append(f"{p} {100 * arr[i]:.3g} % at {qe['wavelength_nm'][i]:g} nm")
+        console.print(f"quantum efficiency (lens included, pixel pitch {qe['pixel_pitch_um']:g} µm), peak: "
+                      + ", ".join(peaks), soft_wrap=True)
+    for note in sheet.notes:
+        console.print(f"note: {note}", soft_wrap=True)
+
+
 def print_spectral_source(src: dict) -> None:
     where, how = describe_origin(src)
     console.print(f"c(λ) from: {where}", soft_wrap=True)
@@ -103,10 +139,21 @@ def register(app: typer.Typer) -> None:
     def show_cmd(
         profile: Path = typer.Argument(..., help="Profile file (.camcal)."),
         as_json: bool = typer.Option(False, "--json", help="Print the JSON contract (docs/profile-format.md)."),
+        emva: bool = typer.Option(False, "--emva", help="Print the EMVA 1288 summary sheet (K, noise, DSNU, PRNU, "
+                                  "saturation, SNR_max, dynamic range, linearity error) per plane."),
     ) -> None:
         """Show a profile (validated and hash-checked on load)."""
-
-        c = contract(load_profile(profile))
+        prof = load_profile(profile)
+        if emva:
+            if prof.emva is None:
+                raise CamcalError("the profile has no EMVA 1288 section (calibrated before camcal wrote it, or "
+                                  "without dark, flat and linearity frames)", profile)
+            if as_json:
+                print_json(prof.emva.to_dict())
+            else:
+                print_emva(prof.emva, title=str(profile))
+            return
+        c = contract(prof)
         if as_json:
             print_json(c)
         else:
