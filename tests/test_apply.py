@@ -306,9 +306,15 @@ def _reference_raw(frame, plan, notes_dark: bool = True):
     used = np.asarray(model.weights) != 0
     value = np.sum(signal[used] * w[used], axis=0)
     noise = np.zeros_like(value) if var is None else np.sum(var[used] * w[used] ** 2, axis=0)
-    unc = np.sqrt(noise + (value * model.weights_unc_rel) ** 2)
-    band = signal / x / np.asarray(model.band_integral)[:, None, None]
-    return {"R": band[0], "G": band[1], "B": band[2], "L663": value, "L663_unc": unc}
+    rel = np.hypot(model.weights_unc_rel, model.spectral_unc_rel)  # c(λ) ⊕ the spectral reconstruction (smooth)
+    unc = np.sqrt(noise + (value * rel) ** 2)
+    k = 1 / x / np.asarray(model.band_integral)[:, None, None]
+    band = signal * k
+    out = {"R": band[0], "G": band[1], "B": band[2], "L663": value, "L663_unc": unc}
+    if var is not None:  # the band noise maps: the same variance, through the band's own scale
+        band_unc = np.sqrt(var) * k
+        out.update({"R_unc": band_unc[0], "G_unc": band_unc[1], "B_unc": band_unc[2]})
+    return out
 
 
 @pytest.mark.parametrize("variant", ["as calibrated", "smooth estimator", "no dark model", "no flat model"])
