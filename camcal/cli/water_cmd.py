@@ -246,7 +246,7 @@ def _total(terms: dict, inv) -> np.ndarray:
     return combine(terms) if terms else inv.sigma_ug_per_L
 
 
-def _none_valid(reasons: dict, roi: str | None) -> CamcalError:
+def _none_valid(reasons: dict, roi: str | None, where: Path | None = None) -> CamcalError:
     """The error for an inversion where no pixel (or no ratio) gave a concentration, reasons counted."""
     counts = ", ".join(f"{k} {v}" for k, v in sorted(reasons.items(), key=lambda kv: -kv[1]))
     hint = ""
@@ -254,7 +254,7 @@ def _none_valid(reasons: dict, roi: str | None) -> CamcalError:
         hint = f"; check --roi {roi} (x,y,w,h in photo pixels at full resolution) covers the disk"
     elif reasons.get("above_clear_water"):
         hint = "; the ratio is brighter than clear water allows: check the depth, the --water-model and the images"
-    return CamcalError(f"no valid concentration: {counts}{hint}")
+    return CamcalError(f"no valid concentration: {counts}{hint}", where)
 
 
 def _fraction(text: str | None, what: str) -> float | None:
@@ -419,7 +419,7 @@ def register(app: typer.Typer) -> None:
         if submerged is None or reference is None or out is None:
             raise CamcalError("give --submerged A.exr --reference B.exr -o chl.exr, or --ratio for numbers")
 
-        if sigma_channel and not sigma_channel.startswith(f"{channel}_"):
+        if sigma_channel and sigma_channel.endswith("_unc") and sigma_channel != f"{channel}_unc":
             raise CamcalError(f"--sigma-channel {sigma_channel} is not the uncertainty of channel {channel}: give "
                               f"{channel}_unc (camcal apply writes one per band: R_unc, G_unc, B_unc, L663_unc)")
         names = [channel] + ([sigma_channel] if sigma_channel else [])
@@ -454,7 +454,7 @@ def register(app: typer.Typer) -> None:
             inv = invert_images(sub[channel], ref[channel], m, d, roi=region, **kwargs)
             summary = inv.summary()
             if not summary["valid"]:
-                raise _none_valid(summary["reasons"], roi)
+                raise _none_valid(summary["reasons"], roi, submerged)
             terms = all_terms(inv, m, d, inputs)
             total = _total(terms, inv)
             bar.advance(task)
