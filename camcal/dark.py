@@ -47,6 +47,7 @@ from scipy.stats import chi2
 from camcal.correct import Calibration, correct_planes, dark_frame
 from camcal.errors import CamcalError, FrameLeftOut, MissingMetadataError, TooFewFrames
 from camcal.frame import PATTERNS, PLANES, RGB, Frame
+from camcal.hashing import sha256_file
 from camcal.io import exposure_from_exif
 from camcal.session import StageFrames, folder_of, stage_files
 from camcal.stack import MAD_TO_SIGMA, METHODS, StackResult, combine_frames
@@ -286,6 +287,36 @@ def _check_stacks(stacks: list[StackResult], where: Path) -> float:
     return _same_iso(stacks, where)
 
 
+def refuse_shared_frames(dark_files: list[Path], bias_files: list[Path]) -> None:
+    """Refuse a frame given both as a dark and as a bias frame (the same file, or a copy of it).
+
+    The same exposure counted twice fits a dark current of exactly zero with zero uncertainty, which reads like
+    a measurement. A copy is found by content: files of equal size are compared by their SHA-256.
+
+    Raises
+    ------
+    CamcalError
+        Naming both files.
+    """
+    if not dark_files or not bias_files:
+        return
+    by_size: dict[int, list[Path]] = {}
+    for p in bias_files:
+        by_size.setdefault(p.stat().st_size, []).append(p)
+    hashes: dict[Path, str] = {}
+
+    def digest(p: Path) -> str:
+        if p not in hashes:
+            hashes[p] = sha256_file(p)
+        return hashes[p]
+
+    for d in dark_files:
+        for b in by_size.get(d.stat().st_size, ()):
+            if d.resolve() == b.resolve() or digest(d) == digest(b):
+                raise CamcalError(f"is given twice: as a dark frame and as the bias frame {b} (the same exposure "
+                                  "cannot be both); give each frame once", d)
+
+
 def stack_darks(
     dark: str | Path | StageFrames | None,
     bias: str | Path | StageFrames | None = None,
@@ -338,6 +369,7 @@ def stack_darks(
         files = [p for p in files if all(p.name != n for n, _ in left_out)]
     bias_files, bias_manifest = stage_files(bias) if bias is not None else ([], {})
     bias_folder = folder_of(bias) if bias is not None else None
+    refuse_shared_frames(files, bias_files)
     if bias_folder is None and len(groups) < 2:
         if not groups:
             raise TooFewFrames("dark", "frames", 1, 0, path=dark_folder)

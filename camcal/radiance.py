@@ -83,6 +83,10 @@ class RadianceModel:
     weights_unc_rel: float
     units: str
     channel: str | None
+    spectral_unc_rel: float = 0.0
+    """Relative standard uncertainty of L(λ0) from the spectral reconstruction itself (``smooth``: the RMS
+    error over the prior spectra of :func:`smooth_error_table`; ``narrowband``: 0, valid only for light
+    confined near λ0, see docs/apply.md)."""
 
 
 FWHM_TO_SIGMA = 1.0 / (2.0 * np.sqrt(2.0 * np.log(2.0)))
@@ -229,3 +233,14 @@ def smooth_error_table(wavelength_nm: np.ndarray, c_rgb: dict[str, np.ndarray], 
         true = float(np.interp(target_nm, wl, spec))
         out.append({"spectrum": name, "true": true, "estimate": est, "error_pct": 100 * (est / true - 1)})
     return out
+
+
+def smooth_spread_rel(wavelength_nm: np.ndarray, c_rgb: dict[str, np.ndarray], target_nm: float = 663.0) -> float:
+    """RMS relative error of the ``smooth`` estimator at ``target_nm`` over the prior spectra.
+
+    The spread of :func:`smooth_error_table` (black bodies, CIE illuminants, the ColorChecker under D65):
+    the spectral-reconstruction term of ``L<λ0>_unc`` for smooth scenes (docs/apply.md).
+    """
+    errors = np.array([row["error_pct"] for row in smooth_error_table(wavelength_nm, c_rgb, target_nm)]) / 100.0
+    errors = errors[np.isfinite(errors)]
+    return float(np.sqrt(np.mean(errors**2))) if errors.size else float("nan")

@@ -44,7 +44,7 @@ def test_sweep_roi_in_photo_pixels(session_dir, tmp_path):
     for name, extra in (("default", ()), ("region", ("--roi", f"{2 * x0},{2 * y0},{2 * (x1 - x0)},{2 * (y1 - y0)}")),
                         ("fraction", ("--roi-fraction", repr(DEFAULT_ROI_FRACTION ** 2)))):
         out = tmp_path / f"{name}.csv"
-        proc = run_cli("sweep", folder, "-o", out, "--mode", "relative", "--json", "--jobs", "1", *extra)
+        proc = run_cli("sweep", folder, "-o", out, "--sweep-mode", "relative", "--json", "--jobs", "1", *extra)
         assert proc.returncode == 0, proc.stderr
         runs[name] = out.read_text()
     assert runs["region"] == runs["default"] and runs["fraction"] == runs["default"]

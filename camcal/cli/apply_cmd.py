@@ -24,7 +24,7 @@ def register(app: typer.Typer) -> None:
                                                  help="narrowband: filter width, nm; L<λ0> then per nm."),
         line_fwhm: float | None = typer.Option(None, "--line-fwhm",
                                                help="narrowband: width of the light, nm (slit correction of c)."),
-        jobs: int = typer.Option(2, "--jobs", "-j", help="Worker processes of the local pool."),
+        jobs: int = typer.Option(2, "--jobs", "-j", help="CPU cores to use (one worker process each)."),
         dask_scheduler: str | None = typer.Option(None, "--dask-scheduler",
                                                   help="Run on a dask.distributed cluster (tcp://host:8786)."),
         roi: str | None = typer.Option(None, "--roi", help="Region x,y,w,h in photo pixels at full resolution "
