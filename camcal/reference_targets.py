@@ -45,6 +45,7 @@ from typing import Any
 
 import numpy as np
 from scipy import stats
+from scipy.stats import median_abs_deviation
 
 from camcal import __version__
 from camcal.correct import Calibration, correct_frame
@@ -134,7 +135,7 @@ def region_rate(frame: Frame, box: Region | tuple[int, int, int, int] | None, *,
         v = planes[k, y0:y1, x0:x1][~bad[k, y0:y1, x0:x1]].astype(np.float64) / x
         if v.size:
             med = np.median(v)
-            mad = 1.4826 * np.median(np.abs(v - med))
+            mad = median_abs_deviation(v, scale="normal")
             if mad > 0:
                 v = v[np.abs(v - med) <= 5.0 * mad]
         if v.size < min_pixels:

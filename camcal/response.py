@@ -864,12 +864,9 @@ def save_response(models: dict[str, ResponseModel] | ResponseModel, path: str | 
 
 def load_response(path: str | Path) -> dict[str, ResponseModel]:
     """Read what :func:`save_response` wrote: ``{kind: ResponseModel}``."""
-    data, _ = load_stage(path, RESPONSE_KIND)
-    models = data.get("models")
-    if not isinstance(models, dict) or not models:
-        raise CamcalError("response file holds no models", path)
+    data, _ = load_stage(path, RESPONSE_KIND)  # validated against camcal/schemas/response-1.schema.json
     try:
-        return {str(k): ResponseModel.from_dict(v) for k, v in models.items()}
+        return {str(k): ResponseModel.from_dict(v) for k, v in data["models"].items()}
     except CamcalError as exc:
         raise CamcalError(exc.message, path) from None
 
