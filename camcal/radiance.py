@@ -53,7 +53,7 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 
 from camcal.errors import CamcalError
-from camcal.spectra import planck_radiance
+from camcal.spectra import FWHM_TO_SIGMA, planck_radiance
 
 RGB = ("R", "G", "B")
 ESTIMATORS = ("narrowband", "smooth")
@@ -83,9 +83,6 @@ class RadianceModel:
     weights_unc_rel: float
     units: str
     channel: str | None
-
-
-FWHM_TO_SIGMA = 1.0 / (2.0 * np.sqrt(2.0 * np.log(2.0)))
 
 
 def _interp(wl: np.ndarray, values: np.ndarray, at: float, derivative: int = 0) -> float:
@@ -165,11 +162,6 @@ def radiance_model(
     # relative uncertainty from c(λ): first order, rate ~ c·L so δL/L ~ δc/c of the weighted band
     rel = float(np.sqrt(np.sum((band_unc / band) ** 2) / 3))
     return RadianceModel(band, band_unc, float(target_nm), estimator, row, rel, "W m^-2 sr^-1 nm^-1", None)
-
-
-def band_radiance(rates: np.ndarray, model: RadianceModel) -> np.ndarray:
-    """(3, ...) DN rates -> (3, ...) band radiance L_i = rate_i / ∫c_i dλ, W m^-2 sr^-1 nm^-1."""
-    return np.asarray(rates) / model.band_integral.reshape((3,) + (1,) * (np.ndim(rates) - 1))
 
 
 def radiance_at(
