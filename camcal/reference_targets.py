@@ -58,8 +58,8 @@ from camcal.hashing import sha256_file
 from camcal.io import load_frame
 from camcal.manifest import exposure_overrides, read_manifest, safe_member
 from camcal.profile import SCHEMA_VERSION, CalibrationProfile, CameraIdentity, Provenance
-from camcal.region import Region
-from camcal.spectral import DEFAULT_ROI_FRACTION, SpectralSensitivity, central_roi
+from camcal.region import DEFAULT_ROI_FRACTION, Region, central_roi
+from camcal.spectral import SpectralSensitivity
 from camcal.spectral_files import FileFormat, as_absolute, read_spectral_file, read_table, resample
 
 TARGETS_CSV = "targets.csv"
@@ -103,7 +103,7 @@ def region_rate(frame: Frame, box: Region | tuple[int, int, int, int] | None, *,
     frame : a decoded RAW photo.
     box : a :class:`camcal.region.Region` in photo pixels (rounded outward to whole plane pixels), or
         (x0, y0, x1, y1), half-open, in half-resolution plane pixels; None: the central
-        :data:`camcal.spectral.DEFAULT_ROI_FRACTION` of each side.
+        :data:`camcal.region.DEFAULT_ROI_FRACTION` of each side.
     dark, flat : camcal.dark.DarkModel, camcal.flat.FlatModel or None.
     """
     path = frame.path

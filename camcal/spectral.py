@@ -66,7 +66,7 @@ from camcal.flat import FlatModel, as_flat_model
 from camcal.frame import PLANES, RGB, Frame, split_planes
 from camcal.io import load_frame
 from camcal.manifest import exposure_overrides, read_manifest, safe_member
-from camcal.region import Region
+from camcal.region import DEFAULT_ROI_FRACTION, Region, central_roi
 from camcal.session import SWEEP_CSV, SWEEP_REQUIRED
 from camcal.spectra import FWHM_TO_SIGMA
 from camcal.store import to_jsonable
@@ -74,7 +74,6 @@ from camcal.threads import thread_count
 
 DEFAULT_REFERENCE_ISO = 100.0
 DEFAULT_REFERENCE_F_NUMBER = 4.0
-DEFAULT_ROI_FRACTION = 0.2
 ABSOLUTE_UNITS = "DN s^-1 per (W m^-2 sr^-1 nm^-1) per nm at ISO_ref, f/N_ref, on axis"
 RELATIVE_UNITS = "relative"
 
@@ -328,16 +327,6 @@ def sweep_rows(sweep_folder: str | Path, manifest: Mapping[str, Mapping[str, flo
             overrides=exposure_overrides(dict(rec)),
         ))
     return out
-
-
-def central_roi(shape_hw: tuple[int, int], fraction: float = DEFAULT_ROI_FRACTION) -> tuple[int, int, int, int]:
-    """A centred box ``(x0, y0, x1, y1)`` (half-open, plane pixels) covering ``fraction`` of each side."""
-    if not 0 < fraction <= 1:
-        raise CamcalError(f"ROI fraction must be in (0, 1], got {fraction}")
-    h, w = shape_hw
-    rw, rh = max(2, round(w * fraction)), max(2, round(h * fraction))
-    x0, y0 = (w - rw) // 2, (h - rh) // 2
-    return x0, y0, x0 + rw, y0 + rh
 
 
 def _check_roi(roi: tuple[int, int, int, int], shape_hw: tuple[int, int], where: Path) -> tuple[int, int, int, int]:

@@ -16,13 +16,6 @@ from camcal.spectral import measure_sweep, read_sweep
 from camcal.spectral_files import write_spectacle_csv
 
 
-def _side_fraction(area_fraction: float) -> float:
-    """``--roi-fraction`` is a fraction of the area (as everywhere); the sweep's centred box takes one of each side."""
-    if not 0.0 < area_fraction <= 1.0:
-        raise CamcalError(f"--roi-fraction must be in (0, 1], got {area_fraction!r}")
-    return area_fraction ** 0.5
-
-
 def register(app: typer.Typer) -> None:
     @app.command("sweep")
     def sweep_cmd(
@@ -35,8 +28,8 @@ def register(app: typer.Typer) -> None:
                                  "or relative (peak 1)."),
         roi: str | None = typer.Option(None, "--roi", help="Region x,y,w,h in photo pixels at full resolution "
                                        "(rounded outward to whole plane pixels)."),
-        roi_fraction: float | None = typer.Option(None, "--roi-fraction", help="A centred region holding this "
-                                                  "fraction of the area (default 0.04: a fifth of each side)."),
+        roi_fraction: float | None = typer.Option(None, "--roi-fraction", help="A centred region covering this "
+                                                  "fraction of each side (default 0.2: 4 % of the area)."),
         deconvolve: bool = typer.Option(False, help="Remove the monochromator slit function (needs bandwidth_nm)."),
         slit: str = typer.Option("gaussian", help="Slit function shape for --deconvolve: gaussian or triangular."),
         reference_iso: float = typer.Option(100.0, help="Reference ISO of the absolute result."),
@@ -53,9 +46,7 @@ def register(app: typer.Typer) -> None:
             raise CamcalError(f"--mode must be absolute or relative, got {mode!r}")
         if roi is not None and roi_fraction is not None:
             raise CamcalError("give --roi or --roi-fraction, not both")
-        region: Region | float | None = Region.parse(roi) if roi is not None else None
-        if roi_fraction is not None:  # measure_sweep takes a fraction of each side: the area's square root
-            region = _side_fraction(roi_fraction)
+        region: Region | float | None = Region.parse(roi) if roi is not None else roi_fraction
         total = len(read_sweep(sweep))
         with warnings.catch_warnings(record=True) as caught, progress() as bar:
             warnings.simplefilter("always")
