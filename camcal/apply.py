@@ -41,8 +41,9 @@ Per-pixel noise variance in DN² of each RAW plane, EMVA 1288 linear model::
 
     var = σ_read² · (ISO/ISO_dark)² + K · (signal + β·t·ISO/ISO_dark),  K = K_dark · ISO/ISO_dark
 
-with σ_read the dark model's per-pixel read noise and K the system gain in DN per electron from the
-dark model's photon-transfer line (``gain_dn_per_e_from_dark``); the read noise is assumed input
+with σ_read the dark model's per-pixel read noise and K the system gain in DN per electron from photon
+transfer (the profile's ``emva1288`` section, EMVA 1288 release 4.0), else from the dark model's
+photon-transfer line of the dark signal (``gain_dn_per_e_from_dark``); the read noise is assumed input
 referred (constant in electrons), so it scales with ISO in DN. Without a dark model the noise term
 is omitted (documented in the metadata ``notes``). For processed files the same model is evaluated at
 the RAW-equivalent signal (the JPEG came from that sensor; quantisation and compression are ignored).
@@ -63,7 +64,7 @@ from pathlib import Path
 
 import numpy as np
 
-from camcal.correct import Calibration, correct_planes
+from camcal.correct import Calibration, correct_planes, system_gain_dn_per_e
 from camcal.errors import CamcalError
 from camcal.exposure import frame_relative_exposure
 from camcal.frame import PLANES, Frame, plane_offsets, rgb_from_planes
@@ -158,6 +159,10 @@ def prepare(
     spectral = profile.spectral
     if spectral is None:
         raise CamcalError("the profile has no spectral sensitivity (sweep stage); radiance needs c(λ)")
+    if profile.reference_iso is None or profile.reference_f_number is None:
+        raise CamcalError("the profile holds no reference ISO and f-number (no stage of its calibration normalised "
+                          "exposure); radiance needs them: calibrate again with --reference-iso and "
+                          "--reference-f-number, or with 'iso' and 'f_number' in session.toml")
     if spectral.mode != "absolute":
         raise CamcalError("the profile's spectral sensitivity is relative; radiance needs an absolute c(λ) "
                           "(calibrate with --sweep-mode absolute)")
@@ -181,7 +186,8 @@ def prepare(
         prnu_rel = np.array(rms, np.float32)[:, None, None]
     options = {"wavelength_nm": float(wavelength_nm), "estimator": estimator, "filter_fwhm_nm": filter_fwhm_nm,
                "line_fwhm_nm": line_fwhm_nm, "with_prnu": with_prnu}
-    cal = Calibration.of(profile.dark, profile.flat if flat_planes is not None else None, with_prnu=with_prnu)
+    cal = Calibration.of(profile.dark, profile.flat if flat_planes is not None else None, with_prnu=with_prnu,
+                         emva=getattr(profile, "emva", None))
     rgb_cal = Calibration(flat_gain=flat_rgb, inv_flat_gain=None if flat_rgb is None else 1.0 / flat_rgb)
     return ApplyPlan(profile, model, flat_planes, flat_rgb, options, prnu_rel, cal, rgb_cal)
 
@@ -218,8 +224,7 @@ def _noise_params(profile, iso: float) -> tuple[np.ndarray | None, np.ndarray | 
     if dark is None:
         return None, None, 1.0
     scale = float(iso) / dark.iso
-    gains = dark.summary().get("gain_dn_per_e_from_dark") or {}
-    k = np.array([float(gains.get(p, 0.0) or 0.0) for p in dark.plane_names], np.float32)[:, None, None]
+    k = system_gain_dn_per_e(dark, getattr(profile, "emva", None))
     rn = dark.read_noise_dn.astype(np.float32) * np.float32(scale)
     return rn * rn, k * np.float32(scale), scale
 

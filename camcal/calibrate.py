@@ -9,24 +9,50 @@ from __future__ import annotations
 
 from collections import Counter
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, field, replace
 from datetime import UTC, datetime
 from pathlib import Path
 
+import numpy as np
+
 from camcal import __version__
 from camcal.colour import fit_colour_matrix, twin_pairs
-from camcal.dark import DarkOptions, fit_dark_stacks, stack_darks, with_dead_pixels
-from camcal.errors import CamcalError
-from camcal.flat import DEAD_RESPONSE, FlatOptions, dead_pixels, fit_flat_with
+from camcal.dark import DarkOptions, dark_frame_check, fit_dark_stacks, stack_darks, with_dead_pixels
+from camcal.emva import build_sheet
+from camcal.errors import CamcalError, TooFewFrames
+from camcal.flat import (
+    DEAD_RESPONSE,
+    FlatChecks,
+    FlatOptions,
+    check_flat_frame,
+    dead_pixels,
+    fit_master,
+    flat_prnu,
+    master_flat,
+)
+from camcal.frame import Frame
 from camcal.hashing import sha256_file
 from camcal.io import load_frame
-from camcal.manifest import SESSION_DEFAULTS
+from camcal.manifest import SESSION_DEFAULTS, session_camera_facts
 from camcal.profile import CalibrationProfile, CameraIdentity, Provenance
 from camcal.response import fit_series_set, measure_series
+from camcal.screen import Screening, StageCheck, Verdict, screen_session
 from camcal.session import STAGES, SessionIndex, index_session, present_stages
-from camcal.spectral import SweepOptions, measure_sweep_settings, read_sweep, sensitivity_from_settings, sweep_rows
+from camcal.spectral import (
+    SweepOptions,
+    measure_sweep_settings,
+    read_sweep,
+    require_wavelengths,
+    sensitivity_from_settings,
+    sweep_rows,
+)
 
-__all__ = ["STAGES", "CalibrateOptions", "calibrate_session", "camera_identity", "present_stages"]
+__all__ = ["NORMALISING_STAGES", "STAGES", "CalibrateOptions", "calibrate_session", "camera_identity",
+           "present_stages"]
+
+NORMALISING_STAGES = ("linearity", "sweep")
+"""Stages that normalise exposure (ISO·t/N², seed §2.1) and so need the reference setting; bias, dark and flat
+frames are used as they are."""
 
 Progress = Callable[[str, int, int], None]
 
@@ -42,6 +68,10 @@ class CalibrateOptions:
 
     ``jobs``: decoding threads; None chooses them (:func:`camcal.threads.thread_count`: the usable cores, at most
     4, and one thread for frames under 0.25 megapixels, where a pool costs more than it gains).
+
+    ``strict``: all or nothing: any frame left out (:mod:`camcal.screen`) or stage with too few usable frames
+    refuses the session, naming the first problem. By default such frames are left out and listed, and such a
+    stage is not calibrated (the others are).
     """
 
     reference_iso: float | None = None
@@ -51,12 +81,27 @@ class CalibrateOptions:
     sweep_mode: str = "absolute"
     deconvolve: bool = False
     jobs: int | None = None
+    strict: bool = False
 
 
 def _inputs(index: SessionIndex) -> list[dict]:
     """Provenance rows (stage, file, SHA-256, bytes) of every input file the session index found."""
     return [{"stage": s, "file": f"{s}/{p.name}", "sha256": sha256_file(p), "bytes": p.stat().st_size}
             for s in index.stages for p in index.inputs.get(s, ())]
+
+
+def identity_from_screening(index: SessionIndex, screening: Screening) -> CameraIdentity:
+    """The camera of a screened session: the facts of its first used RAW frame (else its first used frame)."""
+    used = [ref.path for s in index.stages for ref in screening.kept[s].frames]
+    if not used:
+        first = next((v for v in screening.verdicts if not v.used), None)
+        raise CamcalError("no frame of the session can be used"
+                          + (f" (the first left out: {first.stage}/{first.file}: {first.reason})" if first else ""),
+                          index.root)
+    facts = [screening.facts[p] for p in used]
+    f = next((x for x in facts if x.kind == "raw"), facts[0])
+    h, w = f.shape
+    return CameraIdentity(f.make, f.model, f.serial, f.cfa_pattern, w, h, f.layout)
 
 
 def camera_identity(session: str | Path | SessionIndex, stages: list[str] | None = None) -> CameraIdentity:
@@ -90,12 +135,14 @@ _REFERENCE_HINT = {
 }
 
 
-def _reference(index: SessionIndex, opts: CalibrateOptions) -> tuple[float, float, list[str]]:
+def _reference(index: SessionIndex, opts: CalibrateOptions,
+               required: bool = True) -> tuple[float | None, float | None, list[str]]:
     """The reference setting (ISO_ref, N_ref): the options', else the most common setting of the first stage
     present of sweep, linearity, dark, flat, bias (frames.csv / sweep.csv and session.toml applied).
 
-    Never defaulted: a value no frame, manifest or session default gives stops calibration with one line
-    saying what to add. Returns (ISO_ref, N_ref, notes): a note says when a value came from ``session.toml``
+    Never defaulted: when ``required`` (a stage normalises exposure, :data:`NORMALISING_STAGES`), a value no
+    frame, manifest or session default gives stops calibration with one line saying what to add; otherwise it
+    stays None (unknown). Returns (ISO_ref, N_ref, notes): a note says when a value came from ``session.toml``
     or from LibRaw alone rather than from a tag or a manifest.
     """
     iso, n = opts.reference_iso, opts.reference_f_number
@@ -103,7 +150,7 @@ def _reference(index: SessionIndex, opts: CalibrateOptions) -> tuple[float, floa
         return float(iso), float(n), []
     session = index.root
     for s in ("sweep", "linearity", "dark", "flat", "bias"):
-        if s not in index.stages:
+        if s not in index.stages or not index.frames[s].frames:
             continue
         manifest, csv_name = index.manifest_of(s)
         settings: Counter = Counter()
@@ -122,6 +169,8 @@ def _reference(index: SessionIndex, opts: CalibrateOptions) -> tuple[float, floa
                                     csv_name if row.get("f_number") else src_n))
         (fi, fn), _ = settings.most_common(1)[0]
         iso, n = iso or fi, n or fn
+        if not required:
+            return (float(iso) if iso else None), (float(n) if n else None), []
         for key, value in (("iso", iso), ("f_number", n)):
             if not value:
                 what, toml, col, opt = _REFERENCE_HINT[key]
@@ -134,8 +183,77 @@ def _reference(index: SessionIndex, opts: CalibrateOptions) -> tuple[float, floa
                                                  ("f-number", n, origin[(fi, fn)][1], opts.reference_f_number))
                  if not given and src in ("session", "libraw")]
         return float(iso), float(n), notes
+    if not required:
+        return (float(iso) if iso else None), (float(n) if n else None), []
     raise CamcalError("no stage folder to take the reference setting from; pass --reference-iso and "
                       "--reference-f-number", session)
+
+
+def _flat_mask(master, dark):
+    """Pixels left out of the flat's PRNU: masked in every frame, and the dark model's defects."""
+    mask = ~np.isfinite(master.value)
+    if dark is not None and dark.defects.shape == mask.shape:
+        mask |= dark.defects != 0
+    return mask
+
+
+def stage_checks(options: CalibrateOptions | None = None) -> dict[str, StageCheck]:
+    """Each stage's own check of one frame, run when the session is screened (:func:`camcal.screen.screen_session`):
+    dark and bias frames RAW and not saturated; flats RAW, well exposed and not saturated beyond use
+    (:func:`camcal.flat.check_flat_frame`); no check for the linearity series (saturated frames are data) and for
+    the sweep's RAW rows beyond being RAW (saturation and missing light are judged on the region of interest)."""
+    dark = dark_frame_check(DarkOptions(method=(options or CalibrateOptions()).dark_method).saturation_fraction)
+    flat_checks = FlatChecks()
+
+    def flat(frame: Frame) -> None:
+        check_flat_frame(frame, flat_checks)
+
+    return {"bias": dark, "dark": dark, "flat": flat}
+
+
+def _sweep_check(index: SessionIndex) -> StageCheck | None:
+    """The sweep rows must be RAW frames (their processed twins are for the colour matrix)."""
+    if index.sweep_manifest is None:
+        return None
+    rows = set(index.sweep_manifest)
+
+    def check(frame: Frame) -> None:
+        if frame.kind != "raw" and frame.path is not None and frame.path.name in rows:
+            raise CamcalError("not RAW: a sweep.csv row must be a RAW file (the spectral sweep needs linear RAW "
+                              "data)", frame.path)
+
+    return check
+
+
+@dataclass
+class _Record:
+    """What a calibration left out, as it goes (the profile's provenance.left_out and not_calibrated)."""
+
+    strict: bool
+    root: Path
+    left_out: list[Verdict] = field(default_factory=list)
+    not_calibrated: list[dict] = field(default_factory=list)
+
+    def leave_out(self, verdicts: list[Verdict]) -> None:
+        if self.strict and verdicts:
+            v = verdicts[0]
+            raise CamcalError(f"{v.reason} (--strict: a frame that cannot be used refuses the session; without "
+                              "--strict it is left out and listed)", self.root / v.stage / v.file)
+        self.left_out.extend(verdicts)
+
+    def skip(self, stage: str, exc: TooFewFrames) -> None:
+        """Record that ``stage`` is not calibrated (too few usable frames); strict: raise."""
+        if self.strict:
+            raise exc
+        self.not_calibrated.append({"stage": stage, "reason": exc.message})
+
+    def attempt(self, stage: str, fit: Callable[[], object]):
+        """``fit()``; None when the stage has too few usable frames (recorded), unless strict."""
+        try:
+            return fit()
+        except TooFewFrames as exc:
+            self.skip(stage, exc)
+            return None
 
 
 def calibrate_session(
@@ -144,53 +262,109 @@ def calibrate_session(
     """Calibrate every stage present in ``session``; returns the profile and notes (skipped stages...).
 
     The session is read once (:func:`camcal.session.index_session`: stage folders, manifests, session
-    defaults); every stage receives its frames from that index. ``progress(stage, done, total)`` is called
-    as frames are processed.
+    defaults) and screened (:func:`camcal.screen.screen_session`: every frame decoded once and given a verdict);
+    every stage receives its usable frames from that index. Frames left out are listed in the profile's
+    ``provenance.left_out``; a stage with too few usable frames is not calibrated and listed in
+    ``provenance.not_calibrated`` (the other stages are). With ``options.strict`` either refuses the session.
+    ``progress(stage, done, total)`` is called as frames are processed.
     """
     opts = options or CalibrateOptions()
     index = index_session(session)
     session = index.root
-    stages = list(index.stages)
-    camera = camera_identity(index)
-    ref_iso, ref_n, notes = _reference(index, opts)
 
     def cb(stage: str):
         return (lambda done, total: progress(stage, done, total)) if progress else None
 
+    checks = stage_checks(opts)
+    sweep_check = _sweep_check(index)
+    if sweep_check is not None:
+        checks["sweep"] = sweep_check
+    screening = screen_session(index, checks, jobs=opts.jobs, progress=cb("check frames"))
+    record = _Record(opts.strict, session)
+    record.leave_out(screening.left_out())
+    index = replace(index, frames=dict(screening.kept))
+    camera = identity_from_screening(index, screening)
+    stages = [s for s in index.stages if index.frames[s].frames]
+    for s in index.stages:
+        if s not in stages:
+            record.skip(s, TooFewFrames(s, "frames", 1, 0, f"all {len(screening.left_out(s))} left out",
+                                        session / s))
+    ref_iso, ref_n, notes = _reference(index, opts, required=any(s in stages for s in NORMALISING_STAGES))
+
     dark = flat = spectral = None
     response = None
-    bias_frames = index.stage("bias")
+    dark_stacks = master = prnu = pairs = series = None
+    bias_frames = index.stage("bias") if "bias" in stages else None
     if "dark" in stages:
         dark_opts = DarkOptions(method=opts.dark_method)
-        dark = fit_dark_stacks(stack_darks(index.frames["dark"], bias_frames, dark_opts, jobs=opts.jobs,
-                                           progress=cb("dark")), dark_opts)
-    elif bias_frames is not None:
-        dark = fit_dark_stacks(stack_darks(None, bias_frames, jobs=opts.jobs, progress=cb("bias")))
-        notes.append("bias/ without dark/: bias, read noise and noisy pixels calibrated; dark current unknown "
-                     "(apply subtracts the bias only; add dark frames at two exposure times to measure it)")
-    if "flat" in stages:
-        flat = fit_flat_with(index.frames["flat"], dark, FlatOptions(model=opts.flat_model), jobs=opts.jobs,
-                             progress=cb("flat"))
-        dead = dead_pixels(flat)
+
+        def fit_darks():
+            nonlocal dark_stacks
+            stacks = stack_darks(index.frames["dark"], bias_frames, dark_opts, jobs=opts.jobs, progress=cb("dark"))
+            record.leave_out([Verdict("dark", name, reason) for name, reason in stacks.left_out])
+            dark_stacks = stacks
+            return fit_dark_stacks(stacks, dark_opts)
+
+        dark = record.attempt("dark", fit_darks)
+    if dark is None and bias_frames is not None:
+        def fit_bias():
+            nonlocal dark_stacks
+            dark_stacks = stack_darks(None, bias_frames, jobs=opts.jobs, progress=cb("bias"))
+            return fit_dark_stacks(dark_stacks)
+
+        dark = record.attempt("bias", fit_bias)
         if dark is not None:
-            dark = with_dead_pixels(dark, dead, f"flat response below {DEAD_RESPONSE:g} of the model")
-        elif dead.any():
-            notes.append(f"{int(dead.sum())} dead pixels in the flats are not kept: without a dark model the "
-                         "profile has no defect map")
+            notes.append("bias/ without dark/: bias, read noise and noisy pixels calibrated; dark current unknown "
+                         "(apply subtracts the bias only; add dark frames at two exposure times to measure it)")
+    if "flat" in stages:
+        flat_opts = FlatOptions(model=opts.flat_model)
+
+        def fit_flat():
+            nonlocal master
+            master = master_flat(index.frames["flat"], dark, method=flat_opts.method, sigma=flat_opts.sigma,
+                                 checks=flat_opts.checks, jobs=opts.jobs, progress=cb("flat"))
+            return fit_master(master, dark, **flat_opts.fit_kwargs())
+
+        flat = record.attempt("flat", fit_flat)
+        if flat is not None:
+            if master is not None and master.mean_all is not None:
+                prnu = flat_prnu(master, flat, _flat_mask(master, dark))
+            dead = dead_pixels(flat)
+            if dark is not None:
+                dark = with_dead_pixels(dark, dead, f"flat response below {DEAD_RESPONSE:g} of the model")
+            elif dead.any():
+                notes.append(f"{int(dead.sum())} dead pixels in the flats are not kept: without a dark model the "
+                             "profile has no defect map")
     if "linearity" in stages:
-        response = fit_series_set(measure_series(index.frames["linearity"], dark=dark, reference_iso=ref_iso,
-                                                 reference_f_number=ref_n, progress=cb("linearity")))
+        def fit_linearity():
+            nonlocal series, pairs
+            series = measure_series(index.frames["linearity"], dark=dark, reference_iso=ref_iso,
+                                    reference_f_number=ref_n, progress=cb("linearity"))
+            pairs = series["raw"].pairs if "raw" in series else None
+            return fit_series_set(series)
+
+        response = record.attempt("linearity", fit_linearity)
     if "sweep" in stages:
         sweep = index.frames["sweep"]
+        kept_names = {p.name for p in sweep.paths}
         rows = sweep_rows(sweep.folder, index.sweep_manifest) if index.sweep_manifest is not None else None
+        rows = rows if rows is not None else read_sweep(sweep.folder)
+        rows = [r for r in rows if r.path.name in kept_names]
         sweep_opts = SweepOptions(mode=opts.sweep_mode, deconvolve=opts.deconvolve,  # type: ignore[arg-type]
-                                  reference_iso=ref_iso, reference_f_number=ref_n)
+                                  reference_iso=ref_iso, reference_f_number=ref_n)  # type: ignore[arg-type]
         sweep_opts.check()
-        measured = measure_sweep_settings(sweep.folder, rows if rows is not None else read_sweep(sweep.folder),
-                                          dark=dark, flat=flat, options=sweep_opts, jobs=opts.jobs,
-                                          progress=cb("sweep"))
-        spectral = sensitivity_from_settings(measured, sweep_opts)
-        if flat is None:
+
+        def fit_sweep():
+            if not rows:
+                raise TooFewFrames("sweep", "frames listed in sweep.csv", 1, 0)
+            measured = measure_sweep_settings(sweep.folder, rows, dark=dark, flat=flat, options=sweep_opts,
+                                              jobs=opts.jobs, progress=cb("sweep"))
+            record.leave_out([Verdict("sweep", name, reason) for name, reason in measured.left_out])
+            require_wavelengths(measured)
+            return sensitivity_from_settings(measured, sweep_opts)
+
+        spectral = record.attempt("sweep", fit_sweep)
+        if spectral is not None and flat is None:
             notes.append("sweep without a flat model: c(λ) refers to the region of interest, not the optical axis")
         if response is not None and "processed" in response:
             if twin_pairs(sweep):  # the sweep's colours; the series adds a broadband one
@@ -199,12 +373,27 @@ def calibrate_session(
             else:
                 notes.append("JPEG response without a colour matrix (the sweep has no JPEG twins): JPEG radiance "
                              "assumes the camera does not mix its channels")
+    if dark is None and flat is None and not response and spectral is None:
+        why = "; ".join(f"{r['reason']}" for r in record.not_calibrated) or "no stage was calibrated"
+        gone = "; ".join(f"{v.stage}/{v.file}: {v.reason}" for v in record.left_out[:3])
+        raise CamcalError(f"no stage could be calibrated: {why}" + (f" (left out: {gone})" if gone else ""), session)
+    emva = None
+    if dark is not None or pairs is not None or prnu is not None:
+        channels = dark.plane_names if dark is not None else (flat.channels if flat is not None else
+                                                              tuple(series["raw"].channels))  # type: ignore[index]
+        emva = build_sheet(channels=tuple(channels), iso=dark.iso if dark is not None else ref_iso,
+                           dark_stacks=dark_stacks, dark=dark, master_flat=master, flat_prnu=prnu, pairs=pairs,
+                           spectral=spectral, pixel_pitch_um=session_camera_facts(session / stages[0]).get(
+                               "pixel_pitch_um"))
     provenance = Provenance(
         camcal_version=__version__,
         created_utc=datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
         inputs=tuple(_inputs(index)),
-        options={**asdict(opts), "session": session.name, "stages": stages},
+        options={**asdict(opts), "session": session.name, "stages": list(index.stages)},
+        left_out=tuple(v.record() for v in record.left_out),
+        not_calibrated=tuple(record.not_calibrated),
     )
     profile = CalibrationProfile(camera=camera, reference_iso=ref_iso, reference_f_number=ref_n, dark=dark,
-                                 flat=flat, response=response, spectral=spectral, provenance=provenance)
+                                 flat=flat, response=response, spectral=spectral, emva=emva,
+                                 provenance=provenance)
     return profile, notes

@@ -73,8 +73,9 @@ class Calibration:
     noise_gain_dn_per_e: np.ndarray | None = None
 
     @staticmethod
-    def of(dark: Any = None, flat: Any = None, *, with_prnu: bool = False) -> Calibration:
-        """Build from a dark model and a :class:`camcal.flat.FlatModel` (either may be None)."""
+    def of(dark: Any = None, flat: Any = None, *, with_prnu: bool = False, emva: Any = None) -> Calibration:
+        """Build from a dark model and a :class:`camcal.flat.FlatModel` (either may be None); the system gain
+        of the noise model is :func:`system_gain_dn_per_e` (``emva``: the profile's EMVA 1288 sheet)."""
         gain = None
         if flat is not None:
             gain = np.asarray(flat.gain(with_prnu=with_prnu), np.float32)
@@ -84,11 +85,7 @@ class Calibration:
         d = getattr(dark, "defects", None)
         if d is not None:
             defects = np.asarray(d) != 0
-        k = None
-        if getattr(dark, "read_noise_dn", None) is not None and callable(getattr(dark, "summary", None)):
-            gains = dark.summary().get("gain_dn_per_e_from_dark") or {}
-            names = getattr(dark, "plane_names", PLANES)
-            k = np.array([float(gains.get(p, 0.0) or 0.0) for p in names], np.float32)[:, None, None]
+        k = system_gain_dn_per_e(dark, emva)
         inv = None if gain is None else (1.0 / gain).astype(np.float32)
         return Calibration(dark=dark, flat_gain=gain, defects=defects, inv_flat_gain=inv, noise_gain_dn_per_e=k)
 
@@ -277,6 +274,28 @@ def correct_planes(
     saturated = raw_bad & ~defective
     invalid = raw_bad | defective
     return Corrected(signal, var, invalid, saturated, defective, raw_bad, tuple(channels))
+
+
+def system_gain_dn_per_e(dark: Any, emva: Any = None) -> np.ndarray | None:
+    """(C, 1, 1) float32 system gain K of the noise model at the dark model's ISO, DN/e⁻, or None without a
+    dark model.
+
+    Per plane: K from photon transfer (the profile's EMVA 1288 sheet, :class:`camcal.emva.EmvaSheet`, scaled
+    from its ISO to the dark model's) where known, else the dark model's photon-transfer line of the dark
+    signal (``gain_dn_per_e_from_dark``, weak when the dark current is small), else 0 (no shot-noise term).
+    """
+    if getattr(dark, "read_noise_dn", None) is None or not callable(getattr(dark, "summary", None)):
+        return None
+    gains = dark.summary().get("gain_dn_per_e_from_dark") or {}
+    names = getattr(dark, "plane_names", PLANES)
+    k = [float(gains.get(p, 0.0) or 0.0) for p in names]
+    if emva is not None:
+        scale = float(dark.iso) / float(emva.iso)
+        for i, p in enumerate(names):
+            g = emva.gain_dn_per_e(p)
+            if g is not None and np.isfinite(g) and g > 0:
+                k[i] = float(g) * scale
+    return np.array(k, np.float32)[:, None, None]
 
 
 def noise_variance(signal_dn: np.ndarray, dark_signal_dn: np.ndarray, read_noise_dn: np.ndarray,

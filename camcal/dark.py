@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -44,7 +45,7 @@ from scipy.special import ndtr
 from scipy.stats import chi2, median_abs_deviation
 
 from camcal.correct import Calibration, correct_planes, dark_frame
-from camcal.errors import CamcalError, MissingMetadataError
+from camcal.errors import CamcalError, FrameLeftOut, MissingMetadataError, TooFewFrames
 from camcal.frame import PLANES, RGB, Frame
 from camcal.io import exposure_from_exif
 from camcal.session import StageFrames, folder_of, stage_files
@@ -253,6 +254,8 @@ class DarkStacks:
     bias_folder: Path | None = None
     dark_files: tuple[str, ...] = ()
     bias_files: tuple[str, ...] = ()
+    left_out: tuple[tuple[str, str], ...] = ()
+    """(file name, reason) of dark frames not stacked: a frame alone at its exposure time."""
 
 
 
@@ -308,8 +311,8 @@ def stack_darks(
         files, manifest = stage_files(bias)
         bias_folder = folder_of(bias)
         if len(files) < 2:
-            raise CamcalError(f"a bias-only calibration needs two or more bias frames, found {len(files)}",
-                              bias_folder)
+            raise TooFewFrames("bias", "frames (a bias-only calibration measures the read noise between frames)",
+                               2, len(files), path=bias_folder)
         st = combine_frames(files, method="mean", manifest=manifest, check=check, jobs=jobs, progress=progress,
                             keep_frames=QUANTISED_FIT_FRAMES)
         _check_stacks([st], bias_folder)
@@ -320,12 +323,25 @@ def stack_darks(
     groups: dict[float, list[Path]] = {}
     for p, t in zip(files, times, strict=True):
         groups.setdefault(float(f"{t:.6g}"), []).append(p)
+    # a frame alone at its exposure time has no temporal noise to measure: left out while other times have two
+    lone = {t: g for t, g in groups.items() if len(g) < 2}
+    left_out: tuple[tuple[str, str], ...] = ()
+    if lone and len(lone) < len(groups):
+        left_out = tuple((g[0].name, f"alone at its exposure time ({t:g} s): the dark model measures the temporal "
+                                     "noise of each exposure time from two or more frames") for t, g in lone.items())
+        for name, reason in left_out:
+            warnings.warn(f"left out: {name}: {reason}", FrameLeftOut, stacklevel=2)
+        groups = {t: g for t, g in groups.items() if t not in lone}
+        files = [p for p in files if all(p.name != n for n, _ in left_out)]
     bias_files, bias_manifest = stage_files(bias) if bias is not None else ([], {})
     bias_folder = folder_of(bias) if bias is not None else None
     if bias_folder is None and len(groups) < 2:
+        if not groups:
+            raise TooFewFrames("dark", "frames", 1, 0, path=dark_folder)
         (t0,) = groups
-        raise CamcalError(f"all {len(files)} dark frames have one exposure time ({t0:g} s); the dark-current fit "
-                          "needs two or more exposure times, or bias frames (--bias)", dark_folder)
+        raise TooFewFrames("dark", "exposure times (or bias frames)", 2, 1,
+                           f"all {len(files)} dark frames have one exposure time ({t0:g} s); the dark-current fit "
+                           "needs two or more exposure times, or bias frames (--bias)", dark_folder)
     total = len(files) + len(bias_files)
     done = 0
     bias_stack = None
@@ -342,7 +358,7 @@ def stack_darks(
         darks.append((t, st))
     _check_stacks([s for _, s in darks] + ([bias_stack] if bias_stack is not None else []), dark_folder)
     return DarkStacks(tuple(darks), bias_stack, dark_folder, bias_folder, tuple(p.name for p in files),
-                      tuple(p.name for p in bias_files))
+                      tuple(p.name for p in bias_files), left_out)
 
 
 def fit_dark(

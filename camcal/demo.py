@@ -72,6 +72,10 @@ def _checks(truth: dict, contract: dict, survey: dict, vignetting_error: float) 
     hot = (sum(1 for c, _, _ in truth["hot_pixels"] if c in LINEAR_FROM_PLANES) if linear
            else truth["hot_pixel_count"])
     rows.append(Check("dark", "hot pixels", hot, d["hot_pixel_count"], 0.05))
+    e = contract.get("emva1288")
+    if e:  # the linearity series is shot in pairs: K by EMVA 1288 photon transfer
+        g = e["channels"].get("G1") or e["channels"]["G"]
+        rows.append(Check("emva", "K G (DN/e⁻)", 1.0 / truth["gain_e_per_dn_at_iso"], g["K_dn_per_e"], 0.03))
     f = contract["flat"]
     # the vignetting model against the camera's own map, its largest error over every pixel of every plane
     rows.append(Check("flat", "vignetting max error", 0.0, vignetting_error, 0.005, relative=False))
@@ -120,7 +124,7 @@ def run_demo(out: str | Path, *, size: tuple[int, int] = (384, 256), preset_name
                 tasks[stage] = bar.add_task(stage, total=total)
             bar.update(tasks[stage], completed=done, total=total)
 
-        session = write_session(out / "session", cam, SessionPlan(layout=layout),
+        session = write_session(out / "session", cam, SessionPlan(layout=layout, linearity_repeats=2),
                                 progress=lambda s, d, n: tick(f"synthesise {s}", d, n))
         profile, notes = calibrate_session(session, progress=lambda s, d, n: tick(f"calibrate {s}", d, n))
         profile = save_profile(profile, out / "camera.camcal")

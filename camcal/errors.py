@@ -40,3 +40,29 @@ class MissingMetadataError(CamcalError):
             path,
         )
         self.field = field
+
+
+class TooFewFrames(CamcalError):
+    """A stage has fewer usable frames (or exposures, or wavelengths) than its fit needs.
+
+    ``camcal calibrate`` leaves such a stage out of the profile and goes on with the others (exit code 1);
+    with ``--strict``, or when a stage runs on its own, it is an error like any other.
+
+    Parameters
+    ----------
+    stage : the stage (``bias``, ``dark``, ``flat``, ``linearity``, ``sweep``).
+    what : what is counted, plural (``"distinct exposures"``, ``"wavelengths"``).
+    needed, remaining : how many the fit needs and how many are usable.
+    detail : what was left out, or why, appended to the message.
+    """
+
+    def __init__(self, stage: str, what: str, needed: int, remaining: int, detail: str = "",
+                 path: str | Path | None = None) -> None:
+        self.stage, self.what, self.needed, self.remaining = stage, what, int(needed), int(remaining)
+        tail = f" ({detail})" if detail else ""
+        super().__init__(f"the {stage} stage needs at least {needed} usable {what}, {remaining} remain{tail}", path)
+
+
+class FrameLeftOut(UserWarning):
+    """A stage left a frame out and goes on without it (``camcal calibrate`` lists these in its summary table
+    and the profile's ``provenance.left_out`` rather than as warnings)."""

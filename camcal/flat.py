@@ -50,6 +50,7 @@ from scipy.optimize import least_squares
 
 from camcal.correct import Calibration, correct_frame, correct_planes, require_valid
 from camcal.dark import DarkModel, as_dark_model
+from camcal.emva import Nonuniformity, prnu, spatial_variance
 from camcal.errors import CamcalError
 from camcal.frame import PLANES, Frame, plane_offsets
 from camcal.io import load_folder_frame
@@ -644,6 +645,9 @@ class MasterFlat:
     level_dn : per-plane median signal of the first frame, DN above dark (the frames are checked to be
         well exposed; the master itself is normalised).
     n_frames, paths, channels, cfa_pattern, method, exposure_s (per frame).
+    mean_all, variance_all : (C, h, w) float32 plain mean and per-frame temporal variance (ddof = 1) of *all*
+        normalised frames, before any clipping: the unclipped statistics of EMVA 1288's spatial variance
+        (:func:`camcal.emva.spatial_variance`); None with a single frame.
     """
 
     value: np.ndarray
@@ -655,6 +659,8 @@ class MasterFlat:
     cfa_pattern: str | None
     method: str
     exposure_s: tuple[float | None, ...]
+    mean_all: np.ndarray | None = None
+    variance_all: np.ndarray | None = None
 
 
 def master_flat(
@@ -719,6 +725,8 @@ def master_flat(
         value=np.asarray(res.value, np.float32), variance_of_mean=var, level_dn=level, n_frames=int(res.n_frames),
         paths=tuple(Path(p) for p in res.paths), channels=tuple(res.channel_names), cfa_pattern=first.cfa_pattern,
         method=str(res.method), exposure_s=tuple(e.exposure_s for e in res.exposures),
+        mean_all=None if var is None or res.mean_all is None else np.asarray(res.mean_all, np.float32),
+        variance_all=None if var is None or res.variance_all is None else np.asarray(res.variance_all, np.float32),
     )
 
 
@@ -799,9 +807,38 @@ def fit_master(
     fm = fit_flat_planes(mf.value, channels=mf.channels, cfa_pattern=mf.cfa_pattern, model=model,
                          downsample=downsample, n_terms=n_terms, degree_2d=degree_2d, mask=mask, with_prnu=with_prnu,
                          noise_var=mf.variance_of_mean, info=info)
+    if with_prnu and mf.mean_all is not None:
+        fm = dataclasses.replace(fm, prnu_rms={c: p.value for c, p in flat_prnu(mf, fm, mask).items()})
     # the master is normalised per plane: report the on-axis level in DN of the frames
     level_dn = {c: fm.level_dn[c] * mf.level_dn[c] for c in fm.channels}
     return dataclasses.replace(fm, level_dn=level_dn)
+
+
+def flat_prnu(mf: MasterFlat, fm: FlatModel, mask: np.ndarray | None = None) -> dict[str, Nonuniformity]:
+    """EMVA 1288 PRNU per plane of a master flat about the fitted vignetting model (pure).
+
+    The unclipped average of the L normalised flats is divided by the smooth model (vignetting, lamp
+    falloff: not pixel nonuniformity) and its spatial variance reduced by the temporal variance left in
+    the average, ``s²_y = s²_y.measured − σ²_y.stack / L`` (EMVA 1288 release 4.0, eq. 36,
+    :func:`camcal.emva.spatial_variance`). The flats are dark-subtracted per pixel with the dark model, so
+    the DSNU is already out (the standard's ``− s²_y.dark``). ``fm`` must be the fit of ``mf`` (level_dn in
+    the master's normalised units). Pixels masked by ``mask``, non-finite or not responding
+    (:data:`DEAD_RESPONSE`) are left out.
+    """
+    if mf.mean_all is None or mf.variance_all is None:
+        raise CamcalError("the master flat has no unclipped statistics (a single frame?)")
+    smooth = fm.gain().astype(np.float64) * np.array([fm.level_dn[c] for c in fm.channels])[:, None, None]
+    out = {}
+    for i, c in enumerate(fm.channels):
+        rel = mf.mean_all[i] / smooth[i]
+        good = np.isfinite(rel) & (smooth[i] > 0) & np.isfinite(mf.variance_all[i])
+        if mask is not None:
+            good &= ~np.asarray(mask[i], bool)
+        med = float(np.median(rel[good]))
+        good &= (rel >= DEAD_RESPONSE * med) & (rel <= (2.0 - DEAD_RESPONSE) * med)
+        sv = spatial_variance(rel, mf.variance_all[i] / smooth[i] ** 2, mf.n_frames, good)
+        out[c] = prnu(sv)
+    return out
 
 
 def run_flat_stage(

@@ -38,6 +38,10 @@ LAYOUTS: tuple[str, ...] = ("bayer", "linear", "processed")
 TRACKED: tuple[str, ...] = ("exposure_s", "f_number", "iso", "capture_time")
 """Exposure fields whose source is recorded."""
 
+PLACE_TIME: tuple[str, ...] = ("utc_offset", "gps_time_utc", "latitude_deg", "longitude_deg", "altitude_m")
+"""Where and when the photo was taken (EXIF OffsetTimeOriginal and the GPS block): fields whose source is
+recorded as for :data:`TRACKED` (``tag``, or ``session`` for a ``utc_offset`` given in ``session.toml``)."""
+
 SOURCES: tuple[str, ...] = ("tag", "libraw", "frames.csv", "session")
 """Where a value came from: the file's own metadata tag (read by an EXIF reader), LibRaw alone
 (its decoding of a maker header, no tag an EXIF reader finds), the folder's ``frames.csv``, the
@@ -61,9 +65,19 @@ class Exposure:
     make, model, serial : str or None
         Camera identity from the file's metadata.
     capture_time : str or None
-        Capture time as ISO 8601 text, local camera time.
+        Capture time as ISO 8601 text, local camera time (EXIF DateTimeOriginal: a clock reading
+        without a zone).
     temperature_c : float or None
         Sensor or ambient temperature in degrees Celsius, when known.
+    utc_offset : str or None
+        The camera clock's offset from UTC, ``+HH:MM`` (EXIF OffsetTimeOriginal, or ``utc_offset`` in
+        ``session.toml``): local time = UTC + offset. Never guessed.
+    gps_time_utc : str or None
+        UTC capture time from the GPS block (GPSDateStamp + GPSTimeStamp), ISO 8601 text with ``+00:00``.
+    latitude_deg, longitude_deg : float or None
+        WGS-84 position from the GPS block, degrees, north and east positive.
+    altitude_m : float or None
+        GPS altitude above sea level, m (negative below).
     sources : tuple of (field, source) pairs
         Where each known field of :data:`TRACKED` came from (one of :data:`SOURCES`);
         read it with :meth:`source`.
@@ -79,11 +93,17 @@ class Exposure:
     serial: str | None = None
     capture_time: str | None = None
     temperature_c: float | None = None
+    utc_offset: str | None = None
+    gps_time_utc: str | None = None
+    latitude_deg: float | None = None
+    longitude_deg: float | None = None
+    altitude_m: float | None = None
     sources: tuple[tuple[str, str], ...] = ()
     notes: tuple[str, ...] = ()
 
     def source(self, name: str) -> str | None:
-        """Where field ``name`` came from (one of :data:`SOURCES`); None when the value is unknown."""
+        """Where field ``name`` (of :data:`TRACKED` or :data:`PLACE_TIME`) came from (one of :data:`SOURCES`);
+        None when the value is unknown."""
         if getattr(self, name) is None:
             return None
         return dict(self.sources).get(name)
@@ -98,7 +118,7 @@ class Exposure:
     def merged(self, source: str = "frames.csv", **overrides) -> Exposure:
         """A copy with every non-None override applied (manifest over file), recorded as from ``source``."""
         clean = {k: v for k, v in overrides.items() if v is not None}
-        src = dict(self.sources) | {k: source for k in clean if k in TRACKED}
+        src = dict(self.sources) | {k: source for k in clean if k in TRACKED or k in PLACE_TIME}
         return dataclasses.replace(self, **clean, sources=tuple(sorted(src.items())))
 
     def filled(self, source: str = "session", **defaults) -> Exposure:
@@ -138,6 +158,9 @@ class Frame:
     layout : {"bayer", "linear", "processed"} or None
         Sensor layout (see the module docstring); None (the default) derives it from ``kind``:
         ``raw`` → ``bayer``, ``processed`` → ``processed``.
+    icc_profile : str or None
+        Processed images: the description of the embedded ICC profile (e.g. ``Display P3`` for an
+        iPhone's HEIC), noted, not applied; None when the file embeds none (or it is not read).
     """
 
     data: np.ndarray
@@ -148,6 +171,7 @@ class Frame:
     exposure: Exposure = field(default_factory=Exposure)
     path: Path | None = None
     layout: Literal["bayer", "linear", "processed"] | None = None
+    icc_profile: str | None = None
 
     def __post_init__(self) -> None:
         if self.layout is None:

@@ -6,7 +6,7 @@ from pathlib import Path
 
 from camcal.errors import CamcalError
 from camcal.frame import TRACKED
-from camcal.io import load_frame
+from camcal.io import load_frame, saturated_fraction
 
 
 def describe(path: str | Path) -> dict[str, object]:
@@ -15,7 +15,9 @@ def describe(path: str | Path) -> dict[str, object]:
     Keys: file, kind (raw/processed), layout (bayer/linear/processed), format, width, height,
     channels (plane names), cfa_pattern, black_level_dn (per plane), white_level_dn,
     exposure_s, f_number, iso, exposure_value_s (ISO·t/N², s), make, model, serial,
-    capture_time, sources (where each of exposure_s, f_number, iso, capture_time came from:
+    capture_time, saturated_pct (percent of the values at or above the white level), saturated (a note
+    when a quarter of them or more are: "fully saturated" or the percentage; null otherwise), sources
+    (where each of exposure_s, f_number, iso, capture_time came from:
     ``tag``, ``libraw``, ``frames.csv``, ``session``; null when unknown), notes (disagreements
     between readers, values set aside), error (null).
 
@@ -25,6 +27,7 @@ def describe(path: str | Path) -> dict[str, object]:
     f = load_frame(path)
     e = f.exposure
     h, w = f.shape
+    sat = 100.0 * saturated_fraction(f.data, f.white_level_dn)
     ev = e.iso * e.exposure_s / e.f_number**2 if (e.iso and e.exposure_s and e.f_number) else None
     return {
         "file": str(path),
@@ -45,6 +48,9 @@ def describe(path: str | Path) -> dict[str, object]:
         "model": e.model,
         "serial": e.serial,
         "capture_time": e.capture_time,
+        "saturated_pct": round(sat, 3),
+        "saturated": ("fully saturated: every value at the white level" if sat >= 100.0 else
+                      f"{min(sat, 99.99):.4g} % of the values at the white level" if sat >= 25.0 else None),
         "sources": {name: e.source(name) for name in TRACKED},
         "notes": list(e.notes),
         "error": None,

@@ -1,4 +1,16 @@
-"""Reading frames: RAW through rawpy (LibRaw), JPEG/TIFF/PNG through OpenImageIO.
+"""Reading frames: RAW through rawpy (LibRaw), JPEG/TIFF/PNG through OpenImageIO, HEIC/HEIF through
+pillow-heif (libheif).
+
+HEIC/HEIF photos (a phone's default format) are processed images like JPEG: R, G, B of 8 bits, or of
+10 or 12 bits held in uint16 (white level 2**bits − 1); the embedded ICC profile's description is noted
+on the frame (iPhones write Display P3), not applied. Their EXIF block, taken out by libheif, is read by
+the same EXIF reader as every other file.
+
+Where and when (:data:`camcal.frame.PLACE_TIME`), from the EXIF of RAW, JPEG and HEIC alike, each marked
+``tag``: OffsetTimeOriginal (the clock's zone), the GPS block's position and altitude, and its UTC
+GPSDateStamp + GPSTimeStamp. A position of exactly 0°, 0° (written by receivers without a fix), a
+reference letter that is missing, and a GPS time without a date are unknown, with a note. A
+``utc_offset`` in ``session.toml`` fills an offset the file does not hold (marked ``session``).
 
 Exposure metadata, each value with its source (:data:`camcal.frame.SOURCES`):
 
@@ -23,11 +35,13 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import io
 import logging
 import math
 import os
 import sys
 import threading
+from datetime import UTC, datetime
 from fractions import Fraction
 from pathlib import Path
 
@@ -36,13 +50,16 @@ import numpy as np
 from camcal.errors import CamcalError
 from camcal.frame import PLANES, RGB, TRACKED, Exposure, Frame, pattern_from_rawpy, plane_offsets
 from camcal.limits import DEFAULT_MAX_PIXELS, check_expansion, declared_image_bytes, max_pixels  # noqa: F401
-from camcal.manifest import FRAMES_CSV, exposure_overrides, read_manifest, session_defaults_for
+from camcal.manifest import FRAMES_CSV, exposure_overrides, parse_utc_offset, read_manifest, session_defaults_for
 
 RAW_EXTENSIONS = {
     ".dng", ".cr2", ".cr3", ".crw", ".nef", ".nrw", ".arw", ".srf", ".sr2", ".orf", ".rw2", ".raf",
     ".pef", ".srw", ".x3f", ".3fr", ".iiq", ".erf", ".kdc", ".dcr", ".mrw", ".raw", ".rwl",
 }
-PROCESSED_EXTENSIONS = {".jpg", ".jpeg", ".tif", ".tiff", ".png"}
+HEIF_EXTENSIONS = {".heic", ".heif", ".hif"}
+PROCESSED_EXTENSIONS = {".jpg", ".jpeg", ".tif", ".tiff", ".png"} | HEIF_EXTENSIONS
+HEIF_BRANDS = {b"heic", b"heix", b"hevc", b"hevx", b"heim", b"heis", b"hevm", b"hevs", b"mif1", b"msf1", b"mif2"}
+"""ISO/IEC 23008-12 major brands of HEVC-coded HEIF files (the ``ftyp`` box, bytes 8–12)."""
 IMAGE_EXTENSIONS = RAW_EXTENSIONS | PROCESSED_EXTENSIONS
 
 
@@ -90,14 +107,55 @@ def _magic(path: Path) -> bytes:
         raise CamcalError(f"cannot read: {exc.strerror}", path) from None
 
 
-def _exif_tags(path: Path) -> dict[str, object]:
-    """EXIF tags via exifread (header only); {} when the file has none or is damaged."""
-    try:
-        import exifread  # lazy: only when a file's EXIF is read
+def is_heif(path: Path) -> bool:
+    """True when the file is an HEVC-coded HEIF (HEIC) image, by its ``ftyp`` box or, failing that, its name."""
+    head = _magic(path)
+    if head[4:8] == b"ftyp":
+        return head[8:12] in HEIF_BRANDS
+    return path.suffix.lower() in HEIF_EXTENSIONS and not head.startswith((b"\xff\xd8\xff", b"\x89PNG"))
 
-        log = logging.getLogger("exifread")  # it logs "File format not recognized." to stderr on non-EXIF files
-        if log.level == logging.NOTSET:
-            log.setLevel(logging.ERROR)
+
+def _exif_reader():
+    import exifread  # lazy: only when a file's EXIF is read
+
+    log = logging.getLogger("exifread")  # it logs "File format not recognized." to stderr on non-EXIF files
+    if log.level == logging.NOTSET:
+        log.setLevel(logging.ERROR)
+    return exifread
+
+
+def _exif_from_block(block: bytes | None) -> dict[str, object]:
+    """EXIF tags of an EXIF block (TIFF structure, optionally after ``Exif\\0\\0``) via exifread; {} on failure."""
+    if not block:
+        return {}
+    if block.startswith(b"Exif\x00\x00"):
+        block = block[6:]
+    try:
+        return _exif_reader().process_file(io.BytesIO(block), details=False, debug=False)
+    except Exception:  # exifread raises many types on damaged blocks; metadata is optional here
+        return {}
+
+
+def _heif_exif_block(path: Path) -> bytes | None:
+    """The EXIF block libheif finds in a HEIF file (exifread knows only some HEIF brands); None when none."""
+    import pillow_heif  # lazy: only for HEIF files
+
+    try:
+        with quiet_stderr():
+            return pillow_heif.open_heif(str(path)).info.get("exif")
+    except Exception:  # a damaged file: the pixel decoder reports it; metadata is optional here
+        return None
+
+
+def _exif_tags(path: Path) -> dict[str, object]:
+    """EXIF tags via exifread (header only); {} when the file has none or is damaged.
+
+    HEIF files: the EXIF block libheif takes out of the file, read by exifread.
+    """
+    if is_heif(path):
+        return _exif_from_block(_heif_exif_block(path))
+    try:
+        exifread = _exif_reader()
         with open(path, "rb") as fh:
             return exifread.process_file(fh, details=False, debug=False)
     except Exception:  # exifread raises many types on damaged files; metadata is optional here
@@ -164,14 +222,89 @@ def exposure_from_exif(path: Path, tags: dict[str, object] | None = None) -> Exp
         "iso": num(*TAG_NAMES["iso"]),
         "capture_time": _iso_time(text(*TAG_NAMES["capture_time"])),
     }
+    place, notes = place_time_from_exif(tags)
     return Exposure(
         **values,
+        **place,
         make=text("Image Make"),
         model=text("Image Model"),
         serial=text("EXIF BodySerialNumber", "Image Tag 0xC62F", "MakerNote SerialNumber"),
         temperature_c=float(temp) if isinstance(temp, float) else None,
-        sources=tuple(sorted((k, "tag") for k, v in values.items() if v is not None)),
+        sources=tuple(sorted((k, "tag") for k, v in (values | place).items() if v is not None)),
+        notes=tuple(notes),
     )
+
+
+def _ratios(tags: dict[str, object], name: str) -> list[float] | None:
+    """The rational values of tag ``name`` as floats; None when absent or a denominator is zero."""
+    tag = tags.get(name)
+    vals = getattr(tag, "values", None)
+    if not isinstance(vals, list | tuple) or not vals:
+        return None
+    out = []
+    for v in vals:
+        try:
+            out.append(float(Fraction(v.num, v.den)) if hasattr(v, "num") else float(v))
+        except (TypeError, ValueError, ZeroDivisionError):
+            return None
+    return out
+
+
+def place_time_from_exif(tags: dict[str, object]) -> tuple[dict[str, object], list[str]]:
+    """OffsetTimeOriginal and the GPS block (position, altitude, UTC date and time) of exifread ``tags``.
+
+    Returns
+    -------
+    (values, notes): ``values`` holds the :data:`camcal.frame.PLACE_TIME` fields found (unknown ones left
+    out); ``notes`` says why a present tag was not used.
+    """
+    values: dict[str, object] = {}
+    notes: list[str] = []
+
+    def text(name: str) -> str | None:
+        v = _exif_value(tags, name)
+        return v if isinstance(v, str) else None
+
+    off = text("EXIF OffsetTimeOriginal")
+    if off is not None:
+        if parse_utc_offset(off) is None:
+            notes.append(f"OffsetTimeOriginal {off!r} is not an offset of a time zone (±HH:MM); not used")
+        else:
+            values["utc_offset"] = "+00:00" if off.strip() in ("Z", "z") else off.strip()
+    lat, lon = _ratios(tags, "GPS GPSLatitude"), _ratios(tags, "GPS GPSLongitude")
+    lat_ref, lon_ref = text("GPS GPSLatitudeRef"), text("GPS GPSLongitudeRef")
+    if lat is not None and lon is not None:
+        deg = [sum(x / 60.0**i for i, x in enumerate(v[:3])) for v in (lat, lon)]
+        if lat_ref not in ("N", "S") or lon_ref not in ("E", "W"):
+            notes.append("GPS position without its N/S or E/W reference; not used")
+        elif deg[0] == 0.0 and deg[1] == 0.0:
+            notes.append("GPS position 0°, 0° (a receiver without a fix writes it); not used")
+        elif deg[0] > 90.0 or deg[1] > 180.0:
+            notes.append(f"GPS position {deg[0]:.6g}°, {deg[1]:.6g}° is out of range; not used")
+        else:
+            values["latitude_deg"] = -deg[0] if lat_ref == "S" else deg[0]
+            values["longitude_deg"] = -deg[1] if lon_ref == "W" else deg[1]
+    alt = _ratios(tags, "GPS GPSAltitude")
+    if alt is not None and "latitude_deg" in values:
+        ref = _ratios(tags, "GPS GPSAltitudeRef")
+        values["altitude_m"] = -alt[0] if ref and ref[0] == 1 else alt[0]
+    hms, date = _ratios(tags, "GPS GPSTimeStamp"), text("GPS GPSDate") or text("GPS GPSDateStamp")
+    if hms is not None and len(hms) == 3:
+        if date is None:
+            notes.append("GPS time stamp without a GPS date; not used (the UTC date is unknown)")
+        else:
+            try:
+                day = datetime.strptime(date.strip(), "%Y:%m:%d")
+                h, m, sec = hms
+                if not (0 <= h < 24 and 0 <= m < 60 and 0 <= sec < 61):
+                    raise ValueError
+                whole = int(sec)
+                utc = day.replace(hour=int(h), minute=int(m), second=min(whole, 59),
+                                  microsecond=int(round((sec - whole) * 1e6)) % 1_000_000, tzinfo=UTC)
+                values["gps_time_utc"] = utc.isoformat()
+            except ValueError:
+                notes.append(f"GPS date/time {date} {hms} is not a valid date and time; not used")
+    return values, notes
 
 
 def _iso_time(exif_time: str | None) -> str | None:
@@ -304,11 +437,13 @@ def _check_size_for_pixels(path: Path, width: int, height: int) -> None:
 
 
 def check_has_data(path: Path, data: np.ndarray, black_dn: float, white_dn: float) -> None:
-    """Refuse a RAW frame that holds no image data (stripped, blank or fully saturated).
+    """Refuse a RAW frame that holds no image data (stripped or blank).
 
-    Refused: every pixel 0; every pixel the same value; every pixel at or above the white level;
-    99 % or more of the pixels below the black level (a sensor cannot read below its bias: the
-    image data is missing, as in files whose data were stripped and decode to zeros).
+    Refused: every pixel 0; every pixel the same value below the white level; 99 % or more of the
+    pixels below the black level (a sensor cannot read below its bias: the image data is missing, as in
+    files whose data were stripped and decode to zeros). A frame with every pixel at or above the white
+    level is an image (over-exposed), not a file without data: it is read, and each stage decides what
+    its saturation means (:func:`saturated_fraction`; a linearity series ends there, a flat is left out).
 
     Raises
     ------
@@ -318,9 +453,8 @@ def check_has_data(path: Path, data: np.ndarray, black_dn: float, white_dn: floa
     if hi == 0:
         raise CamcalError("holds no image data: every pixel is 0 (the image data may have been stripped); "
                           "a frame of zeros is not a dark frame", path)
-    if lo >= white_dn:
-        raise CamcalError(f"holds no usable image data: every pixel is at the white level ({white_dn:g} DN, "
-                          "fully saturated)", path)
+    if lo >= white_dn:  # fully saturated: an over-exposed image, not a file without data
+        return
     if lo == hi:
         raise CamcalError(f"holds no image data: every pixel has the same value ({lo} DN)", path)
     if black_dn > 0 and lo < black_dn:
@@ -328,6 +462,11 @@ def check_has_data(path: Path, data: np.ndarray, black_dn: float, white_dn: floa
         if below >= 0.99:
             raise CamcalError(f"holds no image data: {100 * below:.1f} % of the pixels are below the black level "
                               f"({black_dn:g} DN; the image data may have been stripped)", path)
+
+
+def saturated_fraction(data: np.ndarray, white_dn: float) -> float:
+    """Fraction of the values of ``data`` at or above the white level ``white_dn`` (0…1)."""
+    return float(np.count_nonzero(data >= white_dn)) / max(int(data.size), 1)
 
 
 def _load_raw(path: Path) -> Frame:
@@ -483,12 +622,69 @@ def _load_processed(path: Path) -> Frame:
     )
 
 
+def icc_description(icc: bytes | None) -> str | None:
+    """The description of an ICC profile (its ``desc`` tag, read by Pillow's LittleCMS), e.g. ``Display P3``;
+    None when there is no profile or it cannot be read."""
+    if not icc:
+        return None
+    from PIL import ImageCms  # lazy: only for images that embed a profile
+
+    try:
+        desc = ImageCms.getProfileDescription(ImageCms.ImageCmsProfile(io.BytesIO(icc))).strip()
+    except (OSError, ValueError, TypeError, ImageCms.PyCMSError):
+        return "unreadable ICC profile"
+    return desc or None
+
+
+def _load_heif(path: Path) -> Frame:
+    """A HEIC/HEIF photo as a processed frame: R, G, B of 8 bits (uint8) or 10/12 bits (uint16, not rescaled)."""
+    import pillow_heif  # lazy: only for HEIF files
+
+    try:
+        with quiet_stderr():
+            heif = pillow_heif.open_heif(str(path), convert_hdr_to_8bit=False)
+    except (ValueError, RuntimeError, OSError, SyntaxError) as exc:
+        raise CamcalError(f"cannot open as a HEIC/HEIF image (damaged, or not a supported image): {exc}",
+                          path) from None
+    w, h = heif.size
+    bits = int(heif.info.get("bit_depth") or 8)
+    mode = str(heif.mode)
+    channels = 4 if mode.startswith("RGBA") else 3 if mode.startswith("RGB") else 1
+    if channels < 3:
+        raise CamcalError(f"has {channels} channel(s) ({mode}); camcal needs an RGB image", path)
+    _check_pixels(path, w, h, float(w) * h * channels * bits / 8.0)
+    try:
+        with quiet_stderr():
+            pixels = np.asarray(heif)
+    except (ValueError, RuntimeError, OSError) as exc:
+        raise CamcalError(f"cannot decode image data (damaged or truncated?): {str(exc)[:120]}", path) from None
+    if pixels.ndim != 3 or pixels.shape[:2] != (h, w) or pixels.shape[2] < 3:
+        raise CamcalError(f"decodes to an image of unexpected shape {pixels.shape}", path)
+    if pixels.dtype == np.uint16 and bits < 16:
+        data = np.ascontiguousarray(pixels[..., :3] >> np.uint16(16 - bits))  # libheif gives the top bits
+    else:
+        data = np.ascontiguousarray(pixels[..., :3])
+        bits = 8 * data.dtype.itemsize
+    exp = exposure_from_exif(path, _exif_from_block(heif.info.get("exif")))
+    return Frame(
+        data=data,
+        kind="processed",
+        cfa_pattern=None,
+        black_level_dn={"R": 0.0, "G": 0.0, "B": 0.0},
+        white_level_dn=float(2**bits - 1),
+        exposure=exp,
+        path=path,
+        layout="processed",
+        icc_profile=icc_description(heif.info.get("icc_profile")),
+    )
+
+
 def is_raw_path(path: Path) -> bool:
-    """True when the file looks like a RAW file (not JPEG/PNG, not a plain .tif)."""
+    """True when the file looks like a RAW file (not JPEG/PNG/HEIF, not a plain .tif)."""
     head = _magic(path)
-    if head.startswith(b"\xff\xd8\xff") or head.startswith(b"\x89PNG"):
+    if head.startswith(b"\xff\xd8\xff") or head.startswith(b"\x89PNG") or is_heif(path):
         return False
-    return path.suffix.lower() not in {".tif", ".tiff", ".jpg", ".jpeg", ".png"}
+    return path.suffix.lower() not in {".tif", ".tiff", ".jpg", ".jpeg", ".png"} | HEIF_EXTENSIONS
 
 
 def load_frame(
@@ -501,7 +697,7 @@ def load_frame(
     Parameters
     ----------
     path : file path. The format is decided from the file's first bytes, then
-        its extension: JPEG and PNG by magic; TIFF-based files go to LibRaw
+        its extension: JPEG, PNG and HEIF by magic; TIFF-based files go to LibRaw
         unless named ``.tif``/``.tiff``; anything else goes to LibRaw.
     overrides : exposure fields that replace the file's metadata (a manifest
         row, see :func:`camcal.manifest.exposure_overrides`), marked ``frames.csv``.
@@ -516,7 +712,7 @@ def load_frame(
     """
     path = Path(path)
     _check_file(path)
-    frame = _load_raw(path) if is_raw_path(path) else _load_processed(path)
+    frame = _load_heif(path) if is_heif(path) else _load_raw(path) if is_raw_path(path) else _load_processed(path)
     if defaults is None:
         defaults = session_defaults_for(path.parent)
     exp = frame.exposure
@@ -525,6 +721,24 @@ def load_frame(
     if overrides:
         exp = exp.merged("frames.csv", **overrides)
     return frame if exp is frame.exposure else dataclasses.replace(frame, exposure=exp)
+
+
+def read_photo_metadata(path: str | Path, defaults: dict[str, float | str] | None = None) -> Exposure:
+    """A photo's EXIF metadata (exposure, capture time, offset, GPS), each value with its source, without
+    decoding its pixels; ``session.toml`` fills what the file does not hold (``defaults`` as in
+    :func:`load_frame`). RAW files: the tags an EXIF reader finds (LibRaw is not opened).
+
+    Raises
+    ------
+    CamcalError
+        A missing, empty or unreadable file.
+    """
+    path = Path(path)
+    _check_file(path)
+    exp = exposure_from_exif(path)
+    if defaults is None:
+        defaults = session_defaults_for(path.parent)
+    return exp.filled("session", **defaults) if defaults else exp
 
 
 def list_frames(folder: str | Path) -> list[Path]:

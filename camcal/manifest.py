@@ -15,6 +15,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+import re
 import tomllib
 from pathlib import Path
 
@@ -44,6 +45,7 @@ PLAUSIBLE_RANGE: dict[str, tuple[float, float]] = {
     "iso": (1.0, 1e7),
     "f_number": (0.5, 1000.0),
     "temperature_C": (-273.15, 500.0),
+    "pixel_pitch_um": (0.1, 100.0),
     "wavelength_nm": (100.0, 3000.0),
     "bandwidth_nm": (1e-3, 1000.0),
     "radiance_W_m2_sr": (0.0, 1e30),
@@ -203,16 +205,27 @@ SESSION_KEYS: dict[str, str] = {
     "temperature_C": "temperature_c",
 }
 
+SESSION_TEXT_KEYS: dict[str, str] = {"utc_offset": "utc_offset"}
+"""Text keys of ``session.toml``: ``utc_offset``, the camera clock's offset from UTC as ``"+HH:MM"``
+(local time = UTC + offset), used to place a photo in time when its file holds no GPS time and no
+OffsetTimeOriginal (see docs/conventions.md, "Time and the sun")."""
+
+#: Keys of ``session.toml`` that state facts of the camera rather than of each frame (not Exposure fields):
+#: ``pixel_pitch_um``, the pixel pitch in µm (the quantum efficiency of :mod:`camcal.emva` needs the pixel area).
+CAMERA_KEYS: tuple[str, ...] = ("pixel_pitch_um",)
+
 MAX_SESSION_DEFAULTS_BYTES = 64 * 1024
 
-_DEFAULTS_CACHE: dict[tuple[str, int, int], dict[str, float]] = {}
+_DEFAULTS_CACHE: dict[tuple[str, int, int], tuple[dict[str, float | str], dict[str, float]]] = {}
 
 
-def read_session_defaults(path: str | Path) -> dict[str, float]:
-    """Read a ``session.toml`` into :class:`camcal.frame.Exposure` keywords.
+def read_session_defaults(path: str | Path) -> dict[str, float | str]:
+    """Read a ``session.toml`` into :class:`camcal.frame.Exposure` keywords (camera facts,
+    :data:`CAMERA_KEYS`, are checked too and left to :func:`session_camera_facts`).
 
     The file is TOML with top-level keys from :data:`SESSION_KEYS` (``f_number``, ``iso``,
-    ``exposure_s`` in s, ``temperature_C`` in °C), each a number within :data:`PLAUSIBLE_RANGE`.
+    ``exposure_s`` in s, ``temperature_C`` in °C), each a number within :data:`PLAUSIBLE_RANGE`,
+    and ``utc_offset`` (:data:`SESSION_TEXT_KEYS`), text ``"+HH:MM"`` between −12:00 and +14:00.
     A value fills what a frame's file does not hold (or holds only as LibRaw's reading of a maker
     header); ``frames.csv`` still overrides it. Unknown keys, tables, non-numbers and implausible
     values are refused, naming the file and the key.
@@ -221,16 +234,28 @@ def read_session_defaults(path: str | Path) -> dict[str, float]:
     -------
     dict such as ``{"f_number": 2.8}`` (Exposure field names).
     """
-    path = Path(path)
+    return _read_session_toml(Path(path))[0]
+
+
+def _read_session_toml(path: Path) -> tuple[dict[str, float | str], dict[str, float]]:
+    """(Exposure keywords, camera facts) of a ``session.toml`` (see :func:`read_session_defaults`)."""
     text = read_text_file(path, "session defaults file", MAX_SESSION_DEFAULTS_BYTES)
     try:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise CamcalError(f"is not valid TOML: {exc}", path) from None
-    out: dict[str, float] = {}
+    out: dict[str, float | str] = {}
+    camera: dict[str, float] = {}
     for key, value in doc.items():
-        if key not in SESSION_KEYS:
-            raise CamcalError(f"unknown key {key!r} (known: {', '.join(SESSION_KEYS)})", path)
+        if key in SESSION_TEXT_KEYS:
+            if not isinstance(value, str) or parse_utc_offset(value) is None:
+                raise CamcalError(f"key {key!r} must be an offset from UTC as text \"+HH:MM\" between -12:00 "
+                                  f"and +14:00 (e.g. utc_offset = \"+02:00\"), got {value!r}", path)
+            out[SESSION_TEXT_KEYS[key]] = value.strip()
+            continue
+        if key not in SESSION_KEYS and key not in CAMERA_KEYS:
+            known = ", ".join([*SESSION_KEYS, *SESSION_TEXT_KEYS, *CAMERA_KEYS])
+            raise CamcalError(f"unknown key {key!r} (known: {known})", path)
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise CamcalError(f"key {key!r} must be a number, got {value!r}", path)
         v = float(value)
@@ -241,8 +266,23 @@ def read_session_defaults(path: str | Path) -> dict[str, float]:
             raise CamcalError(f"key {key!r} must be positive, got {value}", path)
         if not lo <= v <= hi:
             raise CamcalError(f"key {key!r} value {value} is outside the plausible range [{lo:g}, {hi:g}]", path)
-        out[SESSION_KEYS[key]] = v
-    return out
+        if key in CAMERA_KEYS:
+            camera[key] = v
+        else:
+            out[SESSION_KEYS[key]] = v
+    return out, camera
+
+
+def parse_utc_offset(text: str) -> int | None:
+    """Minutes east of UTC of an offset written ``+HH:MM`` / ``-HH:MM`` (Exif OffsetTimeOriginal, ``utc_offset``
+    of ``session.toml``) or ``Z``; None when malformed or outside the time zones in use (−12:00 … +14:00)."""
+    if text.strip() in ("Z", "z"):
+        return 0
+    m = re.fullmatch(r"([+-])(\d{2}):(\d{2})", text.strip())
+    if not m or int(m.group(3)) >= 60:
+        return None
+    minutes = (int(m.group(2)) * 60 + int(m.group(3))) * (-1 if m.group(1) == "-" else 1)
+    return minutes if -12 * 60 <= minutes <= 14 * 60 else None
 
 
 def find_session_defaults(folder: str | Path) -> Path | None:
@@ -256,17 +296,27 @@ def find_session_defaults(folder: str | Path) -> Path | None:
     return None
 
 
-def session_defaults_for(folder: str | Path) -> dict[str, float]:
-    """:func:`read_session_defaults` of :func:`find_session_defaults` (``{}`` when none), cached by
-    file identity (path, size, modification time)."""
+def _session_toml_for(folder: str | Path) -> tuple[dict[str, float | str], dict[str, float]]:
     p = find_session_defaults(folder)
     if p is None:
-        return {}
+        return {}, {}
     try:
         st = p.stat()
     except OSError as exc:
         raise CamcalError(f"cannot read session defaults file: {exc.strerror}", p) from None
     key = (str(p.resolve()), st.st_size, st.st_mtime_ns)
     if key not in _DEFAULTS_CACHE:
-        _DEFAULTS_CACHE[key] = read_session_defaults(p)
-    return dict(_DEFAULTS_CACHE[key])
+        _DEFAULTS_CACHE[key] = _read_session_toml(p)
+    return _DEFAULTS_CACHE[key]
+
+
+def session_defaults_for(folder: str | Path) -> dict[str, float | str]:
+    """:func:`read_session_defaults` of :func:`find_session_defaults` (``{}`` when none), cached by
+    file identity (path, size, modification time)."""
+    return dict(_session_toml_for(folder)[0])
+
+
+def session_camera_facts(folder: str | Path) -> dict[str, float]:
+    """The camera facts (:data:`CAMERA_KEYS`, e.g. ``{"pixel_pitch_um": 3.45}``) of the ``session.toml`` that
+    applies to ``folder`` (:func:`find_session_defaults`); ``{}`` when none."""
+    return dict(_session_toml_for(folder)[1])

@@ -25,6 +25,7 @@ import numpy as np
 from camcal import __version__
 from camcal.container import read_container, write_container
 from camcal.dark import DarkModel, dark_from_parts, dark_to_parts
+from camcal.emva import SHEET_KEYS, EmvaSheet
 from camcal.errors import CamcalError
 from camcal.flat import FlatModel, flat_from_parts, flat_to_parts
 from camcal.frame import PLANES, RGB
@@ -33,8 +34,11 @@ from camcal.spectral import SpectralSensitivity, spectral_from_dict, spectral_to
 from camcal.store import to_jsonable
 
 FORMAT = "camcal-profile"
-SCHEMA_VERSION = "1.3"  # 1.1: optional response.processed.colour_matrix; 1.2: optional spectral_sensitivity.source;
+SCHEMA_VERSION = "1.5"  # 1.1: optional response.processed.colour_matrix; 1.2: optional spectral_sensitivity.source;
 # 1.3: camera.layout, dark.layout, dark.dark_current_known, dark channels temporal_noise_dn, R, G, B planes (linear RAW)
+# 1.4: optional emva1288 section (EMVA 1288 summary: K from photon transfer, DSNU, PRNU, saturation, SNR, DR, LE)
+# 1.5: provenance.left_out and provenance.not_calibrated; reference iso / f_number may be null (no stage
+# normalised exposure); response channels saturation_exposure_s and fitted_exposure_s
 SUPPORTED_MAJOR = 1
 SPECTRAL_UNITS_DEFAULT = "DN s^-1 per (W m^-2 sr^-1 nm^-1) per nm at ISO_ref, f/N_ref, on axis"
 
@@ -62,6 +66,10 @@ class Provenance:
     created_utc: str
     inputs: tuple[dict, ...] = ()
     options: dict = field(default_factory=dict)
+    left_out: tuple[dict, ...] = ()
+    """Frames the calibration did not use: ``{"file": "stage/name", "stage", "reason"}`` (:mod:`camcal.screen`)."""
+    not_calibrated: tuple[dict, ...] = ()
+    """Stages present in the session but not calibrated: ``{"stage", "reason"}`` (too few usable frames)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -71,13 +79,17 @@ class CalibrationProfile:
     Attributes
     ----------
     camera : CameraIdentity
-    reference_iso, reference_f_number : float
-        The reference setting every DN rate is normalised to (seed §2.1).
+    reference_iso, reference_f_number : float or None
+        The reference setting every DN rate is normalised to (seed §2.1); None when unknown and no stage
+        normalised exposure (a bias/dark/flat-only profile: apply then refuses it).
     dark : camcal.dark.DarkModel or None
     flat : camcal.flat.FlatModel or None
     response : dict of camcal.response.ResponseModel, keyed ``raw`` / ``processed``, or None
     spectral : camcal.spectral.SpectralSensitivity or None
         Absolute c(λ) in DN s^-1 per (W m^-2 sr^-1 nm^-1) per nm at the reference setting, on axis.
+    emva : camcal.emva.EmvaSheet or None
+        The EMVA 1288 summary (system gain K from photon transfer, DSNU, PRNU, saturation, SNR_max, dynamic
+        range, linearity error); the noise model uses its K (:meth:`camcal.correct.Calibration.of`).
     provenance : Provenance
     schema_version : str
     content_sha256 : str or None
@@ -85,12 +97,13 @@ class CalibrationProfile:
     """
 
     camera: CameraIdentity
-    reference_iso: float
-    reference_f_number: float
+    reference_iso: float | None
+    reference_f_number: float | None
     dark: DarkModel | None = None
     flat: FlatModel | None = None
     response: dict[str, ResponseModel] | None = None
     spectral: SpectralSensitivity | None = None
+    emva: EmvaSheet | None = None
     provenance: Provenance = field(default_factory=lambda: Provenance(__version__, ""))
     schema_version: str = SCHEMA_VERSION
     content_sha256: str | None = None
@@ -133,13 +146,18 @@ def _stage_from_parts(name: str, data: dict, maps: dict[str, np.ndarray], where:
 _STAGE_ATTR = {"dark": "dark", "flat": "flat", "response": "response", "spectral_sensitivity": "spectral"}
 
 
+def _float_or_none(v: float | None) -> float | None:
+    return None if v is None else float(v)
+
+
 def profile_to_document(profile: CalibrationProfile) -> tuple[dict, dict[str, np.ndarray]]:
     """The JSON document (without integrity) and the prefixed maps of a profile."""
     doc: dict[str, Any] = {
         "format": FORMAT,
         "schema_version": profile.schema_version,
         "camera": dataclasses.asdict(profile.camera),
-        "reference": {"iso": float(profile.reference_iso), "f_number": float(profile.reference_f_number)},
+        "reference": {"iso": _float_or_none(profile.reference_iso),
+                      "f_number": _float_or_none(profile.reference_f_number)},
     }
     maps: dict[str, np.ndarray] = {}
     names: dict[str, list[str]] = {}
@@ -153,9 +171,15 @@ def profile_to_document(profile: CalibrationProfile) -> tuple[dict, dict[str, np
         if stage_maps:
             names[key] = [f"{key}.{m}" for m in stage_maps]
             maps.update({f"{key}.{m}": np.asarray(a, np.float32) for m, a in stage_maps.items()})
+    doc["emva1288"] = None if profile.emva is None else to_jsonable(profile.emva.to_dict())
     p = profile.provenance
-    doc["provenance"] = to_jsonable({"camcal_version": p.camcal_version, "created_utc": p.created_utc,
-                                     "inputs": list(p.inputs), "options": p.options})
+    prov = {"camcal_version": p.camcal_version, "created_utc": p.created_utc, "inputs": list(p.inputs),
+            "options": p.options}
+    if p.left_out:
+        prov["left_out"] = [dict(r) for r in p.left_out]
+    if p.not_calibrated:
+        prov["not_calibrated"] = [dict(r) for r in p.not_calibrated]
+    doc["provenance"] = to_jsonable(prov)
     doc["maps"] = names
     return doc, maps
 
@@ -249,15 +273,23 @@ def profile_from_document(doc: dict, maps: dict[str, np.ndarray], where: str | P
         stages[attr] = _stage_from_parts(key, data, stage_maps, where)
     cam = doc["camera"]
     prov = doc["provenance"]
+    emva = None
+    if doc.get("emva1288"):
+        try:
+            emva = EmvaSheet.from_dict(doc["emva1288"])
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+            raise CamcalError(f"emva1288 section is malformed ({type(exc).__name__}: {exc})", where) from None
     return CalibrationProfile(
         camera=CameraIdentity(cam["make"], cam["model"], cam["serial"], cam["cfa_pattern"], int(cam["width"]),
                               int(cam["height"]), str(cam.get("layout") or "bayer")),
-        reference_iso=float(doc["reference"]["iso"]),
-        reference_f_number=float(doc["reference"]["f_number"]),
+        reference_iso=_float_or_none(doc["reference"]["iso"]),
+        reference_f_number=_float_or_none(doc["reference"]["f_number"]),
         provenance=Provenance(prov["camcal_version"], prov["created_utc"], tuple(prov["inputs"]),
-                              dict(prov["options"])),
+                              dict(prov["options"]), tuple(prov.get("left_out", ())),
+                              tuple(prov.get("not_calibrated", ()))),
         schema_version=doc["schema_version"],
         content_sha256=doc.get("integrity", {}).get("content_sha256"),
+        emva=emva,
         **stages,
     )
 
@@ -353,7 +385,14 @@ def contract(profile: CalibrationProfile) -> dict:
         out["response"] = {"kind": primary.kind, "gamma": per(primary, "gamma"), "alpha": per(primary, "alpha"),
                            "beta": per(primary, "beta"),
                            "models": {k: {"gamma": per(m, "gamma"), "alpha": per(m, "alpha"), "beta": per(m, "beta"),
-                                          "linearity_error_pct": per(m, "linearity_error_pct")}
+                                          "linearity_error_pct": per(m, "linearity_error_pct"),
+                                          "saturation_dn": per(m, "saturation_dn"),
+                                          "saturation_exposure_s": per(m, "saturation_exposure_s"),
+                                          "fitted_range_dn": {c: [_finite(v) for v in ch.linear_range_dn]
+                                                              for c, ch in m.channels.items()},
+                                          "fitted_exposure_s": {c: [_finite(v) for v in ch.fitted_exposure_s]
+                                                                for c, ch in m.channels.items()},
+                                          "saturated_files": m.saturated_files()}
                                       for k, m in profile.response.items()}}
     else:
         out["response"] = None
@@ -372,9 +411,16 @@ def contract(profile: CalibrationProfile) -> dict:
         }
     else:
         out["spectral_sensitivity"] = None
+    if profile.emva is not None:  # per plane, as in the profile file (planes R, G1, G2, B or R, G, B)
+        out["emva1288"] = {"iso": profile.emva.iso,
+                           "channels": {c: {k: v.get(k) for k in SHEET_KEYS} | {"K_source": v.get("K_source")}
+                                        for c, v in profile.emva.channels.items()}}
+    else:
+        out["emva1288"] = None
     p = profile.provenance
     out["provenance"] = {"camcal_version": p.camcal_version, "created_utc": p.created_utc, "n_inputs": len(p.inputs),
-                         "options": p.options}
+                         "options": p.options, "left_out": [dict(r) for r in p.left_out],
+                         "not_calibrated": [dict(r) for r in p.not_calibrated]}
     return to_jsonable(out)
 
 

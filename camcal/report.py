@@ -16,6 +16,10 @@ Sections, in pipeline order:
   and the relative residuals; one figure per kind (RAW, processed/JPEG).
 * **Spectral sensitivity** c(λ) (seed §3.1): R, G (mean of G1 and G2), B with ±1 standard
   uncertainty bands, and G1 against G2.
+* **EMVA 1288 summary** (release 4.0): the standard's data-sheet figures per plane, in its order
+  (:func:`camcal.emva.sheet_rows`): system gain K from photon transfer, temporal dark noise, absolute
+  sensitivity threshold, saturation capacity, SNR_max, dynamic range, linearity error, dark current,
+  DSNU and PRNU with their uncertainties, the noise left in the flat map.
 * Tables of the numbers of the JSON contract (:func:`camcal.profile.contract`), the contract itself,
   and the provenance (camcal version, creation date, input files, options, content hash).
 
@@ -37,6 +41,7 @@ from typing import Any
 
 from camcal import __version__
 from camcal.atomic import atomic_write_text
+from camcal.emva import STANDARD, sheet_rows
 from camcal.errors import CamcalError
 from camcal.frame import PLANES
 from camcal.plots import dark_figure, flat_figure, png_bytes, response_figure, spectral_figure
@@ -116,7 +121,17 @@ _SESSION_FOLDER = {"dark": "bias/ and dark/", "flat": "flat/", "response": "line
                    "spectral_sensitivity": "sweep/"}
 
 
-def _missing(key: str) -> str:
+_SESSION_STAGES = {"dark": ("bias", "dark"), "flat": ("flat",), "response": ("linearity",),
+                   "spectral_sensitivity": ("sweep",)}
+
+
+def _missing(key: str, profile=None) -> str:
+    why = [r for r in (profile.provenance.not_calibrated if profile is not None else ())
+           if r.get("stage") in _SESSION_STAGES[key]]
+    if why:
+        return (f'<section id="{key}"><h2>{_esc(STAGE_TITLES[key])}</h2>'
+                + "".join(f'<p class="missing">not calibrated: the {_esc(r["stage"])} stage had too few usable '
+                          f"frames: {_esc(r['reason'])}</p>" for r in why) + "</section>")
     return (f'<section id="{key}"><h2>{_esc(STAGE_TITLES[key])}</h2>'
             f'<p class="missing">not calibrated: this profile has no {_esc(STAGE_TITLES[key].lower())} stage. '
             f"<code>camcal calibrate</code> adds it when the session has {_esc(_SESSION_FOLDER[key])} "
@@ -192,6 +207,17 @@ def _response_section(profile, c: dict) -> str:
                          ch.linearity_error_pct, f"{ch.pearson_r:.7f}", rate, ch.saturation_dn])
         parts.append(_table(["channel", "γ", "u(γ)", "α [DN s^-γ]", "u(α)", "β [DN]", "u(β)", "LE [%]", "r",
                              "linear gain [DN/s]", "saturation [DN]"], rows))
+        sat_rows = [[name, ch.saturation_dn, ch.saturation_exposure_s if math.isfinite(ch.saturation_exposure_s)
+                     else "not reached", f"{_num(ch.linear_range_dn[0])} – {_num(ch.linear_range_dn[1])}",
+                     f"{_num(ch.fitted_exposure_s[0])} – {_num(ch.fitted_exposure_s[1])}"]
+                    for name, ch in model.channels.items()]
+        parts.append("<h4>Saturation and fitted range</h4>"
+                     + _table(["channel", "saturation level [DN]", "reached at exposure [s]", "fitted range [DN]",
+                               "fitted exposures [s]"], sat_rows)
+                     + '<p class="sub">Frames at or past saturation end the linear range and are not fitted '
+                       "(EMVA 1288 saturation point); exposures are relative, in s at the reference setting."
+                     + (f" Saturated frames: {_esc(', '.join(model.saturated_files()))}."
+                        if model.saturated_files() else "") + "</p>")
         parts.append(f'<p class="sub">dark subtracted: {"yes" if model.dark_subtracted else "no"}; '
                      f"white level {_num(model.white_level_dn)} DN.</p>")
         cm = getattr(model, "colour_matrix", None)
@@ -253,6 +279,43 @@ def _spectral_source_html(src: dict) -> str:
     return out
 
 
+def _emva_section(profile) -> str:
+    """The EMVA 1288 summary sheet: operating point, then the figures per plane in the standard's order."""
+    sheet = profile.emva
+    planes = list(sheet.channels)
+    sp = sheet.spatial
+    point = [["standard", STANDARD], ["ISO", f"{sheet.iso:g}"]]
+    for row in sheet.photon_transfer:
+        point.append([f"photon transfer, ISO {row['iso']:g}", f"{row.get('pairs', 0)} frame pairs of the "
+                      "linearity series, K fitted up to 70 % of saturation"])
+    if sp.get("dsnu_frames"):
+        point.append(["DSNU", f"average of {sp['dsnu_frames']} dark frames at {sp['dsnu_exposure_s']:g} s, "
+                      "temporal noise / L removed (eq. 36)"])
+    if sp.get("prnu_frames"):
+        point.append(["PRNU", f"average of {sp['prnu_frames']} flats about the vignetting model, temporal noise / L "
+                      "removed (eq. 36)"])
+    rows = [[name if i == 0 or name != prev else "", q, unit, *(vals.get(p) for p in planes)]
+            for i, ((name, q, unit, vals), prev) in enumerate(zip(sheet_rows(sheet),
+                                                                  [None, *(r[0] for r in sheet_rows(sheet))],
+                                                                  strict=False))]
+    qe = ""
+    if sheet.quantum_efficiency:
+        q = sheet.quantum_efficiency
+        wl = q["wavelength_nm"]
+        step = max(1, len(wl) // 12)
+        qrows = [[f"{wl[i]:g}", *(None if q["values"].get(p) is None or q["values"][p][i] is None
+                                  else 100 * q["values"][p][i] for p in planes)] for i in range(0, len(wl), step)]
+        qe = (f"<h3>Quantum efficiency η(λ) (lens included; pixel pitch {q['pixel_pitch_um']:g} µm)</h3>"
+              + _table(["λ (nm)", *[f"{p} (%)" for p in planes]], qrows))
+    notes = "".join(f"<li>{_esc(n)}</li>" for n in sheet.notes)
+    return ('<section id="emva1288"><h2>EMVA 1288 summary</h2>'
+            '<p class="sub">Figures as EMVA Standard 1288 release 4.0 defines them (docs/dark.md, docs/flat.md); '
+            "K from the mean–variance line of the linearity series' frame pairs.</p>"
+            + _table(["operating point", "value"], point, left=2)
+            + _table(["section", "quantity", "unit", *planes], rows, left=3) + qe
+            + (f"<p>Notes:</p><ul>{notes}</ul>" if notes else "") + "</section>")
+
+
 def _provenance_section(profile, c: dict) -> str:
     p = profile.provenance
     by_stage = Counter(str(i.get("stage", "?")) if isinstance(i, dict) else "?" for i in p.inputs)
@@ -264,8 +327,14 @@ def _provenance_section(profile, c: dict) -> str:
     opts = [[k, v if isinstance(v, str) else json.dumps(v, default=str)] for k, v in sorted(p.options.items())]
     inputs = [[i.get("stage", ""), i.get("file", ""), i.get("sha256", ""), i.get("bytes", "")]
               if isinstance(i, dict) else ["", str(i), "", ""] for i in p.inputs]
+    left_out = [[r.get("stage", ""), r.get("file", ""), r.get("reason", "")] for r in p.left_out]
+    not_cal = [[r.get("stage", ""), r.get("reason", "")] for r in p.not_calibrated]
     return ('<section id="provenance"><h2>Provenance</h2>'
             + _table(["item", "value"], rows, left=2)
+            + (f'<h3 id="left-out">Frames left out ({len(left_out)})</h3>'
+               + _table(["stage", "file", "reason"], left_out, left=3) if left_out else
+               '<h3 id="left-out">Frames left out</h3><p>none: every frame of the session was used.</p>')
+            + ("<h3>Stages not calibrated</h3>" + _table(["stage", "reason"], not_cal, left=2) if not_cal else "")
             + "<h3>Options</h3>" + (_table(["option", "value"], opts, left=2) if opts else "<p>none recorded</p>")
             + (f"<details><summary>input files ({len(inputs)})</summary>"
                + _table(["stage", "file", "SHA-256", "bytes"], inputs, left=3) + "</details>" if inputs else "")
@@ -302,12 +371,15 @@ def render_report(profile, progress: Callable[[str, int, int], None] | None = No
     head_rows = [["make", cam["make"] or "unknown"], ["model", cam["model"] or "unknown"],
                  ["serial", cam["serial"] or "unknown"], ["CFA pattern", cam["cfa_pattern"] or "none"],
                  ["image size", f"{cam['width']} × {cam['height']} px"],
-                 ["reference setting", f"ISO {profile.reference_iso:g}, f/{profile.reference_f_number:g}"],
+                 ["reference setting", f"ISO {profile.reference_iso:g}, f/{profile.reference_f_number:g}"
+                  if profile.reference_iso is not None and profile.reference_f_number is not None
+                  else "none (no stage normalised exposure)"],
                  ["content SHA-256", profile.content_sha256 or "not saved"]]
     body = [f"<h1>{_esc(title)}</h1>",
             f'<p class="sub">profile created {_esc(c["provenance"]["created_utc"] or "at an unknown time")} '
             f"with camcal {_esc(c['provenance']['camcal_version'])}; report by camcal {_esc(__version__)}.</p>",
             "<nav>" + "".join(f'<a href="#{k}">{_esc(STAGE_TITLES[k])}</a>' for k in stages)
+            + ('<a href="#emva1288">EMVA 1288</a>' if getattr(profile, "emva", None) is not None else "")
             + '<a href="#provenance">Provenance</a></nav>',
             f'<div class="stages">{badges}</div>',
             _table(["camera", "value"], head_rows, left=2)]
@@ -316,7 +388,9 @@ def render_report(profile, progress: Callable[[str, int, int], None] | None = No
         if progress is not None:
             progress(STAGE_TITLES[key], done, total)
         present = getattr(profile, attr) is not None and (key != "response" or bool(profile.response))
-        body.append(section(profile, c) if present else _missing(key))
+        body.append(section(profile, c) if present else _missing(key, profile))
+    if getattr(profile, "emva", None) is not None:
+        body.append(_emva_section(profile))
     if progress is not None:
         progress("provenance", total - 1, total)
     body.append(_provenance_section(profile, c))

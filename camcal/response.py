@@ -53,7 +53,8 @@ from scipy.optimize import OptimizeWarning, curve_fit, least_squares
 
 from camcal.colour import ColourMatrix
 from camcal.correct import Calibration, DarkFrameModel, correct_planes
-from camcal.errors import CamcalError
+from camcal.emva import linearity_error, pair_statistics
+from camcal.errors import CamcalError, TooFewFrames
 from camcal.exposure import relative_exposure
 from camcal.frame import PLANES
 from camcal.io import load_folder_frame
@@ -129,6 +130,11 @@ class ChannelResponse:
     rate_dn_per_s: float = float("nan")
     rate_dn_per_s_unc: float = float("nan")
     offset_dn: float = float("nan")
+    saturation_exposure_s: float = float("nan")
+    """Relative exposure (s at the reference setting) of the first frame saturated in this channel: where the
+    series reached :attr:`saturation_dn`; NaN when no frame saturated (:class:`Saturation`)."""
+    fitted_exposure_s: tuple[float, float] = (float("nan"), float("nan"))
+    """Lowest and highest relative exposure (s at the reference setting) of the points the fit used."""
 
     def predict(self, x_s: np.ndarray | float) -> np.ndarray:
         """g(x) of eq. 12 for relative exposure ``x_s`` (s)."""
@@ -156,6 +162,7 @@ class ExposureSeries:
     black_level_dn : black level per channel from the file's metadata, DN
     dark_subtracted : whether a dark model was subtracted
     roi : (y0, y1, x0, x1) fractions of the plane
+    pairs : RAW only: the frame pairs of the photon-transfer method (:class:`PairStatistics`), or None
     """
 
     kind: str
@@ -176,6 +183,39 @@ class ExposureSeries:
     dark_subtracted: bool = False
     roi: tuple[float, float, float, float] = (0.0, 1.0, 0.0, 1.0)
     folder: str | None = None
+    pairs: PairStatistics | None = None
+
+
+@dataclass(frozen=True)
+class PairStatistics:
+    """Whole-plane statistics of consecutive RAW frame pairs at one setting (EMVA 1288 photon transfer).
+
+    Arrays are (m,) per pair or (m, C) per pair and channel, in the order the pairs were read.
+
+    Attributes
+    ----------
+    exposure_s, iso, f_number : the setting of each pair.
+    mean_dn : mean of both frames above the zero-exposure dark level (the dark model's bias map, else the
+        file's black level), DN; the dark signal β·t is *included* (its electrons are Poisson too).
+    variance_dn2 : temporal variance ½·var(y_A − y_B), DN² (:func:`camcal.emva.pair_statistics`).
+    files : the two file names of each pair.
+    bias_source : ``"dark model"`` or ``"black level"``.
+    """
+
+    exposure_s: np.ndarray
+    iso: np.ndarray
+    f_number: np.ndarray
+    mean_dn: np.ndarray
+    variance_dn2: np.ndarray
+    files: tuple[tuple[str, str], ...]
+    bias_source: str
+
+
+def _pair_planes(planes: np.ndarray, bias: np.ndarray | None, black: np.ndarray) -> np.ndarray:
+    """Full planes above the zero-exposure dark level, float32."""
+    out = np.asarray(planes, np.float32).copy()
+    out -= bias if bias is not None else black.astype(np.float32)
+    return out
 
 
 @dataclass(frozen=True)
@@ -256,12 +296,23 @@ class ResponseModel:
                 out[k] = _detone(v[k], ch, self.tone["channels"][name], self.white_level_dn)  # type: ignore[index]
         return np.moveaxis(out, 0, channel_axis)
 
+    def saturated_files(self) -> list[str]:
+        """Files of the series at or past saturation in any channel: they end the linear range and are not fitted
+        (from :attr:`points`; [] when none saturated or the points were not kept)."""
+        out: dict[str, None] = {}
+        for pts in self.points.values():
+            for name, sat in zip(pts.get("files") or (), pts.get("saturated") or (), strict=False):
+                if sat:
+                    out[str(name)] = None
+        return list(out)
+
     def summary(self) -> dict:
         """JSON-ready summary: per channel α, γ, β with uncertainties, ranges, LE, r; tone fit."""
         chans = {}
         for name, ch in self.channels.items():
             rec = asdict(ch)
             rec["linear_range_dn"] = list(ch.linear_range_dn)
+            rec["fitted_exposure_s"] = list(ch.fitted_exposure_s)
             rec["linear_pearson_r_ok"] = bool(ch.pearson_r >= 0.98)
             chans[name] = rec
         out = {
@@ -303,6 +354,8 @@ class ResponseModel:
                     saturation_dn=num(rec["saturation_dn"]), linearity_error_pct=num(rec["linearity_error_pct"]),
                     pearson_r=num(rec["pearson_r"]), rate_dn_per_s=num(rec.get("rate_dn_per_s")),
                     rate_dn_per_s_unc=num(rec.get("rate_dn_per_s_unc")), offset_dn=num(rec.get("offset_dn")),
+                    saturation_exposure_s=num(rec.get("saturation_exposure_s")),
+                    fitted_exposure_s=tuple(num(v) for v in rec.get("fitted_exposure_s") or (None, None)),
                 )
             expected = {"raw": (set(PLANES), {"R", "G", "B"}), "processed": ({"R", "G", "B"},)}.get(str(d["kind"]))
             if expected is None or set(channels) not in expected:
@@ -317,6 +370,53 @@ class ResponseModel:
             )
         except (KeyError, TypeError, ValueError, IndexError) as exc:
             raise CamcalError(f"malformed response model ({type(exc).__name__}: {exc})") from None
+
+
+@dataclass(frozen=True)
+class Saturation:
+    """Where one channel of an exposure series saturates, as EMVA 1288 reports the saturation point.
+
+    Frames at or past saturation are data: they mark the end of the linear range and are not fitted.
+
+    Attributes
+    ----------
+    level_dn : float
+        Saturation level, DN as recorded: the largest ROI value of the saturated frames, else the white level.
+    exposure_s : float
+        Relative exposure (s at the reference setting) of the first saturated frame; NaN when none saturated.
+        The last fitted exposure (``fitted_exposure_s[1]``) and this one bracket the saturation exposure.
+    reached : bool
+        Whether any frame of the series saturated in this channel.
+    n_saturated : int
+        Frames at or past saturation (more than :data:`SATURATED_PIXEL_FRACTION` of the ROI clipped).
+    fitted_range_dn, fitted_exposure_s : (float, float)
+        Lowest and highest ROI mean (DN) and relative exposure (s) of the points the fit used.
+    """
+
+    level_dn: float
+    exposure_s: float
+    reached: bool
+    n_saturated: int
+    fitted_range_dn: tuple[float, float]
+    fitted_exposure_s: tuple[float, float]
+
+
+def saturation_point(x_s: np.ndarray, mean_dn: np.ndarray, max_dn: np.ndarray, saturated: np.ndarray,
+                     used: np.ndarray, white_level_dn: float) -> Saturation:
+    """The :class:`Saturation` of one channel of a series (arrays of shape (n,), frames sorted by exposure).
+
+    ``x_s``: relative exposure, s; ``mean_dn``: ROI means as fitted; ``max_dn``: largest ROI value as recorded;
+    ``saturated``: frames at or past saturation; ``used``: frames the fit used (unsaturated, uncompressed).
+    """
+    x_s, mean_dn, max_dn = (np.asarray(a, float) for a in (x_s, mean_dn, max_dn))
+    saturated, used = np.asarray(saturated, bool), np.asarray(used, bool)
+    reached = bool(saturated.any())
+    level = float(np.max(max_dn[saturated])) if reached else float(white_level_dn)
+    x_sat = float(np.min(x_s[saturated])) if reached else float("nan")
+    g, x = mean_dn[used], x_s[used]
+    return Saturation(level, x_sat, reached, int(saturated.sum()),
+                      (float(g.min()), float(g.max())) if g.size else (float("nan"),) * 2,  # type: ignore[arg-type]
+                      (float(x.min()), float(x.max())) if x.size else (float("nan"),) * 2)  # type: ignore[arg-type]
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -381,11 +481,31 @@ def measure_series(
     window = roi_window(None if region is not None else roi)
     cal = Calibration.of(dark) if dark is not None else Calibration()
     rows: dict[str, list[dict]] = {}
+    bias = None if dark is None or getattr(dark, "bias_dn", None) is None else np.asarray(dark.bias_dn, np.float32)
+    defects = cal.defects
+    pairs: list[dict] = []
+    previous: tuple | None = None  # (setting, planes above dark, file name) of an unpaired RAW frame
     for i, path in enumerate(files):
         frame = load_folder_frame(path, manifest)
         e = frame.exposure
         t, iso, n = e.require("exposure_s", path), e.require("iso", path), e.require("f_number", path)
         planes = frame.planes(np.float32)
+        if frame.kind == "raw":
+            # photon transfer: consecutive frames at one setting form a pair (one frame held at a time)
+            b = bias if bias is not None and bias.shape == planes.shape else None
+            above = _pair_planes(planes, b, frame.black_vector())
+            setting = (float(t), float(iso), float(n), above.shape)
+            if previous is not None and previous[0] == setting:
+                valid = None if defects is None or defects.shape != above.shape else ~defects
+                stats_ = [pair_statistics(previous[1][k], above[k], None if valid is None else valid[k])
+                          for k in range(above.shape[0])]
+                pairs.append({"t": t, "iso": iso, "n": n, "mean": [m for m, _ in stats_],
+                              "var": [v for _, v in stats_], "files": (previous[2], path.name),
+                              "bias": "dark model" if b is not None else "black level"})
+                previous = None
+            else:
+                previous = (setting, above, path.name)
+            del above
         if region is not None:  # photo pixels -> this frame's planes (half resolution for a Bayer mosaic)
             ys, xs = region.window(planes.shape[1:], 2 if frame.layout == "bayer" else 1, path)
             ph, pw = planes.shape[1:]
@@ -427,6 +547,12 @@ def measure_series(
     for kind, rs in rows.items():
         out[kind] = _series_from_rows(kind, rs, window, dark is not None and kind == "raw", folder,
                                       reference_iso, reference_f_number)
+    if pairs and "raw" in out:
+        out["raw"] = replace(out["raw"], pairs=PairStatistics(
+            exposure_s=np.array([p["t"] for p in pairs], float), iso=np.array([p["iso"] for p in pairs], float),
+            f_number=np.array([p["n"] for p in pairs], float), mean_dn=np.array([p["mean"] for p in pairs], float),
+            variance_dn2=np.array([p["var"] for p in pairs], float), files=tuple(p["files"] for p in pairs),
+            bias_source=pairs[0]["bias"]))
     return out
 
 
@@ -553,27 +679,9 @@ def fit_line(x_s: np.ndarray, g_dn: np.ndarray, sigma_dn: np.ndarray) -> dict:
 
 
 def emva_linearity_error(x_s: np.ndarray, signal_dn: np.ndarray, saturation_signal_dn: float) -> float:
-    """EMVA 1288 linearity error LE, percent.
-
-    ``signal_dn`` is the mean signal above dark (μ_y − μ_y.dark). A line
-    μ = a·x + b is fitted minimising the relative deviations (weights 1/μ²)
-    over the points between 5 % and 95 % of ``saturation_signal_dn``;
-    δ_i = 100 (μ_i − (a x_i + b)) / (a x_i + b) and LE = (max δ − min δ) / 2.
-    When fewer than three points lie in that range all positive points are used.
-    """
-    x = np.asarray(x_s, float)
-    y = np.asarray(signal_dn, float)
-    sel = (y >= 0.05 * saturation_signal_dn) & (y <= 0.95 * saturation_signal_dn)
-    if sel.sum() < 3:
-        sel = y > 0
-    if sel.sum() < 2:
-        return float("nan")
-    xs, ys = x[sel], y[sel]
-    design = np.stack([xs / ys, 1.0 / ys], axis=1)
-    (a, b), *_ = np.linalg.lstsq(design, np.ones_like(ys), rcond=None)
-    fit = a * xs + b
-    dev = 100.0 * (ys - fit) / fit
-    return float((dev.max() - dev.min()) / 2.0)
+    """EMVA 1288 linearity error LE, percent (:func:`camcal.emva.linearity_error`): a line fitted minimising the
+    relative deviations between 5 % and 95 % of ``saturation_signal_dn``, LE = (max δ − min δ) / 2."""
+    return linearity_error(x_s, signal_dn, saturation_signal_dn).error_pct
 
 
 def _pearson(x: np.ndarray, y: np.ndarray) -> float:
@@ -690,12 +798,14 @@ def fit_series(series: ExposureSeries) -> ResponseModel:
     where = series.folder
     n_distinct = len(np.unique(series.x_s))
     if n_distinct < MIN_EXPOSURES:
-        raise CamcalError(
+        raise TooFewFrames(
+            "linearity", "distinct exposures", MIN_EXPOSURES, n_distinct,
             f"{series.kind} series has {n_distinct} distinct exposure(s); the fit of eq. 12 (α, γ, β) needs at "
             f"least {MIN_EXPOSURES}", where)
     saturated = series.clipped_fraction > SATURATED_PIXEL_FRACTION  # (n, C)
     if saturated.all():
-        raise CamcalError(
+        raise TooFewFrames(
+            "linearity", "unsaturated exposures", MIN_EXPOSURES, 0,
             f"all {len(series.files)} {series.kind} frames are saturated (more than "
             f"{SATURATED_PIXEL_FRACTION:.1%} of ROI pixels at the white level {series.white_level_dn:g} DN); "
             "shorten the exposures", where)
@@ -706,11 +816,10 @@ def fit_series(series: ExposureSeries) -> ResponseModel:
     for c, name in enumerate(series.channels):
         ok = ~saturated[:, c]
         n_ok = len(np.unique(series.x_s[ok]))
-        if n_ok == 0:
-            raise CamcalError(f"all {series.kind} frames are saturated in channel {name}; shorten the exposures",
-                              where)
         if n_ok < MIN_EXPOSURES:
-            raise CamcalError(
+            raise TooFewFrames(
+                "linearity", "unsaturated exposures", MIN_EXPOSURES, n_ok,
+                f"all {series.kind} frames are saturated in channel {name}; shorten the exposures" if n_ok == 0 else
                 f"{series.kind} channel {name} has only {n_ok} unsaturated exposure(s); the fit of eq. 12 needs "
                 f"at least {MIN_EXPOSURES}", where)
         _check_monotone(series, c, ok)
@@ -732,10 +841,8 @@ def fit_series(series: ExposureSeries) -> ResponseModel:
             break
         idx = np.flatnonzero(used)
         x_used, g_used = series.x_s[idx], series.mean_dn[idx, c]
-        if saturated[:, c].any():
-            sat = float(np.max(series.max_dn[saturated[:, c], c]))
-        else:
-            sat = white
+        point = saturation_point(series.x_s, series.mean_dn[:, c], series.max_dn[:, c], saturated[:, c], used, white)
+        sat = point.level_dn
         if series.dark_subtracted:
             sat_signal = sat - float(series.black_level_dn[c]) if series.kind == "raw" else sat - fit["beta"]
         else:
@@ -745,10 +852,11 @@ def fit_series(series: ExposureSeries) -> ResponseModel:
         channels[name] = ChannelResponse(
             alpha=fit["alpha"], alpha_unc=fit["alpha_unc"], gamma=fit["gamma"], gamma_unc=fit["gamma_unc"],
             beta=fit["beta"], beta_unc=fit["beta_unc"],
-            linear_range_dn=(float(g_used.min()), float(g_used.max())),
+            linear_range_dn=point.fitted_range_dn,
             saturation_dn=sat, linearity_error_pct=le, pearson_r=_pearson(x_used, g_used),
             rate_dn_per_s=rate.get("rate", float("nan")), rate_dn_per_s_unc=rate.get("rate_unc", float("nan")),
-            offset_dn=rate.get("offset", float("nan")),
+            offset_dn=rate.get("offset", float("nan")), saturation_exposure_s=point.exposure_s,
+            fitted_exposure_s=point.fitted_exposure_s,
         )
         points[name] = {
             "files": list(series.files), "x_s": series.x_s.tolist(), "mean_dn": series.mean_dn[:, c].tolist(),

@@ -60,7 +60,7 @@ from scipy.stats import median_abs_deviation
 
 from camcal.correct import Calibration, correct_planes
 from camcal.dark import DarkModel, as_dark_model
-from camcal.errors import CamcalError
+from camcal.errors import CamcalError, FrameLeftOut, TooFewFrames
 from camcal.exposure import frame_relative_exposure
 from camcal.flat import FlatModel, as_flat_model
 from camcal.frame import PLANES, RGB, Frame, split_planes
@@ -80,6 +80,27 @@ RELATIVE_UNITS = "relative"
 
 class SweepWarning(UserWarning):
     """A recoverable problem in a sweep (a skipped saturated frame, a missing flat)."""
+
+
+class LeftOutWarning(SweepWarning, FrameLeftOut):
+    """A sweep frame left out (saturated, or no light recorded); ``camcal calibrate`` lists these in its table."""
+
+
+MIN_WAVELENGTHS = 4
+"""Fewest wavelengths a calibration's c(λ) must keep (:func:`require_wavelengths`, ``camcal calibrate``): the
+profile's c(λ) is read off its samples with a not-a-knot cubic spline (:mod:`camcal.radiance`), which needs four;
+with fewer, radiance falls back to linear interpolation, biased by the curve's curvature. ``camcal sweep`` on
+its own measures whatever wavelengths it is given (at least one)."""
+
+NO_LIGHT_FRACTION = 0.05
+"""A sweep frame whose signal per unit exposure and reference radiance is below this fraction of what its repeats
+at the same wavelength recorded (or, alone at its wavelength, of both neighbouring wavelengths) recorded no light:
+a closed shutter or a missed trigger, while the reference detector saw light. A camera's c(λ) changes by a few
+percent between neighbouring 5 nm steps, never twentyfold."""
+
+NO_LIGHT_SIGMAS = 5.0
+"""A lone frame is judged against its neighbours only when both are lit by more than this many standard
+uncertainties (so the dark ends of a sweep, where every frame is dim, are never judged)."""
 
 
 @dataclass(frozen=True)
@@ -555,12 +576,17 @@ class SweepSetting:
 @dataclass(frozen=True)
 class SweepMeasurement:
     """What :func:`measure_sweep_settings` read from the sweep's files: one :class:`SweepSetting` per
-    wavelength (ascending), the plane names, notes (skipped frames, saturating defects) and ``sweep.csv``."""
+    wavelength (ascending), the plane names, notes (dropped wavelengths, saturating defects), ``sweep.csv`` and
+    the frames left out with their reasons."""
 
     settings: tuple[SweepSetting, ...]
     channels: tuple[str, ...]
     notes: tuple[str, ...]
     csv_path: Path
+    left_out: tuple[tuple[str, str], ...] = ()
+    """(file name, reason) of the frames left out: saturated in the ROI, or no light recorded."""
+    n_listed: int = 0
+    """Wavelengths listed in ``sweep.csv``."""
 
 
 def measure_sweep_settings(
@@ -637,11 +663,18 @@ def measure_sweep_settings(
     wls = sorted(groups)
     settings: list[SweepSetting] = []
     defect_saturated: dict[float, int] = {}
-    worst: dict[float, float] = {}
     done = 0
     total = len(rows)
     ordered = [r for wl in wls for r in groups[wl]]
     threads = thread_count(jobs, len(ordered), full_shape[0] * full_shape[1])
+    left_out: list[tuple[str, str]] = []
+    dropped: list[str] = []
+    single: dict[float, tuple[SweepRow, float]] = {}  # lone frames, judged against their neighbours
+
+    def leave_out(row: SweepRow, reason: str) -> None:
+        left_out.append((row.path.name, reason))
+        warnings.warn(f"left out: {row.path.name}: {reason}", LeftOutWarning, stacklevel=4)
+
     with ThreadPoolExecutor(max_workers=threads) as pool:
         results = pool.map(work, ordered) if threads > 1 else map(work, ordered)
         it = iter(results)
@@ -655,16 +688,21 @@ def measure_sweep_settings(
                 if res.defect_saturated:
                     defect_saturated[wl] = max(defect_saturated.get(wl, 0), res.defect_saturated)
                 if res.saturated_fraction > max_saturated_fraction:
-                    warn(f"{res.row.path.name} at {wl:g} nm: {100 * res.saturated_fraction:.2g} % of the ROI outside "
-                         f"known defects is saturated; frame skipped")
-                    worst[wl] = max(worst.get(wl, 0.0), res.saturated_fraction)
+                    leave_out(res.row, f"saturated: {100 * res.saturated_fraction:.2g} % of the region of interest "
+                                       f"outside known defects is at the white level at {wl:g} nm (shorten the "
+                                       "exposure)")
                     continue
                 frames.append(res)
+            dark_frames = no_light(frames)
+            for res, reason in dark_frames:
+                leave_out(res.row, reason)
+            frames = [r for r in frames if all(r is not d for d, _ in dark_frames)]
             if len(frames) < max(1, min_frames):
-                names = ", ".join(r.path.name for r in groups[wl])
-                raise CamcalError(f"at {wl:g} nm only {len(frames)} of {len(groups[wl])} frames are unsaturated "
-                                  f"({names}: up to {100 * worst.get(wl, 0.0):.2g} % of the ROI saturated outside "
-                                  f"known defects); need {max(1, min_frames)}: shorten the exposure", csv_path)
+                dropped.append(f"{wl:g} nm ({len(frames)} of {len(groups[wl])} frames usable, "
+                               f"{max(1, min_frames)} needed)")
+                continue
+            if len(frames) == 1:
+                single[wl] = (frames[0].row, frame_signal(frames[0])[0])
             v, u, ur = combine_wavelength(frames)
             bws = {r.bandwidth_nm for r in groups[wl] if r.bandwidth_nm is not None}
             if len(bws) > 1:
@@ -672,11 +710,85 @@ def measure_sweep_settings(
             settings.append(SweepSetting(wl, np.asarray(v, np.float64), np.asarray(u, np.float64), float(ur),
                                          len(frames), bws.pop() if bws else None))
             del frames
+    # a frame alone at its wavelength: no light when it records nothing while both neighbours are clearly lit
+    by_wl = {st.wavelength_nm: st for st in settings}
+    order = [st.wavelength_nm for st in settings]
+    for k, wl in enumerate(order):
+        if wl not in single or k == 0 or k == len(order) - 1:
+            continue
+        row, sig = single[wl]
+        lit = all(float(np.max(by_wl[order[j]].value)) > NO_LIGHT_SIGMAS * float(
+            by_wl[order[j]].noise_unc[int(np.argmax(by_wl[order[j]].value))]) for j in (k - 1, k + 1))
+        neighbours = [float(np.max(by_wl[order[j]].value)) for j in (k - 1, k + 1)]
+        here = float(np.max(by_wl[wl].value))
+        if lit and here < NO_LIGHT_FRACTION * min(neighbours):
+            leave_out(row, f"no light recorded (shutter closed or trigger missed): {sig:.3g} DN above dark at "
+                           f"{wl:g} nm, where the reference detector read {row.radiance_w_m2_sr:.3g} "
+                           f"W m^-2 sr^-1 and the neighbouring wavelengths recorded light")
+            dropped.append(f"{wl:g} nm (its only frame recorded no light)")
+            del by_wl[wl]
+    settings = [by_wl[w] for w in order if w in by_wl]
     if defect_saturated:
         ws = sorted(defect_saturated)
         notes.append(f"hot pixels saturate: up to {max(defect_saturated.values())} known defects of the ROI reach "
                      f"the white level at {ws[0]:g}-{ws[-1]:g} nm; they are masked (frames kept)")
-    return SweepMeasurement(tuple(settings), tuple(names), tuple(notes), csv_path)
+    if dropped:
+        notes.append(f"{len(dropped)} wavelength(s) without a usable frame dropped from c(λ): {', '.join(dropped)}")
+    if not settings:
+        raise TooFewFrames("sweep", "wavelengths", 1, 0, f"{len(wls)} in sweep.csv; dropped: {', '.join(dropped)}",
+                           csv_path)
+    return SweepMeasurement(tuple(settings), tuple(names), tuple(notes), csv_path, tuple(left_out), len(wls))
+
+
+def require_wavelengths(measured: SweepMeasurement, needed: int = MIN_WAVELENGTHS) -> None:
+    """Raise :class:`TooFewFrames` when fewer than ``needed`` wavelengths of the sweep have a usable frame."""
+    have = len(measured.settings)
+    if have < needed:
+        raise TooFewFrames("sweep", "wavelengths", needed, have,
+                           f"{measured.n_listed} in sweep.csv; c(λ) is read with a not-a-knot cubic spline, which "
+                           f"needs {needed}" + "".join(f"; {n}" for n in measured.notes if "dropped" in n),
+                           measured.csv_path)
+
+
+def frame_signal(res: _FrameResult) -> tuple[float, float]:
+    """A sweep frame's signal in its brightest plane: the ROI mean above dark (DN, valid pixels) and its standard
+    error (DN, from the spatial spread, so PRNU makes it conservative)."""
+    best, best_sem = -np.inf, 0.0
+    for p in range(res.planes.shape[0]):
+        ok = ~res.invalid[p]
+        n = int(ok.sum())
+        if n < 2:
+            continue
+        m = float(np.mean(res.planes[p], where=ok, dtype=np.float64))
+        if m > best:
+            best, best_sem = m, float(np.std(res.planes[p], where=ok, dtype=np.float64, ddof=1)) / math.sqrt(n)
+    return (0.0, 0.0) if not np.isfinite(best) else (best, best_sem)
+
+
+def no_light(frames: Sequence[_FrameResult]) -> list[tuple[_FrameResult, str]]:
+    """The frames of one wavelength that recorded no light while their repeats did (:data:`NO_LIGHT_FRACTION`).
+
+    Each frame's signal per unit exposure and reference radiance, s_k / (x_k L_k), is compared with the median of
+    the other frames at the wavelength; a frame is left out when its own is below :data:`NO_LIGHT_FRACTION` of
+    that median. Frames alone at their wavelength are judged against the neighbouring wavelengths by
+    :func:`measure_sweep_settings`.
+    """
+    if len(frames) < 2:
+        return []
+    sig = [frame_signal(r) for r in frames]
+    norm = np.array([s / (r.relative_exposure_s * r.row.radiance_w_m2_sr) for (s, _), r in zip(sig, frames,
+                                                                                              strict=True)])
+    out = []
+    for k, r in enumerate(frames):
+        others = np.delete(norm, k)
+        ref = float(np.median(others))
+        s, _sem = sig[k]
+        if ref > 0 and norm[k] < NO_LIGHT_FRACTION * ref:
+            expected = ref * r.relative_exposure_s * r.row.radiance_w_m2_sr
+            out.append((r, f"no light recorded (shutter closed or trigger missed): {s:.3g} DN above dark at "
+                           f"{r.row.wavelength_nm:g} nm, where its repeats recorded {expected:.3g} DN for the same "
+                           f"exposure and the reference detector read {r.row.radiance_w_m2_sr:.3g} W m^-2 sr^-1"))
+    return out
 
 
 def sensitivity_from_settings(measured: SweepMeasurement, options: SweepOptions = SweepOptions()  # noqa: B008

@@ -82,6 +82,10 @@ class StackResult:
     variance_all : (C, h, w) float32 or None
         Temporal variance (ddof=1) of *all* values, before clipping (``sigma_clip``);
         the same array as ``variance`` for ``mean`` and ``median``.
+    mean_all : (C, h, w) float32 or None
+        Plain mean of *all* values, before clipping (``sigma_clip``); the same array as ``mean``
+        otherwise. With ``variance_all`` it gives the unclipped statistics EMVA 1288's spatial
+        figures need (a clipped mean's variance is not the clipped values' variance over their count).
     kept_planes : tuple of (C, h, w) arrays
         The planes of the first ``keep_frames`` frames (in ``paths`` order) as combined (see
         :func:`combine_frames`), for statistics that need single frames; empty by default.
@@ -102,6 +106,7 @@ class StackResult:
     white_level_dn: float = float("nan")
     frame_shape: tuple[int, int] = (0, 0)
     variance_all: np.ndarray | None = None
+    mean_all: np.ndarray | None = None
     kept_planes: tuple[np.ndarray, ...] = ()
 
 
@@ -120,7 +125,7 @@ class _Meta:
     frame_shape: tuple[int, int]
     planes_shape: tuple[int, ...]
     digest: bytes = b""
-    """Digest of the decoded pixels (:func:`_digest`): two frames with the same digest are copies."""
+    """Digest of the decoded pixels (:func:`frame_digest`): two frames with the same digest are copies."""
 
 
 def _check_same(meta: _Meta, first: _Meta, path: Path) -> None:
@@ -174,7 +179,7 @@ class _Decoder:
             raise CamcalError(f"preprocessing gave an array of shape {planes.shape}, expected (C, h, w)", path)
         meta = _Meta(index, frame.exposure, frame.kind, frame.cfa_pattern, frame.channel_names,
                      tuple(float(v) for v in frame.black_vector().ravel()), float(frame.white_level_dn), frame.shape,
-                     tuple(planes.shape), _digest(frame.data))
+                     tuple(planes.shape), frame_digest(frame.data))
         return meta, planes
 
     def spill_write(self, index: int, planes: np.ndarray) -> None:
@@ -215,7 +220,7 @@ class _Decoder:
 def _band_stats(x: np.ndarray, method: str, sigma: float) -> tuple[np.ndarray, ...]:
     """Statistics along axis 0 of an (N, ...) band (uint16 or float32).
 
-    Returns value, mean, variance, count and the variance of all values. The band is
+    Returns value, mean, variance, count, the variance and the mean of all values. The band is
     sorted once (uint16 sorts fast); everything else works on values shifted by the
     median in float32, so sums of squares keep their precision.
     """
@@ -231,7 +236,7 @@ def _band_stats(x: np.ndarray, method: str, sigma: float) -> tuple[np.ndarray, .
     with np.errstate(invalid="ignore", divide="ignore"):
         var_all = np.maximum(sdd - sd * sd / n, 0) / (n - 1) if n > 1 else np.full(med.shape, np.nan, np.float32)
     if method == "median":
-        return med, mean_all, var_all, np.full(med.shape, n, np.int32), var_all
+        return med, mean_all, var_all, np.full(med.shape, n, np.int32), var_all, mean_all
     # pass 1: robust scale from the interquartile range of the sorted values (IQR / 1.349 = sigma)
     scale = (_sorted_quantile(d, 0.75) - _sorted_quantile(d, 0.25)) / np.float32(IQR_TO_SIGMA)
     scale = np.where(scale > 0, scale, np.sqrt(np.nan_to_num(var_all)))
@@ -245,7 +250,7 @@ def _band_stats(x: np.ndarray, method: str, sigma: float) -> tuple[np.ndarray, .
     keep &= d <= m + thr
     m, v, cnt = _shifted_moments(d, keep)
     mean = med + m.astype(np.float64)
-    return mean, mean, v, cnt, var_all
+    return mean, mean, v, cnt, var_all, mean_all
 
 
 def _shifted_moments(d: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -367,9 +372,9 @@ def combine_frames(
             _refuse_copies(metas, paths)
             if acc is not None:
                 value, mean, var, count = acc.result()
-                var_all = var
+                var_all, mean_all = var, mean
             else:
-                value, mean, var, count, var_all = _bands(spill_path, n, (c, h, w), dec.spill_dtype, method,
+                value, mean, var, count, var_all, mean_all = _bands(spill_path, n, (c, h, w), dec.spill_dtype, method,
                                                           sigma, jobs, band_mb)
         finally:
             dec.close_spill()
@@ -379,6 +384,7 @@ def combine_frames(
         exposures=tuple(m.exposure for m in metas), paths=paths, channel_names=first_meta.channel_names,
         kind=first_meta.kind, cfa_pattern=first_meta.cfa_pattern, black_level_dn=first_meta.black,
         white_level_dn=first_meta.white, frame_shape=first_meta.frame_shape, variance_all=var_all,
+        mean_all=mean_all,
         kept_planes=tuple(kept[i] for i in sorted(kept)),
     )
 
@@ -388,7 +394,7 @@ DIGEST_STRIDE = 16
 exposures never agree on 750 000 noisy values, even below 1 DN of noise (57 % agree per pixel on the IMX296)."""
 
 
-def _digest(data: np.ndarray) -> bytes:
+def frame_digest(data: np.ndarray) -> bytes:
     """BLAKE2b of every :data:`DIGEST_STRIDE`-th value of a decoded frame (its shape and type included)."""
     h = hashlib.blake2b(repr((data.shape, data.dtype.str)).encode(), digest_size=16)
     h.update(np.ascontiguousarray(data.reshape(-1)[::DIGEST_STRIDE]))
@@ -472,6 +478,7 @@ def _bands(spill: Path, n: int, shape: tuple[int, int, int], dtype: np.dtype, me
     var = np.empty(shape, np.float32)
     count = np.empty(shape, np.int32)
     var_all = np.empty(shape, np.float32) if method == "sigma_clip" else var
+    mean_all = np.empty(shape, np.float32) if method == "sigma_clip" else mean
     item = dtype.itemsize
     fd = os.open(spill, os.O_RDONLY)
 
@@ -488,7 +495,7 @@ def _bands(spill: Path, n: int, shape: tuple[int, int, int], dtype: np.dtype, me
                     if r <= 0:
                         raise CamcalError("temporary stack file ended early (disk full?)", spill)
                     got += r
-        v, m, s2, cnt, s2_all = _band_stats(buf, method, sigma)
+        v, m, s2, cnt, s2_all, m_all = _band_stats(buf, method, sigma)
         del buf
         value[:, y0:y1] = v
         mean[:, y0:y1] = m
@@ -496,6 +503,7 @@ def _bands(spill: Path, n: int, shape: tuple[int, int, int], dtype: np.dtype, me
         count[:, y0:y1] = cnt
         if var_all is not var:
             var_all[:, y0:y1] = s2_all
+            mean_all[:, y0:y1] = m_all
 
     try:
         if jobs > 1 and len(bands) > 1:
@@ -506,7 +514,7 @@ def _bands(spill: Path, n: int, shape: tuple[int, int, int], dtype: np.dtype, me
                 one(b)
     finally:
         os.close(fd)
-    return value, mean, var, count, var_all
+    return value, mean, var, count, var_all, mean_all
 
 
 def combine_folder(folder: str | Path, **kwargs) -> StackResult:

@@ -74,6 +74,37 @@ def test_correct_planes_against_independent_formulas(rng):
     assert plain.invalid[1, 0, 0] and plain.saturated[1, 0, 0]
 
 
+class _Flat:
+    def __init__(self, gain):
+        self._gain = gain
+
+    def gain(self, with_prnu: bool = False):
+        return self._gain
+
+
+@pytest.mark.parametrize("how", ["of", "gain_only"])
+def test_correction_divides_by_the_flat_gain(how):
+    """s = (d − bias − β t S/S_dark) / g with g from a flat model (Calibration.of) or given alone."""
+    rng = np.random.default_rng(3)
+    shape = (4, 5, 7)
+
+    class Dark:
+        bias_dn = (500 + rng.normal(0, 1, shape)).astype(np.float32)
+        dark_current_dn_per_s = rng.uniform(1, 3, shape).astype(np.float32)
+        iso = 100.0
+
+        def dark_frame_dn(self, exposure_s, iso):  # not used: the maps are
+            raise AssertionError
+
+    gain = rng.uniform(0.5, 0.9, shape).astype(np.float32)
+    cal = Calibration.of(Dark(), _Flat(gain)) if how == "of" else Calibration(dark=Dark(), flat_gain=gain)
+    raw = rng.uniform(800, 3000, shape).astype(np.float32)
+    out = correct_planes(raw.copy(), cal, exposure_s=4.0, iso=400.0, white_level_dn=4095,
+                         black_level_dn=np.full(4, 512.0))
+    expect = (raw.astype(np.float64) - Dark.bias_dn - Dark.dark_current_dn_per_s * 4.0 * 4.0) / gain
+    np.testing.assert_allclose(out.signal_dn, expect, rtol=1e-5)
+
+
 def test_correct_planes_on_a_window_equals_the_whole_frame(rng):
     shape = (4, 10, 12)
     dark = _Dark(shape, rng)
@@ -88,6 +119,29 @@ def test_correct_planes_on_a_window_equals_the_whole_frame(rng):
     with pytest.raises(CamcalError, match="do not match"):
         correct_planes(raw[:, :5], cal, exposure_s=3.0, iso=100.0, white_level_dn=4095,
                        black_level_dn=np.full(4, 512.0))
+
+
+def test_variance_on_a_window_below_and_near_the_bias(rng):
+    """EMVA 1288 variance var = (K k max(s + dark, 0) + σ_read² k²) / g² on a window of the frame, with a
+    per-pixel read-noise map and raw values below the bias and within 1 DN above it (the shot term is 0 and
+    then tiny there: clipped at 0, not at anything else)."""
+    shape = (4, 8, 10)
+    dark = _Dark(shape, rng)
+    dark.read_noise_dn = rng.uniform(1.0, 4.0, shape).astype(np.float32)
+    gain = rng.uniform(0.6, 1.0, shape).astype(np.float32)
+    kdn = np.array([0.5, 0.6, 0.6, 0.7], np.float32)[:, None, None]
+    cal = Calibration(dark=dark, flat_gain=gain, inv_flat_gain=1 / gain, noise_gain_dn_per_e=kdn)
+    t, iso = 0.01, 200.0
+    level = dark.bias_dn + dark.dark_current_dn_per_s * t * 2.0
+    raw = (level + rng.uniform(-30, 60, shape)).astype(np.float32)
+    raw[:, :, :3] = (level[:, :, :3] + rng.uniform(0.05, 0.95, (4, 8, 3))).astype(np.float32)  # 0 < s < 1 DN
+    win = (slice(1, 7), slice(2, 9))
+    out = correct_planes(raw[:, win[0], win[1]].copy(), cal, exposure_s=t, iso=iso, white_level_dn=4095,
+                         black_level_dn=np.full(4, 512.0), full_shape=shape, window=win, variance=True)
+    above_bias = raw.astype(np.float64) - dark.bias_dn
+    var = (np.maximum(above_bias, 0) * kdn * 2.0 + dark.read_noise_dn.astype(np.float64) ** 2 * 4.0) / gain**2
+    assert np.any(above_bias[:, win[0], win[1]] < 0) and np.any((above_bias > 0) & (above_bias < 1))
+    np.testing.assert_allclose(out.variance_dn2, var[:, win[0], win[1]], rtol=1e-4)
 
 
 def test_require_valid_says_why(rng):

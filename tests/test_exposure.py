@@ -1,7 +1,8 @@
+import numpy as np
 import pytest
 
 from camcal.errors import MissingMetadataError
-from camcal.exposure import frame_relative_exposure, relative_exposure
+from camcal.exposure import frame_relative_exposure, normalise, relative_exposure
 from camcal.frame import Exposure
 
 
@@ -14,3 +15,19 @@ def test_relative_exposure_scales_as_iso_t_over_n2():
 def test_missing_field_names_it():
     with pytest.raises(MissingMetadataError, match="f_number"):
         frame_relative_exposure(Exposure(exposure_s=1, iso=100), 100, 4, "x.dng")
+
+
+@pytest.mark.parametrize("missing", ["exposure_s", "iso", "f_number"])
+def test_missing_field_names_the_file(missing):
+    fields = {"exposure_s": 1.0, "iso": 100.0, "f_number": 4.0}
+    del fields[missing]
+    with pytest.raises(MissingMetadataError, match=missing) as err:
+        frame_relative_exposure(Exposure(**fields), 100, 4, "IMG_0042.dng")
+    assert "IMG_0042.dng" in str(err.value)
+
+
+def test_relative_exposure_off_the_reference_setting():
+    # ISO 400, 1/250 s, f/5.6 against ISO 100, f/4: 4 × 0.004 s × (4/5.6)² = 8.163e-3 s at the reference setting
+    assert relative_exposure(1 / 250, 400, 5.6, 100, 4.0) == pytest.approx(4 * 0.004 * 16 / 31.36, rel=1e-12)
+    assert normalise(np.array([6.0]), 1.5)[0] == pytest.approx(4.0)
+    assert normalise(6.0, 1.5) == pytest.approx(4.0)

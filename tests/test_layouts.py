@@ -120,7 +120,6 @@ def test_inspect_linear_dng(tmp_path):
 @pytest.mark.parametrize("what, mosaic, message", [
     ("zeros", np.zeros((64, 64), np.uint16), "every pixel is 0"),
     ("constant", np.full((64, 64), 700, np.uint16), r"same value \(700 DN\)"),
-    ("saturated", np.full((64, 64), 4095, np.uint16), r"white level \(4095 DN"),
     ("below black", np.where(np.arange(64 * 64).reshape(64, 64) % 500 == 0, 900, 3).astype(np.uint16),
      "below the black level"),
 ])
@@ -131,6 +130,19 @@ def test_raw_without_data_is_refused(tmp_path, what, mosaic, message):
         load_frame(p)
     assert p.name in str(err.value)
     assert_one_line_error(run_cli("inspect", p), p.name, "no ")
+
+
+def test_fully_saturated_raw_is_an_image_reported_as_saturated(tmp_path):
+    """Every pixel at the white level is an over-exposed image, not a file without data: read, and inspect says
+    it is saturated (only files with no image, all zero or constant below white, are refused)."""
+    p = write_dng(tmp_path / "over.dng", np.full((64, 64), 4095, np.uint16), cfa_pattern="RGGB", black_level_dn=64,
+                  white_level_dn=4095, exposure_s=0.01, f_number=4, iso=100)
+    assert load_frame(p).data.min() == 4095
+    proc = run_cli("inspect", "--json", p)
+    assert proc.returncode == 0, proc.stderr
+    info = json.loads(proc.stdout)[0]
+    assert info["saturated_pct"] == 100.0 and info["saturated"].startswith("fully saturated")
+    assert "fully saturated" in run_cli("inspect", p).stdout
 
 
 def test_low_noise_dark_frame_is_kept(tmp_path):

@@ -20,10 +20,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from camcal.errors import CamcalError
+from camcal.errors import CamcalError, TooFewFrames
 from camcal.frame import PLANES
 from camcal.spectra import WAVELENGTHS_NM, gaussian_line
 from camcal.spectral import (
+    LeftOutWarning,
     SpectralSensitivity,
     SweepWarning,
     deconvolve_slit,
@@ -304,17 +305,20 @@ def test_path_outside_and_negative_radiance(tmp_path):
         measure_sweep(d3, mode="relative")
 
 
-def test_saturated_frames_skipped_or_refused(tmp_path):
+def test_saturated_frames_left_out_and_wavelengths_dropped(tmp_path):
     d = _mini_sweep(tmp_path / "sw", saturate=("s_550_0.dng",))
-    with pytest.warns(SweepWarning, match=r"s_550_0.dng at 550 nm: .* saturated; frame skipped"):
+    with pytest.warns(LeftOutWarning, match=r"left out: s_550_0.dng: saturated: .* at the white level at 550 nm"):
         s = measure_sweep(d, mode="relative")
     assert s.n_frames == {"500": 2, "550": 1, "600": 2}
-    assert any("saturated" in n for n in s.notes)
     d2 = _mini_sweep(tmp_path / "sw2", saturate=("s_600_0.dng", "s_600_1.dng"))
-    with pytest.raises(CamcalError, match=r"at 600 nm only 0 of 2 frames are unsaturated"):
-        quiet_measure(d2, mode="relative")
-    with pytest.raises(CamcalError, match="only 1 of 2"):
-        quiet_measure(d, mode="relative", min_frames=2)
+    s2 = quiet_measure(d2, mode="relative")  # no usable frame at 600 nm: the wavelength is dropped, and said
+    assert s2.n_frames == {"500": 2, "550": 2}
+    assert any("600 nm (0 of 2 frames usable, 1 needed)" in n for n in s2.notes)
+    s3 = quiet_measure(d, mode="relative", min_frames=2)
+    assert s3.n_frames == {"500": 2, "600": 2}
+    only = _mini_sweep(tmp_path / "sw3", saturate=("s_550_0.dng", "s_550_1.dng"), wavelengths=(550.0,))
+    with pytest.raises(TooFewFrames, match="needs at least 1 usable wavelengths, 0 remain"):
+        quiet_measure(only, mode="relative")
 
 
 def test_bad_roi_and_mode(tmp_path):

@@ -68,7 +68,7 @@ def test_every_roi_option_is_read_by_region_parse():
     """Every command module with a ``--roi`` option parses it with :meth:`Region.parse` and has no parser of its own."""
     cli = ROOT / "camcal" / "cli"
     with_roi = sorted(p.name for p in cli.glob("*_cmd.py") if '"--roi"' in p.read_text())
-    assert with_roi == ["apply_cmd.py", "linearity_cmd.py", "sweep_cmd.py", "water_cmd.py"]
+    assert with_roi == ["apply_cmd.py", "linearity_cmd.py", "secchi_cmd.py", "sweep_cmd.py", "water_cmd.py"]
     for name in with_roi:
         text = (cli / name).read_text()
         assert "Region.parse(" in text, name

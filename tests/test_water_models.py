@@ -65,17 +65,67 @@ def test_closed_form_equals_quadrature(theta_c_deg):
             assert e3_integral_derivative(a, mu) == pytest.approx(num, rel=1e-5)
 
 
-def test_seed_model_limits_and_section5_range():
+def test_seed_model_limits():
     m = SeedModel()
     assert m.ratio(0.0, 0.2) == pytest.approx(np.sin(np.pi / 2.1) ** 2, rel=1e-14)  # C = 0: ρ sin²θc
     assert SeedModel(albedo=0.5).ratio(0.0, 0.3) == pytest.approx(0.5 * np.sin(np.pi / 2.1) ** 2, rel=1e-14)
-    # physics notes: the seed's §5 range spans ≈0.55 … ≈2e-5
-    assert m.ratio(1e-7, 0.10) == pytest.approx(0.55, abs=0.01)
-    assert m.ratio(5e-7, 0.50) == pytest.approx(2e-5, rel=0.05)
     # first order (eq. 11) is exact only at C = 0
     assert m.ratio_first_order(0.0, 0.2) == pytest.approx(m.ratio(0.0, 0.2), rel=1e-14)
     c = np.array([1e-8, 1e-7])
     assert np.all(m.invert_first_order(m.ratio_first_order(c, 0.2), 0.2) == pytest.approx(c, rel=1e-12))
+
+
+def test_seed_section5_range():
+    # physics notes: the seed's §5 range spans ≈0.55 … ≈2e-5
+    m = SeedModel()
+    assert m.ratio(1e-7, 0.10) == pytest.approx(0.55, abs=0.01)
+    assert m.ratio(5e-7, 0.50) == pytest.approx(2e-5, rel=0.05)
+
+
+def test_seed_path_is_down_and_up():
+    """Eq. 10's light goes down to the disk and back up: e^(−2τ/cos θ) in the integral (path factor 2). Given τ,
+    so that only the path factor is under test (the chlorophyll τ has its own test below)."""
+    m = SeedModel(albedo=0.8)
+    tc = m.cutoff_rad
+    for tau in (0.05, 0.7, 2.5):
+        ref = 2 * 0.8 * quad(lambda t, tau=tau: np.exp(-2 * tau / np.cos(t)) * np.cos(t) * np.sin(t), 0, tc,
+                             epsabs=0, epsrel=1e-13, limit=200)[0]
+        assert m.closed_form().ratio(tau) == pytest.approx(ref, rel=1e-10)
+
+
+def test_seed_eq10_and_eq11_against_their_decadic_forms():
+    """End to end at C ≠ 0: eq. 10 by quadrature in the seed's own decadic form 2ρ∫10^(−2A/cos θ) cos θ sin θ dθ,
+    and eq. 11's first order ρ (1 − cos²θc) 10^(−2A), A = ε C d the decadic absorbance of one vertical pass
+    (d in cm). Fails with any of the three errors above."""
+    m = SeedModel(albedo=0.8)
+    c, d = 2e-7, 0.3
+    a = EPSILON_SEED_L_PER_MOL_CM * c * d * 100
+    ref = 2 * 0.8 * quad(lambda t: 10 ** (-2 * a / np.cos(t)) * np.cos(t) * np.sin(t), 0, m.cutoff_rad, epsabs=0,
+                         epsrel=1e-13, limit=200)[0]
+    assert m.ratio(c, d) == pytest.approx(ref, rel=1e-10)
+    expect = 0.8 * (1 - np.cos(m.cutoff_rad) ** 2) * 10 ** (-2 * a)
+    assert m.ratio_first_order(c, d) == pytest.approx(expect, rel=1e-12)
+
+
+def test_chlorophyll_optical_depth_is_natural_log_of_the_decadic_absorbance():
+    """τ is natural: e^(−τ) = 10^(−εCd) (Beer-Lambert with decadic ε, d in cm), for the seed model and the
+    refined model's chlorophyll part."""
+    c, d = 3e-7, 0.4
+    a = EPSILON_SEED_L_PER_MOL_CM * c * d * 100
+    assert np.exp(-SeedModel().tau(c, d)) == pytest.approx(10 ** (-a), rel=1e-12)
+    rm = RefinedModel(water_absorption_per_m=0.0)
+    assert np.exp(-rm.tau(c, d)) == pytest.approx(10 ** (-a), rel=1e-12)
+
+
+def test_chlorophyll_a_molar_mass_from_standard_atomic_weights():
+    """C55H72MgN4O5 from the IUPAC abridged standard atomic weights (2021): 893.51 g/mol."""
+    mass = 55 * 12.011 + 72 * 1.008 + 24.305 + 4 * 14.007 + 5 * 15.999
+    assert mass == pytest.approx(893.509, abs=1e-3)
+    # 1e-7 mol/L of chlorophyll-a is 89.35 µg/L (1e6 µg per g)
+    assert float(mol_per_L_to_ug_per_L(1e-7)) == pytest.approx(1e-7 * mass * 1e6, rel=2e-5)
+    assert parse_concentration_mol_per_L("10ug/L") == pytest.approx(10e-6 / mass, rel=2e-5)
+    # the seed's ε, 88 L g⁻¹ cm⁻¹, per mole
+    assert EPSILON_SEED_L_PER_MOL_CM == pytest.approx(88.0 * mass, rel=2e-5)
 
 
 def test_refined_model_c0_is_rho_over_n2_times_transmittances():

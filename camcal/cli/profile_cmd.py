@@ -5,9 +5,11 @@ from __future__ import annotations
 from pathlib import Path
 
 import typer
+from rich.markup import escape
 from rich.table import Table
 
 from camcal.cli.common import console, print_json, progress
+from camcal.emva import STANDARD, EmvaSheet, sheet_rows
 from camcal.errors import CamcalError
 from camcal.profile import CameraIdentity, contract, diff_profiles, load_profile, save_profile
 from camcal.reference_targets import import_spectral
@@ -27,9 +29,11 @@ def print_contract(c: dict, title: str = "profile") -> None:
     """A human summary of the contract object (one table per calibrated stage)."""
     cam = c["camera"]
     sensor = cam["cfa_pattern"] or f"{cam.get('layout') or 'linear'} RAW"
+    iso, n = c["reference"]["iso"], c["reference"]["f_number"]
+    ref = (f"reference ISO {iso:g} f/{n:g}" if iso is not None and n is not None else
+           "no reference setting (no stage normalised exposure)")
     console.print(f"[bold]{title}[/bold]: {cam['make']} {cam['model']} (serial {cam['serial']}), "
-                  f"{sensor} {cam['width']}x{cam['height']}, reference ISO {c['reference']['iso']:g} "
-                  f"f/{c['reference']['f_number']:g}, schema {c['schema_version']}")
+                  f"{sensor} {cam['width']}x{cam['height']}, {ref}, schema {c['schema_version']}")
     rows = []
     if c["dark"]:
         d = c["dark"]
@@ -43,6 +47,10 @@ def print_contract(c: dict, title: str = "profile") -> None:
         for k, m in r["models"].items():
             if k != r["kind"]:
                 rows += [(f"γ ({k})", "", m["gamma"])]
+        primary = r["models"].get(r["kind"]) or {}
+        if primary.get("saturation_dn"):
+            rows += [(f"saturation ({r['kind']})", "DN", primary["saturation_dn"]),
+                     (f"saturation reached at ({r['kind']})", "s", primary.get("saturation_exposure_s"))]
     if c["spectral_sensitivity"]:
         s = c["spectral_sensitivity"]
         rows += [("peak λ", "nm", s["peak_wavelength_nm"]), ("effective λ", "nm", s["effective_wavelength_nm"])]
@@ -55,6 +63,15 @@ def print_contract(c: dict, title: str = "profile") -> None:
     stages = [k for k in ("dark", "flat", "response", "spectral_sensitivity") if c[k] is None]
     if stages:
         console.print(f"not calibrated: {', '.join(stages)}")
+    for kind, m in ((c["response"] or {}).get("models") or {}).items():
+        if m.get("saturated_files"):
+            console.print(f"saturated {kind} frames (end of the linear range, not fitted): "
+                          f"{', '.join(m['saturated_files'])}", soft_wrap=True, markup=False, highlight=False)
+    prov = c.get("provenance") or {}
+    for rec in prov.get("not_calibrated") or []:
+        console.print(f"stage {rec['stage']} not calibrated: {rec['reason']}", soft_wrap=True, markup=False,
+                      highlight=False)
+    print_left_out(prov.get("left_out") or [])
     if c["dark"]:
         d = c["dark"]
         console.print(f"defects: hot pixels {d['hot_pixel_count']}, dead pixels {d['dead_pixel_count']}, "
@@ -63,6 +80,52 @@ def print_contract(c: dict, title: str = "profile") -> None:
             console.print("dark current: unknown (bias-only calibration)")
     if c["spectral_sensitivity"]:
         print_spectral_source(c["spectral_sensitivity"]["source"])
+
+
+def print_left_out(rows: list[dict]) -> None:
+    """The frames a calibration left out, as a table (stage, file, reason); nothing when none were."""
+    if not rows:
+        return
+    table = Table("stage", "file", "reason", title=f"left out: {len(rows)} frame{'s' if len(rows) != 1 else ''}",
+                  title_justify="left")
+    for r in rows:
+        table.add_row(escape(r["stage"]), escape(r["file"]), escape(r["reason"]))
+    console.print(table)
+
+
+def print_emva(sheet: EmvaSheet, title: str = "profile") -> None:
+    """The EMVA 1288 summary sheet: one column per plane, rows in the standard's order."""
+    console.print(f"[bold]{title}[/bold]: {STANDARD} summary at ISO {sheet.iso:g}")
+    planes = list(sheet.channels)
+    table = Table(show_header=True, title_justify="left")
+    for col in ("section", "quantity", "unit", *planes):
+        table.add_column(col, justify="left" if col in ("section", "quantity", "unit") else "right")
+    last = None
+    for section, name, unit, vals in sheet_rows(sheet):
+        table.add_row(section if section != last else "", name, unit, *(_fmt(vals.get(p)) for p in planes))
+        last = section
+    console.print(table)
+    sp = sheet.spatial
+    if sp.get("dsnu_frames"):
+        console.print(f"DSNU from the average of {sp['dsnu_frames']} dark frames at {sp['dsnu_exposure_s']:g} s; "
+                      f"PRNU from {sp.get('prnu_frames', '—')} flats (EMVA 1288 eq. 36: temporal noise / L removed)")
+    for row in sheet.photon_transfer:
+        ks = ", ".join(f"{p} {v['K_dn_per_e']:.4g} ± {v['K_unc_dn_per_e']:.2g}" for p, v in row["channels"].items()
+                       if v and v.get("K_dn_per_e") is not None and v.get("K_unc_dn_per_e") is not None)
+        console.print(f"photon transfer at ISO {row['iso']:g} ({row.get('pairs', 0)} frame pairs): K {ks} DN/e⁻",
+                      soft_wrap=True)
+    qe = sheet.quantum_efficiency
+    if qe:
+        peaks = []
+        for p, v in qe["values"].items():
+            arr = [x if x is not None else float("nan") for x in v]
+            if arr:
+                i = max(range(len(arr)), key=lambda j: arr[j] if arr[j] == arr[j] else -1.0)
+                peaks.append(f"{p} {100 * arr[i]:.3g} % at {qe['wavelength_nm'][i]:g} nm")
+        console.print(f"quantum efficiency (lens included, pixel pitch {qe['pixel_pitch_um']:g} µm), peak: "
+                      + ", ".join(peaks), soft_wrap=True)
+    for note in sheet.notes:
+        console.print(f"note: {note}", soft_wrap=True)
 
 
 def print_spectral_source(src: dict) -> None:
@@ -101,10 +164,21 @@ def register(app: typer.Typer) -> None:
     def show_cmd(
         profile: Path = typer.Argument(..., help="Profile file (.camcal)."),
         as_json: bool = typer.Option(False, "--json", help="Print the JSON contract (docs/profile-format.md)."),
+        emva: bool = typer.Option(False, "--emva", help="Print the EMVA 1288 summary sheet (K, noise, DSNU, PRNU, "
+                                  "saturation, SNR_max, dynamic range, linearity error) per plane."),
     ) -> None:
         """Show a profile (validated and hash-checked on load)."""
-
-        c = contract(load_profile(profile))
+        prof = load_profile(profile)
+        if emva:
+            if prof.emva is None:
+                raise CamcalError("the profile has no EMVA 1288 section (calibrated before camcal wrote it, or "
+                                  "without dark, flat and linearity frames)", profile)
+            if as_json:
+                print_json(prof.emva.to_dict())
+            else:
+                print_emva(prof.emva, title=str(profile))
+            return
+        c = contract(prof)
         if as_json:
             print_json(c)
         else:

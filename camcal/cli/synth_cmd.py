@@ -11,6 +11,7 @@ from camcal.cli.common import console, progress
 from camcal.errors import CamcalError
 from camcal.spectra import WAVELENGTHS_NM, gaussian_line, planck_radiance
 from camcal.synth.camera import Scene, SyntheticCamera, preset
+from camcal.synth.messy import plant_problems
 from camcal.synth.session import STAGES, SessionPlan, write_session
 
 
@@ -33,7 +34,11 @@ def register(app: typer.Typer) -> None:
         preset_name: str = typer.Option("default", "--preset",
                                          help="Camera preset: default, imx296 (10-bit, sub-DN read noise, "
                                               "black 60, 1456x1088 BGGR), hot (0.3 % hot pixels that saturate "
-                                              "at 30 s), offsets (per-channel black, 0.1 DN jitter)."),
+                                              "at 30 s), offsets (per-channel black, 0.1 DN jitter); messy: the "
+                                              "default camera in a session with a truncated flat, a copied dark "
+                                              "frame, another camera's JPEG in flat/, a sweep frame with the "
+                                              "shutter closed and two saturated linearity steps (listed under "
+                                              "'planted' in truth.json)."),
         pattern: str | None = typer.Option(None, help="CFA pattern: RGGB, BGGR, GRBG or GBRG (default: the "
                                                       "preset's, RGGB)."),
         bits: int | None = typer.Option(None, help="Bit depth of the RAW data (default: the preset's, 14)."),
@@ -54,7 +59,11 @@ def register(app: typer.Typer) -> None:
             raise CamcalError(f"unknown stage(s) {bad}; choose from {', '.join(STAGES)}")
         if layout not in ("bayer", "linear"):
             raise CamcalError(f"unknown layout {layout!r}; choose bayer or linear")
-        cam = _camera(pattern, bits, width, height, seed, sensitivity, preset_name)
+        messy = preset_name == "messy"
+        if messy and (layout != "bayer" or set(chosen) != set(STAGES)):
+            raise CamcalError("--preset messy plants problems in every stage of a Bayer session; give no --stages "
+                              "or --layout with it")
+        cam = _camera(pattern, bits, width, height, seed, sensitivity, "default" if messy else preset_name)
         with progress() as bar:
             tasks: dict[str, int] = {}
 
@@ -65,6 +74,11 @@ def register(app: typer.Typer) -> None:
 
             plan = SessionPlan(stages=chosen, layout=layout, fixed_aperture=fixed_aperture)
             out = write_session(outdir, cam, plan, progress=tick)
+        if messy:
+            planted = plant_problems(out, cam)
+            for rec in planted:
+                console.print(f"planted {rec['problem']}: {rec['file']} ({rec['what']})", soft_wrap=True,
+                              markup=False, highlight=False)
         console.print(f"wrote session {out} (truth in {out / 'truth.json'})")
 
     @synth.command("photo")

@@ -43,7 +43,9 @@ from camcal.atomic import atomic_write_bytes, atomic_write_text
 from camcal.errors import CamcalError
 from camcal.frame import PATTERNS, PLANES, merge_planes, plane_offsets, rgb_from_planes, split_planes
 from camcal.spectra import WAVELENGTHS_NM, camera_sensitivities, photon_energy_j
-from camcal.synth.dng import encode_exif_app1, write_dng, write_linear_dng
+from camcal.synth.dng import write_dng, write_linear_dng
+from camcal.synth.exif import PlaceTime, encode_exif_app1
+from camcal.synth.heic import write_heic
 from camcal.synth.tone import apply_tone
 
 LINEAR_FROM_PLANES: tuple[int, int, int] = (0, 1, 3)
@@ -347,8 +349,12 @@ class SyntheticCamera:
         temperature_c: float | None = None,
         layout: str = "bayer",
         tag_f_number: bool = True,
+        place: PlaceTime | None = None,
     ) -> Path:
         """Expose and write a real DNG file (decodable by LibRaw, Exif exposure tags).
+
+        ``place`` (:class:`camcal.synth.exif.PlaceTime`): GPS position, GPS UTC time and
+        OffsetTimeOriginal in the EXIF; DateTimeOriginal is then its local clock time.
 
         ``layout="linear"`` writes a LinearRaw DNG instead of the mosaic: the R, G1 and B planes of the
         same exposure as an (H/2, W/2, 3) R, G, B image (a superpixel demosaic taking G from G1), so
@@ -365,7 +371,7 @@ class SyntheticCamera:
                 black_level_dn=tuple(float(p.black_level_dn[k]) for k in LINEAR_FROM_PLANES),
                 white_level_dn=p.white_dn, exposure_s=exposure_s, f_number=f_number if tag_f_number else None,
                 iso=iso, make=p.make, model=p.model, serial=p.serial, capture_time=capture_time,
-                temperature_c=temperature_c,
+                temperature_c=temperature_c, place=place,
             )
         if layout != "bayer":
             raise ValueError(f"layout must be 'bayer' or 'linear', got {layout!r}")
@@ -384,7 +390,12 @@ class SyntheticCamera:
             serial=p.serial,
             capture_time=capture_time,
             temperature_c=temperature_c,
+            place=place,
         )
+
+    def black_by_position(self) -> tuple[float, float, float, float]:
+        """Black level (DN) of each 2x2 mosaic position, row-major: what a DNG's BlackLevel tag holds."""
+        return self._black_by_position()
 
     def _black_by_position(self) -> tuple[float, float, float, float]:
         off = plane_offsets(self.params.cfa_pattern)
@@ -393,6 +404,40 @@ class SyntheticCamera:
             r, c = off[name]
             pos[2 * r + c] = self.params.black_level_dn[k]
         return tuple(pos)  # type: ignore[return-value]
+
+    def render_processed(
+        self,
+        scene: Scene,
+        *,
+        exposure_s: float,
+        iso: float,
+        f_number: float,
+        rng: np.random.Generator,
+        tone: str = "srgb",
+        gamma: float = 1 / 2.2,
+        colour_matrix: np.ndarray | None = None,
+        bits: int = 8,
+    ) -> np.ndarray:
+        """Expose and process as a camera does for a JPEG or HEIC: the (H, W, 3) image of ``bits`` bits.
+
+        Processing: black removed and scaled to [0, 1] (:meth:`linear_rgb`),
+        nearest-neighbour demosaic to full resolution, the 3x3 ``colour_matrix`` (camera RGB →
+        output RGB, rows summing to 1 keep white; None: identity, no mixing) and a clip to [0, 1],
+        tone curve ``tone`` (``"srgb"``: IEC 61966-2-1; ``"power"``: x**gamma), quantisation to
+        ``bits`` bits (uint8 for 8, uint16 holding 0..2**bits − 1 otherwise).
+        """
+        planes = self.expose_planes(scene, exposure_s=exposure_s, iso=iso, f_number=f_number, rng=rng)
+        lin = self.linear_rgb(planes)
+        if colour_matrix is not None:
+            m = np.asarray(colour_matrix, float)
+            if m.shape != (3, 3) or not np.all(np.isfinite(m)):
+                raise ValueError(f"colour_matrix must be a finite 3x3 array, got shape {m.shape}")
+            lin = np.clip(np.einsum("ij,jhw->ihw", m, lin), 0.0, 1.0)
+        full = np.repeat(np.repeat(lin, 2, axis=1), 2, axis=2)
+        enc = apply_tone(full, tone, gamma)
+        top = 2**bits - 1
+        img = np.clip(np.rint(enc * top), 0, top).astype(np.uint8 if bits == 8 else np.uint16)
+        return np.moveaxis(img, 0, -1)
 
     def write_jpeg(
         self,
@@ -409,32 +454,21 @@ class SyntheticCamera:
         capture_time: datetime | None = None,
         colour_matrix: np.ndarray | None = None,
         tag_f_number: bool = True,
+        place: PlaceTime | None = None,
     ) -> Path:
         """Expose and write an 8-bit JPEG as a camera would: linear RGB, colour matrix, tone curve, EXIF.
 
-        Processing: black removed and scaled to [0, 1] (:meth:`linear_rgb`),
-        nearest-neighbour demosaic to full resolution, the 3x3 ``colour_matrix`` (camera RGB →
-        output RGB, rows summing to 1 keep white; None: identity, no mixing) and a clip to [0, 1],
-        tone curve ``tone`` (``"srgb"``: IEC 61966-2-1; ``"power"``: x**gamma), 8-bit quantisation,
-        JPEG at ``quality`` with 4:4:4 chroma.
+        Processing as :meth:`render_processed` (8 bits), then JPEG at ``quality`` with 4:4:4 chroma.
+        ``place``: GPS and time tags as in :meth:`write_dng`.
         """
-
         p = self.params
         iso = p.iso_base if iso is None else iso
         f_number = p.reference_f_number if f_number is None else f_number
-        planes = self.expose_planes(scene, exposure_s=exposure_s, iso=iso, f_number=f_number, rng=rng)
-        lin = self.linear_rgb(planes)
-        if colour_matrix is not None:
-            m = np.asarray(colour_matrix, float)
-            if m.shape != (3, 3) or not np.all(np.isfinite(m)):
-                raise ValueError(f"colour_matrix must be a finite 3x3 array, got shape {m.shape}")
-            lin = np.clip(np.einsum("ij,jhw->ihw", m, lin), 0.0, 1.0)
-        full = np.repeat(np.repeat(lin, 2, axis=1), 2, axis=2)
-        enc = apply_tone(full, tone, gamma)
-        img = np.clip(np.rint(enc * 255.0), 0, 255).astype(np.uint8)
+        img = self.render_processed(scene, exposure_s=exposure_s, iso=iso, f_number=f_number, rng=rng, tone=tone,
+                                    gamma=gamma, colour_matrix=colour_matrix, bits=8)
         return write_jpeg_file(
             path,
-            np.moveaxis(img, 0, -1),
+            img,
             exposure_s=exposure_s,
             f_number=f_number if tag_f_number else None,
             iso=iso,
@@ -442,7 +476,40 @@ class SyntheticCamera:
             model=p.model,
             quality=quality,
             capture_time=capture_time,
+            place=place,
         )
+
+    def write_heic(
+        self,
+        path: str | Path,
+        scene: Scene,
+        *,
+        exposure_s: float,
+        iso: float | None = None,
+        f_number: float | None = None,
+        rng: np.random.Generator,
+        tone: str = "srgb",
+        gamma: float = 1 / 2.2,
+        quality: int = 97,
+        bits: int = 8,
+        capture_time: datetime | None = None,
+        colour_matrix: np.ndarray | None = None,
+        tag_f_number: bool = True,
+        place: PlaceTime | None = None,
+    ) -> Path:
+        """Expose and write a HEIC (HEVC in HEIF) as a phone would, 8 or 10 bits, with EXIF.
+
+        Processing as :meth:`render_processed`; encoded by pillow-heif (libheif, x265) at ``quality``
+        with 4:4:4 chroma; ``place``: GPS and time tags as in :meth:`write_dng`.
+        """
+        p = self.params
+        iso = p.iso_base if iso is None else iso
+        f_number = p.reference_f_number if f_number is None else f_number
+        img = self.render_processed(scene, exposure_s=exposure_s, iso=iso, f_number=f_number, rng=rng, tone=tone,
+                                    gamma=gamma, colour_matrix=colour_matrix, bits=bits)
+        return write_heic(path, img, bits=bits, quality=quality, exposure_s=exposure_s,
+                          f_number=f_number if tag_f_number else None, iso=iso, make=p.make, model=p.model,
+                          capture_time=capture_time, place=place)
 
     def truth(self, iso: float | None = None) -> dict:
         """Ground truth of the fixed pattern and the radiometry, JSON-ready."""
@@ -504,6 +571,7 @@ def write_jpeg_file(
     model: str = "Synthetic",
     quality: int = 97,
     capture_time: datetime | None = None,
+    place: PlaceTime | None = None,
 ) -> Path:
     """Write an (H, W, 3) uint8 image as a JPEG with an Exif block, atomically.
 
@@ -526,7 +594,8 @@ def write_jpeg_file(
         out.close()
         data = tmp.read_bytes()
     app1 = encode_exif_app1(
-        exposure_s=exposure_s, f_number=f_number, iso=iso, make=make, model=model, capture_time=capture_time
+        exposure_s=exposure_s, f_number=f_number, iso=iso, make=make, model=model, capture_time=capture_time,
+        place=place,
     )
     return atomic_write_bytes(path, data[:2] + app1 + data[2:])
 

@@ -4,7 +4,8 @@ Writes an uncompressed little-endian DNG 1.4 file holding one CFA mosaic
 (:func:`encode_dng`, PhotometricInterpretation 32803) or one linear R, G, B image
 (:func:`encode_linear_dng`, LinearRaw, PhotometricInterpretation 34892, SamplesPerPixel 3,
 which LibRaw reads as a 3-colour stack), with the exposure metadata in an Exif sub-IFD
-(where LibRaw reads ISO from), so that ``rawpy`` decodes the file and reports exposure
+(where LibRaw reads ISO from) and, given a :class:`~camcal.synth.exif.PlaceTime`, a GPS IFD and
+OffsetTimeOriginal, so that ``rawpy`` decodes the file and reports exposure
 time, f-number and ISO. A fixed-aperture camera writes no FNumber tag (``f_number=None``).
 
 References
@@ -17,78 +18,28 @@ from __future__ import annotations
 
 import struct
 from datetime import datetime
-from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
 
 from camcal.atomic import atomic_write_bytes
+from camcal.synth.exif import (  # noqa: F401  (encode_exif_app1: the JPEG writer's, re-exported)
+    _ASCII,
+    _BYTE,
+    _IFD,
+    _LONG,
+    _RATIONAL,
+    _SHORT,
+    _SRATIONAL,
+    _UNDEFINED,
+    TAG_GPS_IFD,
+    PlaceTime,
+    add_time_tags,
+    encode_exif_app1,
+    gps_ifd,
+)
 
-# TIFF field types
-_BYTE, _ASCII, _SHORT, _LONG, _RATIONAL, _UNDEFINED, _SRATIONAL = 1, 2, 3, 4, 5, 7, 10
-_TYPE_SIZE = {_BYTE: 1, _ASCII: 1, _SHORT: 2, _LONG: 4, _RATIONAL: 8, _UNDEFINED: 1, _SRATIONAL: 8}
 _CFA_CODE = {"R": 0, "G": 1, "B": 2}
-
-
-def _rational(value: float, max_den: int = 1_000_000) -> tuple[int, int]:
-    fr = Fraction(value).limit_denominator(max_den)
-    return fr.numerator, fr.denominator
-
-
-def _encode(ftype: int, values) -> bytes:
-    if ftype == _ASCII:
-        raw = values.encode("ascii", "replace") + b"\x00"
-        return raw
-    if ftype in (_BYTE, _UNDEFINED):
-        return bytes(values)
-    if ftype == _SHORT:
-        return struct.pack(f"<{len(values)}H", *values)
-    if ftype == _LONG:
-        return struct.pack(f"<{len(values)}I", *values)
-    if ftype == _RATIONAL:
-        flat = [x for v in values for x in _rational(v)]
-        return struct.pack(f"<{len(flat)}I", *flat)
-    if ftype == _SRATIONAL:
-        flat = [x for v in values for x in _rational(v, 10_000)]
-        return struct.pack(f"<{len(flat)}i", *flat)
-    raise ValueError(ftype)
-
-
-class _IFD:
-    def __init__(self) -> None:
-        self.entries: dict[int, tuple[int, bytes, int]] = {}
-
-    def add(self, tag: int, ftype: int, values) -> None:
-        payload = _encode(ftype, values)
-        count = len(payload) // _TYPE_SIZE[ftype]
-        self.entries[tag] = (ftype, payload, count)
-
-    def size(self) -> int:
-        return 2 + 12 * len(self.entries) + 4
-
-    def data_size(self) -> int:
-        n = 0
-        for _, payload, _ in self.entries.values():
-            if len(payload) > 4:
-                n += len(payload) + (len(payload) & 1)
-        return n
-
-    def pack(self, offset: int, next_ifd: int = 0) -> bytes:
-        """Serialise at file ``offset``; overflow data follows the entry table."""
-        data_off = offset + self.size()
-        table = [struct.pack("<H", len(self.entries))]
-        blobs = []
-        for tag in sorted(self.entries):
-            ftype, payload, count = self.entries[tag]
-            if len(payload) <= 4:
-                table.append(struct.pack("<HHI", tag, ftype, count) + payload.ljust(4, b"\x00"))
-            else:
-                table.append(struct.pack("<HHII", tag, ftype, count, data_off))
-                pad = payload + (b"\x00" if len(payload) & 1 else b"")
-                blobs.append(pad)
-                data_off += len(pad)
-        table.append(struct.pack("<I", next_ifd))
-        return b"".join(table) + b"".join(blobs)
 
 
 def encode_dng(
@@ -105,6 +56,7 @@ def encode_dng(
     serial: str = "0000",
     capture_time: datetime | None = None,
     temperature_c: float | None = None,
+    place: PlaceTime | None = None,
 ) -> bytes:
     """Encode a CFA mosaic as the bytes of an uncompressed DNG file.
 
@@ -132,6 +84,7 @@ def encode_dng(
     return _encode_image(
         mosaic, [1], 32803, cfa_pattern, black, [int(white_level_dn)], exposure_s=exposure_s, f_number=f_number,
         iso=iso, make=make, model=model, serial=serial, capture_time=capture_time, temperature_c=temperature_c,
+        place=place,
     )
 
 
@@ -148,6 +101,7 @@ def encode_linear_dng(
     serial: str = "0000",
     capture_time: datetime | None = None,
     temperature_c: float | None = None,
+    place: PlaceTime | None = None,
 ) -> bytes:
     """Encode a linear R, G, B image as the bytes of an uncompressed LinearRaw DNG file.
 
@@ -174,6 +128,7 @@ def encode_linear_dng(
     return _encode_image(
         rgb, [1, 1, 1], 34892, None, black, [int(white_level_dn)] * 3, exposure_s=exposure_s, f_number=f_number,
         iso=iso, make=make, model=model, serial=serial, capture_time=capture_time, temperature_c=temperature_c,
+        place=place,
     )
 
 
@@ -193,14 +148,15 @@ def _encode_image(
     serial: str,
     capture_time: datetime | None,
     temperature_c: float | None,
+    place: PlaceTime | None = None,
 ) -> bytes:
     """The DNG bytes of a little-endian uint16 ``image`` (H, W) or (H, W, samples)."""
     h, w = image.shape[:2]
     spp = len(samples)
-    when = (capture_time or datetime(2026, 1, 1, 12, 0, 0)).strftime("%Y:%m:%d %H:%M:%S")
-
     ifd0 = _IFD()
     exif = _IFD()
+    when = add_time_tags(exif, capture_time, place)
+    gps = gps_ifd(place) if place is not None and place.has_gps else None
     ifd0.add(254, _LONG, [0])
     ifd0.add(256, _LONG, [w])
     ifd0.add(257, _LONG, [h])
@@ -221,6 +177,8 @@ def _encode_image(
         ifd0.add(33421, _SHORT, [2, 2])
         ifd0.add(33422, _BYTE, [_CFA_CODE[c] for c in cfa_pattern])
     ifd0.add(34665, _LONG, [0])  # patched below
+    if gps is not None:
+        ifd0.add(TAG_GPS_IFD, _LONG, [0])  # patched below
     ifd0.add(50706, _BYTE, [1, 4, 0, 0])
     ifd0.add(50707, _BYTE, [1, 1, 0, 0])
     ifd0.add(50708, _ASCII, f"{make} {model}")
@@ -243,7 +201,6 @@ def _encode_image(
     exif.add(34864, _SHORT, [3])  # SensitivityType: ISO speed
     exif.add(34867, _LONG, [int(round(iso))])  # ISOSpeed
     exif.add(36864, _UNDEFINED, b"0230")
-    exif.add(36867, _ASCII, when)
     exif.add(42033, _ASCII, serial)
     if temperature_c is not None:
         exif.add(37888, _SRATIONAL, [temperature_c])  # Exif 2.31 Temperature
@@ -251,56 +208,25 @@ def _encode_image(
     ifd0_off = 8
     exif_off = ifd0_off + ifd0.size() + ifd0.data_size()
     exif_off += exif_off & 1
-    strip_off = exif_off + exif.size() + exif.data_size()
+    gps_off = exif_off + exif.size() + exif.data_size()
+    gps_off += gps_off & 1
+    strip_off = gps_off + (gps.total_size() if gps is not None else 0)
     strip_off += (-strip_off) % 16
     ifd0.add(273, _LONG, [strip_off])
     ifd0.add(34665, _LONG, [exif_off])
+    if gps is not None:
+        ifd0.add(TAG_GPS_IFD, _LONG, [gps_off])
 
     out = bytearray(b"II*\x00" + struct.pack("<I", ifd0_off))
     out += ifd0.pack(ifd0_off)
     out += b"\x00" * (exif_off - len(out))
     out += exif.pack(exif_off)
+    if gps is not None:
+        out += b"\x00" * (gps_off - len(out))
+        out += gps.pack(gps_off)
     out += b"\x00" * (strip_off - len(out))
     out += image.tobytes()
     return bytes(out)
-
-
-def encode_exif_app1(
-    *,
-    exposure_s: float | None,
-    f_number: float | None,
-    iso: float | None,
-    make: str,
-    model: str,
-    capture_time: datetime | None = None,
-) -> bytes:
-    """An Exif APP1 segment (marker included) for a JPEG, with exact rational exposure tags."""
-    when = (capture_time or datetime(2026, 1, 1, 12, 0, 0)).strftime("%Y:%m:%d %H:%M:%S")
-    ifd0, exif = _IFD(), _IFD()
-    ifd0.add(271, _ASCII, make)
-    ifd0.add(272, _ASCII, model)
-    ifd0.add(274, _SHORT, [1])
-    ifd0.add(305, _ASCII, "camcal.synth")
-    ifd0.add(306, _ASCII, when)
-    ifd0.add(34665, _LONG, [0])
-    if exposure_s:
-        exif.add(33434, _RATIONAL, [exposure_s])
-    if f_number:
-        exif.add(33437, _RATIONAL, [f_number])
-    if iso:
-        exif.add(34855, _SHORT, [int(round(iso))])
-    exif.add(36864, _UNDEFINED, b"0230")
-    exif.add(36867, _ASCII, when)
-    exif.add(40961, _SHORT, [1])  # ColorSpace: sRGB
-    exif_off = 8 + ifd0.size() + ifd0.data_size()
-    exif_off += exif_off & 1
-    ifd0.add(34665, _LONG, [exif_off])
-    tiff = bytearray(b"II*\x00" + struct.pack("<I", 8))
-    tiff += ifd0.pack(8)
-    tiff += b"\x00" * (exif_off - len(tiff))
-    tiff += exif.pack(exif_off)
-    payload = b"Exif\x00\x00" + bytes(tiff)
-    return b"\xff\xe1" + struct.pack(">H", len(payload) + 2) + payload
 
 
 def write_dng(path: str | Path, mosaic: np.ndarray, **kwargs) -> Path:

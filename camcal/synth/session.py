@@ -48,6 +48,9 @@ class SessionPlan:
     flat_temperature_k: float = 5000.0
     linearity_steps: int = 17
     linearity_factor: float = 2**0.5
+    linearity_repeats: int = 1
+    """RAW frames per linearity exposure; 2 or more give the frame pairs of EMVA 1288 photon transfer
+    (the system gain K from the mean–variance line, :mod:`camcal.emva`)."""
     linearity_jpeg: bool = True
     jpeg_tone: str = "srgb"
     jpeg_gamma: float = 1 / 2.2
@@ -247,11 +250,18 @@ def write_session(
         times = [t_start * plan.linearity_factor**i for i in range(plan.linearity_steps)]
         rows = []
         rngs = frame_rngs(p.seed, 2 * len(times), 4)
+        extra = frame_rngs(p.seed, len(times) * max(plan.linearity_repeats - 1, 0), 14)
         for i, t in enumerate(times):
             name = f"lin_{i:03d}.dng"
             shoot.write_dng(d / name, Scene.uniform(spec), exposure_s=t, iso=plan.iso, f_number=n_ref,
                              rng=rngs[2 * i], capture_time=t0 + timedelta(seconds=next(seq)))
             rows.append({"file": name, "exposure_s": t, "iso": plan.iso, "f_number": n_ref})
+            for r in range(1, plan.linearity_repeats):  # the pair partners, right after (read in name order)
+                rname = f"lin_{i:03d}_{r}.dng"
+                shoot.write_dng(d / rname, Scene.uniform(spec), exposure_s=t, iso=plan.iso, f_number=n_ref,
+                                 rng=extra[i * (plan.linearity_repeats - 1) + r - 1],
+                                 capture_time=t0 + timedelta(seconds=next(seq)))
+                rows.append({"file": rname, "exposure_s": t, "iso": plan.iso, "f_number": n_ref})
             if plan.linearity_jpeg:
                 jname = f"lin_{i:03d}.jpg"
                 shoot.write_jpeg(d / jname, Scene.uniform(spec), exposure_s=t, iso=plan.iso, f_number=n_ref,

@@ -144,9 +144,15 @@ def _scaled_absorber(model, scale: float):
     return replace(model, epsilon_L_per_mol_cm=model.epsilon_L_per_mol_cm * scale)
 
 
+#: Inputs of the field model (sun and sky, :class:`camcal.water.field.FieldBandModel`): the sun's zenith angle
+#: (degrees), the diffuse irradiance's relative scale (nominal 1) and the aerosol optical depth at 500 nm.
+FIELD_INPUTS = ("sun_zenith", "diffuse_fraction", "aerosol")
+
+
 def forward_for(model, depth_m: float, name: str) -> Callable[[float, np.ndarray], np.ndarray]:
-    """forward(p, C) varying one input: 'depth' (m), 'lamp_height' (m), 'lamp_angle' (degrees) or 'epsilon'
-    (relative scale of ε or of the absorber spectrum, nominal 1)."""
+    """forward(p, C) varying one input: 'depth' (m), 'lamp_height' (m), 'lamp_angle' (degrees), 'epsilon'
+    (relative scale of ε or of the absorber spectrum, nominal 1), or for the field model 'sun_zenith' (degrees),
+    'diffuse_fraction' (relative scale of the diffuse irradiance) and 'aerosol' (optical depth at 500 nm)."""
     if name == "depth":
         return lambda p, c: model_ratio(model, c, p)
     if name == "lamp_height":
@@ -155,6 +161,8 @@ def forward_for(model, depth_m: float, name: str) -> Callable[[float, np.ndarray
         return lambda p, c: model_ratio(_with(model, lamp_angle_rad=float(np.radians(p))), c, depth_m)
     if name == "epsilon":
         return lambda p, c: model_ratio(_scaled_absorber(model, float(p)), c, depth_m)
+    if name in FIELD_INPUTS and hasattr(model, "varied"):  # the field model (camcal.water.field)
+        return lambda p, c: model_ratio(model.varied(name, float(p)), c, depth_m)
     raise ValueError(f"unknown uncertain input {name!r}")
 
 

@@ -1,0 +1,308 @@
+"""Physical formulas checked at non-trivial operating points against values computed by other means (issue 29).
+
+Each test here guards one formula with an independent value: a closed form against quadrature
+(scipy.integrate), a forward model against an independent rendering written out in the test, a unit
+conversion against published constants, a fit against exact synthetic data. None of them compares a function
+with itself. They were written to kill mutations (one-line changes of the physics) that survived the rest
+of the suite; docs/testing.md lists them and how to rerun the mutation campaign.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.integrate import quad
+
+from camcal.apply import apply
+from camcal.dark import HOT, DarkStacks, fit_dark_stacks
+from camcal.frame import PLANES, Exposure
+from camcal.io import load_frame
+from camcal.profile import load_profile
+from camcal.spectra import gaussian_line
+from camcal.stack import StackResult
+from camcal.synth.camera import Scene
+from camcal.synth.session import exposure_for_level
+from camcal.water.models import LampModel, RefinedModel, lamp_ratio
+from camcal.water.optics import hemispheric_transmittance, transmittance
+
+N_WATER = 1.33
+
+
+# ---- Fresnel from the air side, written out independently (Born & Wolf §1.5.3, transmission coefficients) ----
+
+def fresnel_t_from_air(theta_air_rad: float, n: float = N_WATER) -> float:
+    """Unpolarised power transmittance of a flat air→water surface at air-side angle θa.
+
+    From the amplitude transmission coefficients t_s = 2 cos θi / (cos θi + n cos θt),
+    t_p = 2 cos θi / (n cos θi + cos θt) and the power factor n cos θt / cos θi (not from 1 − R).
+    By reciprocity (Stokes relations) it is also the water→air transmittance along the refracted ray.
+    """
+    ci = np.cos(theta_air_rad)
+    ct = np.sqrt(1.0 - (np.sin(theta_air_rad) / n) ** 2)
+    k = n * ct / ci
+    ts = 2 * ci / (ci + n * ct)
+    tp = 2 * ci / (n * ci + ct)
+    return float(0.5 * k * (ts * ts + tp * tp))
+
+
+# ---- 1. the three mutations that survived the suite ---------------------------------------------------------
+
+@pytest.mark.parametrize("view_air_rad", [0.5, 1.0])
+def test_upward_transmittance_at_oblique_views_is_fresnel_from_air_by_reciprocity(view_air_rad):
+    """T_up of the water-leaving ray seen by a camera at air angle θa = the air→water T at θa (reciprocity).
+
+    Both models; at 1 rad the swapped-index formula gives 0.9762 instead of 0.9507 (2.7 %).
+    """
+    expect = fresnel_t_from_air(view_air_rad)
+    assert float(transmittance(view_air_rad)) == pytest.approx(expect, rel=1e-12)  # defaults: air → water, Fresnel
+    assert RefinedModel(view_angle_rad=view_air_rad).transmittance_up() == pytest.approx(expect, rel=1e-12)
+    assert LampModel(view_angle_rad=view_air_rad).transmittance_up() == pytest.approx(expect, rel=1e-12)
+
+
+def _stack(level: np.ndarray, t_s: float, white: float, black: float, n: int = 8, var_dn2: float = 4.0):
+    """A combined stack of ``n`` dark frames at exposure ``t_s`` with exact per-pixel levels (no file)."""
+    level = np.asarray(level, np.float32)
+    var = np.full(level.shape, var_dn2, np.float32)
+    e = Exposure(exposure_s=t_s, iso=100.0)
+    return StackResult(value=level, mean=level, variance=var, count=np.full(level.shape, n, np.int16), n_frames=n,
+                       method="mean", exposures=(e,) * n, paths=tuple(Path(f"d{t_s:g}_{i}.dng") for i in range(n)),
+                       channel_names=PLANES, cfa_pattern="RGGB", black_level_dn=(black,) * 4, white_level_dn=white,
+                       frame_shape=(2 * level.shape[1], 2 * level.shape[2]), variance_all=var)
+
+
+def test_dark_line_fit_leaves_clipped_levels_out():
+    """Per-pixel line fit level = b + β t with levels clipped at the white level: exact β and bias.
+
+    Noise-free levels with integer bias and β and dyadic times are exact in float32, so the weighted least
+    squares through the unclipped points returns the truth to rounding. A pixel saturated in every dark group
+    (only its bias frame unsaturated) has no line: β is the bound (white − black)/t_min, its uncertainty
+    infinite, and it is marked hot.
+    """
+    shape = (4, 6, 6)
+    rng = np.random.default_rng(7)
+    white, black = 4095.0, 1000.0
+    bias = (black + rng.integers(-8, 9, shape)).astype(np.float64)
+    beta = rng.integers(1, 4, shape).astype(np.float64)  # DN/s
+    beta[0, 1, 1] = 160.0  # clips in the 20 s group only: 1008 + 160·8 < 4095 < 992 + 160·20
+    beta[2, 3, 2] = 600.0  # clips at 20 s and 8 s
+    beta[3, 4, 4] = 5000.0  # clips in every dark group
+    times = (2.0**-13, 1.0, 8.0, 20.0)  # bias frames, then three dark groups
+    stacks = [_stack(np.minimum(bias + beta * t, white), t, white, black) for t in times]
+    model = fit_dark_stacks(DarkStacks(tuple((t, s) for t, s in zip(times[1:], stacks[1:], strict=True)), stacks[0]))
+    fitted = np.ones(shape, bool)
+    fitted[3, 4, 4] = False
+    np.testing.assert_allclose(model.dark_current_dn_per_s[fitted], beta[fitted], rtol=1e-6)
+    np.testing.assert_allclose(model.bias_dn[fitted], bias[fitted], rtol=0, atol=1e-3)
+    assert model.defects[0, 1, 1] & HOT and model.defects[2, 3, 2] & HOT
+    # saturated in all but one observation: the bounded-β branch
+    assert model.dark_current_dn_per_s[3, 4, 4] == pytest.approx((white - black) / 1.0)
+    assert model.bias_dn[3, 4, 4] == black
+    assert np.isinf(model.dark_current_unc_dn_per_s[3, 4, 4])
+    assert model.defects[3, 4, 4] & HOT
+    # the clipped pixels' uncertainties come from their unclipped points only: finite
+    assert np.all(np.isfinite(model.dark_current_unc_dn_per_s[[0, 2], [1, 3], [1, 2]]))
+
+
+LINE_BAND_W_M2_SR = 2.0
+
+
+def test_long_dim_photo_at_f8_gives_the_true_radiance(tmp_path, camera, profile_path):
+    """A 30 s photo at f/8 (the profile's reference is f/4), 5 % of full scale: the dark current of 30 s
+    is ≈ 60 e⁻ per pixel against a signal of a few hundred, so it must be scaled by the frame's own exposure
+    time (the relative exposure is 7.5 s here; scaling by it leaves the photo 4 % too bright).
+
+    Truth: the scene's in-band radiance, 2 W m⁻² sr⁻¹ times the dimming. Tolerance 1 %: the noise of the
+    frame mean is < 0.05 % (24 576 cells), the dark model's β error over 30 s < 0.3 % of the signal,
+    c(λ0) ≈ 0.05 %.
+    """
+    profile = load_profile(profile_path)
+    assert profile.reference_f_number == 4.0
+    line = LINE_BAND_W_M2_SR * gaussian_line(663.0, 5.0)
+    t = 30.0
+    scale = exposure_for_level(camera, line, 0.05, 100, 8.0) / t
+    p = tmp_path / "dim_30s_f8.dng"
+    camera.write_dng(p, Scene.uniform(line * scale), exposure_s=t, iso=100, f_number=8.0,
+                     rng=np.random.default_rng(29))
+    got = float(np.nanmean(apply(load_frame(p), profile).channels["L663"]))
+    assert got == pytest.approx(LINE_BAND_W_M2_SR * scale, rel=0.01)
+
+
+# ---- water: the refined model against an independent rendering --------------------------------------------
+
+def _render_refined(c_mol_per_L, depth_m, *, view_air_rad, a_bg_per_m, a_w_per_m, eps, exact: bool):
+    """Radiance ratio of a white disk under a uniform full sky, rendered by quadrature over the in-water cone.
+
+    Downwelling: in-water radiance n² T(θa) L_sky in the refracted cone; the disk (Lambertian, albedo 1)
+    reflects E/π with E = ∫ L e^(−τ/μ) μ dΩ; upwelling along the view T(θa,view)/n² e^(−τ/μv); the reference
+    is the same disk in air, radiance L_sky. With ``exact`` False the sky's T(θ) is replaced by its
+    cosine-weighted mean over the air hemisphere (what the closed form does).
+    """
+    n = N_WATER
+    tau = (a_w_per_m + a_bg_per_m + np.log(10) * eps * c_mol_per_L * 100) * depth_m
+    theta_c = np.arcsin(1 / n)
+    tbar = 2 * quad(lambda a: fresnel_t_from_air(a) * np.cos(a) * np.sin(a), 0, np.pi / 2, epsabs=0,
+                    epsrel=1e-12, limit=200)[0]
+
+    def t_down(theta_w):
+        return fresnel_t_from_air(np.arcsin(min(n * np.sin(theta_w), 1.0))) if exact else tbar
+
+    e = 2 * np.pi * quad(lambda th: n * n * t_down(th) * np.exp(-tau / np.cos(th)) * np.cos(th) * np.sin(th),
+                         0, theta_c, epsabs=0, epsrel=1e-12, limit=200)[0]
+    mu_v = np.sqrt(1 - (np.sin(view_air_rad) / n) ** 2)
+    return e / np.pi * fresnel_t_from_air(view_air_rad) / (n * n) * np.exp(-tau / mu_v)
+
+
+@pytest.mark.parametrize("transmittance", ["mean", "exact"])
+def test_refined_model_off_nadir_with_chlorophyll_matches_a_rendering(transmittance):
+    """Off nadir (0.6 rad), C = 2e-7 mol/L, background absorption: the E₃ closed form (or the Gauss-Legendre
+    form) against the radiance transfer integrated by adaptive quadrature.
+
+    Tolerance: 1e-9 for the closed form (exact in E₃); 1e-6 for the Gauss-Legendre form, whose 128 nodes in μ
+    converge slowly on T(θ)'s square-root edge at the critical angle (measured 1.6e-7).
+    """
+    kw = dict(view_angle_rad=0.6, background_absorption_per_m=0.3, water_absorption_per_m=0.425)
+    m = RefinedModel(transmittance=transmittance, **kw)
+    for c, d in ((2e-7, 0.25), (5e-8, 0.6)):
+        expect = _render_refined(c, d, view_air_rad=0.6, a_bg_per_m=0.3, a_w_per_m=0.425,
+                                 eps=m.epsilon_L_per_mol_cm, exact=transmittance == "exact")
+        assert float(m.ratio(c, d)) == pytest.approx(expect, rel=1e-9 if transmittance == "mean" else 1e-6)
+
+
+def test_hemispheric_transmittance_against_quadrature():
+    """T̄ = ∫ T cos θ sin θ dθ / ∫ cos θ sin θ dθ for a full sky and for a cone of 1 rad."""
+    for tmax in (np.pi / 2, 1.0):
+        num = quad(lambda a: fresnel_t_from_air(a) * np.cos(a) * np.sin(a), 0, tmax, epsabs=0, epsrel=1e-12)[0]
+        assert hemispheric_transmittance(tmax) == pytest.approx(num / (0.5 * np.sin(tmax) ** 2), rel=1e-9)
+
+
+def schlick_t_from_air(theta_air_rad: float, n: float = N_WATER) -> float:
+    """1 − Schlick's R at the air-side angle (either direction, Schlick 1994)."""
+    r0 = ((n - 1) / (n + 1)) ** 2
+    return float(1 - (r0 + (1 - r0) * (1 - np.cos(theta_air_rad)) ** 5))
+
+
+@pytest.mark.parametrize("reflectance", ["fresnel", "schlick"])
+def test_lamp_model_off_axis_with_chlorophyll_matches_a_ray_trace(reflectance):
+    """Seed §4's point lamp at 0.5 rad, camera at 0.3 rad, C ≠ 0: the model's ratio against irradiances from an
+    independent ray trace, E_w = I T(α) e^(−τ/cos β) sin α / (X dX/dα) with X(α) traced and dX/dα by central
+    differences, and the inverse-square law with the cosine for the dry disk."""
+    h, alpha, view, d, c = 0.8, 0.5, 0.3, 0.3, 1e-7
+    m = LampModel(height_m=h, lamp_angle_rad=alpha, view_angle_rad=view, background_absorption_per_m=0.2,
+                  reflectance=reflectance)
+    n = N_WATER
+    t_air = fresnel_t_from_air if reflectance == "fresnel" else schlick_t_from_air
+
+    def x_of(a):  # horizontal distance from the lamp's foot where the refracted ray reaches depth d
+        b = np.arcsin(np.sin(a) / n)
+        return h * np.tan(a) + d * np.tan(b)
+
+    da = 1e-5
+    dx = (x_of(alpha + da) - x_of(alpha - da)) / (2 * da)
+    x = x_of(alpha)
+    beta = np.arcsin(np.sin(alpha) / n)
+    tau = (m.water_absorption_per_m + 0.2 + np.log(10) * m.epsilon_L_per_mol_cm * c * 100) * d
+    e_w = t_air(alpha) * np.exp(-tau / np.cos(beta)) * np.sin(alpha) / (x * dx)
+    r = np.hypot(x, h + d)
+    e_air = (h + d) / r**3
+    mu_v = np.sqrt(1 - (np.sin(view) / n) ** 2)
+    expect = e_w / e_air * t_air(view) * np.exp(-tau / mu_v) / n**2
+    # tolerance: the central difference's truncation error, O(da²) ≈ 1e-10 relative
+    assert float(m.ratio(c, d)) == pytest.approx(expect, rel=1e-8)
+    optics = RefinedModel(view_angle_rad=view, background_absorption_per_m=0.2, reflectance=reflectance)
+    assert float(lamp_ratio(c, d, h, alpha, optics)) == pytest.approx(expect, rel=1e-8)
+
+
+@pytest.mark.parametrize("line_fwhm_nm", [1.0, 9.0])
+def test_narrowband_slit_correction_against_gaussian_convolutions(line_fwhm_nm):
+    """The narrowband estimator reads c ⊛ line at λ0 from a curve measured through a 5 nm slit (c ⊛ slit).
+
+    With a Gaussian sensitivity c = exp(−(λ−μ)²/2s²) both convolutions are closed forms (variances add):
+    (c ⊛ g_σ)(λ) = s/√(s²+σ²) · exp(−(λ−μ)²/2(s²+σ²)). The estimator's second-order correction must give the
+    rate of a unit line within 2e-4 (the neglected fourth-order term and the spline's c''; measured 6e-5); the
+    correction itself is 0.2-0.5 % at 663 nm on this curve.
+    """
+    from camcal.radiance import radiance_model
+
+    wl = np.arange(400.0, 721.0, 5.0)
+    mu, s, slit = 620.0, 30.0, 5.0
+    f2s = 1 / (2 * np.sqrt(2 * np.log(2)))
+
+    def conv(lam, fwhm):
+        v = s * s + (fwhm * f2s) ** 2
+        return 50.0 * s / np.sqrt(v) * np.exp(-((lam - mu) ** 2) / (2 * v))
+
+    c = {"R": conv(wl, slit), "G": 0.1 * conv(wl - 90, slit), "B": 0.05 * conv(wl - 180, slit)}
+    model = radiance_model(wl, c, None, 663.0, "narrowband", line_fwhm_nm=line_fwhm_nm, slit_fwhm_nm=slit)
+    assert model.channel == "R"
+    rate = conv(663.0, line_fwhm_nm)  # DN/s of a line of unit in-band radiance
+    assert model.weights[0] * rate == pytest.approx(1.0, abs=2e-4)  # measured 4e-5 (1 nm), 6e-5 (9 nm)
+    assert abs(rate / conv(663.0, slit) - 1) > 2e-3  # the correction matters at this precision
+
+
+def test_schlick_from_the_water_side_uses_the_air_side_angle():
+    """Schlick from below (n1 > n2) is R0 + (1 − R0)(1 − cos θ_air)⁵ with θ_air from Snell, so it equals Schlick
+    from above at that angle (reciprocity); R0 = ((n − 1)/(n + 1))² = 0.02006 for n = 1.33."""
+    from camcal.water.optics import schlick_reflectance
+
+    r0 = (0.33 / 2.33) ** 2
+    for theta_w in (0.3, 0.6, 0.8):
+        theta_a = np.arcsin(N_WATER * np.sin(theta_w))
+        expect = r0 + (1 - r0) * (1 - np.cos(theta_a)) ** 5
+        assert float(schlick_reflectance(theta_w, N_WATER, 1.0)) == pytest.approx(expect, rel=1e-12)
+        assert float(schlick_reflectance(theta_a, 1.0, N_WATER)) == pytest.approx(expect, rel=1e-12)
+    # the refined model with Schlick: T_up at an oblique view from the air-side angle
+    view = 0.9
+    expect = 1 - (r0 + (1 - r0) * (1 - np.cos(view)) ** 5)
+    assert RefinedModel(view_angle_rad=view, reflectance="schlick").transmittance_up() == pytest.approx(expect)
+
+
+def test_seed_first_and_second_order_off_axis_with_albedo():
+    """Eq. 11 and the appendix's (k, q) model from a start angle θ0 = 0.2 rad with ρ = 0.6, against the seed's
+    integrand in decadic form integrated over [θ0, θc] (second order: 10^(−2A)(1 − A ln10 θ²))."""
+    from camcal.water.models import SeedModel
+
+    m = SeedModel(albedo=0.6)
+    c, d, th0 = 1e-7, 0.2, 0.2
+    a = m.epsilon_L_per_mol_cm * c * d * 100
+    tc = m.cutoff_rad
+    first = 0.6 * (np.cos(th0) ** 2 - np.cos(tc) ** 2) * 10 ** (-2 * a)
+    assert m.ratio_first_order(c, d, th0) == pytest.approx(first, rel=1e-12)
+    second = 2 * 0.6 * quad(lambda t: 10 ** (-2 * a) * (1 - a * np.log(10) * t * t) * np.cos(t) * np.sin(t), th0, tc,
+                            epsabs=0, epsrel=1e-13)[0]
+    assert m.ratio_second_order(c, d, th0) == pytest.approx(second, rel=1e-10)
+
+
+@pytest.mark.parametrize("transmittance", ["mean", "exact"])
+def test_ratio_derivatives_against_central_differences(transmittance):
+    """dR/dτ of the refined model's form (E₃ closed form or Gauss-Legendre) and of the lamp's exponential form,
+    against a central difference of R (step 1e-5: truncation ≈ 1e-10 relative)."""
+    forms = [RefinedModel(view_angle_rad=0.4, transmittance=transmittance).closed_form(),
+             LampModel(height_m=0.7, lamp_angle_rad=0.4, view_angle_rad=0.2).closed_form_at(0.3)]
+    h = 1e-5
+    for f in forms:
+        for tau in (0.3, 1.7):
+            num = (f.ratio(tau + h) - f.ratio(tau - h)) / (2 * h)
+            assert float(f.ratio_derivative(tau)) == pytest.approx(float(num), rel=1e-7)
+            assert float(f.dlog_ratio_dtau(tau)) == pytest.approx(float(num / f.ratio(tau)), rel=1e-7)
+
+
+def test_lamp_toward_a_disk_point_aims_the_ray_there():
+    """Per-pixel geometry: the lamp angle of ``toward(dx, dy, d)`` sends the refracted ray (traced here) to the
+    horizontal distance √((X0 + dx)² + dy²) from the lamp's foot; the other settings are kept."""
+    h, d, n = 0.9, 0.25, N_WATER
+    lamp = LampModel(height_m=h, lamp_angle_rad=0.35, view_angle_rad=0.1, background_absorption_per_m=0.1)
+    x0 = h * np.tan(0.35) + d * np.tan(np.arcsin(np.sin(0.35) / n))
+    for dx, dy in ((0.04, 0.0), (-0.03, 0.05)):
+        aim = lamp.toward(dx, dy, d)
+        a = aim.lamp_angle_rad
+        landed = h * np.tan(a) + d * np.tan(np.arcsin(np.sin(a) / n))
+        assert landed == pytest.approx(np.hypot(x0 + dx, dy), rel=1e-10)
+        assert (aim.height_m, aim.view_angle_rad, aim.background_absorption_per_m) == (h, 0.1, 0.1)
+
+
+def test_refined_model_at_a_wavelength_keeps_the_other_settings():
+    m = RefinedModel.at_wavelength(680.0, view_angle_rad=0.3, background_absorption_per_m=0.2)
+    assert (m.view_angle_rad, m.background_absorption_per_m) == (0.3, 0.2)
+    assert m.water_absorption_per_m == pytest.approx(0.465)  # Pope & Fry (1997) at 680 nm, m⁻¹
