@@ -127,10 +127,6 @@ class RadianceImage:
     metadata: dict = field(default_factory=dict)
 
     @property
-    def radiance_name(self) -> str:
-        return radiance_channel_name(self.metadata["wavelength_nm"])
-
-    @property
     def shape(self) -> tuple[int, int]:
         return next(iter(self.channels.values())).shape  # type: ignore[return-value]
 

@@ -53,7 +53,7 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 
 from camcal.errors import CamcalError
-from camcal.spectra import planck_radiance
+from camcal.spectra import FWHM_TO_SIGMA, planck_radiance
 
 RGB = ("R", "G", "B")
 ESTIMATORS = ("narrowband", "smooth")
@@ -87,9 +87,6 @@ class RadianceModel:
     """Relative standard uncertainty of L(λ0) from the spectral reconstruction itself (``smooth``: the RMS
     error over the prior spectra of :func:`smooth_error_table`; ``narrowband``: 0, valid only for light
     confined near λ0, see docs/apply.md)."""
-
-
-FWHM_TO_SIGMA = 1.0 / (2.0 * np.sqrt(2.0 * np.log(2.0)))
 
 
 def _interp(wl: np.ndarray, values: np.ndarray, at: float, derivative: int = 0) -> float:
@@ -169,11 +166,6 @@ def radiance_model(
     # relative uncertainty from c(λ): first order, rate ~ c·L so δL/L ~ δc/c of the weighted band
     rel = float(np.sqrt(np.sum((band_unc / band) ** 2) / 3))
     return RadianceModel(band, band_unc, float(target_nm), estimator, row, rel, "W m^-2 sr^-1 nm^-1", None)
-
-
-def band_radiance(rates: np.ndarray, model: RadianceModel) -> np.ndarray:
-    """(3, ...) DN rates -> (3, ...) band radiance L_i = rate_i / ∫c_i dλ, W m^-2 sr^-1 nm^-1."""
-    return np.asarray(rates) / model.band_integral.reshape((3,) + (1,) * (np.ndim(rates) - 1))
 
 
 def radiance_at(

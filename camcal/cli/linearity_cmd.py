@@ -23,9 +23,9 @@ def register(app: typer.Typer) -> None:
         out: Path = typer.Option(..., "-o", "--output", help="Response file to write (.json)."),
         roi: str | None = typer.Option(None, "--roi", help="Region x,y,w,h in photo pixels at full resolution "
                                        "(rounded outward to whole plane pixels)."),
-        roi_fraction: float | None = typer.Option(None, "--roi-fraction", parser=fraction, help="('20%' or 0.2) "
-                                                  "A centred region holding this "
-                                                  "fraction of each plane's area (default 0.10)."),
+        roi_fraction: float | None = typer.Option(None, "--roi-fraction", parser=fraction, help="('32%' or 0.32) "
+                                                  "A centred region covering this fraction of each side "
+                                                  "(default 0.316: 10 % of the area)."),
         dark: Path | None = typer.Option(None, "--dark", help="Dark model (camcal dark -o ...) to subtract from RAW."),
         reference_iso: float | None = typer.Option(
             None, "--reference-iso", help="Reference ISO (default: most common)."

@@ -23,13 +23,6 @@ from camcal.spectral_files import write_spectacle_csv
 from camcal.sweep_means import sweep_means_sensitivity
 
 
-def _side_fraction(area_fraction: float) -> float:
-    """``--roi-fraction`` is a fraction of the area (as everywhere); the sweep's centred box takes one of each side."""
-    if not 0.0 < area_fraction <= 1.0:
-        raise CamcalError(f"--roi-fraction must be in (0, 1], got {area_fraction!r}")
-    return area_fraction ** 0.5
-
-
 def _means(means: Path, responsivity: Path | None, reduction: str, output: Path, png: Path | None,
            as_json: bool) -> None:
     if reduction not in ("camcal", "publisher"):
@@ -94,9 +87,9 @@ def register(app: typer.Typer) -> None:
                                  "or relative (peak 1)."),
         roi: str | None = typer.Option(None, "--roi", help="Region x,y,w,h in photo pixels at full resolution "
                                        "(rounded outward to whole plane pixels)."),
-        roi_fraction: float | None = typer.Option(None, "--roi-fraction", parser=fraction, help="('4%' or 0.04) "
-                                                  "A centred region holding this "
-                                                  "fraction of the area (default 0.04: a fifth of each side)."),
+        roi_fraction: float | None = typer.Option(None, "--roi-fraction", parser=fraction, help="('20%' or 0.2) "
+                                                  "A centred region covering this fraction of each side "
+                                                  "(default 0.2: 4 % of the area)."),
         deconvolve: bool = typer.Option(False, help="Remove the monochromator slit function (needs bandwidth_nm)."),
         slit: str = typer.Option("gaussian", help="Slit function shape for --deconvolve: gaussian or triangular."),
         reference_iso: float | None = typer.Option(None, help="Reference ISO of the absolute result (default: the "
@@ -129,9 +122,7 @@ def register(app: typer.Typer) -> None:
             raise CamcalError(f"--sweep-mode must be absolute or relative, got {mode!r}")
         if roi is not None and roi_fraction is not None:
             raise CamcalError("give --roi or --roi-fraction, not both")
-        region: Region | float | None = Region.parse(roi) if roi is not None else None
-        if roi_fraction is not None:  # measure_sweep takes a fraction of each side: the area's square root
-            region = _side_fraction(roi_fraction)
+        region: Region | float | None = Region.parse(roi) if roi is not None else roi_fraction
         rows = read_sweep(sweep)
         total = len(rows)
         if reference_iso is None or reference_f_number is None:
