@@ -43,7 +43,7 @@ from camcal.data import read_table
 from camcal.errors import CamcalError
 from camcal.frame import RGB
 from camcal.hashing import sha256_file
-from camcal.spectral import SpectralSensitivity
+from camcal.spectral_model import SpectralSensitivity
 
 #: The shipped table (relative to the ``calibration_data`` package).
 TABLE = "camera_curves/borrowed_curve_uncertainty.csv"

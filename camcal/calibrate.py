@@ -18,19 +18,12 @@ import numpy as np
 from camcal import __version__
 from camcal.camera_id import Sensor, match, preferred, sensor_of
 from camcal.colour import fit_colour_matrix, twin_pairs
-from camcal.dark import DarkOptions, dark_frame_check, fit_dark_stacks, stack_darks, with_dead_pixels
+from camcal.dark import DarkOptions, dark_frame_check, fit_dark_stacks, stack_darks
+from camcal.dark_model import with_dead_pixels
 from camcal.emva import build_sheet
 from camcal.errors import CamcalError, TooFewFrames
-from camcal.flat import (
-    DEAD_RESPONSE,
-    FlatChecks,
-    FlatOptions,
-    check_flat_frame,
-    dead_pixels,
-    fit_master,
-    flat_prnu,
-    master_flat,
-)
+from camcal.flat import FlatChecks, FlatOptions, check_flat_frame, fit_master, flat_prnu, master_flat
+from camcal.flat_model import DEAD_RESPONSE, dead_pixels
 from camcal.frame import Frame
 from camcal.hashing import sha256_file
 from camcal.io import load_frame

@@ -23,7 +23,6 @@ IEEE Signal Processing Magazine 22(1), 34–43; seed eq. 12 for the per-channel 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +31,7 @@ from camcal.correct import Calibration, correct_frame
 from camcal.errors import CamcalError
 from camcal.io import is_raw_path, list_frames, load_frame
 from camcal.region import DEFAULT_ROI_FRACTION, central_roi
+from camcal.response_model import ColourMatrix  # noqa: F401 (re-exported)
 from camcal.session import StageFrames, folder_of
 
 #: A JPEG channel of a sweep frame is used when fewer than this fraction of its ROI pixels are clipped
@@ -39,59 +39,6 @@ from camcal.session import StageFrames, folder_of
 MAX_CLIPPED_FRACTION = 0.01
 #: ... and its linearised ROI mean is above this fraction of the white level (8-bit quantisation).
 MIN_LEVEL_FRACTION = 0.02
-
-
-@dataclass(frozen=True)
-class ColourMatrix:
-    """``j = matrix @ r``: linearised processed (R, G, B) from RAW (R, G, B) DN above the black level.
-
-    Attributes
-    ----------
-    matrix : (3, 3) float; rows: processed R, G, B; columns: RAW R, G (mean of G1, G2), B.
-    matrix_unc : (3, 3) standard uncertainties of the entries (from the fit residuals).
-    n_frames : per processed channel, the sweep frames used.
-    residual_rms_rel : per processed channel, RMS of (j − A r)/j over the frames used.
-    sources : the folders whose twins were used.
-    """
-
-    matrix: np.ndarray
-    matrix_unc: np.ndarray
-    n_frames: tuple[int, int, int]
-    residual_rms_rel: tuple[float, float, float]
-    sources: tuple[str, ...]
-
-    @property
-    def inverse(self) -> np.ndarray:
-        return np.linalg.inv(self.matrix)
-
-    def to_raw(self, lin: np.ndarray) -> np.ndarray:
-        """(3, ...) linearised processed values -> (3, ...) RAW-equivalent R, G, B (DN above the black level)."""
-        inv = self.inverse.astype(np.float32)
-        return np.einsum("ij,j...->i...", inv, np.asarray(lin, np.float32)).astype(np.float32)
-
-    def to_dict(self) -> dict:
-        return {"matrix": self.matrix.tolist(), "matrix_unc": self.matrix_unc.tolist(),
-                "n_frames": list(self.n_frames), "residual_rms_rel": list(self.residual_rms_rel),
-                "sources": [Path(f).name for f in self.sources],
-                "equation": "linearised processed (R,G,B) = matrix @ RAW (R, (G1+G2)/2, B) DN above the black level"}
-
-    @staticmethod
-    def from_dict(d: dict) -> ColourMatrix:
-        try:
-            m = np.asarray(d["matrix"], float)
-            u = np.asarray(d.get("matrix_unc", np.zeros((3, 3))), float)
-            if m.shape != (3, 3) or u.shape != (3, 3) or not (np.all(np.isfinite(m)) and np.all(np.isfinite(u))):
-                raise ValueError("matrix and matrix_unc must be finite 3x3 arrays")
-            if abs(np.linalg.det(m)) < 1e-12 * max(1.0, float(np.abs(m).max())) ** 3:
-                raise ValueError("the colour matrix is singular")
-            n = tuple(int(v) for v in d.get("n_frames", (0, 0, 0)))
-            r = tuple(float(v) for v in d.get("residual_rms_rel", (np.nan,) * 3))
-            w = tuple(str(v) for v in d.get("sources", ()))
-            if len(n) != 3 or len(r) != 3:
-                raise ValueError("n_frames and residual_rms_rel need 3 values")
-        except (KeyError, TypeError, ValueError) as exc:
-            raise CamcalError(f"malformed colour matrix ({exc})") from None
-        return ColourMatrix(m, u, n, r, w)  # type: ignore[arg-type]
 
 
 def twin_pairs(folder: str | Path | StageFrames) -> list[tuple[Path, Path]]:

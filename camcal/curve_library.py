@@ -44,7 +44,7 @@ from camcal.frame import PLANES, RGB
 from camcal.hashing import sha256_file
 from camcal.limits import MAX_CURVE_JSON_BYTES, check_json_depth
 from camcal.manifest import read_text_file
-from camcal.spectral import RELATIVE_UNITS, SpectralSensitivity
+from camcal.spectral_model import RELATIVE_UNITS, SpectralSensitivity
 
 #: Where the library lives inside the ``calibration_data`` package.
 LIBRARY_FOLDER = "camera_curves/rawtoaces"

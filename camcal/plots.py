@@ -39,11 +39,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from camcal.atomic import atomic_write_bytes
-from camcal.dark import HOT, DarkModel
-from camcal.flat import FlatModel, auto_downsample, block_mean, radial_gain
+from camcal.blocks import auto_downsample, block_mean
+from camcal.dark_model import HOT, DarkModel
+from camcal.flat_model import FlatModel, radial_gain
 from camcal.frame import PLANES
-from camcal.response import ResponseModel
-from camcal.spectral import SpectralSensitivity
+from camcal.response_model import ResponseModel
+from camcal.spectral_model import SpectralSensitivity
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure

@@ -24,13 +24,13 @@ import numpy as np
 
 from camcal import __version__
 from camcal.container import read_container, write_container
-from camcal.dark import DarkModel, dark_from_parts, dark_to_parts
-from camcal.emva import SHEET_KEYS, EmvaSheet
+from camcal.dark_model import DarkModel, dark_from_parts, dark_to_parts
+from camcal.emva_model import SHEET_KEYS, EmvaSheet
 from camcal.errors import CamcalError
-from camcal.flat import FlatModel, flat_from_parts, flat_to_parts
+from camcal.flat_model import FlatModel, flat_from_parts, flat_to_parts
 from camcal.frame import PLANES, RGB
-from camcal.response import ResponseModel
-from camcal.spectral import SpectralSensitivity, spectral_from_dict, spectral_to_dict
+from camcal.response_model import ResponseModel
+from camcal.spectral_model import SpectralSensitivity, spectral_from_dict, spectral_to_dict
 from camcal.store import to_jsonable
 
 FORMAT = "camcal-profile"

@@ -50,18 +50,18 @@ from scipy.stats import median_abs_deviation
 from camcal import __version__
 from camcal.correct import Calibration, correct_frame
 from camcal.curve_library import Match, find_camera, library_curves, with_layout
-from camcal.dark import load_dark
+from camcal.dark_model import load_dark
 from camcal.errors import CamcalError
 from camcal.exposure import frame_relative_exposure
-from camcal.flat import load_flat
+from camcal.flat_model import load_flat
 from camcal.frame import PLANES, Frame
 from camcal.hashing import sha256_file
 from camcal.io import load_frame
 from camcal.manifest import exposure_overrides, read_manifest, safe_member
 from camcal.profile import SCHEMA_VERSION, CalibrationProfile, CameraIdentity, Provenance
 from camcal.region import DEFAULT_ROI_FRACTION, Region, central_roi
-from camcal.spectral import SpectralSensitivity
 from camcal.spectral_files import FileFormat, as_absolute, read_spectral_file, read_table, resample
+from camcal.spectral_model import SpectralSensitivity
 
 TARGETS_CSV = "targets.csv"
 #: Below this χ² p-value the targets disagree beyond their noise: the curves do not fit this camera.

@@ -41,12 +41,12 @@ from typing import Any
 
 from camcal import __version__
 from camcal.atomic import atomic_write_text
-from camcal.emva import STANDARD, sheet_rows
+from camcal.emva_model import STANDARD, sheet_rows
 from camcal.errors import CamcalError
 from camcal.frame import PLANES
 from camcal.plots import dark_figure, flat_figure, png_bytes, response_figure, spectral_figure
 from camcal.profile import contract
-from camcal.spectral import describe_origin
+from camcal.spectral_model import describe_origin
 
 STAGE_TITLES = {"dark": "Dark current", "flat": "Vignetting (flat field)", "response": "Response curves",
                 "spectral_sensitivity": "Spectral sensitivity c(λ)"}

@@ -41,7 +41,7 @@ from camcal.atomic import atomic_write_text
 from camcal.errors import CamcalError
 from camcal.frame import PLANES
 from camcal.manifest import read_text_file
-from camcal.spectral import (
+from camcal.spectral_model import (
     ABSOLUTE_UNITS,
     DEFAULT_REFERENCE_F_NUMBER,
     DEFAULT_REFERENCE_ISO,

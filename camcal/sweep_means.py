@@ -57,8 +57,8 @@ from camcal.errors import CamcalError
 from camcal.frame import RGB
 from camcal.hashing import sha256_file
 from camcal.manifest import read_text_file, safe_member
-from camcal.spectral import RELATIVE_UNITS, SpectralSensitivity
 from camcal.spectral_files import read_table
+from camcal.spectral_model import RELATIVE_UNITS, SpectralSensitivity
 
 Method = Literal["camcal", "publisher"]
 #: Robust σ from the MAD of a normal sample.

@@ -149,3 +149,32 @@ def test_every_declared_dependency_is_imported_by_camcal(dist):
     if dist in NOT_YET_IMPORTED and not imported:
         pytest.skip(f"{dist}: imported by work on another branch")
     assert imported, f"{dist} is declared in pyproject.toml but camcal/ never imports {sorted(import_names)}"
+
+
+# the fitting code of each stage; a model module (camcal.<stage>_model) holds what the stage's results are
+FITTING_MODULES = ("camcal.dark", "camcal.flat", "camcal.response", "camcal.spectral", "camcal.colour",
+                   "camcal.emva", "camcal.calibrate", "camcal.stack", "camcal.sweep_means")
+MODEL_MODULES = ("dark_model", "flat_model", "response_model", "spectral_model", "emva_model", "blocks")
+
+
+def test_reading_and_applying_a_profile_loads_no_fitting_code():
+    """Issue 25 item 4: a profile, and what reads or applies it, needs the stages' models, never their fits
+    (one interpreter for the four, so the check costs one start-up)."""
+    readers = ("camcal.profile", "camcal.apply", "camcal.water", "camcal.report")
+    code = (f"import json, sys, {', '.join(readers)}\n"
+            "print('LOADED', json.dumps(sorted(m for m in sys.modules if m.startswith('camcal.'))))\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert proc.returncode == 0, proc.stderr
+    loaded = set(json.loads(proc.stdout.rsplit("LOADED", 1)[1]))
+    assert set(readers) <= loaded
+    assert sorted(loaded & set(FITTING_MODULES)) == []
+
+
+@pytest.mark.parametrize("name", MODEL_MODULES)
+def test_model_modules_import_no_stage(name):
+    """A model module sits below every stage: it imports no fitting module (nor another stage's model through
+    one)."""
+    tree = ast.parse((ROOT / "camcal" / f"{name}.py").read_text())
+    imported = {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module}
+    imported |= {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+    assert sorted(imported & set(FITTING_MODULES)) == []

@@ -8,7 +8,8 @@ import typer
 from rich.table import Table
 
 from camcal.cli.common import console, print_json, progress
-from camcal.dark import fit_dark, save_dark
+from camcal.dark import fit_dark
+from camcal.dark_model import save_dark
 from camcal.errors import CamcalError
 from camcal.frame import PLANES
 

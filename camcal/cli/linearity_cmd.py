@@ -8,11 +8,12 @@ import typer
 from rich.table import Table
 
 from camcal.cli.common import console, fraction, print_json, progress
-from camcal.dark import load_dark
+from camcal.dark_model import load_dark
 from camcal.errors import CamcalError
 from camcal.plots import response_figure, write_png
 from camcal.region import Region
-from camcal.response import fit_response, save_response
+from camcal.response import fit_response
+from camcal.response_model import save_response
 from camcal.store import to_jsonable
 
 
