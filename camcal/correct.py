@@ -32,6 +32,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from camcal.dark_model import DarkModel
 from camcal.errors import CamcalError
 from camcal.frame import PLANES, Frame, split_planes
 
@@ -154,11 +155,20 @@ def dark_frame(dark: Any, exposure_s: float, iso: float | None, shape: tuple[int
                cfa_pattern: str | None = None, path: Path | None = None) -> np.ndarray:
     """The dark model's expected dark frame on ``window``: bias + β·t·ISO/ISO_dark, DN, float32.
 
-    ``shape`` is the full (C, h, w) plane shape of the frame. A :class:`camcal.dark.DarkModel` is
-    evaluated on the window only; another :class:`DarkFrameModel` is evaluated whole and cropped.
+    ``shape`` is the full (C, h, w) plane shape of the frame. A :class:`camcal.dark_model.DarkModel`
+    evaluates itself on the window only (:meth:`~camcal.dark_model.DarkModel.dark_frame_dn`); another
+    :class:`DarkFrameModel` is evaluated whole and cropped.
     """
+    if isinstance(dark, DarkModel):
+        if tuple(dark.bias_dn.shape) != tuple(shape):
+            raise CamcalError(f"the frame's planes {tuple(shape)} do not match the dark model's "
+                              f"{tuple(dark.bias_dn.shape)} (another camera, crop or resolution)", path)
+        try:
+            return dark.dark_frame_dn(exposure_s, iso, window)
+        except CamcalError as exc:
+            raise CamcalError(exc.message, path) from None
     bias = getattr(dark, "bias_dn", None)
-    if bias is not None and hasattr(dark, "dark_current_dn_per_s"):
+    if bias is not None and hasattr(dark, "dark_current_dn_per_s"):  # another model offering the same maps
         if tuple(bias.shape) != tuple(shape):
             raise CamcalError(f"the frame's planes {tuple(shape)} do not match the dark model's "
                               f"{tuple(bias.shape)} (another camera, crop or resolution)", path)

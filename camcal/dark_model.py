@@ -12,7 +12,6 @@ from pathlib import Path
 
 import numpy as np
 
-from camcal.correct import dark_frame
 from camcal.errors import CamcalError
 from camcal.frame import PLANES, RGB
 from camcal.store import load_stage, save_stage
@@ -41,7 +40,8 @@ class DarkModel:
         Standard uncertainty of β per pixel, DN/s.
     read_noise_dn : (4, h, w) float32
         Temporal standard deviation of the dark signal in DN with the quantisation removed (below 1 DN
-        of noise: the plane's value from :func:`quantised_noise_fit`, see :func:`temporal_noise`).
+        of noise: the plane's value from :func:`camcal.dark.quantised_noise_fit`, see
+        :func:`camcal.dark.temporal_noise`).
     defects : (4, h, w) uint8
         Bit mask: 1 hot (dark current), 2 dead (no response in the flats, set by ``camcal calibrate``
         from :func:`camcal.flat.dead_pixels`), 4 noisy (temporal variance far above the model).
@@ -77,13 +77,22 @@ class DarkModel:
     white_level_dn: float = float("nan")
     provenance: dict = field(default_factory=dict)
 
-    def dark_frame_dn(self, exposure_s: float, iso: float | None = None) -> np.ndarray:
-        """Expected dark frame ``bias + β·t`` (seed eq. 12 β term), (4, h, w) DN.
+    def dark_frame_dn(self, exposure_s: float, iso: float | None = None,
+                      window: tuple[slice, slice] | None = None) -> np.ndarray:
+        """Expected dark frame ``bias + β·t·iso/self.iso`` (seed eq. 12 β term), (C, h, w) DN, float32.
 
         β scales with the gain, so with ``iso`` it is multiplied by ``iso / self.iso``;
-        the bias (black level) does not change with ISO.
+        the bias (black level) does not change with ISO. A bias-only model (β unknown) gives its bias.
+        ``window`` (rows, columns of each plane, plane pixels) evaluates that part only.
         """
-        return dark_frame(self, exposure_s, iso, self.bias_dn.shape)
+        if not np.isfinite(exposure_s) or exposure_s < 0:
+            raise CamcalError(f"exposure time must be a non-negative number of seconds, got {exposure_s}")
+        rows, cols = window if window is not None else (slice(None), slice(None))
+        out = np.array(self.bias_dn[:, rows, cols], np.float32)
+        if self.dark_current_dn_per_s is not None:
+            scale = 1.0 if iso is None else float(iso) / float(self.iso)
+            out += self.dark_current_dn_per_s[:, rows, cols] * np.float32(exposure_s * scale)
+        return out
 
     @property
     def plane_names(self) -> tuple[str, ...]:

@@ -121,7 +121,7 @@ class ChannelResponse:
     offset_dn: float = float("nan")
     saturation_exposure_s: float = float("nan")
     """Relative exposure (s at the reference setting) of the first frame saturated in this channel: where the
-    series reached :attr:`saturation_dn`; NaN when no frame saturated (:class:`Saturation`)."""
+    series reached :attr:`saturation_dn`; NaN when no frame saturated (:class:`camcal.response.Saturation`)."""
     fitted_exposure_s: tuple[float, float] = (float("nan"), float("nan"))
     """Lowest and highest relative exposure (s at the reference setting) of the points the fit used."""
 

@@ -61,7 +61,7 @@ class SpectralSensitivity:
         Where the curves came from and how their absolute scale was set
         (:mod:`camcal.spectral_files`, :mod:`camcal.reference_targets`): ``kind``
         ``sweep`` | ``imported`` | ``reference_targets``, the source ``file`` and
-        its ``sha256``, ``absolute_scale``. None: measured by :func:`measure_sweep`
+        its ``sha256``, ``absolute_scale``. None: measured by :func:`camcal.spectral.measure_sweep`
         (profiles written before the field existed).
     """
 

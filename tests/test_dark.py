@@ -8,7 +8,9 @@ import shutil
 import numpy as np
 import pytest
 
+from camcal.correct import dark_frame
 from camcal.dark import HOT, fit_dark, load_dark, save_dark, subtract_dark
+from camcal.dark_model import DarkModel
 from camcal.errors import CamcalError
 from camcal.stack import combine_frames
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
@@ -147,3 +149,25 @@ def test_cli(session, tmp_path):
     proc = run_cli("dark", root / "dark", "-o", tmp_path / "t.json")
     assert proc.returncode == 0, proc.stderr
     assert "read noise" in proc.stdout and "G2" in proc.stdout
+
+
+def test_dark_model_evaluates_itself_on_a_window():
+    """DarkModel.dark_frame_dn is bias + β·t·ISO/ISO_dark (seed eq. 12 offset), on a window of each plane, and the
+    correction path takes the dark frame from it; a bias-only model gives its bias."""
+    rng = np.random.default_rng(3)
+    bias = (512 + rng.normal(0, 2, (4, 6, 8))).astype(np.float32)
+    beta = rng.uniform(0.5, 4.0, (4, 6, 8)).astype(np.float32)
+    zeros = np.zeros((4, 6, 8), np.float32)
+    model = DarkModel(bias_dn=bias, dark_current_dn_per_s=beta, dark_current_unc_dn_per_s=zeros, read_noise_dn=zeros,
+                      defects=zeros.astype(np.uint8), iso=100.0, cfa_pattern="RGGB", temperature_c=None)
+    window = (slice(1, 4), slice(2, 7))
+    expect = bias[:, 1:4, 2:7] + beta[:, 1:4, 2:7] * 2.5 * (400.0 / 100.0)
+    np.testing.assert_allclose(model.dark_frame_dn(2.5, 400.0, window), expect, rtol=1e-6)
+    np.testing.assert_allclose(dark_frame(model, 2.5, 400.0, bias.shape, window), expect, rtol=1e-6)
+    np.testing.assert_allclose(model.dark_frame_dn(2.5), bias + beta * 2.5, rtol=1e-6)
+    bias_only = DarkModel(bias_dn=bias, dark_current_dn_per_s=None, dark_current_unc_dn_per_s=None,
+                          read_noise_dn=zeros, defects=zeros.astype(np.uint8), iso=100.0, cfa_pattern="RGGB",
+                          temperature_c=None)
+    np.testing.assert_array_equal(bias_only.dark_frame_dn(30.0, 800.0), bias)
+    with pytest.raises(CamcalError, match="exposure time"):
+        dark_frame(model, -1.0, None, bias.shape, path="x.dng")
