@@ -5,8 +5,8 @@ Behaviour
 - One EXR per photo, ``OUTDIR/<photo name>.exr`` (``IMG_1.dng`` -> ``IMG_1.dng.exr``, so a RAW and its
   JPEG twin do not collide), written atomically (temporary file + rename): a failed or interrupted photo
   leaves no file under its final name.
-- **Resumable**: a photo whose EXR exists, made with the same profile (content hash), wavelength and
-  estimator (read from the EXR header, no pixels), is skipped without being decoded. An EXR made
+- **Resumable**: a photo whose EXR exists, made with the same profile (content hash), wavelength,
+  estimator and precision (read from the EXR header, no pixels), is skipped without being decoded. An EXR made
   with other settings is redone.
 - A failing photo (damaged file, missing metadata, another camera) does not stop the batch; its
   one-line error is listed in the report (``apply_report.csv``) and the exit code is 1.
@@ -218,7 +218,8 @@ def _is_current(out: Path, profile_sha256: str | None, options: BatchOptions) ->
     wl = meta.get("wavelength_nm")
     return (meta.get("profile_sha256") == profile_sha256 and meta.get("estimator") == options.estimator
             and isinstance(wl, int | float) and math.isclose(float(wl), options.wavelength_nm)
-            and (meta.get("options") or {}).get("filter_fwhm_nm") == options.filter_fwhm_nm)
+            and (meta.get("options") or {}).get("filter_fwhm_nm") == options.filter_fwhm_nm
+            and meta.get("exr_pixel_type") == ("half" if options.half else "float"))
 
 
 def _load_mask(options: BatchOptions):

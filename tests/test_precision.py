@@ -38,6 +38,10 @@ def test_precision_half_against_float(tmp_path, camera, profile_path):
         # round to nearest with 11 significant bits: at most 2^-11 relative (plus float32's own 2^-24)
         assert rel.max() <= 2.0**-11 * (1 + 1e-6)
         assert rel.max() > 0  # it did round: the file is not a float file in disguise
+    # a float EXR is not current for a half run: redone, not skipped
+    proc = run_cli("apply", profile_path, photo, "-o", tmp_path / "float", "--precision", "half", "--jobs", "1")
+    assert proc.returncode == 0 and "1 written, 0 already done" in proc.stdout, proc.stdout + proc.stderr
+    assert _pixel_type(f) == "half"
     bad = run_cli("apply", profile_path, photo, "-o", tmp_path / "x", "--precision", "double")
     assert_one_line_error(bad, "--precision")
 
