@@ -349,6 +349,7 @@ def calibrate_session(
         kept_names = {p.name for p in sweep.paths}
         rows = sweep_rows(sweep.folder, index.sweep_manifest) if index.sweep_manifest is not None else None
         rows = rows if rows is not None else read_sweep(sweep.folder)
+        listed = len({r.wavelength_nm for r in rows})
         rows = [r for r in rows if r.path.name in kept_names]
         sweep_opts = SweepOptions(mode=opts.sweep_mode, deconvolve=opts.deconvolve,  # type: ignore[arg-type]
                                   reference_iso=ref_iso, reference_f_number=ref_n)  # type: ignore[arg-type]
@@ -360,7 +361,7 @@ def calibrate_session(
             measured = measure_sweep_settings(sweep.folder, rows, dark=dark, flat=flat, options=sweep_opts,
                                               jobs=opts.jobs, progress=cb("sweep"))
             record.leave_out([Verdict("sweep", name, reason) for name, reason in measured.left_out])
-            require_wavelengths(measured)
+            require_wavelengths(measured, listed=listed)
             return sensitivity_from_settings(measured, sweep_opts)
 
         spectral = record.attempt("sweep", fit_sweep)

@@ -325,7 +325,7 @@ class ResponseModel:
             for name, sat in zip(pts.get("files") or (), pts.get("saturated") or (), strict=False):
                 if sat:
                     out[str(name)] = None
-        return list(out)
+        return sorted(out)
 
     def summary(self) -> dict:
         """JSON-ready summary: per channel α, γ, β with uncertainties, ranges, LE, r; tone fit."""

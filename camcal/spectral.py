@@ -752,12 +752,16 @@ def measure_sweep_settings(
     return SweepMeasurement(tuple(settings), tuple(names), tuple(notes), csv_path, tuple(left_out), len(wls))
 
 
-def require_wavelengths(measured: SweepMeasurement, needed: int = MIN_WAVELENGTHS) -> None:
-    """Raise :class:`TooFewFrames` when fewer than ``needed`` wavelengths of the sweep have a usable frame."""
+def require_wavelengths(measured: SweepMeasurement, needed: int = MIN_WAVELENGTHS, listed: int | None = None) -> None:
+    """Raise :class:`TooFewFrames` when fewer than ``needed`` wavelengths of the sweep have a usable frame.
+
+    ``listed``: wavelengths in ``sweep.csv`` (default: those of the rows measured)."""
     have = len(measured.settings)
+    listed = measured.n_listed if listed is None else listed
     if have < needed:
         raise TooFewFrames("sweep", "wavelengths", needed, have,
-                           f"{measured.n_listed} in sweep.csv; c(λ) is read with a not-a-knot cubic spline, which "
+                           f"{listed} in sweep.csv, {listed - have} without a usable frame; c(λ) is read with a "
+                           "not-a-knot cubic spline, which "
                            f"needs {needed}" + "".join(f"; {n}" for n in measured.notes if "dropped" in n),
                            measured.csv_path)
 

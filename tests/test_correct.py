@@ -142,6 +142,31 @@ def test_variance_on_a_window_below_and_near_the_bias(rng):
     var = (np.maximum(above_bias, 0) * kdn * 2.0 + dark.read_noise_dn.astype(np.float64) ** 2 * 4.0) / gain**2
     assert np.any(above_bias[:, win[0], win[1]] < 0) and np.any((above_bias > 0) & (above_bias < 1))
     np.testing.assert_allclose(out.variance_dn2, var[:, win[0], win[1]], rtol=1e-4)
+    plain = correct_planes(raw.copy(), cal, exposure_s=t, iso=iso, white_level_dn=4095,
+                           black_level_dn=np.full(4, 512.0))
+    assert plain.variance_dn2 is None  # computed only when asked for (the hot path of apply skips it)
+
+
+def test_clipped_at_zero_only_with_a_black_level_and_float32_out(rng):
+    """A raw 0 is clipped when the black level is above 0 (and a raw 1 is not); with a zero black level (processed
+    RGB) 0 is a value. The result is float32; a dark model without a dark-current attribute still needs t."""
+    raw = np.full((4, 2, 3), 300.0, np.float32)
+    raw[0, 0, 0], raw[1, 0, 0] = 0, 1
+    with_black = correct_planes(raw.copy(), Calibration(), exposure_s=None, iso=None, white_level_dn=4095,
+                                black_level_dn=np.full(4, 64.0))
+    assert with_black.invalid[0, 0, 0] and not with_black.invalid[1, 0, 0]
+    assert with_black.signal_dn.dtype == np.float32
+    zero = correct_planes(raw.copy(), Calibration(), exposure_s=None, iso=None, white_level_dn=4095,
+                          black_level_dn=np.zeros(4))
+    assert not zero.invalid.any()
+
+    class Frameonly:
+        def dark_frame_dn(self, exposure_s, iso):
+            return np.full((4, 2, 3), 10.0 + exposure_s)
+
+    with pytest.raises(CamcalError, match="needs the exposure time"):
+        correct_planes(raw.copy(), Calibration(dark=Frameonly()), exposure_s=None, iso=None, white_level_dn=4095,
+                       black_level_dn=np.full(4, 64.0))
 
 
 def test_require_valid_says_why(rng):

@@ -135,8 +135,8 @@ def test_too_few_sweep_wavelengths_writes_the_profile_without_c_and_exits_1(tiny
     out = tmp_path / "p.camcal"
     proc = run_cli("calibrate", tiny, "-o", out)
     assert proc.returncode == 1, proc.stderr
-    assert (f"the sweep stage needs at least {MIN_WAVELENGTHS} usable wavelengths, 3 remain"
-            in " ".join(proc.stderr.split()))
+    assert (f"the sweep stage needs at least {MIN_WAVELENGTHS} usable wavelengths, 3 remain (7 in sweep.csv, 4 "
+            "without a usable frame" in " ".join(proc.stderr.split()))
     profile = load_profile(out)
     assert profile.spectral is None and profile.dark is not None and profile.flat is not None and profile.response
     assert [r["stage"] for r in profile.provenance.not_calibrated] == ["sweep"]
