@@ -50,30 +50,57 @@ the RAW-equivalent signal (the JPEG came from that sensor; quantisation and comp
 The variance is propagated through the flat, the exposure and the estimator's linear weights and
 combined with the relative uncertainty of c(λ) (as :func:`camcal.radiance.radiance_at` does) and,
 when the PRNU map is not applied, the profile's PRNU (relative RMS per channel, a fixed-pattern
-error of each pixel). Not included:
-flat-field model error, exposure-metadata error (ISO and f-number are nominal values), and, for
-``smooth``, the reconstruction error (documented in docs/apply.md).
+error of each pixel) and, for ``smooth``, the spectral-reconstruction error (the RMS error over the prior
+spectra, :func:`camcal.radiance.smooth_spread_rel`). ``narrowband`` has no such term: it is exact for light
+confined near λ0 and meaningless for broadband light (the metadata's ``spectral_assumption`` says so).
+``R_unc``, ``G_unc``, ``B_unc`` are the noise of each band (the c(λ) scale, common to every photo, is in
+``band_scale_unc_rel``). Not included: flat-field model error, exposure-metadata error (ISO and f-number are
+nominal values).
 """
 
 from __future__ import annotations
 
 import math
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
+from camcal.camera_id import Sensor, match, sensor_of, sensor_of_profile
 from camcal.correct import Calibration, correct_planes, system_gain_dn_per_e
 from camcal.errors import CamcalError
 from camcal.exposure import frame_relative_exposure
 from camcal.frame import PLANES, Frame, plane_offsets, rgb_from_planes
 from camcal.io import open_image, read_pixels
-from camcal.radiance import RadianceModel, radiance_model
+from camcal.radiance import RadianceModel, radiance_model, smooth_spread_rel
 from camcal.region import Region
 from camcal.threads import default_threads
 
 BAND_UNITS = "W m^-2 sr^-1 nm^-1"
+#: Unit of every map written from a profile whose c(λ) is relative (only ratios of two such maps are physical).
+RELATIVE_UNITS = "relative (c(λ) without an absolute scale: ratios only)"
+#: Channel order of the interleaved output array (the L<λ0> names are filled in per plan).
+OUTPUT_CHANNELS = ("R", "G", "B", "L", "L_unc", "R_unc", "G_unc", "B_unc")
+
+
+def next_step_for_c(profile) -> str:
+    """What to do for a profile without a usable c(λ): the step that fits the profile at hand."""
+    spectral = getattr(profile, "spectral", None)
+    if spectral is None:
+        if getattr(profile, "dark", None) is not None and getattr(profile, "flat", None) is None \
+                and getattr(profile, "response", None) is None:
+            return ("this bias/dark-only profile needs a monochromator sweep (SESSION/sweep/ with sweep.csv, then "
+                    "camcal calibrate), or imported curves (camcal profile import-spectral CURVES --into PROFILE)")
+        return ("add a monochromator sweep (SESSION/sweep/, camcal calibrate) or import curves "
+                "(camcal profile import-spectral CURVES --into PROFILE --targets targets/ -o abs.camcal)")
+    source = (spectral.source or {}).get("kind") if isinstance(getattr(spectral, "source", None), dict) else None
+    if source in ("imported", "library"):
+        return ("set the absolute scale of the imported curves from reference targets: camcal profile "
+                "import-spectral CURVES --into PROFILE --targets targets/ -o abs.camcal")
+    return "calibrate the sweep with --sweep-mode absolute (it needs the reference detector's radiances)"
+
+
 RESOLUTION_NOTE = "half resolution: one value per 2x2 CFA cell (R, mean of G1 and G2, B), not demosaicked"
 LINEAR_RESOLUTION_NOTE = "full resolution: the linear RAW's own R, G, B planes (already demosaicked by its writer)"
 
@@ -98,10 +125,6 @@ class RadianceImage:
 
     channels: dict[str, np.ndarray]
     metadata: dict = field(default_factory=dict)
-
-    @property
-    def radiance_name(self) -> str:
-        return radiance_channel_name(self.metadata["wavelength_nm"])
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -133,6 +156,11 @@ class ApplyPlan:
     """The flat division of processed photos' binned R, G, B (:mod:`camcal.correct`)."""
 
     @property
+    def relative(self) -> bool:
+        """True when the profile's c(λ) is relative: every map is then relative radiance (ratios only)."""
+        return getattr(self.profile.spectral, "mode", "absolute") != "absolute"
+
+    @property
     def read_var_dn2(self) -> np.ndarray | None:
         """(4, h, w) read-noise variance of the dark model at its ISO, DN²."""
         dark = self.calibration.dark
@@ -162,17 +190,18 @@ def prepare(
     """
     spectral = profile.spectral
     if spectral is None:
-        raise CamcalError("the profile has no spectral sensitivity (sweep stage); radiance needs c(λ)")
+        raise CamcalError("the profile has no spectral sensitivity c(λ); radiance needs it: "
+                          f"{next_step_for_c(profile)}")
     if profile.reference_iso is None or profile.reference_f_number is None:
         raise CamcalError("the profile holds no reference ISO and f-number (no stage of its calibration normalised "
                           "exposure); radiance needs them: calibrate again with --reference-iso and "
                           "--reference-f-number, or with 'iso' and 'f_number' in session.toml")
-    if spectral.mode != "absolute":
-        raise CamcalError("the profile's spectral sensitivity is relative; radiance needs an absolute c(λ) "
-                          "(calibrate with --sweep-mode absolute)")
     slit = 0.0 if spectral.deconvolved else spectral.bandwidth_nm
     model = radiance_model(spectral.wavelength_nm, spectral.rgb(), spectral.rgb_uncertainty(), float(wavelength_nm),
                            estimator, filter_fwhm_nm=filter_fwhm_nm, line_fwhm_nm=line_fwhm_nm, slit_fwhm_nm=slit)
+    if estimator == "smooth":  # the reconstruction's own error: the spread over the prior spectra
+        model = replace(model, spectral_unc_rel=smooth_spread_rel(spectral.wavelength_nm, spectral.rgb(),
+                                                                  float(wavelength_nm)))
     flat_planes = flat_rgb = None
     if profile.flat is not None:
         flat_planes = profile.flat.gain(with_prnu=with_prnu).astype(np.float32)
@@ -196,19 +225,24 @@ def prepare(
     return ApplyPlan(profile, model, flat_planes, flat_rgb, options, prnu_rel, cal, rgb_cal)
 
 
-def check_camera(exposure, profile, path: Path | None, allow_other_camera: bool = False) -> list[str]:
-    """Refuse a photo from another camera model than the profile's (make and model); returns notes.
+def check_camera(exposure, profile, path: Path | None, allow_other_camera: bool = False,
+                 frame: Frame | None = None) -> list[str]:
+    """Refuse a photo from another camera than the profile's; returns notes.
 
+    One camera under two software names passes (:mod:`camcal.camera_id`: the make normalised, a writer's
+    placeholder model such as PiDNG's with the same sensor geometry, CFA and layout), with a note.
     A photo without make/model metadata cannot be checked: a note says so.
     """
     cam = profile.camera
     make, model = exposure.make, exposure.model
     if not make and not model:
         return ["photo has no camera make/model metadata: camera not checked"]
-    same = (str(make or "").strip().lower(), str(model or "").strip().lower()) == (
-        str(cam.make or "").strip().lower(), str(cam.model or "").strip().lower())
+    photo = Sensor(make, model)
+    if frame is not None and frame.layout != "processed":  # a JPEG's size and levels are not the RAW's
+        photo = replace(sensor_of(frame), make=make, model=model)
+    same, note = match(photo, sensor_of_profile(cam))
     if same:
-        return []
+        return [note] if note else []
     msg = f"photo is from {make} {model}, the profile is for {cam.make} {cam.model}"
     if not allow_other_camera:
         raise CamcalError(f"{msg}; use a profile of this camera (or --allow-other-camera)", path)
@@ -272,7 +306,8 @@ def _raw_check(frame: Frame, plan: ApplyPlan) -> None:
 
 def _raw_pixels(frame: Frame, plan: ApplyPlan, t: float, iso: float, inv_x: float, notes: list[str],
                 threads: int) -> np.ndarray:
-    """RAW mosaic -> interleaved (h, w, 5) float32: R, G, B band radiance, L(λ0), its uncertainty.
+    """RAW mosaic -> interleaved (h, w, 8) float32 (:data:`OUTPUT_CHANNELS`): R, G, B band radiance, L(λ0), its
+    uncertainty, and the 1-σ noise of R, G, B.
 
     The per-photo hot path of a batch. Each band of :data:`BAND_ROWS` half-resolution rows runs the
     whole chain (module docstring) on float32 buffers that stay in the cache, and writes its rows of
@@ -295,9 +330,9 @@ def _raw_pixels(frame: Frame, plan: ApplyPlan, t: float, iso: float, inv_x: floa
                      "dark current was not")
     band_k = [np.float32(inv_x / model.band_integral[i]) for i in range(3)]
     used = [(i, np.float32(model.weights[i] * inv_x)) for i in range(3) if model.weights[i] != 0]
-    rel = np.float32(model.weights_unc_rel if math.isfinite(model.weights_unc_rel) else 0.0)
+    rel = _rel_unc(model)
     nan = np.float32(np.nan)
-    out = np.empty((h, w, 5), np.float32)
+    out = np.empty((h, w, len(OUTPUT_CHANNELS)), np.float32)
 
     def work(r0: int, r1: int) -> None:
         n = r1 - r0
@@ -337,6 +372,11 @@ def _raw_pixels(frame: Frame, plan: ApplyPlan, t: float, iso: float, inv_x: floa
         o = out[r0:r1]
         for i in range(3):
             np.multiply(signal[i], band_k[i], out=o[..., i])
+            if var is None:
+                o[..., 5 + i] = nan
+            else:
+                np.sqrt(var[i], out=o[..., 5 + i])
+                o[..., 5 + i] *= band_k[i]
         value = np.zeros((n, w), np.float32)
         noise = np.zeros((n, w), np.float32)
         for i, wi in used:
@@ -414,7 +454,7 @@ def apply_prepared(frame: Frame, plan: ApplyPlan, *, allow_other_camera: bool = 
     """
     profile = plan.profile
     path = frame.path
-    notes = check_camera(frame.exposure, profile, path, allow_other_camera)
+    notes = check_camera(frame.exposure, profile, path, allow_other_camera, frame)
     x = frame_relative_exposure(frame.exposure, profile.reference_iso, profile.reference_f_number, path)
     t = frame.exposure.require("exposure_s", path)
     iso = frame.exposure.require("iso", path)
@@ -436,18 +476,41 @@ def apply_prepared(frame: Frame, plan: ApplyPlan, *, allow_other_camera: bool = 
         signal[saturated] = np.nan
         if var is not None and plan.prnu_rel is not None:
             var += (plan.prnu_rel * signal) ** 2  # pixel response non-uniformity left uncorrected
-        pixels = np.empty((*signal.shape[1:], 5), np.float32)
+        pixels = np.empty((*signal.shape[1:], len(OUTPUT_CHANNELS)), np.float32)
         for i in range(3):
-            np.multiply(signal[i], np.float32(inv_x / plan.model.band_integral[i]), out=pixels[..., i])
+            k = np.float32(inv_x / plan.model.band_integral[i])
+            np.multiply(signal[i], k, out=pixels[..., i])
+            pixels[..., 5 + i] = np.nan if var is None else np.sqrt(np.maximum(var[i], 0)) * k
         pixels[..., 3], pixels[..., 4] = _radiance(signal, var, plan.model, inv_x)
     if plan.flat_planes is None and plan.flat_rgb is None:
         notes.append("no flat model: vignetting not corrected")
     name = radiance_channel_name(plan.model.wavelength_nm)
-    channels = {c: pixels[..., i] for i, c in enumerate(("R", "G", "B", name, f"{name}_unc"))}
+    names = [{"L": name, "L_unc": f"{name}_unc"}.get(c, c) for c in OUTPUT_CHANNELS]
+    channels = {c: pixels[..., i] for i, c in enumerate(names)}
     e = frame.exposure
+    relative = plan.relative
+    if relative:
+        notes.append("relative radiance: the profile's c(λ) has no absolute scale; only ratios of two such maps "
+                     f"(camcal water invert) are physical; for absolute radiance: {next_step_for_c(profile)}")
+    band_units = RELATIVE_UNITS if relative else BAND_UNITS
+    l_units = RELATIVE_UNITS if relative else plan.model.units
     meta = {
-        "units": {"R": BAND_UNITS, "G": BAND_UNITS, "B": BAND_UNITS, name: plan.model.units,
-                  f"{name}_unc": plan.model.units},
+        "units": {"R": band_units, "G": band_units, "B": band_units, name: l_units, f"{name}_unc": l_units,
+                  "R_unc": band_units, "G_unc": band_units, "B_unc": band_units},
+        "radiance_scale": "relative" if relative else "absolute",
+        "uncertainty": {
+            "R_unc, G_unc, B_unc": "1-σ noise of the band radiance (photon, read and dark noise, PRNU left "
+                                   "uncorrected); the c(λ) scale uncertainty, common to every photo, is "
+                                   "band_scale_unc_rel",
+            f"{name}_unc": "1-σ: noise ⊕ c(λ) uncertainty ⊕ spectral reconstruction (spectral_unc_rel)",
+        },
+        "band_scale_unc_rel": [float(u / b) for u, b in zip(plan.model.band_unc, plan.model.band_integral,
+                                                             strict=True)],
+        "spectral_unc_rel": plan.model.spectral_unc_rel,
+        "spectral_assumption": ("light confined near the wavelength (a line or an interference filter); on a "
+                                "broadband scene L is the in-band radiance, not a spectral radiance, and its "
+                                "spectral error is unbounded" if plan.model.estimator == "narrowband" else
+                                "smooth spectrum (no lines); spectral_unc_rel is the RMS error over the priors"),
         "wavelength_nm": plan.model.wavelength_nm,
         "estimator": plan.model.estimator,
         "estimator_channel": plan.model.channel,
@@ -485,11 +548,17 @@ def _radiance(signal: np.ndarray, var: np.ndarray | None, model: RadianceModel, 
         value += signal[i] * wi
         if var is not None:
             noise += var[i] * (wi * wi)
-    rel = np.float32(model.weights_unc_rel if math.isfinite(model.weights_unc_rel) else 0.0)
+    rel = _rel_unc(model)
     if rel:
         noise += (value * rel) ** 2
     np.sqrt(noise, out=noise)
     return value, noise
+
+
+def _rel_unc(model: RadianceModel) -> np.float32:
+    """Relative 1-σ of L(λ0) common to every pixel: c(λ) ⊕ the spectral reconstruction (finite parts)."""
+    parts = [v for v in (model.weights_unc_rel, model.spectral_unc_rel) if math.isfinite(v)]
+    return np.float32(math.hypot(*parts) if parts else 0.0)
 
 
 def apply(

@@ -49,6 +49,7 @@ from camcal.apply import (
     roi_statistics,
 )
 from camcal.atomic import atomic_write_text, clear_stale, remove_pending
+from camcal.camera_id import Sensor, could_match, sensor_of_profile
 from camcal.errors import CamcalError
 from camcal.exr import read_exr, read_exr_header, write_exr
 from camcal.io import exposure_from_exif, folder_manifest, is_raw_path, list_frames, load_frame
@@ -237,7 +238,14 @@ def _stats(channels: dict, options: BatchOptions, mask_image, where: Path, meta:
     shape = next(iter(channels.values())).shape
     scale = 1 if (meta or {}).get("resolution") == LINEAR_RESOLUTION_NOTE else 2
     m = roi_mask(shape, options.roi, mask_image, where, scale=scale)
-    return tuple(roi_statistics(channels, m))
+    return tuple(roi_statistics({k: channels[k] for k in sorted(channels, key=_channel_order)}, m))
+
+
+def _channel_order(name: str) -> tuple:
+    """One row order for a fresh result and one read back from its EXR: R, G, B, L<λ>, L<λ>_unc, R_unc, G_unc, B_unc."""
+    rgb = {"R": 0, "G": 1, "B": 2}
+    base = name.removesuffix("_unc")
+    return (name.endswith("_unc") and base in rgb, rgb.get(base, 3), name.endswith("_unc"), name)
 
 
 def exr_datetime(capture_time: str | None) -> str:
@@ -353,6 +361,9 @@ def preflight(profile_path: str | Path, photos: Sequence[Path], options: BatchOp
                 exp = exposure_from_exif(p)
             except Exception:  # noqa: BLE001 - unreadable files fail later, per photo
                 continue
+            if exp.make or exp.model:
+                if could_match(Sensor(exp.make, exp.model), sensor_of_profile(plan.profile.camera)):
+                    continue  # one camera, perhaps under a writer's name: the photo's own check decides
             check_camera(exp, plan.profile, p, False)
     return plan
 

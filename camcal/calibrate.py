@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from camcal import __version__
+from camcal.camera_id import Sensor, match, preferred, sensor_of
 from camcal.colour import fit_colour_matrix, twin_pairs
 from camcal.dark import DarkOptions, dark_frame_check, fit_dark_stacks, stack_darks, with_dead_pixels
 from camcal.emva import build_sheet
@@ -112,15 +113,24 @@ def camera_identity(session: str | Path | SessionIndex, stages: list[str] | None
     """
     index = session if isinstance(session, SessionIndex) else index_session(session)
     seen: dict[str, CameraIdentity] = {}
+    sensors: dict[str, Sensor] = {}
     for s in stages if stages is not None else index.stages:
         frames = index.frames[s].paths
         raw = [p for p in frames if p.suffix.lower() not in (".jpg", ".jpeg", ".png", ".tif", ".tiff")]
         f = load_frame((raw or frames)[0])
         h, w = f.shape
         seen[s] = CameraIdentity(f.exposure.make, f.exposure.model, f.exposure.serial, f.cfa_pattern, w, h, f.layout)
-    models = {(c.make, c.model) for c in seen.values() if c.model}
-    if len(models) > 1:
-        raise CamcalError(f"frames from different cameras in one session: {sorted(models)}", index.root)
+        sensors[s] = sensor_of(f)
+    named = {s: c for s, c in sensors.items() if c.model}
+    for s, c in named.items():  # every stage against every other (camcal.camera_id: software names forgiven)
+        for t, d in named.items():
+            if s < t and not match(c, d)[0]:
+                raise CamcalError(f"frames from different cameras in one session: {s}/ is {c.label}, {t}/ is "
+                                  f"{d.label}", index.root)
+    if named:
+        best = preferred(list(named.values()))
+        stage = next(s for s, c in named.items() if c is best)
+        seen = {stage: seen[stage], **seen}
     layouts = {c.layout for c in seen.values() if c.layout != "processed"}
     if len(layouts) > 1:
         raise CamcalError(f"RAW frames of different layouts in one session: {sorted(layouts)} (one camera mode per "

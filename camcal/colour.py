@@ -31,8 +31,8 @@ import numpy as np
 from camcal.correct import Calibration, correct_frame
 from camcal.errors import CamcalError
 from camcal.io import is_raw_path, list_frames, load_frame
+from camcal.region import DEFAULT_ROI_FRACTION, central_roi
 from camcal.session import StageFrames, folder_of
-from camcal.spectral import central_roi
 
 #: A JPEG channel of a sweep frame is used when fewer than this fraction of its ROI pixels are clipped
 #: (0 or the white level) ...
@@ -109,8 +109,8 @@ def twin_pairs(folder: str | Path | StageFrames) -> list[tuple[Path, Path]]:
     return pairs
 
 
-def fit_colour_matrix(folders: Sequence[str | Path | StageFrames], processed, *, roi_fraction: float = 0.2,
-                      min_frames: int = 6) -> ColourMatrix | None:
+def fit_colour_matrix(folders: Sequence[str | Path | StageFrames], processed, *,
+                      roi_fraction: float = DEFAULT_ROI_FRACTION, min_frames: int = 6) -> ColourMatrix | None:
     """Fit the colour matrix A from RAW frames and their JPEG twins (module docstring).
 
     Parameters
@@ -142,7 +142,7 @@ def fit_colour_matrix(folders: Sequence[str | Path | StageFrames], processed, *,
 
 
 def measure_twins(pairs: Sequence[tuple[Path, Path]], processed, *,
-                  roi_fraction: float = 0.2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                  roi_fraction: float = DEFAULT_ROI_FRACTION) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The file step of the colour matrix: decode each RAW frame and its JPEG twin once and measure the
     central box.
 

@@ -42,14 +42,15 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import minimize
 from scipy.special import ndtr
-from scipy.stats import chi2
+from scipy.stats import chi2, median_abs_deviation
 
 from camcal.correct import Calibration, correct_planes, dark_frame
 from camcal.errors import CamcalError, FrameLeftOut, MissingMetadataError, TooFewFrames
-from camcal.frame import PATTERNS, PLANES, RGB, Frame
+from camcal.frame import PLANES, RGB, Frame
+from camcal.hashing import sha256_file
 from camcal.io import exposure_from_exif
 from camcal.session import StageFrames, folder_of, stage_files
-from camcal.stack import MAD_TO_SIGMA, METHODS, StackResult, combine_frames
+from camcal.stack import METHODS, StackResult, combine_frames
 from camcal.store import load_stage, save_stage
 
 HOT, DEAD, NOISY = 1, 2, 4
@@ -202,7 +203,7 @@ def _robust(x: np.ndarray) -> tuple[float, float]:
     if x.size == 0:
         return float("nan"), float("nan")
     med = float(np.median(x))
-    return med, MAD_TO_SIGMA * float(np.median(np.abs(x - med)))
+    return med, float(median_abs_deviation(x, scale="normal"))
 
 
 @dataclass(frozen=True)
@@ -257,9 +258,6 @@ class DarkStacks:
     left_out: tuple[tuple[str, str], ...] = ()
     """(file name, reason) of dark frames not stacked: a frame alone at its exposure time."""
 
-    @property
-    def read_noise_stack(self) -> StackResult:
-        return self.bias if self.bias is not None else self.darks[0][1]
 
 
 def _progress_from(progress: Callable[[int, int], None] | None, offset: int,
@@ -284,6 +282,36 @@ def _check_stacks(stacks: list[StackResult], where: Path) -> float:
             raise CamcalError(f"frame size {w}x{h} ({st.cfa_pattern}) differs from the first dark frame's "
                               f"{w0}x{h0} ({ref.cfa_pattern})", st.paths[0])
     return _same_iso(stacks, where)
+
+
+def refuse_shared_frames(dark_files: list[Path], bias_files: list[Path]) -> None:
+    """Refuse a frame given both as a dark and as a bias frame (the same file, or a copy of it).
+
+    The same exposure counted twice fits a dark current of exactly zero with zero uncertainty, which reads like
+    a measurement. A copy is found by content: files of equal size are compared by their SHA-256.
+
+    Raises
+    ------
+    CamcalError
+        Naming both files.
+    """
+    if not dark_files or not bias_files:
+        return
+    by_size: dict[int, list[Path]] = {}
+    for p in bias_files:
+        by_size.setdefault(p.stat().st_size, []).append(p)
+    hashes: dict[Path, str] = {}
+
+    def digest(p: Path) -> str:
+        if p not in hashes:
+            hashes[p] = sha256_file(p)
+        return hashes[p]
+
+    for d in dark_files:
+        for b in by_size.get(d.stat().st_size, ()):
+            if d.resolve() == b.resolve() or digest(d) == digest(b):
+                raise CamcalError(f"is given twice: as a dark frame and as the bias frame {b} (the same exposure "
+                                  "cannot be both); give each frame once", d)
 
 
 def stack_darks(
@@ -338,6 +366,7 @@ def stack_darks(
         files = [p for p in files if all(p.name != n for n, _ in left_out)]
     bias_files, bias_manifest = stage_files(bias) if bias is not None else ([], {})
     bias_folder = folder_of(bias) if bias is not None else None
+    refuse_shared_frames(files, bias_files)
     if bias_folder is None and len(groups) < 2:
         if not groups:
             raise TooFewFrames("dark", "frames", 1, 0, path=dark_folder)
@@ -888,44 +917,6 @@ def dark_to_parts(model: DarkModel) -> tuple[dict, dict[str, np.ndarray]]:
     return data, maps
 
 
-def _check_dark_data(data: dict, where: str | Path | None) -> None:
-    """Refuse a dark model's JSON part with values of the wrong type or out of range (one line)."""
-    def number(key: str, *, positive: bool, optional: bool = False) -> None:
-        v = data.get(key)
-        if v is None and optional:
-            return
-        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) or (positive and v <= 0):
-            raise CamcalError(f"malformed dark model: {key} must be a finite{' positive' if positive else ''} "
-                              f"number, got {v!r}", where)
-
-    if not isinstance(data, dict):
-        raise CamcalError("malformed dark model: its data is not an object", where)
-    number("iso", positive=True)
-    number("white_level_dn", positive=True, optional=True)
-    number("temperature_c", positive=False, optional=True)
-    linear = data.get("layout") == "linear"
-    if data.get("layout", "bayer") not in ("bayer", "linear"):
-        raise CamcalError(f"malformed dark model: layout {data.get('layout')!r} is not bayer or linear", where)
-    if (data.get("cfa_pattern") is not None) if linear else (data.get("cfa_pattern") not in PATTERNS):
-        raise CamcalError(f"malformed dark model: cfa_pattern {data.get('cfa_pattern')!r} is not one of "
-                          f"{', '.join(PATTERNS)}" + (" (null for linear RAW)" if linear else ""), where)
-    planes = RGB if linear else PLANES
-    for key in ("exposure_times_s", "black_level_dn"):
-        v = data.get(key)
-        if v is not None and (not isinstance(v, list) or not all(
-                isinstance(t, int | float) and not isinstance(t, bool) and math.isfinite(t) for t in v)):
-            raise CamcalError(f"malformed dark model: {key} must be a list of numbers", where)
-    ch = data.get("channels")
-    if not isinstance(ch, dict) or not all(isinstance(ch.get(p), dict) and ch[p] for p in planes) or len(
-            {tuple(sorted(ch[p])) for p in planes}) != 1 or "hot_pixel_count" not in ch[planes[0]]:
-        raise CamcalError(f"malformed dark model: channels must hold the same summary numbers for {', '.join(planes)}",
-                          where)
-    for p in planes:
-        for key, v in ch[p].items():
-            if v is not None and (isinstance(v, bool) or not isinstance(v, int | float)):
-                raise CamcalError(f"malformed dark model: channels.{p}.{key} must be a number, got {v!r}", where)
-
-
 def dark_from_parts(data: dict, maps: dict[str, np.ndarray], where: str | Path | None = None) -> DarkModel:
     """Inverse of :func:`dark_to_parts`; ``where`` names the file in errors."""
     known = not (isinstance(data, dict) and data.get("dark_current_known") is False)
@@ -934,7 +925,6 @@ def dark_from_parts(data: dict, maps: dict[str, np.ndarray], where: str | Path |
     missing = [f"{m}.{p}" for m in names for p in planes if f"{m}.{p}" not in maps]
     if missing:
         raise CamcalError(f"dark model lacks maps {', '.join(missing[:4])}", where)
-    _check_dark_data(data, where)
     try:
         arr: dict[str, np.ndarray | None] = {
             m: np.stack([maps[f"{m}.{p}"] for p in planes]).astype(np.float32) for m in names}

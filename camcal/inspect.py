@@ -6,7 +6,9 @@ from pathlib import Path
 
 from camcal.errors import CamcalError
 from camcal.frame import PLACE_TIME, TRACKED
-from camcal.io import load_frame, saturated_fraction
+from camcal.io import folder_manifest, load_frame, saturated_fraction
+from camcal.manifest import exposure_overrides
+from camcal.session import STAGES, index_session
 from camcal.sun import SunPosition, photo_time_utc, sun_from_metadata
 
 SUN_KEYS = ("zenith_deg", "azimuth_deg", "apparent_zenith_deg", "source")
@@ -41,11 +43,15 @@ def describe(path: str | Path, sun: SunPosition | None = None) -> dict[str, obje
     ``libraw``, ``frames.csv``, ``session``; null when unknown), notes (disagreements between readers, values
     set aside, a GPS date that disagrees with the local date), error (null).
 
-    An unknown value is null (None): never a library's placeholder. Session defaults
-    (``session.toml`` beside the file or in its parent folder) apply, marked ``session``.
+    An unknown value is null (None): never a library's placeholder. The file's values are read the way
+    ``calibrate`` and ``apply`` read them (:func:`manifest_row`): a stage folder of a session through the
+    session index (its ``frames.csv`` or ``sweep.csv`` row, marked ``frames.csv``), any other folder through
+    its own ``frames.csv``; session defaults (``session.toml`` beside the file or in its parent folder)
+    apply, marked ``session``.
     ``sun`` (``--sun ZENITH,AZIMUTH``) replaces the sun computed from the photo.
     """
-    f = load_frame(path)
+    overrides, index_note = manifest_row(Path(path))
+    f = load_frame(path, overrides)
     e = f.exposure
     h, w = f.shape
     sat = 100.0 * saturated_fraction(f.data, f.white_level_dn)
@@ -84,9 +90,32 @@ def describe(path: str | Path, sun: SunPosition | None = None) -> dict[str, obje
         "saturated": ("fully saturated: every value at the white level" if sat >= 100.0 else
                       f"{min(sat, 99.99):.4g} % of the values at the white level" if sat >= 25.0 else None),
         "sources": {name: e.source(name) for name in (*TRACKED, *PLACE_TIME)},
-        "notes": list(e.notes) + [n for n in when.notes if not n.startswith("no ")],
+        "notes": (list(e.notes) + [n for n in when.notes if not n.startswith("no ")]
+                  + ([index_note] if index_note else [])),
         "error": None,
     }
+
+
+def manifest_row(path: Path) -> tuple[dict[str, float | None], str | None]:
+    """The manifest overrides ``calibrate`` or ``apply`` would give ``path``, and a note when it could not say.
+
+    In a session's stage folder (``SESSION/dark/x.dng``): the row the session index resolves for the file
+    (:func:`camcal.session.index_session`, as ``calibrate`` reads it). In any other folder: the folder's own
+    ``frames.csv`` row (as ``apply`` reads a folder of photos).
+    """
+    folder = path.parent
+    if folder.name in STAGES:
+        try:
+            index = index_session(folder.parent)
+        except CamcalError as exc:  # the file is still described, with the reason its session is not read
+            return exposure_overrides(folder_manifest(folder).get(path.name)), f"session index: {exc}"
+        stage = index.stage(folder.name)
+        if stage is not None:
+            for ref in stage.frames:
+                if ref.path.name == path.name:
+                    return dict(ref.overrides), None
+            return {}, None
+    return exposure_overrides(folder_manifest(folder).get(path.name)), None
 
 
 def describe_many(paths: list[str | Path], sun: SunPosition | None = None

@@ -53,7 +53,7 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 
 from camcal.errors import CamcalError
-from camcal.spectra import planck_radiance
+from camcal.spectra import FWHM_TO_SIGMA, planck_radiance
 
 RGB = ("R", "G", "B")
 ESTIMATORS = ("narrowband", "smooth")
@@ -83,9 +83,10 @@ class RadianceModel:
     weights_unc_rel: float
     units: str
     channel: str | None
-
-
-FWHM_TO_SIGMA = 1.0 / (2.0 * np.sqrt(2.0 * np.log(2.0)))
+    spectral_unc_rel: float = 0.0
+    """Relative standard uncertainty of L(λ0) from the spectral reconstruction itself (``smooth``: the RMS
+    error over the prior spectra of :func:`smooth_error_table`; ``narrowband``: 0, valid only for light
+    confined near λ0, see docs/apply.md)."""
 
 
 def _interp(wl: np.ndarray, values: np.ndarray, at: float, derivative: int = 0) -> float:
@@ -167,11 +168,6 @@ def radiance_model(
     return RadianceModel(band, band_unc, float(target_nm), estimator, row, rel, "W m^-2 sr^-1 nm^-1", None)
 
 
-def band_radiance(rates: np.ndarray, model: RadianceModel) -> np.ndarray:
-    """(3, ...) DN rates -> (3, ...) band radiance L_i = rate_i / ∫c_i dλ, W m^-2 sr^-1 nm^-1."""
-    return np.asarray(rates) / model.band_integral.reshape((3,) + (1,) * (np.ndim(rates) - 1))
-
-
 def radiance_at(
     rates: np.ndarray, rate_var: np.ndarray | None, model: RadianceModel
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -229,3 +225,14 @@ def smooth_error_table(wavelength_nm: np.ndarray, c_rgb: dict[str, np.ndarray], 
         true = float(np.interp(target_nm, wl, spec))
         out.append({"spectrum": name, "true": true, "estimate": est, "error_pct": 100 * (est / true - 1)})
     return out
+
+
+def smooth_spread_rel(wavelength_nm: np.ndarray, c_rgb: dict[str, np.ndarray], target_nm: float = 663.0) -> float:
+    """RMS relative error of the ``smooth`` estimator at ``target_nm`` over the prior spectra.
+
+    The spread of :func:`smooth_error_table` (black bodies, CIE illuminants, the ColorChecker under D65):
+    the spectral-reconstruction term of ``L<λ0>_unc`` for smooth scenes (docs/apply.md).
+    """
+    errors = np.array([row["error_pct"] for row in smooth_error_table(wavelength_nm, c_rgb, target_nm)]) / 100.0
+    errors = errors[np.isfinite(errors)]
+    return float(np.sqrt(np.mean(errors**2))) if errors.size else float("nan")

@@ -45,6 +45,7 @@ from typing import Any
 
 import numpy as np
 from scipy import stats
+from scipy.stats import median_abs_deviation
 
 from camcal import __version__
 from camcal.correct import Calibration, correct_frame
@@ -58,8 +59,8 @@ from camcal.hashing import sha256_file
 from camcal.io import load_frame
 from camcal.manifest import exposure_overrides, read_manifest, safe_member
 from camcal.profile import SCHEMA_VERSION, CalibrationProfile, CameraIdentity, Provenance
-from camcal.region import Region
-from camcal.spectral import DEFAULT_ROI_FRACTION, SpectralSensitivity, central_roi
+from camcal.region import DEFAULT_ROI_FRACTION, Region, central_roi
+from camcal.spectral import SpectralSensitivity
 from camcal.spectral_files import FileFormat, as_absolute, read_spectral_file, read_table, resample
 
 TARGETS_CSV = "targets.csv"
@@ -104,8 +105,8 @@ def region_rate(frame: Frame, box: Region | tuple[int, int, int, int] | None, *,
     ----------
     frame : a decoded RAW photo.
     box : a :class:`camcal.region.Region` in photo pixels (rounded outward to whole plane pixels), or
-        (x0, y0, x1, y1), half-open, in plane pixels (half resolution on a Bayer sensor); None: the central
-        :data:`camcal.spectral.DEFAULT_ROI_FRACTION` of each side.
+        (x0, y0, x1, y1), half-open, in half-resolution plane pixels; None: the central
+        :data:`camcal.region.DEFAULT_ROI_FRACTION` of each side.
     dark, flat : camcal.dark.DarkModel, camcal.flat.FlatModel or None.
     """
     path = frame.path
@@ -140,7 +141,7 @@ def region_rate(frame: Frame, box: Region | tuple[int, int, int, int] | None, *,
         v = planes[k, y0:y1, x0:x1][~bad[k, y0:y1, x0:x1]].astype(np.float64) / x
         if v.size:
             med = np.median(v)
-            mad = 1.4826 * np.median(np.abs(v - med))
+            mad = median_abs_deviation(v, scale="normal")
             if mad > 0:
                 v = v[np.abs(v - med) <= 5.0 * mad]
         if v.size < min_pixels:

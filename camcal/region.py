@@ -6,19 +6,22 @@ height, all whole pixels. Wherever camcal works on a coarser grid (the half-reso
 Bayer sensor, the half-resolution radiance EXRs written from them), the region is rounded *outward* to
 whole cells of that grid, so it never loses a pixel the user asked for.
 
-A *centred* region given as a fraction of the area (the default region of the linearity series and the
-sweep) is :meth:`Region.central`; on the command line it is ``--roi-fraction F``, a separate option.
+A *centred* region is given by a **central fraction, a fraction of each side** (never of the area):
+:func:`central_roi`; on the command line it is ``--roi-fraction F``, a separate option.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 from camcal.errors import CamcalError
 
 Window = tuple[slice, slice]
 """Rows and columns of an array (a plane or an output image)."""
+
+DEFAULT_ROI_FRACTION = 0.2
+"""Default central fraction (of each side: a fifth, 4 % of the area) of the sweep, the JPEG colour twins and
+the reference-target photos."""
 
 
 @dataclass(frozen=True)
@@ -51,16 +54,6 @@ class Region:
                               f"w, h > 0, got {text!r}")
         return Region(*vals)
 
-    @staticmethod
-    def central(fraction: float, width: int, height: int) -> Region:
-        """The centred region holding ``fraction`` of the area of a ``width`` x ``height`` photo (side √f)."""
-        f = float(fraction)
-        if not (math.isfinite(f) and 0.0 < f <= 1.0):
-            raise CamcalError(f"a region fraction must be in (0, 1], got {fraction!r}")
-        s = math.sqrt(f)
-        w, h = max(1, round(width * s)), max(1, round(height * s))
-        return Region((width - w) // 2, (height - h) // 2, w, h)
-
     def window(self, grid_shape: tuple[int, int], pixels_per_cell: int = 1, where=None) -> Window:
         """Rows and columns of a grid whose cells are ``pixels_per_cell`` photo pixels on a side.
 
@@ -87,3 +80,13 @@ def pixels_per_output_cell(resolution: object) -> int | None:
     if note.startswith("full resolution"):
         return 1
     return None
+
+
+def central_roi(shape_hw: tuple[int, int], fraction: float = DEFAULT_ROI_FRACTION) -> tuple[int, int, int, int]:
+    """A centred box ``(x0, y0, x1, y1)`` (half-open, plane pixels) covering ``fraction`` of each side."""
+    if not 0 < fraction <= 1:
+        raise CamcalError(f"ROI fraction (a central fraction of each side) must be in (0, 1], got {fraction}")
+    h, w = shape_hw
+    rw, rh = max(2, round(w * fraction)), max(2, round(h * fraction))
+    x0, y0 = (w - rw) // 2, (h - rh) // 2
+    return x0, y0, x0 + rw, y0 + rh

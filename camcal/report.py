@@ -366,8 +366,15 @@ def render_report(profile, progress: Callable[[str, int, int], None] | None = No
     cam = c["camera"]
     stages = profile.stages()
     title = f"camcal calibration report — {cam['make'] or '?'} {cam['model'] or '?'}"
-    badges = "".join(f'<span class="{"ok" if done else "no"}">{_esc(STAGE_TITLES[k])}: '
-                     f'{"calibrated" if done else "not calibrated"}</span>' for k, done in stages.items())
+    bias_only = profile.dark is not None and getattr(profile.dark, "dark_current_dn_per_s", 0) is None
+
+    def state(k: str, done: bool) -> tuple[str, str]:
+        if k == "dark" and done and bias_only:  # bias and read noise measured, the dark current is not
+            return "no", "bias only; dark current not calibrated"
+        return ("ok", "calibrated") if done else ("no", "not calibrated")
+
+    badges = "".join(f'<span class="{state(k, done)[0]}">{_esc(STAGE_TITLES[k])}: {_esc(state(k, done)[1])}</span>'
+                     for k, done in stages.items())
     head_rows = [["make", cam["make"] or "unknown"], ["model", cam["model"] or "unknown"],
                  ["serial", cam["serial"] or "unknown"], ["CFA pattern", cam["cfa_pattern"] or "none"],
                  ["image size", f"{cam['width']} × {cam['height']} px"],

@@ -62,8 +62,9 @@ from camcal.region import Region
 from camcal.session import StageFrames, folder_of, stage_files
 from camcal.store import load_stage, save_stage
 
-DEFAULT_ROI_FRACTION = 0.10
-"""Default ROI: a centred window holding this fraction of each plane's area."""
+SERIES_ROI_FRACTION = math.sqrt(0.10)
+"""Default central fraction of the exposure series, of each side (camcal.region's convention): √0.10 ≈ 0.316,
+a window holding 10 % of each plane's area."""
 
 SATURATED_PIXEL_FRACTION = 1e-3
 """A frame is saturated in a channel when more than this fraction of ROI pixels is clipped."""
@@ -448,17 +449,16 @@ def saturation_point(x_s: np.ndarray, mean_dn: np.ndarray, max_dn: np.ndarray, s
 def roi_window(roi: float | tuple[float, float, float, float] | None) -> tuple[float, float, float, float]:
     """ROI as fractions (y0, y1, x0, x1) of a plane.
 
-    ``None`` -> central window holding :data:`DEFAULT_ROI_FRACTION` of the area;
-    a float f in (0, 1] -> central window holding f of the area (side √f);
+    ``None`` -> the central window of :data:`SERIES_ROI_FRACTION` of each side;
+    a float f in (0, 1] -> the central window of f of each side (a central fraction, as in camcal.region);
     a 4-tuple -> taken as (y0, y1, x0, x1) fractions.
     """
     if roi is None:
-        roi = DEFAULT_ROI_FRACTION
+        roi = SERIES_ROI_FRACTION
     if isinstance(roi, int | float):
-        f = float(roi)
-        if not 0.0 < f <= 1.0:
-            raise CamcalError(f"ROI fraction must be in (0, 1], got {f}")
-        s = math.sqrt(f)
+        s = float(roi)
+        if not 0.0 < s <= 1.0:
+            raise CamcalError(f"ROI fraction (a central fraction of each side) must be in (0, 1], got {s}")
         return (0.5 - s / 2, 0.5 + s / 2, 0.5 - s / 2, 0.5 + s / 2)
     try:
         y0, y1, x0, x1 = (float(v) for v in roi)
@@ -938,8 +938,8 @@ def fit_response(
     ----------
     folder : a folder of frames of a constant source (``SESSION/linearity``), with an optional
         frames.csv giving ``exposure_s, iso, f_number``.
-    roi : a :class:`camcal.region.Region` (photo pixels), a fraction of the area for a centred window (see
-        :func:`roi_window`); default the central 10 % of each plane's area.
+    roi : a :class:`camcal.region.Region` (photo pixels) or a central fraction of each side (see
+        :func:`roi_window`); default :data:`SERIES_ROI_FRACTION` (10 % of each plane's area).
     dark : optional dark model (``dark_frame_dn(exposure_s, iso)``) subtracted from RAW frames.
     reference_iso, reference_f_number : the setting x refers to; default the series' most common.
     progress : ``progress(done, total)`` after each frame.
@@ -994,12 +994,9 @@ def save_response(models: dict[str, ResponseModel] | ResponseModel, path: str | 
 
 def load_response(path: str | Path) -> dict[str, ResponseModel]:
     """Read what :func:`save_response` wrote: ``{kind: ResponseModel}``."""
-    data, _ = load_stage(path, RESPONSE_KIND)
-    models = data.get("models")
-    if not isinstance(models, dict) or not models:
-        raise CamcalError("response file holds no models", path)
+    data, _ = load_stage(path, RESPONSE_KIND)  # validated against camcal/schemas/response-1.schema.json
     try:
-        return {str(k): ResponseModel.from_dict(v) for k, v in models.items()}
+        return {str(k): ResponseModel.from_dict(v) for k, v in data["models"].items()}
     except CamcalError as exc:
         raise CamcalError(exc.message, path) from None
 

@@ -27,6 +27,11 @@ CAMERAS = {"nikon-d5100": "Nikon 5100 (NPL)", "sigma-sd-merrill": "Sigma SDMeril
 H_PLANCK = 6.62607015e-34  # J s
 C_LIGHT = 299792458.0  # m s^-1
 K_BOLTZMANN = 1.380649e-23  # J K^-1
+C1_W_M2 = 2 * np.pi * H_PLANCK * C_LIGHT**2  # first radiation constant, W m^2
+C2_M_K = H_PLANCK * C_LIGHT / K_BOLTZMANN  # second radiation constant, m K
+
+FWHM_TO_SIGMA = 1.0 / (2.0 * np.sqrt(2.0 * np.log(2.0)))
+"""Standard deviation of a Gaussian per unit of its full width at half maximum."""
 
 
 def camera_sensitivities(name: str, wavelengths_nm: np.ndarray = WAVELENGTHS_NM) -> np.ndarray:
@@ -57,20 +62,37 @@ def camera_sensitivities(name: str, wavelengths_nm: np.ndarray = WAVELENGTHS_NM)
 
 
 def gaussian_line(center_nm: float, fwhm_nm: float, wavelengths_nm: np.ndarray = WAVELENGTHS_NM) -> np.ndarray:
-    """A Gaussian line of unit integral (nm^-1) on the grid: a monochromator's slit function."""
-    sigma = fwhm_nm / (2.0 * np.sqrt(2.0 * np.log(2.0)))
-    g = np.exp(-0.5 * ((wavelengths_nm - center_nm) / sigma) ** 2)
-    area = np.trapezoid(g, wavelengths_nm)
+    """A Gaussian line of unit integral (nm^-1) on a regular grid: a monochromator's slit function.
+
+    The line is ``colour.sd_gaussian(center_nm, fwhm_nm, method="FWHM")`` on the grid's
+    :class:`colour.SpectralShape`, divided by its trapezoidal integral over the grid.
+    """
+    import colour  # lazy: colour-science takes ~1-2 s to import (benchmarks/RESULTS.md, Start-up)
+
+    wl = np.asarray(wavelengths_nm, float)
+    step = np.diff(wl)
+    if wl.ndim != 1 or wl.size < 2 or not np.allclose(step, step[0], rtol=1e-9, atol=0.0):
+        raise CamcalError("a Gaussian line needs a regular 1-D wavelength grid")
+    shape = colour.SpectralShape(float(wl[0]), float(wl[-1]), float(step[0]))
+    g = np.asarray(colour.sd_gaussian(center_nm, fwhm_nm, shape=shape, method="FWHM").values, float)
+    area = np.trapezoid(g, wl)
     if area <= 0:
         raise CamcalError(f"line at {center_nm} nm (FWHM {fwhm_nm} nm) lies outside the wavelength grid")
     return g / area
 
 
 def planck_radiance(temperature_k: float, wavelengths_nm: np.ndarray = WAVELENGTHS_NM) -> np.ndarray:
-    """Black-body spectral radiance in W m^-2 sr^-1 nm^-1 (Planck's law)."""
-    lam = wavelengths_nm * 1e-9
-    b = 2 * H_PLANCK * C_LIGHT**2 / lam**5 / np.expm1(H_PLANCK * C_LIGHT / (lam * K_BOLTZMANN * temperature_k))
-    return b * 1e-9
+    """Black-body spectral radiance in W m^-2 sr^-1 nm^-1 (Planck's law).
+
+    ``colour.colorimetry.planck_law`` (W sr^-1 m^-2 per m of wavelength, hence the 1e-9) with the exact SI
+    radiation constants c1 = 2πhc² and c2 = hc/k rather than its CIE 15 defaults (c2 = 1.4388e-2 m K, the
+    ITS-90 value, 1.6e-5 larger).
+    """
+    from colour.colorimetry import planck_law  # lazy: colour-science takes ~1-2 s to import (see above)
+
+    wl = np.asarray(wavelengths_nm, float)
+    b = planck_law(wl.ravel() * 1e-9, float(temperature_k), c1=C1_W_M2, c2=C2_M_K)
+    return np.reshape(b, wl.shape) * 1e-9
 
 
 def photon_energy_j(wavelengths_nm: np.ndarray) -> np.ndarray:

@@ -56,6 +56,7 @@ from typing import Any, Literal
 
 import numpy as np
 from scipy.interpolate import CubicSpline
+from scipy.stats import median_abs_deviation
 
 from camcal.correct import Calibration, correct_planes
 from camcal.dark import DarkModel, as_dark_model
@@ -65,17 +66,16 @@ from camcal.flat import FlatModel, as_flat_model
 from camcal.frame import PLANES, RGB, Frame, split_planes
 from camcal.io import load_frame
 from camcal.manifest import exposure_overrides, read_manifest, safe_member
-from camcal.region import Region
+from camcal.region import DEFAULT_ROI_FRACTION, Region, central_roi
 from camcal.session import SWEEP_CSV, SWEEP_REQUIRED
+from camcal.spectra import FWHM_TO_SIGMA
 from camcal.store import to_jsonable
 from camcal.threads import thread_count
 
 DEFAULT_REFERENCE_ISO = 100.0
 DEFAULT_REFERENCE_F_NUMBER = 4.0
-DEFAULT_ROI_FRACTION = 0.2
 ABSOLUTE_UNITS = "DN s^-1 per (W m^-2 sr^-1 nm^-1) per nm at ISO_ref, f/N_ref, on axis"
 RELATIVE_UNITS = "relative"
-FWHM_TO_SIGMA = 1.0 / (2.0 * math.sqrt(2.0 * math.log(2.0)))
 
 
 class SweepWarning(UserWarning):
@@ -354,16 +354,6 @@ def sweep_rows(sweep_folder: str | Path, manifest: Mapping[str, Mapping[str, flo
     return out
 
 
-def central_roi(shape_hw: tuple[int, int], fraction: float = DEFAULT_ROI_FRACTION) -> tuple[int, int, int, int]:
-    """A centred box ``(x0, y0, x1, y1)`` (half-open, plane pixels) covering ``fraction`` of each side."""
-    if not 0 < fraction <= 1:
-        raise CamcalError(f"ROI fraction must be in (0, 1], got {fraction}")
-    h, w = shape_hw
-    rw, rh = max(2, round(w * fraction)), max(2, round(h * fraction))
-    x0, y0 = (w - rw) // 2, (h - rh) // 2
-    return x0, y0, x0 + rw, y0 + rh
-
-
 def _check_roi(roi: tuple[int, int, int, int], shape_hw: tuple[int, int], where: Path) -> tuple[int, int, int, int]:
     x0, y0, x1, y1 = (int(v) for v in roi)
     h, w = shape_hw
@@ -408,7 +398,9 @@ def _process_frame(row: SweepRow, cal: Calibration, roi: tuple[int, int, int, in
 
 
 def _robust_mask(m: np.ndarray, valid: np.ndarray | None = None, nsigma: float = 5.0) -> np.ndarray:
-    """Valid pixels within ``nsigma`` robust (MAD) sigmas of the plane median; (hr, wr) bool.
+    """Valid pixels within ``nsigma`` robust sigmas of the plane median; (hr, wr) bool.
+
+    The robust sigma is the MAD scaled to a normal law (``scipy.stats.median_abs_deviation``, ``scale="normal"``).
 
     Median and MAD come from the ``valid`` pixels (all when None), every other row and column when the
     plane has more than 40 000 pixels (their relative sampling error, ~1/√(n/4) < 1 %, moves the 5σ
@@ -420,7 +412,7 @@ def _robust_mask(m: np.ndarray, valid: np.ndarray | None = None, nsigma: float =
     if sample.size == 0:
         return np.zeros(m.shape, bool)
     med = np.median(sample)
-    mad = 1.4826 * np.median(np.abs(sample - med))
+    mad = median_abs_deviation(sample, scale="normal")
     if mad <= 0:
         return ok.copy()
     return ok & (np.abs(m - med) <= nsigma * mad)
@@ -866,12 +858,20 @@ def _replace(s: SpectralSensitivity, **kw) -> SpectralSensitivity:
 
 
 # ---- finite bandwidth ----------------------------------------------------------------------
-def slit_function(offset_nm: np.ndarray, fwhm_nm: float, shape: str = "gaussian") -> np.ndarray:
-    """Unit-peak slit function at ``offset_nm`` from the setting (Gaussian or triangular, given FWHM)."""
+def slit_functions(grid_nm: np.ndarray, centre_nm: np.ndarray, fwhm_nm: np.ndarray,
+                   shape: str = "gaussian") -> np.ndarray:
+    """Unit-peak slit functions (n, len(grid)) of the settings ``centre_nm`` on a regular ``grid_nm``.
+
+    Gaussian: ``colour.sd_gaussian(centre, fwhm, method="FWHM")``; triangular: 1 − |offset|/FWHM, clipped at 0.
+    """
     if shape == "gaussian":
-        return np.exp(-0.5 * (offset_nm / (fwhm_nm * FWHM_TO_SIGMA)) ** 2)
+        import colour  # lazy: colour-science takes ~1-2 s to import (benchmarks/RESULTS.md, Start-up)
+
+        grid = colour.SpectralShape(float(grid_nm[0]), float(grid_nm[-1]), float(grid_nm[1] - grid_nm[0]))
+        return np.stack([np.asarray(colour.sd_gaussian(float(c), float(f), shape=grid, method="FWHM").values)
+                         for c, f in zip(centre_nm, fwhm_nm, strict=True)])
     if shape == "triangular":
-        return np.clip(1.0 - np.abs(offset_nm) / fwhm_nm, 0.0, None)
+        return np.clip(1.0 - np.abs(grid_nm[None, :] - centre_nm[:, None]) / fwhm_nm[:, None], 0.0, None)
     raise CamcalError(f"unknown slit shape {shape!r}; use gaussian or triangular")
 
 
@@ -889,7 +889,7 @@ def slit_matrix(wavelength_nm: np.ndarray, fwhm_nm: np.ndarray | float, shape: s
     reach = 3.0 * float(fwhm.max())
     fine = np.arange(wl[0] - reach, wl[-1] + reach + step_nm / 2, step_nm)
     basis = CubicSpline(wl, np.eye(wl.size), bc_type="natural")(np.clip(fine, wl[0], wl[-1]))  # (nf, n)
-    phi = slit_function(fine[None, :] - wl[:, None], fwhm[:, None], shape)  # (n, nf)
+    phi = slit_functions(fine, wl, fwhm, shape)  # (n, nf)
     phi /= np.trapezoid(phi, fine, axis=1)[:, None]
     weights = np.full(fine.size, step_nm)
     weights[[0, -1]] *= 0.5

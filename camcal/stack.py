@@ -43,8 +43,6 @@ from camcal.io import folder_files, folder_manifest, load_folder_frame
 from camcal.threads import thread_count
 
 METHODS = ("mean", "median", "sigma_clip")
-MAD_TO_SIGMA = 1.4826
-"""Scale of the median absolute deviation to the standard deviation of a normal law."""
 IQR_TO_SIGMA = 1.349
 """Interquartile range of a normal law in standard deviations."""
 

@@ -13,18 +13,21 @@ same two parts into a single file.
 
 from __future__ import annotations
 
+import functools
 import json
 import math
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
 
 from camcal import __version__
 from camcal.atomic import atomic_write_text
+from camcal.container import parse_json
 from camcal.errors import CamcalError
 from camcal.exr import read_exr, write_exr
 from camcal.hashing import sha256_file
-from camcal.limits import MAX_STAGE_JSON_BYTES, check_json_depth
+from camcal.limits import MAX_STAGE_JSON_BYTES
 from camcal.manifest import read_text_file
 
 
@@ -63,19 +66,48 @@ def save_stage(path: str | Path, kind: str, data: dict, maps: dict[str, np.ndarr
     return path
 
 
-def load_stage(path: str | Path, kind: str) -> tuple[dict, dict[str, np.ndarray]]:
-    """Load a stage result written by :func:`save_stage`; check kind and the maps' hash."""
+#: The stage files that have a schema, ``camcal/schemas/<kind>-1.schema.json``.
+STAGE_KINDS = ("dark", "flat", "response")
 
+
+@functools.cache
+def _schema_text(name: str) -> str:
+    return resources.files("camcal").joinpath(f"schemas/{name}-1.schema.json").read_text(encoding="utf-8")
+
+
+@functools.cache
+def _stage_validator(kind: str):
+    """A Draft 2020-12 validator of the stage file ``kind``; its ``data`` refers to the profile schema's $defs."""
+    import jsonschema  # as camcal.profile: only when a file is validated
+    from referencing import Registry, Resource
+
+    profile = json.loads(_schema_text("profile"))
+    registry = Registry().with_resource(profile["$id"], Resource.from_contents(profile))
+    return jsonschema.Draft202012Validator(json.loads(_schema_text(kind)), registry=registry)
+
+
+def validate_stage(doc: dict, kind: str, where: str | Path) -> None:
+    """Validate a stage file's JSON against ``camcal/schemas/<kind>-1.schema.json``; one line naming the field."""
+    errors = sorted(_stage_validator(kind).iter_errors(doc), key=lambda e: [str(p) for p in e.absolute_path])
+    if errors:
+        err = errors[0]
+        loc = "/".join(str(p) for p in err.absolute_path) or "(top level)"
+        raise CamcalError(f"not a valid camcal {kind} file at {loc}: {' '.join(err.message.split())[:160]}", where)
+
+
+def load_stage(path: str | Path, kind: str) -> tuple[dict, dict[str, np.ndarray]]:
+    """Load a stage result written by :func:`save_stage`; check kind, its schema and the maps' hash.
+
+    The JSON is parsed as a profile's is (NaN, Infinity and out-of-range numbers refused, nesting depth
+    bounded) and, for the kinds of :data:`STAGE_KINDS`, validated against the stage's JSON Schema.
+    """
     path = Path(path)
     text = read_text_file(path, f"{kind} file", MAX_STAGE_JSON_BYTES, max_line_bytes=None)  # camcal.limits
-    check_json_depth(text.encode("utf-8"), path, f"{kind} file")
-    try:
-        doc = json.loads(text)
-    except ValueError as exc:
-        raise CamcalError(f"not a camcal {kind} file (invalid JSON: {' '.join(str(exc).split())[:100]})",
-                          path) from None
+    doc = parse_json(text.encode("utf-8"), path, f"{kind} file")
     if not isinstance(doc, dict) or doc.get("kind") != kind or not isinstance(doc.get("data"), dict):
         raise CamcalError(f"not a camcal {kind} file", path)
+    if kind in STAGE_KINDS:
+        validate_stage(doc, kind, path)
     maps: dict[str, np.ndarray] = {}
     if doc.get("maps_file"):
         mp = path.parent / Path(str(doc["maps_file"])).name

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from camcal.apply import apply, prepare, radiance_channel_name, roi_mask, roi_statistics
+from camcal.apply import apply, next_step_for_c, prepare, radiance_channel_name, roi_mask, roi_statistics
 from camcal.errors import CamcalError
 from camcal.exr import read_exr
 from camcal.io import load_frame
@@ -73,7 +73,7 @@ def mean(a: np.ndarray) -> float:
 
 def test_narrowband_line_within_1pct(photos, profile, camera):
     img = apply(load_frame(photos[("line", "raw", 100, 4.0)]), profile, 663.0, "narrowband")
-    assert set(img.channels) == {"R", "G", "B", "L663", "L663_unc"}
+    assert set(img.channels) == {"R", "G", "B", "L663", "L663_unc", "R_unc", "G_unc", "B_unc"}
     assert img.shape == (128, 192)  # half resolution of 384x256
     assert img.metadata["estimator_channel"] == "R"
     assert img.metadata["units"]["L663"].startswith("W m^-2 sr^-1")
@@ -127,6 +127,31 @@ def test_uncertainty_map_matches_scatter(photos, profile):
     noise = np.sqrt(max(rel_unc**2 - c_rel**2, 0.0))
     scatter = float(np.nanstd(L) / np.nanmean(L))
     assert noise == pytest.approx(scatter, rel=0.15), (noise, scatter)
+
+
+def test_band_uncertainty_matches_scatter(photos, profile):
+    """R_unc, G_unc, B_unc: the 1-σ noise of each band (the existing noise model), against the pixel scatter of a
+    uniform scene after the flat (the scatter holds the same shot, read and PRNU noise; 15 %: flat residuals)."""
+    img = apply(load_frame(photos[("line", "raw", 100, 4.0)]), profile)
+    for ch in "RGB":
+        v, u = img.channels[ch], img.channels[f"{ch}_unc"]
+        assert np.all(u[np.isfinite(v)] > 0), ch
+        scatter = float(np.nanstd(v) / np.nanmean(v))
+        assert float(np.nanmedian(u / v)) == pytest.approx(scatter, rel=0.15), ch
+    # the c(λ) scale (common to every photo, cancels in a ratio) is stated apart, not in the map
+    assert all(0 < r < 0.05 for r in img.metadata["band_scale_unc_rel"])
+
+
+def test_smooth_estimator_has_its_spectral_term(photos, profile):
+    """L663_unc of the smooth estimator holds the reconstruction's spread over the prior spectra."""
+    img = apply(load_frame(photos[("smooth", "raw", 100, 4.0)]), profile, 663.0, "smooth")
+    spread = img.metadata["spectral_unc_rel"]
+    s = profile.spectral
+    errors = [r["error_pct"] / 100 for r in smooth_error_table(s.wavelength_nm, s.rgb())]
+    assert spread == pytest.approx(float(np.sqrt(np.mean(np.square(errors)))), rel=1e-6) and spread > 0.05
+    assert float(np.nanmedian(img.channels["L663_unc"] / img.channels["L663"])) >= spread
+    narrow = apply(load_frame(photos[("line", "raw", 100, 4.0)]), profile)
+    assert narrow.metadata["spectral_unc_rel"] == 0 and "unbounded" in narrow.metadata["spectral_assumption"]
 
 
 def test_smooth_estimator_documented_error(photos, profile, camera):
@@ -191,7 +216,7 @@ def test_cli_exr_and_roi_stats(tmp_path, photos, profile_path, profile):
     proc = run_cli("apply", profile_path, src, "-o", out, "--roi", "100,60,80,60", "-j", "1")
     assert proc.returncode == 0, proc.stderr
     chans, meta = read_exr(out / f"{src.name}.exr")
-    assert set(chans) == {"R", "G", "B", "L663", "L663_unc"}
+    assert set(chans) == {"R", "G", "B", "L663", "L663_unc", "R_unc", "G_unc", "B_unc"}
     assert meta["profile_sha256"] == profile.content_sha256
     assert meta["wavelength_nm"] == pytest.approx(663.0) and meta["estimator"] == "narrowband"
     assert meta["source_name"] == src.name and meta["exposure"]["iso"] == 100
@@ -281,9 +306,15 @@ def _reference_raw(frame, plan, notes_dark: bool = True):
     used = np.asarray(model.weights) != 0
     value = np.sum(signal[used] * w[used], axis=0)
     noise = np.zeros_like(value) if var is None else np.sum(var[used] * w[used] ** 2, axis=0)
-    unc = np.sqrt(noise + (value * model.weights_unc_rel) ** 2)
-    band = signal / x / np.asarray(model.band_integral)[:, None, None]
-    return {"R": band[0], "G": band[1], "B": band[2], "L663": value, "L663_unc": unc}
+    rel = np.hypot(model.weights_unc_rel, model.spectral_unc_rel)  # c(λ) ⊕ the spectral reconstruction (smooth)
+    unc = np.sqrt(noise + (value * rel) ** 2)
+    k = 1 / x / np.asarray(model.band_integral)[:, None, None]
+    band = signal * k
+    out = {"R": band[0], "G": band[1], "B": band[2], "L663": value, "L663_unc": unc}
+    if var is not None:  # the band noise maps: the same variance, through the band's own scale
+        band_unc = np.sqrt(var) * k
+        out.update({"R_unc": band_unc[0], "G_unc": band_unc[1], "B_unc": band_unc[2]})
+    return out
 
 
 @pytest.mark.parametrize("variant", ["as calibrated", "smooth estimator", "no dark model", "no flat model"])
@@ -347,3 +378,36 @@ def test_camcal_threads_environment(monkeypatch, tmp_path, photos, profile_path)
                    env={"CAMCAL_THREADS": "many"})
     assert_one_line_error(proc, "CAMCAL_THREADS")
     assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
+
+
+def test_relative_profile_gives_relative_radiance_for_ratios(photos, profile):
+    """A relative c(λ) (imported curves without targets, a sweep without its reference detector) still serves a
+    ratio: every map is relative radiance, labelled so, and the ratio of two photos equals the absolute one."""
+    from dataclasses import replace
+
+    from camcal.apply import RELATIVE_UNITS
+    from camcal.spectral import to_relative
+
+    rel = replace(profile, spectral=to_relative(profile.spectral))
+    a_line = apply(load_frame(photos[("line", "raw", 100, 4.0)]), profile)
+    a_dim = apply(load_frame(photos["dim"][0]), profile)
+    r_line = apply(load_frame(photos[("line", "raw", 100, 4.0)]), rel)
+    r_dim = apply(load_frame(photos["dim"][0]), rel)
+    assert r_line.metadata["radiance_scale"] == "relative" and a_line.metadata["radiance_scale"] == "absolute"
+    assert r_line.metadata["units"]["R"] == RELATIVE_UNITS and r_line.metadata["units"]["L663"] == RELATIVE_UNITS
+    assert any("relative radiance" in n for n in r_line.metadata["notes"])
+    # the scale cancels: float32 maps, ~1e-6 relative
+    assert mean(r_dim.channels["R"]) / mean(r_line.channels["R"]) == pytest.approx(
+        mean(a_dim.channels["R"]) / mean(a_line.channels["R"]), rel=1e-5)
+    assert not mean(r_line.channels["R"]) == pytest.approx(mean(a_line.channels["R"]), rel=0.5)
+
+
+def test_no_spectral_names_the_next_step(profile):
+    from dataclasses import replace
+
+    bias_only = replace(profile, spectral=None, flat=None, response=None)
+    with pytest.raises(CamcalError, match="monochromator sweep"):
+        prepare(bias_only, 663.0)
+    imported = replace(profile, spectral=replace(profile.spectral, mode="relative",
+                                                 source={"kind": "imported", "file": "c.csv"}))
+    assert "--targets" in next_step_for_c(imported)

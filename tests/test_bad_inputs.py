@@ -99,13 +99,14 @@ WATER_SHAPE = (32, 48)  # the half-resolution radiance maps `camcal apply` makes
 def water_exrs(folder: Path, shape: tuple[int, int] = WATER_SHAPE, **pixels: np.ndarray) -> dict[str, bytes]:
     """A valid pair of radiance EXRs for ``camcal water invert`` (channels L663 and R, as apply writes).
 
-    The submerged disk is half as bright as the reference: a ratio of 0.5 inverts to a finite concentration
-    with every model (~50 µg/L). ``pixels`` replace the L663 and R pixels of the named image.
+    The submerged disk is 0.3 times as bright as the reference: a ratio of 0.3 at 20 cm inverts to a finite
+    concentration with every model (the refined model's clear water gives 0.43 there: a ratio of 0.5 would be
+    above clear water, no valid pixel, an error). ``pixels`` replace the L663 and R pixels of the named image.
     """
     from camcal.exr import write_exr
 
     ref = np.linspace(0.1, 1.0, shape[0] * shape[1], dtype=np.float32).reshape(shape)
-    images = {"sub": 0.5 * ref, "ref": ref, **pixels}
+    images = {"sub": 0.3 * ref, "ref": ref, **pixels}
     folder.mkdir(parents=True, exist_ok=True)
     out = {}
     for name, img in images.items():
@@ -728,16 +729,19 @@ def water_exr_cases() -> list[Case]:
             r, variant(ws, **{r: np.full(WATER_SHAPE[::-1], 0.5, np.float32)})[r]))
         add("mismatched size", f"{role}-1px", lambda b, ws, r=role: (r, variant(ws, **{r: small[:1, :1]})[r]))
 
-        def odd(value: float, rows: slice = slice(0, 4)) -> np.ndarray:
-            a = np.full(WATER_SHAPE, 0.5 if value != 0.5 else 0.25, np.float32)
+        def odd(value: float, rows: slice = slice(0, 4), role: str = role) -> np.ndarray:
+            # the good pixels give a ratio below the refined model's clear water at 20 cm (0.43): valid pixels
+            fill = 0.05 if role == "sub" else 0.5
+            a = np.full(WATER_SHAPE, fill if value != fill else 0.25 * fill, np.float32)
             a[rows] = value
             return a
         for label, value in (("NaN", np.nan), ("inf", np.inf), ("negative", -1.0), ("zero", 0.0),
                              ("huge", 3e38), ("tiny", 1e-38)):
-            add("per-pixel reason", f"{role}-{label}-pixels", lambda b, ws, r=role, v=value: (
-                r, variant(ws, **{r: odd(v)})[r]), OK)
-        add("per-pixel reason", f"{role}-all-NaN", lambda b, ws, r=role: (
-            r, variant(ws, **{r: odd(np.nan, slice(None))})[r]), OK)
+            add("per-pixel reason", f"{role}-{label}-pixels", lambda b, ws, r=role, v=value, o=odd: (
+                r, variant(ws, **{r: o(v)})[r]), OK)
+        # no valid pixel at all: an error counting the reasons (exit 2, naming the file), never an empty map
+        add("per-pixel reason", f"{role}-all-NaN", lambda b, ws, r=role, o=odd: (
+            r, variant(ws, **{r: o(np.nan, slice(None))})[r]), ERROR)
     return cases
 
 
@@ -854,15 +858,15 @@ def argument_cases() -> list[Case]:
                               ("albedo-inf", ("--albedo", "inf"), ERROR),
                               ("epsilon-text", ("--epsilon", "abc"), ERROR),
                               ("epsilon-overflow", ("--epsilon", "1e400L/g/cm"), ERROR),
-                              ("model-unknown", ("--model", "x"), ERROR),
-                              ("model-first-order", ("--model", "seed-first-order"), ERROR),
-                              ("refined-n-water-nan", ("--model", "refined", "--n-water", "nan"), ERROR),
-                              ("refined-view-95", ("--model", "refined", "--view-deg", "95"), ERROR),
-                              ("refined-water-abs-negative", ("--model", "refined", "--water-absorption", "-1"),
+                              ("model-unknown", ("--water-model", "x"), ERROR),
+                              ("model-first-order", ("--water-model", "seed-first-order"), ERROR),
+                              ("refined-n-water-nan", ("--water-model", "refined", "--n-water", "nan"), ERROR),
+                              ("refined-view-95", ("--water-model", "refined", "--view-deg", "95"), ERROR),
+                              ("refined-water-abs-negative", ("--water-model", "refined", "--water-absorption", "-1"),
                                ERROR),
-                              ("refined-background-inf", ("--model", "refined", "--background-absorption", "inf"),
+                              ("refined-background-inf", ("--water-model", "refined", "--background-absorption", "inf"),
                                ERROR),
-                              ("refined-cutoff-120", ("--model", "refined", "--cutoff-deg", "120"), ERROR),
+                              ("refined-cutoff-120", ("--water-model", "refined", "--cutoff-deg", "120"), ERROR),
                               ("ratio-text", ("--ratio", "abc"), ERROR),
                               ("ratio-impossible", ("--ratio", "nan,inf,-1,0,2"), OK)):  # NaN with a reason
         token = {"channel-missing": "sub.exr", "sigma-channel-missing": "sub.exr", "albedo-negative": "albedo",
@@ -902,7 +906,7 @@ def argument_cases() -> list[Case]:
     def demo_out_is_file(b: Base, ws: Path):
         f = ws / "not-a-folder"
         f.write_text("x")
-        return ["demo", "--out", f], [], f
+        return ["demo", "-o", f], [], f
     add("output", "demo-out-is-file", demo_out_is_file)
     return cases
 

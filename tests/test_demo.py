@@ -7,7 +7,7 @@ from tests.conftest import run_cli
 
 def test_demo_end_to_end(tmp_path):
     out = tmp_path / "demo"
-    proc = run_cli("demo", "--out", out)
+    proc = run_cli("demo", "-o", out)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "all checks within tolerance" in proc.stdout
     assert "✗" not in proc.stdout

@@ -26,13 +26,7 @@ from camcal.stack import StackResult
 from camcal.synth.camera import Scene
 from camcal.synth.session import exposure_for_level
 from camcal.water.models import LampModel, RefinedModel, SeedModel, lamp_ratio
-from camcal.water.optics import (
-    hemispheric_transmittance,
-    radiance_into_water,
-    radiance_out_of_water,
-    schlick_reflectance,
-    transmittance,
-)
+from camcal.water.optics import hemispheric_transmittance, schlick_reflectance, transmittance
 
 N_WATER = 1.33
 
@@ -72,9 +66,6 @@ def test_upward_transmittance_at_oblique_views_is_fresnel_from_air_by_reciprocit
     assert float(transmittance(view_air_rad)) == pytest.approx(expect, rel=1e-12)  # defaults: air → water, Fresnel
     assert RefinedModel(view_angle_rad=view_air_rad).transmittance_up() == pytest.approx(expect, rel=1e-12)
     assert LampModel(view_angle_rad=view_air_rad).transmittance_up() == pytest.approx(expect, rel=1e-12)
-    # the n² law out of the water along that ray: L_air = T L_w / n²
-    theta_w = np.arcsin(np.sin(view_air_rad) / N_WATER)
-    assert float(radiance_out_of_water(3.0, theta_w)) == pytest.approx(3.0 * expect / N_WATER**2, rel=1e-12)
 
 
 def _stack(level: np.ndarray, t_s: float, white: float, black: float, n: int = 8, var_dn2: float = 4.0):
@@ -273,19 +264,6 @@ def test_schlick_from_the_water_side_uses_the_air_side_angle():
     view = 0.9
     expect = 1 - (r0 + (1 - r0) * (1 - np.cos(view)) ** 5)
     assert RefinedModel(view_angle_rad=view, reflectance="schlick").transmittance_up() == pytest.approx(expect)
-
-
-def test_radiance_into_water_is_n2_t_l():
-    """The n² law into the water at an oblique air angle: L_w = n² T(θa) L_air (Mobley 1994 §4.3)."""
-    assert float(radiance_into_water(2.0, 0.7)) == pytest.approx(2.0 * N_WATER**2 * fresnel_t_from_air(0.7),
-                                                                 rel=1e-12)
-    r0 = (0.33 / 2.33) ** 2
-    schlick_t = 1 - (r0 + (1 - r0) * (1 - np.cos(0.7)) ** 5)
-    assert float(radiance_into_water(2.0, 0.7, method="schlick")) == pytest.approx(2.0 * N_WATER**2 * schlick_t,
-                                                                                   rel=1e-12)
-    theta_w = np.arcsin(np.sin(0.7) / N_WATER)
-    assert float(radiance_out_of_water(2.0, theta_w, method="schlick")) == pytest.approx(2.0 * schlick_t / N_WATER**2,
-                                                                                        rel=1e-12)
 
 
 def test_seed_first_and_second_order_off_axis_with_albedo():

@@ -1,5 +1,6 @@
 """One ``--roi`` (x,y,w,h photo pixels, rounded outward to the grid a stage works on) for linearity and sweep:
-a region given in photo pixels measures exactly the pixels of the centred fraction it equals."""
+a region given in photo pixels measures exactly the pixels of the centred fraction it equals. ``--roi-fraction``
+is a fraction of each side for both commands (camcal.region's convention)."""
 
 from __future__ import annotations
 
@@ -8,8 +9,8 @@ import json
 import pytest
 
 from camcal.io import load_frame
-from camcal.response import roi_slices, roi_window
-from camcal.spectral import DEFAULT_ROI_FRACTION, central_roi
+from camcal.region import DEFAULT_ROI_FRACTION, central_roi
+from camcal.response import SERIES_ROI_FRACTION, roi_slices, roi_window
 from tests.conftest import assert_one_line_error, run_cli
 
 
@@ -26,7 +27,7 @@ def test_linearity_roi_in_photo_pixels(session_dir, tmp_path):
     region = f"{2 * xs.start},{2 * ys.start},{2 * (xs.stop - xs.start)},{2 * (ys.stop - ys.start)}"
     default = _linearity(folder, tmp_path / "a.json")
     same = _linearity(folder, tmp_path / "b.json", "--roi", region)
-    fraction = _linearity(folder, tmp_path / "c.json", "--roi-fraction", "0.1")
+    fraction = _linearity(folder, tmp_path / "c.json", "--roi-fraction", repr(SERIES_ROI_FRACTION))  # √0.1 a side
     for ch in ("R", "G1", "G2", "B"):
         assert same[ch]["alpha"] == pytest.approx(default[ch]["alpha"], rel=1e-12)
         assert fraction[ch]["alpha"] == pytest.approx(default[ch]["alpha"], rel=1e-12)
@@ -42,9 +43,9 @@ def test_sweep_roi_in_photo_pixels(session_dir, tmp_path):
     x0, y0, x1, y1 = central_roi((first.shape[0] // 2, first.shape[1] // 2), DEFAULT_ROI_FRACTION)
     runs = {}
     for name, extra in (("default", ()), ("region", ("--roi", f"{2 * x0},{2 * y0},{2 * (x1 - x0)},{2 * (y1 - y0)}")),
-                        ("fraction", ("--roi-fraction", repr(DEFAULT_ROI_FRACTION ** 2)))):
+                        ("fraction", ("--roi-fraction", repr(DEFAULT_ROI_FRACTION)))):
         out = tmp_path / f"{name}.csv"
-        proc = run_cli("sweep", folder, "-o", out, "--mode", "relative", "--json", "--jobs", "1", *extra)
+        proc = run_cli("sweep", folder, "-o", out, "--sweep-mode", "relative", "--json", "--jobs", "1", *extra)
         assert proc.returncode == 0, proc.stderr
         runs[name] = out.read_text()
     assert runs["region"] == runs["default"] and runs["fraction"] == runs["default"]

@@ -335,7 +335,7 @@ def test_bad_roi_and_mode(tmp_path):
 # ---- CLI --------------------------------------------------------------------------------------
 def test_cli_sweep_writes_csv_meta_and_png(session_dir, camera, tmp_path):
     out = tmp_path / "res" / "sensitivity.csv"
-    proc = run_cli("sweep", session_dir / "sweep", "-o", out, "--mode", "relative", "--json")
+    proc = run_cli("sweep", session_dir / "sweep", "-o", out, "--sweep-mode", "relative", "--json")
     assert proc.returncode == 0, proc.stderr
     assert out.is_file() and out.with_suffix(".png").stat().st_size > 1000
     assert (out.parent / "sensitivity.meta.json").is_file()

@@ -110,7 +110,7 @@ def test_both_real_cameras_load_into_profiles(tmp_path):
         made = {}
         for src in (dat, csv):
             out = tmp_path / f"{src.stem}.camcal"
-            proc = run_cli("profile", "import-spectral", src, "--make", "X", "--model", dat.stem, "--size",
+            proc = run_cli("profile", "import-spectral", src, "--make", "X", "--camera-model", dat.stem, "--size",
                            "6000x4000", "-o", out, "--json")
             assert proc.returncode == 0, proc.stderr
             rec = json.loads(proc.stdout)
@@ -252,7 +252,8 @@ def test_imported_profile_runs_through_apply_and_water_invert(targets, profile_p
         assert proc.returncode == 0, proc.stderr
         ch, _ = read_exr(tmp_path / name / "s.dng.exr", ["L663"])
         res[name] = float(np.nanmean(ch["L663"]))
-        proc = run_cli("water", "invert", "--ratio", "0.3", "--depth", "0.8m", "--model", "refined", "--profile", prof)
+        proc = run_cli("water", "invert", "--ratio", "0.3", "--depth", "0.8m", "--water-model", "refined",
+                       "--profile", prof)
         assert proc.returncode == 0, proc.stderr
         res[name + "_chl"] = json.loads(proc.stdout)["c_ug_per_L"][0]
     assert res["imp"] == pytest.approx(res["sweep"], rel=0.01)

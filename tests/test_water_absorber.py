@@ -61,7 +61,7 @@ def test_dye_round_trip_through_the_cli(profile_path, tmp_path):
     """A user's dye in the band-aware lamp model: C → ratio → C through the CLI (µg/L of dye)."""
     csv = _write(tmp_path / "dye.csv", "absorbance", EPS_MOL / MOLAR_MASS * 0.005,
                  ["concentration: 5 mg/L", "path_length: 1 cm"])
-    lamp = ["--model", "lamp", "--lamp-height", "1m", "--lamp-angle", "15", "--profile", profile_path,
+    lamp = ["--water-model", "lamp", "--lamp-height", "1m", "--lamp-angle", "15", "--profile", profile_path,
             "--absorber-csv", csv]
     proc = run_cli("water", "forward", "--concentration", "50ug/L,500ug/L", "--depth", "0.3m", *lamp)
     assert proc.returncode == 0, proc.stderr

@@ -28,7 +28,7 @@ def test_invert_exr_round_trip(tmp_path):
     write_exr(tmp_path / "a.exr", {"L663": sub})
     write_exr(tmp_path / "b.exr", {"L663": ref})
     proc = run_cli("water", "invert", "--submerged", tmp_path / "a.exr", "--reference", tmp_path / "b.exr",
-                   "--depth", "20cm", "--relative-sigma", "0.01", "-o", tmp_path / "chl.exr")
+                   "--depth", "20cm", "--relative-sigma", "0.01", "--water-model", "seed", "-o", tmp_path / "chl.exr")
     assert proc.returncode == 0, proc.stderr
     ch, meta = read_exr(tmp_path / "chl.exr", ["chl_ug_per_L", "chl_unc_ug_per_L", "reason"])
     assert ch["reason"][0, 0] == 1 and np.isnan(ch["chl_ug_per_L"][0, 0])
@@ -40,11 +40,11 @@ def test_invert_exr_round_trip(tmp_path):
 
 
 def test_invert_numbers_and_forward_json():
-    proc = run_cli("water", "forward", "--concentration", "1e-7mol/L", "--depth", "10cm")
+    proc = run_cli("water", "forward", "--concentration", "1e-7mol/L", "--depth", "10cm", "--water-model", "seed")
     assert proc.returncode == 0, proc.stderr
     r = json.loads(proc.stdout)["ratio"][0][0]
     assert abs(r - 0.545) < 0.01
-    proc = run_cli("water", "invert", "--ratio", f"{r!r},2", "--depth", "0.1m")
+    proc = run_cli("water", "invert", "--ratio", f"{r!r},2", "--depth", "0.1m", "--water-model", "seed")
     out = json.loads(proc.stdout)
     assert abs(out["c_mol_per_L"][0] / 1e-7 - 1) < 1e-9 and out["c_mol_per_L"][1] is None
     assert out["reason"] == ["ok", "above_clear_water"]
@@ -106,8 +106,8 @@ def secchi_exrs(camera, tmp_path_factory):
 def test_invert_band_aware_with_profile(profile_path, secchi_exrs, tmp_path):
     sub, ref, truth = secchi_exrs
     roi = "152,88,80,80"  # photo pixels = R-plane 76,44,40,40, well inside the disk (centre 95.75,63.75; radius 38.4)
-    proc = run_cli("water", "invert", "--submerged", sub, "--reference", ref, "--depth", "80cm", "--model", "refined",
-                   "--profile", profile_path, "--roi", roi, "-o", tmp_path / "chl.exr")
+    proc = run_cli("water", "invert", "--submerged", sub, "--reference", ref, "--depth", "80cm",
+                   "--water-model", "refined", "--profile", profile_path, "--roi", roi, "-o", tmp_path / "chl.exr")
     assert proc.returncode == 0, proc.stderr
     ch, meta = read_exr(tmp_path / "chl.exr", ["chl_ug_per_L", "reason"])
     assert meta["inversion"] == "band" and meta["channel"] == "R" and meta["illuminant"] == "D65"
@@ -118,7 +118,7 @@ def test_invert_band_aware_with_profile(profile_path, secchi_exrs, tmp_path):
     assert np.median(ch["chl_ug_per_L"][ok]) == pytest.approx(truth["c_ug_per_L"], rel=0.05)
     # numbers only, on the predicted ratio: the profile's band model reproduces the camera's truth to 1 %
     proc = run_cli("water", "invert", "--ratio", repr(truth["predicted_red_band_ratio"]), "--depth", "0.8m",
-                   "--model", "refined", "--profile", profile_path)
+                   "--water-model", "refined", "--profile", profile_path)
     assert proc.returncode == 0, proc.stderr
     out = json.loads(proc.stdout)
     assert out["band_model"]["water_absorption"] == "Pope & Fry 1997"
@@ -126,7 +126,9 @@ def test_invert_band_aware_with_profile(profile_path, secchi_exrs, tmp_path):
     # the profile's u_c(λ) carried to C (no other input stated): a positive term, and the only one
     sens = out["sigma_terms_ug_per_L"]["sensitivity"][0]
     assert set(out["sigma_terms_ug_per_L"]) == {"sensitivity"} and 0 < sens < 0.2 * truth["c_ug_per_L"]
-    assert out["uncertainty"]["dominant"] == "sensitivity" and out["sigma_ug_per_L"][0] == pytest.approx(sens)
+    # ... but no total: the ratio's noise is not stated, so the summary says what is missing instead
+    assert out["uncertainty"]["total"] is None and out["sigma_ug_per_L"] == [None]
+    assert "ratio" in out["uncertainty"]["not_stated"]
     # the narrowband reading of the same broad red channel (ε at 663 nm, in-process) is far off
     rs, _ = read_exr(sub, ["R"])
     rr, _ = read_exr(ref, ["R"])

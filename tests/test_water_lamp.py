@@ -69,7 +69,7 @@ def test_lamp_round_trip_dense_grid_in_process():
 
 @pytest.mark.parametrize("h,angle", [("0.3m", "0"), ("2m", "40"), ("1m", "20")])
 def test_lamp_round_trip_through_the_cli(h, angle):
-    lamp = ["--model", "lamp", "--lamp-height", h, "--lamp-angle", angle]
+    lamp = ["--water-model", "lamp", "--lamp-height", h, "--lamp-angle", angle]
     conc = ",".join(f"{float(c)!r}mol/L" for c in C_MOL)
     proc = run_cli("water", "forward", "--concentration", conc, "--depth", "0.1m,0.5m", *lamp)
     assert proc.returncode == 0, proc.stderr
@@ -90,10 +90,10 @@ def test_lamp_reasons_and_errors():
                                 Reason.OK]
     with pytest.raises(CamcalError, match="one depth at a time"):
         invert_ratio(np.array([0.1, 0.1]), m, np.array([0.2, 0.3]))
-    assert_one_line_error(run_cli("water", "invert", "--ratio", "0.3", "--depth", "0.2m", "--model", "lamp"),
+    assert_one_line_error(run_cli("water", "invert", "--ratio", "0.3", "--depth", "0.2m", "--water-model", "lamp"),
                           "--lamp-height")
-    assert_one_line_error(run_cli("water", "forward", "--concentration", "1e-7", "--depth", "0.2m", "--model", "lamp",
-                                  "--lamp-height", "1m", "--lamp-angle", "89"), "--lamp-angle")
+    assert_one_line_error(run_cli("water", "forward", "--concentration", "1e-7", "--depth", "0.2m",
+                                  "--water-model", "lamp", "--lamp-height", "1m", "--lamp-angle", "89"), "--lamp-angle")
 
 
 def test_exact_transmittance_refined_model_inverts():
@@ -120,11 +120,11 @@ def test_exact_transmittance_refined_model_inverts():
 
 
 def test_exact_refined_through_the_cli():
-    proc = run_cli("water", "forward", "--concentration", "1e-7mol/L", "--depth", "0.3m", "--model", "refined",
+    proc = run_cli("water", "forward", "--concentration", "1e-7mol/L", "--depth", "0.3m", "--water-model", "refined",
                    "--transmittance", "exact")
     r = json.loads(proc.stdout)["ratio"][0][0]
     assert r == pytest.approx(float(RefinedModel(transmittance="exact").ratio(1e-7, 0.3)), rel=1e-12)
-    proc = run_cli("water", "invert", "--ratio", repr(r), "--depth", "0.3m", "--model", "refined",
+    proc = run_cli("water", "invert", "--ratio", repr(r), "--depth", "0.3m", "--water-model", "refined",
                    "--transmittance", "exact")
     assert proc.returncode == 0, proc.stderr
     out = json.loads(proc.stdout)
@@ -207,7 +207,7 @@ def test_per_pixel_geometry_through_the_cli(tmp_path):
     write_exr(tmp_path / "s.exr", {"L663": sub})
     write_exr(tmp_path / "r.exr", {"L663": np.ones_like(sub)})
     args = ["water", "invert", "--submerged", tmp_path / "s.exr", "--reference", tmp_path / "r.exr", "--depth", "0.3m",
-            "--model", "lamp", "--lamp-height", "0.5m", "--lamp-angle", "30"]
+            "--water-model", "lamp", "--lamp-height", "0.5m", "--lamp-angle", "30"]
     proc = run_cli(*args, "--disk-pixel-size", "4mm", "--disk-centre-px", "15.5,11.5", "-o", tmp_path / "c.exr")
     assert proc.returncode == 0, proc.stderr
     ch, meta = read_exr(tmp_path / "c.exr", ["chl_ug_per_L"])
@@ -221,7 +221,7 @@ def test_per_pixel_geometry_through_the_cli(tmp_path):
 
 def test_epsilon_unc_as_percent_or_fraction():
     r = repr(float(LampModel(1.0, 0.2).ratio(1e-7, 0.3)))
-    base = ["water", "invert", "--ratio", r, "--depth", "0.3m", "--model", "lamp", "--lamp-height", "1m",
+    base = ["water", "invert", "--ratio", r, "--depth", "0.3m", "--water-model", "lamp", "--lamp-height", "1m",
             "--lamp-angle", str(np.degrees(0.2))]
     a = json.loads(run_cli(*base, "--epsilon-unc", "3%").stdout)["sigma_terms_ug_per_L"]["epsilon"][0]
     b = json.loads(run_cli(*base, "--epsilon-unc", "0.03").stdout)["sigma_terms_ug_per_L"]["epsilon"][0]

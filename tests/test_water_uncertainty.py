@@ -96,8 +96,8 @@ def test_cli_writes_total_and_terms(tmp_path):
     write_exr(tmp_path / "s.exr", {"L663": sub})
     write_exr(tmp_path / "r.exr", {"L663": ref})
     proc = run_cli("water", "invert", "--submerged", tmp_path / "s.exr", "--reference", tmp_path / "r.exr",
-                   "--depth", "0.30m±0.005m", "--model", "lamp", "--lamp-height", "1m±1cm", "--lamp-angle", "20±1",
-                   "--epsilon-unc", "3%", "--relative-sigma", "0.01", "-o", tmp_path / "c.exr")
+                   "--depth", "0.30m±0.005m", "--water-model", "lamp", "--lamp-height", "1m±1cm",
+                   "--lamp-angle", "20±1", "--epsilon-unc", "3%", "--relative-sigma", "0.01", "-o", tmp_path / "c.exr")
     assert proc.returncode == 0, proc.stderr
     names = ["chl_ug_per_L", "chl_unc_ug_per_L", "chl_unc_ratio_ug_per_L", "chl_unc_depth_ug_per_L",
              "chl_unc_lamp_height_ug_per_L", "chl_unc_lamp_angle_ug_per_L", "chl_unc_epsilon_ug_per_L"]
@@ -110,15 +110,16 @@ def test_cli_writes_total_and_terms(tmp_path):
     assert meta["stated_uncertainties"]["depth"]["sigma"] == pytest.approx(0.005)
     # numbers: the same terms in JSON
     proc = run_cli("water", "invert", "--ratio", repr(float(m.ratio(1e-7, 0.3))), "--depth", "30cm±5mm",
-                   "--model", "lamp", "--lamp-height", "1m", "--lamp-angle", "20", "--epsilon-unc", "3%")
+                   "--water-model", "lamp", "--lamp-height", "1m", "--lamp-angle", "20", "--epsilon-unc", "3%")
     out = json.loads(proc.stdout)
     assert set(out["sigma_terms_ug_per_L"]) == {"depth", "epsilon"}
     assert set(out["uncertainty"]["not_stated"]) == {"lamp_height", "lamp_angle", "ratio"}
     assert "not_stated" not in unc  # the EXR run stated every input
     # ε ± 3 % is ± 3 % in C (C ∝ 1/ε); the depth term is ≈ C σ_d/d (plus water and geometry)
     assert out["sigma_terms_ug_per_L"]["epsilon"][0] == pytest.approx(0.03 * 89.35, rel=0.01)
-    assert out["sigma_ug_per_L"][0] == pytest.approx(np.hypot(out["sigma_terms_ug_per_L"]["epsilon"][0],
-                                                              out["sigma_terms_ug_per_L"]["depth"][0]))
+    # no ratio noise stated: no total (the stated terms alone would read like a measured σ_C)
+    assert out["sigma_ug_per_L"] == [None] and out["uncertainty"]["total"] is None
+    assert out["uncertainty"]["dominant"] is None
 
 
 def test_refined_narrowband_depth_term_is_c_sigma_over_d():

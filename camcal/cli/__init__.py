@@ -12,12 +12,14 @@ from __future__ import annotations
 
 import importlib
 import sys
+import warnings
 from collections.abc import Sequence
 
 import typer
 
 from camcal import __version__
 from camcal.atomic import remove_pending
+from camcal.cli.aliases import rewrite
 from camcal.errors import CamcalError
 
 app = typer.Typer(
@@ -99,9 +101,13 @@ def main(argv: list[str] | None = None) -> int:
 
 def _main(argv: list[str] | None) -> int:
     usage_error = _usage_error_type()
+    # floating-point warnings (an empty slice, 0/0 in a masked pixel) are handled where they arise (NaN with a
+    # reason, a refused frame); the user sees results and one-line errors, never numpy's warnings
+    warnings.filterwarnings("ignore", category=RuntimeWarning)
     try:
-        register_commands(commands_for(sys.argv[1:] if argv is None else [str(a) for a in argv]))
-        result = app(args=argv, prog_name="camcal", standalone_mode=False)
+        args = rewrite(sys.argv[1:] if argv is None else [str(a) for a in argv])
+        register_commands(commands_for(args))
+        result = app(args=args, prog_name="camcal", standalone_mode=False)
     except typer.Exit as exc:
         return int(exc.exit_code or 0)
     except typer.Abort:

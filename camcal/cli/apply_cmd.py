@@ -25,8 +25,7 @@ def register(app: typer.Typer) -> None:
         line_fwhm: float | None = typer.Option(None, "--line-fwhm",
                                                help="narrowband: width of the light, nm (slit correction of c)."),
         jobs: int | None = typer.Option(None, "--jobs", "-j",
-                                        help="CPU cores to use (worker processes of the local pool); "
-                                        "default: the usable cores."),
+                                        help="CPU cores to use (one worker process each); default: the usable cores."),
         dask_scheduler: str | None = typer.Option(None, "--dask-scheduler",
                                                   help="Run on a dask.distributed cluster (tcp://host:8786)."),
         roi: str | None = typer.Option(None, "--roi", help="Region x,y,w,h in photo pixels at full resolution "

@@ -21,11 +21,12 @@ def register(app: typer.Typer) -> None:
         output: Path = typer.Option(..., "-o", "--output", help="Profile file to write (.camcal)."),
         reference_iso: float | None = typer.Option(None, help="Reference ISO (default: the sweep's)."),
         reference_f_number: float | None = typer.Option(None, help="Reference f-number (default: the sweep's)."),
-        flat_model: str = typer.Option("radial", help="Vignetting model: radial or 2d."),
+        flat_model: str = typer.Option("radial", "--vignetting-model", help="Vignetting model: radial or 2d."),
         sweep_mode: str = typer.Option("absolute", help="c(λ) units: absolute or relative."),
         deconvolve: bool = typer.Option(False, help="Deconvolve the monochromator slit from c(λ)."),
         jobs: int | None = typer.Option(None, "--jobs", "-j", min=1,
-                                        help="Decoding threads (capped at the usable cores; default: automatic)."),
+                                        help="CPU cores to use (decoding threads; capped at the usable cores; "
+                                        "default: automatic)."),
         strict: bool = typer.Option(False, "--strict",
                                     help="All or nothing: any frame that cannot be used, or any stage with too few "
                                          "usable frames, refuses the session (exit 2, nothing written)."),

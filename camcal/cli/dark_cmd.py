@@ -1,4 +1,4 @@
-"""``camcal dark SESSION/dark [--bias SESSION/bias] -o dark.json``."""
+"""``camcal dark [SESSION/dark] [--bias SESSION/bias] -o dark.json``; ``--bias`` alone is a bias-only calibration."""
 
 from __future__ import annotations
 
@@ -9,21 +9,33 @@ from rich.table import Table
 
 from camcal.cli.common import console, print_json, progress
 from camcal.dark import fit_dark, save_dark
+from camcal.errors import CamcalError
 from camcal.frame import PLANES
+
+
+def _num(value, fmt: str) -> str:
+    """A table cell: the value, or "—" for a quantity the frames did not measure (None; the line under the
+    table says "not calibrated")."""
+    return "—" if value is None else format(value, fmt)
 
 
 def register(app: typer.Typer) -> None:
     @app.command("dark")
     def dark_cmd(
-        dark: Path = typer.Argument(..., help="Folder of RAW dark frames (two or more exposure times)."),
-        bias: Path | None = typer.Option(None, "--bias", help="Folder of RAW bias frames."),
+        dark: Path | None = typer.Argument(None, help="Folder of RAW dark frames (two or more exposure times, or "
+                                           "one with --bias); leave it out with --bias for a bias-only model."),
+        bias: Path | None = typer.Option(None, "--bias", help="Folder of RAW bias frames (alone: a bias-only "
+                                         "calibration: bias, read noise, noisy pixels; dark current unknown)."),
         output: Path = typer.Option(..., "-o", "--output", help="Output dark model (.json, maps beside it)."),
         method: str = typer.Option("sigma_clip", "--method", help="Combination of darks: mean, median, sigma_clip."),
         sigma: float = typer.Option(3.0, "--sigma", help="Sigma-clipping threshold."),
-        jobs: int = typer.Option(2, "--jobs", "-j", help="Decoding threads (capped at the usable cores)."),
+        jobs: int = typer.Option(2, "--jobs", "-j", help="CPU cores to use (decoding threads; "
+                                                         "capped at the usable cores)."),
         as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON instead of a table."),
     ) -> None:
-        """Fit bias, read noise, dark current and defects from bias and dark frames."""
+        """Fit bias, read noise, dark current and defects from bias and dark frames (or bias frames alone)."""
+        if dark is None and bias is None:
+            raise CamcalError("give a folder of dark frames, --bias FOLDER of bias frames, or both")
         with progress() as bar:
             task = bar.add_task("dark frames", total=None)
 
@@ -44,11 +56,13 @@ def register(app: typer.Typer) -> None:
             table.add_column(col, justify="right")
         for p in PLANES:
             c = model.channels[p]
-            table.add_row(p, f"{c['bias_dn']:.2f}", f"{c['dark_current_dn_per_s']:.4g}",
-                          f"{c['dark_current_unc_dn_per_s']:.1g}", f"{c['read_noise_dn']:.3f}",
-                          f"{c['dsnu_bias_dn']:.3f}", f"{c['dsnu_dark_current_dn_per_s']:.3g}",
+            table.add_row(p, f"{c['bias_dn']:.2f}", _num(c.get("dark_current_dn_per_s"), ".4g"),
+                          _num(c.get("dark_current_unc_dn_per_s"), ".1g"), f"{c['read_noise_dn']:.3f}",
+                          f"{c['dsnu_bias_dn']:.3f}", _num(c.get("dsnu_dark_current_dn_per_s"), ".3g"),
                           str(c["hot_pixel_count"]), str(c["dead_pixel_count"]), str(c["noisy_pixel_count"]))
         console.print(table)
         console.print("bias, read noise (σ read) and bias DSNU in DN; dark current β and its DSNU in DN/s "
                       f"at ISO {model.iso:g}")
+        if not model.exposure_times_s or model.channels[PLANES[0]].get("dark_current_dn_per_s") is None:
+            console.print("dark current β: not calibrated (bias frames only; apply subtracts the bias and says so)")
         console.print(f"defective pixels: {100 * summary['defect_fraction']:.3f} %  →  {output}")

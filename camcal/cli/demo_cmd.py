@@ -13,7 +13,7 @@ from camcal.errors import CamcalError
 def register(app: typer.Typer) -> None:
     @app.command("demo")
     def demo_cmd(
-        out: Path = typer.Option(Path("camcal-demo"), "--out", help="Folder for the demo's files."),
+        out: Path = typer.Option(Path("camcal-demo"), "-o", "--output", help="Folder for the demo's files."),
         preset_name: str = typer.Option("default", "--preset",
                                          help="Synthetic camera: default, imx296, hot or offsets "
                                               "(`camcal synth session --help`)."),

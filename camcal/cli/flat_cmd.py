@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
-from camcal.cli.common import console, print_json, progress
+from camcal.cli.common import console, plot_path, print_json, progress
 from camcal.flat import run_flat_stage
 from camcal.plots import flat_figure, write_png
 
@@ -20,8 +20,10 @@ def register(app: typer.Typer) -> None:
                                     help="Flat model JSON to write (maps go to <stem>.maps.exr)."),
         dark: Path | None = typer.Option(None, "--dark", help="Dark model JSON from `camcal dark`; without it only "
                                          "the files' black level is subtracted."),
-        png: Path | None = typer.Option(None, "--png", help="Falloff plot (default <stem>.falloff.png)."),
-        model: str = typer.Option("radial", "--model", help="radial (DNG radial, fitted centre) or 2d (Legendre)."),
+        plot: bool = typer.Option(True, "--plot/--no-plot", help="Write the falloff plot to <stem>.falloff.png."),
+        png: Path | None = typer.Option(None, "--png", hidden=True, help="Deprecated: the plot's path."),
+        model: str = typer.Option("radial", "--vignetting-model", help="radial (DNG radial, fitted centre) or 2d "
+                                  "(Legendre)."),
         downsample: int | None = typer.Option(None, "--downsample", min=1,
                                               help="Block size of the fit, plane px (default ~64 blocks across)."),
         terms: int = typer.Option(3, "--terms", min=1, max=5, help="Radial coefficients k0.. to fit (1-5)."),
@@ -29,7 +31,8 @@ def register(app: typer.Typer) -> None:
         no_prnu: bool = typer.Option(False, "--no-prnu", help="Do not compute the PRNU map."),
         method: str = typer.Option("sigma_clip", "--method", help="Combine: mean, median or sigma_clip."),
         sigma: float = typer.Option(3.0, "--sigma", help="Clipping threshold (sigma_clip)."),
-        jobs: int = typer.Option(1, "--jobs", min=1, max=2, help="Decode in 1 or 2 processes."),
+        jobs: int = typer.Option(1, "--jobs", "-j", min=1, max=2, help="CPU cores to use (decoding processes; at "
+                                 "most 2)."),
         as_json: bool = typer.Option(False, "--json", help="Print the model summary as JSON."),
     ) -> None:
         """Fit a per-channel vignetting model (DNG radial, optical centre free) and PRNU from flat fields."""
@@ -44,8 +47,9 @@ def register(app: typer.Typer) -> None:
                 folder, output, dark, model=model, downsample=downsample, n_terms=terms, degree_2d=degree,
                 with_prnu=not no_prnu, method=method, sigma=sigma, jobs=jobs, progress=tick,
             )
-        png_path = write_png(flat_figure(fm, master=master.value),
-                             png if png is not None else output.with_name(output.stem + ".falloff.png"))
+        png_path = plot_path(png, plot, output.with_name(output.stem + ".falloff.png"))
+        if png_path is not None:
+            png_path = write_png(flat_figure(fm, master=master.value), png_path)
         summary = fm.summary()
         if as_json:
             print_json({**summary, "output": str(path), "png": str(png_path)})
@@ -61,4 +65,4 @@ def register(app: typer.Typer) -> None:
                           f"{100 * fm.residual_rms[c]:.3f} %", "—" if prnu is None else f"{100 * prnu:.3f} %",
                           f"{fm.level_dn.get(c, float('nan')):.1f}")
         console.print(table)
-        console.print(f"wrote {path} and {png_path}")
+        console.print(f"wrote {path}" + (f" and {png_path}" if png_path else ""))

@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
-from camcal.cli.common import console, print_json, progress
+from camcal.cli.common import console, fraction, print_json, progress
 from camcal.dark import load_dark
 from camcal.errors import CamcalError
 from camcal.plots import response_figure, write_png
@@ -20,11 +20,12 @@ def register(app: typer.Typer) -> None:
     @app.command("linearity")
     def linearity_cmd(
         folder: Path = typer.Argument(..., help="Exposure series of a constant source (SESSION/linearity)."),
-        out: Path = typer.Option(..., "-o", "--out", help="Response file to write (.json)."),
+        out: Path = typer.Option(..., "-o", "--output", help="Response file to write (.json)."),
         roi: str | None = typer.Option(None, "--roi", help="Region x,y,w,h in photo pixels at full resolution "
                                        "(rounded outward to whole plane pixels)."),
-        roi_fraction: float | None = typer.Option(None, "--roi-fraction", help="A centred region holding this "
-                                                  "fraction of each plane's area (default 0.10)."),
+        roi_fraction: float | None = typer.Option(None, "--roi-fraction", parser=fraction, help="('32%' or 0.32) "
+                                                  "A centred region covering this fraction of each side "
+                                                  "(default 0.316: 10 % of the area)."),
         dark: Path | None = typer.Option(None, "--dark", help="Dark model (camcal dark -o ...) to subtract from RAW."),
         reference_iso: float | None = typer.Option(
             None, "--reference-iso", help="Reference ISO (default: most common)."

@@ -9,7 +9,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from camcal.borrowed_uncertainty import borrowed_table_rows, shipped_borrowed_uncertainty, shipped_table_sha256
-from camcal.cli.common import console, print_json, progress
+from camcal.cli.common import console, fraction, print_json, progress
 from camcal.emva import STANDARD, EmvaSheet, sheet_rows
 from camcal.errors import CamcalError
 from camcal.profile import CameraIdentity, contract, diff_profiles, load_profile, save_profile
@@ -33,7 +33,7 @@ def print_contract(c: dict, title: str = "profile") -> None:
     iso, n = c["reference"]["iso"], c["reference"]["f_number"]
     ref = (f"reference ISO {iso:g} f/{n:g}" if iso is not None and n is not None else
            "no reference setting (no stage normalised exposure)")
-    console.print(f"[bold]{title}[/bold]: {cam['make']} {cam['model']} (serial {cam['serial']}), "
+    console.print(f"[bold]{title}[/bold]: {cam['make']} {cam['model']} (serial {cam['serial'] or 'unknown'}), "
                   f"{sensor} {cam['width']}x{cam['height']}, {ref}, schema {c['schema_version']}")
     rows = []
     if c["dark"]:
@@ -62,6 +62,8 @@ def print_contract(c: dict, title: str = "profile") -> None:
         table.add_row(name, unit, *(_fmt((vals or {}).get(ch)) for ch in ("R", "G", "B")))
     console.print(table)
     stages = [k for k in ("dark", "flat", "response", "spectral_sensitivity") if c[k] is None]
+    if c["dark"] and all(v is None for v in (c["dark"].get("dark_current_dn_per_s") or {}).values()):
+        stages.insert(0, "dark current (bias frames only)")
     if stages:
         console.print(f"not calibrated: {', '.join(stages)}")
     for kind, m in ((c["response"] or {}).get("models") or {}).items():
@@ -226,7 +228,8 @@ def register(app: typer.Typer) -> None:
         dark: Path | None = typer.Option(None, "--dark", help="Dark model for the target photos (camcal dark)."),
         flat: Path | None = typer.Option(None, "--flat", help="Flat model for the target photos (camcal flat)."),
         make: str | None = typer.Option(None, help="Camera make of a new profile without photos."),
-        model: str | None = typer.Option(None, help="Camera model of a new profile without photos."),
+        model: str | None = typer.Option(None, "--camera-model", help="Camera model of a new profile without "
+                                         "photos."),
         size: str | None = typer.Option(None, help="Sensor size WIDTHxHEIGHT of a new profile without photos."),
         as_json: bool = typer.Option(False, "--json", help="Print the spectral source record as JSON."),
     ) -> None:
@@ -280,7 +283,8 @@ def register(app: typer.Typer) -> None:
     def diff_cmd(
         a: Path = typer.Argument(..., help="First profile."),
         b: Path = typer.Argument(..., help="Second profile."),
-        rel_tol: float = typer.Option(0.0, help="Ignore relative changes up to this size."),
+        rel_tol: float = typer.Option(0.0, parser=fraction, help="Ignore relative changes up to this size "
+                                      "('1%' or 0.01)."),
         as_json: bool = typer.Option(False, "--json", help="Print the differences as JSON."),
     ) -> None:
         """List what differs between two profiles (relative change of every number)."""

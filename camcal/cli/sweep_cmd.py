@@ -4,27 +4,23 @@ from __future__ import annotations
 
 import dataclasses
 import warnings
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
 import typer
 from rich.table import Table
 
-from camcal.cli.common import console, err_console, print_json, progress
+from camcal.cli.common import console, err_console, fraction, plot_path, print_json, progress
 from camcal.curve_library import with_layout
 from camcal.errors import CamcalError
+from camcal.manifest import session_defaults_for
 from camcal.plots import spectral_figure, write_png
 from camcal.region import Region
+from camcal.session import resolve_exposure
 from camcal.spectral import measure_sweep, read_sweep
 from camcal.spectral_files import write_spectacle_csv
 from camcal.sweep_means import sweep_means_sensitivity
-
-
-def _side_fraction(area_fraction: float) -> float:
-    """``--roi-fraction`` is a fraction of the area (as everywhere); the sweep's centred box takes one of each side."""
-    if not 0.0 < area_fraction <= 1.0:
-        raise CamcalError(f"--roi-fraction must be in (0, 1], got {area_fraction!r}")
-    return area_fraction ** 0.5
 
 
 def _means(means: Path, responsivity: Path | None, reduction: str, output: Path, png: Path | None,
@@ -55,6 +51,28 @@ def _means(means: Path, responsivity: Path | None, reduction: str, output: Path,
     console.print(f"wrote {output} (+ {output.stem}.meta.json) and {png_path}")
 
 
+def _frames_setting(folder: Path, rows) -> tuple[float, float]:
+    """The sweep frames' most common (ISO, f-number), from sweep.csv, the tags and session.toml: never a default.
+
+    Raises
+    ------
+    CamcalError
+        When a value is unknown, saying what to add.
+    """
+    defaults = session_defaults_for(folder)
+    seen: Counter = Counter()
+    for row in rows:
+        ref = resolve_exposure(row.path, row.overrides, defaults, "sweep.csv")
+        seen[(ref.iso, ref.f_number)] += 1
+    (iso, n), _ = seen.most_common(1)[0]
+    for value, what, column, option in ((iso, "ISO", "iso", "--reference-iso"),
+                                        (n, "f-number", "f_number", "--reference-f-number")):
+        if value is None:
+            raise CamcalError(f"the reference {what} is unknown: the sweep frames hold none (no tag, no {column} "
+                              f"column in sweep.csv, no session.toml); add one or pass {option}", folder)
+    return float(iso), float(n)
+
+
 def register(app: typer.Typer) -> None:
     @app.command("sweep")
     def sweep_cmd(
@@ -64,18 +82,23 @@ def register(app: typer.Typer) -> None:
                                     "<stem>.meta.json beside it."),
         dark: Path | None = typer.Option(None, "--dark", help="Dark model (camcal dark -o dark.json)."),
         flat: Path | None = typer.Option(None, "--flat", help="Flat model (camcal flat -o flat.json)."),
-        mode: str = typer.Option("absolute", help="absolute (DN s^-1 per W m^-2 sr^-1 at the reference setting) "
+        mode: str = typer.Option("absolute", "--sweep-mode", help="absolute (DN s^-1 per W m^-2 sr^-1 at the "
+                                 "reference setting) "
                                  "or relative (peak 1)."),
         roi: str | None = typer.Option(None, "--roi", help="Region x,y,w,h in photo pixels at full resolution "
                                        "(rounded outward to whole plane pixels)."),
-        roi_fraction: float | None = typer.Option(None, "--roi-fraction", help="A centred region holding this "
-                                                  "fraction of the area (default 0.04: a fifth of each side)."),
+        roi_fraction: float | None = typer.Option(None, "--roi-fraction", parser=fraction, help="('20%' or 0.2) "
+                                                  "A centred region covering this fraction of each side "
+                                                  "(default 0.2: 4 % of the area)."),
         deconvolve: bool = typer.Option(False, help="Remove the monochromator slit function (needs bandwidth_nm)."),
         slit: str = typer.Option("gaussian", help="Slit function shape for --deconvolve: gaussian or triangular."),
-        reference_iso: float = typer.Option(100.0, help="Reference ISO of the absolute result."),
-        reference_f_number: float = typer.Option(4.0, help="Reference f-number of the absolute result."),
-        png: Path | None = typer.Option(None, help="Plot of c(λ) (default <output stem>.png)."),
-        jobs: int = typer.Option(2, help="Decoding threads."),
+        reference_iso: float | None = typer.Option(None, help="Reference ISO of the absolute result (default: the "
+                                                   "sweep frames' most common ISO)."),
+        reference_f_number: float | None = typer.Option(None, help="Reference f-number of the absolute result "
+                                                        "(default: the sweep frames' most common f-number)."),
+        plot: bool = typer.Option(True, "--plot/--no-plot", help="Write the plot of c(λ) to <output stem>.png."),
+        png: Path | None = typer.Option(None, "--png", hidden=True, help="Deprecated: the plot's path."),
+        jobs: int = typer.Option(2, "--jobs", "-j", min=1, help="CPU cores to use (decoding threads)."),
         as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
         means: Path | None = typer.Option(None, "--means", help="A sweep measured elsewhere, as per-step channel "
                                           "means: a CSV wavelength_nm,state,R,G,B,reference (docs/spectral.md) or "
@@ -96,13 +119,16 @@ def register(app: typer.Typer) -> None:
             _means(means, responsivity, reduction, output, png, as_json)
             return
         if mode not in ("absolute", "relative"):
-            raise CamcalError(f"--mode must be absolute or relative, got {mode!r}")
+            raise CamcalError(f"--sweep-mode must be absolute or relative, got {mode!r}")
         if roi is not None and roi_fraction is not None:
             raise CamcalError("give --roi or --roi-fraction, not both")
-        region: Region | float | None = Region.parse(roi) if roi is not None else None
-        if roi_fraction is not None:  # measure_sweep takes a fraction of each side: the area's square root
-            region = _side_fraction(roi_fraction)
-        total = len(read_sweep(sweep))
+        region: Region | float | None = Region.parse(roi) if roi is not None else roi_fraction
+        rows = read_sweep(sweep)
+        total = len(rows)
+        if reference_iso is None or reference_f_number is None:
+            iso, n = _frames_setting(sweep, rows)
+            reference_iso = iso if reference_iso is None else reference_iso
+            reference_f_number = n if reference_f_number is None else reference_f_number
         with warnings.catch_warnings(record=True) as caught, progress() as bar:
             warnings.simplefilter("always")
             task = bar.add_task("sweep frames", total=total)
@@ -114,8 +140,9 @@ def register(app: typer.Typer) -> None:
         for msg in dict.fromkeys(" ".join(str(w.message).split()) for w in caught):
             err_console.print(f"camcal: warning: {msg}", soft_wrap=True, markup=False, highlight=False)
         write_spectacle_csv(result, output)
-        png_path = png or output.with_suffix(".png")
-        write_png(spectral_figure(result), png_path)
+        png_path = plot_path(png, plot, output.with_suffix(".png"))
+        if png_path is not None:
+            write_png(spectral_figure(result), png_path)
         summary = result.summary()
         if as_json:
             print_json({**summary, "output": str(output), "png": str(png_path)})
@@ -129,4 +156,4 @@ def register(app: typer.Typer) -> None:
                           f"{summary['effective_wavelength_nm'][ch]:.1f}",
                           f"{summary['effective_bandwidth_nm'][ch]:.1f}")
         console.print(table)
-        console.print(f"wrote {output} (+ {output.stem}.meta.json) and {png_path}")
+        console.print(f"wrote {output} (+ {output.stem}.meta.json)" + (f" and {png_path}" if png_path else ""))

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import typer
 
-from camcal.cli.common import console, progress
+from camcal.cli.common import console, one_output, progress
 from camcal.errors import CamcalError
 from camcal.spectra import WAVELENGTHS_NM, gaussian_line, planck_radiance
 from camcal.synth.camera import Scene, SyntheticCamera, preset
@@ -31,7 +31,8 @@ def register(app: typer.Typer) -> None:
 
     @synth.command("session")
     def session_cmd(
-        outdir: Path = typer.Argument(..., help="Session folder to create."),
+        outdir_arg: Path | None = typer.Argument(None, metavar="SESSION", help="Session folder to create (or -o)."),
+        outdir_opt: Path | None = typer.Option(None, "-o", "--output", help="Session folder to create."),
         preset_name: str = typer.Option("default", "--preset",
                                          help="Camera preset: default, imx296 (10-bit, sub-DN read noise, "
                                               "black 60, 1456x1088 BGGR), hot (0.3 % hot pixels that saturate "
@@ -53,6 +54,7 @@ def register(app: typer.Typer) -> None:
                                             help="No f-number in any file or manifest; one in session.toml."),
     ) -> None:
         """Write a whole calibration session (bias, dark, flat, linearity, sweep) with truth.json."""
+        outdir = one_output(outdir_arg, outdir_opt, "the session folder")
 
         chosen = tuple(s.strip() for s in stages.split(",") if s.strip())
         bad = [s for s in chosen if s not in STAGES]
@@ -84,7 +86,8 @@ def register(app: typer.Typer) -> None:
 
     @synth.command("photo")
     def photo_cmd(
-        out: Path = typer.Argument(..., help="Output file: .dng, .jpg or .heic."),
+        out_arg: Path | None = typer.Argument(None, metavar="FILE", help="Output file: .dng, .jpg or .heic (or -o)."),
+        out_opt: Path | None = typer.Option(None, "-o", "--output", help="Output file: .dng, .jpg or .heic."),
         scene: str = typer.Option("uniform", help="uniform (flat spectrum), line (monochromator), lamp (black body)."),
         radiance: float = typer.Option(0.02, help="uniform: W m-2 sr-1 nm-1; line: band W m-2 sr-1; lamp: peak."),
         wavelength: float = typer.Option(663.0, help="line centre, nm."),
@@ -115,6 +118,7 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Write one synthetic photo of a simple scene as DNG, JPEG or HEIC, optionally with its capture time
         and GPS position in the EXIF (--utc, --utc-offset, --gps)."""
+        out = one_output(out_arg, out_opt, "the output file")
         if gps is not None and utc is None:
             raise CamcalError("--gps needs --utc (the capture instant)")
         place = (place_time_from_text(utc, gps, utc_offset, write_offset=offset_tag, write_gps_time=gps_time)

@@ -43,7 +43,8 @@ def _model(kind: str, epsilon: str, albedo: float, cutoff_deg: float | None, vie
             raise CamcalError("cutoff angle must be between 0 and 90 degrees")
         return SeedModel(eps, albedo, float(cut))
     if kind not in ("refined", "lamp"):
-        raise CamcalError(f"unknown model {kind!r}; use seed, seed-first-order, refined or lamp")
+        raise CamcalError(f"unknown --water-model {kind!r}; use refined, lamp, seed or "
+                          "seed-first-order")
     if not 0 <= view_deg < 90:
         raise CamcalError(f"--view-deg must be from 0 to below 90 degrees (from nadir), got {view_deg!r}")
     if not 1 <= n_water < 3:
@@ -54,8 +55,8 @@ def _model(kind: str, epsilon: str, albedo: float, cutoff_deg: float | None, vie
             raise CamcalError(f"{name} must be a finite absorption >= 0 per m, got {value!r}")
     if kind == "lamp":
         if lamp_height is None or lamp_angle_deg is None:
-            raise CamcalError("--model lamp needs --lamp-height (above the water surface, e.g. 1m) and --lamp-angle "
-                              "(degrees from the vertical in air)")
+            raise CamcalError("--water-model lamp needs --lamp-height (above the water surface, e.g. 1m) and "
+                              "--lamp-angle (degrees from the vertical in air)")
         h = parse_length_m(lamp_height)
         if not 0.01 <= h <= 100:
             raise CamcalError(f"--lamp-height {lamp_height!r} is implausible: give 1 cm to 100 m")
@@ -195,29 +196,79 @@ def _band(m, profile, band_channel, illuminant, chlorophyll_csv, background_abso
     return band
 
 
-def _pixel_geometry(model: str, size: str, centre: str | None, direction_deg: float):
+def _pixel_geometry(model: str, size: str, centre: str | None, direction_deg: float, per_cell: int = 1):
+    """The per-pixel lamp geometry on the EXR's grid from options in photo pixels.
+
+    ``--disk-pixel-size`` is one photo pixel's size on the disk plane and ``--disk-centre-px`` the disk centre in
+    photo pixels (full resolution, as every pixel option); an EXR cell holds ``per_cell`` × ``per_cell`` photo
+    pixels, its centre at photo coordinate per_cell·i + (per_cell − 1)/2.
+    """
 
     if model != "lamp":
-        raise CamcalError("--disk-pixel-size (per-pixel geometry) is for --model lamp")
+        raise CamcalError("--disk-pixel-size (per-pixel geometry) is for --water-model lamp")
     if not centre:
-        raise CamcalError("--disk-pixel-size needs --disk-centre-px x,y (the disk centre in EXR pixels)")
+        raise CamcalError("--disk-pixel-size needs --disk-centre-px x,y (the disk centre in photo pixels)")
     try:
         cx, cy = (float(v) for v in centre.split(","))
     except ValueError:
         raise CamcalError(f"--disk-centre-px must be x,y in pixels, got {centre!r}") from None
     if not (np.isfinite(direction_deg) and np.isfinite(cx) and np.isfinite(cy)):
         raise CamcalError("--disk-centre-px and --lamp-direction must be finite numbers")
-    return PixelGeometry(parse_length_m(size), (cx, cy), float(direction_deg))
+    k = float(per_cell)
+    return PixelGeometry(parse_length_m(size) * k, ((cx - (k - 1) / 2) / k, (cy - (k - 1) / 2) / k),
+                         float(direction_deg))
 
 
 def _unc_summary(terms: dict, inputs: list) -> dict:
-    """Median of each σ_C term, the dominant one, and the inputs whose uncertainty was not stated."""
+    """Median of each σ_C term, the dominant one, and the inputs whose uncertainty was not stated.
+
+    Without the ratio's noise (``--relative-sigma`` or ``--sigma-channel``) there is no total: the stated
+    terms alone (often only the profile's c(λ)) would read like a measured σ_C. The summary then says
+    ``"total": null`` and lists what is missing.
+    """
 
     out = dominant(terms)
     missing = [q.name for q in inputs if not q.sigma > 0] + ([] if "ratio" in terms else ["ratio"])
     if missing:
         out["not_stated"] = missing  # these contribute nothing to σ_C: state them to include them
+    if "ratio" not in terms:
+        out["total"] = None
+        out["dominant"] = None
+        out["note"] = ("no total σ_C: the ratio's noise is not stated (give --relative-sigma, e.g. 1.5% or 0.015, "
+                       "or --sigma-channel R_unc)")
     return out
+
+
+def _total(terms: dict, inv) -> np.ndarray:
+    """σ_C per pixel from the terms; NaN (not stated) when the ratio's noise is not among them."""
+    if "ratio" not in terms:
+        return np.full(np.shape(inv.c_ug_per_L), np.nan)
+    return combine(terms) if terms else inv.sigma_ug_per_L
+
+
+def _none_valid(reasons: dict, roi: str | None, where: Path | None = None) -> CamcalError:
+    """The error for an inversion where no pixel (or no ratio) gave a concentration, reasons counted."""
+    counts = ", ".join(f"{k} {v}" for k, v in sorted(reasons.items(), key=lambda kv: -kv[1]))
+    hint = ""
+    if roi and reasons.get("outside_roi"):
+        hint = f"; check --roi {roi} (x,y,w,h in photo pixels at full resolution) covers the disk"
+    elif reasons.get("above_clear_water"):
+        hint = "; the ratio is brighter than clear water allows: check the depth, the --water-model and the images"
+    return CamcalError(f"no valid concentration: {counts}{hint}", where)
+
+
+def _fraction(text: str | None, what: str) -> float | None:
+    """A relative amount given as '1.5%' or as the fraction '0.015' (None stays None)."""
+    if text is None:
+        return None
+    t = text.strip()
+    try:
+        value = float(t[:-1]) / 100.0 if t.endswith("%") else float(t)
+    except ValueError:
+        raise CamcalError(f"cannot read {what} {text!r}: give a percentage (1.5%) or a fraction (0.015)") from None
+    if not (np.isfinite(value) and value >= 0):
+        raise CamcalError(f"{what} must be a finite number >= 0, got {text!r}")
+    return value
 
 
 def register(app: typer.Typer) -> None:
@@ -225,8 +276,10 @@ def register(app: typer.Typer) -> None:
     app.add_typer(water, name="water")
 
     common = dict(
-        model=typer.Option("seed", "--model", help="seed (eq. 10 exact), seed-first-order (eq. 11), refined, "
-                           "lamp (seed §4: point lamp over a tank)."),
+        model=typer.Option("refined", "--water-model", help="Water physics: refined (default: Fresnel surface, "
+                           "water absorption; the model for real photos), lamp (seed §4: point lamp over a tank), "
+                           "seed (eq. 10 exact: the seed's idealisation, no water, no surface; for its figures), "
+                           "seed-first-order (eq. 11). Old spelling: --model."),
         epsilon=typer.Option("seed", help="ε: '88L/g/cm', '78628L/mol/cm', or seed|porra1989|jeffrey-humphrey1975."),
         albedo=typer.Option(1.0, help="Disk albedo relative to the reference."),
         cutoff_deg=typer.Option(None, help="Cutoff angle θc, degrees (seed: π/2.1; refined: air-side sky cutoff)."),
@@ -296,13 +349,14 @@ def register(app: typer.Typer) -> None:
         reference: Path = typer.Option(None, help="EXR with the reference radiance (same channel)."),
         channel: str = typer.Option(None, help="EXR channel to read from both files (default L663; R with --profile)."),
         sigma_channel: str = typer.Option(None, help="EXR channel with the 1-σ radiance uncertainty (both files)."),
-        relative_sigma: float = typer.Option(None, help="Relative 1-σ uncertainty of the ratio (instead of maps)."),
+        relative_sigma: str = typer.Option(None, help="Relative 1-σ uncertainty of the ratio (instead of maps): "
+                                           "'1.5%' or the fraction '0.015'."),
         roi: str = typer.Option(None, "--roi", help="Region x,y,w,h in photo pixels at full resolution (rounded "
                                 "outward to the EXR's grid: half resolution for Bayer photos, from the EXR's "
                                 "'resolution' note; an EXR without one is taken at its own pixels); other "
                                 "pixels become NaN."),
         ratio: str = typer.Option(None, help="Numbers only: comma list of ratios; prints JSON."),
-        out: Path = typer.Option(None, "-o", "--out", help="Output EXR (chl_ug_per_L, chl_unc_ug_per_L, the σ "
+        out: Path = typer.Option(None, "-o", "--output", help="Output EXR (chl_ug_per_L, chl_unc_ug_per_L, the σ "
                                  "terms chl_unc_<term>_ug_per_L, reason)."),
         profile: Path = common["profile"], band_channel: str = common["band_channel"],
         illuminant: str = common["illuminant"], chlorophyll_csv: Path = common["chlorophyll_csv"],
@@ -312,10 +366,11 @@ def register(app: typer.Typer) -> None:
         background_absorption: float = common["background_absorption"], reflectance: str = common["reflectance"],
         transmittance: str = common["transmittance"], lamp_height: str = common["lamp_height"],
         lamp_angle: str = common["lamp_angle"], epsilon_unc: str = common["epsilon_unc"],
-        disk_pixel_size: str = typer.Option(None, help="lamp, EXR: size of one pixel on the disk plane (e.g. "
-                                            "'0.8mm'): invert each pixel with its own lamp geometry, not the "
-                                            "disk centre's (needs --disk-centre-px)."),
-        disk_centre_px: str = typer.Option(None, help="lamp, per pixel: the disk centre in EXR pixels, 'x,y'."),
+        disk_pixel_size: str = typer.Option(None, help="lamp, EXR: size of one photo pixel on the disk plane "
+                                            "(e.g. '0.4mm'): invert each pixel with its own lamp geometry, not "
+                                            "the disk centre's (needs --disk-centre-px)."),
+        disk_centre_px: str = typer.Option(None, help="lamp, per pixel: the disk centre in photo pixels at full "
+                                           "resolution, 'x,y'."),
         lamp_direction: float = typer.Option(180.0, help="lamp, per pixel: direction in the image from the disk "
                                              "centre toward the lamp, degrees from +x toward +y (180: left)."),
     ) -> None:
@@ -329,10 +384,9 @@ def register(app: typer.Typer) -> None:
         """
 
         d, d_sig = _depth_unc(depth)
-        if relative_sigma is not None and not (np.isfinite(relative_sigma) and relative_sigma >= 0):
-            raise CamcalError(f"--relative-sigma must be a finite number >= 0, got {relative_sigma!r}")
+        relative_sigma = _fraction(relative_sigma, "--relative-sigma")
         if model == "seed-first-order":
-            raise CamcalError("invert uses the exact models: choose --model seed, refined or lamp")
+            raise CamcalError("invert uses the exact models: choose --water-model refined, lamp or seed")
         m, inputs = _build(model, epsilon, albedo, cutoff_deg, view_deg, n_water, water_absorption,
                            background_absorption, reflectance, transmittance, lamp_height, lamp_angle, epsilon_unc)
         inputs = [Uncertain("depth", d, d_sig, "m"), *inputs]
@@ -355,7 +409,7 @@ def register(app: typer.Typer) -> None:
             else:
                 inv = invert_ratio(r, m, d, sigma_ln_ratio=relative_sigma)
             terms = all_terms(inv, m, d, inputs)
-            total = combine(terms) if terms else inv.sigma_ug_per_L
+            total = _total(terms, inv)
             print_json({**meta, "ratio": _json_list(r), "c_mol_per_L": _json_list(inv.c_mol_per_L),
                         "c_ug_per_L": _json_list(inv.c_ug_per_L), "sigma_ug_per_L": _json_list(total),
                         "sigma_terms_ug_per_L": {k: _json_list(v) for k, v in terms.items()},
@@ -365,6 +419,9 @@ def register(app: typer.Typer) -> None:
         if submerged is None or reference is None or out is None:
             raise CamcalError("give --submerged A.exr --reference B.exr -o chl.exr, or --ratio for numbers")
 
+        if sigma_channel and sigma_channel.endswith("_unc") and sigma_channel != f"{channel}_unc":
+            raise CamcalError(f"--sigma-channel {sigma_channel} is not the uncertainty of channel {channel}: give "
+                              f"{channel}_unc (camcal apply writes one per band: R_unc, G_unc, B_unc, L663_unc)")
         names = [channel] + ([sigma_channel] if sigma_channel else [])
         with progress() as bar:
             task = bar.add_task("inverting", total=3)
@@ -375,8 +432,8 @@ def register(app: typer.Typer) -> None:
                 raise CamcalError(f"is {w}x{h} pixels but the reference {reference.name} is {rw}x{rh}; the two images "
                                   "must have one size (same camera, same crop)", submerged)
             region = None
+            per_cell = pixels_per_output_cell(sub_meta.get("resolution")) or 1
             if roi:
-                per_cell = pixels_per_output_cell(sub_meta.get("resolution")) or 1
                 ys, xs = Region.parse(roi).window((h, w), per_cell, submerged)
                 region = (xs.start, ys.start, xs.stop - xs.start, ys.stop - ys.start)
                 meta["roi"] = {"photo_pixels": roi, "exr_pixels_x_y_w_h": list(region),
@@ -388,17 +445,20 @@ def register(app: typer.Typer) -> None:
             elif relative_sigma is not None:
                 kwargs = {"sigma_submerged": relative_sigma * np.abs(sub[channel].astype(float))}
             if disk_pixel_size is not None:
-                pg = _pixel_geometry(model, disk_pixel_size, disk_centre_px, lamp_direction)
+                pg = _pixel_geometry(model, disk_pixel_size, disk_centre_px, lamp_direction, per_cell)
                 kwargs["pixel_geometry"] = pg
                 meta["lamp_geometry"] = {"per_pixel": True, "metres_per_pixel": pg.metres_per_pixel,
                                          "disk_centre_px": list(pg.centre_px), "lamp_direction_deg": lamp_direction}
             elif model == "lamp":
                 meta["lamp_geometry"] = {"per_pixel": False, "note": "every pixel inverted with the disk centre's"}
             inv = invert_images(sub[channel], ref[channel], m, d, roi=region, **kwargs)
+            summary = inv.summary()
+            if not summary["valid"]:
+                raise _none_valid(summary["reasons"], roi, submerged)
             terms = all_terms(inv, m, d, inputs)
-            total = combine(terms) if terms else inv.sigma_ug_per_L
+            total = _total(terms, inv)
             bar.advance(task)
-            summary = {**inv.summary(), "uncertainty": _unc_summary(terms, inputs)}
+            summary = {**summary, "uncertainty": _unc_summary(terms, inputs)}
             meta.update({"channel": channel, "reasons": {r.name.lower(): int(r) for r in Reason},
                          "summary": summary})
             channels = {"chl_ug_per_L": inv.c_ug_per_L, "chl_unc_ug_per_L": total,
@@ -406,11 +466,11 @@ def register(app: typer.Typer) -> None:
                         "reason": inv.reason.astype(np.float32)}
             write_exr(out, channels, meta)
             bar.advance(task)
-        console.print(json.dumps(summary))
+        console.print(json.dumps(summary, ensure_ascii=False))
         console.print(f"wrote {out}")
 
     @water.command("simulate")
-    def simulate_cmd(out: Path = typer.Option(..., "-o", "--out", help="Output folder.")) -> None:
+    def simulate_cmd(out: Path = typer.Option(..., "-o", "--output", help="Output folder.")) -> None:
         """Reproduce the seed's §5 curves (CSV + PNG): the exact eq. 10 beside eq. 11 and the appendix's (k, q)
         model; and the table of C read by eq. 11 and the appendix (as written, corrected, solved) vs the truth."""
 

@@ -33,7 +33,7 @@ import dataclasses
 import json
 import tempfile
 from dataclasses import dataclass, field
-from datetime import datetime, timedelta
+from datetime import datetime
 from functools import cached_property
 from pathlib import Path
 
@@ -609,6 +609,3 @@ def save_truth(path: str | Path, truth: dict) -> Path:
 
     return atomic_write_text(path, json.dumps(truth, indent=1, sort_keys=True))
 
-
-def timestamps(start: datetime, n: int, step_s: float = 2.0) -> list[datetime]:
-    return [start + timedelta(seconds=i * step_s) for i in range(n)]

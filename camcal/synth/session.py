@@ -97,10 +97,6 @@ def _white_spectrum(temperature_k: float) -> np.ndarray:
     return b / b.max()
 
 
-def flat_scene(camera: SyntheticCamera, temperature_k: float) -> Scene:
-    return Scene.uniform(_white_spectrum(temperature_k))
-
-
 def exposure_for_level(
     camera: SyntheticCamera, spectrum: np.ndarray, level: float, iso: float, f_number: float
 ) -> float:

@@ -1,4 +1,4 @@
-"""Tone curves of the synthetic JPEG pipeline (and their inverses).
+"""Tone curves of the synthetic JPEG pipeline.
 
 References
 ----------
@@ -13,15 +13,10 @@ from camcal.errors import CamcalError
 
 
 def srgb_encode(x: np.ndarray) -> np.ndarray:
-    """sRGB opto-electronic transfer function, linear [0, 1] -> encoded [0, 1]."""
-    x = np.clip(x, 0.0, 1.0)
-    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
+    """sRGB opto-electronic transfer function, linear [0, 1] -> encoded [0, 1] (``colour.cctf_encoding``)."""
+    import colour  # lazy: colour-science takes ~1-2 s to import (benchmarks/RESULTS.md, Start-up)
 
-
-def srgb_decode(v: np.ndarray) -> np.ndarray:
-    """Inverse of :func:`srgb_encode`."""
-    v = np.clip(v, 0.0, 1.0)
-    return np.where(v <= 0.04045, v / 12.92, np.power((v + 0.055) / 1.055, 2.4))
+    return colour.cctf_encoding(np.clip(x, 0.0, 1.0), function="sRGB")
 
 
 def apply_tone(x: np.ndarray, tone: str, gamma: float = 1 / 2.2) -> np.ndarray:

@@ -575,7 +575,3 @@ class BandInverse:
         return Inversion(ug_per_L_to_mol_per_L(c), c, sig.reshape(r.shape), np.full(r.shape, np.nan),
                          reason.reshape(r.shape))
 
-
-def closed_form_of(model) -> ClosedForm:
-    """The closed form used for a geometry (re-exported for callers)."""
-    return model.closed_form()

@@ -70,7 +70,7 @@ class PixelGeometry:
 def _lamp_of(model) -> LampModel:
     lamp = getattr(model, "geometry", model)
     if not isinstance(lamp, LampModel):
-        raise CamcalError("per-pixel geometry is for the lamp model (--model lamp)")
+        raise CamcalError("per-pixel geometry is for the lamp model (--water-model lamp)")
     return lamp
 
 

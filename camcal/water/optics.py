@@ -79,16 +79,6 @@ def transmittance(theta_i_rad, n1: float = N_AIR, n2: float = N_WATER, method: s
     raise ValueError(f"unknown reflectance method {method!r}; use 'fresnel' or 'schlick'")
 
 
-def radiance_into_water(l_air, theta_air_rad, n: float = N_WATER, method: str = "fresnel"):
-    """Radiance just below the surface from sky radiance just above it: L_w = n² T L_air (the n² law)."""
-    return n * n * transmittance(theta_air_rad, N_AIR, n, method) * np.asarray(l_air, dtype=float)
-
-
-def radiance_out_of_water(l_water, theta_water_rad, n: float = N_WATER, method: str = "fresnel"):
-    """Radiance just above the surface from water radiance just below it: L_air = T L_w / n²."""
-    return transmittance(theta_water_rad, n, N_AIR, method) * np.asarray(l_water, dtype=float) / (n * n)
-
-
 @functools.lru_cache(maxsize=8)
 def gauss_legendre(nodes: int) -> tuple[np.ndarray, np.ndarray]:
     """Gauss-Legendre nodes and weights on [-1, 1] (cached)."""
