@@ -12,7 +12,9 @@ import secrets
 import signal
 import tempfile
 import threading
+import time
 from collections.abc import Iterator
+from glob import escape as glob_escape
 from pathlib import Path
 
 #: Temporary files of writes in progress (see :func:`remove_pending`).
@@ -38,7 +40,7 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     held = _hold_sigint()
     try:
         while True:
-            tmp_path = path.parent / f".{path.stem}.{secrets.token_hex(4)}.part{path.suffix}"
+            tmp_path = path.parent / f".{path.stem}.{os.getpid()}-{secrets.token_hex(4)}.part{path.suffix}"
             with _LOCK:
                 _PENDING.add(tmp_path)
             try:
@@ -119,6 +121,49 @@ def remove_pending() -> int:
             p.unlink()
             n += 1
     return n
+
+
+def clear_stale(path: str | Path) -> int:
+    """Remove the temporary files left beside ``path`` by writers that no longer run; returns how many.
+
+    A writer killed outright (SIGKILL, an out-of-memory killer, a scheduler) runs no cleanup and leaves its
+    ``.<stem>.<pid>-<random>.part<ext>`` file behind. A file whose writer's process id is not running on this
+    machine is stale; one whose writer still runs (a concurrent write) is kept. Files of the older name form
+    without a process id are stale when untouched for an hour.
+    """
+    path = Path(path)
+    n = 0
+    try:
+        candidates = list(path.parent.glob(f".{glob_escape(path.stem)}.*.part{glob_escape(path.suffix)}"))
+    except OSError:
+        return 0
+    for tmp in candidates:
+        middle = tmp.name[len(path.stem) + 2: -len(f".part{path.suffix}")]
+        pid_text, sep, _rand = middle.partition("-")
+        if sep and pid_text.isdigit():
+            stale = not _pid_running(int(pid_text))
+        else:
+            try:
+                stale = time.time() - tmp.stat().st_mtime > 3600.0
+            except OSError:
+                continue
+        if stale:
+            with contextlib.suppress(OSError):
+                tmp.unlink()
+                n += 1
+    return n
+
+
+def _pid_running(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OSError):
+        return True  # exists, owned by someone else (or cannot tell): keep the file
+    return True
 
 
 def _hold_sigint():

@@ -5,8 +5,8 @@ Behaviour
 - One EXR per photo, ``OUTDIR/<photo name>.exr`` (``IMG_1.dng`` -> ``IMG_1.dng.exr``, so a RAW and its
   JPEG twin do not collide), written atomically (temporary file + rename): a failed or interrupted photo
   leaves no file under its final name.
-- **Resumable**: a photo whose EXR exists, made with the same profile (content hash), wavelength and
-  estimator (read from the EXR header, no pixels), is skipped without being decoded. An EXR made
+- **Resumable**: a photo whose EXR exists, made with the same profile (content hash), wavelength,
+  estimator and precision (read from the EXR header, no pixels), is skipped without being decoded. An EXR made
   with other settings is redone.
 - A failing photo (damaged file, missing metadata, another camera) does not stop the batch; its
   one-line error is listed in the report (``apply_report.csv``) and the exit code is 1.
@@ -14,16 +14,26 @@ Behaviour
   to ``roi_stats.csv`` (skipped photos: read back from their EXR).
 - ``progress(done, total, result)`` is called in the caller's process as photos finish.
 
-Workers load the profile from its path once per process (a dask cluster needs the profile, the
-photos and the output folder on a shared file system).
+Workers load the profile from its path once per process, when they start (the pool's initializer), not
+per photo (a dask cluster needs the profile, the photos and the output folder on a shared file system).
+
+**Workers die with their parent.** A local pool's workers exit when the process that started them is gone,
+however it went (SIGKILL, an out-of-memory killer, a scheduler): on Linux the kernel sends them SIGKILL
+(``prctl(PR_SET_PDEATHSIG)``), elsewhere a thread of each worker polls its parent's process id. A write
+cut short this way leaves a temporary ``.part`` file; the rerun removes those of writers that no longer
+run (:func:`camcal.atomic.clear_stale`) and redoes the photos without a current EXR.
 """
 
 from __future__ import annotations
 
 import csv
+import ctypes
 import io
 import math
 import os
+import signal
+import sys
+import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, replace
@@ -38,7 +48,7 @@ from camcal.apply import (
     roi_mask,
     roi_statistics,
 )
-from camcal.atomic import atomic_write_text
+from camcal.atomic import atomic_write_text, clear_stale, remove_pending
 from camcal.camera_id import Sensor, could_match, sensor_of_profile
 from camcal.errors import CamcalError
 from camcal.exr import read_exr, read_exr_header, write_exr
@@ -46,7 +56,7 @@ from camcal.io import exposure_from_exif, folder_manifest, is_raw_path, list_fra
 from camcal.manifest import exposure_overrides
 from camcal.profile import load_profile
 from camcal.region import Region
-from camcal.threads import default_threads
+from camcal.threads import default_threads, usable_cores
 
 REPORT_CSV = "apply_report.csv"
 ROI_CSV = "roi_stats.csv"
@@ -142,6 +152,56 @@ def _plan(profile_path: str, options: BatchOptions, *, with_maps: bool = True):
     return plan
 
 
+PR_SET_PDEATHSIG = 1
+"""``prctl`` option (linux/prctl.h): the signal a process receives when the thread that made it exits."""
+PARENT_POLL_S = 0.5
+"""Seconds between two looks at the parent's process id (the fallback where there is no parent-death signal)."""
+
+
+def die_with_parent(parent_pid: int) -> str:
+    """Make this process exit when ``parent_pid``, its parent, is gone; returns how (``"pdeathsig"``/``"poll"``).
+
+    On Linux ``prctl(PR_SET_PDEATHSIG, SIGKILL)`` (the kernel kills this process when its parent dies); a
+    watcher thread polling :func:`os.getppid` every :data:`PARENT_POLL_S` s is started in every case, as the
+    portable fallback and to catch a parent that died before the signal was set (re-parented at once).
+    """
+    how = "poll"
+    if sys.platform.startswith("linux"):
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)  # the C library is loaded in every CPython process
+            if libc.prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0) == 0:
+                how = "pdeathsig"
+        except (OSError, AttributeError):
+            pass
+    if os.getppid() != parent_pid:  # the parent died before the signal was set
+        _orphaned()
+    threading.Thread(target=_watch_parent, args=(parent_pid,), name="camcal-parent-watch", daemon=True).start()
+    return how
+
+
+def _watch_parent(parent_pid: int) -> None:
+    while os.getppid() == parent_pid:
+        time.sleep(PARENT_POLL_S)
+    _orphaned()
+
+
+def _orphaned() -> None:
+    remove_pending()  # this worker's half-written files
+    os._exit(1)
+
+
+def _worker_init(parent_pid: int, profile_path: str, options: BatchOptions) -> None:
+    """A pool worker's start: die with the parent, then load the profile once (shared by all its photos).
+
+    A profile that fails to load here is left to fail per photo (one clear line each), not to break the pool.
+    """
+    die_with_parent(parent_pid)
+    try:
+        _plan(profile_path, options)
+    except Exception:  # noqa: BLE001 - reported by process_photo for every photo
+        pass
+
+
 def exr_header(path: Path) -> dict | None:
     """camcal attributes of an EXR header (no pixels), or None when it cannot be read (:func:`read_exr_header`)."""
     try:
@@ -159,7 +219,8 @@ def _is_current(out: Path, profile_sha256: str | None, options: BatchOptions) ->
     wl = meta.get("wavelength_nm")
     return (meta.get("profile_sha256") == profile_sha256 and meta.get("estimator") == options.estimator
             and isinstance(wl, int | float) and math.isclose(float(wl), options.wavelength_nm)
-            and (meta.get("options") or {}).get("filter_fwhm_nm") == options.filter_fwhm_nm)
+            and (meta.get("options") or {}).get("filter_fwhm_nm") == options.filter_fwhm_nm
+            and meta.get("exr_pixel_type") == ("half" if options.half else "float"))
 
 
 def _load_mask(options: BatchOptions):
@@ -336,7 +397,7 @@ def run_batch(
     outdir: str | Path,
     options: BatchOptions | None = None,
     *,
-    jobs: int = 1,
+    jobs: int | None = 1,
     scheduler: str | object | None = None,
     progress: Callable[[int, int, PhotoResult], None] | None = None,
 ) -> BatchReport:
@@ -348,7 +409,7 @@ def run_batch(
     photos : photo files and/or folders.
     outdir : output folder (created).
     options : :class:`BatchOptions`.
-    jobs : worker processes for the local pool (1: in this process).
+    jobs : worker processes for the local pool (1: in this process; None: the usable cores).
     scheduler : a dask.distributed scheduler address (``tcp://host:8786``), or a ``Client`` /
         ``LocalCluster`` object; None uses the local process pool.
     progress : ``progress(done, total, result)``.
@@ -360,6 +421,7 @@ def run_batch(
         a bad ROI/mask. Per-photo failures are reported, not raised.
     """
     options = options or BatchOptions()
+    jobs = usable_cores() if jobs is None else jobs
     outdir = Path(outdir)
     paths = expand_photos(photos)
     plan = preflight(profile_path, paths, options, with_maps=scheduler is None and jobs <= 1)
@@ -380,6 +442,7 @@ def run_batch(
     todo = []
     mask_image = _load_mask(options) if options.mask_path is not None else None
     for a in args:
+        clear_stale(output_path(a[0], a[2]))  # temporary files of a killed earlier run
         if _is_current(output_path(a[0], a[2]), plan.profile.content_sha256, options):
             done(_skip_current(a[0], a[2], options, mask_image))  # the header (and pixels for ROI statistics)
         else:
@@ -412,7 +475,8 @@ def _run_pool(args: list[tuple], jobs: int, done: Callable[[PhotoResult], None])
     from concurrent.futures.process import BrokenProcessPool
 
     ctx = multiprocessing.get_context("spawn")  # no fork of a process holding threads (progress bar, OIIO)
-    with ProcessPoolExecutor(max_workers=min(jobs, len(args)), mp_context=ctx) as pool:
+    with ProcessPoolExecutor(max_workers=min(jobs, len(args)), mp_context=ctx, initializer=_worker_init,
+                             initargs=(os.getpid(), args[0][1], args[0][3])) as pool:
         futures = {pool.submit(process_photo, *a): a for a in args}
         for fut in as_completed(futures):
             a = futures[fut]

@@ -185,6 +185,8 @@ def camcal_attributes(spec, path: str | Path) -> dict[str, object]:
 def read_exr_header(path: str | Path) -> dict[str, object]:
     """camcal's metadata of an EXR file from its header alone (no pixels are read); see :func:`camcal_attributes`.
 
+    The pixel type of the file (``"half"`` or ``"float"``) is added as ``exr_pixel_type``.
+
     Raises
     ------
     CamcalError
@@ -197,7 +199,8 @@ def read_exr_header(path: str | Path) -> dict[str, object]:
         oiio.geterror()
         raise CamcalError("cannot open as EXR (damaged or not an image)", path)
     try:
-        return camcal_attributes(inp.spec(), path)
+        spec = inp.spec()
+        return {**camcal_attributes(spec, path), "exr_pixel_type": str(spec.format)}
     finally:
         inp.close()
 

@@ -24,7 +24,8 @@ def register(app: typer.Typer) -> None:
                                                  help="narrowband: filter width, nm; L<λ0> then per nm."),
         line_fwhm: float | None = typer.Option(None, "--line-fwhm",
                                                help="narrowband: width of the light, nm (slit correction of c)."),
-        jobs: int = typer.Option(2, "--jobs", "-j", help="CPU cores to use (one worker process each)."),
+        jobs: int | None = typer.Option(None, "--jobs", "-j",
+                                        help="CPU cores to use (one worker process each); default: the usable cores."),
         dask_scheduler: str | None = typer.Option(None, "--dask-scheduler",
                                                   help="Run on a dask.distributed cluster (tcp://host:8786)."),
         roi: str | None = typer.Option(None, "--roi", help="Region x,y,w,h in photo pixels at full resolution "
@@ -32,7 +33,10 @@ def register(app: typer.Typer) -> None:
         mask: Path | None = typer.Option(None, "--mask", help="Mask image (non-zero = in): statistics."),
         allow_other_camera: bool = typer.Option(False, "--allow-other-camera",
                                                 help="Accept photos of another camera model than the profile's."),
-        half: bool = typer.Option(False, "--half", help="Store 16-bit half floats."),
+        precision: str = typer.Option("float", "--precision",
+                                      help="EXR pixels: float (32-bit, default) or half (16-bit; docs/apply.md "
+                                      "says when it is enough)."),
+        half: bool = typer.Option(False, "--half", hidden=True, help="Same as --precision half."),
         json_out: bool = typer.Option(False, "--json", help="Print the report as JSON."),
     ) -> None:
         """Apply a profile to photos: band radiance R, G, B and L<λ> with its uncertainty, as OpenEXR.
@@ -42,7 +46,10 @@ def register(app: typer.Typer) -> None:
 
         if roi is not None and mask is not None:
             raise CamcalError("give --roi or --mask, not both")
-        if jobs < 1:
+        if precision not in ("half", "float"):
+            raise CamcalError(f"--precision must be half or float, got {precision!r}")
+        half = half or precision == "half"
+        if jobs is not None and jobs < 1:
             raise CamcalError("--jobs must be at least 1")
         opts = BatchOptions(wavelength_nm=wavelength, estimator=estimator, filter_fwhm_nm=filter_fwhm,
                             line_fwhm_nm=line_fwhm, allow_other_camera=allow_other_camera,

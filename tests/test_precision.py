@@ -1,0 +1,48 @@
+"""``camcal apply --precision half|float`` (issue 28): the pixel type written, and half's rounding bound."""
+
+from __future__ import annotations
+
+import numpy as np
+import OpenImageIO as oiio
+
+from camcal.exr import read_exr
+from camcal.spectra import gaussian_line
+from camcal.synth.camera import Scene
+from tests.conftest import assert_one_line_error, run_cli
+
+
+def _pixel_type(path) -> str:
+    inp = oiio.ImageInput.open(str(path))
+    try:
+        return str(inp.spec().format)
+    finally:
+        inp.close()
+
+
+def test_precision_half_against_float(tmp_path, camera, profile_path):
+    photo = tmp_path / "photos" / "h.dng"
+    photo.parent.mkdir()
+    camera.write_dng(photo, Scene.uniform(1.3 * gaussian_line(663.0, 5.0)), exposure_s=0.02, iso=100, f_number=4.0,
+                     rng=np.random.default_rng(3))
+    for prec in ("float", "half"):
+        proc = run_cli("apply", profile_path, photo, "-o", tmp_path / prec, "--precision", prec, "--jobs", "1")
+        assert proc.returncode == 0, proc.stderr
+    f = tmp_path / "float" / "h.dng.exr"
+    h = tmp_path / "half" / "h.dng.exr"
+    assert _pixel_type(f) == "float" and _pixel_type(h) == "half"
+    cf, _ = read_exr(f)
+    ch, _ = read_exr(h)
+    for name in ("R", "G", "B", "L663"):
+        ok = np.isfinite(cf[name]) & (cf[name] > 6.2e-5)  # half's normal range: relative rounding holds there
+        rel = np.abs(ch[name][ok] / cf[name][ok] - 1)
+        # round to nearest with 11 significant bits: at most 2^-11 relative (plus float32's own 2^-24)
+        assert rel.max() <= 2.0**-11 * (1 + 1e-6)
+        assert rel.max() > 0  # it did round: the file is not a float file in disguise
+    # a float EXR is not current for a half run: redone, not skipped
+    proc = run_cli("apply", profile_path, photo, "-o", tmp_path / "float", "--precision", "half", "--jobs", "1")
+    assert proc.returncode == 0 and "1 written, 0 already done" in proc.stdout, proc.stdout + proc.stderr
+    assert _pixel_type(f) == "half"
+    bad = run_cli("apply", profile_path, photo, "-o", tmp_path / "x", "--precision", "double")
+    assert_one_line_error(bad, "--precision")
+
+
