@@ -265,6 +265,8 @@ def stack_darks(
         _check_stacks([st], bias_folder)
         return DarkStacks((), st, None, bias_folder, (), tuple(p.name for p in files))
     files, manifest = stage_files(dark)
+    bias_files, bias_manifest = stage_files(bias) if bias is not None else ([], {})
+    refuse_shared_frames(files, bias_files)  # before any frame is left out: a copy is refused, not set aside
     times = _exposure_times(dark, files, manifest)
     dark_folder = folder_of(dark)
     groups: dict[float, list[Path]] = {}
@@ -280,9 +282,7 @@ def stack_darks(
             warnings.warn(f"left out: {name}: {reason}", FrameLeftOut, stacklevel=2)
         groups = {t: g for t, g in groups.items() if t not in lone}
         files = [p for p in files if all(p.name != n for n, _ in left_out)]
-    bias_files, bias_manifest = stage_files(bias) if bias is not None else ([], {})
     bias_folder = folder_of(bias) if bias is not None else None
-    refuse_shared_frames(files, bias_files)
     if bias_folder is None and len(groups) < 2:
         if not groups:
             raise TooFewFrames("dark", "frames", 1, 0, path=dark_folder)

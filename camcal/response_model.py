@@ -235,6 +235,8 @@ class ResponseModel:
         (from :attr:`points`; [] when none saturated or the points were not kept)."""
         out: dict[str, None] = {}
         for pts in self.points.values():
+            if not isinstance(pts, dict):  # points are diagnostics: a profile may carry none for a channel
+                continue
             for name, sat in zip(pts.get("files") or (), pts.get("saturated") or (), strict=False):
                 if sat:
                     out[str(name)] = None

@@ -84,8 +84,8 @@ def test_cli_curves_list_and_unknown_camera(tmp_path):
     assert names == [c.name for c in list_cameras() if c.make == "Nikon"] and len(names) == 11
     shown = run_cli("curves", "list", "--search", "nikon")
     assert shown.returncode == 0 and "Nikon D5100" in shown.stdout and "Canon" not in shown.stdout
-    bad = run_cli("profile", "import-spectral", "--camera", "Canon EOS 5D Mark VII", "--make", "Canon", "--model",
-                  "x", "--size", "200x100", "-o", tmp_path / "x.camcal")
+    bad = run_cli("profile", "import-spectral", "--camera", "Canon EOS 5D Mark VII", "--make", "Canon",
+                  "--camera-model", "x", "--size", "200x100", "-o", tmp_path / "x.camcal")
     assert_one_line_error(bad)
     assert "closest: Canon EOS 5D Mark II, Canon EOS 5D Mark III, Canon EOS 5D Mark IV" in bad.stderr
 
@@ -246,7 +246,7 @@ def test_chi2_does_not_call_a_borrowed_curve_wrong_for_being_borrowed(tmp_path):
 def test_library_and_file_errors(tmp_path, canon_targets):
     with pytest.raises(CamcalError, match="not both"):
         import_spectral(tmp_path / "x.csv", library_camera="Nikon D5100", targets=canon_targets)
-    proc = run_cli("profile", "import-spectral", "-o", tmp_path / "y.camcal", "--make", "a", "--model", "b",
+    proc = run_cli("profile", "import-spectral", "-o", tmp_path / "y.camcal", "--make", "a", "--camera-model", "b",
                    "--size", "10x10")
     assert_one_line_error(proc)
     assert "give a curve file or --camera" in proc.stderr

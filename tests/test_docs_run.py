@@ -43,6 +43,9 @@ PLACEHOLDERS = (
     (r"--roi x,y,w,h", "--roi 172,108,40,40"),
     (r"--sigma-channel S\b", "--sigma-channel L663_unc"),
     (r"-o DIR\b", "-o sim"),
+    (r"\bold\.jpg\b", "survey/disk_reference.dng"),
+    (r"\bIMG_2682\.HEIC\b", str(Path(__file__).resolve().parents[1].parent / "shared" / "realdata" / "heic"
+                                 / "iphone7_IMG_2682.heic")),
 )
 
 #: Examples that are not run, by a fragment of the command, with the reason.
@@ -56,6 +59,10 @@ NOT_RUN = {
     "a dye spectrum (notebook 04 runs it on synthetic photos)",
     "camcal water invert ...": "an elided synopsis, not a command",
     "cam_abs.camcal": "shows the profile the import-spectral example writes",
+    "camcal secchi": "needs sunlit photos of a Secchi disk with their time and GPS (tests/test_field_water.py runs "
+    "camcal secchi end to end on rendered scenes, from DNG, JPEG and HEIC)",
+    "--means": "needs a sweep published as channel means (tests/test_sweep_means.py runs it on the open sweeps of "
+    "../shared/realdata/sweeps)",
 }
 
 

@@ -47,7 +47,7 @@ def register(app: typer.Typer) -> None:
                                 "position) or ZENITH,AZIMUTH in degrees (azimuth clockwise from north)."),
         utc_offset: str = typer.Option(None, help="--sun auto: the camera clock's offset from UTC, +HH:MM, for "
                                        "photos without GPS time or OffsetTimeOriginal."),
-        sun_unc: float = typer.Option(SUN_SIGMA_DEG, help="1-σ of the sun's zenith angle, degrees."),
+        sun_unc: float = typer.Option(SUN_SIGMA_DEG, "--sun-unc-deg", help="1-σ of the sun's zenith angle, degrees."),
         sky: str = typer.Option("clear", "--sky", help="clear (SPECTRL2 sun and sky) or overcast (diffuse only)."),
         sky_csv: Path = typer.Option(None, help="Measured sky: CSV wavelength_nm, direct_horizontal, "
                                      "diffuse_horizontal (instead of SPECTRL2)."),
