@@ -155,6 +155,8 @@ def clear_stale(path: str | Path) -> int:
 
 
 def _pid_running(pid: int) -> bool:
+    """Whether process ``pid`` still runs. A zombie (killed, not yet reaped by whoever adopted it) does not:
+    it will never finish its write, and ``kill(pid, 0)`` alone would call it alive."""
     if pid == os.getpid():
         return True
     try:
@@ -163,7 +165,11 @@ def _pid_running(pid: int) -> bool:
         return False
     except (PermissionError, OSError):
         return True  # exists, owned by someone else (or cannot tell): keep the file
-    return True
+    try:  # Linux: the state is the field after the parenthesised command name of /proc/<pid>/stat
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return True
+    return stat.rpartition(")")[2].split()[:1] not in (["Z"], ["X"])
 
 
 def _hold_sigint():

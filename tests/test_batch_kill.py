@@ -124,6 +124,25 @@ def test_clear_stale_keeps_running_writers(tmp_path):
     assert mine.exists() and other.exists() and not gone.exists()
 
 
+def test_clear_stale_removes_a_killed_writers_file_before_it_is_reaped(tmp_path):
+    """A killed worker adopted by a process that has not reaped it yet is a zombie: ``kill(pid, 0)`` still
+    succeeds, but it will never finish its write, so its temporary file is stale (a fresh-clone CI run
+    once kept one)."""
+    target = tmp_path / "a.exr"
+    pid = os.fork()
+    if pid == 0:
+        os._exit(0)
+    try:
+        deadline = time.monotonic() + 5.0
+        while _alive(pid) and time.monotonic() < deadline:
+            time.sleep(0.01)
+        zombie = tmp_path / f".a.{pid}-0123abcd.part.exr"
+        zombie.write_bytes(b"partial")
+        assert clear_stale(target) == 1 and not zombie.exists()
+    finally:
+        os.waitpid(pid, 0)
+
+
 def test_orphaned_worker_exits_by_itself(tmp_path):
     """A process that called die_with_parent exits when its parent is killed (the worker start-up rule)."""
     code = ("import os, subprocess, sys, time\n"
