@@ -56,7 +56,7 @@ def build(work: Path):
     from camcal.flat import FlatModel
     from camcal.frame import PLANES
     from camcal.profile import CameraIdentity, load_profile, save_profile
-    from camcal.spectra import gaussian_line
+    from camcal.reference_spectra import gaussian_line
     from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
     from camcal.synth.session import exposure_for_level
 

@@ -27,7 +27,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent
 sys.path.insert(0, str(ROOT.parent))
 
-from camcal.spectra import WAVELENGTHS_NM  # noqa: E402
+from camcal.reference_spectra import WAVELENGTHS_NM  # noqa: E402
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera, frame_rngs  # noqa: E402
 from camcal.synth.session import SessionPlan, _csv, sweep_shots  # noqa: E402
 

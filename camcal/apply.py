@@ -14,7 +14,7 @@ RAW (CFA planes R, G1, G2, B in DN)::
 Processed (JPEG/TIFF/PNG, 8 or 16 bit R, G, B)::
 
     lin     = response["processed"].linearise(values)   linear, 0..W scale, ∝ exposure
-    DN_raw  = A⁻¹ · lin                                 the profile's colour matrix (camcal.colour), or
+    DN_raw  = A⁻¹ · lin                                 the profile's colour matrix (camcal.colour_matrix), or
             = lin · k_i,  k_i = a_raw,i / a_jpeg,i      without one: a gain per channel (same linearity series)
     2x2 mean → half resolution, then flat, exposure and radiance as for RAW (no dark subtraction:
     the camera already removed black).
@@ -415,7 +415,7 @@ def _processed_signal(frame: Frame, plan: ApplyPlan, iso: float, notes: list[str
                      f"on files of white level {rp.white_level_dn:g} DN: values scaled by {scale:.6g}, assuming "
                      "the same tone curve at the other bit depth")
     lin = rp.linearise(values, white_level_dn=frame.white_level_dn).astype(np.float32)
-    if rp.colour_matrix is not None:  # r = A⁻¹ j: the camera's channel mixing undone (camcal.colour)
+    if rp.colour_matrix is not None:  # r = A⁻¹ j: the camera's channel mixing undone (camcal.colour_matrix)
         signal = binf(rp.colour_matrix.to_raw(lin))
         notes.append("processed file: RAW-equivalent signal through the profile's colour matrix (fitted on the "
                      "sweep's JPEG twins); valid with the white balance and picture style of the calibration")

@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from camcal.data import read_table
+from camcal.data import read_bundled_table
 from camcal.errors import CamcalError
 from camcal.frame import RGB
 from camcal.hashing import sha256_file
@@ -126,7 +126,7 @@ def derive_borrowed_uncertainty(pairs: Sequence[CurvePair], grid_nm: np.ndarray 
 
 def shipped_borrowed_uncertainty() -> BorrowedUncertainty:
     """The table shipped with camcal (``calibration_data/camera_curves/borrowed_curve_uncertainty.csv``)."""
-    header, values = read_table(TABLE)
+    header, values = read_bundled_table(TABLE)
     if header != ["wavelength_nm", "R", "G", "B"]:
         raise CamcalError(f"shipped table {TABLE} has columns {header}, expected wavelength_nm, R, G, B")
     return BorrowedUncertainty(values[:, 0], {ch: values[:, i + 1] for i, ch in enumerate(RGB)})

@@ -17,7 +17,7 @@ import numpy as np
 
 from camcal import __version__
 from camcal.camera_id import Sensor, match, preferred, sensor_of
-from camcal.colour import fit_colour_matrix, twin_pairs
+from camcal.colour_matrix import fit_colour_matrix, twin_pairs
 from camcal.dark import DarkOptions, dark_frame_check, fit_dark_stacks, stack_darks
 from camcal.dark_model import with_dead_pixels
 from camcal.emva import build_sheet

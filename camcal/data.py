@@ -18,7 +18,7 @@ def data_text(name: str) -> str:
         raise CamcalError(f"shipped data file {name!r} not found (broken install?)") from None
 
 
-def read_table(name: str) -> tuple[list[str], np.ndarray]:
+def read_bundled_table(name: str) -> tuple[list[str], np.ndarray]:
     """A shipped CSV as (column names, float array (rows, columns)); ``#`` lines are comments."""
     lines = [ln for ln in data_text(name).splitlines() if ln.strip() and not ln.startswith("#")]
     header = [h.strip() for h in lines[0].split(",")]

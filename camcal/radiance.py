@@ -53,7 +53,7 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 
 from camcal.errors import CamcalError
-from camcal.spectra import FWHM_TO_SIGMA, planck_radiance
+from camcal.reference_spectra import FWHM_TO_SIGMA, planck_radiance
 
 RGB = ("R", "G", "B")
 ESTIMATORS = ("narrowband", "smooth")

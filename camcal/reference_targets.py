@@ -49,6 +49,7 @@ from scipy.stats import median_abs_deviation
 
 from camcal import __version__
 from camcal.correct import Calibration, correct_frame
+from camcal.curve_files import FileFormat, as_absolute, read_numeric_table, read_spectral_file, resample
 from camcal.curve_library import Match, find_camera, library_curves, with_layout
 from camcal.dark_model import load_dark
 from camcal.errors import CamcalError
@@ -60,7 +61,6 @@ from camcal.io import load_frame
 from camcal.manifest import exposure_overrides, read_manifest, safe_member
 from camcal.profile import SCHEMA_VERSION, CalibrationProfile, CameraIdentity, Provenance
 from camcal.region import DEFAULT_ROI_FRACTION, Region, central_roi
-from camcal.spectral_files import FileFormat, as_absolute, read_spectral_file, read_table, resample
 from camcal.spectral_model import SpectralSensitivity
 
 TARGETS_CSV = "targets.csv"
@@ -177,7 +177,7 @@ class TargetSpectrum:
 
 def _column_file(path: Path, what: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """wavelength_nm, value, standard uncertainty (zeros when absent) from a 2- or 3-column table."""
-    _, data, _ = read_table(path)
+    _, data, _ = read_numeric_table(path)
     if data.shape[1] not in (2, 3):
         raise CamcalError(f"{what} file must have 2 or 3 columns (wavelength_nm, value[, uncertainty]), "
                           f"has {data.shape[1]}", path)
@@ -548,7 +548,7 @@ def import_spectral(
 
     Parameters
     ----------
-    curves_path : SPECTACLE CSV or plain table (:func:`camcal.spectral_files.read_spectral_file`); None with
+    curves_path : SPECTACLE CSV or plain table (:func:`camcal.curve_files.read_spectral_file`); None with
         ``library_camera``.
     library_camera : a camera of the bundled curve library (:mod:`camcal.curve_library`), or ``"auto"`` (the make
         and model of ``base``, else of the target photos); its relative curves carry the borrowed-curve

@@ -712,7 +712,7 @@ def mask_raw_clipped(processed: ExposureSeries, raw: ExposureSeries) -> Exposure
 
     A camera's colour matrix mixes the RAW channels before the tone curve, so once one RAW channel
     clips, every processed channel stops being proportional to the exposure, even far below 255
-    (``camcal.colour``). Without a RAW twin at the same exposure the frame is kept.
+    (``camcal.colour_matrix``). Without a RAW twin at the same exposure the frame is kept.
     """
     raw_clipped = (raw.clipped_fraction > SATURATED_PIXEL_FRACTION).any(axis=1)
     bad = np.zeros(len(processed.files), bool)

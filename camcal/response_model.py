@@ -1,7 +1,7 @@
 """The response model of seed eq. 12 (per channel, per kind of file), the JPEG colour matrix, and their files.
 
-Fitted by :mod:`camcal.response` (exposure series) and :mod:`camcal.colour` (the colour matrix from JPEG twins of a
-sweep); applied by :mod:`camcal.apply`.
+Fitted by :mod:`camcal.response` (exposure series) and
+:mod:`camcal.colour_matrix` (the colour matrix from JPEG twins of a sweep); applied by :mod:`camcal.apply`.
 """
 
 from __future__ import annotations
@@ -158,7 +158,7 @@ class ResponseModel:
     points: dict = field(default_factory=dict)
     colour_matrix: ColourMatrix | None = None
     """Processed only: how the camera mixes RAW R, G, B into the linearised processed channels
-    (:mod:`camcal.colour`, fitted from the sweep's JPEG twins); None when not measured."""
+    (:mod:`camcal.colour_matrix`, fitted from the sweep's JPEG twins); None when not measured."""
 
     # -- use -----------------------------------------------------------------------------------------------------
     def linear_gain_dn_per_s(self, channel: str) -> float:

@@ -39,7 +39,7 @@ References
 ----------
 Burggraaff, O. et al. (2019). Standardized spectral and radiometric calibration
 of consumer cameras. Optics Express 27(14), 19075 (SPECTACLE; its CSV layout is
-read and written by :mod:`camcal.spectral_files`).
+read and written by :mod:`camcal.curve_files`).
 Hansen, P. C. (2010). Discrete Inverse Problems. SIAM (Tikhonov, GCV).
 """
 

@@ -1,7 +1,7 @@
 """The spectral sensitivity c(λ) of a camera and its serialisation.
 
 Measured by :mod:`camcal.spectral` (the stored convention, finite bandwidth, is described there), imported by
-:mod:`camcal.spectral_files`, or taken from the curve library.
+:mod:`camcal.curve_files`, or taken from the curve library.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from scipy.interpolate import CubicSpline
 
 from camcal.errors import CamcalError
 from camcal.frame import PLANES, RGB
-from camcal.spectra import FWHM_TO_SIGMA
+from camcal.reference_spectra import FWHM_TO_SIGMA
 from camcal.store import to_jsonable
 
 DEFAULT_REFERENCE_ISO = 100.0
@@ -59,7 +59,7 @@ class SpectralSensitivity:
         Warnings raised while measuring (skipped frames...).
     source : dict or None
         Where the curves came from and how their absolute scale was set
-        (:mod:`camcal.spectral_files`, :mod:`camcal.reference_targets`): ``kind``
+        (:mod:`camcal.curve_files`, :mod:`camcal.reference_targets`): ``kind``
         ``sweep`` | ``imported`` | ``reference_targets``, the source ``file`` and
         its ``sha256``, ``absolute_scale``. None: measured by :func:`camcal.spectral.measure_sweep`
         (profiles written before the field existed).

@@ -53,11 +53,11 @@ from typing import Literal
 
 import numpy as np
 
+from camcal.curve_files import read_numeric_table
 from camcal.errors import CamcalError
 from camcal.frame import RGB
 from camcal.hashing import sha256_file
 from camcal.manifest import read_text_file, safe_member
-from camcal.spectral_files import read_table
 from camcal.spectral_model import RELATIVE_UNITS, SpectralSensitivity
 
 Method = Literal["camcal", "publisher"]
@@ -121,7 +121,7 @@ class SweepReduction:
 def read_responsivity(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """``wavelength_nm, responsivity`` (two columns, increasing wavelengths, responsivity ≥ 0)."""
     path = Path(path)
-    _, data, _ = read_table(path)
+    _, data, _ = read_numeric_table(path)
     if data.shape[1] != 2 or data.shape[0] < 2:
         raise CamcalError(f"responsivity file must have 2 columns (wavelength_nm, responsivity) and 2 rows or more, "
                           f"has {data.shape[1]} columns", path)
@@ -133,7 +133,7 @@ def read_responsivity(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _numbers(path: Path, what: str, columns: int) -> np.ndarray:
-    _, data, _ = read_table(path)
+    _, data, _ = read_numeric_table(path)
     if data.shape[1] != columns:
         raise CamcalError(f"{what} must have {columns} column{'s' if columns > 1 else ''}, has {data.shape[1]}", path)
     return data

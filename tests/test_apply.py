@@ -20,8 +20,8 @@ from camcal.exr import read_exr
 from camcal.io import load_frame
 from camcal.profile import load_profile
 from camcal.radiance import radiance_model, smooth_error_table
+from camcal.reference_spectra import WAVELENGTHS_NM, gaussian_line, planck_radiance
 from camcal.region import Region
-from camcal.spectra import WAVELENGTHS_NM, gaussian_line, planck_radiance
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
 from camcal.synth.session import exposure_for_level
 from tests.conftest import assert_one_line_error, run_cli

@@ -19,7 +19,7 @@ import pytest
 
 from camcal.atomic import clear_stale
 from camcal.exr import read_exr
-from camcal.spectra import gaussian_line
+from camcal.reference_spectra import gaussian_line
 from camcal.synth.camera import Scene
 from tests.conftest import run_cli
 

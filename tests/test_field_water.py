@@ -16,7 +16,7 @@ from camcal.apply import apply_prepared, prepare
 from camcal.errors import CamcalError
 from camcal.io import load_frame
 from camcal.profile import load_profile
-from camcal.spectra import WAVELENGTHS_NM
+from camcal.reference_spectra import WAVELENGTHS_NM
 from camcal.sun import sun_position
 from camcal.synth.exif import PlaceTime
 from camcal.synth.sunlit import SunSky, sunlit_scenes, write_sunlit_pair

@@ -21,7 +21,7 @@ from camcal.frame import PLANES, Exposure
 from camcal.io import load_frame
 from camcal.profile import load_profile
 from camcal.radiance import radiance_model
-from camcal.spectra import gaussian_line
+from camcal.reference_spectra import gaussian_line
 from camcal.stack import StackResult
 from camcal.synth.camera import Scene
 from camcal.synth.session import exposure_for_level

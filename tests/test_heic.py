@@ -24,8 +24,8 @@ from camcal.exr import read_exr
 from camcal.inspect import describe
 from camcal.io import is_raw_path, load_frame
 from camcal.profile import load_profile, save_profile
+from camcal.reference_spectra import WAVELENGTHS_NM, gaussian_line
 from camcal.response import fit_response
-from camcal.spectra import WAVELENGTHS_NM, gaussian_line
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
 from camcal.synth.heic import write_heic
 from camcal.synth.session import exposure_for_level

@@ -17,7 +17,7 @@ import rawpy
 from camcal.calibrate import calibrate_session
 from camcal.exr import read_exr
 from camcal.profile import contract, save_profile
-from camcal.spectra import WAVELENGTHS_NM, planck_radiance
+from camcal.reference_spectra import WAVELENGTHS_NM, planck_radiance
 from camcal.synth.camera import LINEAR_FROM_PLANES, Scene, SensorParams, SyntheticCamera, preset
 from camcal.synth.session import SessionPlan, write_session
 from tests.conftest import assert_one_line_error, run_cli

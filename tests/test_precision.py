@@ -6,7 +6,7 @@ import numpy as np
 import OpenImageIO as oiio
 
 from camcal.exr import read_exr
-from camcal.spectra import gaussian_line
+from camcal.reference_spectra import gaussian_line
 from camcal.synth.camera import Scene
 from tests.conftest import assert_one_line_error, run_cli
 

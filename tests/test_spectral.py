@@ -20,9 +20,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from camcal.curve_files import SPECTACLE_HEADER, read_spectacle_csv, write_spectacle_csv
 from camcal.errors import CamcalError, TooFewFrames
 from camcal.frame import PLANES
-from camcal.spectra import WAVELENGTHS_NM, gaussian_line
+from camcal.reference_spectra import WAVELENGTHS_NM, gaussian_line
 from camcal.spectral import (
     LeftOutWarning,
     SpectralSensitivity,
@@ -31,7 +32,6 @@ from camcal.spectral import (
     measure_sweep,
     merge_sweeps,
 )
-from camcal.spectral_files import SPECTACLE_HEADER, read_spectacle_csv, write_spectacle_csv
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
 from camcal.synth.session import SessionPlan, write_session
 from tests.conftest import assert_one_line_error, run_cli

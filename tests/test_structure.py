@@ -152,7 +152,7 @@ def test_every_declared_dependency_is_imported_by_camcal(dist):
 
 
 # the fitting code of each stage; a model module (camcal.<stage>_model) holds what the stage's results are
-FITTING_MODULES = ("camcal.dark", "camcal.flat", "camcal.response", "camcal.spectral", "camcal.colour",
+FITTING_MODULES = ("camcal.dark", "camcal.flat", "camcal.response", "camcal.spectral", "camcal.colour_matrix",
                    "camcal.emva", "camcal.calibrate", "camcal.stack", "camcal.sweep_means")
 MODEL_MODULES = ("dark_model", "flat_model", "response_model", "spectral_model", "emva_model", "blocks")
 

@@ -29,7 +29,7 @@ import pytest
 from camcal.errors import CamcalError
 from camcal.io import load_frame, read_photo_metadata
 from camcal.manifest import read_session_defaults
-from camcal.spectra import WAVELENGTHS_NM
+from camcal.reference_spectra import WAVELENGTHS_NM
 from camcal.sun import (
     SOURCE_GPS,
     SOURCE_OFFSET,

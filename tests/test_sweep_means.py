@@ -13,10 +13,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from camcal.curve_files import read_spectacle_csv
 from camcal.errors import CamcalError
 from camcal.profile import load_profile
-from camcal.spectra import camera_sensitivities
-from camcal.spectral_files import read_spectacle_csv
+from camcal.reference_spectra import camera_sensitivities
 from camcal.sweep_means import read_means_csv, read_open_sweep, reduce_sweep
 from tests.conftest import assert_one_line_error, run_cli
 

@@ -11,7 +11,7 @@ from scipy.ndimage import binary_erosion
 
 from camcal.errors import CamcalError
 from camcal.io import load_frame
-from camcal.spectra import WAVELENGTHS_NM
+from camcal.reference_spectra import WAVELENGTHS_NM
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
 from camcal.synth.tank import (
     TankSetup,

@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from camcal.spectra import WAVELENGTHS_NM, gaussian_line
+from camcal.reference_spectra import WAVELENGTHS_NM, gaussian_line
 from camcal.water.band import BandModel, bricaud_1998, solvent_spectrum
 from camcal.water.invert import Reason, invert_images, invert_ratio, tau_newton, tau_table
 from camcal.water.models import RefinedModel, SeedModel

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from scipy.integrate import quad
 
 from camcal.errors import CamcalError
-from camcal.spectra import WAVELENGTHS_NM
+from camcal.reference_spectra import WAVELENGTHS_NM
 from camcal.synth.camera import SensorParams, SyntheticCamera
 from camcal.water.band import BandModel, illuminant_spectrum
 from camcal.water.invert import Reason, invert_ratio

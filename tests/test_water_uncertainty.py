@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from camcal.exr import read_exr, write_exr
-from camcal.spectra import WAVELENGTHS_NM
+from camcal.reference_spectra import WAVELENGTHS_NM
 from camcal.synth.camera import SensorParams, SyntheticCamera
 from camcal.water.band import BandModel, illuminant_spectrum
 from camcal.water.models import LampModel, RefinedModel

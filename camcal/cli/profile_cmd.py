@@ -10,11 +10,11 @@ from rich.table import Table
 
 from camcal.borrowed_uncertainty import borrowed_table_rows, shipped_borrowed_uncertainty, shipped_table_sha256
 from camcal.cli.common import console, fraction, print_json, progress
+from camcal.curve_files import write_spectacle_csv
 from camcal.emva_model import STANDARD, EmvaSheet, sheet_rows
 from camcal.errors import CamcalError
 from camcal.profile import CameraIdentity, contract, diff_profiles, load_profile, save_profile
 from camcal.reference_targets import import_spectral
-from camcal.spectral_files import write_spectacle_csv
 from camcal.spectral_model import describe_origin
 
 

@@ -12,6 +12,7 @@ import typer
 from rich.table import Table
 
 from camcal.cli.common import console, err_console, fraction, plot_path, print_json, progress
+from camcal.curve_files import write_spectacle_csv
 from camcal.curve_library import with_layout
 from camcal.errors import CamcalError
 from camcal.manifest import session_defaults_for
@@ -19,7 +20,6 @@ from camcal.plots import spectral_figure, write_png
 from camcal.region import Region
 from camcal.session import resolve_exposure
 from camcal.spectral import measure_sweep, read_sweep
-from camcal.spectral_files import write_spectacle_csv
 from camcal.sweep_means import sweep_means_sensitivity
 
 

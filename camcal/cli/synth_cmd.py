@@ -9,7 +9,7 @@ import typer
 
 from camcal.cli.common import console, one_output, progress
 from camcal.errors import CamcalError
-from camcal.spectra import WAVELENGTHS_NM, gaussian_line, planck_radiance
+from camcal.reference_spectra import WAVELENGTHS_NM, gaussian_line, planck_radiance
 from camcal.synth.camera import Scene, SyntheticCamera, preset
 from camcal.synth.exif import place_time_from_text
 from camcal.synth.messy import plant_problems

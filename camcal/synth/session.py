@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from camcal.atomic import atomic_write_text
-from camcal.spectra import WAVELENGTHS_NM, gaussian_line, planck_radiance
+from camcal.reference_spectra import WAVELENGTHS_NM, gaussian_line, planck_radiance
 from camcal.synth.camera import Scene, SyntheticCamera, frame_rngs, save_truth
 
 STAGES = ("bias", "dark", "flat", "linearity", "sweep")
@@ -58,7 +58,7 @@ class SessionPlan:
     """The camera's 3x3 colour matrix for JPEGs (camera RGB → output RGB); None: no mixing."""
     sweep_jpeg: bool = True
     """Also write a JPEG twin (``<stem>.jpg``, same exposure) of the first sweep frame at each wavelength:
-    the chromaticities from which :mod:`camcal.colour` fits the JPEG colour matrix."""
+    the chromaticities from which :mod:`camcal.colour_matrix` fits the JPEG colour matrix."""
     sweep_start_nm: float = 400.0
     sweep_stop_nm: float = 700.0
     sweep_step_nm: float = 5.0

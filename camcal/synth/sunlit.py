@@ -42,9 +42,9 @@ from pathlib import Path
 
 import numpy as np
 
-from camcal.data import read_table
+from camcal.data import read_bundled_table
 from camcal.errors import CamcalError
-from camcal.spectra import WAVELENGTHS_NM
+from camcal.reference_spectra import WAVELENGTHS_NM
 from camcal.synth.camera import Scene, SyntheticCamera, save_truth
 from camcal.synth.exif import PlaceTime
 from camcal.synth.secchi import disk_weight, suggest_exposure_s
@@ -70,8 +70,8 @@ def _fresnel_r(cos_i, n1: float, n2: float):
 
 @functools.lru_cache(maxsize=1)
 def _tables():
-    _, pf = read_table("water_absorption_pope_fry_1997.csv")
-    hdr, br = read_table("chlorophyll_a_bricaud_1998.csv")
+    _, pf = read_bundled_table("water_absorption_pope_fry_1997.csv")
+    hdr, br = read_bundled_table("chlorophyll_a_bricaud_1998.csv")
     return pf[:, 0], pf[:, 1], br[:, 0], br[:, hdr.index("A_ph_m2_per_mg")], br[:, hdr.index("E_ph")]
 
 

@@ -44,9 +44,9 @@ from pathlib import Path
 import numpy as np
 
 from camcal.atomic import atomic_write_text
-from camcal.data import read_table
+from camcal.data import read_bundled_table
 from camcal.errors import CamcalError
-from camcal.spectra import WAVELENGTHS_NM
+from camcal.reference_spectra import WAVELENGTHS_NM
 from camcal.synth.camera import Scene, SyntheticCamera, save_truth
 from camcal.synth.secchi import disk_weight, suggest_exposure_s
 from camcal.water.band import ChlorophyllAbsorption, solvent_spectrum
@@ -90,7 +90,7 @@ def write_dye_absorbance_csv(path: str | Path, *, concentration_mg_per_L: float 
 def lamp_spectrum_W_sr_nm(wavelengths_nm: np.ndarray = WAVELENGTHS_NM,
                           intensity_560: float = LAMP_INTENSITY_560_W_SR_NM) -> np.ndarray:
     """Radiant intensity I(λ) of the lamp, W sr⁻¹ nm⁻¹: the shipped 3200 K shape scaled at 560 nm."""
-    _, v = read_table("lamp_3200K.csv")
+    _, v = read_bundled_table("lamp_3200K.csv")
     rel = np.interp(np.asarray(wavelengths_nm, float), v[:, 0], v[:, 1])
     return rel * intensity_560 / float(np.interp(560.0, v[:, 0], v[:, 1]))
 

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from camcal.atomic import atomic_write_text
-from camcal.spectra import WAVELENGTHS_NM, planck_radiance
+from camcal.reference_spectra import WAVELENGTHS_NM, planck_radiance
 from camcal.synth.camera import Scene, SyntheticCamera, frame_rngs
 from camcal.synth.session import exposure_for_level
 

@@ -31,11 +31,11 @@ import numpy as np
 from scipy.interpolate import CubicHermiteSpline
 from scipy.special import expn
 
-from camcal.data import read_table
+from camcal.data import read_bundled_table
 from camcal.errors import CamcalError
 from camcal.manifest import read_text_file
 from camcal.profile import load_profile
-from camcal.spectra import planck_radiance
+from camcal.reference_spectra import planck_radiance
 from camcal.water.invert import CHUNK, Inversion, Reason, _run_chunks
 from camcal.water.models import ClosedForm, RefinedModel, SeedModel, form_at
 from camcal.water.purewater import pure_water_absorption_per_m
@@ -77,7 +77,7 @@ class ChlorophyllAbsorption:
 def bricaud_1998(kind: str = "ph") -> ChlorophyllAbsorption:
     """Bricaud et al. (1998) A(λ), E(λ), 400-700 nm: ``kind`` 'ph' (phytoplankton) or 'p' (all particles)."""
 
-    header, v = read_table("chlorophyll_a_bricaud_1998.csv")
+    header, v = read_bundled_table("chlorophyll_a_bricaud_1998.csv")
     a = v[:, header.index(f"A_{kind}_m2_per_mg")]
     e = v[:, header.index(f"E_{kind}")]
     return ChlorophyllAbsorption(v[:, 0], a, e, "Bricaud et al. 1998 (a*_" + kind + ")")
@@ -391,7 +391,7 @@ def illuminant_spectrum(name: str | Path, wavelengths_nm) -> np.ndarray | None:
     if key in ("flat", "equal", "e", "none"):
         return None
     if key in LAMP_NAMES:
-        header, v = read_table("lamp_3200K.csv")
+        header, v = read_bundled_table("lamp_3200K.csv")
         s = np.interp(wl, v[:, 0], v[:, 1], left=np.nan, right=np.nan)
     elif re.fullmatch(r"\d+(\.\d*)?k", key):
         t = float(key[:-1])

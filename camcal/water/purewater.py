@@ -17,7 +17,7 @@ import functools
 
 import numpy as np
 
-from camcal.data import read_table
+from camcal.data import read_bundled_table
 
 POPE_FRY_FILE = "water_absorption_pope_fry_1997.csv"
 
@@ -26,7 +26,7 @@ POPE_FRY_FILE = "water_absorption_pope_fry_1997.csv"
 def pope_fry_1997() -> tuple[np.ndarray, np.ndarray]:
     """The table as (wavelength_nm, a_w_per_m) arrays (read-only copies)."""
 
-    header, v = read_table(POPE_FRY_FILE)
+    header, v = read_bundled_table(POPE_FRY_FILE)
     wl = v[:, header.index("wavelength_nm")].copy()
     a = v[:, header.index("a_w_per_m")].copy()
     wl.flags.writeable = False

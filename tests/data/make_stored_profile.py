@@ -17,7 +17,7 @@ from camcal.apply import apply
 from camcal.calibrate import calibrate_session
 from camcal.io import load_frame
 from camcal.profile import load_profile, save_profile
-from camcal.spectra import planck_radiance
+from camcal.reference_spectra import planck_radiance
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
 from camcal.synth.session import SessionPlan, write_session
 

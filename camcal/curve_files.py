@@ -98,7 +98,7 @@ def write_spectacle_csv(s: SpectralSensitivity, path: str | Path) -> Path:
 
 
 # ---- reading tables ---------------------------------------------------------------------------------------
-def read_table(path: Path) -> tuple[list[str] | None, np.ndarray, str]:
+def read_numeric_table(path: Path) -> tuple[list[str] | None, np.ndarray, str]:
     """Numbers of a delimited text table and its column names when it names them.
 
     Names come from the last ``#`` comment line before the numbers (SPECTACLE's header) or from a first
@@ -247,7 +247,7 @@ def read_spectacle_csv(path: str | Path) -> SpectralSensitivity:
     the metadata file the result is ``relative`` with unknown bandwidth.
     """
     path = Path(path)
-    names, data, delim = read_table(path)
+    names, data, delim = read_numeric_table(path)
     if delim != "comma":
         raise CamcalError("is not comma-separated; SPECTACLE's files are (use the plain reader for .dat)", path)
     if names is not None:
@@ -268,7 +268,7 @@ def read_curve_table(path: str | Path) -> SpectralSensitivity:
     are. The result is ``relative``.
     """
     path = Path(path)
-    names, data, _ = read_table(path)
+    names, data, _ = read_numeric_table(path)
     cols = _columns_by_name(names, data, path) if names is not None else _columns_by_position(
         data, path, "a plain curve table")
     return _sensitivity(cols, path, [])
@@ -287,7 +287,7 @@ def read_spectral_file(path: str | Path, fmt: FileFormat = "auto") -> tuple[Spec
         return read_curve_table(path), "plain"
     if fmt != "auto":
         raise CamcalError(f"unknown curve file format {fmt!r}; use auto, spectacle or plain")
-    names, data, delim = read_table(path)
+    names, data, delim = read_numeric_table(path)
     spectacle = delim == "comma" and (
         (names is not None and [n.strip() for n in names] == list(SPECTACLE_COLUMNS))
         or (names is None and data.shape[1] == len(SPECTACLE_COLUMNS)))

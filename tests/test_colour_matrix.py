@@ -1,4 +1,4 @@
-"""The JPEG colour matrix (camcal.colour): a camera that mixes its channels before the tone curve.
+"""The JPEG colour matrix (camcal.colour_matrix): a camera that mixes its channels before the tone curve.
 
 Truth: the synthetic camera renders its JPEGs as tone(M · linear RAW) with the matrix M below (rows sum
 to 1: white stays white; negative off-diagonals as in real cameras' camera-RGB → sRGB matrices). The
@@ -21,11 +21,11 @@ import pytest
 
 from camcal.apply import apply
 from camcal.calibrate import calibrate_session
-from camcal.colour import ColourMatrix, fit_colour_matrix, twin_pairs
+from camcal.colour_matrix import ColourMatrix, fit_colour_matrix, twin_pairs
 from camcal.errors import CamcalError
 from camcal.io import load_frame
 from camcal.profile import load_profile, save_profile
-from camcal.spectra import WAVELENGTHS_NM, planck_radiance
+from camcal.reference_spectra import WAVELENGTHS_NM, planck_radiance
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
 from camcal.synth.session import SessionPlan, exposure_for_level, write_session
 
