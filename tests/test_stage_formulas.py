@@ -27,7 +27,11 @@ from camcal.response_model import ChannelResponse, ResponseModel, srgb_form_deco
 from camcal.spectral import deconvolve_slit, slit_matrix
 from camcal.spectral_model import SpectralSensitivity, to_relative
 from camcal.stack import StackResult
+from camcal.water.band import BandModel, ChlorophyllAbsorption, bricaud_1998, solvent_spectrum
+from camcal.water.field import FieldGeometry, MeasuredSky, field_band_model
+from camcal.water.models import RefinedModel, SeedModel
 from camcal.water.purewater import pure_water_absorption_per_m
+from camcal.water.uncertainty import Uncertain, combine, interpolate_term, solve_c, term_sigma_c
 
 
 def test_pure_water_absorption_is_pope_and_fry():
@@ -582,3 +586,148 @@ def test_slit_bias_is_half_the_slit_variance_times_the_curvature():
                                    deconvolved=True).slit_bias()["R"])
     rel = to_relative(_sensitivity(wl, {"R": 3 * c, "G": c, "B": c}))
     assert float(rel.values["R"].max()) == pytest.approx(1.0) and float(rel.values["G"].max()) == pytest.approx(1 / 3)
+
+
+# ---- water: the band model, its derivative and sensitivity term, the field mixture, the uncertainty helpers -----
+
+BAND_WL = np.arange(520.0, 761.0, 4.0)
+BAND_C = _gauss(BAND_WL, 640.0, 22.0)  # a red channel, negligible at the grid's ends
+
+
+def _bricaud_per_m(c_ug_per_L):
+    """a_chl = A(λ) C^E(λ) on BAND_WL from the Bricaud et al. (1998) table (400-700 nm; no absorption beyond)."""
+    chl = bricaud_1998()
+    a = np.interp(BAND_WL, chl.wavelengths_nm, chl.coefficient_m2_per_mg, right=0.0)
+    return a * c_ug_per_L ** np.interp(BAND_WL, chl.wavelengths_nm, chl.exponent)
+
+
+def test_band_ratio_is_the_sensitivity_weighted_mean_of_the_per_wavelength_ratio():
+    """B(C) = ∫ c S R_λ(τ_λ) dλ / ∫ c S dλ with τ_λ = (a_w + a_bg + A C^E) d, rendered here with the trapezoid
+    rule from the Bricaud (1998) and Pope & Fry (1997) tables and the per-wavelength closed form of an oblique
+    refined model, under a sloping illuminant, at C = 7 µg/L, d = 0.8 m, a_bg = 0.05 m⁻¹ (rel 1e-6: the two
+    quadratures differ only at the ends, where c is 4e-7 of its peak)."""
+    geom = RefinedModel(view_angle_rad=0.4, albedo=0.8)
+    s = np.linspace(0.7, 1.3, BAND_WL.size)
+    model = BandModel(BAND_WL, BAND_C, geometry=geom, illuminant=s, background_absorption_per_m=0.05)
+    a_chl = _bricaud_per_m(7.0)
+    tau = (pure_water_absorption_per_m(BAND_WL) + 0.05 + a_chl) * 0.8
+    r_lambda = geom.closed_form().ratio(tau)
+    expect = np.trapezoid(BAND_C * s * r_lambda, BAND_WL) / np.trapezoid(BAND_C * s, BAND_WL)
+    assert float(model.ratio(7.0, 0.8)) == pytest.approx(expect, rel=1e-6)
+    np.testing.assert_allclose(model.spectral_ratio(7.0, 0.8), r_lambda, rtol=1e-12)
+    # the seed's geometry ignores water unless given
+    seed_band = BandModel(BAND_WL, BAND_C)
+    assert not np.any(seed_band.water_absorption())
+
+
+@pytest.mark.parametrize("geometry", [SeedModel(), RefinedModel(view_angle_rad=0.4, albedo=0.8),
+                                      RefinedModel(view_angle_rad=0.4, transmittance="mean")],
+                         ids=["seed", "refined-exact", "refined-mean"])
+def test_band_ratio_derivative_against_central_differences(geometry):
+    """dB/dC at C = 12 µg/L, d = 0.6 m, against (B(C+h) − B(C−h))/2h with h = 1e-3 C (error ~h² ≈ 1e-7 relative),
+    through both of ratio_and_derivative's branches (the E₃ closed form, and a form with its own derivative)."""
+    model = BandModel(BAND_WL, BAND_C, geometry=geometry, background_absorption_per_m=0.02)
+    c, d, h = 12.0, 0.6, 0.012
+    numeric = (float(model.ratio(c + h, d)) - float(model.ratio(c - h, d))) / (2 * h)
+    b, db = model.ratio_and_derivative(c, d)
+    assert float(db) == pytest.approx(numeric, rel=1e-5)
+    assert float(model.ratio_derivative(c, d)) == pytest.approx(numeric, rel=1e-5)
+    assert float(b) == pytest.approx(float(model.ratio(c, d)), rel=1e-12)
+
+
+def test_band_ratio_sigma_from_the_sensitivity_is_the_linear_propagation():
+    """σ_B² = Σ_k (∂B/∂c_k · u_k)², ∂B/∂c_k by central differences of the band ratio with the k-th sample of c
+    moved (u = 5 % of c plus a floor), at C = 20 µg/L, d = 1 m, under a sloping illuminant."""
+    s = np.linspace(1.2, 0.8, BAND_WL.size)
+    u = 0.05 * BAND_C + 1e-3
+    model = BandModel(BAND_WL, BAND_C, illuminant=s)
+    var = 0.0
+    for k in range(BAND_WL.size):
+        dc = np.zeros_like(BAND_C)
+        dc[k] = 1e-3 * BAND_C[k]  # relative: c − dc stays positive at the tails (clipping would bend B)
+        up = float(BandModel(BAND_WL, BAND_C + dc, illuminant=s).ratio(20.0, 1.0))
+        down = float(BandModel(BAND_WL, BAND_C - dc, illuminant=s).ratio(20.0, 1.0))
+        var += ((up - down) / (2 * dc[k]) * u[k]) ** 2
+    assert float(model.ratio_sigma_from_sensitivity(20.0, 1.0, u)) == pytest.approx(np.sqrt(var), rel=1e-4)
+
+
+def test_chlorophyll_absorption_power_law_and_its_derivative():
+    """a = A C^E with E ≠ 1 (Bricaud's E at 440 nm is 0.65), its derivative against a central difference, zero
+    absorption (and an infinite slope) at C = 0; decadic ε in L g⁻¹ cm⁻¹ → A = ln 10 · ε · 100 cm/m · 1e-6 g/mg
+    per (mg/m³ = µg/L) = 2.302585e-4 ε m² mg⁻¹."""
+    chl = ChlorophyllAbsorption(np.array([440.0, 675.0]), np.array([0.04, 0.02]), np.array([0.65, 0.9]))
+    c = 8.0
+    np.testing.assert_allclose(chl.absorption_per_m(c), [0.04 * c**0.65, 0.02 * c**0.9], rtol=1e-12)
+    h = 1e-4
+    numeric = (chl.absorption_per_m(c + h) - chl.absorption_per_m(c - h)) / (2 * h)
+    np.testing.assert_allclose(chl.derivative_per_m(c), numeric, rtol=1e-7)
+    assert not np.any(chl.absorption_per_m(0.0)) and np.all(np.isinf(chl.derivative_per_m(0.0)))
+    resampled = chl.on(np.array([400.0, 557.5, 700.0]))
+    np.testing.assert_allclose(resampled.coefficient_m2_per_mg, [0.0, 0.03, 0.0])  # zero outside the table
+    np.testing.assert_allclose(resampled.exponent, [0.65, 0.775, 0.9])
+    solvent = solvent_spectrum([663.0], [80.0])
+    assert float(solvent.coefficient_m2_per_mg[0]) == pytest.approx(np.log(10) * 80.0 * 100 * 1e-6, rel=1e-12)
+    assert float(solvent.exponent[0]) == 1.0
+
+
+def test_field_mixture_derivative_and_direct_beam_at_a_sunny_oblique_setting():
+    """Field model under a measured sky (diffuse fraction 0.3 → 0.5 across the band), sun at 50°, view 0.3 rad:
+    dB/dC against a central difference, and B(C) against the mixture (1 − f) R_dir + f R_sky rendered with the
+    trapezoid rule, R_dir = ρ T(θs) T_up / n² exp(−τ (1/cos β + 1/cos θv,w)) from Fresnel written out here."""
+    sky_wl = np.arange(500.0, 761.0, 10.0)
+    diffuse = np.linspace(0.3, 0.5, sky_wl.size)
+    sky = MeasuredSky(50.0, sky_wl, 1.0 - diffuse, diffuse)
+    geom = FieldGeometry(view_angle_rad=0.3, albedo=0.9)
+    model = field_band_model(BAND_WL, BAND_C, sky=sky, geometry=geom)
+    c, d, h = 15.0, 0.5, 0.015
+    numeric = (float(model.ratio(c + h, d)) - float(model.ratio(c - h, d))) / (2 * h)
+    assert float(model.ratio_derivative(c, d)) == pytest.approx(numeric, rel=1e-5)
+    # the rendering
+    n = 1.33
+    th_s = np.radians(50.0)
+    beta = np.arcsin(np.sin(th_s) / n)
+    view_w = np.arcsin(np.sin(0.3) / n)
+    t_down = 1 - _fresnel_r(th_s, n)
+    t_up = 1 - _fresnel_r(0.3, n)  # reciprocity: the same as from below at the refracted angle
+    a_chl = _bricaud_per_m(c)
+    tau = (pure_water_absorption_per_m(BAND_WL) + a_chl) * d
+    r_dir = 0.9 * t_down * t_up / n**2 * np.exp(-tau * (1 / np.cos(beta) + 1 / np.cos(view_w)))
+    r_sky = geom.sky_form().ratio(tau)
+    f = np.interp(BAND_WL, sky_wl, diffuse)
+    r = (1 - f) * r_dir + f * r_sky
+    expect = np.trapezoid(BAND_C * r, BAND_WL) / np.trapezoid(BAND_C, BAND_WL)  # global irradiance: flat here
+    assert float(model.ratio(c, d)) == pytest.approx(expect, rel=1e-5)
+
+
+def _fresnel_r(theta_air, n):
+    """Unpolarised Fresnel reflectance of air → water (Born & Wolf), from the air-side angle."""
+    ci = np.cos(theta_air)
+    ct = np.sqrt(1 - (np.sin(theta_air) / n) ** 2)
+    rs = ((ci - n * ct) / (ci + n * ct)) ** 2
+    rp = ((ct - n * ci) / (ct + n * ci)) ** 2
+    return 0.5 * (rs + rp)
+
+
+def test_uncertainty_helpers_on_closed_forms():
+    """With B(C; p) = exp(−p C) (p = 0.03 per µg/L): σ_C from p is |∂B/∂p| σ_p / |∂B/∂C| = C σ_p / p (central
+    differences with h = σ_p/2 of an exponential: relative error (h C)²/6 ≤ 7e-7 here); solve_c inverts it to
+    ln(1/B)/p; terms combine in quadrature; a term tabulated as a power law is interpolated exactly in log-log,
+    clamped at the grid's ends, NaN kept."""
+    c = np.array([2.0, 30.0, 400.0])
+    p = Uncertain("absorption", 0.03, 1e-5, "per µg/L")
+
+    def forward(pv, cc):
+        return np.exp(-pv * np.asarray(cc, float))
+
+    db_dc = -0.03 * np.exp(-0.03 * c)
+    np.testing.assert_allclose(term_sigma_c(forward, p, c, db_dc), c * 1e-5 / 0.03, rtol=2e-6)
+    assert not np.any(term_sigma_c(forward, Uncertain("x", 0.03, 0.0, ""), c, db_dc))
+    assert solve_c(lambda cc: forward(0.03, cc), float(np.exp(-0.03 * 55.0))) == pytest.approx(55.0, rel=1e-9)
+    assert np.isnan(solve_c(lambda cc: forward(0.03, cc), 1.5))
+    np.testing.assert_allclose(combine({"a": np.array([3.0, 5.0]), "b": np.array([4.0, 12.0]), "c": 0.0}),
+                               [5.0, 13.0])
+    grid = np.geomspace(0.1, 1000.0, 9)
+    term = 0.2 * grid**0.7
+    got = interpolate_term(term, np.array([0.37, 52.0, 1e4, 1e-3, np.nan]), grid)
+    np.testing.assert_allclose(got[:2], 0.2 * np.array([0.37, 52.0]) ** 0.7, rtol=1e-12)
+    assert got[2] == pytest.approx(term[-1]) and got[3] == pytest.approx(term[0]) and np.isnan(got[4])
