@@ -8,6 +8,7 @@ function under test. They were written to kill mutants that survived the rest of
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +16,7 @@ import pytest
 from scipy.optimize import brentq
 from scipy.special import erf, eval_legendre
 
+from camcal.correct import Corrected, dark_frame, system_gain_dn_per_e
 from camcal.dark import _fit_lines, _noise_model, subtract_dark
 from camcal.dark_model import DarkModel
 from camcal.errors import CamcalError
@@ -731,3 +733,98 @@ def test_uncertainty_helpers_on_closed_forms():
     got = interpolate_term(term, np.array([0.37, 52.0, 1e4, 1e-3, np.nan]), grid)
     np.testing.assert_allclose(got[:2], 0.2 * np.array([0.37, 52.0]) ** 0.7, rtol=1e-12)
     assert got[2] == pytest.approx(term[-1]) and got[3] == pytest.approx(term[0]) and np.isnan(got[4])
+
+
+# ---- correct: the dark frame of other models, the system gain from photon transfer, the frame summaries ----------
+
+class _MapsDark:
+    """A dark model offering bias and β maps (not a DarkModel): duck-typed like one."""
+
+    def __init__(self, bias, beta, iso):
+        self.bias_dn, self.dark_current_dn_per_s, self.iso = bias, beta, iso
+
+
+class _FrameDark:
+    """A third-party model that only evaluates whole frames: a dict per plane, a mosaic, or a scalar."""
+
+    def __init__(self, kind):
+        self.kind = kind
+
+    def dark_frame_dn(self, exposure_s, iso):
+        level = 64.0 + 0.5 * exposure_s * iso / 100.0
+        if self.kind == "dict":
+            return {p: np.full((3, 4), level + i) for i, p in enumerate(PLANES)}
+        if self.kind == "mosaic":
+            return np.arange(48, dtype=float).reshape(6, 8) + level
+        return level
+
+
+def test_dark_frame_of_maps_off_the_reference_iso_on_a_window():
+    """bias + β·t·ISO/ISO_dark on a window, for a model offering the maps: ISO 800 against a dark model at ISO
+    200, 5 s, β = 1.5 DN/s → bias + 30 DN."""
+    rng = np.random.default_rng(3)
+    bias = (1000 + rng.integers(0, 20, (4, 3, 4))).astype(np.float32)
+    beta = np.full((4, 3, 4), 1.5, np.float32)
+    win = (slice(1, 3), slice(0, 2))
+    got = dark_frame(_MapsDark(bias, beta, 200.0), 5.0, 800.0, (4, 3, 4), win)
+    np.testing.assert_allclose(got, bias[:, 1:3, 0:2] + 30.0, rtol=1e-7)
+    np.testing.assert_allclose(dark_frame(_MapsDark(bias, None, 200.0), 5.0, 800.0, (4, 3, 4)), bias)
+    with pytest.raises(CamcalError, match="non-negative"):
+        dark_frame(_MapsDark(bias, beta, 200.0), float("nan"), 800.0, (4, 3, 4))
+    with pytest.raises(CamcalError, match="do not match"):
+        dark_frame(_MapsDark(bias, beta, 200.0), 5.0, 800.0, (4, 3, 5))
+
+
+def test_dark_frame_of_a_whole_frame_model_per_plane_mosaic_or_scalar():
+    """A dict per plane is stacked in plane order, a mosaic split by its CFA pattern (RGGB: R at even rows
+    and columns), a scalar filled; level 64 + 0.5·t·ISO/100 = 74 DN at 10 s, ISO 200."""
+    got = dark_frame(_FrameDark("dict"), 10.0, 200.0, (4, 3, 4))
+    np.testing.assert_allclose(got[:, 0, 0], [74.0, 75.0, 76.0, 77.0])
+    mosaic = np.arange(48, dtype=float).reshape(6, 8) + 74.0
+    got = dark_frame(_FrameDark("mosaic"), 10.0, 200.0, (4, 3, 4), cfa_pattern="RGGB")
+    np.testing.assert_allclose(got[0], mosaic[0::2, 0::2])
+    np.testing.assert_allclose(got[3], mosaic[1::2, 1::2])
+    np.testing.assert_allclose(got[1], mosaic[0::2, 1::2])
+    got = dark_frame(_FrameDark("scalar"), 10.0, 200.0, (4, 3, 4), (slice(0, 2), slice(1, 3)))
+    assert got.shape == (4, 2, 2) and np.all(got == 74.0)
+
+
+class _Emva:
+    iso = 400.0
+
+    def gain_dn_per_e(self, plane):
+        return {"R": 0.8, "G1": None, "G2": float("nan"), "B": 1.2}[plane]
+
+
+def test_system_gain_from_photon_transfer_scaled_to_the_dark_models_iso():
+    """K at the dark model's ISO 100 from an EMVA sheet at ISO 400: K·100/400 (0.8 → 0.2, 1.2 → 0.3 DN/e⁻);
+    planes the sheet does not know keep the dark model's own photon-transfer gain."""
+    shape = (4, 2, 2)
+    dark = _dark_model(np.full(shape, 1000.0, np.float32), np.full(shape, 1.0, np.float32), iso=100.0)
+    own = {"R": 0.05, "G1": 0.06, "G2": 0.07, "B": 0.08}
+    channels = {p: {"gain_dn_per_e_from_dark": g, "hot_pixel_count": 0, "dead_pixel_count": 0,
+                    "noisy_pixel_count": 0} for p, g in own.items()}
+    dark = replace(dark, channels=channels)
+    np.testing.assert_allclose(system_gain_dn_per_e(dark).ravel(), [0.05, 0.06, 0.07, 0.08], rtol=1e-6)
+    k = system_gain_dn_per_e(dark, _Emva())
+    assert k.shape == (4, 1, 1)
+    np.testing.assert_allclose(k.ravel(), [0.2, 0.06, 0.07, 0.3], rtol=1e-6)
+    assert system_gain_dn_per_e(None) is None
+
+
+def test_corrected_frame_summaries():
+    """Valid and saturated fractions per plane and the mean over valid pixels only, written out."""
+    sig = np.arange(2 * 2 * 3, dtype=np.float32).reshape(2, 2, 3)
+    invalid = np.zeros(sig.shape, bool)
+    invalid[0, 0, :] = True
+    invalid[1, 1, 2] = True
+    saturated = np.zeros(sig.shape, bool)
+    saturated[0, 0, 1] = True
+    c = Corrected(sig, None, invalid, saturated, np.zeros(sig.shape, bool), saturated, ("R", "G"))
+    np.testing.assert_allclose(c.valid_fraction(), [0.5, 5 / 6])
+    np.testing.assert_allclose(c.saturated_fraction(), [1 / 6, 0.0])
+    np.testing.assert_allclose(c.mean_dn(), [np.mean([3, 4, 5]), np.mean([6, 7, 8, 9, 10])])
+    m = c.masked(-1.0)
+    assert m[0, 0, 0] == -1.0 and m[1, 1, 2] == -1.0 and m[1, 0, 0] == 6.0 and sig[0, 0, 0] == 0.0
+    all_bad = Corrected(sig, None, np.ones(sig.shape, bool), saturated, saturated, saturated, ("R", "G"))
+    assert np.all(np.isnan(all_bad.mean_dn()))
