@@ -26,7 +26,7 @@ from camcal.frame import PLANES, Exposure
 from camcal.radiance import RadianceModel, radiance_at, radiance_model
 from camcal.response import fit_eq12, fit_line, fit_srgb_form, saturation_point
 from camcal.response_model import ChannelResponse, ResponseModel, srgb_form_decode, srgb_form_encode
-from camcal.spectral import deconvolve_slit, slit_matrix
+from camcal.spectral import deconvolve_slit, merge_sweeps, slit_matrix
 from camcal.spectral_model import SpectralSensitivity, to_relative
 from camcal.stack import StackResult
 from camcal.water.band import BandModel, ChlorophyllAbsorption, bricaud_1998, solvent_spectrum
@@ -828,3 +828,36 @@ def test_corrected_frame_summaries():
     assert m[0, 0, 0] == -1.0 and m[1, 1, 2] == -1.0 and m[1, 0, 0] == 6.0 and sig[0, 0, 0] == 0.0
     all_bad = Corrected(sig, None, np.ones(sig.shape, bool), saturated, saturated, saturated, ("R", "G"))
     assert np.all(np.isnan(all_bad.mean_dn()))
+
+
+def test_merged_sweeps_scale_the_second_onto_the_first_and_average_by_inverse_variance():
+    """Sweep a (400-600 nm) and sweep b (550-750 nm) = truth / 2.5 with uncertainties 1 % and 2 % of the truth:
+    the scale is 2.5 exactly (noise-free overlap), its uncertainty 1/√Σ w b² with w = 1/(u_a² + k² u_b²); in the
+    overlap the values are the truth and the uncertainty 1/√(1/u_a² + 1/u_b'²), u_b' = √((k u_b)² + (u_k b)²);
+    outside it each sweep's own (b scaled)."""
+    wa, wb = np.arange(400.0, 601.0, 10.0), np.arange(550.0, 751.0, 10.0)
+
+    def truth(wl):
+        return _gauss(wl, 560.0, 80.0) + 0.1
+
+    planes = ("R", "G", "B")
+    a = SpectralSensitivity(wa, {p: truth(wa) for p in planes}, {p: 0.01 * truth(wa) for p in planes},
+                            "relative", "relative", bandwidth_nm=5.0)
+    b = SpectralSensitivity(wb, {p: truth(wb) / 2.5 for p in planes}, {p: 0.02 * truth(wb) / 2.5 for p in planes},
+                            "relative", "relative", bandwidth_nm=8.0)
+    m = merge_sweeps(a, b)
+    grid = np.arange(400.0, 751.0, 10.0)
+    np.testing.assert_allclose(m.wavelength_nm, grid)
+    np.testing.assert_allclose(m.values["G"], truth(grid), rtol=1e-12)
+    ov = (grid >= 550) & (grid <= 600)
+    ua, ubk = 0.01 * truth(grid[ov]), 0.02 * truth(grid[ov])  # b's uncertainty on a's scale: k u_b
+    w = 1 / (ua**2 + ubk**2)
+    b_ov = truth(grid[ov]) / 2.5
+    u_k = 1 / np.sqrt(3 * np.sum(w * b_ov**2))  # three planes alike
+    ub_prime = np.hypot(ubk, u_k * b_ov)
+    np.testing.assert_allclose(m.uncertainty["R"][ov], 1 / np.sqrt(1 / ua**2 + 1 / ub_prime**2), rtol=1e-9)
+    only_a, only_b = grid < 550, grid > 600
+    np.testing.assert_allclose(m.uncertainty["B"][only_a], 0.01 * truth(grid[only_a]), rtol=1e-12)
+    np.testing.assert_allclose(m.uncertainty["B"][only_b],
+                               np.hypot(0.02 * truth(grid[only_b]), u_k * truth(grid[only_b]) / 2.5), rtol=1e-9)
+    assert m.bandwidth_nm == 8.0 and "2.5" in m.notes[-1]
