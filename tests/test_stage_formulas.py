@@ -23,9 +23,9 @@ from camcal.errors import CamcalError
 from camcal.flat import _total_degree_mask, correct_flat, fit_2d_plane, fit_radial_plane
 from camcal.flat_model import FlatModel, PlaneGeometry, dead_pixels
 from camcal.frame import PLANES, Exposure
-from camcal.radiance import RadianceModel, radiance_at, radiance_model
+from camcal.radiance import RadianceModel, radiance_at, radiance_model, smooth_error_table, smooth_spread_rel
 from camcal.response import fit_eq12, fit_line, fit_srgb_form, saturation_point
-from camcal.response_model import ChannelResponse, ResponseModel, srgb_form_decode, srgb_form_encode
+from camcal.response_model import ChannelResponse, ColourMatrix, ResponseModel, srgb_form_decode, srgb_form_encode
 from camcal.spectral import deconvolve_slit, merge_sweeps, slit_matrix
 from camcal.spectral_model import SpectralSensitivity, to_relative
 from camcal.stack import StackResult
@@ -33,7 +33,7 @@ from camcal.water.band import BandModel, ChlorophyllAbsorption, bricaud_1998, so
 from camcal.water.field import FieldGeometry, MeasuredSky, field_band_model
 from camcal.water.models import RefinedModel, SeedModel
 from camcal.water.purewater import pure_water_absorption_per_m
-from camcal.water.uncertainty import Uncertain, combine, interpolate_term, solve_c, term_sigma_c
+from camcal.water.uncertainty import Uncertain, combine, interpolate_term, monte_carlo_sigma, solve_c, term_sigma_c
 
 
 def test_pure_water_absorption_is_pope_and_fry():
@@ -861,3 +861,73 @@ def test_merged_sweeps_scale_the_second_onto_the_first_and_average_by_inverse_va
     np.testing.assert_allclose(m.uncertainty["B"][only_b],
                                np.hypot(0.02 * truth(grid[only_b]), u_k * truth(grid[only_b]) / 2.5), rtol=1e-9)
     assert m.bandwidth_nm == 8.0 and "2.5" in m.notes[-1]
+
+
+# ---- the remaining small formulas: the smooth estimator's error table, predictions, conversions -----------------
+
+def _planck_w_m2_sr_nm(t_k, wl_nm):
+    """Planck's law written out with the exact SI constants h, c, k (2019), per nm."""
+    h, c, k = 6.62607015e-34, 299792458.0, 1.380649e-23
+    lam = np.asarray(wl_nm, float) * 1e-9
+    return 2 * h * c**2 / lam**5 / np.expm1(h * c / (lam * k * t_k)) * 1e-9
+
+
+def test_smooth_error_table_truth_and_estimate_for_a_black_body_and_d65():
+    """The table's truth is the spectrum at λ0: Planck's law for the 5000 K black body, and CIE D65 between its
+    660 and 665 nm table values (80.2146, 81.2462) at 663 nm, linearly; its estimate is the smooth estimator
+    applied to the rates ∫ c S dλ; the error is 100 (estimate/truth − 1); the spread is the RMS of the errors."""
+    wl = np.arange(400.0, 721.0, 5.0)
+    c = {"R": _gauss(wl, 610, 30, 40.0), "G": _gauss(wl, 540, 35, 55.0), "B": _gauss(wl, 460, 25, 30.0)}
+    rows = {r["spectrum"]: r for r in smooth_error_table(wl, c, 663.0)}
+    assert len(rows) == 5 + 3 + 24
+    bb = rows["black body 5000 K"]
+    assert bb["true"] == pytest.approx(float(_planck_w_m2_sr_nm(5000.0, 663.0)), rel=1e-3)  # linear on 5 nm
+    weights = radiance_model(wl, c, None, 663.0, "smooth").weights
+    spec = _planck_w_m2_sr_nm(5000.0, wl)
+    est = float(weights @ np.trapezoid(np.stack([c[k] for k in "RGB"]) * spec, wl, axis=1))
+    assert bb["estimate"] == pytest.approx(est, rel=1e-4)
+    assert bb["error_pct"] == pytest.approx(100 * (bb["estimate"] / bb["true"] - 1), rel=1e-9)
+    assert rows["CIE D65"]["true"] == pytest.approx(80.2146 + 0.6 * (81.2462 - 80.2146), rel=1e-6)
+    errors = np.array([r["error_pct"] for r in rows.values()]) / 100
+    assert smooth_spread_rel(wl, c, 663.0) == pytest.approx(np.sqrt(np.mean(errors**2)), rel=1e-12)
+
+
+def test_channel_prediction_colour_matrix_inverse_and_green_uncertainty():
+    """g = α x^γ + β at x = 0.02 s; the colour matrix's to_raw solves j = M r (checked by M · to_raw(j) = j);
+    the G uncertainty of a Bayer curve is ½√(u_G1² + u_G2²) (the mean of two independent planes)."""
+    ch = _channel(alpha=5000.0, gamma=0.9, beta=12.0)
+    assert float(ch.predict(0.02)) == pytest.approx(5000.0 * 0.02**0.9 + 12.0, rel=1e-12)
+    m = np.array([[1.6, -0.4, -0.2], [-0.3, 1.5, -0.2], [0.05, -0.5, 1.45]])
+    cm = ColourMatrix(m, np.zeros((3, 3)), (5, 5, 5), (0.0, 0.0, 0.0), ())
+    j = np.array([[100.0, 10.0], [200.0, 20.0], [50.0, 5.0]])
+    np.testing.assert_allclose(m @ cm.to_raw(j), j, rtol=1e-5)
+    wl = np.arange(400.0, 701.0, 100.0)
+    s = SpectralSensitivity(wl, {p: np.ones(4) for p in PLANES},
+                            {"R": np.full(4, 0.1), "G1": np.full(4, 0.3), "G2": np.full(4, 0.4), "B": np.full(4, 0.2)},
+                            "relative", "relative")
+    np.testing.assert_allclose(s.rgb_uncertainty()["G"], 0.25)
+    np.testing.assert_allclose(s.rgb_uncertainty()["R"], 0.1)
+
+
+def test_field_spectral_ratio_is_the_per_wavelength_mixture():
+    """Per wavelength, the field model's R_λ is (1 − f) R_dir + f R_sky with f the diffuse fraction: under a
+    sky that is all diffuse it is the sky form alone, under one that is all direct the direct beam alone."""
+    sky_wl = np.arange(500.0, 761.0, 10.0)
+    geom = FieldGeometry(view_angle_rad=0.2, albedo=0.9)
+    all_diffuse = field_band_model(BAND_WL, BAND_C, geometry=geom,
+                                   sky=MeasuredSky(40.0, sky_wl, np.zeros(sky_wl.size), np.ones(sky_wl.size)))
+    all_direct = field_band_model(BAND_WL, BAND_C, geometry=geom,
+                                  sky=MeasuredSky(40.0, sky_wl, np.ones(sky_wl.size), np.zeros(sky_wl.size)))
+    tau = (pure_water_absorption_per_m(BAND_WL) + _bricaud_per_m(9.0)) * 0.7
+    g40 = replace(geom, sun_zenith_rad=np.radians(40.0))
+    np.testing.assert_allclose(all_diffuse.spectral_ratio(9.0, 0.7), g40.sky_form().ratio(tau), rtol=1e-10)
+    np.testing.assert_allclose(all_direct.spectral_ratio(9.0, 0.7), g40.direct_form().ratio(tau), rtol=1e-10)
+
+
+def test_monte_carlo_sigma_of_a_linear_inversion():
+    """B = exp(−p C) with p ~ N(0.03, 0.0015): C = ln(1/B)/p, so σ_C ≈ C σ_p/p = 5 % of C to first order (the
+    1/p nonlinearity adds (σ_p/p)² ≈ 0.25 % relative); 400 draws: the standard error of a standard deviation is
+    1/√(2·399) = 3.5 %, so within 12 % (3.4σ)."""
+    p = Uncertain("absorption", 0.03, 0.0015, "per µg/L")
+    sigma = monte_carlo_sigma(lambda pv, cc: np.exp(-pv * np.asarray(cc, float)), p, float(np.exp(-0.03 * 40.0)))
+    assert sigma == pytest.approx(0.05 * 40.0, rel=0.12)
