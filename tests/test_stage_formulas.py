@@ -23,7 +23,14 @@ from camcal.errors import CamcalError
 from camcal.flat import _total_degree_mask, correct_flat, fit_2d_plane, fit_radial_plane
 from camcal.flat_model import FlatModel, PlaneGeometry, dead_pixels
 from camcal.frame import PLANES, Exposure
-from camcal.radiance import RadianceModel, radiance_at, radiance_model, smooth_error_table, smooth_spread_rel
+from camcal.radiance import (
+    RadianceModel,
+    radiance_at,
+    radiance_model,
+    smooth_error_table,
+    smooth_operator,
+    smooth_spread_rel,
+)
 from camcal.response import fit_eq12, fit_line, fit_srgb_form, saturation_point
 from camcal.response_model import ChannelResponse, ColourMatrix, ResponseModel, srgb_form_decode, srgb_form_encode
 from camcal.spectral import deconvolve_slit, merge_sweeps, slit_matrix
@@ -31,7 +38,7 @@ from camcal.spectral_model import SpectralSensitivity, to_relative
 from camcal.stack import StackResult
 from camcal.water.band import BandModel, ChlorophyllAbsorption, bricaud_1998, solvent_spectrum
 from camcal.water.field import FieldGeometry, MeasuredSky, field_band_model
-from camcal.water.models import RefinedModel, SeedModel
+from camcal.water.models import LampModel, RefinedModel, SeedModel
 from camcal.water.purewater import pure_water_absorption_per_m
 from camcal.water.uncertainty import Uncertain, combine, interpolate_term, monte_carlo_sigma, solve_c, term_sigma_c
 
@@ -97,7 +104,7 @@ def test_smooth_estimator_reproduces_a_spectrum_the_prior_explains():
     grid's ends) give back L(λ0). The regularisation ε = 1e-6 of the trace biases it by < 1e-4 (measured 2e-6).
     The kernel is written out here; a different length, a missing constant term or a wrong sign of the exponent
     reconstruct another spectrum."""
-    wl = np.arange(400.0, 721.0, 1.0)
+    wl = np.arange(401.0, 722.0, 2.0)  # a 2 nm step: the quadrature weights are not 1
     c = np.stack([_gauss(wl, 600, 25, 40.0), _gauss(wl, 540, 30, 55.0), _gauss(wl, 460, 20, 30.0)])
     d = wl[:, None] - wl[None, :]
     k = 1.0 + np.exp(-0.5 * (d / 60.0) ** 2)
@@ -105,12 +112,25 @@ def test_smooth_estimator_reproduces_a_spectrum_the_prior_explains():
     assert spectrum.min() > 0
     rates = np.trapezoid(c * spectrum[None, :], wl, axis=1)
     m = radiance_model(wl, dict(zip("RGB", c, strict=True)), None, 663.0, "smooth")
-    i = int(np.flatnonzero(wl == 663.0)[0])
+    i = int(np.flatnonzero(wl == 663.0)[0])  # a grid node
     assert float(m.weights @ rates) == pytest.approx(spectrum[i], rel=1e-4)
     assert m.channel is None and m.units == "W m^-2 sr^-1 nm^-1"
     # between grid nodes the estimate is read linearly from the reconstruction on the grid
-    m2 = radiance_model(wl, dict(zip("RGB", c, strict=True)), None, 663.5, "smooth")
+    m2 = radiance_model(wl, dict(zip("RGB", c, strict=True)), None, 664.0, "smooth")
     assert float(m2.weights @ rates) == pytest.approx(0.5 * (spectrum[i] + spectrum[i + 1]), rel=1e-4)
+
+
+def test_smooth_estimator_regularisation_is_relative_to_the_trace():
+    """With a strong regularisation ε = 0.1 the estimate is the ridge posterior mean
+    K Cᵀ (C K Cᵀ + ε tr(C K Cᵀ)/3 · I)⁻¹ (C the rates' quadrature rows, 2 nm weights; K written out): checked
+    for every grid point, so a regularisation of another size or sign is seen."""
+    wl = np.arange(401.0, 722.0, 2.0)
+    c = np.stack([_gauss(wl, 600, 25, 40.0), _gauss(wl, 540, 30, 55.0), _gauss(wl, 460, 20, 30.0)])
+    k = 1.0 + np.exp(-0.5 * ((wl[:, None] - wl[None, :]) / 60.0) ** 2)
+    cm = 2.0 * c
+    ckc = cm @ k @ cm.T
+    expect = k @ cm.T @ np.linalg.solve(ckc + 0.1 * np.trace(ckc) / 3 * np.eye(3), np.eye(3))
+    np.testing.assert_allclose(smooth_operator(wl, c, eps=0.1), expect, rtol=1e-9, atol=1e-15)
 
 
 def test_radiance_uncertainty_adds_noise_and_calibration_in_quadrature():
@@ -669,7 +689,7 @@ def test_chlorophyll_absorption_power_law_and_its_derivative():
     np.testing.assert_allclose(resampled.exponent, [0.65, 0.775, 0.9])
     solvent = solvent_spectrum([663.0], [80.0])
     assert float(solvent.coefficient_m2_per_mg[0]) == pytest.approx(np.log(10) * 80.0 * 100 * 1e-6, rel=1e-12)
-    assert float(solvent.exponent[0]) == 1.0
+    assert float(solvent.exponent[0]) == 1.0 and solvent.source == "solvent ε(λ)"
 
 
 def test_field_mixture_derivative_and_direct_beam_at_a_sunny_oblique_setting():
@@ -814,18 +834,18 @@ def test_system_gain_from_photon_transfer_scaled_to_the_dark_models_iso():
 
 def test_corrected_frame_summaries():
     """Valid and saturated fractions per plane and the mean over valid pixels only, written out."""
-    sig = np.arange(2 * 2 * 3, dtype=np.float32).reshape(2, 2, 3)
+    sig = np.arange(2 * 3 * 2, dtype=np.float32).reshape(2, 3, 2)
     invalid = np.zeros(sig.shape, bool)
     invalid[0, 0, :] = True
-    invalid[1, 1, 2] = True
+    invalid[1, 2, 1] = True
     saturated = np.zeros(sig.shape, bool)
     saturated[0, 0, 1] = True
     c = Corrected(sig, None, invalid, saturated, np.zeros(sig.shape, bool), saturated, ("R", "G"))
-    np.testing.assert_allclose(c.valid_fraction(), [0.5, 5 / 6])
+    np.testing.assert_allclose(c.valid_fraction(), [4 / 6, 5 / 6])
     np.testing.assert_allclose(c.saturated_fraction(), [1 / 6, 0.0])
-    np.testing.assert_allclose(c.mean_dn(), [np.mean([3, 4, 5]), np.mean([6, 7, 8, 9, 10])])
+    np.testing.assert_allclose(c.mean_dn(), [np.mean([2, 3, 4, 5]), np.mean([6, 7, 8, 9, 10])])
     m = c.masked(-1.0)
-    assert m[0, 0, 0] == -1.0 and m[1, 1, 2] == -1.0 and m[1, 0, 0] == 6.0 and sig[0, 0, 0] == 0.0
+    assert m[0, 0, 0] == -1.0 and m[1, 2, 1] == -1.0 and m[1, 0, 0] == 6.0 and sig[0, 0, 0] == 0.0
     all_bad = Corrected(sig, None, np.ones(sig.shape, bool), saturated, saturated, saturated, ("R", "G"))
     assert np.all(np.isnan(all_bad.mean_dn()))
 
@@ -931,3 +951,53 @@ def test_monte_carlo_sigma_of_a_linear_inversion():
     p = Uncertain("absorption", 0.03, 0.0015, "per µg/L")
     sigma = monte_carlo_sigma(lambda pv, cc: np.exp(-pv * np.asarray(cc, float)), p, float(np.exp(-0.03 * 40.0)))
     assert sigma == pytest.approx(0.05 * 40.0, rel=0.12)
+
+
+def test_band_ratio_derivative_of_a_lamp_at_depth_for_an_array_of_concentrations():
+    """The lamp's form depends on the depth (its path to the disk), so dB/dC must use the form at that depth;
+    with an array of C the result has C's shape. Against central differences (h = 1e-3 C)."""
+    model = BandModel(BAND_WL, BAND_C, geometry=LampModel(height_m=0.3, lamp_angle_rad=0.2))
+    c, d = np.array([3.0, 40.0]), 0.9
+    h = 1e-3 * c
+    numeric = (model.ratio(c + h, d) - model.ratio(c - h, d)) / (2 * h)
+    got = model.ratio_derivative(c, d)
+    assert got.shape == (2,)
+    np.testing.assert_allclose(got, numeric, rtol=1e-5)
+    np.testing.assert_allclose(model.ratio_and_derivative(c, d)[1], numeric, rtol=1e-5)
+
+
+def test_merging_sweeps_the_other_way_round_and_its_guards():
+    """b below a (b: 400-600 nm, a: 550-750 nm) gives the same overlap; without scaling k = 1 and no scale
+    uncertainty is added; sweeps without a bandwidth merge to none; different modes, deconvolution, planes, and
+    absolute sweeps at different reference settings are refused, while relative ones at different settings
+    merge; an overlap of exactly ``min_overlap`` wavelengths is enough."""
+    lo, hi = np.arange(400.0, 601.0, 10.0), np.arange(550.0, 751.0, 10.0)
+
+    def sweep(wl, f=1.0, **kw):
+        v = _gauss(wl, 560.0, 80.0) + 0.1
+        return SpectralSensitivity(wl, {p: v / f for p in "RGB"}, {p: 0.01 * v / f for p in "RGB"}, "relative",
+                                   kw.pop("mode", "relative"), **kw)
+
+    m = merge_sweeps(sweep(hi), sweep(lo, 2.5))
+    np.testing.assert_allclose(m.values["R"], _gauss(m.wavelength_nm, 560.0, 80.0) + 0.1, rtol=1e-12)
+    assert m.units == "relative" and m.mode == "relative" and not m.deconvolved and m.bandwidth_nm is None
+    assert (m.reference_iso, m.reference_f_number) == (sweep(hi).reference_iso, sweep(hi).reference_f_number)
+    plain = merge_sweeps(sweep(lo), sweep(hi), scale=False)
+    only_b = plain.wavelength_nm > 600
+    np.testing.assert_allclose(plain.uncertainty["G"][only_b], 0.01 * (_gauss(plain.wavelength_nm[only_b],
+                                                                              560.0, 80.0) + 0.1), rtol=1e-12)
+    np.testing.assert_allclose(plain.values["G"], _gauss(plain.wavelength_nm, 560.0, 80.0) + 0.1, rtol=1e-12)
+    merge_sweeps(sweep(lo), sweep(np.arange(590.0, 700.0, 10.0)), min_overlap=2)  # 590, 600: two
+    with pytest.raises(CamcalError, match="overlap at 2 wavelengths; need 3"):
+        merge_sweeps(sweep(lo), sweep(np.arange(590.0, 700.0, 10.0)), min_overlap=3)
+    with pytest.raises(CamcalError, match="different mode or deconvolution"):
+        merge_sweeps(sweep(lo), sweep(hi, deconvolved=True))
+    with pytest.raises(CamcalError, match="different mode or deconvolution"):
+        merge_sweeps(sweep(lo), sweep(hi, mode="absolute"))
+    with pytest.raises(CamcalError, match="different reference settings"):
+        merge_sweeps(sweep(lo, mode="absolute"), sweep(hi, mode="absolute", reference_iso=400.0))
+    merge_sweeps(sweep(lo), sweep(hi, reference_iso=400.0))
+    bayer = SpectralSensitivity(hi, {p: np.ones(hi.size) for p in PLANES}, {p: np.ones(hi.size) for p in PLANES},
+                                "relative", "relative")
+    with pytest.raises(CamcalError, match="planes R, G, B and R, G1, G2, B"):
+        merge_sweeps(sweep(lo), bayer)
