@@ -62,15 +62,15 @@ def _gauss(wl, mu, s, a=1.0):
 def test_band_integral_and_its_uncertainty_are_closed_forms():
     """∫ A exp(−(λ−μ)²/2s²) dλ over 380-780 nm = A s √(π/2) [erf(·)] (the trapezoid rule on a 2 nm grid: 4e-7
     off for the blue curve, cut 4σ from its centre at 380 nm); the band's uncertainty with a constant σ_c per
-    2 nm sample is σ_c · 2 nm · √n."""
+    2 nm sample (0.3 here) is σ_c · 2 nm · √n."""
     wl = np.arange(380.0, 781.0, 2.0)
     c = {"R": _gauss(wl, 600, 25, 40.0), "G": _gauss(wl, 540, 30, 55.0), "B": _gauss(wl, 460, 20, 30.0)}
-    u = {k: np.full(wl.size, 0.5) for k in c}
+    u = {k: np.full(wl.size, 0.3) for k in c}
     m = radiance_model(wl, c, u, 663.0, "smooth")
     expect = [a * s * np.sqrt(np.pi / 2) * (erf((780 - mu) / (s * np.sqrt(2))) - erf((380 - mu) / (s * np.sqrt(2))))
               for mu, s, a in ((600, 25, 40.0), (540, 30, 55.0), (460, 20, 30.0))]
     np.testing.assert_allclose(m.band_integral, expect, rtol=1e-6)
-    np.testing.assert_allclose(m.band_unc, 0.5 * 2.0 * np.sqrt(wl.size), rtol=1e-12)
+    np.testing.assert_allclose(m.band_unc, 0.3 * 2.0 * np.sqrt(wl.size), rtol=1e-12)
     # the smooth estimator's relative uncertainty: the three bands' relative uncertainties in quadrature / √3
     rel = np.sqrt(np.mean((m.band_unc / m.band_integral) ** 2))
     assert m.weights_unc_rel == pytest.approx(rel, rel=1e-12)
@@ -1001,3 +1001,64 @@ def test_merging_sweeps_the_other_way_round_and_its_guards():
                                 "relative", "relative")
     with pytest.raises(CamcalError, match="planes R, G, B and R, G1, G2, B"):
         merge_sweeps(sweep(lo), bayer)
+
+
+def test_radiance_model_at_the_ends_of_the_curve_and_on_short_curves():
+    """λ0 on the first or last sample is inside the calibrated range (the value there is the sample); a 4-sample
+    curve is read with the cubic through its 4 points (numpy polyfit, exact), a 3-sample one linearly and without
+    a slit correction (no second derivative); negative noise samples are clipped before the band integral; a
+    channel without sensitivity is refused; the narrowband model keeps the band integrals, the wavelength, the
+    estimator name; with only the line width known no slit correction is made."""
+    wl = np.arange(400.0, 701.0, 5.0)
+    c = {"R": _gauss(wl, 600, 80, 40.0), "G": _gauss(wl, 540, 80, 55.0), "B": _gauss(wl, 460, 80, 30.0)}
+    for at in (400.0, 700.0):
+        m = radiance_model(wl, c, None, at, "narrowband")
+        best = max("RGB", key=lambda k: float(_gauss(at, *{"R": (600, 80, 40.0), "G": (540, 80, 55.0),
+                                                            "B": (460, 80, 30.0)}[k])))
+        assert m.channel == best
+        assert float(m.weights["RGB".index(best)]) == pytest.approx(1 / c[best][0 if at == 400 else -1], rel=1e-12)
+    with pytest.raises(CamcalError, match="outside the calibrated range 400-700 nm"):
+        radiance_model(wl, c, None, 399.0)
+    with pytest.raises(CamcalError, match="choose narrowband, smooth"):
+        radiance_model(wl, c, None, 663.0, "band")
+    m = radiance_model(wl, c, None)
+    assert m.wavelength_nm == 663.0 and m.estimator == "narrowband"
+    np.testing.assert_allclose(m.band_integral, [np.trapezoid(c[k], wl) for k in "RGB"], rtol=1e-12)
+    assert m.band_unc.shape == (3,) and not np.any(m.band_unc)
+    assert radiance_model(wl, c, None, line_fwhm_nm=1.0).weights == pytest.approx(m.weights, rel=1e-15)
+    mf = radiance_model(wl, c, None, filter_fwhm_nm=5.0)
+    assert mf.units == "W m^-2 sr^-1 nm^-1 (mean over the filter band)"
+    # short curves
+    w4 = np.array([600.0, 640.0, 680.0, 720.0])
+    r4 = np.array([10.0, 30.0, 25.0, 5.0])
+    short = {"R": r4, "G": 0.1 * r4, "B": 0.1 * r4}
+    cubic = np.polyval(np.polyfit(w4, r4, 3), 663.0)
+    assert radiance_model(w4, short, None, 663.0).weights[0] == pytest.approx(1 / cubic, rel=1e-9)
+    w3, r3 = w4[:3], r4[:3]
+    three = {"R": r3, "G": 0.1 * r3, "B": 0.1 * r3}
+    lin = 30.0 + (663.0 - 640.0) / 40.0 * (25.0 - 30.0)
+    m3 = radiance_model(w3, three, None, 663.0, line_fwhm_nm=1.0, slit_fwhm_nm=10.0)
+    assert m3.weights[0] == pytest.approx(1 / lin, rel=1e-12)
+    # negative noise samples are not sensitivity; a channel without any is refused
+    noisy = dict(c, B=np.where(wl > 650, -0.5, c["B"]))
+    mb = radiance_model(wl, noisy, None, 663.0, "smooth")
+    assert mb.band_integral[2] == pytest.approx(np.trapezoid(np.clip(noisy["B"], 0, None), wl), rel=1e-12)
+    with pytest.raises(CamcalError, match="no sensitivity at all"):
+        radiance_model(wl, dict(c, G=np.zeros(wl.size)), None, 663.0)
+
+
+def test_band_sigma_without_an_illuminant_and_with_negative_noise_samples():
+    """The same linear propagation with a flat illuminant (none given) and a curve whose tail carries negative
+    noise samples: those are clipped out of the band, so their uncertainty does not count."""
+    c = BAND_C - 2e-3  # the tails go negative
+    u = np.full(BAND_WL.size, 4e-3)
+    model = BandModel(BAND_WL, c)
+    var = 0.0
+    for k in np.flatnonzero(c > 0):
+        dc = np.zeros_like(c)
+        dc[k] = 1e-3 * c[k]
+        up = float(BandModel(BAND_WL, c + dc).ratio(20.0, 1.0))
+        down = float(BandModel(BAND_WL, c - dc).ratio(20.0, 1.0))
+        var += ((up - down) / (2 * dc[k]) * u[k]) ** 2
+    assert np.any(c < 0)
+    assert float(model.ratio_sigma_from_sensitivity(20.0, 1.0, u)) == pytest.approx(np.sqrt(var), rel=1e-4)
