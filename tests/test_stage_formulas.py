@@ -509,6 +509,11 @@ def test_processed_linearise_inverts_the_power_law_and_rescales_other_bit_depths
     assert m.value_scale(255.0) == 1.0 and m.value_scale(None) == 1.0
     lin10 = m.linearise(v * 1023.0 / 255.0, white_level_dn=1023.0)
     np.testing.assert_allclose(lin10, lin, rtol=1e-9)
+    # a file whose white is half the response's: every value doubled first (the scale 2 is not special)
+    assert m.value_scale(127.5) == 2.0
+    np.testing.assert_allclose(m.linearise(v / 2.0, white_level_dn=127.5), lin, rtol=1e-9)
+    with pytest.raises(CamcalError, match=r"processed response has 3 channels \(R, G, B\); values have 4 along axis 0"):
+        m.linearise(np.ones((4, 2)))
     assert m.linear_gain_dn_per_s("G") == 2.0
 
 
