@@ -224,7 +224,7 @@ def _band_stats(x: np.ndarray, method: str, sigma: float, work: np.ndarray | Non
     Returns value, mean, variance, count, the variance and the mean of all values. The band is
     sorted once (:func:`_sorted_float32`) into float32 (exact for 14/16-bit DN); everything else works
     on values shifted by the median in float32, so sums of squares keep their precision. Sorted values make
-    each clip cheap: a pixel whose extremes are within its bounds loses nothing (:func:`_clipped_moments`).
+    each clip cheap: only the first and last rows can lose values (:func:`_clipped_moments`).
     """
     n = x.shape[0]
     d = _sorted_float32(x, work)
@@ -242,11 +242,10 @@ def _band_stats(x: np.ndarray, method: str, sigma: float, work: np.ndarray | Non
     scale = np.where(scale > 0, scale, np.sqrt(np.nan_to_num(var_all)))
     thr = (sigma * scale).astype(np.float32)
     d2 = d.reshape(n, -1)  # (N, pixels) view
-    s1_all, s2_all = sd.reshape(-1), sdd.reshape(-1)
-    m, v, cnt = _clipped_moments(d2, -thr.reshape(-1), thr.reshape(-1), s1_all, s2_all)
+    m, v, cnt = _clipped_moments(d2, -thr.reshape(-1), thr.reshape(-1))
     # pass 2: within sigma standard deviations (ddof=1) of the mean of the pass-1 values
     thr = sigma * np.sqrt(np.nan_to_num(v)).astype(np.float32) + np.float32(1e-6) * np.abs(med.reshape(-1))
-    m, v, cnt = _clipped_moments(d2, m - thr, m + thr, s1_all, s2_all)
+    m, v, cnt = _clipped_moments(d2, m - thr, m + thr)
     m, v, cnt = (a.reshape(med.shape) for a in (m, v, cnt))
     mean = med + m.astype(np.float64)
     return mean, mean, v, cnt, var_all, mean_all
@@ -307,28 +306,36 @@ def _sorted_float32(x: np.ndarray, work: np.ndarray | None = None) -> np.ndarray
     return d
 
 
-def _clipped_moments(d2: np.ndarray, lo: np.ndarray, hi: np.ndarray, s1_all: np.ndarray,
-                     s2_all: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _clipped_moments(d2: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Mean, variance (ddof=1) and count along axis 0 of the values of ``d2`` in ``[lo, hi]`` (float32).
 
-    ``d2`` is (N, pixels), sorted along axis 0; ``s1_all``, ``s2_all`` are the sums of all its values and of
-    their squares. A pixel whose smallest and largest values are inside its bounds keeps every value: its sums
-    are ``s1_all``, ``s2_all`` as they are (most pixels: a 3-sigma clip leaves out nothing at 97 % of them).
-    The sums are recomputed only over the pixels that lose a value, gathered into a small array.
+    ``d2`` is (N, pixels), sorted along axis 0 (NaN last), so the values a pixel loses are its smallest and its
+    largest (and its NaN): rows ``i0 <= i < i1``, where no pixel loses a value, are summed as they are (one
+    pass, no mask); only the rows below ``i0`` and from ``i1`` up are masked, row by row (about 13 of 32 in a
+    12 MP dark band, where some pixel of the band always clips deep). Same results as masking every row.
     """
     n = d2.shape[0]
-    clipped = np.flatnonzero((d2[0] < lo) | (d2[-1] > hi))
-    cnt = np.full(s1_all.shape, n, np.int32)
-    s1 = s1_all.copy()
-    s2 = s2_all.copy()
-    if clipped.size:
-        sub = d2[:, clipped]
-        keep = sub >= lo[clipped]
-        keep &= sub <= hi[clipped]
-        cnt[clipped] = keep.sum(axis=0, dtype=np.int32)
-        sub *= keep
-        s1[clipped] = sub.sum(axis=0, dtype=np.float32)
-        s2[clipped] = np.einsum("i...,i...->...", sub, sub)
+    i0 = 0
+    while i0 < n and not (d2[i0] >= lo).all():  # "not >=": a NaN value (a masked pixel) or bound is lost too
+        i0 += 1
+    i1 = n
+    while i1 > i0 and not (d2[i1 - 1] <= hi).all():
+        i1 -= 1
+    mid = d2[i0:i1]
+    s1 = mid.sum(axis=0, dtype=np.float32)
+    s2 = np.einsum("ij,ij->j", mid, mid)
+    cnt = np.full(s1.shape, i1 - i0, np.int32)
+    keep = np.empty(s1.shape, bool)
+    inside = np.empty(s1.shape, bool)
+    row = np.empty_like(s1)
+    for i in (*range(i0), *range(i1, n)):
+        np.greater_equal(d2[i], lo, out=keep)
+        keep &= np.less_equal(d2[i], hi, out=inside)
+        np.multiply(d2[i], keep, out=row)
+        s1 += row
+        row *= row
+        s2 += row
+        cnt += keep
     with np.errstate(invalid="ignore", divide="ignore"):
         m = s1 / cnt
         v = np.maximum(s2 - s1 * m, 0) / (cnt - 1)
