@@ -6,8 +6,8 @@ Behaviour
   JPEG twin do not collide), written atomically (temporary file + rename): a failed or interrupted photo
   leaves no file under its final name.
 - **Resumable**: a photo whose EXR exists, made with the same profile (content hash), wavelength,
-  estimator and precision (read from the EXR header, no pixels), is skipped without being decoded. An EXR made
-  with other settings is redone.
+  estimator, precision and compression (read from the EXR header, no pixels), is skipped without being
+  decoded. An EXR made with other settings is redone.
 - A failing photo (damaged file, missing metadata, another camera) does not stop the batch; its
   one-line error is listed in the report (``apply_report.csv``) and the exit code is 1.
 - With a region of interest the mean, median and standard deviation of every channel are written
@@ -221,7 +221,8 @@ def _is_current(out: Path, profile_sha256: str | None, options: BatchOptions) ->
     return (meta.get("profile_sha256") == profile_sha256 and meta.get("estimator") == options.estimator
             and isinstance(wl, int | float) and math.isclose(float(wl), options.wavelength_nm)
             and (meta.get("options") or {}).get("filter_fwhm_nm") == options.filter_fwhm_nm
-            and meta.get("exr_pixel_type") == ("half" if options.half else "float"))
+            and meta.get("exr_pixel_type") == ("half" if options.half else "float")
+            and meta.get("exr_compression") == options.compression)
 
 
 def _load_mask(options: BatchOptions):
