@@ -1,7 +1,8 @@
 """Benchmark: a whole ``camcal calibrate`` of a realistic 24 MP session against decoding each of its files once.
 
 Run ``python benchmarks/bench_calibrate.py`` (prints a Markdown section for ``benchmarks/RESULTS.md``);
-``--quick`` for a smoke run (600x400); ``--width/--height`` for another sensor size; ``--runs`` alternating runs.
+``--quick`` for a smoke run (600x400); ``--width/--height`` for another sensor size; ``--runs`` alternating runs;
+``--prepare`` only writes the session (the synthetic camera takes several minutes at 24 MP: write it beforehand).
 
 The session (written once by the synthetic camera into ``benchmarks/_work/calib{W}x{H}/``, git-ignored): 16 bias,
 3 x 8 dark (8, 16, 32 s), 8 flat, 20 linearity steps and 61 sweep wavelengths (400-700 nm, one frame each),
@@ -165,6 +166,7 @@ def main() -> None:
     ap.add_argument("--height", type=int, default=4000)
     ap.add_argument("--runs", type=int, default=3, help="alternating runs of decode and calibrate (medians)")
     ap.add_argument("--quick", action="store_true", help="smoke run: 600x400, one run")
+    ap.add_argument("--prepare", action="store_true", help="only write the session (once; it is kept)")
     ap.add_argument("--one", choices=["decode", "cli", "stages"], help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.quick:
@@ -175,6 +177,8 @@ def main() -> None:
         print(json.dumps(run(session)))
         return
     prepare(args.width, args.height)
+    if args.prepare:
+        return
     for p in files(session):
         p.read_bytes()  # page cache warm for every run
     size = ("--width", str(args.width), "--height", str(args.height))
