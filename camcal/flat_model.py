@@ -427,6 +427,7 @@ class FlatChoice:
                 "vignetting_model": self.describe(), "how": self.how,
                 "weights": [[m.optics.f_number, w] for m, w in self.parts],
                 "corner_difference_rel": self.corner_difference_rel, "warning": self.warning,
+                "mismatch": self.mismatch,
                 "rule": "ln g linear in 1/N² between measured f-numbers of models of the same form; outside: "
                         "the nearest (docs/flat.md)"}
 
@@ -477,8 +478,8 @@ def choose_flat(flat: FlatModel, f_number: float | None, focal_length_mm: float 
             diff = _corner_ratio(wa * la + (1 - wa) * lb, wl * la + (1 - wl) * lb)
             mismatch = True
             notes.append(f"{n_txt} photo between the flats' {a.optics.label()} and {b.optics.label()}: vignetting "
-                         f"interpolated (ln g linear in 1/N²); corners uncertain by ±{100 * diff:.2g} % (difference "
-                         "from interpolating in ln N)")
+                         f"interpolated (ln g linear in 1/N²); corners uncertain by up to ±{100 * diff:.2g} % (the "
+                         "difference from interpolating in ln N)")
         else:
             near = min(models, key=lambda m: abs(_u(m.optics.f_number) - u))
             how, parts = "nearest", ((near, 1.0),)
