@@ -339,6 +339,21 @@ def _finite(x):
     return None if x is None or (isinstance(x, float) and not math.isfinite(x)) else x
 
 
+def flats_optics_text(flat: dict) -> str:
+    """The flats' f-numbers and focal length of a contract's ``flat`` object, each with its source:
+    ``f/2.8 (frames.csv), f/8 (frames.csv); 35 mm (tag); one vignetting model per f-number``."""
+    parts = []
+    for a in flat.get("apertures") or [{"optics": flat.get("optics") or {}}]:
+        o = a["optics"]
+        parts.append("an unknown f-number" if o.get("f_number") is None
+                     else f"f/{o['f_number']:g} ({o['f_number_source']})")
+    o = flat.get("optics") or {}
+    focal = ("focal length unknown" if o.get("focal_length_mm") is None
+             else f"{o['focal_length_mm']:g} mm ({o['focal_length_source']})")
+    many = "; one vignetting model per f-number (apply picks the photo's)" if len(parts) > 1 else ""
+    return f"{', '.join(parts)}; {focal}{many}"
+
+
 def contract(profile: CalibrationProfile) -> dict:
     """The stable JSON object of ``camcal profile show --json`` (see docs/profile-format.md).
 
