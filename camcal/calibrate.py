@@ -31,7 +31,7 @@ from camcal.flat import (
     flat_prnu,
     master_flat,
 )
-from camcal.flat_model import DEAD_RESPONSE, FlatModel, dead_pixels
+from camcal.flat_model import DEAD_RESPONSE, FlatModel, choose_flat, dead_pixels
 from camcal.frame import Frame
 from camcal.hashing import sha256_file
 from camcal.io import load_frame
@@ -411,10 +411,18 @@ def calibrate_session(
                                   reference_iso=ref_iso, reference_f_number=ref_n)  # type: ignore[arg-type]
         sweep_opts.check()
 
+        sweep_flat = flat
+        if flat is not None and flat.apertures:  # the model of the sweep's f-number (the reference setting)
+            choice = choose_flat(flat, ref_n)
+            sweep_flat = max(choice.parts, key=lambda mw: mw[1])[0]
+            if choice.how != "measured":
+                notes.append(f"no flats at the sweep's f/{ref_n:g}: its region of interest corrected with the "
+                             f"{sweep_flat.optics.label()} vignetting model")
+
         def fit_sweep():
             if not rows:
                 raise TooFewFrames("sweep", "frames listed in sweep.csv", 1, 0)
-            measured = measure_sweep_settings(sweep.folder, rows, dark=dark, flat=flat, options=sweep_opts,
+            measured = measure_sweep_settings(sweep.folder, rows, dark=dark, flat=sweep_flat, options=sweep_opts,
                                               jobs=opts.jobs, progress=cb("sweep"))
             record.leave_out([Verdict("sweep", name, reason) for name, reason in measured.left_out])
             require_wavelengths(measured, listed=listed)

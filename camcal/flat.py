@@ -74,8 +74,8 @@ from camcal.flat_model import (  # noqa: F401 (re-exported)
     save_flat,
 )
 from camcal.frame import PLANES, Exposure, Frame
-from camcal.io import load_folder_frame
-from camcal.session import StageFrames, folder_of, stage_files
+from camcal.io import list_frames, load_folder_frame
+from camcal.session import StageFrames, aperture_folders, folder_of, stage_files
 from camcal.stack import combine_frames
 
 DEFAULT_TERMS = 3
@@ -669,6 +669,11 @@ def run_flat_stage(
     output = Path(output)
     if output.suffix.lower() != ".json":
         raise CamcalError("the flat model output must be a .json file", output)
+    subs = aperture_folders(Path(flat_folder)) if not isinstance(flat_folder, StageFrames) else []
+    if subs and not list_frames(flat_folder):
+        names = ", ".join(f"{d.name}/" for _, d in subs)
+        raise CamcalError(f"holds its flats in {names} (one folder per f-number): give one of them, or calibrate "
+                          "the session (one vignetting model per f-number)", flat_folder)
     mkeys = {"method", "sigma", "checks", "jobs", "progress"}
     _check_options(kwargs.get("model", "radial"), kwargs.get("n_terms", DEFAULT_TERMS))
     dark_model = as_dark_model(dark)

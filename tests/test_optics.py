@@ -21,6 +21,7 @@ from camcal.batch import BatchOptions, run_batch
 from camcal.calibrate import calibrate_session
 from camcal.errors import CamcalError
 from camcal.exr import read_exr_header
+from camcal.flat import run_flat_stage
 from camcal.flat_model import choose_flat
 from camcal.io import load_frame
 from camcal.manifest import read_manifest, read_session_defaults
@@ -209,3 +210,18 @@ def test_focal_length_from_frames_csv_and_session_toml(tmp_path):
     (tmp_path / "frames.csv").write_text("file,focal_length_mm\na.dng,0\n")
     with pytest.raises(CamcalError, match="focal_length_mm"):
         read_manifest(tmp_path / "frames.csv")
+
+
+def test_flat_stage_refuses_several_f_numbers_with_the_next_step(optics_session, tmp_path):
+    root, _, _, _ = optics_session
+    with pytest.raises(CamcalError, match=r"holds its flats in f2\.8/, f8/ \(one folder per f-number\)"):
+        run_flat_stage(root / "flat", tmp_path / "flat.json")
+    mixed = tmp_path / "mixed"
+    mixed.mkdir()
+    for n in ("2.8", "8"):
+        for i in range(2):
+            shutil.copy(root / "flat" / f"f{n}" / f"flat_f{n}_{i:03d}.dng", mixed)
+    with pytest.raises(CamcalError, match=r"flats at several f-numbers \(f/2\.8, f/8\)"):
+        run_flat_stage(mixed, tmp_path / "flat.json")
+    model, _, _ = run_flat_stage(root / "flat" / "f8", tmp_path / "f8.json")
+    assert (model.optics.f_number, model.optics.focal_length_mm) == (8.0, 35.0)
