@@ -378,9 +378,11 @@ class FlatChoice:
         nearest measured f-number), ``unchecked`` (the flats' or the photo's f-number unknown).
     parts : ((model, weight), ...): ln g = Σ weight · ln g_model (one part of weight 1 unless interpolated).
     photo_f_number, photo_focal_length_mm : the photo's setting (None: unknown).
-    corner_difference_rel : how much the vignetting at the corners may differ from the model used (relative, the
-        largest over planes and corners): the interpolation's uncertainty, the extrapolated change beyond the
-        measured range, or the flats' own corner falloff where nothing better is known; None when measured.
+    corner_difference_rel : how much the corrected corners may be off, |g_true / g_model − 1| (the largest over
+        planes and corners): the interpolation's uncertainty, the extrapolated change beyond the measured range,
+        1/g_corner − 1 for a photo stopped down from flats of one f-number (the true gain lies between the flats'
+        and 1), the flats' corner falloff for another focal length; None when measured, or when nothing bounds it
+        (a photo at a wider aperture than flats of one f-number).
     mismatch : the photo's f-number or focal length is not one the flats were measured at (``--strict`` refuses).
     warning : one line for the user (None when the model was measured at the photo's setting).
     """
@@ -493,14 +495,16 @@ def choose_flat(flat: FlatModel, f_number: float | None, focal_length_mm: float 
                 why = (f"about {100 * diff:.2g} %, extrapolating the change from {other.optics.label()} to "
                        f"{near.optics.label()}")
             else:
-                falloff = float(1.0 - np.min(near.corner_values()))
-                diff = falloff
-                if f_number > near.optics.f_number:
-                    why = (f"up to {100 * falloff:.2g} % (the flats' corner falloff: stopping down reduces it, "
-                           "so the corners are over-corrected)")
-                else:
-                    why = (f"{100 * falloff:.2g} % or more (a wider aperture vignettes more than the flats' "
-                           f"{100 * falloff:.2g} % corner falloff: the corners are under-corrected)")
+                g_corner = float(np.min(near.corner_values()))
+                if f_number > near.optics.f_number:  # stopped down: the true gain lies between the flats' and 1
+                    diff = 1.0 / g_corner - 1.0
+                    why = (f"up to +{100 * diff:.3g} % (stopping down reduces the flats' corner falloff of "
+                           f"{100 * (1 - g_corner):.2g} %, so the corners are over-corrected by at most 1/g - 1)")
+                else:  # opened up: more vignetting than the flats', by an amount one model cannot bound
+                    diff = None
+                    why = (f"an amount one flat cannot bound (a wider aperture vignettes more than the flats' "
+                           f"{100 * (1 - g_corner):.2g} % corner falloff: the corners are under-corrected, by tens "
+                           "of percent between f/2.8 and f/8 on real lenses)")
             span = (f"outside the flats' {models[0].optics.label()} – {models[-1].optics.label()}"
                     if len(models) > 1 else f"flats at {near.optics.label()} only")
             notes.append(f"{n_txt} photo, {span}: the {near.optics.label()} vignetting model is used; the corners "
@@ -512,8 +516,8 @@ def choose_flat(flat: FlatModel, f_number: float | None, focal_length_mm: float 
         falloff = float(1.0 - min(float(np.min(m.corner_values())) for m, _ in parts))
         diff = max(diff or 0.0, falloff)
         notes.append(f"focal length {focal_length_mm:g} mm, the flats' {focal[0]:g} mm: vignetting changes with "
-                     f"the focal length, the corners may differ by up to {100 * falloff:.2g} % (the flats' corner "
-                     "falloff)")
+                     f"the focal length, the corners may differ by as much as the flats' corner falloff, "
+                     f"{100 * falloff:.2g} %")
     return FlatChoice(how, parts, f_number, focal_length_mm, diff, mismatch, "; ".join(notes) or None)
 
 

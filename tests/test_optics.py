@@ -158,10 +158,15 @@ def test_one_flat_aperture_warns_by_its_corner_falloff(optics_session):
     profile = load_profile(path)
     only = dataclasses.replace(profile, flat=dataclasses.replace(profile.flat, apertures=()))  # f/2.8 only
     choice = choose_flat(only.flat, 8.0, 35.0)
-    falloff = 1 - float(np.min(only.flat.corner_values()))
+    bound = 1 / float(np.min(only.flat.corner_values())) - 1  # stopped down: the true gain is between g and 1
     assert choice.how == "nearest" and choice.mismatch
-    assert choice.corner_difference_rel == pytest.approx(falloff)
-    assert "flats at f/2.8, 35 mm only" in choice.warning and f"up to {100 * falloff:.2g} %" in choice.warning
+    assert choice.corner_difference_rel == pytest.approx(bound)
+    assert "flats at f/2.8, 35 mm only" in choice.warning and f"up to +{100 * bound:.3g} %" in choice.warning
+    # the truth at f/8 is within that bound: corrected with the f/2.8 model, the corners come out too bright
+    errors = _corner_errors(apply(_photo(root, 8.0), only))
+    assert all(0.08 < e <= bound for e in errors.values()), errors
+    wider = choose_flat(dataclasses.replace(profile.flat.apertures[0], apertures=()), 2.8, 35.0)  # flats at f/8
+    assert wider.how == "nearest" and wider.corner_difference_rel is None and "under-corrected" in wider.warning
     with pytest.raises(CamcalError, match="refused by --strict"):
         apply(_photo(root, 8.0), only, strict=True)
     zoomed = choose_flat(profile.flat, 2.8, 50.0)
