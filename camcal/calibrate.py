@@ -31,7 +31,7 @@ from camcal.flat import (
     flat_prnu,
     master_flat,
 )
-from camcal.flat_model import DEAD_RESPONSE, FlatModel, choose_flat, dead_pixels
+from camcal.flat_model import DEAD_RESPONSE, FlatModel, choose_flat, dead_pixels, same_f_number
 from camcal.frame import Frame
 from camcal.hashing import sha256_file
 from camcal.io import load_frame
@@ -39,7 +39,7 @@ from camcal.manifest import SESSION_DEFAULTS, session_camera_facts
 from camcal.profile import CalibrationProfile, CameraIdentity, Provenance
 from camcal.response import fit_series_set, measure_series
 from camcal.screen import Screening, StageCheck, Verdict, screen_session
-from camcal.session import STAGES, SessionIndex, aperture_groups, index_session, present_stages, same_f_number
+from camcal.session import STAGES, SessionIndex, aperture_groups, index_session, present_stages
 from camcal.spectral import (
     SweepOptions,
     measure_sweep_settings,

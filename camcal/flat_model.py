@@ -350,8 +350,13 @@ def flat_from_parts(data: dict, maps: dict[str, np.ndarray], where: str | Path |
 
 #: Focal lengths within 1 % are one setting (a prime lens, a zoom at the same mark).
 FOCAL_TOLERANCE = 0.01
-#: Same f-number within 3 % (nominal 2.8 against 2√2 = 2.83); as :data:`camcal.session.F_NUMBER_TOLERANCE`.
+#: Two f-numbers within 3 % are one setting: cameras write nominal values (2.8) or exact ones (2√2 = 2.83).
 F_NUMBER_TOLERANCE = 0.03
+
+
+def same_f_number(a: float | None, b: float | None) -> bool:
+    """True when ``a`` and ``b`` are one f-number (within :data:`F_NUMBER_TOLERANCE`); False when either is None."""
+    return a is not None and b is not None and abs(a - b) <= F_NUMBER_TOLERANCE * min(a, b)
 
 
 def same_form(a: FlatModel, b: FlatModel) -> bool:
@@ -462,8 +467,7 @@ def choose_flat(flat: FlatModel, f_number: float | None, focal_length_mm: float 
                      if not models else "the photo's f-number is unknown: the vignetting model (flats at "
                      f"{', '.join(m.optics.label() for m in models)}) is not checked")
     else:
-        at = [m for m in models if abs(m.optics.f_number - f_number) <= F_NUMBER_TOLERANCE * min(
-            m.optics.f_number, f_number)]
+        at = [m for m in models if same_f_number(m.optics.f_number, f_number)]
         u = _u(f_number)
         lo = [m for m in models if m.optics.f_number < f_number]  # wider apertures (larger 1/N²)
         hi = [m for m in models if m.optics.f_number > f_number]

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from camcal.errors import CamcalError, MissingMetadataError
+from camcal.flat_model import same_f_number
 from camcal.io import IMAGE_EXTENSIONS, exposure_from_exif, folder_files, folder_manifest, is_raw_path, list_frames
 from camcal.manifest import FRAMES_CSV, exposure_overrides, read_manifest, session_defaults_for
 
@@ -36,13 +37,6 @@ Row = Mapping[str, "float | str | None"]
 APERTURE_FOLDER = re.compile(r"^[fF]/?(\d+(?:\.\d+)?)$")
 """A sub-folder of ``flat/`` holding the flats of one f-number: ``f2.8``, ``f8`` (also ``F8``)."""
 
-F_NUMBER_TOLERANCE = 0.03
-"""Two f-numbers within 3 % are the same setting: cameras write nominal values (2.8) or exact ones (2√2 = 2.83)."""
-
-
-def same_f_number(a: float | None, b: float | None) -> bool:
-    """True when ``a`` and ``b`` are one f-number (within :data:`F_NUMBER_TOLERANCE`); False when either is None."""
-    return a is not None and b is not None and abs(a - b) <= F_NUMBER_TOLERANCE * min(a, b)
 
 
 @dataclass(frozen=True)
@@ -215,7 +209,8 @@ class ApertureGroup:
 
 
 def aperture_groups(flats: StageFrames) -> list[ApertureGroup]:
-    """The flats grouped by f-number (:data:`F_NUMBER_TOLERANCE`), by N; frames of unknown N form the last group."""
+    """The flats grouped by f-number (:func:`camcal.flat_model.same_f_number`), by N; frames of unknown N form
+    the last group."""
     groups: list[list[FrameRef]] = []
     unknown: list[FrameRef] = []
     for ref in flats.frames:
