@@ -10,6 +10,8 @@ Behaviour
   decoded. An EXR made with other settings is redone.
 - A failing photo (damaged file, missing metadata, another camera) does not stop the batch; its
   one-line error is listed in the report (``apply_report.csv``) and the exit code is 1.
+- A photo whose f-number or focal length differs from the flats' gets a warning (its EXR's ``optics`` and
+  ``notes``, the report's ``warning`` column, the summary); ``strict`` refuses it (a failure, exit code 1).
 - With a region of interest the mean, median and standard deviation of every channel are written
   to ``roi_stats.csv`` (skipped photos: read back from their EXR).
 - ``progress(done, total, result)`` is called in the caller's process as photos finish.
@@ -82,6 +84,9 @@ class BatchOptions:
     half: bool = False
     compression: str = "zip"
     threads: int | None = None  # threads of one photo's arithmetic; None: the batch runner's share of the cores
+    strict: bool = False
+    """Refuse a photo whose f-number or focal length the flats were not measured at (:func:`camcal.apply.
+    plan_for_optics`); the rest of the batch goes on."""
 
 
 @dataclass(frozen=True)
@@ -94,6 +99,8 @@ class PhotoResult:
     error: str | None = None
     seconds: float = 0.0
     stats: tuple[dict, ...] = ()
+    warning: str | None = None
+    """The optics warning of the photo (its f-number or focal length differs from the flats'), from its EXR."""
 
 
 @dataclass(frozen=True)
@@ -222,7 +229,8 @@ def _is_current(out: Path, profile_sha256: str | None, options: BatchOptions) ->
             and isinstance(wl, int | float) and math.isclose(float(wl), options.wavelength_nm)
             and (meta.get("options") or {}).get("filter_fwhm_nm") == options.filter_fwhm_nm
             and meta.get("exr_pixel_type") == ("half" if options.half else "float")
-            and meta.get("exr_compression") == options.compression)
+            and meta.get("exr_compression") == options.compression
+            and not (options.strict and (meta.get("optics") or {}).get("mismatch")))
 
 
 def _load_mask(options: BatchOptions):
@@ -322,9 +330,12 @@ def _compute_photo(photo: str, profile_path: str, outdir: str, options: BatchOpt
 
         manifest = folder_manifest(src.parent) if (src.parent / "frames.csv").is_file() else {}
         frame = load_frame(src, exposure_overrides(manifest.get(src.name)))
-        image = apply_prepared(frame, plan, allow_other_camera=options.allow_other_camera, threads=options.threads)
+        image = apply_prepared(frame, plan, allow_other_camera=options.allow_other_camera, threads=options.threads,
+                               strict=options.strict)
         stats = _stats(image.channels, options, mask_image, src, image.metadata)
-        return image, PhotoResult(str(src), str(out), "done", None, 0.0, stats), frame.exposure.capture_time
+        return (image, PhotoResult(str(src), str(out), "done", None, 0.0, stats,
+                                   (image.metadata.get("optics") or {}).get("warning")),
+                frame.exposure.capture_time)
     except Exception as exc:  # a batch reports every failure and goes on
         return _failure(src, out, exc, t0)
 
@@ -353,11 +364,14 @@ def _failure(src: Path, out: Path, exc: BaseException, t0: float) -> PhotoResult
 def _skipped(src: Path, out: Path, options: BatchOptions, mask_image, t0: float) -> PhotoResult:
     """A photo whose EXR is current: nothing is computed; ROI statistics are read back from the EXR."""
     stats = ()
+    meta = None
     if options.roi is not None or options.mask_path is not None:
 
         channels, meta = read_exr(out)
         stats = _stats(channels, options, mask_image, src, meta)
-    return PhotoResult(str(src), str(out), "skipped", None, time.perf_counter() - t0, stats)
+    meta = meta if meta is not None else exr_header(out)
+    return PhotoResult(str(src), str(out), "skipped", None, time.perf_counter() - t0, stats,
+                       ((meta or {}).get("optics") or {}).get("warning"))
 
 
 def _skip_current(photo: str, outdir: str, options: BatchOptions, mask_image) -> PhotoResult:
@@ -434,9 +448,10 @@ def _write_reports(outdir: Path, results: list[PhotoResult], options: BatchOptio
 
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(["file", "status", "output", "seconds", "error"])
+    w.writerow(["file", "status", "output", "seconds", "error", "warning"])
     for r in results:
-        w.writerow([r.source, r.status, r.output if r.status != "failed" else "", f"{r.seconds:.3f}", r.error or ""])
+        w.writerow([r.source, r.status, r.output if r.status != "failed" else "", f"{r.seconds:.3f}", r.error or "",
+                    r.warning or ""])
     report = atomic_write_text(outdir / REPORT_CSV, buf.getvalue())
     roi_csv = None
     if options.roi is not None or options.mask_path is not None:

@@ -42,6 +42,9 @@ def register(app: typer.Typer) -> None:
                                         help="EXR compression: zip (default), none, zips, piz, pxr24, b44, dwaa, "
                                         "dwab, zstd or rle; measured in docs/apply.md (pxr24, b44 and dwaa/dwab "
                                         "are lossy)."),
+        strict: bool = typer.Option(False, "--strict",
+                                    help="Refuse photos whose f-number or focal length the flats were not measured "
+                                         "at (or cannot be checked); the rest of the batch goes on."),
         json_out: bool = typer.Option(False, "--json", help="Print the report as JSON."),
     ) -> None:
         """Apply a profile to photos: band radiance R, G, B and L<λ> with its uncertainty, as OpenEXR.
@@ -61,7 +64,8 @@ def register(app: typer.Typer) -> None:
         opts = BatchOptions(wavelength_nm=wavelength, estimator=estimator, filter_fwhm_nm=filter_fwhm,
                             line_fwhm_nm=line_fwhm, allow_other_camera=allow_other_camera,
                             roi=Region.parse(roi) if roi is not None else None,
-                            mask_path=None if mask is None else str(mask), half=half, compression=compression)
+                            mask_path=None if mask is None else str(mask), half=half, compression=compression,
+                            strict=strict)
         with progress() as bar:
             task = bar.add_task("apply", total=None)
 
@@ -78,6 +82,10 @@ def register(app: typer.Typer) -> None:
             console.print(f"{c['done']} written, {c['skipped']} already done (skipped), {c['failed']} failed "
                           f"→ {report.outdir} (report {Path(report.report_csv).name}"
                           f"{', ' + Path(report.roi_csv).name if report.roi_csv else ''})", soft_wrap=True)
+        for r in report.results:
+            if r.warning and r.status != "failed":
+                err_console.print(f"camcal: warning: {Path(r.source).name}: {r.warning}", markup=False,
+                                  highlight=False, soft_wrap=True)
         for r in report.failed:
             err_console.print(f"camcal: failed: {r.error}", markup=False, highlight=False, soft_wrap=True)
         if report.exit_code:
