@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import replace
 from pathlib import Path
 
+import colour
 import numpy as np
 import pytest
 from scipy.optimize import brentq
@@ -913,6 +914,11 @@ def test_smooth_error_table_truth_and_estimate_for_a_black_body_and_d65():
     assert bb["estimate"] == pytest.approx(est, rel=1e-4)
     assert bb["error_pct"] == pytest.approx(100 * (bb["estimate"] / bb["true"] - 1), rel=1e-9)
     assert rows["CIE D65"]["true"] == pytest.approx(80.2146 + 0.6 * (81.2462 - 80.2146), rel=1e-6)
+    # D65 on the curve's own 5 nm samples (colour-science's CIE table, 5 nm steps)
+    d65 = np.asarray(colour.SDS_ILLUMINANTS["D65"][wl])
+    est = float(weights @ np.trapezoid(np.stack([c[k] for k in "RGB"]) * d65, wl, axis=1))
+    assert rows["CIE D65"]["estimate"] == pytest.approx(est, rel=1e-9)
+    assert {r["spectrum"]: r for r in smooth_error_table(wl, c)}["CIE D65"]["true"] == rows["CIE D65"]["true"]
     errors = np.array([r["error_pct"] for r in rows.values()]) / 100
     assert smooth_spread_rel(wl, c, 663.0) == pytest.approx(np.sqrt(np.mean(errors**2)), rel=1e-12)
 
@@ -930,8 +936,16 @@ def test_channel_prediction_colour_matrix_inverse_and_green_uncertainty():
     s = SpectralSensitivity(wl, {p: np.ones(4) for p in PLANES},
                             {"R": np.full(4, 0.1), "G1": np.full(4, 0.3), "G2": np.full(4, 0.4), "B": np.full(4, 0.2)},
                             "relative", "relative")
-    np.testing.assert_allclose(s.rgb_uncertainty()["G"], 0.25)
-    np.testing.assert_allclose(s.rgb_uncertainty()["R"], 0.1)
+    u = s.rgb_uncertainty()
+    assert set(u) == {"R", "G", "B"}
+    np.testing.assert_allclose([u["R"][0], u["G"][0], u["B"][0]], [0.1, 0.25, 0.2])
+    linear = SpectralSensitivity(wl, {p: np.ones(4) for p in "RGB"},
+                                 {"R": np.full(4, 0.1), "G": np.full(4, 0.3), "B": np.full(4, 0.2)},
+                                 "relative", "relative")
+    u = linear.rgb_uncertainty()  # a linear RAW curve: its own G
+    assert set(u) == {"R", "G", "B"}
+    np.testing.assert_allclose([u["R"][0], u["G"][0], u["B"][0]], [0.1, 0.3, 0.2])
+    assert cm.to_raw(j).dtype == np.float32
 
 
 def test_field_spectral_ratio_is_the_per_wavelength_mixture():
