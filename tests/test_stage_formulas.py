@@ -116,6 +116,7 @@ def test_smooth_estimator_reproduces_a_spectrum_the_prior_explains():
     i = int(np.flatnonzero(wl == 663.0)[0])  # a grid node
     assert float(m.weights @ rates) == pytest.approx(spectrum[i], rel=1e-4)
     assert m.channel is None and m.units == "W m^-2 sr^-1 nm^-1"
+    assert m.wavelength_nm == 663.0 and m.estimator == "smooth"
     # between grid nodes the estimate is read linearly from the reconstruction on the grid
     m2 = radiance_model(wl, dict(zip("RGB", c, strict=True)), None, 664.0, "smooth")
     assert float(m2.weights @ rates) == pytest.approx(0.5 * (spectrum[i] + spectrum[i + 1]), rel=1e-4)
@@ -921,6 +922,13 @@ def test_smooth_error_table_truth_and_estimate_for_a_black_body_and_d65():
     assert {r["spectrum"]: r for r in smooth_error_table(wl, c)}["CIE D65"]["true"] == rows["CIE D65"]["true"]
     errors = np.array([r["error_pct"] for r in rows.values()]) / 100
     assert smooth_spread_rel(wl, c, 663.0) == pytest.approx(np.sqrt(np.mean(errors**2)), rel=1e-12)
+    # a ColorChecker patch under D65: the product of the illuminant and the patch's reflectance at 663 nm
+    skin = colour.SDS_COLOURCHECKERS["ColorChecker N Ohta"]["dark skin"]
+    at_nodes = [80.2146 * skin[660.0], 81.2462 * skin[665.0]]  # the product on the grid, read linearly at 663 nm
+    expect = float(np.interp(663.0, [660.0, 665.0], at_nodes))
+    assert rows["ColorChecker dark skin under D65"]["true"] == pytest.approx(expect, rel=1e-6)
+    at650 = np.array([r["error_pct"] for r in smooth_error_table(wl, c, 650.0)]) / 100
+    assert smooth_spread_rel(wl, c, 650.0) == pytest.approx(np.sqrt(np.mean(at650**2)), rel=1e-12)
 
 
 def test_channel_prediction_colour_matrix_inverse_and_green_uncertainty():
@@ -999,14 +1007,15 @@ def test_merging_sweeps_the_other_way_round_and_its_guards():
 
     m = merge_sweeps(sweep(hi), sweep(lo, 2.5))
     np.testing.assert_allclose(m.values["R"], _gauss(m.wavelength_nm, 560.0, 80.0) + 0.1, rtol=1e-12)
-    assert m.units == "relative" and m.mode == "relative" and not m.deconvolved and m.bandwidth_nm is None
+    assert m.units == "relative" and m.mode == "relative" and m.deconvolved is False and m.bandwidth_nm is None
+    assert m.n_frames == {}
     assert (m.reference_iso, m.reference_f_number) == (sweep(hi).reference_iso, sweep(hi).reference_f_number)
     plain = merge_sweeps(sweep(lo), sweep(hi), scale=False)
     only_b = plain.wavelength_nm > 600
     np.testing.assert_allclose(plain.uncertainty["G"][only_b], 0.01 * (_gauss(plain.wavelength_nm[only_b],
                                                                               560.0, 80.0) + 0.1), rtol=1e-12)
     np.testing.assert_allclose(plain.values["G"], _gauss(plain.wavelength_nm, 560.0, 80.0) + 0.1, rtol=1e-12)
-    merge_sweeps(sweep(lo), sweep(np.arange(590.0, 700.0, 10.0)), min_overlap=2)  # 590, 600: two
+    merge_sweeps(sweep(lo), sweep(np.arange(590.0, 700.0, 10.0)))  # 590, 600: two are enough by default
     with pytest.raises(CamcalError, match="overlap at 2 wavelengths; need 3"):
         merge_sweeps(sweep(lo), sweep(np.arange(590.0, 700.0, 10.0)), min_overlap=3)
     with pytest.raises(CamcalError, match="different mode or deconvolution"):
