@@ -66,6 +66,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
+import OpenImageIO as oiio
 
 from camcal.camera_id import Sensor, match, sensor_of, sensor_of_profile
 from camcal.correct import Calibration, correct_planes, system_gain_dn_per_e
@@ -634,9 +635,6 @@ def roi_mask(shape_hw: tuple[int, int], roi: Region | None = None,
 
 def read_mask(path: str | Path) -> np.ndarray:
     """A mask image (PNG/TIFF/JPEG, any channels) as a 2-D float array."""
-    import OpenImageIO as oiio  # lazy: ~0.1 s at import, only for image files (benchmarks/RESULTS.md, Start-up)
-
-
     path = Path(path)
     if not path.is_file():
         raise CamcalError("no such mask file", path)

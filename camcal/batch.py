@@ -30,12 +30,15 @@ import csv
 import ctypes
 import io
 import math
+import multiprocessing
 import os
 import signal
 import sys
 import threading
 import time
 from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
@@ -470,10 +473,6 @@ def _with_threads(args: list[tuple], threads: int) -> list[tuple]:
 
 
 def _run_pool(args: list[tuple], jobs: int, done: Callable[[PhotoResult], None]) -> None:
-    import multiprocessing  # lazy: only a multi-process batch
-    from concurrent.futures import ProcessPoolExecutor, as_completed
-    from concurrent.futures.process import BrokenProcessPool
-
     ctx = multiprocessing.get_context("spawn")  # no fork of a process holding threads (progress bar, OIIO)
     with ProcessPoolExecutor(max_workers=min(jobs, len(args)), mp_context=ctx, initializer=_worker_init,
                              initargs=(os.getpid(), args[0][1], args[0][3])) as pool:

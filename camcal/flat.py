@@ -46,6 +46,7 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
+from numpy.polynomial import legendre
 from scipy.optimize import least_squares
 
 from camcal.blocks import DEFAULT_BLOCKS, auto_downsample, block_mean  # noqa: F401 (re-exported)
@@ -177,8 +178,6 @@ def fit_2d_plane(
     Returns (level at ``centre``, coefficients normalised so the series is 1 at ``centre``, scale 1.0,
     relative RMS residual).
     """
-    from numpy.polynomial import legendre
-
     ok = np.isfinite(block) & (block > 0)
     d = block[ok]
     n_coef = int(_total_degree_mask(degree).sum())

@@ -20,6 +20,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+import jsonschema
 import numpy as np
 
 from camcal import __version__
@@ -214,8 +215,6 @@ def check_version(doc: dict, where: str | Path) -> None:
 
 def validate_document(doc: dict, where: str | Path) -> None:
     """Validate ``doc`` against the JSON Schema; one line naming the first offending field."""
-    import jsonschema
-
     check_version(doc, where)
     validator = jsonschema.Draft202012Validator(_schema())
     errors = sorted(validator.iter_errors(doc), key=lambda e: [str(p) for p in e.absolute_path])

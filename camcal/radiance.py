@@ -197,7 +197,7 @@ def smooth_error_table(wavelength_nm: np.ndarray, c_rgb: dict[str, np.ndarray], 
     24 ColorChecker patches (Ohta) under D65 — all from colour-science.
     Returns rows ``{"spectrum", "true", "estimate", "error_pct"}``.
     """
-    import colour  # lazy: colour-science takes ~1-2 s to import (benchmarks/RESULTS.md, Start-up)
+    import colour  # loads matplotlib: kept off paths that do not plot
 
 
     wl = np.asarray(wavelength_nm, float)

@@ -4,6 +4,11 @@ Spectra are plain float arrays on a wavelength grid in nm; conversion to and
 from colour-science types happens at the edges. Spectral radiance is in
 W m^-2 sr^-1 nm^-1 throughout.
 
+colour-science is imported inside the functions that use it, as matplotlib is: ``import colour`` (or any
+``colour.*`` submodule) runs ``colour/__init__.py``, which imports ``colour.plotting`` and with it matplotlib
+(about 0.2 s, and 1-3 s for colour itself), so a module-level import would load matplotlib on every path that
+reads a spectrum, including ``camcal calibrate``, which ``tests/test_structure.py`` keeps free of it.
+
 References
 ----------
 Darrodi, M. M., Finlayson, G., Goodman, T., Mackiewicz, M. (2015). Reference
@@ -41,7 +46,7 @@ def camera_sensitivities(name: str, wavelengths_nm: np.ndarray = WAVELENGTHS_NM)
     Outside the measured range the curves are zero (no constant extrapolation).
     Each curve peaks at 1 as published.
     """
-    import colour  # lazy: colour-science takes ~1-2 s to import (benchmarks/RESULTS.md, Start-up)
+    import colour  # loads matplotlib: kept off paths that do not plot
 
     key = CAMERAS.get(name, name)
     if key not in colour.MSDS_CAMERA_SENSITIVITIES:
@@ -67,7 +72,7 @@ def gaussian_line(center_nm: float, fwhm_nm: float, wavelengths_nm: np.ndarray =
     The line is ``colour.sd_gaussian(center_nm, fwhm_nm, method="FWHM")`` on the grid's
     :class:`colour.SpectralShape`, divided by its trapezoidal integral over the grid.
     """
-    import colour  # lazy: colour-science takes ~1-2 s to import (benchmarks/RESULTS.md, Start-up)
+    import colour  # loads matplotlib: kept off paths that do not plot
 
     wl = np.asarray(wavelengths_nm, float)
     step = np.diff(wl)
@@ -88,7 +93,7 @@ def planck_radiance(temperature_k: float, wavelengths_nm: np.ndarray = WAVELENGT
     radiation constants c1 = 2πhc² and c2 = hc/k rather than its CIE 15 defaults (c2 = 1.4388e-2 m K, the
     ITS-90 value, 1.6e-5 larger).
     """
-    from colour.colorimetry import planck_law  # lazy: colour-science takes ~1-2 s to import (see above)
+    from colour.colorimetry import planck_law  # loads matplotlib: kept off paths that do not plot
 
     wl = np.asarray(wavelengths_nm, float)
     b = planck_law(wl.ravel() * 1e-9, float(temperature_k), c1=C1_W_M2, c2=C2_M_K)

@@ -661,7 +661,7 @@ def slit_functions(grid_nm: np.ndarray, centre_nm: np.ndarray, fwhm_nm: np.ndarr
     Gaussian: ``colour.sd_gaussian(centre, fwhm, method="FWHM")``; triangular: 1 − |offset|/FWHM, clipped at 0.
     """
     if shape == "gaussian":
-        import colour  # lazy: colour-science takes ~1-2 s to import (benchmarks/RESULTS.md, Start-up)
+        import colour  # loads matplotlib: kept off paths that do not plot
 
         grid = colour.SpectralShape(float(grid_nm[0]), float(grid_nm[-1]), float(grid_nm[1] - grid_nm[0]))
         return np.stack([np.asarray(colour.sd_gaussian(float(c), float(f), shape=grid, method="FWHM").values)

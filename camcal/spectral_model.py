@@ -118,7 +118,7 @@ class SpectralSensitivity:
 
         The four planes (keeping G1 and G2) are in :meth:`to_colour_planes`.
         """
-        from colour.characterisation import RGB_CameraSensitivities
+        from colour.characterisation import RGB_CameraSensitivities  # loads matplotlib: kept off paths that do not plot
 
         rgb = self.rgb()
         data = np.column_stack([rgb["R"], rgb["G"], rgb["B"]])
@@ -126,7 +126,7 @@ class SpectralSensitivity:
 
     def to_colour_planes(self):
         """colour-science :class:`MultiSpectralDistributions` labelled R, G1, G2, B."""
-        import colour
+        import colour  # loads matplotlib: kept off paths that do not plot
 
         data = np.column_stack([self.values[p] for p in self.plane_names])
         return colour.MultiSpectralDistributions(data, self.wavelength_nm, labels=list(self.plane_names),

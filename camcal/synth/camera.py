@@ -38,6 +38,7 @@ from functools import cached_property
 from pathlib import Path
 
 import numpy as np
+import OpenImageIO as oiio
 
 from camcal.atomic import atomic_write_bytes, atomic_write_text
 from camcal.errors import CamcalError
@@ -578,9 +579,6 @@ def write_jpeg_file(
     OpenImageIO encodes the pixels (4:4:4 chroma); camcal writes the Exif APP1
     segment itself so that exposure time and f-number are exact rationals.
     """
-    import OpenImageIO as oiio  # lazy: ~0.1 s at import, only for image files (benchmarks/RESULTS.md, Start-up)
-
-
     h, w, _ = rgb8.shape
     spec = oiio.ImageSpec(w, h, 3, oiio.UINT8)
     spec.attribute("Compression", f"jpeg:{int(quality)}")

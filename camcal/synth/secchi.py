@@ -57,7 +57,7 @@ def daylight_white_radiance(wavelengths_nm: np.ndarray = WAVELENGTHS_NM, *, illu
                             irradiance_560_W_m2_nm: float = DAYLIGHT_IRRADIANCE_560_W_M2_NM) -> np.ndarray:
     """Spectral radiance of a perfect white Lambertian surface, L = E/π (W m⁻² sr⁻¹ nm⁻¹), E a CIE
     illuminant's relative spectrum (colour-science) scaled to ``irradiance_560_W_m2_nm`` at 560 nm."""
-    import colour  # lazy: colour-science takes ~1-2 s to import (benchmarks/RESULTS.md, Start-up)
+    import colour  # loads matplotlib: kept off paths that do not plot
 
     key = {k.lower(): k for k in colour.SDS_ILLUMINANTS}.get(str(illuminant).lower())
     if key is None:

@@ -41,6 +41,7 @@ from datetime import datetime
 from pathlib import Path
 
 import numpy as np
+import pvlib
 
 from camcal.data import read_bundled_table
 from camcal.errors import CamcalError
@@ -99,8 +100,6 @@ class SunSky:
 
     def spectra(self, wavelengths_nm=WAVELENGTHS_NM) -> tuple[np.ndarray, np.ndarray]:
         """(DNI, DHI) in W m⁻² nm⁻¹ on ``wavelengths_nm`` (linear interpolation of SPECTRL2's grid)."""
-        import pvlib  # lazy: pvlib brings pandas, about a second at import, only for the sun
-
         z = float(self.sun_zenith_deg)
         s = pvlib.spectrum.spectrl2(apparent_zenith=z, aoi=z, surface_tilt=0.0, ground_albedo=0.06,
                                     surface_pressure=self.pressure_Pa,
