@@ -90,9 +90,32 @@ class DarkModel:
         rows, cols = window if window is not None else (slice(None), slice(None))
         out = np.array(self.bias_dn[:, rows, cols], np.float32)
         if self.dark_current_dn_per_s is not None:
-            scale = 1.0 if iso is None else float(iso) / float(self.iso)
-            out += self.dark_current_dn_per_s[:, rows, cols] * np.float32(exposure_s * scale)
+            out += self.dark_current_dn_per_s[:, rows, cols] * np.float32(exposure_s * self.iso_scale(iso))
         return out
+
+    def iso_scale(self, iso: float | None) -> float:
+        """k = ``iso / self.iso`` (1 when ``iso`` is None): the factor by which the dark current and the
+        noise in DN grow with the gain (EMVA 1288 release 4.0, eq. 6, with the gain in DN per electron ∝ ISO)."""
+        return 1.0 if iso is None else float(iso) / float(self.iso)
+
+    def noise_variance_dn2(self, raw_dn: np.ndarray, gain_dn_per_e: np.ndarray, iso: float | None = None,
+                           window: tuple[slice, slice] | None = None) -> np.ndarray:
+        """Temporal noise variance of a frame's dark-subtracted signal, DN², float32 (C, h, w).
+
+        EMVA 1288 release 4.0 linear camera model (eq. 6): ``σ² = σ_read²·k² + K·k·max(d − bias, 0)``,
+        with ``d − bias`` the signal plus the dark signal β·t·k (both shot noise), ``σ_read`` the read-noise
+        map (:attr:`read_noise_dn`), K ``gain_dn_per_e`` (C, 1, 1) the system gain in DN per electron at
+        :attr:`iso` and k :meth:`iso_scale`. ``raw_dn`` are the frame's (C, h, w) planes in DN (the part
+        ``window`` selects, plane pixels), before the dark frame is subtracted; the flat gain is not applied.
+        """
+        rows, cols = window if window is not None else (slice(None), slice(None))
+        k = self.iso_scale(iso)
+        var = np.subtract(raw_dn, self.bias_dn[:, rows, cols], dtype=np.float32)
+        np.maximum(var, 0, out=var)
+        var *= gain_dn_per_e * np.float32(k)
+        rn = self.read_noise_dn[:, rows, cols]
+        var += rn * rn * np.float32(k * k)
+        return var
 
     @property
     def plane_names(self) -> tuple[str, ...]:
