@@ -609,17 +609,22 @@ def _load_processed(path: Path) -> Frame:
     )
     exp = _fill(exif_exp, oiio_exp)
     exp = dataclasses.replace(exp, make=oiio_exp.make or exif_exp.make, model=oiio_exp.model or exif_exp.model)
-    data = np.ascontiguousarray(data)
+    return _processed_frame(path, data, bits, exp, icc_name)
+
+
+def _processed_frame(path: Path, rgb: np.ndarray, bits: int, exposure: Exposure, icc_profile: str | None) -> Frame:
+    """A processed (JPEG, TIFF, PNG, HEIC) frame: (H, W, 3) ``rgb`` of ``bits`` bits, black level 0, white
+    level 2^bits − 1 (the encoded range; the tone curve is not undone here)."""
     return Frame(
-        data=data,
+        data=np.ascontiguousarray(rgb),
         kind="processed",
         cfa_pattern=None,
         black_level_dn={"R": 0.0, "G": 0.0, "B": 0.0},
         white_level_dn=float(2**bits - 1),
-        exposure=exp,
+        exposure=exposure,
         path=path,
         layout="processed",
-        icc_profile=icc_name,
+        icc_profile=icc_profile,
     )
 
 
@@ -658,22 +663,12 @@ def _load_heif(path: Path) -> Frame:
     if pixels.ndim != 3 or pixels.shape[:2] != (h, w) or pixels.shape[2] < 3:
         raise CamcalError(f"decodes to an image of unexpected shape {pixels.shape}", path)
     if pixels.dtype == np.uint16 and bits < 16:
-        data = np.ascontiguousarray(pixels[..., :3] >> np.uint16(16 - bits))  # libheif gives the top bits
+        data = pixels[..., :3] >> np.uint16(16 - bits)  # libheif gives the top bits
     else:
-        data = np.ascontiguousarray(pixels[..., :3])
+        data = pixels[..., :3]
         bits = 8 * data.dtype.itemsize
     exp = exposure_from_exif(path, _exif_from_block(heif.info.get("exif")))
-    return Frame(
-        data=data,
-        kind="processed",
-        cfa_pattern=None,
-        black_level_dn={"R": 0.0, "G": 0.0, "B": 0.0},
-        white_level_dn=float(2**bits - 1),
-        exposure=exp,
-        path=path,
-        layout="processed",
-        icc_profile=icc_description(heif.info.get("icc_profile")),
-    )
+    return _processed_frame(path, data, bits, exp, icc_description(heif.info.get("icc_profile")))
 
 
 def is_raw_path(path: Path) -> bool:

@@ -462,23 +462,9 @@ class SyntheticCamera:
         Processing as :meth:`render_processed` (8 bits), then JPEG at ``quality`` with 4:4:4 chroma.
         ``place``: GPS and time tags as in :meth:`write_dng`.
         """
-        p = self.params
-        iso = p.iso_base if iso is None else iso
-        f_number = p.reference_f_number if f_number is None else f_number
-        img = self.render_processed(scene, exposure_s=exposure_s, iso=iso, f_number=f_number, rng=rng, tone=tone,
-                                    gamma=gamma, colour_matrix=colour_matrix, bits=8)
-        return write_jpeg_file(
-            path,
-            img,
-            exposure_s=exposure_s,
-            f_number=f_number if tag_f_number else None,
-            iso=iso,
-            make=p.make,
-            model=p.model,
-            quality=quality,
-            capture_time=capture_time,
-            place=place,
-        )
+        img, tags = self._processed_photo(scene, exposure_s, iso, f_number, rng, tone, gamma, colour_matrix, 8,
+                                          tag_f_number, quality, capture_time, place)
+        return write_jpeg_file(path, img, **tags)
 
     def write_heic(
         self,
@@ -503,14 +489,24 @@ class SyntheticCamera:
         Processing as :meth:`render_processed`; encoded by pillow-heif (libheif, x265) at ``quality``
         with 4:4:4 chroma; ``place``: GPS and time tags as in :meth:`write_dng`.
         """
+        img, tags = self._processed_photo(scene, exposure_s, iso, f_number, rng, tone, gamma, colour_matrix, bits,
+                                          tag_f_number, quality, capture_time, place)
+        return write_heic(path, img, bits=bits, **tags)
+
+    def _processed_photo(self, scene: Scene, exposure_s: float, iso: float | None, f_number: float | None,
+                         rng: np.random.Generator, tone: str, gamma: float, colour_matrix: np.ndarray | None,
+                         bits: int, tag_f_number: bool, quality: int, capture_time: datetime | None,
+                         place: PlaceTime | None) -> tuple[np.ndarray, dict]:
+        """The image of :meth:`render_processed` (at the camera's base ISO and reference f-number unless
+        given) and the EXIF and encoder arguments the JPEG and HEIC writers share."""
         p = self.params
         iso = p.iso_base if iso is None else iso
         f_number = p.reference_f_number if f_number is None else f_number
         img = self.render_processed(scene, exposure_s=exposure_s, iso=iso, f_number=f_number, rng=rng, tone=tone,
                                     gamma=gamma, colour_matrix=colour_matrix, bits=bits)
-        return write_heic(path, img, bits=bits, quality=quality, exposure_s=exposure_s,
-                          f_number=f_number if tag_f_number else None, iso=iso, make=p.make, model=p.model,
-                          capture_time=capture_time, place=place)
+        tags = {"exposure_s": exposure_s, "f_number": f_number if tag_f_number else None, "iso": iso,
+                "make": p.make, "model": p.model, "quality": quality, "capture_time": capture_time, "place": place}
+        return img, tags
 
     def truth(self, iso: float | None = None) -> dict:
         """Ground truth of the fixed pattern and the radiometry, JSON-ready."""
