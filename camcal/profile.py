@@ -33,16 +33,18 @@ from camcal.frame import PLANES, RGB
 from camcal.response_model import ResponseModel
 from camcal.spectral_model import SpectralSensitivity, spectral_from_dict, spectral_to_dict
 from camcal.store import to_jsonable
+from camcal.units import SPECTRAL_SENSITIVITY
 
 FORMAT = "camcal-profile"
-SCHEMA_VERSION = "1.6"  # 1.1: optional response.processed.colour_matrix; 1.2: optional spectral_sensitivity.source;
+SCHEMA_VERSION = "1.7"  # 1.1: optional response.processed.colour_matrix; 1.2: optional spectral_sensitivity.source;
 # 1.3: camera.layout, dark.layout, dark.dark_current_known, dark channels temporal_noise_dn, R, G, B planes (linear RAW)
 # 1.4: optional emva1288 section (EMVA 1288 summary: K from photon transfer, DSNU, PRNU, saturation, SNR, DR, LE)
 # 1.5: provenance.left_out and provenance.not_calibrated; reference iso / f_number may be null (no stage
 # normalised exposure); response channels saturation_exposure_s and fitted_exposure_s
 # 1.6: spectral_sensitivity.source kinds "library" and "sweep_means" and source.library (the curve-library entry)
+# 1.7: spectral_sensitivity.reference_iso / reference_f_number may be null (relative curves of unknown setting)
 SUPPORTED_MAJOR = 1
-SPECTRAL_UNITS_DEFAULT = "DN s^-1 per (W m^-2 sr^-1 nm^-1) per nm at ISO_ref, f/N_ref, on axis"
+SPECTRAL_UNITS_DEFAULT = SPECTRAL_SENSITIVITY
 
 
 @dataclass(frozen=True)
@@ -88,7 +90,7 @@ class CalibrationProfile:
     flat : camcal.flat.FlatModel or None
     response : dict of camcal.response.ResponseModel, keyed ``raw`` / ``processed``, or None
     spectral : camcal.spectral.SpectralSensitivity or None
-        Absolute c(λ) in DN s^-1 per (W m^-2 sr^-1 nm^-1) per nm at the reference setting, on axis.
+        Absolute c(λ) in DN s⁻¹ per (W m⁻² sr⁻¹ nm⁻¹) per nm at the reference setting, on axis.
     emva : camcal.emva.EmvaSheet or None
         The EMVA 1288 summary (system gain K from photon transfer, DSNU, PRNU, saturation, SNR_max, dynamic
         range, linearity error); the noise model uses its K (:meth:`camcal.correct.Calibration.of`).
