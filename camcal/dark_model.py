@@ -15,6 +15,7 @@ import numpy as np
 from camcal.errors import CamcalError
 from camcal.frame import PLANES, RGB
 from camcal.store import load_stage, save_stage
+from camcal.units import DN, DN_PER_S
 
 HOT, DEAD, NOISY = 1, 2, 4
 """Bits of :attr:`DarkModel.defects`."""
@@ -35,9 +36,9 @@ class DarkModel:
     bias_dn : (4, h, w) float32
         Master bias in DN, black level included (the intercept at t = 0).
     dark_current_dn_per_s : (4, h, w) float32, or None
-        Dark current β in DN/s at :attr:`iso`; None when unknown (a bias-only calibration).
+        Dark current β in DN s⁻¹ at :attr:`iso`; None when unknown (a bias-only calibration).
     dark_current_unc_dn_per_s : (4, h, w) float32, or None
-        Standard uncertainty of β per pixel, DN/s.
+        Standard uncertainty of β per pixel, DN s⁻¹.
     read_noise_dn : (4, h, w) float32
         Temporal standard deviation of the dark signal in DN with the quantisation removed (below 1 DN
         of noise: the plane's value from :func:`camcal.dark.quantised_noise_fit`, see
@@ -177,7 +178,7 @@ def dark_to_parts(model: DarkModel) -> tuple[dict, dict[str, np.ndarray]]:
         "white_level_dn": model.white_level_dn, "channels": model.channels, "summary": model.summary(),
         "dark_current_known": model.dark_current_dn_per_s is not None,
         "provenance": model.provenance,
-        "units": {"bias": "DN", "dark_current": "DN/s at iso", "dark_current_unc": "DN/s", "read_noise": "DN",
+        "units": {"bias": DN, "dark_current": f"{DN_PER_S} at iso", "dark_current_unc": DN_PER_S, "read_noise": DN,
                   "defects": "bits: 1 hot, 2 dead, 4 noisy"},
     }
     return data, maps
