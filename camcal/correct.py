@@ -9,8 +9,8 @@ ISO S, with the calibration known so far:
    model the file's black level per plane is subtracted (dark current then stays in the signal);
    a dark model whose dark current is unknown (bias-only calibration) subtracts its bias only.
 2. **flat**: ``s / g`` with g the flat-field gain (1 at the optical centre, :mod:`camcal.flat`).
-3. **variance** (optional): ``var = σ_read²·k² + K·k·max(d − bias, 0)``, divided by g²
-   (EMVA 1288 release 4.0, linear camera model, eq. 6; d − bias is the signal plus the dark signal;
+3. **variance** (optional): ``var = σ_read²·k² + K·k·max(s + β·t·k, 0)``, divided by g²
+   (EMVA 1288 release 4.0, linear camera model, eq. 6; s + dark signal = d − bias;
    k = S/S_dark, K the system gain in DN per electron from photon transfer or the dark frames'
    photon-transfer line), evaluated by the dark model itself
    (:meth:`camcal.dark_model.DarkModel.noise_variance_dn2`).
@@ -153,6 +153,12 @@ def _window_of(a: np.ndarray, window: Window | None) -> np.ndarray:
     return a if window is None else a[:, window[0], window[1]]
 
 
+def _check_dark_planes(dark: DarkModel, shape: tuple[int, ...], path: Path | None) -> None:
+    if tuple(dark.bias_dn.shape) != tuple(shape):
+        raise CamcalError(f"the frame's planes {tuple(shape)} do not match the dark model's "
+                          f"{tuple(dark.bias_dn.shape)} (another camera, crop or resolution)", path)
+
+
 def dark_frame(dark: Any, exposure_s: float, iso: float | None, shape: tuple[int, int, int],
                window: Window | None = None, channels: tuple[str, ...] = PLANES,
                cfa_pattern: str | None = None, path: Path | None = None) -> np.ndarray:
@@ -163,9 +169,7 @@ def dark_frame(dark: Any, exposure_s: float, iso: float | None, shape: tuple[int
     :class:`DarkFrameModel` is evaluated whole and cropped.
     """
     if isinstance(dark, DarkModel):
-        if tuple(dark.bias_dn.shape) != tuple(shape):
-            raise CamcalError(f"the frame's planes {tuple(shape)} do not match the dark model's "
-                              f"{tuple(dark.bias_dn.shape)} (another camera, crop or resolution)", path)
+        _check_dark_planes(dark, shape, path)
         try:
             return dark.dark_frame_dn(exposure_s, iso, window)
         except CamcalError as exc:
@@ -240,12 +244,19 @@ def correct_planes(
         if beta is not None and exposure_s is None:
             raise CamcalError("dark correction needs the exposure time, which the file does not give", path)
         t = 0.0 if exposure_s is None else float(exposure_s)
-        dark_dn = dark_frame(dark, t, iso, shape, window, channels, cfa_pattern, path)
         if (variance and isinstance(dark, DarkModel) and beta is not None
                 and calibration.noise_gain_dn_per_e is not None):
-            # from the raw planes, before ``signal`` (the same array when inplace) loses the dark frame
-            var = dark.noise_variance_dn2(signal, calibration.noise_gain_dn_per_e, iso, window)
-        signal -= dark_dn
+            # the dark frame in its two parts: the dark signal is shot noise too
+            _check_dark_planes(dark, shape, path)
+            try:
+                bias, dark_signal = dark.dark_frame_parts_dn(t, iso, window)
+            except CamcalError as exc:
+                raise CamcalError(exc.message, path) from None
+            signal -= bias
+            signal -= dark_signal
+            var = dark.noise_variance_dn2(signal, dark_signal, calibration.noise_gain_dn_per_e, iso, window)
+        else:
+            signal -= dark_frame(dark, t, iso, shape, window, channels, cfa_pattern, path)
     else:
         signal -= black
     if calibration.flat_gain is not None:

@@ -86,32 +86,42 @@ class DarkModel:
         the bias (black level) does not change with ISO. A bias-only model (β unknown) gives its bias.
         ``window`` (rows, columns of each plane, plane pixels) evaluates that part only.
         """
+        bias, dark_signal = self.dark_frame_parts_dn(exposure_s, iso, window)
+        out = np.array(bias, np.float32)
+        if dark_signal is not None:
+            out += dark_signal
+        return out
+
+    def dark_frame_parts_dn(self, exposure_s: float, iso: float | None = None,
+                            window: tuple[slice, slice] | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+        """The two parts of :meth:`dark_frame_dn`: the bias (a read-only view of :attr:`bias_dn` on ``window``)
+        and the dark signal ``β·t·iso/self.iso`` in DN, float32, or None when β is unknown (bias-only model)."""
         if not np.isfinite(exposure_s) or exposure_s < 0:
             raise CamcalError(f"exposure time must be a non-negative number of seconds, got {exposure_s}")
         rows, cols = window if window is not None else (slice(None), slice(None))
-        out = np.array(self.bias_dn[:, rows, cols], np.float32)
+        dark_signal = None
         if self.dark_current_dn_per_s is not None:
-            out += self.dark_current_dn_per_s[:, rows, cols] * np.float32(exposure_s * self.iso_scale(iso))
-        return out
+            dark_signal = self.dark_current_dn_per_s[:, rows, cols] * np.float32(exposure_s * self.iso_scale(iso))
+        return self.bias_dn[:, rows, cols], dark_signal
 
     def iso_scale(self, iso: float | None) -> float:
         """k = ``iso / self.iso`` (1 when ``iso`` is None): the factor by which the dark current and the
         noise in DN grow with the gain (EMVA 1288 release 4.0, eq. 6, with the gain in DN per electron ∝ ISO)."""
         return 1.0 if iso is None else float(iso) / float(self.iso)
 
-    def noise_variance_dn2(self, raw_dn: np.ndarray, gain_dn_per_e: np.ndarray, iso: float | None = None,
-                           window: tuple[slice, slice] | None = None) -> np.ndarray:
+    def noise_variance_dn2(self, signal_dn: np.ndarray, dark_signal_dn: np.ndarray, gain_dn_per_e: np.ndarray,
+                           iso: float | None = None, window: tuple[slice, slice] | None = None) -> np.ndarray:
         """Temporal noise variance of a frame's dark-subtracted signal, DN², float32 (C, h, w).
 
-        EMVA 1288 release 4.0 linear camera model (eq. 6): ``σ² = σ_read²·k² + K·k·max(d − bias, 0)``,
-        with ``d − bias`` the signal plus the dark signal β·t·k (both shot noise), ``σ_read`` the read-noise
-        map (:attr:`read_noise_dn`), K ``gain_dn_per_e`` (C, 1, 1) the system gain in DN per electron at
-        :attr:`iso` and k :meth:`iso_scale`. ``raw_dn`` are the frame's (C, h, w) planes in DN (the part
-        ``window`` selects, plane pixels), before the dark frame is subtracted; the flat gain is not applied.
+        EMVA 1288 release 4.0 linear camera model (eq. 6): ``σ² = σ_read²·k² + K·k·max(s + β·t·k, 0)``,
+        with ``s`` the signal above dark (``signal_dn``, before the flat division) and β·t·k the dark signal
+        (``dark_signal_dn``, from :meth:`dark_frame_parts_dn`; both carry shot noise), ``σ_read`` the
+        read-noise map (:attr:`read_noise_dn`), K ``gain_dn_per_e`` (C, 1, 1) the system gain in DN per
+        electron at :attr:`iso` and k :meth:`iso_scale`; all on ``window`` (plane pixels).
         """
         rows, cols = window if window is not None else (slice(None), slice(None))
         k = self.iso_scale(iso)
-        var = np.subtract(raw_dn, self.bias_dn[:, rows, cols], dtype=np.float32)
+        var = dark_signal_dn + signal_dn
         np.maximum(var, 0, out=var)
         var *= gain_dn_per_e * np.float32(k)
         rn = self.read_noise_dn[:, rows, cols]
