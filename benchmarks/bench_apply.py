@@ -1,6 +1,14 @@
 """Benchmark: one 24-megapixel DNG to a radiance EXR, against the floor; batch throughput on 2 cores.
 
 Run ``python benchmarks/bench_apply.py``; prints a Markdown section for ``benchmarks/RESULTS.md``.
+``--batch`` measures only the batch (below) at ``--counts 8,16,32`` photos; ``--quick`` is a small smoke run
+(1200x800, 2 and 4 photos); ``--width/--height`` choose the photo size.
+
+Batch (``--batch``): ``run_batch(profile, photos[:n], out, BatchOptions(), jobs=2)`` (the CLI's default output,
+float32 zip) in a fresh subprocess per run, against the floor of the same photos: a 2-process (spawn) pool whose
+workers do the floor's rawpy decode + OpenImageIO write per photo. Photos/s of each, their ratio, and the peak
+RSS of the largest worker (``RUSAGE_CHILDREN``, fresh per run), at each count: flat in the count. Runs
+alternate floor / camcal; medians.
 
 Floor (the unavoidable work, measured in the same run): ``rawpy`` decode of the DNG (mosaic copied
 out) plus an OpenImageIO write of an EXR of the same size as camcal's output (5 float32 channels at
@@ -17,6 +25,7 @@ from __future__ import annotations
 
 import dataclasses
 import datetime
+import json
 import os
 import platform
 import resource
@@ -64,7 +73,10 @@ def build(work: Path):
     cam = SyntheticCamera(SensorParams(width=WIDTH, height=HEIGHT))
     prof_path = work / "cam24.camcal"
     photos = [work / f"photo_{i:02d}.dng" for i in range(N_BATCH)]
-    if prof_path.exists() and all(p.exists() for p in photos):
+    if prof_path.exists() and photos[0].exists():
+        for ph in photos[1:]:
+            if not ph.exists():
+                shutil.copyfile(photos[0], ph)  # same content: throughput does not depend on it
         return load_profile(prof_path), prof_path, photos
     small = _small_profile(work)
     p = cam.params
@@ -153,11 +165,117 @@ def breakdown(photo: Path, plan, out: Path) -> dict[str, float]:
             "write": (c3[0] - c2[0], c3[1] - c2[1])}
 
 
+def _floor_photo(args: tuple[str, str]) -> float:
+    return floor_once(Path(args[0]), Path(args[1]))
+
+
+def batch_once(kind: str, n: int, jobs: int) -> dict:
+    """One batch of the first ``n`` photos, in this (fresh) process: wall time and the largest worker's peak RSS."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    from camcal.batch import BatchOptions, run_batch
+
+    _, prof_path, photos = build(WORK)
+    with tempfile.TemporaryDirectory(dir=WORK) as tmp:
+        t0 = time.perf_counter()
+        if kind == "camcal":
+            rep = run_batch(prof_path, photos[:n], Path(tmp) / "out", BatchOptions(), jobs=jobs)
+            assert rep.counts["done"] == n, rep.counts
+        else:
+            ctx = multiprocessing.get_context("spawn")
+            with ProcessPoolExecutor(jobs, mp_context=ctx) as pool:
+                list(pool.map(_floor_photo, [(str(p), str(Path(tmp) / f"{p.name}.exr")) for p in photos[:n]]))
+        dt = time.perf_counter() - t0
+    return {"seconds": dt, "worker_peak_mb": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024}
+
+
+def batch_section(counts: list[int], jobs: int, runs: int) -> None:
+    import json
+    import statistics
+    import subprocess
+
+    build(WORK)
+    size = ["--width", str(WIDTH), "--height", str(HEIGHT), "--counts", ",".join(map(str, counts))]
+
+    def sub(kind: str, n: int) -> dict:
+        proc = subprocess.run([sys.executable, __file__, *size, "--one", kind, "--n", str(n), "--jobs", str(jobs)],
+                              capture_output=True, text=True)
+        if proc.returncode:
+            raise SystemExit(f"batch run {kind} {n} failed:\n{proc.stderr}")
+        return json.loads(proc.stdout.strip().splitlines()[-1])
+
+    res: dict[tuple[str, int], list[dict]] = {(k, n): [] for k in ("floor", "camcal") for n in counts}
+    for _ in range(runs):
+        for n in counts:
+            for kind in ("floor", "camcal"):
+                res[kind, n].append(sub(kind, n))
+
+    def med(kind: str, n: int, key: str) -> float:
+        return statistics.median(r[key] for r in res[kind, n])
+
+    mp = WIDTH * HEIGHT / 1e6
+    print("### batch\n")
+    print(f"Machine: {os.cpu_count()} cores, CPython {platform.python_version()}, {platform.machine()}; "
+          f"{datetime.date.today().isoformat()}; load average {os.getloadavg()[0]:.1f} at the end of the run.\n")
+    print(f"`python benchmarks/bench_apply.py --batch --width {WIDTH} --height {HEIGHT} --counts "
+          f"{','.join(map(str, counts))} --jobs {jobs} --runs {runs}`: {WIDTH}x{HEIGHT} ({mp:.0f} MP) RGGB 14-bit "
+          f"DNGs → EXR (R, G, B, L663, L663_unc, float32 zip: the default output), `run_batch(jobs={jobs})` in a "
+          f"fresh process per run against the floor (rawpy decode + OpenImageIO write of the same size, a {jobs}-"
+          f"process spawn pool, start-up included in both); medians of {runs} alternating runs.\n")
+    print("| photos | floor (photos/s) | floor worker peak (MB) | camcal (photos/s) | camcal worker peak (MB) "
+          "| camcal / floor (throughput) |")
+    print("|---:|---:|---:|---:|---:|---:|")
+    for n in counts:
+        f, c = n / med("floor", n, "seconds"), n / med("camcal", n, "seconds")
+        print(f"| {n} | {f:.2f} | {med('floor', n, 'worker_peak_mb'):.0f} | **{c:.2f}** | "
+              f"{med('camcal', n, 'worker_peak_mb'):.0f} | {c / f:.2f} |")
+    print()
+    print("Runs, wall (s): " + "; ".join(
+        f"{n} photos: camcal " + ", ".join(f"{r['seconds']:.1f}" for r in res["camcal", n])
+        + " / floor " + ", ".join(f"{r['seconds']:.1f}" for r in res["floor", n]) for n in counts) + ".")
+
+
 def main() -> None:
+    import argparse
+
+    global WIDTH, HEIGHT, N_BATCH, WORK
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--width", type=int, default=WIDTH)
+    ap.add_argument("--height", type=int, default=HEIGHT)
+    ap.add_argument("--batch", action="store_true", help="only the batch throughput, at --counts photos")
+    ap.add_argument("--counts", default="8,16,32", help="batch sizes, comma-separated")
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--runs", type=int, default=2, help="alternating runs per batch size (medians)")
+    ap.add_argument("--quick", action="store_true", help="smoke run: 1200x800, batches of 2 and 4, one run")
+    ap.add_argument("--one", choices=["camcal", "floor"], help=argparse.SUPPRESS)
+    ap.add_argument("--n", type=int, default=8, help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.quick:
+        args.width, args.height, args.counts, args.runs = 1200, 800, "2,4", 1
+    counts = [int(v) for v in args.counts.split(",")]
+    WIDTH, HEIGHT = args.width, args.height
+    N_BATCH = max(counts + [N_BATCH])
+    if (WIDTH, HEIGHT) != (6000, 4000):
+        WORK = WORK.parent / f"apply{WIDTH}x{HEIGHT}"
+    if args.one:
+        print(json.dumps(batch_once(args.one, args.n, args.jobs)))
+        return
+    if args.batch:
+        batch_section(counts, args.jobs, args.runs)
+        return
+    single_section()
+    print()
+    batch_section(counts, args.jobs, args.runs)
+
+
+def single_section() -> None:
     from camcal.apply import prepare
     from camcal.batch import BatchOptions, run_batch
 
     profile, prof_path, photos = build(WORK)
+    n_batch = min(8, len(photos))
+    photos = photos[:n_batch]
     t0 = time.perf_counter()
     plan = prepare(profile)
     t_prepare = time.perf_counter() - t0
@@ -173,14 +291,14 @@ def main() -> None:
         # where camcal's time goes (one more run, timed per step)
         steps = breakdown(photos[0], plan, tmp / "steps.exr")
         # batch throughput: the CLI's path (process pool of 2, profile loaded once per worker); the
-        # workers' peak RSS after a batch of 2 and after one of N_BATCH (it must not grow with N)
+        # workers' peak RSS after a batch of 2 and after one of n_batch (it must not grow with N)
         run_batch(prof_path, photos[:2], tmp / "batch2", BatchOptions(), jobs=2)
         rss2 = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
         t0 = time.perf_counter()
         rep = run_batch(prof_path, photos, tmp / "batch", BatchOptions(), jobs=2)
         t_batch = time.perf_counter() - t0
         rss_n = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
-        assert rep.counts["done"] == N_BATCH, rep.counts
+        assert rep.counts["done"] == n_batch, rep.counts
         per_photo = sorted(r.seconds for r in rep.results)
         t0 = time.perf_counter()
         run_batch(prof_path, photos, tmp / "batch", BatchOptions(), jobs=2)
@@ -207,11 +325,11 @@ def main() -> None:
     for k, (wall, cpu) in steps.items():
         print(f"| {k} | {wall:.3f} | {cpu:.3f} |")
     print()
-    print(f"Batch of {N_BATCH} photos on a process pool of 2 (`run_batch(..., jobs=2)`, spawn start, profile "
-          f"loaded once per worker): {t_batch:.1f} s = **{N_BATCH / t_batch:.2f} photos/s** (per photo in a "
+    print(f"Batch of {n_batch} photos on a process pool of 2 (`run_batch(..., jobs=2)`, spawn start, profile "
+          f"loaded once per worker): {t_batch:.1f} s = **{n_batch / t_batch:.2f} photos/s** (per photo in a "
           f"worker: {per_photo[0]:.1f}–{per_photo[-1]:.1f} s, the first of each worker includes loading the "
-          f"profile); the rerun skips all {N_BATCH} from the EXR headers in {t_resume:.2f} s. Peak RSS of a "
-          f"worker: {rss2:.0f} MB after a batch of 2, {rss_n:.0f} MB after a batch of {N_BATCH} (the maximum "
+          f"profile); the rerun skips all {n_batch} from the EXR headers in {t_resume:.2f} s. Peak RSS of a "
+          f"worker: {rss2:.0f} MB after a batch of 2, {rss_n:.0f} MB after a batch of {n_batch} (the maximum "
           "over all workers so far; it does not grow with the number of photos).")
 
 if __name__ == "__main__":

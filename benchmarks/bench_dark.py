@@ -1,14 +1,19 @@
-"""Benchmark: master dark (sigma-clipped) of a 12-megapixel mosaic, camcal against ccdproc.
+"""Benchmark: master dark (sigma-clipped) of a 12-megapixel mosaic against the 2-thread decode of the same files.
 
-Run ``python benchmarks/bench_dark.py`` (prints a Markdown section for ``benchmarks/RESULTS.md``).
+Run ``python benchmarks/bench_dark.py`` (prints a Markdown section for ``benchmarks/RESULTS.md``); ``--quick``
+for a small smoke run (1000x750, 4 and 8 frames); ``--width/--height/--frames/--runs`` to choose; ``--ccdproc``
+adds the ccdproc row (about a minute at 12 MP).
 
-1. ``prepare``: the synthetic camera writes 64 dark DNG frames of a 4000x3000 RGGB 14-bit mosaic
-   into ``benchmarks/_work/dark12mp/`` once (git-ignored), and the first 32 decoded mosaics as
-   float32 FITS files for ccdproc (ccdproc reads FITS, not DNG; the conversion is *not* charged to
-   ccdproc, so the comparison favours it).
+1. ``prepare``: the synthetic camera writes the largest frame count of dark DNG frames of a WIDTHxHEIGHT RGGB
+   14-bit mosaic into ``benchmarks/_work/dark{W}x{H}/`` once (git-ignored), and (``--ccdproc``) the first 32
+   decoded mosaics as float32 FITS files for ccdproc (ccdproc reads FITS, not DNG; the conversion is *not*
+   charged to ccdproc, so the comparison favours it).
 2. Each measurement runs in its own subprocess; peak memory is ``ru_maxrss`` of that process plus
-   its children (the decode pool), read with :mod:`resource`.
+   its children, read with :mod:`resource`. The runs alternate (decode, camcal, decode, camcal, ...) and the
+   medians are reported.
 
+   - baseline: ``camcal.io.load_frame`` + ``Frame.planes`` (uint16) of every file in 2 threads: the decode
+     the stack itself does, nothing else.
    - camcal: ``combine_frames(paths, method="sigma_clip", jobs=2)`` on the DNG files (decode included).
    - ccdproc: ``ccdproc.combine(fits_files, method="median", sigma_clip=True, 3, 3,
      mem_limit=1.5e9)``: sigma clipping about the mean (ccdproc's default) then the median.
@@ -21,6 +26,7 @@ import json
 import os
 import platform
 import resource
+import statistics
 import subprocess
 import sys
 import time
@@ -29,9 +35,9 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))  # run from a checkout without installing
-WORK = HERE / "_work" / "dark12mp"
 WIDTH, HEIGHT = 4000, 3000
-N_MAX = 64
+WORK = HERE / "_work" / f"dark{WIDTH}x{HEIGHT}"
+N_MAX = 32
 N_CCDPROC = 32
 EXPOSURE_S = 8.0
 
@@ -64,6 +70,17 @@ def _write_one(i: int) -> None:
         os.replace(tmp, _fits(i))
 
 
+def _set_size(width: int, height: int, n_max: int, n_ccdproc: int) -> None:
+    global WIDTH, HEIGHT, WORK, N_MAX, N_CCDPROC
+    WIDTH, HEIGHT, N_MAX, N_CCDPROC = width, height, n_max, n_ccdproc
+    WORK = HERE / "_work" / f"dark{width}x{height}"
+
+
+def _write_sized(args: tuple[int, int, int, int, int]) -> None:
+    _set_size(*args[:4])
+    _write_one(args[4])
+
+
 def prepare() -> None:
     from concurrent.futures import ProcessPoolExecutor
 
@@ -71,7 +88,7 @@ def prepare() -> None:
     todo = [i for i in range(N_MAX) if not _dng(i).exists() or (i < N_CCDPROC and not _fits(i).exists())]
     if todo:
         with ProcessPoolExecutor(2) as ex:
-            list(ex.map(_write_one, todo))
+            list(ex.map(_write_sized, [(WIDTH, HEIGHT, N_MAX, N_CCDPROC, i) for i in todo]))
 
 
 def _peak_mb() -> float:
@@ -105,6 +122,27 @@ def run_camcal(n: int, jobs: int) -> dict:
     return {"seconds": dt, "cpu_s": _cpu_s() - c0, "peak_mb": _peak_mb(), "median_value": float(np.median(res.value))}
 
 
+def run_decode(n: int, jobs: int) -> dict:
+    """The baseline: decode the same files into uint16 planes in ``jobs`` threads, nothing kept."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    import numpy as np
+
+    from camcal.io import load_frame
+
+    def one(path: Path) -> int:
+        frame = load_frame(path, defaults={})
+        return int(frame.planes(dtype=frame.data.dtype)[0, 0, 0])
+
+    paths = [_dng(i) for i in range(n)]
+    c0 = _cpu_s()
+    t0 = time.perf_counter()
+    with ThreadPoolExecutor(jobs) as pool:
+        list(pool.map(one, paths))
+    dt = time.perf_counter() - t0
+    return {"seconds": dt, "cpu_s": _cpu_s() - c0, "peak_mb": _peak_mb(), "median_value": float(np.nan)}
+
+
 def run_ccdproc(n: int) -> dict:
     import warnings
 
@@ -122,21 +160,38 @@ def run_ccdproc(n: int) -> dict:
 
 
 def _sub(*args: str) -> dict:
-    proc = subprocess.run([sys.executable, __file__, *args], capture_output=True, text=True)
+    size = ("--width", str(WIDTH), "--height", str(HEIGHT))
+    proc = subprocess.run([sys.executable, __file__, *size, *args], capture_output=True, text=True)
     if proc.returncode:
         raise SystemExit(f"benchmark subprocess {args} failed:\n{proc.stderr}")
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
+def _median(runs: list[dict], key: str) -> float:
+    return statistics.median(r[key] for r in runs)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--one", choices=["camcal", "ccdproc"])
+    ap.add_argument("--one", choices=["camcal", "ccdproc", "decode"])
     ap.add_argument("--n", type=int, default=32)
     ap.add_argument("--jobs", type=int, default=2)
-    ap.add_argument("--skip-ccdproc", action="store_true")
+    ap.add_argument("--width", type=int, default=4000)
+    ap.add_argument("--height", type=int, default=3000)
+    ap.add_argument("--frames", default="8,16,32", help="frame counts, comma-separated")
+    ap.add_argument("--runs", type=int, default=3, help="alternating runs of each measurement (medians)")
+    ap.add_argument("--ccdproc", action="store_true", help="add ccdproc at 32 frames (slow)")
+    ap.add_argument("--quick", action="store_true", help="smoke run: 1000x750, 4 and 8 frames, 1 run")
     args = ap.parse_args()
+    if args.quick:
+        args.width, args.height, args.frames, args.runs = 1000, 750, "4,8", 1
+    counts = [int(v) for v in args.frames.split(",")]
+    _set_size(args.width, args.height, max(counts), N_CCDPROC if args.ccdproc else 0)
     if args.one == "camcal":
         print(json.dumps(run_camcal(args.n, args.jobs)))
+        return
+    if args.one == "decode":
+        print(json.dumps(run_decode(args.n, args.jobs)))
         return
     if args.one == "ccdproc":
         print(json.dumps(run_ccdproc(args.n)))
@@ -148,44 +203,52 @@ def main() -> None:
         _dng(i).read_bytes()
     for i in range(N_CCDPROC):
         _fits(i).read_bytes()
-    cam = {n: _sub("--one", "camcal", "--n", str(n), "--jobs", str(args.jobs)) for n in (16, 32, 64)}
-    cam1 = _sub("--one", "camcal", "--n", "32", "--jobs", "1")
-    ccd = None if args.skip_ccdproc else _sub("--one", "ccdproc", "--n", str(N_CCDPROC))
+    dec: dict[int, list[dict]] = {n: [] for n in counts}
+    cam: dict[int, list[dict]] = {n: [] for n in counts}
+    for _ in range(args.runs):
+        for n in counts:
+            dec[n].append(_sub("--one", "decode", "--n", str(n), "--jobs", str(args.jobs)))
+            cam[n].append(_sub("--one", "camcal", "--n", str(n), "--jobs", str(args.jobs)))
+    ccd = _sub("--one", "ccdproc", "--n", str(N_CCDPROC)) if args.ccdproc else None
 
-    c32 = cam[32]
+    mp = WIDTH * HEIGHT / 1e6
     lines = [
         "## dark",
         "",
-        f"Master dark (sigma-clipped) of {N_CCDPROC} frames of a {WIDTH}x{HEIGHT} (12 MP) 14-bit RGGB mosaic "
-        f"written by the synthetic camera. Machine: {os.cpu_count()} cores, {platform.machine()}, "
-        f"Python {platform.python_version()}, {date.today().isoformat()}. "
-        "`python benchmarks/bench_dark.py`; each row is a separate subprocess, peak memory = ru_maxrss of the "
-        "process plus its children.",
+        f"Master dark (sigma-clipped) of {WIDTH}x{HEIGHT} ({mp:.0f} MP) 14-bit RGGB dark frames written by the "
+        f"synthetic camera, against decoding the same files in {args.jobs} threads. Machine: {os.cpu_count()} "
+        f"cores, {platform.machine()}, Python {platform.python_version()}, {date.today().isoformat()}. "
+        f"`python benchmarks/bench_dark.py --width {WIDTH} --height {HEIGHT} --frames {args.frames} --runs "
+        f"{args.runs}{' --ccdproc' if args.ccdproc else ''}`; each run a separate subprocess, decode and camcal "
+        "alternating, medians; peak memory = ru_maxrss of the process plus its children.",
         "",
-        "| run | frames | wall time (s) | CPU time (s) | peak memory (MB) |",
-        "|---|---:|---:|---:|---:|",
+        f"| frames | decode, {args.jobs} threads: wall (s) | CPU (s) | peak (MB) | camcal combine_frames "
+        f"(sigma_clip, jobs={args.jobs}): wall (s) | CPU (s) | peak (MB) | ratio wall | ratio CPU |",
+        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
-    if ccd:
-        lines.append(f"| ccdproc.combine (median, sigma_clip 3/3, mem_limit 1.5 GB), FITS input | {N_CCDPROC} "
-                     f"| {ccd['seconds']:.1f} | {ccd['cpu_s']:.1f} | {ccd['peak_mb']:.0f} |")
-    lines.append(f"| camcal combine_frames (sigma_clip, jobs=1), DNG input incl. decode | 32 "
-                 f"| {cam1['seconds']:.1f} | {cam1['cpu_s']:.1f} | {cam1['peak_mb']:.0f} |")
-    for n in (16, 32, 64):
-        lines.append(f"| camcal combine_frames (sigma_clip, jobs={args.jobs}), DNG input incl. decode | {n} "
-                     f"| {cam[n]['seconds']:.1f} | {cam[n]['cpu_s']:.1f} | {cam[n]['peak_mb']:.0f} |")
+    for n in counts:
+        dw, dc, dm = (_median(dec[n], k) for k in ("seconds", "cpu_s", "peak_mb"))
+        cw, cc, cm = (_median(cam[n], k) for k in ("seconds", "cpu_s", "peak_mb"))
+        lines.append(f"| {n} | {dw:.2f} | {dc:.2f} | {dm:.0f} | {cw:.2f} | {cc:.2f} | {cm:.0f} | **{cw / dw:.2f}** "
+                     f"| {cc / dc:.2f} |")
     lines.append("")
     lines.append(f"- Load average (1 min) at the end of the run: {os.getloadavg()[0]:.1f} (other jobs share the "
                  "machine; wall times are sensitive to it, CPU times much less).")
+    lines.append("- camcal runs, wall (s): " + "; ".join(
+        f"{n} frames " + ", ".join(f"{r['seconds']:.2f}" for r in cam[n]) for n in counts)
+        + "; decode: " + "; ".join(f"{n} frames " + ", ".join(f"{r['seconds']:.2f}" for r in dec[n])
+                                    for n in counts) + ".")
+    lines.append("- camcal peak memory at " + " / ".join(str(n) for n in counts) + " frames: "
+                 + " / ".join(f"{_median(cam[n], 'peak_mb'):.0f}" for n in counts)
+                 + " MB (row bands shrink as frames grow, so the peak does not grow).")
     if ccd:
-        lines.append(f"- Speed-up over ccdproc at {N_CCDPROC} frames: **{ccd['seconds'] / c32['seconds']:.1f}x** "
-                     f"(jobs={args.jobs}), {ccd['seconds'] / cam1['seconds']:.1f}x (jobs=1) in wall time; "
-                     f"{ccd['cpu_s'] / c32['cpu_s']:.1f}x in CPU time. "
-                     f"Median of the master dark: camcal {c32['median_value']:.2f} DN, "
-                     f"ccdproc {ccd['median_value']:.2f} DN.")
-        lines.append(f"- Peak memory at {N_CCDPROC} frames: camcal {c32['peak_mb']:.0f} MB, "
-                     f"ccdproc {ccd['peak_mb']:.0f} MB.")
-    lines.append(f"- camcal peak memory at 16 / 32 / 64 frames: {cam[16]['peak_mb']:.0f} / {c32['peak_mb']:.0f} / "
-                 f"{cam[64]['peak_mb']:.0f} MB (row bands shrink as frames grow, so the peak does not grow).")
+        c = cam.get(N_CCDPROC)
+        cmp = (f"; **{ccd['seconds'] / _median(c, 'seconds'):.1f}x** slower than camcal in wall time, "
+               f"{ccd['cpu_s'] / _median(c, 'cpu_s'):.1f}x in CPU time" if c else "")
+        lines.append(f"- ccdproc.combine (median, sigma_clip 3/3, mem_limit 1.5 GB), FITS input, {N_CCDPROC} frames: "
+                     f"{ccd['seconds']:.1f} s wall, {ccd['cpu_s']:.1f} s CPU, {ccd['peak_mb']:.0f} MB{cmp}; median "
+                     f"of the master dark {ccd['median_value']:.2f} DN"
+                     + (f" (camcal {c[0]['median_value']:.2f} DN)." if c else "."))
     print("\n".join(lines))
 
 

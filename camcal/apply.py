@@ -72,6 +72,7 @@ from camcal.camera_id import Sensor, match, sensor_of, sensor_of_profile
 from camcal.correct import Calibration, correct_planes, system_gain_dn_per_e
 from camcal.errors import CamcalError
 from camcal.exposure import frame_relative_exposure
+from camcal.flat_model import FlatChoice, choose_flat
 from camcal.frame import PLANES, Frame, plane_offsets, rgb_from_planes
 from camcal.io import open_image, read_pixels
 from camcal.radiance import RadianceModel, radiance_model, smooth_spread_rel
@@ -156,6 +157,8 @@ class ApplyPlan:
     """The RAW planes' correction (:mod:`camcal.correct`): dark model, flat gain, defects."""
     rgb_calibration: Calibration = Calibration()
     """The flat division of processed photos' binned R, G, B (:mod:`camcal.correct`)."""
+    flat_plans: dict = field(default_factory=dict)
+    """Plans with the vignetting model of another f-number (:func:`plan_for_optics`), built once per model."""
 
     @property
     def relative(self) -> bool:
@@ -205,15 +208,8 @@ def prepare(
     if estimator == "smooth":  # the reconstruction's own error: the spread over the prior spectra
         model = replace(model, spectral_unc_rel=smooth_spread_rel(spectral.wavelength_nm, spectral.rgb(),
                                                                   float(wavelength_nm)))
-    flat_planes = flat_rgb = None
-    if profile.flat is not None:
-        flat_planes = profile.flat.gain(with_prnu=with_prnu).astype(np.float32)
-        if flat_planes.shape[0] == 4:
-            flat_rgb = rgb_from_planes(flat_planes)
-        elif getattr(profile.camera, "layout", "bayer") == "linear":  # linear RAW: R, G, B planes
-            flat_rgb = flat_planes
-        else:  # a flat fitted on processed RGB frames
-            flat_rgb, flat_planes = flat_planes, None
+    flat_planes, flat_rgb = _flat_maps(None if profile.flat is None else profile.flat.gain(with_prnu=with_prnu),
+                                       profile)
     prnu_rel = None
     if profile.flat is not None and not with_prnu and profile.flat.prnu_rms:
         rms = [float(profile.flat.prnu_rms.get(c, 0.0) or 0.0) for c in profile.flat.channels]
@@ -226,6 +222,50 @@ def prepare(
                          emva=getattr(profile, "emva", None))
     rgb_cal = Calibration(flat_gain=flat_rgb, inv_flat_gain=None if flat_rgb is None else 1.0 / flat_rgb)
     return ApplyPlan(profile, model, flat_planes, flat_rgb, options, prnu_rel, cal, rgb_cal)
+
+
+def _flat_maps(gain: np.ndarray | None, profile) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """(gain of the RAW planes, gain of binned R, G, B) of a flat gain map: (4, h, w) Bayer planes, (3, h, w)
+    linear RAW planes, or (3, h, w) of a flat fitted on processed frames (then no RAW planes)."""
+    if gain is None:
+        return None, None
+    flat_planes = np.asarray(gain, np.float32)
+    if flat_planes.shape[0] == 4:
+        return flat_planes, rgb_from_planes(flat_planes)
+    if getattr(profile.camera, "layout", "bayer") == "linear":  # linear RAW: R, G, B planes
+        return flat_planes, flat_planes
+    return None, flat_planes  # a flat fitted on processed RGB frames
+
+
+def plan_for_optics(plan: ApplyPlan, exposure, path: Path | None, notes: list[str],
+                    strict: bool = False) -> tuple[ApplyPlan, FlatChoice | None]:
+    """The plan with the vignetting model of the photo's f-number and focal length (:func:`camcal.flat_model.
+    choose_flat`: the model measured at it, interpolated between two, or the nearest with a warning).
+
+    The warning goes to ``notes``; with ``strict`` a photo whose setting the flats were not measured at is
+    refused (one line). Plans of other f-numbers are built once and kept in ``plan.flat_plans``.
+    """
+    flat = getattr(plan.profile, "flat", None)
+    if flat is None:
+        return plan, None
+    choice = choose_flat(flat, exposure.f_number, exposure.focal_length_mm)
+    if choice.warning:
+        if strict and choice.mismatch:
+            raise CamcalError(f"{choice.warning}; refused by --strict (without it the photo is corrected with "
+                              "this warning)", path)
+        notes.append(choice.warning)
+    if len(choice.parts) == 1 and choice.parts[0][0] is flat:
+        return plan, choice
+    other = plan.flat_plans.get(choice.key)
+    if other is None:
+        flat_planes, flat_rgb = _flat_maps(choice.gain(with_prnu=bool(plan.options.get("with_prnu"))), plan.profile)
+        cal = plan.calibration
+        if flat_planes is not None:
+            cal = replace(cal, flat_gain=flat_planes, inv_flat_gain=(1.0 / flat_planes).astype(np.float32))
+        rgb_cal = Calibration(flat_gain=flat_rgb, inv_flat_gain=None if flat_rgb is None else 1.0 / flat_rgb)
+        other = replace(plan, flat_planes=flat_planes, flat_rgb=flat_rgb, calibration=cal, rgb_calibration=rgb_cal)
+        plan.flat_plans[choice.key] = other
+    return other, choice
 
 
 def check_camera(exposure, profile, path: Path | None, allow_other_camera: bool = False,
@@ -448,8 +488,11 @@ def _processed_signal(frame: Frame, plan: ApplyPlan, iso: float, notes: list[str
 
 
 def apply_prepared(frame: Frame, plan: ApplyPlan, *, allow_other_camera: bool = False,
-                   threads: int | None = None) -> RadianceImage:
+                   threads: int | None = None, strict: bool = False) -> RadianceImage:
     """:func:`apply` with a precomputed :class:`ApplyPlan` (see :func:`prepare`).
+
+    ``strict``: refuse a photo whose f-number or focal length the flats were not measured at
+    (:func:`plan_for_optics`).
 
     ``threads``: threads of the RAW arithmetic (default :func:`default_threads`; a batch worker of a
     pool gets its share of the cores). The channels are views of one interleaved (h, w, 5) float32
@@ -461,6 +504,7 @@ def apply_prepared(frame: Frame, plan: ApplyPlan, *, allow_other_camera: bool = 
     x = frame_relative_exposure(frame.exposure, profile.reference_iso, profile.reference_f_number, path)
     t = frame.exposure.require("exposure_s", path)
     iso = frame.exposure.require("iso", path)
+    plan, choice = plan_for_optics(plan, frame.exposure, path, notes, strict)
     inv_x = 1.0 / x
     if frame.kind == "raw":
         pixels = _raw_pixels(frame, plan, t, iso, inv_x, notes, default_threads() if threads is None else threads)
@@ -524,6 +568,7 @@ def apply_prepared(frame: Frame, plan: ApplyPlan, *, allow_other_camera: bool = 
         "source_name": path.name if path is not None else None,
         "kind": frame.kind,
         "exposure": {"exposure_s": e.exposure_s, "iso": e.iso, "f_number": e.f_number,
+                     "focal_length_mm": e.focal_length_mm,
                      "capture_time": e.capture_time, "utc_offset": e.utc_offset, "gps_time_utc": e.gps_time_utc,
                      "relative_exposure_s": x,
                      "reference_iso": profile.reference_iso, "reference_f_number": profile.reference_f_number},
@@ -533,6 +578,7 @@ def apply_prepared(frame: Frame, plan: ApplyPlan, *, allow_other_camera: bool = 
                            "serial": profile.camera.serial},
         "resolution": LINEAR_RESOLUTION_NOTE if frame.layout == "linear" else RESOLUTION_NOTE,
         "invalid": "NaN: defective (dark model) or saturated pixels",
+        "optics": None if choice is None else choice.record(profile.flat),
         "notes": notes,
     }
     return RadianceImage(channels, meta)
@@ -574,6 +620,7 @@ def apply(
     line_fwhm_nm: float | None = None,
     with_prnu: bool = False,
     allow_other_camera: bool = False,
+    strict: bool = False,
 ) -> RadianceImage:
     """Radiance maps of one photo through a calibration profile (module docstring: the pipeline).
 
@@ -588,6 +635,7 @@ def apply(
     line_fwhm_nm : narrowband only: FWHM of the light, for the slit correction of c(λ0).
     with_prnu : also divide by the profile's PRNU map.
     allow_other_camera : accept a photo whose make/model differs from the profile's.
+    strict : refuse a photo whose f-number or focal length differs from the flats' (or cannot be checked).
 
     Returns
     -------
@@ -601,7 +649,7 @@ def apply(
     """
     plan = prepare(profile, wavelength_nm, estimator, filter_fwhm_nm=filter_fwhm_nm, line_fwhm_nm=line_fwhm_nm,
                    with_prnu=with_prnu)
-    return apply_prepared(frame, plan, allow_other_camera=allow_other_camera)
+    return apply_prepared(frame, plan, allow_other_camera=allow_other_camera, strict=strict)
 
 
 # ---- regions of interest ------------------------------------------------------------------------------------------

@@ -6,10 +6,12 @@ Behaviour
   JPEG twin do not collide), written atomically (temporary file + rename): a failed or interrupted photo
   leaves no file under its final name.
 - **Resumable**: a photo whose EXR exists, made with the same profile (content hash), wavelength,
-  estimator and precision (read from the EXR header, no pixels), is skipped without being decoded. An EXR made
-  with other settings is redone.
+  estimator, precision and compression (read from the EXR header, no pixels), is skipped without being
+  decoded. An EXR made with other settings is redone.
 - A failing photo (damaged file, missing metadata, another camera) does not stop the batch; its
   one-line error is listed in the report (``apply_report.csv``) and the exit code is 1.
+- A photo whose f-number or focal length differs from the flats' gets a warning (its EXR's ``optics`` and
+  ``notes``, the report's ``warning`` column, the summary); ``strict`` refuses it (a failure, exit code 1).
 - With a region of interest the mean, median and standard deviation of every channel are written
   to ``roi_stats.csv`` (skipped photos: read back from their EXR).
 - ``progress(done, total, result)`` is called in the caller's process as photos finish.
@@ -37,7 +39,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -84,6 +86,9 @@ class BatchOptions:
     half: bool = False
     compression: str = "zip"
     threads: int | None = None  # threads of one photo's arithmetic; None: the batch runner's share of the cores
+    strict: bool = False
+    """Refuse a photo whose f-number or focal length the flats were not measured at (:func:`camcal.apply.
+    plan_for_optics`); the rest of the batch goes on."""
 
 
 @dataclass(frozen=True)
@@ -96,6 +101,8 @@ class PhotoResult:
     error: str | None = None
     seconds: float = 0.0
     stats: tuple[dict, ...] = ()
+    warning: str | None = None
+    """The optics warning of the photo (its f-number or focal length differs from the flats'), from its EXR."""
 
 
 @dataclass(frozen=True)
@@ -223,7 +230,9 @@ def _is_current(out: Path, profile_sha256: str | None, options: BatchOptions) ->
     return (meta.get("profile_sha256") == profile_sha256 and meta.get("estimator") == options.estimator
             and isinstance(wl, int | float) and math.isclose(float(wl), options.wavelength_nm)
             and (meta.get("options") or {}).get("filter_fwhm_nm") == options.filter_fwhm_nm
-            and meta.get("exr_pixel_type") == ("half" if options.half else "float"))
+            and meta.get("exr_pixel_type") == ("half" if options.half else "float")
+            and meta.get("exr_compression") == options.compression
+            and not (options.strict and (meta.get("optics") or {}).get("mismatch")))
 
 
 def _load_mask(options: BatchOptions):
@@ -266,7 +275,53 @@ def process_photo(photo: str, profile_path: str, outdir: str, options: BatchOpti
 
     Skips the photo when its EXR is current (:func:`_is_current`).
     """
-    t0 = time.perf_counter()
+    return process_photos([photo], profile_path, outdir, options)[0]
+
+
+def process_photos(photos: Sequence[str], profile_path: str, outdir: str, options: BatchOptions,
+                   done: Callable[[PhotoResult], None] | None = None) -> list[PhotoResult]:
+    """:func:`process_photo` for several photos in a row, photo k's EXR written while photo k+1 is decoded.
+
+    The write runs in one background thread (OpenImageIO releases the GIL while it compresses and writes; LibRaw
+    while it decodes), at most one write in flight: photo k+1 is decoded and corrected while k is written, then
+    waits for that write before its own starts, so at most two photos' images are held whatever the number of
+    photos. Each photo's result is known, and given to ``done``, when its EXR is renamed into place; a photo
+    that fails does not stop the others.
+    """
+    results: list[PhotoResult] = []
+    writing: tuple[Future, PhotoResult, float] | None = None
+
+    def finish(r: PhotoResult) -> None:
+        results.append(r)
+        if done is not None:
+            done(r)
+
+    def settle() -> None:
+        nonlocal writing
+        if writing is not None:
+            fut, pending, t0 = writing
+            writing = None
+            finish(_written(fut, pending, t0))
+
+    with ThreadPoolExecutor(1, thread_name_prefix="camcal-write") as writer:
+        for photo in photos:
+            t0 = time.perf_counter()
+            step = _compute_photo(photo, profile_path, outdir, options, t0)
+            settle()  # photo k's write ends before photo k+1's starts: one write in flight
+            if isinstance(step, PhotoResult):
+                finish(step)
+                continue
+            image, pending, capture_time = step
+            fut = writer.submit(write_exr, pending.output, image.channels, image.metadata, half=options.half,
+                                compression=options.compression, datetime=exr_datetime(capture_time))
+            writing = (fut, pending, t0)
+            del image, step
+        settle()
+    return results
+
+
+def _compute_photo(photo: str, profile_path: str, outdir: str, options: BatchOptions, t0: float):
+    """Decode and correct one photo: ``(image, result if written, capture time)``, or its final result."""
     src = Path(photo)
     out = output_path(src, outdir)
     try:
@@ -277,28 +332,48 @@ def process_photo(photo: str, profile_path: str, outdir: str, options: BatchOpti
 
         manifest = folder_manifest(src.parent) if (src.parent / "frames.csv").is_file() else {}
         frame = load_frame(src, exposure_overrides(manifest.get(src.name)))
-        image = apply_prepared(frame, plan, allow_other_camera=options.allow_other_camera, threads=options.threads)
+        image = apply_prepared(frame, plan, allow_other_camera=options.allow_other_camera, threads=options.threads,
+                               strict=options.strict)
         stats = _stats(image.channels, options, mask_image, src, image.metadata)
-        write_exr(out, image.channels, image.metadata, half=options.half, compression=options.compression,
-                  datetime=exr_datetime(frame.exposure.capture_time))
-        return PhotoResult(str(src), str(out), "done", None, time.perf_counter() - t0, stats)
-    except CamcalError as exc:
-        return PhotoResult(str(src), str(out), "failed", str(exc), time.perf_counter() - t0)
-    except MemoryError:
-        return PhotoResult(str(src), str(out), "failed", f"{src}: out of memory", time.perf_counter() - t0)
+        return (image, PhotoResult(str(src), str(out), "done", None, 0.0, stats,
+                                   (image.metadata.get("optics") or {}).get("warning")),
+                frame.exposure.capture_time)
     except Exception as exc:  # a batch reports every failure and goes on
+        return _failure(src, out, exc, t0)
+
+
+def _written(fut: Future, pending: PhotoResult, t0: float) -> PhotoResult:
+    """The result of a photo started at ``t0`` once its write ended."""
+    try:
+        fut.result()
+    except Exception as exc:  # a batch reports every failure and goes on
+        return _failure(Path(pending.source), Path(pending.output), exc, t0)
+    return replace(pending, seconds=time.perf_counter() - t0)
+
+
+def _failure(src: Path, out: Path, exc: BaseException, t0: float) -> PhotoResult:
+    """A failed photo's result: its one-line error."""
+    if isinstance(exc, CamcalError):
+        error = str(exc)
+    elif isinstance(exc, MemoryError):
+        error = f"{src}: out of memory"
+    else:
         msg = " ".join(f"{type(exc).__name__}: {exc}".split())
-        return PhotoResult(str(src), str(out), "failed", f"{src}: internal error: {msg}", time.perf_counter() - t0)
+        error = f"{src}: internal error: {msg}"
+    return PhotoResult(str(src), str(out), "failed", error, time.perf_counter() - t0)
 
 
 def _skipped(src: Path, out: Path, options: BatchOptions, mask_image, t0: float) -> PhotoResult:
     """A photo whose EXR is current: nothing is computed; ROI statistics are read back from the EXR."""
     stats = ()
+    meta = None
     if options.roi is not None or options.mask_path is not None:
 
         channels, meta = read_exr(out)
         stats = _stats(channels, options, mask_image, src, meta)
-    return PhotoResult(str(src), str(out), "skipped", None, time.perf_counter() - t0, stats)
+    meta = meta if meta is not None else exr_header(out)
+    return PhotoResult(str(src), str(out), "skipped", None, time.perf_counter() - t0, stats,
+                       ((meta or {}).get("optics") or {}).get("warning"))
 
 
 def _skip_current(photo: str, outdir: str, options: BatchOptions, mask_image) -> PhotoResult:
@@ -375,9 +450,10 @@ def _write_reports(outdir: Path, results: list[PhotoResult], options: BatchOptio
 
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(["file", "status", "output", "seconds", "error"])
+    w.writerow(["file", "status", "output", "seconds", "error", "warning"])
     for r in results:
-        w.writerow([r.source, r.status, r.output if r.status != "failed" else "", f"{r.seconds:.3f}", r.error or ""])
+        w.writerow([r.source, r.status, r.output if r.status != "failed" else "", f"{r.seconds:.3f}", r.error or "",
+                    r.warning or ""])
     report = atomic_write_text(outdir / REPORT_CSV, buf.getvalue())
     roi_csv = None
     if options.roi is not None or options.mask_path is not None:
@@ -455,8 +531,7 @@ def run_batch(
     elif scheduler is not None:  # a dask worker runs as many photos at once as it has threads
         _run_dask(_with_threads(todo, 1), scheduler, done)
     elif jobs <= 1 or len(todo) == 1:
-        for a in todo:
-            done(process_photo(*a))
+        process_photos([a[0] for a in todo], *todo[0][1:], done=done)
     else:
         workers = min(jobs, len(todo))
 
@@ -472,18 +547,36 @@ def _with_threads(args: list[tuple], threads: int) -> list[tuple]:
     return [(*a[:3], a[3] if a[3].threads is not None else replace(a[3], threads=threads)) for a in args]
 
 
+CHUNK_PHOTOS = 4
+"""Photos per pool task at most: within a task each write overlaps the next photo's decode
+(:func:`process_photos`); small enough that the workers finish together and progress moves."""
+
+
+def _chunks(args: list[tuple], workers: int) -> list[list[tuple]]:
+    """``args`` cut into tasks of up to :data:`CHUNK_PHOTOS` photos, at least two tasks per worker when possible."""
+    size = max(1, min(CHUNK_PHOTOS, len(args) // (2 * workers)))
+    return [args[i:i + size] for i in range(0, len(args), size)]
+
+
+def _process_chunk(args: list[tuple]) -> list[PhotoResult]:
+    """A pool task: :func:`process_photos` over photos that share the profile, output folder and options."""
+    return process_photos([a[0] for a in args], *args[0][1:])
+
+
 def _run_pool(args: list[tuple], jobs: int, done: Callable[[PhotoResult], None]) -> None:
     ctx = multiprocessing.get_context("spawn")  # no fork of a process holding threads (progress bar, OIIO)
-    with ProcessPoolExecutor(max_workers=min(jobs, len(args)), mp_context=ctx, initializer=_worker_init,
+    workers = min(jobs, len(args))
+    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init,
                              initargs=(os.getpid(), args[0][1], args[0][3])) as pool:
-        futures = {pool.submit(process_photo, *a): a for a in args}
+        futures = {pool.submit(_process_chunk, chunk): chunk for chunk in _chunks(args, workers)}
         for fut in as_completed(futures):
-            a = futures[fut]
             try:
-                done(fut.result())
+                results = fut.result()
             except BrokenProcessPool:
-                done(PhotoResult(a[0], str(output_path(a[0], a[2])), "failed",
-                                 f"{a[0]}: worker process died (out of memory?)"))
+                results = [PhotoResult(a[0], str(output_path(a[0], a[2])), "failed",
+                                       f"{a[0]}: worker process died (out of memory?)") for a in futures[fut]]
+            for r in results:
+                done(r)
 
 
 def _run_dask(args: list[tuple], scheduler, done: Callable[[PhotoResult], None]) -> None:

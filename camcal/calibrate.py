@@ -22,8 +22,16 @@ from camcal.dark import DarkOptions, dark_frame_check, fit_dark_stacks, stack_da
 from camcal.dark_model import with_dead_pixels
 from camcal.emva import build_sheet
 from camcal.errors import CamcalError, TooFewFrames
-from camcal.flat import FlatChecks, FlatOptions, check_flat_frame, fit_master, flat_prnu, master_flat
-from camcal.flat_model import DEAD_RESPONSE, dead_pixels
+from camcal.flat import (
+    FlatChecks,
+    FlatOptions,
+    MasterFlat,
+    check_flat_frame,
+    fit_master,
+    flat_prnu,
+    master_flat,
+)
+from camcal.flat_model import DEAD_RESPONSE, FlatModel, choose_flat, dead_pixels, same_f_number
 from camcal.frame import Frame
 from camcal.hashing import sha256_file
 from camcal.io import load_frame
@@ -31,7 +39,7 @@ from camcal.manifest import SESSION_DEFAULTS, session_camera_facts
 from camcal.profile import CalibrationProfile, CameraIdentity, Provenance
 from camcal.response import fit_series_set, measure_series
 from camcal.screen import Screening, StageCheck, Verdict, screen_session
-from camcal.session import STAGES, SessionIndex, index_session, present_stages
+from camcal.session import STAGES, SessionIndex, aperture_groups, index_session, present_stages
 from camcal.spectral import (
     SweepOptions,
     measure_sweep_settings,
@@ -80,7 +88,8 @@ class CalibrateOptions:
 
 def _inputs(index: SessionIndex) -> list[dict]:
     """Provenance rows (stage, file, SHA-256, bytes) of every input file the session index found."""
-    return [{"stage": s, "file": f"{s}/{p.name}", "sha256": sha256_file(p), "bytes": p.stat().st_size}
+    return [{"stage": s, "file": p.relative_to(index.root).as_posix() if p.is_relative_to(index.root)
+             else f"{s}/{p.name}", "sha256": sha256_file(p), "bytes": p.stat().st_size}
             for s in index.stages for p in index.inputs.get(s, ())]
 
 
@@ -259,6 +268,58 @@ class _Record:
             return None
 
 
+def _fit_flats(index: SessionIndex, dark, opts: CalibrateOptions, ref_n: float | None, record: _Record,
+               notes: list[str], cb) -> tuple[FlatModel | None, MasterFlat | None]:
+    """The flat stage: one vignetting model per f-number of the flats (:func:`camcal.session.aperture_groups`).
+
+    The primary model (the profile's ``flat``: dead pixels, PRNU, the sweep's flat correction) is the one at the
+    reference f-number, else the one of most frames (the smaller f-number on a tie); the others are its
+    :attr:`~camcal.flat_model.FlatModel.apertures`. Flats of unknown f-number beside known ones are left out.
+    Returns (primary model, its master flat), (None, None) when no group could be fitted.
+    """
+    flat_opts = FlatOptions(model=opts.flat_model)
+    groups = aperture_groups(index.frames["flat"])
+    if len(groups) > 1 and groups[-1].f_number is None:
+        record.leave_out([Verdict("flat", r.path.name, "f-number unknown while the flats hold several f-numbers: "
+                                  "put it in its flat/f<N>/ folder or give f_number in frames.csv")
+                          for r in groups[-1].frames.frames])
+        groups = groups[:-1]
+    if len(groups) > 1:
+        primary = (next((g for g in groups if same_f_number(g.f_number, ref_n)), None)
+                   or max(groups, key=lambda g: (len(g.frames.frames), -(g.f_number or 0.0))))
+        groups = [primary] + [g for g in groups if g is not primary]
+    fitted: list[tuple[FlatModel, MasterFlat]] = []
+    for i, g in enumerate(groups):
+        label = "flat" if len(groups) == 1 else f"flat f/{g.f_number:g}"
+        kwargs = flat_opts.fit_kwargs() | ({} if i == 0 else {"with_prnu": False})
+
+        def fit(g=g, label=label, kwargs=kwargs):
+            mf = master_flat(g.frames, dark, method=flat_opts.method, sigma=flat_opts.sigma,
+                             checks=flat_opts.checks, jobs=opts.jobs, progress=cb(label))
+            fm = fit_master(mf, dark, **kwargs)
+            if g.f_number is not None and fm.optics.f_number is None:  # the folder's f-number (not in the files)
+                fm = replace(fm, optics=replace(fm.optics, f_number=g.f_number, f_number_source=g.f_number_source))
+            return fm, mf
+
+        result = record.attempt(label, fit)
+        if result is not None:
+            fitted.append(result)
+        elif i == 0 and len(groups) > 1:
+            notes.append(f"the flats at f/{g.f_number:g} could not be fitted; the next f-number's model is primary")
+    if not fitted:
+        return None, None
+    (primary_model, master), others = fitted[0], [m for m, _ in fitted[1:]]
+    if not others:
+        return primary_model, master
+    if primary_model.prnu is None:  # the first fitted was not the primary group: no PRNU map to share
+        notes.append("the primary flats could not be fitted: no PRNU map")
+    others = [replace(m, prnu=primary_model.prnu) for m in others]
+    flat = replace(primary_model, apertures=tuple(sorted(others, key=lambda m: m.optics.f_number or 0.0)))
+    notes.append("flats at " + ", ".join(m.optics.label() for m in flat.models()) + ": one vignetting model per "
+                 f"f-number; primary (PRNU, dead pixels, the sweep's flat) {primary_model.optics.label()}")
+    return flat, master
+
+
 def calibrate_session(
     session: str | Path, options: CalibrateOptions | None = None, progress: Progress | None = None
 ) -> tuple[CalibrationProfile, list[str]]:
@@ -320,15 +381,7 @@ def calibrate_session(
             notes.append("bias/ without dark/: bias, read noise and noisy pixels calibrated; dark current unknown "
                          "(apply subtracts the bias only; add dark frames at two exposure times to measure it)")
     if "flat" in stages:
-        flat_opts = FlatOptions(model=opts.flat_model)
-
-        def fit_flat():
-            nonlocal master
-            master = master_flat(index.frames["flat"], dark, method=flat_opts.method, sigma=flat_opts.sigma,
-                                 checks=flat_opts.checks, jobs=opts.jobs, progress=cb("flat"))
-            return fit_master(master, dark, **flat_opts.fit_kwargs())
-
-        flat = record.attempt("flat", fit_flat)
+        flat, master = _fit_flats(index, dark, opts, ref_n, record, notes, cb)
         if flat is not None:
             if master is not None and master.mean_all is not None:
                 prnu = flat_prnu(master, flat, _flat_mask(master, dark))
@@ -358,10 +411,18 @@ def calibrate_session(
                                   reference_iso=ref_iso, reference_f_number=ref_n)  # type: ignore[arg-type]
         sweep_opts.check()
 
+        sweep_flat = flat
+        if flat is not None and flat.apertures:  # the model of the sweep's f-number (the reference setting)
+            choice = choose_flat(flat, ref_n)
+            sweep_flat = max(choice.parts, key=lambda mw: mw[1])[0]
+            if choice.how != "measured":
+                notes.append(f"no flats at the sweep's f/{ref_n:g}: its region of interest corrected with the "
+                             f"{sweep_flat.optics.label()} vignetting model")
+
         def fit_sweep():
             if not rows:
                 raise TooFewFrames("sweep", "frames listed in sweep.csv", 1, 0)
-            measured = measure_sweep_settings(sweep.folder, rows, dark=dark, flat=flat, options=sweep_opts,
+            measured = measure_sweep_settings(sweep.folder, rows, dark=dark, flat=sweep_flat, options=sweep_opts,
                                               jobs=opts.jobs, progress=cb("sweep"))
             record.leave_out([Verdict("sweep", name, reason) for name, reason in measured.left_out])
             require_wavelengths(measured, listed=listed)

@@ -182,7 +182,8 @@ def camcal_attributes(spec, path: str | Path) -> dict[str, object]:
 def read_exr_header(path: str | Path) -> dict[str, object]:
     """camcal's metadata of an EXR file from its header alone (no pixels are read); see :func:`camcal_attributes`.
 
-    The pixel type of the file (``"half"`` or ``"float"``) is added as ``exr_pixel_type``.
+    The pixel type of the file (``"half"`` or ``"float"``) is added as ``exr_pixel_type``, its compression
+    (one of :data:`COMPRESSIONS`) as ``exr_compression``.
 
     Raises
     ------
@@ -195,7 +196,8 @@ def read_exr_header(path: str | Path) -> dict[str, object]:
         raise CamcalError("cannot open as EXR (damaged or not an image)", path)
     try:
         spec = inp.spec()
-        return {**camcal_attributes(spec, path), "exr_pixel_type": str(spec.format)}
+        return {**camcal_attributes(spec, path), "exr_pixel_type": str(spec.format),
+                "exr_compression": str(spec.getattribute("compression") or "none").lower()}
     finally:
         inp.close()
 

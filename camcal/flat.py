@@ -56,12 +56,17 @@ from camcal.emva import Nonuniformity, prnu, spatial_variance
 from camcal.errors import CamcalError
 from camcal.flat_model import (  # noqa: F401 (re-exported)
     DEAD_RESPONSE,
+    F_NUMBER_TOLERANCE,
+    FOCAL_TOLERANCE,
     N_RADIAL,
+    FlatChoice,
     FlatModel,
+    Optics,
     PlaneGeometry,
     _eval_2d,
     _legendre_uv,
     as_flat_model,
+    choose_flat,
     dead_pixels,
     flat_from_parts,
     flat_to_parts,
@@ -69,9 +74,9 @@ from camcal.flat_model import (  # noqa: F401 (re-exported)
     radial_gain,
     save_flat,
 )
-from camcal.frame import PLANES, Frame
-from camcal.io import load_folder_frame
-from camcal.session import StageFrames, stage_files
+from camcal.frame import PLANES, Exposure, Frame
+from camcal.io import list_frames, load_folder_frame
+from camcal.session import StageFrames, aperture_folders, folder_of, stage_files
 from camcal.stack import combine_frames
 
 DEFAULT_TERMS = 3
@@ -441,6 +446,36 @@ class MasterFlat:
     exposure_s: tuple[float | None, ...]
     mean_all: np.ndarray | None = None
     variance_all: np.ndarray | None = None
+    optics: Optics = Optics()  # noqa: RUF009 - frozen, so one shared default is safe
+
+
+def flats_optics(exposures: list[Exposure] | tuple[Exposure, ...], where: Path | None = None) -> Optics:
+    """The f-number and focal length of a set of flats, each with its source (:class:`camcal.flat_model.Optics`).
+
+    A value no frame holds stays None. Frames at several f-numbers are refused (one vignetting model per
+    f-number: ``camcal calibrate`` groups a session's flats by f-number); several focal lengths leave the focal
+    length unknown, its source naming them.
+    """
+
+    def one(name: str, tol: float, unit: str) -> tuple[float | None, str | None]:
+        known = [(float(getattr(e, name)), e.source(name) or "unknown source") for e in exposures
+                 if getattr(e, name) is not None]
+        if not known:
+            return None, None
+        values = sorted({v for v, _ in known})
+        if values[-1] - values[0] > tol * values[0]:
+            if name == "f_number":
+                raise CamcalError(f"flats at several f-numbers ({', '.join(f'f/{v:g}' for v in values)}): one "
+                                  "vignetting model per f-number; calibrate the session (flat/f<N>/ folders or "
+                                  "the f-number of each frame) or give the flats of one f-number", where)
+            return None, f"mixed: {', '.join(f'{v:g}' for v in values)} {unit}"
+        vals = [v for v, _ in known]
+        value = max(set(vals), key=vals.count)
+        return value, "+".join(sorted({src for _, src in known}))
+
+    n, n_src = one("f_number", F_NUMBER_TOLERANCE, "")
+    f, f_src = one("focal_length_mm", FOCAL_TOLERANCE, "mm")
+    return Optics(n, n_src, f, f_src)
 
 
 def master_flat(
@@ -496,6 +531,7 @@ def master_flat(
 
     res = combine_frames(paths, method=method, sigma=sigma, preprocess=preprocess, manifest=manifest, check=check,
                          jobs=jobs, progress=progress)
+    optics = flats_optics(res.exposures, folder_of(flat_folder))
     # per-plane level in DN: recomputed from the first frame (the check guarantees all are similar)
     level = {c: float(m) for c, m in zip(first.channel_names, corrected(first)[1], strict=True)}
     var = None
@@ -507,6 +543,7 @@ def master_flat(
         method=str(res.method), exposure_s=tuple(e.exposure_s for e in res.exposures),
         mean_all=None if var is None or res.mean_all is None else np.asarray(res.mean_all, np.float32),
         variance_all=None if var is None or res.variance_all is None else np.asarray(res.variance_all, np.float32),
+        optics=optics,
     )
 
 
@@ -591,7 +628,7 @@ def fit_master(
         fm = dataclasses.replace(fm, prnu_rms={c: p.value for c, p in flat_prnu(mf, fm, mask).items()})
     # the master is normalised per plane: report the on-axis level in DN of the frames
     level_dn = {c: fm.level_dn[c] * mf.level_dn[c] for c in fm.channels}
-    return dataclasses.replace(fm, level_dn=level_dn)
+    return dataclasses.replace(fm, level_dn=level_dn, optics=mf.optics)
 
 
 def flat_prnu(mf: MasterFlat, fm: FlatModel, mask: np.ndarray | None = None) -> dict[str, Nonuniformity]:
@@ -637,6 +674,11 @@ def run_flat_stage(
     output = Path(output)
     if output.suffix.lower() != ".json":
         raise CamcalError("the flat model output must be a .json file", output)
+    subs = aperture_folders(Path(flat_folder)) if not isinstance(flat_folder, StageFrames) else []
+    if subs and not list_frames(flat_folder):
+        names = ", ".join(f"{d.name}/" for _, d in subs)
+        raise CamcalError(f"holds its flats in {names} (one folder per f-number): give one of them, or calibrate "
+                          "the session (one vignetting model per f-number)", flat_folder)
     mkeys = {"method", "sigma", "checks", "jobs", "progress"}
     _check_options(kwargs.get("model", "radial"), kwargs.get("n_terms", DEFAULT_TERMS))
     dark_model = as_dark_model(dark)

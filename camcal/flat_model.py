@@ -1,10 +1,26 @@
 """The flat-field model (DNG ``FixVignetteRadial`` vignetting, optional 2-D Legendre series, PRNU) and its files.
 
 Fitted by :mod:`camcal.flat`, which describes the model and its normalisation (g = 1 at the optical centre).
+
+Optics: a model records the f-number and focal length of its flats (:class:`Optics`, each value with its
+source; unknown stays None). Vignetting changes with the aperture (mechanical vignetting falls as the lens is
+stopped down: tens of percent at the corners between f/2.8 and f/8 on real lenses), so a model may carry
+models fitted at other f-numbers (:attr:`FlatModel.apertures`), and :func:`choose_flat` picks the one of a
+photo's f-number:
+
+- a model measured at the photo's f-number (within 3 %): used as it is;
+- between two measured f-numbers whose models have the same form (same kind, planes, shape, number of radial
+  terms or 2-D degree): ln g interpolated linearly in 1/N² (the relative aperture area, on which the amount of
+  light clipped by the lens barrel depends), pixel by pixel; its uncertainty is stated as the largest
+  difference at the corners from interpolating linearly in ln N instead (two rules that agree at the measured
+  f-numbers and differ only in how the falloff changes between them);
+- otherwise (outside the measured range, models of different forms, one model only): the nearest measured
+  f-number (in 1/N²), with a warning saying by how much the corners may then differ.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -81,6 +97,42 @@ def _legendre_uv(geom: PlaneGeometry, channel: str, x: np.ndarray, y: np.ndarray
 
 
 @dataclass(frozen=True)
+class Optics:
+    """The lens setting of a model's flats; a value nothing gave is None (unknown), never a default.
+
+    Attributes
+    ----------
+    f_number : the flats' f-number N (dimensionless).
+    f_number_source : where it came from: ``tag``, ``libraw``, ``frames.csv``, ``session`` (``session.toml``),
+        ``folder flat/f8/`` (the sub-folder's name); several joined by ``+``.
+    focal_length_mm : the lens's focal length, mm.
+    focal_length_source : as ``f_number_source``.
+    """
+
+    f_number: float | None = None
+    f_number_source: str | None = None
+    focal_length_mm: float | None = None
+    focal_length_source: str | None = None
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    @staticmethod
+    def from_dict(d: dict | None) -> Optics:
+        d = d or {}
+
+        def num(k):
+            return None if d.get(k) is None else float(d[k])
+
+        return Optics(num("f_number"), d.get("f_number_source"), num("focal_length_mm"), d.get("focal_length_source"))
+
+    def label(self) -> str:
+        """``f/2.8, 50 mm``; ``f/?`` for an unknown f-number."""
+        n = "f/?" if self.f_number is None else f"f/{self.f_number:g}"
+        return n if self.focal_length_mm is None else f"{n}, {self.focal_length_mm:g} mm"
+
+
+@dataclass(frozen=True)
 class FlatModel:
     """A fitted flat field.
 
@@ -111,6 +163,11 @@ class FlatModel:
         Estimated PRNU (relative RMS of P, the temporal noise of the master removed), per plane.
     info : dict
         Provenance: frames used, downsample factor, combine method, dark model.
+    optics : Optics
+        f-number and focal length of the flats (each with its source; unknown: None).
+    apertures : tuple of FlatModel
+        Models fitted on flats at other f-numbers (same camera and geometry), by f-number; their PRNU map is this
+        model's (a property of the pixels, not of the lens). Empty for flats of one f-number.
     """
 
     channels: tuple[str, ...]
@@ -124,6 +181,25 @@ class FlatModel:
     level_dn: dict[str, float] = field(default_factory=dict)
     prnu_rms: dict[str, float] = field(default_factory=dict)
     info: dict = field(default_factory=dict)
+    optics: Optics = Optics()  # noqa: RUF009 - frozen, so one shared default is safe
+    apertures: tuple[FlatModel, ...] = ()
+
+    def models(self) -> tuple[FlatModel, ...]:
+        """This model and those at other f-numbers, by f-number (unknown last)."""
+        return tuple(sorted((self, *self.apertures),
+                            key=lambda m: (m.optics.f_number is None, m.optics.f_number or 0.0)))
+
+    def f_numbers(self) -> list[float | None]:
+        """The f-numbers of the flats, by value (None: unknown)."""
+        return [m.optics.f_number for m in self.models()]
+
+    def corner_values(self) -> np.ndarray:
+        """(C, 4) gain at the four plane corners of each plane (the model only, no PRNU), without a full map."""
+        h, w = self.shape
+        yy, xx = np.array([0.0, 0.0, h - 1.0, h - 1.0]), np.array([0.0, w - 1.0, 0.0, w - 1.0])
+        geom = self.geometry
+        return np.stack([_eval_2d(self.model_2d, geom, c, xx, yy) if self.model_2d
+                         else radial_gain(geom.r2(c, xx, yy, *self.centre_px[c]), self.k[c]) for c in self.channels])
 
     @property
     def geometry(self) -> PlaneGeometry:
@@ -190,6 +266,7 @@ class FlatModel:
             "prnu_rms": dict(self.prnu_rms),
             "has_prnu": self.prnu is not None,
             "info": dict(self.info),
+            "optics": self.optics.to_dict(),
         }
 
 
@@ -220,6 +297,8 @@ def flat_to_parts(model: FlatModel) -> tuple[dict, dict[str, np.ndarray]]:
     """The JSON part and the named maps (``gain.R``, ``prnu.R`` ...) of a model; used by files and profiles."""
     data = model.summary()
     data["model_2d"] = model.model_2d
+    if model.apertures:  # parametric models only: their PRNU is this model's map, their gain is evaluated on load
+        data["apertures"] = [{**m.summary(), "model_2d": m.model_2d, "has_prnu": False} for m in model.apertures]
     gain = model.gain()
     maps = {f"gain.{c}": gain[i] for i, c in enumerate(model.channels)}
     if model.prnu is not None:
@@ -246,7 +325,14 @@ def flat_from_parts(data: dict, maps: dict[str, np.ndarray], where: str | Path |
             level_dn={c: float(v) for c, v in (data.get("level_dn") or {}).items()},
             prnu_rms={c: float(v) for c, v in (data.get("prnu_rms") or {}).items()},
             info=dict(data.get("info") or {}),
+            optics=Optics.from_dict(data.get("optics")),
         )
+        if data.get("apertures"):
+            others = tuple(dataclasses.replace(flat_from_parts({**d, "has_prnu": False}, {}, where), prnu=prnu)
+                           for d in data["apertures"])
+            if any(o.shape != shape or o.channels != channels for o in others):
+                raise ValueError("a model of another f-number has other planes or another shape")
+            model = dataclasses.replace(model, apertures=others)
         # probe the model at the plane corners: a decodable but unusable model fails here, not later
         h, w = shape
         yy, xx = np.array([[0.0, 0.0], [h - 1.0, h - 1.0]]), np.array([[0.0, w - 1.0], [0.0, w - 1.0]])
@@ -259,6 +345,183 @@ def flat_from_parts(data: dict, maps: dict[str, np.ndarray], where: str | Path |
         return model
     except (KeyError, TypeError, ValueError, IndexError, AttributeError) as exc:
         raise CamcalError(f"not a valid camcal flat file ({type(exc).__name__}: {exc})", where) from None
+
+
+#: Focal lengths within 1 % are one setting (a prime lens, a zoom at the same mark).
+FOCAL_TOLERANCE = 0.01
+#: Two f-numbers within 3 % are one setting: cameras write nominal values (2.8) or exact ones (2√2 = 2.83).
+F_NUMBER_TOLERANCE = 0.03
+
+
+def same_f_number(a: float | None, b: float | None) -> bool:
+    """True when ``a`` and ``b`` are one f-number (within :data:`F_NUMBER_TOLERANCE`); False when either is None."""
+    return a is not None and b is not None and abs(a - b) <= F_NUMBER_TOLERANCE * min(a, b)
+
+
+def same_form(a: FlatModel, b: FlatModel) -> bool:
+    """True when two models may be interpolated: same kind, planes, shape, CFA, radial terms or 2-D degree."""
+    if (a.kind, a.channels, a.shape, a.cfa_pattern) != (b.kind, b.channels, b.shape, b.cfa_pattern):
+        return False
+    if a.kind == "2d":
+        return a.model_2d.get("degree") == b.model_2d.get("degree")  # type: ignore[union-attr]
+    return a.info.get("n_terms") == b.info.get("n_terms")
+
+
+def _u(n: float) -> float:
+    """The interpolation variable of the vignetting: 1/N² (the relative aperture area)."""
+    return 1.0 / (n * n)
+
+
+@dataclass(frozen=True)
+class FlatChoice:
+    """The vignetting model for one photo (:func:`choose_flat`).
+
+    Attributes
+    ----------
+    how : ``measured`` (a model at the photo's f-number), ``interpolated`` (between two), ``nearest`` (the
+        nearest measured f-number), ``unchecked`` (the flats' or the photo's f-number unknown).
+    parts : ((model, weight), ...): ln g = Σ weight · ln g_model (one part of weight 1 unless interpolated).
+    photo_f_number, photo_focal_length_mm : the photo's setting (None: unknown).
+    corner_difference_rel : how much the corrected corners may be off, |g_true / g_model − 1| (the largest over
+        planes and corners): the interpolation's uncertainty, the extrapolated change beyond the measured range,
+        1/g_corner − 1 for a photo stopped down from flats of one f-number (the true gain lies between the flats'
+        and 1), the flats' corner falloff for another focal length; None when measured, or when nothing bounds it
+        (a photo at a wider aperture than flats of one f-number).
+    mismatch : the photo's f-number or focal length is not one the flats were measured at (``--strict`` refuses).
+    warning : one line for the user (None when the model was measured at the photo's setting).
+    """
+
+    how: str
+    parts: tuple[tuple[FlatModel, float], ...]
+    photo_f_number: float | None
+    photo_focal_length_mm: float | None
+    corner_difference_rel: float | None
+    mismatch: bool
+    warning: str | None
+
+    @property
+    def key(self) -> tuple:
+        """Identifies the gain map (for caching)."""
+        return tuple((m.optics.f_number, round(w, 9)) for m, w in self.parts)
+
+    def gain(self, with_prnu: bool = False) -> np.ndarray:
+        """(C, h, w) float32 gain: the chosen model's, or exp(Σ w ln g) of the interpolated ones (PRNU: the
+        primary model's map, shared by every f-number)."""
+        if len(self.parts) == 1:
+            return np.asarray(self.parts[0][0].gain(with_prnu=with_prnu), np.float32)
+        log_g = sum(w * np.log(m.gain().astype(np.float64)) for m, w in self.parts)
+        g = np.exp(log_g)
+        if with_prnu:
+            prnu = self.parts[0][0].prnu
+            if prnu is None:
+                raise CamcalError("this flat model has no PRNU map (fitted without it)")
+            g = g * prnu
+        return g.astype(np.float32)
+
+    def describe(self) -> str:
+        """``f/8 model (measured)``, ``f/2.8 and f/8 models (ln g interpolated in 1/N²)`` ..."""
+        names = " and ".join(m.optics.label() for m, _ in self.parts)
+        how = {"measured": "measured at the photo's f-number", "interpolated": "ln g interpolated linearly in 1/N²",
+               "nearest": "the nearest measured f-number", "unchecked": "f-number not checked"}[self.how]
+        return f"{names} ({how})"
+
+    def record(self, flat: FlatModel) -> dict:
+        """JSON-ready record for the output's metadata."""
+        return {"photo_f_number": self.photo_f_number, "photo_focal_length_mm": self.photo_focal_length_mm,
+                "flat_f_numbers": flat.f_numbers(),
+                "flat_focal_length_mm": [m.optics.focal_length_mm for m in flat.models()],
+                "vignetting_model": self.describe(), "how": self.how,
+                "weights": [[m.optics.f_number, w] for m, w in self.parts],
+                "corner_difference_rel": self.corner_difference_rel, "warning": self.warning,
+                "mismatch": self.mismatch,
+                "rule": "ln g linear in 1/N² between measured f-numbers of models of the same form; outside: "
+                        "the nearest (docs/flat.md)"}
+
+
+def _corner_ratio(log_a: np.ndarray, log_b: np.ndarray) -> float:
+    """Largest |exp(a − b) − 1| over planes and corners."""
+    return float(np.max(np.abs(np.expm1(log_a - log_b))))
+
+
+def choose_flat(flat: FlatModel, f_number: float | None, focal_length_mm: float | None = None) -> FlatChoice:
+    """The vignetting model of a photo taken at ``f_number`` and ``focal_length_mm`` (module docstring: the rule).
+
+    Parameters
+    ----------
+    flat : the profile's flat model (with its models at other f-numbers, :attr:`FlatModel.apertures`).
+    f_number : the photo's f-number N; None when unknown.
+    focal_length_mm : the photo's focal length, mm; None when unknown.
+    """
+    models = [m for m in flat.models() if m.optics.f_number is not None]
+    notes: list[str] = []
+    mismatch = False
+    diff: float | None = None
+    n_txt = "f/?" if f_number is None else f"f/{f_number:g}"
+    if not models or f_number is None:
+        how, parts = "unchecked", ((flat, 1.0),)
+        mismatch = True
+        notes.append("the flats' f-number is unknown: the vignetting of this f/{} photo is not checked (record "
+                     "f_number in the flats' frames.csv or session.toml)".format("?" if f_number is None else
+                                                                                f"{f_number:g}")
+                     if not models else "the photo's f-number is unknown: the vignetting model (flats at "
+                     f"{', '.join(m.optics.label() for m in models)}) is not checked")
+    else:
+        at = [m for m in models if same_f_number(m.optics.f_number, f_number)]
+        u = _u(f_number)
+        lo = [m for m in models if m.optics.f_number < f_number]  # wider apertures (larger 1/N²)
+        hi = [m for m in models if m.optics.f_number > f_number]
+        if at:
+            how, parts = "measured", ((at[0], 1.0),)
+        elif lo and hi and same_form(lo[-1], hi[0]):
+            a, b = lo[-1], hi[0]
+            ua, ub = _u(a.optics.f_number), _u(b.optics.f_number)
+            wa = (u - ub) / (ua - ub)
+            how, parts = "interpolated", ((a, wa), (b, 1.0 - wa))
+            la, lb = np.log(a.corner_values()), np.log(b.corner_values())
+            na, nb = a.optics.f_number, b.optics.f_number
+            wl = (np.log(nb) - np.log(f_number)) / (np.log(nb) - np.log(na))
+            diff = _corner_ratio(wa * la + (1 - wa) * lb, wl * la + (1 - wl) * lb)
+            mismatch = True
+            notes.append(f"{n_txt} photo between the flats' {a.optics.label()} and {b.optics.label()}: vignetting "
+                         f"interpolated (ln g linear in 1/N²); corners uncertain by up to ±{100 * diff:.2g} % (the "
+                         "difference from interpolating in ln N)")
+        else:
+            near = min(models, key=lambda m: abs(_u(m.optics.f_number) - u))
+            how, parts = "nearest", ((near, 1.0),)
+            mismatch = True
+            side = [m for m in models if m is not near and same_form(m, near)]
+            if side:  # extrapolate the change between the two nearest models to the photo's f-number
+                other = min(side, key=lambda m: abs(_u(m.optics.f_number) - _u(near.optics.f_number)))
+                ln, lo_ = np.log(near.corner_values()), np.log(other.corner_values())
+                slope = (ln - lo_) / (_u(near.optics.f_number) - _u(other.optics.f_number))
+                diff = _corner_ratio(ln + slope * (u - _u(near.optics.f_number)), ln)
+                why = (f"about {100 * diff:.2g} %, extrapolating the change from {other.optics.label()} to "
+                       f"{near.optics.label()}")
+            else:
+                g_corner = float(np.min(near.corner_values()))
+                if f_number > near.optics.f_number:  # stopped down: the true gain lies between the flats' and 1
+                    diff = 1.0 / g_corner - 1.0
+                    why = (f"up to +{100 * diff:.3g} % (stopping down reduces the flats' corner falloff of "
+                           f"{100 * (1 - g_corner):.2g} %, so the corners are over-corrected by at most 1/g - 1)")
+                else:  # opened up: more vignetting than the flats', by an amount one model cannot bound
+                    diff = None
+                    why = (f"an amount one flat cannot bound (a wider aperture vignettes more than the flats' "
+                           f"{100 * (1 - g_corner):.2g} % corner falloff: the corners are under-corrected, by tens "
+                           "of percent between f/2.8 and f/8 on real lenses)")
+            span = (f"outside the flats' {models[0].optics.label()} – {models[-1].optics.label()}"
+                    if len(models) > 1 else f"flats at {near.optics.label()} only")
+            notes.append(f"{n_txt} photo, {span}: the {near.optics.label()} vignetting model is used; the corners "
+                         f"may differ by {why}")
+    focal = [m.optics.focal_length_mm for m, _ in parts if m.optics.focal_length_mm is not None]
+    if focal and focal_length_mm is not None and any(
+            abs(f - focal_length_mm) > FOCAL_TOLERANCE * min(f, focal_length_mm) for f in focal):
+        mismatch = True
+        falloff = float(1.0 - min(float(np.min(m.corner_values())) for m, _ in parts))
+        diff = max(diff or 0.0, falloff)
+        notes.append(f"focal length {focal_length_mm:g} mm, the flats' {focal[0]:g} mm: vignetting changes with "
+                     f"the focal length, the corners may differ by as much as the flats' corner falloff, "
+                     f"{100 * falloff:.2g} %")
+    return FlatChoice(how, parts, f_number, focal_length_mm, diff, mismatch, "; ".join(notes) or None)
 
 
 def save_flat(model: FlatModel, path: str | Path) -> Path:

@@ -35,7 +35,7 @@ RGB: tuple[str, str, str] = ("R", "G", "B")
 LAYOUTS: tuple[str, ...] = ("bayer", "linear", "processed")
 """Frame layouts: 2x2 CFA mosaic, linear multi-channel RAW, processed RGB image."""
 
-TRACKED: tuple[str, ...] = ("exposure_s", "f_number", "iso", "capture_time")
+TRACKED: tuple[str, ...] = ("exposure_s", "f_number", "iso", "capture_time", "focal_length_mm")
 """Exposure fields whose source is recorded."""
 
 PLACE_TIME: tuple[str, ...] = ("utc_offset", "gps_time_utc", "latitude_deg", "longitude_deg", "altitude_m")
@@ -60,6 +60,8 @@ class Exposure:
         Exposure (integration) time t in seconds.
     f_number : float or None
         Aperture f-number N (dimensionless).
+    focal_length_mm : float or None
+        Lens focal length, mm (EXIF FocalLength: the lens's real focal length, not the 35 mm equivalent).
     iso : float or None
         ISO speed (dimensionless, the camera's gain setting).
     make, model, serial : str or None
@@ -98,6 +100,7 @@ class Exposure:
     latitude_deg: float | None = None
     longitude_deg: float | None = None
     altitude_m: float | None = None
+    focal_length_mm: float | None = None
     sources: tuple[tuple[str, str], ...] = ()
     notes: tuple[str, ...] = ()
 

@@ -73,6 +73,7 @@ def describe(path: str | Path, sun: SunPosition | None = None) -> dict[str, obje
         "icc_profile": f.icc_profile,
         "exposure_s": e.exposure_s,
         "f_number": e.f_number,
+        "focal_length_mm": e.focal_length_mm,
         "iso": e.iso,
         "exposure_value_s": ev,
         "make": e.make,

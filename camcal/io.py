@@ -194,6 +194,7 @@ TAG_NAMES: dict[str, tuple[str, ...]] = {
     "f_number": ("EXIF FNumber", "Image FNumber"),
     "iso": ("EXIF ISOSpeedRatings", "EXIF PhotographicSensitivity", "EXIF ISOSpeed", "Image ISOSpeedRatings"),
     "capture_time": ("EXIF DateTimeOriginal", "Image DateTimeOriginal"),
+    "focal_length_mm": ("EXIF FocalLength", "Image FocalLength"),
 }
 """The capture time is DateTimeOriginal only: IFD0 ``DateTime`` is when the file was last written."""
 
@@ -225,6 +226,7 @@ def exposure_from_exif(path: Path, tags: dict[str, object] | None = None) -> Exp
         "f_number": num(*TAG_NAMES["f_number"]),
         "iso": num(*TAG_NAMES["iso"]),
         "capture_time": _iso_time(text(*TAG_NAMES["capture_time"])),
+        "focal_length_mm": num(*TAG_NAMES["focal_length_mm"]),
     }
     place, notes = place_time_from_exif(tags)
     return Exposure(
@@ -510,6 +512,7 @@ def _load_raw(path: Path) -> Frame:
                 "f_number": _clean(other.aperture),
                 "iso": _clean(other.iso_speed),
                 "capture_time": _libraw_time(getattr(other, "timestamp", None)),
+                "focal_length_mm": _clean(getattr(other, "focal_len", None)),
             }
     except rawpy.LibRawFileUnsupportedError:
         raise CamcalError("is not a RAW file LibRaw can decode (unsupported or not an image)", path) from None
@@ -591,6 +594,7 @@ def _load_processed(path: Path) -> Frame:
             exposure_s=_clean(attr("ExposureTime")),
             f_number=_clean(attr("FNumber")),
             iso=_clean(attr("Exif:PhotographicSensitivity", "Exif:ISOSpeedRatings")),
+            focal_length_mm=_clean(attr("Exif:FocalLength", "FocalLength")),
             make=attr("Make"),
             model=attr("Model"),
             capture_time=_iso_time(attr("Exif:DateTimeOriginal")),

@@ -6,7 +6,7 @@ content (non-numeric, NaN, infinite or negative values, duplicate rows and
 paths that leave the folder are refused with the file, line and column named).
 
 Columns of ``frames.csv``: ``file`` (required), ``exposure_s`` (s), ``iso``,
-``f_number``, ``temperature_C`` (degC); later stages read more columns, kept as
+``f_number``, ``focal_length_mm`` (mm), ``temperature_C`` (degC); later stages read more columns, kept as
 given. See ``docs/session-layout.md``.
 """
 
@@ -29,6 +29,7 @@ NUMERIC_COLUMNS: dict[str, bool] = {
     "exposure_s": False,
     "iso": False,
     "f_number": False,
+    "focal_length_mm": False,
     "temperature_C": True,
     "wavelength_nm": False,
     "radiance_W_m2_sr": False,
@@ -36,7 +37,7 @@ NUMERIC_COLUMNS: dict[str, bool] = {
     "bandwidth_nm": False,
 }
 #: Columns that must be strictly positive when given.
-POSITIVE_COLUMNS = {"exposure_s", "iso", "f_number", "wavelength_nm", "bandwidth_nm"}
+POSITIVE_COLUMNS = {"exposure_s", "iso", "f_number", "focal_length_mm", "wavelength_nm", "bandwidth_nm"}
 
 #: Physically plausible range of numeric columns (inclusive); values outside are typing errors
 #: (a missing decimal point, a value in the wrong column) that would overflow or divide by zero later.
@@ -44,6 +45,7 @@ PLAUSIBLE_RANGE: dict[str, tuple[float, float]] = {
     "exposure_s": (1e-7, 1e5),
     "iso": (1.0, 1e7),
     "f_number": (0.5, 1000.0),
+    "focal_length_mm": (0.1, 10000.0),
     "temperature_C": (-273.15, 500.0),
     "pixel_pitch_um": (0.1, 100.0),
     "wavelength_nm": (100.0, 3000.0),
@@ -188,6 +190,7 @@ def exposure_overrides(rec: dict[str, float | str | None] | None) -> dict[str, f
         "exposure_s": rec.get("exposure_s"),
         "iso": rec.get("iso"),
         "f_number": rec.get("f_number"),
+        "focal_length_mm": rec.get("focal_length_mm"),
         "temperature_c": rec.get("temperature_C"),
     }
 
@@ -200,6 +203,7 @@ SESSION_DEFAULTS = "session.toml"
 #: Keys of ``session.toml`` and the :class:`camcal.frame.Exposure` field each one fills.
 SESSION_KEYS: dict[str, str] = {
     "f_number": "f_number",
+    "focal_length_mm": "focal_length_mm",
     "iso": "iso",
     "exposure_s": "exposure_s",
     "temperature_C": "temperature_c",

@@ -36,13 +36,15 @@ from camcal.store import to_jsonable
 from camcal.units import SPECTRAL_SENSITIVITY
 
 FORMAT = "camcal-profile"
-SCHEMA_VERSION = "1.7"  # 1.1: optional response.processed.colour_matrix; 1.2: optional spectral_sensitivity.source;
+SCHEMA_VERSION = "1.8"  # 1.1: optional response.processed.colour_matrix; 1.2: optional spectral_sensitivity.source;
 # 1.3: camera.layout, dark.layout, dark.dark_current_known, dark channels temporal_noise_dn, R, G, B planes (linear RAW)
 # 1.4: optional emva1288 section (EMVA 1288 summary: K from photon transfer, DSNU, PRNU, saturation, SNR, DR, LE)
 # 1.5: provenance.left_out and provenance.not_calibrated; reference iso / f_number may be null (no stage
 # normalised exposure); response channels saturation_exposure_s and fitted_exposure_s
 # 1.6: spectral_sensitivity.source kinds "library" and "sweep_means" and source.library (the curve-library entry)
-# 1.7: spectral_sensitivity.reference_iso / reference_f_number may be null (relative curves of unknown setting)
+# 1.7: flat.optics (the flats' f-number and focal length with their sources) and flat.apertures (models fitted at
+# other f-numbers); a 1.6 profile loads with the flats' optics unknown
+# 1.8: spectral_sensitivity.reference_iso / reference_f_number may be null (relative curves of unknown setting)
 SUPPORTED_MAJOR = 1
 SPECTRAL_UNITS_DEFAULT = SPECTRAL_SENSITIVITY
 
@@ -338,6 +340,21 @@ def _finite(x):
     return None if x is None or (isinstance(x, float) and not math.isfinite(x)) else x
 
 
+def flats_optics_text(flat: dict) -> str:
+    """The flats' f-numbers and focal length of a contract's ``flat`` object, each with its source:
+    ``f/2.8 (frames.csv), f/8 (frames.csv); 35 mm (tag); one vignetting model per f-number``."""
+    parts = []
+    for a in flat.get("apertures") or [{"optics": flat.get("optics") or {}}]:
+        o = a["optics"]
+        parts.append("an unknown f-number" if o.get("f_number") is None
+                     else f"f/{o['f_number']:g} ({o['f_number_source']})")
+    o = flat.get("optics") or {}
+    focal = ("focal length unknown" if o.get("focal_length_mm") is None
+             else f"{o['focal_length_mm']:g} mm ({o['focal_length_source']})")
+    many = "; one vignetting model per f-number (apply picks the photo's)" if len(parts) > 1 else ""
+    return f"{', '.join(parts)}; {focal}{many}"
+
+
 def contract(profile: CalibrationProfile) -> dict:
     """The stable JSON object of ``camcal profile show --json`` (see docs/profile-format.md).
 
@@ -372,7 +389,10 @@ def contract(profile: CalibrationProfile) -> dict:
         s = profile.flat.summary()
         out["flat"] = {"model": s["model"], "centre_full_px": s["centre_full_px"],
                        "corner_gain": _rgb(s["corner_gain"]), "residual_rms": _rgb(s["residual_rms"]),
-                       "prnu_rms": _rgb(s.get("prnu_rms"))}
+                       "prnu_rms": _rgb(s.get("prnu_rms")), "optics": s["optics"],
+                       "f_numbers": profile.flat.f_numbers(),
+                       "apertures": [{"optics": m.optics.to_dict(), "model": m.kind,
+                                      "corner_gain": _rgb(m.corner_gain())} for m in profile.flat.models()]}
     else:
         out["flat"] = None
     if profile.response:

@@ -45,7 +45,7 @@ from camcal.emva_model import STANDARD, sheet_rows
 from camcal.errors import CamcalError
 from camcal.frame import PLANES
 from camcal.plots import dark_figure, flat_figure, png_bytes, response_figure, spectral_figure
-from camcal.profile import contract
+from camcal.profile import contract, flats_optics_text
 from camcal.spectral_model import describe_origin
 from camcal.units import DN_PER_S
 
@@ -180,7 +180,8 @@ def _flat_section(profile, c: dict) -> str:
                "Left: relative illumination g against normalised radius per plane (curves: the fitted model; "
                "dots: the model over the plane). Right: gain map with the optical centres.")
     return (f'<section id="flat"><h2>{STAGE_TITLES["flat"]}</h2>'
-            f'<p class="sub">model {_esc(f["model"])}; gain = 1 at the optical centre.</p>{fig}'
+            f'<p class="sub">model {_esc(f["model"])}; gain = 1 at the optical centre; flats at '
+            f'{_esc(flats_optics_text(f))}.</p>{fig}'
             + _table(["quantity", "unit", *_RGB], rows, left=2)
             + "<h3>Optical centre (full-resolution px) and DNG radial coefficients</h3>"
             + _table(["plane", "x", "y"], centre)

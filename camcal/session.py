@@ -15,12 +15,15 @@ value unknown (None, no source); decoding fills it.
 
 from __future__ import annotations
 
+import dataclasses
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from camcal.errors import CamcalError, MissingMetadataError
-from camcal.io import IMAGE_EXTENSIONS, exposure_from_exif, folder_files, is_raw_path, list_frames
+from camcal.flat_model import same_f_number
+from camcal.io import IMAGE_EXTENSIONS, exposure_from_exif, folder_files, folder_manifest, is_raw_path, list_frames
 from camcal.manifest import FRAMES_CSV, exposure_overrides, read_manifest, session_defaults_for
 
 STAGES = ("bias", "dark", "flat", "linearity", "sweep")
@@ -30,6 +33,10 @@ SWEEP_CSV = "sweep.csv"
 SWEEP_REQUIRED = ("file", "wavelength_nm", "radiance_W_m2_sr")
 
 Row = Mapping[str, "float | str | None"]
+
+APERTURE_FOLDER = re.compile(r"^[fF]/?(\d+(?:\.\d+)?)$")
+"""A sub-folder of ``flat/`` holding the flats of one f-number: ``f2.8``, ``f8`` (also ``F8``)."""
+
 
 
 @dataclass(frozen=True)
@@ -45,6 +52,7 @@ class FrameRef:
     exposure_source : where ``exposure_s`` came from: the manifest's name, ``tag`` or ``session``; None when unknown.
     iso, f_number : ISO speed and f-number (same precedence), None when unknown before decoding.
     iso_source, f_number_source : where they came from, as ``exposure_source``.
+    focal_length_mm, focal_length_source : the lens's focal length, mm, and where it came from (same precedence).
     """
 
     path: Path
@@ -55,6 +63,8 @@ class FrameRef:
     iso_source: str | None = None
     f_number: float | None = None
     f_number_source: str | None = None
+    focal_length_mm: float | None = None
+    focal_length_source: str | None = None
 
 
 @dataclass(frozen=True)
@@ -124,8 +134,101 @@ def present_stages(session: str | Path) -> list[str]:
     out = []
     for s in STAGES:
         d = session / s
-        if d.is_dir() and any(p.suffix.lower() in IMAGE_EXTENSIONS for p in d.iterdir()):
+        if d.is_dir() and (any(p.suffix.lower() in IMAGE_EXTENSIONS for p in d.iterdir())
+                           or (s == "flat" and aperture_folders(d))):
             out.append(s)
+    return out
+
+
+def aperture_folders(flat: Path) -> list[tuple[float, Path]]:
+    """Sub-folders ``f<N>`` of a ``flat/`` folder that hold image files, with their f-number N, by N."""
+    out = []
+    for d in sorted(flat.iterdir()) if flat.is_dir() else ():
+        m = APERTURE_FOLDER.match(d.name)
+        if m and d.is_dir() and any(p.suffix.lower() in IMAGE_EXTENSIONS for p in d.iterdir()):
+            out.append((float(m.group(1)), d))
+    return sorted(out, key=lambda x: x[0])
+
+
+def _flat_files(folder: Path) -> tuple[list[Path], dict[str, Row], dict[Path, tuple[float, str]]]:
+    """The flats of ``flat/`` and of its ``f<N>/`` sub-folders, their manifest rows (keyed by file name) and,
+    for those in a sub-folder, (N, folder name)."""
+    subs = aperture_folders(folder)
+    if not subs:
+        files, manifest = folder_files(folder)
+        return files, manifest, {}
+    files = list_frames(folder)
+    if files:
+        files, manifest = folder_files(folder)
+    else:
+        manifest = folder_manifest(folder)
+        if manifest:
+            raise CamcalError(f"frames.csv lists {next(iter(manifest))!r}, which is not an image file in the "
+                              "folder (flats of several f-numbers: one frames.csv in each f<N>/ folder)", folder)
+    seen = {p.name: p for p in files}
+    given: dict[Path, tuple[float, str]] = {}
+    for n, sub in subs:
+        sub_files, sub_manifest = folder_files(sub)
+        for p in sub_files:
+            if p.name in seen:
+                raise CamcalError(f"has the same file name as {seen[p.name]}; give every flat a file name of "
+                                  "its own", p)
+            seen[p.name] = p
+            given[p] = (n, f"{folder.name}/{sub.name}/")
+        files.extend(sub_files)
+        manifest.update(sub_manifest)
+    return files, manifest, given
+
+
+def _with_folder_f_number(ref: FrameRef, n: float, folder: str) -> FrameRef:
+    """A flat of an ``f<N>/`` folder: the folder names its f-number, above ``session.toml`` (a camera-wide default)
+    and below the file's tag and frames.csv; a tag or row that says another f-number is refused."""
+    if ref.f_number is not None and ref.f_number_source != "session":
+        if not same_f_number(ref.f_number, n):
+            raise CamcalError(f"is in {folder} but its f-number is f/{ref.f_number:g} ({ref.f_number_source}); "
+                              f"move it to the folder of its f-number", ref.path)
+        return ref
+    return dataclasses.replace(ref, f_number=n, f_number_source=f"folder {folder}")
+
+
+@dataclass(frozen=True)
+class ApertureGroup:
+    """The flats of one f-number.
+
+    Attributes
+    ----------
+    f_number : the f-number N, None when unknown before decoding (no tag, row, folder or ``session.toml``).
+    f_number_source : where it came from (``tag``, ``frames.csv``, ``folder flat/f8/``, ``session``; several
+        joined by ``+``).
+    frames : the stage's frames of this f-number (its manifest: the stage's).
+    """
+
+    f_number: float | None
+    f_number_source: str | None
+    frames: StageFrames
+
+
+def aperture_groups(flats: StageFrames) -> list[ApertureGroup]:
+    """The flats grouped by f-number (:func:`camcal.flat_model.same_f_number`), by N; frames of unknown N form
+    the last group."""
+    groups: list[list[FrameRef]] = []
+    unknown: list[FrameRef] = []
+    for ref in flats.frames:
+        if ref.f_number is None:
+            unknown.append(ref)
+            continue
+        for g in groups:
+            if same_f_number(g[0].f_number, ref.f_number):
+                g.append(ref)
+                break
+        else:
+            groups.append([ref])
+    out = []
+    for g in sorted(groups, key=lambda g: g[0].f_number) + ([unknown] if unknown else []):
+        values = [r.f_number for r in g if r.f_number is not None]
+        n = max(set(values), key=values.count) if values else None
+        sources = sorted({r.f_number_source for r in g if r.f_number_source})
+        out.append(ApertureGroup(n, "+".join(sources) or None, dataclasses.replace(flats, frames=tuple(g))))
     return out
 
 
@@ -141,7 +244,7 @@ def resolve_exposure(path: Path, row: Row | None, defaults: Mapping[str, float |
     overrides = {k: v for k, v in exposure_overrides(row).items() if v is not None}
     tags = None
     values: dict[str, tuple[float | None, str | None]] = {}
-    for key in ("exposure_s", "iso", "f_number"):
+    for key in ("exposure_s", "iso", "f_number", "focal_length_mm"):
         if overrides.get(key) is not None:
             values[key] = (float(overrides[key]), manifest_name)
             continue
@@ -155,7 +258,7 @@ def resolve_exposure(path: Path, row: Row | None, defaults: Mapping[str, float |
         else:
             values[key] = (None, None)
     return FrameRef(path, exposure_overrides(row) if row else {}, *values["exposure_s"], *values["iso"],
-                    *values["f_number"])
+                    *values["f_number"], *values["focal_length_mm"])
 
 
 def index_session(session: str | Path) -> SessionIndex:
@@ -183,13 +286,18 @@ def index_session(session: str | Path) -> SessionIndex:
             manifest = read_manifest(folder / FRAMES_CSV) if (folder / FRAMES_CSV).exists() else {}
             if (folder / SWEEP_CSV).exists():
                 sweep_manifest = read_manifest(folder / SWEEP_CSV, required=SWEEP_REQUIRED)
+        elif s == "flat":
+            files, manifest, in_folder = _flat_files(folder)
         else:
             files, manifest = folder_files(folder)
         rows, name = (sweep_manifest, SWEEP_CSV) if s == "sweep" and sweep_manifest is not None else (manifest,
                                                                                                       FRAMES_CSV)
         refs = tuple(resolve_exposure(p, rows.get(p.name), defaults, name) for p in files)
+        if s == "flat" and in_folder:
+            refs = tuple(_with_folder_f_number(r, *in_folder[r.path]) if r.path in in_folder else r for r in refs)
         frames[s] = StageFrames(s, folder, refs, manifest)
-    inputs = {s: tuple(p for p in sorted((root / s).iterdir()) if p.is_file() and not p.name.startswith(".")
+    inputs = {s: tuple(p for d in ([root / s] + ([d for _, d in aperture_folders(root / s)] if s == "flat" else []))
+                       for p in sorted(d.iterdir()) if p.is_file() and not p.name.startswith(".")
                        and (p.suffix.lower() in IMAGE_EXTENSIONS or p.suffix.lower() == ".csv"))
               for s in stages}
     index = SessionIndex(root, tuple(stages), dict(defaults), frames, sweep_manifest, inputs)

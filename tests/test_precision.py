@@ -46,3 +46,36 @@ def test_precision_half_against_float(tmp_path, camera, profile_path):
     assert_one_line_error(bad, "--precision")
 
 
+
+
+def _compression(path) -> str:
+    inp = oiio.ImageInput.open(str(path))
+    try:
+        return str(inp.spec().getattribute("compression"))
+    finally:
+        inp.close()
+
+
+def test_compression_option_is_written_and_resumed(tmp_path, camera, profile_path):
+    photo = tmp_path / "photos" / "c.dng"
+    photo.parent.mkdir()
+    camera.write_dng(photo, Scene.uniform(1.3 * gaussian_line(663.0, 5.0)), exposure_s=0.02, iso=100, f_number=4.0,
+                     rng=np.random.default_rng(4))
+    out = tmp_path / "out"
+    proc = run_cli("apply", profile_path, photo, "-o", out, "--jobs", "1")
+    assert proc.returncode == 0, proc.stderr
+    exr = out / "c.dng.exr"
+    assert _compression(exr) == "zip"  # the default
+    zipped, _ = read_exr(exr)
+    # another compression is other settings: the EXR is redone, not skipped
+    proc = run_cli("apply", profile_path, photo, "-o", out, "--compression", "piz", "--jobs", "1")
+    assert proc.returncode == 0 and "1 written, 0 already done" in proc.stdout, proc.stdout + proc.stderr
+    assert _compression(exr) == "piz"
+    piz, _ = read_exr(exr)
+    for name in zipped:  # piz is lossless: the same values
+        assert np.array_equal(zipped[name], piz[name], equal_nan=True), name
+    # the same compression again: skipped from the header
+    proc = run_cli("apply", profile_path, photo, "-o", out, "--compression", "piz", "--jobs", "1")
+    assert proc.returncode == 0 and "0 written, 1 already done" in proc.stdout, proc.stdout + proc.stderr
+    bad = run_cli("apply", profile_path, photo, "-o", tmp_path / "x", "--compression", "jpeg")
+    assert_one_line_error(bad, "--compression")

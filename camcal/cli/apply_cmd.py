@@ -9,6 +9,7 @@ import typer
 from camcal.batch import BatchOptions, report_rows, run_batch
 from camcal.cli.common import console, err_console, print_json, progress
 from camcal.errors import CamcalError
+from camcal.exr import COMPRESSIONS
 from camcal.region import Region
 
 
@@ -37,6 +38,13 @@ def register(app: typer.Typer) -> None:
                                       help="EXR pixels: float (32-bit, default) or half (16-bit; docs/apply.md "
                                       "says when it is enough)."),
         half: bool = typer.Option(False, "--half", hidden=True, help="Same as --precision half."),
+        compression: str = typer.Option("zip", "--compression",
+                                        help="EXR compression: zip (default), none, zips, piz, pxr24, b44, dwaa, "
+                                        "dwab, zstd or rle; measured in docs/apply.md (pxr24, b44 and dwaa/dwab "
+                                        "are lossy)."),
+        strict: bool = typer.Option(False, "--strict",
+                                    help="Refuse photos whose f-number or focal length the flats were not measured "
+                                         "at (or cannot be checked); the rest of the batch goes on."),
         json_out: bool = typer.Option(False, "--json", help="Print the report as JSON."),
     ) -> None:
         """Apply a profile to photos: band radiance R, G, B and L<λ> with its uncertainty, as OpenEXR.
@@ -49,12 +57,15 @@ def register(app: typer.Typer) -> None:
         if precision not in ("half", "float"):
             raise CamcalError(f"--precision must be half or float, got {precision!r}")
         half = half or precision == "half"
+        if compression not in COMPRESSIONS:
+            raise CamcalError(f"--compression must be one of {', '.join(COMPRESSIONS)}, got {compression!r}")
         if jobs is not None and jobs < 1:
             raise CamcalError("--jobs must be at least 1")
         opts = BatchOptions(wavelength_nm=wavelength, estimator=estimator, filter_fwhm_nm=filter_fwhm,
                             line_fwhm_nm=line_fwhm, allow_other_camera=allow_other_camera,
                             roi=Region.parse(roi) if roi is not None else None,
-                            mask_path=None if mask is None else str(mask), half=half)
+                            mask_path=None if mask is None else str(mask), half=half, compression=compression,
+                            strict=strict)
         with progress() as bar:
             task = bar.add_task("apply", total=None)
 
@@ -71,6 +82,10 @@ def register(app: typer.Typer) -> None:
             console.print(f"{c['done']} written, {c['skipped']} already done (skipped), {c['failed']} failed "
                           f"→ {report.outdir} (report {Path(report.report_csv).name}"
                           f"{', ' + Path(report.roi_csv).name if report.roi_csv else ''})", soft_wrap=True)
+        for r in report.results:
+            if r.warning and r.status != "failed":
+                err_console.print(f"camcal: warning: {Path(r.source).name}: {r.warning}", markup=False,
+                                  highlight=False, soft_wrap=True)
         for r in report.failed:
             err_console.print(f"camcal: failed: {r.error}", markup=False, highlight=False, soft_wrap=True)
         if report.exit_code:

@@ -10,6 +10,7 @@ from rich.table import Table
 from camcal.cli.common import console, plot_path, print_json, progress
 from camcal.flat import run_flat_stage
 from camcal.plots import flat_figure, write_png
+from camcal.profile import flats_optics_text
 
 
 def register(app: typer.Typer) -> None:
@@ -66,4 +67,5 @@ def register(app: typer.Typer) -> None:
                           f"{100 * fm.residual_rms[c]:.3f} %", "—" if prnu is None else f"{100 * prnu:.3f} %",
                           f"{fm.level_dn.get(c, float('nan')):.1f}")
         console.print(table)
+        console.print(f"flats at {flats_optics_text(summary)}", soft_wrap=True, markup=False, highlight=False)
         console.print(f"wrote {path}" + (f" and {png_path}" if png_path else ""))

@@ -12,8 +12,8 @@ from camcal.frame import PLACE_TIME, TRACKED
 from camcal.inspect import SUN_KEYS, describe, describe_many
 from camcal.sun import parse_sun_option
 
-_UNITS = {"exposure_s": " s", "exposure_value_s": " s", "white_level_dn": " DN", "latitude_deg": "°",
-          "longitude_deg": "°", "altitude_m": " m", "zenith_deg": "°", "azimuth_deg": "°",
+_UNITS = {"exposure_s": " s", "focal_length_mm": " mm", "exposure_value_s": " s", "white_level_dn": " DN",
+          "latitude_deg": "°", "longitude_deg": "°", "altitude_m": " m", "zenith_deg": "°", "azimuth_deg": "°",
           "apparent_zenith_deg": "°"}
 
 

@@ -13,7 +13,7 @@ from camcal.cli.common import console, fraction, print_json, progress
 from camcal.curve_files import write_spectacle_csv
 from camcal.emva_model import STANDARD, EmvaSheet, sheet_rows
 from camcal.errors import CamcalError
-from camcal.profile import CameraIdentity, contract, diff_profiles, load_profile, save_profile
+from camcal.profile import CameraIdentity, contract, diff_profiles, flats_optics_text, load_profile, save_profile
 from camcal.reference_targets import import_spectral
 from camcal.spectral_model import describe_origin
 from camcal.units import DN, DN_PER_ELECTRON, DN_PER_S, SPECTRAL_SENSITIVITY
@@ -62,6 +62,8 @@ def print_contract(c: dict, title: str = "profile") -> None:
     for name, unit, vals in rows:
         table.add_row(name, unit, *(_fmt((vals or {}).get(ch)) for ch in ("R", "G", "B")))
     console.print(table)
+    if c["flat"]:
+        console.print(f"flats at {flats_optics_text(c['flat'])}", soft_wrap=True, markup=False, highlight=False)
     stages = [k for k in ("dark", "flat", "response", "spectral_sensitivity") if c[k] is None]
     if c["dark"] and all(v is None for v in (c["dark"].get("dark_current_dn_per_s") or {}).values()):
         stages.insert(0, "dark current (bias frames only)")

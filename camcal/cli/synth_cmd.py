@@ -26,6 +26,17 @@ def _camera(pattern: str | None, bits: int | None, width: int | None, height: in
     return SyntheticCamera(preset(preset_name, seed=seed, **{k: v for k, v in given.items() if v is not None}))
 
 
+def _f_numbers(text: str, option: str) -> tuple[float, ...]:
+    """``2.8,8`` -> (2.8, 8.0); one clear line for anything else."""
+    try:
+        values = tuple(float(v) for v in text.replace("f/", "").split(",") if v.strip())
+    except ValueError:
+        raise CamcalError(f"{option} takes f-numbers separated by commas (2.8,8), got {text!r}") from None
+    if not values or any(not 0.5 <= v <= 1000 for v in values):
+        raise CamcalError(f"{option} takes f-numbers between 0.5 and 1000 separated by commas, got {text!r}")
+    return values
+
+
 def register(app: typer.Typer) -> None:
     synth = typer.Typer(help="Synthetic camera: real DNG/JPEG files from known parameters.", no_args_is_help=True)
     app.add_typer(synth, name="synth")
@@ -41,7 +52,9 @@ def register(app: typer.Typer) -> None:
                                               "default camera in a session with a truncated flat, a copied dark "
                                               "frame, another camera's JPEG in flat/, a sweep frame with the "
                                               "shutter closed and two saturated linearity steps (listed under "
-                                              "'planted' in truth.json)."),
+                                              "'planted' in truth.json); apertures: mechanical vignetting that "
+                                              "falls with the f-number (corner gain 0.42 at f/2.8, 0.60 at f/8), "
+                                              "flats in flat/f2.8/ and flat/f8/, photos/ at f/2.8, f/4 and f/8."),
         pattern: str | None = typer.Option(None, help="CFA pattern: RGGB, BGGR, GRBG or GBRG (default: the "
                                                       "preset's, RGGB)."),
         bits: int | None = typer.Option(None, help="Bit depth of the RAW data (default: the preset's, 14)."),
@@ -53,6 +66,12 @@ def register(app: typer.Typer) -> None:
         layout: str = typer.Option("bayer", help="RAW layout: bayer (CFA mosaics) or linear (LinearRaw R, G, B)."),
         fixed_aperture: bool = typer.Option(False, "--fixed-aperture",
                                             help="No f-number in any file or manifest; one in session.toml."),
+        flat_f_numbers: str | None = typer.Option(None, "--flat-f-numbers", metavar="N,N,...",
+                                                  help="Shoot the flats at these f-numbers, into flat/f<N>/ (default: "
+                                                       "the reference f-number, in flat/; preset apertures: 2.8,8)."),
+        photo_f_numbers: str | None = typer.Option(None, "--photo-f-numbers", metavar="N,N,...",
+                                                   help="Also write photos/ with one photo of a uniform scene at each "
+                                                        "f-number (preset apertures: 2.8,4,8)."),
     ) -> None:
         """Write a whole calibration session (bias, dark, flat, linearity, sweep) with truth.json."""
         outdir = one_output(outdir_arg, outdir_opt, "the session folder")
@@ -76,7 +95,13 @@ def register(app: typer.Typer) -> None:
                     tasks[stage] = bar.add_task(stage, total=total)
                 bar.update(tasks[stage], completed=done)
 
-            plan = SessionPlan(stages=chosen, layout=layout, fixed_aperture=fixed_aperture)
+            optics = {"flat_f_numbers": (2.8, 8.0), "photo_f_numbers": (2.8, 4.0, 8.0)} \
+                if preset_name == "apertures" else {}
+            if flat_f_numbers is not None:
+                optics["flat_f_numbers"] = _f_numbers(flat_f_numbers, "--flat-f-numbers")
+            if photo_f_numbers is not None:
+                optics["photo_f_numbers"] = _f_numbers(photo_f_numbers, "--photo-f-numbers")
+            plan = SessionPlan(stages=chosen, layout=layout, fixed_aperture=fixed_aperture, **optics)
             out = write_session(outdir, cam, plan, progress=tick)
         if messy:
             planted = plant_problems(out, cam)

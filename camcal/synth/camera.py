@@ -25,6 +25,16 @@ with DN rate = ∫ c_i(λ) L(λ) dλ (seed §3.1, d = t ∫ c L dλ).
 Vignetting follows the DNG ``FixVignetteRadial`` opcode model,
 g(r) = 1 + k0 r² + k1 r⁴ + k2 r⁶ + k3 r⁸ + k4 r¹⁰, with r the distance from the
 optical centre divided by the distance from it to the farthest image corner.
+The k are the lens's natural falloff (cos⁴ and pupil distortion, the same at every
+aperture); ``aperture_vignetting_k1`` adds mechanical vignetting (the lens barrel
+clipping the oblique bundles), whose strength falls as the lens is stopped down:
+
+    g(r, N) = g(r) + a(N) r⁴,   a(N) = a_ref · (N_a / N)²
+
+with a_ref = ``aperture_vignetting_k1`` at N_a = ``aperture_vignetting_f_number``
+(the clipped share of the bundle scales with the aperture's area, ∝ 1/N²). The
+preset ``apertures`` (a_ref = −0.2 at f/2.8) has corner gains 0.42 at f/2.8 and
+0.60 at f/8: 42 % more light in the corners at f/8, as on real lenses.
 """
 
 from __future__ import annotations
@@ -93,9 +103,15 @@ class SensorParams:
     sensors, ~0.1 DN on the IMX296)."""
     vignetting_k: tuple[float, float, float, float, float] = (-0.30, -0.08, 0.0, 0.0, 0.0)
     """DNG radial vignetting coefficients k0..k4 (g(1) = 1 + sum k = corner gain)."""
+    aperture_vignetting_k1: float = 0.0
+    """Mechanical vignetting: r⁴ coefficient added at ``aperture_vignetting_f_number``, scaled by (N_a/N)² at
+    f-number N (module docstring); 0: vignetting independent of the aperture."""
+    aperture_vignetting_f_number: float = 2.8
     optical_centre: tuple[float, float] = (0.55, 0.48)
     """Optical centre as fractions of width and height."""
     pixel_pitch_um: float = 4.78
+    focal_length_mm: float | None = None
+    """Focal length written to the DNGs' FocalLength tag, mm (None: no tag)."""
     lens_transmittance: float = 0.9
     qe_peak: tuple[float, float, float] = (0.35, 0.45, 0.38)
     """Peak quantum efficiency of R, G, B (the measured curves give the shape)."""
@@ -144,6 +160,9 @@ PRESETS: dict[str, SensorParams] = {
     # per-channel black levels and frame-to-frame offset jitter on the default camera
     "offsets": SensorParams(black_level_dn=(512.0, 510.0, 514.0, 508.0), offset_jitter_dn=0.1,
                             model="Synthetic D5100 offsets"),
+    # mechanical vignetting that falls with the f-number (corner gain 0.42 at f/2.8, 0.60 at f/8); its sessions
+    # hold flats at f/2.8 and f/8 (flat/f2.8/, flat/f8/) and the sweep at f/4 (camcal synth session)
+    "apertures": SensorParams(aperture_vignetting_k1=-0.2, focal_length_mm=35.0, model="Synthetic D5100 apertures"),
 }
 """Named synthetic cameras (``camcal synth session --preset NAME``, ``camcal demo --preset NAME``)."""
 
@@ -210,18 +229,36 @@ class SyntheticCamera:
             dead = np.random.default_rng([p.seed, 11]).random((4, h, w)) < p.dead_pixel_fraction
             prnu[dead] = 0.0
         return {"dark_e_per_s": dark, "hot": hot, "prnu": prnu, "bias_dn": bias, "dead": dead,
-                "vignetting": self._vignetting()}
+                "vignetting": self._vignetting(self.params.reference_f_number)}
 
-    def _vignetting(self) -> np.ndarray:
+    def vignetting_k_at(self, f_number: float | None) -> tuple[float, ...]:
+        """The DNG radial coefficients k0..k4 of the relative illumination at f-number ``f_number`` (None: the
+        reference f-number): the natural falloff plus the mechanical term (module docstring)."""
+        p = self.params
+        n = p.reference_f_number if f_number is None else float(f_number)
+        k = list(p.vignetting_k)
+        k[1] += p.aperture_vignetting_k1 * (p.aperture_vignetting_f_number / n) ** 2
+        return tuple(k)
+
+    def _vignetting(self, f_number: float | None) -> np.ndarray:
         p = self.params
         cx, cy = self.optical_centre_px
         yy, xx = np.mgrid[0 : p.height, 0 : p.width].astype(float)
         rmax = max(np.hypot(x - cx, y - cy) for x in (0, p.width - 1) for y in (0, p.height - 1))
         r2 = ((xx - cx) ** 2 + (yy - cy) ** 2) / rmax**2
         g = np.ones_like(r2)
-        for i, k in enumerate(p.vignetting_k):
+        for i, k in enumerate(self.vignetting_k_at(f_number)):
             g += k * r2 ** (i + 1)
         return split_planes(g, p.cfa_pattern, dtype=np.float64)
+
+    def vignetting_map_at(self, f_number: float | None) -> np.ndarray:
+        """(4, h, w) relative illumination per plane at f-number ``f_number``, 1 at the optical centre."""
+        if not self.params.aperture_vignetting_k1 or f_number is None:
+            return self.vignetting_map
+        cache = self.__dict__.setdefault("_vignetting_cache", {})
+        if f_number not in cache:
+            cache[f_number] = self._vignetting(f_number)
+        return cache[f_number]
 
     @property
     def optical_centre_px(self) -> tuple[float, float]:
@@ -301,7 +338,7 @@ class SyntheticCamera:
                 if weight.shape != (p.height, p.width):
                     raise CamcalError(f"scene weight map has shape {weight.shape}, sensor is {(p.height, p.width)}")
                 rate += per_plane * split_planes(weight, p.cfa_pattern, dtype=np.float64)
-        return rate * self.vignetting_map * self.prnu_map
+        return rate * self.vignetting_map_at(f_number) * self.prnu_map
 
     def expose_planes(
         self,
@@ -373,7 +410,7 @@ class SyntheticCamera:
                 black_level_dn=tuple(float(p.black_level_dn[k]) for k in LINEAR_FROM_PLANES),
                 white_level_dn=p.white_dn, exposure_s=exposure_s, f_number=f_number if tag_f_number else None,
                 iso=iso, make=p.make, model=p.model, serial=p.serial, capture_time=capture_time,
-                temperature_c=temperature_c, place=place,
+                temperature_c=temperature_c, place=place, focal_length_mm=p.focal_length_mm,
             )
         if layout != "bayer":
             raise ValueError(f"layout must be 'bayer' or 'linear', got {layout!r}")
@@ -393,6 +430,7 @@ class SyntheticCamera:
             capture_time=capture_time,
             temperature_c=temperature_c,
             place=place,
+            focal_length_mm=p.focal_length_mm,
         )
 
     def black_by_position(self) -> tuple[float, float, float, float]:
@@ -536,13 +574,17 @@ class SyntheticCamera:
             "prnu_sigma": p.prnu_sigma,
             "vignetting": {
                 "model": "dng-radial",
-                "k": list(p.vignetting_k),
+                "k": list(self.vignetting_k_at(None)),
+                "k_natural": list(p.vignetting_k),
+                "aperture_term": {"k1_at_f_number": p.aperture_vignetting_k1,
+                                  "f_number": p.aperture_vignetting_f_number,
+                                  "rule": "k1(N) = k1_natural + k1_at_f_number * (f_number / N)^2"},
                 "centre_px": [cx, cy],
                 "centre_half_px": {
                     n: [(cx - plane_offsets(p.cfa_pattern)[n][1]) / 2, (cy - plane_offsets(p.cfa_pattern)[n][0]) / 2]
                     for n in PLANES
                 },
-                "corner_gain": float(1 + sum(p.vignetting_k)),
+                "corner_gain": float(1 + sum(self.vignetting_k_at(None))),
             },
             "gain_e_per_dn_at_iso": 1.0 / k,
             "saturation_dn": float(min(p.white_dn, p.full_well_e * k + min(p.black_level_dn))),

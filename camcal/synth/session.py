@@ -12,6 +12,12 @@ Layout (see ``docs/session-layout.md``)::
 ``SessionPlan(fixed_aperture=True)`` writes a camera that records no f-number: no FNumber tag in
 its DNGs and JPEGs, no ``f_number`` column in frames.csv and sweep.csv, and the lens's f-number
 once, in ``session.toml``.
+
+``SessionPlan(flat_f_numbers=(2.8, 8.0))`` shoots the flats at each f-number, into ``flat/f2.8/`` and
+``flat/f8/`` (``flat_folders=False``: all in ``flat/``, told apart by their FNumber tag and frames.csv);
+``photo_f_numbers`` adds ``photos/``, one photo of a uniform scene at each f-number (after the flats, the
+camera's vignetting at that f-number is the only thing between the photo and a flat image). Both are listed
+in ``truth.json`` (``flat.f_numbers``, ``photos``), with the true corner gain at each f-number.
 """
 
 from __future__ import annotations
@@ -26,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from camcal.atomic import atomic_write_text
+from camcal.frame import PLANES
 from camcal.reference_spectra import WAVELENGTHS_NM, gaussian_line, planck_radiance
 from camcal.synth.camera import Scene, SyntheticCamera, frame_rngs, save_truth
 
@@ -82,6 +89,14 @@ class SessionPlan:
     """A fixed-aperture camera: no f-number in any frame's tags or manifest, one in ``session.toml``."""
     session_defaults: bool = True
     """With ``fixed_aperture``, write the f-number to ``session.toml`` (False: the user forgot it)."""
+    flat_f_numbers: tuple[float, ...] = ()
+    """f-numbers of the flats (``n_flat`` at each); empty: the reference f-number only, in ``flat/``."""
+    flat_folders: bool = True
+    """With ``flat_f_numbers``: one ``flat/f<N>/`` folder per f-number (False: all in ``flat/``)."""
+    photo_f_numbers: tuple[float, ...] = ()
+    """One photo of a uniform scene at each of these f-numbers, in ``photos/`` (not a calibration stage)."""
+    photo_radiance: float = 0.02
+    """Spectral radiance of the photos' uniform scene, W m⁻² sr⁻¹ nm⁻¹ (flat spectrum)."""
 
 
 def _csv(rows: list[dict[str, object]]) -> str:
@@ -95,6 +110,12 @@ def _csv(rows: list[dict[str, object]]) -> str:
 def _white_spectrum(temperature_k: float) -> np.ndarray:
     b = planck_radiance(temperature_k)
     return b / b.max()
+
+
+def _corner_gains(camera: SyntheticCamera, f_number: float) -> dict[str, float]:
+    """True vignetting at the four plane corners, per plane (smallest), at ``f_number``."""
+    g = camera.vignetting_map_at(f_number)
+    return {c: float(min(g[i, 0, 0], g[i, 0, -1], g[i, -1, 0], g[i, -1, -1])) for i, c in enumerate(PLANES)}
 
 
 def exposure_for_level(
@@ -228,19 +249,34 @@ def write_session(
         write_manifest(d / "frames.csv", rows)
 
     if "flat" in plan.stages:
-        d = out / "flat"
         spec = _white_spectrum(plan.flat_temperature_k)
-        t = exposure_for_level(camera, spec, plan.flat_level, plan.iso, n_ref)
+        f_numbers = plan.flat_f_numbers or (n_ref,)
+        by_folder = bool(plan.flat_f_numbers) and plan.flat_folders
         rows = []
-        rngs = frame_rngs(p.seed, plan.n_flat, 3)
-        for i, rng in enumerate(rngs):
-            name = f"flat_{i:03d}.dng"
-            shoot.write_dng(d / name, Scene.uniform(spec), exposure_s=t, iso=plan.iso, f_number=n_ref, rng=rng,
-                             capture_time=t0 + timedelta(seconds=next(seq)))
-            rows.append({"file": name, "exposure_s": t, "iso": plan.iso, "f_number": n_ref})
-            note("flat", i, plan.n_flat)
-        write_manifest(d / "frames.csv", rows)
-        truth["flat"] = {"exposure_s": t, "temperature_k": plan.flat_temperature_k}
+        times = []
+        for g, n in enumerate(f_numbers):
+            d = out / "flat" / f"f{n:g}" if by_folder else out / "flat"
+            t = exposure_for_level(camera, spec, plan.flat_level, plan.iso, n)
+            times.append(t)
+            # the first f-number keeps the single-aperture session's random streams
+            rngs = frame_rngs(p.seed, plan.n_flat, 3 if g == 0 else 30 + g)
+            for i, rng in enumerate(rngs):
+                name = (f"flat_f{n:g}_{i:03d}.dng" if plan.flat_f_numbers else f"flat_{i:03d}.dng")
+                shoot.write_dng(d / name, Scene.uniform(spec), exposure_s=t, iso=plan.iso, f_number=n, rng=rng,
+                                 capture_time=t0 + timedelta(seconds=next(seq)))
+                rows.append({"file": name, "exposure_s": t, "iso": plan.iso, "f_number": n})
+                note("flat", g * plan.n_flat + i, plan.n_flat * len(f_numbers))
+            if by_folder:
+                write_manifest(d / "frames.csv", rows)
+                rows = []
+        if rows:
+            write_manifest(out / "flat" / "frames.csv", rows)
+        truth["flat"] = {"exposure_s": times[0], "temperature_k": plan.flat_temperature_k}
+        if plan.flat_f_numbers:
+            truth["flat"] |= {"f_numbers": list(f_numbers), "exposure_s_per_f_number": times,
+                              "folders": [f"flat/f{n:g}/" for n in f_numbers] if by_folder else ["flat/"],
+                              "corner_gain": {f"{n:g}": _corner_gains(camera, n) for n in f_numbers},
+                              "k": {f"{n:g}": list(camera.vignetting_k_at(n)) for n in f_numbers}}
 
     if "linearity" in plan.stages:
         d = out / "linearity"
@@ -300,6 +336,21 @@ def write_session(
             note("sweep", k, len(shots))
         write_manifest(d / "sweep.csv", rows)
         truth["sweep"] = info
+
+    if plan.photo_f_numbers:
+        d = out / "photos"
+        spectrum = np.full(WAVELENGTHS_NM.size, plan.photo_radiance)
+        records = []
+        rngs = frame_rngs(p.seed, len(plan.photo_f_numbers), 6)
+        for n, rng in zip(plan.photo_f_numbers, rngs, strict=True):
+            t = float(f"{exposure_for_level(camera, spectrum, plan.flat_level, plan.iso, n):.4g}")
+            name = f"photo_f{n:g}.dng"
+            shoot.write_dng(d / name, Scene.uniform(spectrum), exposure_s=t, iso=plan.iso, f_number=n, rng=rng,
+                             capture_time=t0 + timedelta(seconds=next(seq)))
+            records.append({"file": f"photos/{name}", "f_number": n, "exposure_s": t, "iso": plan.iso,
+                            "scene": "uniform", "spectral_radiance_W_m2_sr_nm": plan.photo_radiance,
+                            "corner_gain": _corner_gains(camera, n)})
+        truth["photos"] = records
 
     if plan.fixed_aperture and plan.session_defaults:
         atomic_write_text(out / "session.toml", "# camera-wide facts of this session (camcal session defaults)\n"

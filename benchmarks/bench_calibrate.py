@@ -1,0 +1,236 @@
+"""Benchmark: a whole ``camcal calibrate`` of a realistic 24 MP session against decoding each of its files once.
+
+Run ``python benchmarks/bench_calibrate.py`` (prints a Markdown section for ``benchmarks/RESULTS.md``);
+``--quick`` for a smoke run (600x400); ``--width/--height`` for another sensor size; ``--runs`` alternating runs;
+``--prepare`` only writes the session (the synthetic camera takes several minutes at 24 MP: write it beforehand).
+
+The session (written once by the synthetic camera into ``benchmarks/_work/calib{W}x{H}/``, git-ignored): 16 bias,
+3 x 8 dark (8, 16, 32 s), 8 flat, 20 linearity steps and 61 sweep wavelengths (400-700 nm, one frame each),
+RAW only: 129 DNG files.
+
+Each measurement is a fresh process (medians of the alternating runs):
+
+- baseline: ``camcal.io.load_frame`` + ``Frame.planes`` of every file once, in 2 threads (camcal's own decode);
+- ``camcal calibrate SESSION -o P.camcal``: the whole command, wall and CPU time (children included);
+- where the time goes: ``calibrate_session`` + ``save_profile`` in one process with each stage's entry point
+  timed (wall and CPU of the process, all its threads): screening, dark stacks and fit, flat, linearity, sweep,
+  EMVA sheet, input hashes, writing the profile. Their shares are of that run's total, imports excluded.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from datetime import date
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent))  # run from a checkout without installing
+
+# (module attribute of camcal.calibrate, label): the stages' entry points, timed where calibrate calls them
+STAGES = (
+    ("index_session", "index the session (folders, manifests)"),
+    ("screen_session", "screening: every frame decoded and judged"),
+    ("stack_darks", "dark + bias stacks"),
+    ("fit_dark_stacks", "dark fit"),
+    ("master_flat", "master flat"),
+    ("fit_master", "flat fit"),
+    ("flat_prnu", "flat PRNU"),
+    ("measure_series", "linearity series"),
+    ("fit_series_set", "linearity fit"),
+    ("measure_sweep_settings", "sweep"),
+    ("sensitivity_from_settings", "spectral sensitivity fit"),
+    ("build_sheet", "EMVA 1288 sheet"),
+    ("_inputs", "input hashes"),
+)
+
+
+def plan():
+    from camcal.synth.session import SessionPlan
+
+    return SessionPlan(n_bias=16, dark_exposures_s=(8.0, 16.0, 32.0), n_dark=8, n_flat=8, linearity_steps=20,
+                       n_sweep=1, linearity_jpeg=False, sweep_jpeg=False)
+
+
+def session_dir(width: int, height: int) -> Path:
+    return HERE / "_work" / f"calib{width}x{height}" / "session"
+
+
+def prepare(width: int, height: int) -> Path:
+    """Write the session once (a finished session has ``truth.json``)."""
+    import shutil
+
+    from camcal.synth.camera import SensorParams, SyntheticCamera
+    from camcal.synth.session import write_session
+
+    out = session_dir(width, height)
+    if (out / "truth.json").is_file():
+        return out
+    shutil.rmtree(out, ignore_errors=True)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    write_session(out, SyntheticCamera(SensorParams(width=width, height=height)), plan())
+    print(f"wrote {out} in {time.perf_counter() - t0:.0f} s", file=sys.stderr)
+    return out
+
+
+def files(session: Path) -> list[Path]:
+    from camcal.io import list_frames
+
+    return [p for d in sorted(session.iterdir()) if d.is_dir() for p in list_frames(d)]
+
+
+def _cpu_s() -> float:
+    own = resource.getrusage(resource.RUSAGE_SELF)
+    kids = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
+
+
+def run_decode(session: Path) -> dict:
+    from concurrent.futures import ThreadPoolExecutor
+
+    from camcal.io import load_frame
+
+    def one(path: Path) -> int:
+        frame = load_frame(path)
+        return int(frame.planes(dtype=frame.data.dtype)[0, 0, 0])
+
+    paths = files(session)
+    c0, t0 = _cpu_s(), time.perf_counter()
+    with ThreadPoolExecutor(2) as pool:
+        list(pool.map(one, paths))
+    return {"seconds": time.perf_counter() - t0, "cpu_s": _cpu_s() - c0, "files": len(paths)}
+
+
+def run_cli(session: Path) -> dict:
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "p.camcal"
+        c0, t0 = _cpu_s(), time.perf_counter()
+        proc = subprocess.run([sys.executable, "-m", "camcal", "calibrate", str(session), "-o", str(out)],
+                              capture_output=True, text=True)
+        dt = time.perf_counter() - t0
+        if proc.returncode:
+            raise SystemExit(f"camcal calibrate failed:\n{proc.stderr}")
+    return {"seconds": dt, "cpu_s": _cpu_s() - c0}
+
+
+def run_stages(session: Path) -> dict:
+    """calibrate_session + save_profile in this process, each stage's entry point timed (wall, CPU)."""
+    import camcal.calibrate as cal
+    from camcal.profile import save_profile
+
+    spent: dict[str, list[float]] = {}
+
+    def timed(name, fn):
+        def wrapper(*args, **kwargs):
+            c0, t0 = time.process_time(), time.perf_counter()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                acc = spent.setdefault(name, [0.0, 0.0])
+                acc[0] += time.perf_counter() - t0
+                acc[1] += time.process_time() - c0
+        return wrapper
+
+    for name, _ in STAGES:
+        if hasattr(cal, name):
+            setattr(cal, name, timed(name, getattr(cal, name)))
+    with tempfile.TemporaryDirectory() as tmp:
+        c0, t0 = time.process_time(), time.perf_counter()
+        profile, _ = cal.calibrate_session(session)
+        c1, t1 = time.process_time(), time.perf_counter()
+        save_profile(profile, Path(tmp) / "p.camcal")
+        spent["save_profile"] = [time.perf_counter() - t1, time.process_time() - c1]
+        total = [time.perf_counter() - t0, time.process_time() - c0]
+    return {"total": total, "spent": spent}
+
+
+def _sub(*args: str) -> dict:
+    proc = subprocess.run([sys.executable, __file__, *args], capture_output=True, text=True)
+    if proc.returncode:
+        raise SystemExit(f"benchmark subprocess {args} failed:\n{proc.stderr}")
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--width", type=int, default=6000)
+    ap.add_argument("--height", type=int, default=4000)
+    ap.add_argument("--runs", type=int, default=3, help="alternating runs of decode and calibrate (medians)")
+    ap.add_argument("--quick", action="store_true", help="smoke run: 600x400, one run")
+    ap.add_argument("--prepare", action="store_true", help="only write the session (once; it is kept)")
+    ap.add_argument("--one", choices=["decode", "cli", "stages"], help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.quick:
+        args.width, args.height, args.runs = 600, 400, 1
+    session = session_dir(args.width, args.height)
+    if args.one:
+        run = {"decode": run_decode, "cli": run_cli, "stages": run_stages}[args.one]
+        print(json.dumps(run(session)))
+        return
+    prepare(args.width, args.height)
+    if args.prepare:
+        return
+    for p in files(session):
+        p.read_bytes()  # page cache warm for every run
+    size = ("--width", str(args.width), "--height", str(args.height))
+    dec, cli = [], []
+    for _ in range(args.runs):
+        dec.append(_sub(*size, "--one", "decode"))
+        cli.append(_sub(*size, "--one", "cli"))
+    stages = _sub(*size, "--one", "stages")
+
+    def med(runs: list[dict], key: str) -> float:
+        return statistics.median(r[key] for r in runs)
+
+    d, c = med(dec, "seconds"), med(cli, "seconds")
+    n = dec[0]["files"]
+    lines = [
+        "## calibrate",
+        "",
+        f"Machine: {os.cpu_count()} cores, {platform.machine()}, Python {platform.python_version()}, "
+        f"{date.today().isoformat()}; load average {os.getloadavg()[0]:.1f} at the end of the run.",
+        "",
+        f"`python benchmarks/bench_calibrate.py --width {args.width} --height {args.height} --runs {args.runs}`: "
+        f"a {args.width}x{args.height} ({args.width * args.height / 1e6:.0f} MP) synthetic session of {n} DNGs "
+        "(16 bias, 3 x 8 dark, 8 flat, 20 linearity, 61 sweep), each measurement a fresh process, decode and "
+        "calibrate alternating, medians.",
+        "",
+        "| what | wall (s) | CPU (s) | ratio to the decode (wall) |",
+        "|---|---:|---:|---:|",
+        f"| baseline: decode each file once (load_frame + planes, 2 threads) | {d:.2f} | {med(dec, 'cpu_s'):.2f} "
+        "| 1.00 |",
+        f"| `camcal calibrate SESSION -o P.camcal` (whole process) | {c:.2f} | {med(cli, 'cpu_s'):.2f} "
+        f"| **{c / d:.2f}** |",
+        "",
+        "Where the time goes (one more run: `calibrate_session` + `save_profile` in one process, imports "
+        "excluded; CPU counts every thread):",
+        "",
+        "| stage | wall (s) | CPU (s) | share of the wall time |",
+        "|---|---:|---:|---:|",
+    ]
+    total_wall, total_cpu = stages["total"]
+    labels = dict(STAGES, save_profile="writing the profile (schema validation, hashes)")
+    accounted = 0.0
+    for name, (wall, cpu) in sorted(stages["spent"].items(), key=lambda kv: -kv[1][0]):
+        accounted += wall
+        lines.append(f"| {labels.get(name, name)} | {wall:.2f} | {cpu:.2f} | {wall / total_wall:.0%} |")
+    lines.append(f"| the rest (verdicts, notes, identity, provenance) | {total_wall - accounted:.2f} | | "
+                 f"{(total_wall - accounted) / total_wall:.0%} |")
+    lines.append(f"| **total** | {total_wall:.2f} | {total_cpu:.2f} | 100% |")
+    lines.append("")
+    lines.append("Runs, wall (s): calibrate " + ", ".join(f"{r['seconds']:.1f}" for r in cli) + "; decode "
+                 + ", ".join(f"{r['seconds']:.1f}" for r in dec) + ".")
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()
