@@ -6,9 +6,9 @@ RAW (CFA planes R, G1, G2, B in DN)::
 
     signal  = planes − (bias + β·t·ISO/ISO_dark)        dark model (or the file's black level)
     signal /= g_flat(x, y)                              flat field, 1 on the optical axis
-    rate    = signal / x,   x = (ISO·t/N²)/(ISO_ref/N_ref²)   DN s^-1 at the reference setting
+    rate    = signal / x,   x = (ISO·t/N²)/(ISO_ref/N_ref²)   DN s⁻¹ at the reference setting
     R, G, B = R, (G1 + G2)/2, B
-    L_i     = rate_i / ∫c_i dλ                          band radiance, W m^-2 sr^-1 nm^-1
+    L_i     = rate_i / ∫c_i dλ                          band radiance, W m⁻² sr⁻¹ nm⁻¹
     L(λ0)   = w · (R, G, B)                             narrowband or smooth estimator (camcal.radiance)
 
 Processed (JPEG/TIFF/PNG, 8 or 16 bit R, G, B)::
@@ -66,6 +66,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
+import OpenImageIO as oiio
 
 from camcal.camera_id import Sensor, match, sensor_of, sensor_of_profile
 from camcal.correct import Calibration, correct_planes, system_gain_dn_per_e
@@ -77,8 +78,9 @@ from camcal.io import open_image, read_pixels
 from camcal.radiance import RadianceModel, radiance_model, smooth_spread_rel
 from camcal.region import Region
 from camcal.threads import default_threads
+from camcal.units import BAND_RADIANCE
 
-BAND_UNITS = "W m^-2 sr^-1 nm^-1"
+BAND_UNITS = BAND_RADIANCE
 #: Unit of every map written from a profile whose c(λ) is relative (only ratios of two such maps are physical).
 RELATIVE_UNITS = "relative (c(λ) without an absolute scale: ratios only)"
 #: Channel order of the interleaved output array (the L<λ0> names are filled in per plan).
@@ -118,7 +120,7 @@ class RadianceImage:
     Attributes
     ----------
     channels : dict
-        ``R``, ``G``, ``B``: band radiance, W m^-2 sr^-1 nm^-1; ``L<λ>`` spectral radiance at λ
+        ``R``, ``G``, ``B``: band radiance, W m⁻² sr⁻¹ nm⁻¹; ``L<λ>`` spectral radiance at λ
         (units in ``metadata["units"]``) and ``L<λ>_unc`` its standard uncertainty. float32 (h, w).
     metadata : dict
         units, wavelength_nm, estimator, profile_sha256, source_file, exposure, camera, notes...
@@ -198,7 +200,8 @@ def prepare(
     if profile.reference_iso is None or profile.reference_f_number is None:
         raise CamcalError("the profile holds no reference ISO and f-number (no stage of its calibration normalised "
                           "exposure); radiance needs them: calibrate again with --reference-iso and "
-                          "--reference-f-number, or with 'iso' and 'f_number' in session.toml")
+                          "--reference-f-number, or with 'iso' and 'f_number' in session.toml (imported curves: "
+                          "camcal profile import-spectral --reference-iso and --reference-f-number)")
     slit = 0.0 if spectral.deconvolved else spectral.bandwidth_nm
     model = radiance_model(spectral.wavelength_nm, spectral.rgb(), spectral.rgb_uncertainty(), float(wavelength_nm),
                            estimator, filter_fwhm_nm=filter_fwhm_nm, line_fwhm_nm=line_fwhm_nm, slit_fwhm_nm=slit)
@@ -297,7 +300,7 @@ def _bin2(x: np.ndarray) -> np.ndarray:
 
 
 def _noise_params(profile, iso: float) -> tuple[np.ndarray | None, np.ndarray | None, float]:
-    """(read variance (4,h,w) DN², gain (4,1,1) DN/e-, ISO scale) at ``iso``, or Nones without a dark model."""
+    """(read variance (4,h,w) DN², gain (4,1,1) DN/e⁻, ISO scale) at ``iso``, or Nones without a dark model."""
     dark = profile.dark
     if dark is None:
         return None, None, 1.0
@@ -628,7 +631,7 @@ def apply(
     wavelength_nm : λ0 of the spectral-radiance map, nm (channel ``L<λ0>``).
     estimator : ``"narrowband"`` (light confined near λ0) or ``"smooth"`` (smooth spectrum);
         see :mod:`camcal.radiance`.
-    filter_fwhm_nm : narrowband only: divide by this width to give W m^-2 sr^-1 nm^-1.
+    filter_fwhm_nm : narrowband only: divide by this width to give W m⁻² sr⁻¹ nm⁻¹.
     line_fwhm_nm : narrowband only: FWHM of the light, for the slit correction of c(λ0).
     with_prnu : also divide by the profile's PRNU map.
     allow_other_camera : accept a photo whose make/model differs from the profile's.
@@ -682,9 +685,6 @@ def roi_mask(shape_hw: tuple[int, int], roi: Region | None = None,
 
 def read_mask(path: str | Path) -> np.ndarray:
     """A mask image (PNG/TIFF/JPEG, any channels) as a 2-D float array."""
-    import OpenImageIO as oiio  # lazy: ~0.1 s at import, only for image files (benchmarks/RESULTS.md, Start-up)
-
-
     path = Path(path)
     if not path.is_file():
         raise CamcalError("no such mask file", path)

@@ -32,13 +32,15 @@ import csv
 import ctypes
 import io
 import math
+import multiprocessing
 import os
 import signal
 import sys
 import threading
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
@@ -562,10 +564,6 @@ def _process_chunk(args: list[tuple]) -> list[PhotoResult]:
 
 
 def _run_pool(args: list[tuple], jobs: int, done: Callable[[PhotoResult], None]) -> None:
-    import multiprocessing  # lazy: only a multi-process batch
-    from concurrent.futures import ProcessPoolExecutor, as_completed
-    from concurrent.futures.process import BrokenProcessPool
-
     ctx = multiprocessing.get_context("spawn")  # no fork of a process holding threads (progress bar, OIIO)
     workers = min(jobs, len(args))
     with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init,

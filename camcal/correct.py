@@ -9,9 +9,11 @@ ISO S, with the calibration known so far:
    model the file's black level per plane is subtracted (dark current then stays in the signal);
    a dark model whose dark current is unknown (bias-only calibration) subtracts its bias only.
 2. **flat**: ``s / g`` with g the flat-field gain (1 at the optical centre, :mod:`camcal.flat`).
-3. **variance** (optional): ``var = σ_read²·k² + K·k·max(s + dark signal, 0)``, divided by g²
-   (EMVA 1288 release 4.0, linear camera model, eq. 6; k = S/S_dark, K the system gain in DN per
-   electron from the dark frames' photon-transfer line).
+3. **variance** (optional): ``var = σ_read²·k² + K·k·max(s + β·t·k, 0)``, divided by g²
+   (EMVA 1288 release 4.0, linear camera model, eq. 6; s + dark signal = d − bias;
+   k = S/S_dark, K the system gain in DN per electron from photon transfer or the dark frames'
+   photon-transfer line), evaluated by the dark model itself
+   (:meth:`camcal.dark_model.DarkModel.noise_variance_dn2`).
 4. **invalid mask**: known defects (dark model: hot, dead, noisy; flat: dead), pixels at or above
    the white level (saturated or clipped), and raw values at 0 when the black level is above 0
    (clipped below). Saturation is counted outside known defects: a hot pixel the dark model knows
@@ -45,8 +47,9 @@ class DarkFrameModel(Protocol):
     """What the correction path needs of a dark model.
 
     ``dark_frame_dn(exposure_s, iso)`` returns the complete expected dark frame in DN (black level
-    included) as (C, h, w) planes, as an (H, W) mosaic, or as a dict of planes. :class:`camcal.dark.DarkModel`
-    implements it (and also offers its maps, which this module then uses directly, window by window).
+    included) as (C, h, w) planes, as an (H, W) mosaic, or as a dict of planes. :class:`camcal.dark_model.DarkModel`
+    implements it on a window too, and gives the noise variance (``noise_variance_dn2``); another model is
+    evaluated whole and cropped, and gives no variance.
     """
 
     def dark_frame_dn(self, exposure_s: float, iso: float) -> Any: ...
@@ -150,36 +153,27 @@ def _window_of(a: np.ndarray, window: Window | None) -> np.ndarray:
     return a if window is None else a[:, window[0], window[1]]
 
 
+def _check_dark_planes(dark: DarkModel, shape: tuple[int, ...], path: Path | None) -> None:
+    if tuple(dark.bias_dn.shape) != tuple(shape):
+        raise CamcalError(f"the frame's planes {tuple(shape)} do not match the dark model's "
+                          f"{tuple(dark.bias_dn.shape)} (another camera, crop or resolution)", path)
+
+
 def dark_frame(dark: Any, exposure_s: float, iso: float | None, shape: tuple[int, int, int],
                window: Window | None = None, channels: tuple[str, ...] = PLANES,
                cfa_pattern: str | None = None, path: Path | None = None) -> np.ndarray:
     """The dark model's expected dark frame on ``window``: bias + β·t·ISO/ISO_dark, DN, float32.
 
     ``shape`` is the full (C, h, w) plane shape of the frame. A :class:`camcal.dark_model.DarkModel`
-    evaluates itself on the window only (:meth:`~camcal.dark_model.DarkModel.dark_frame_dn`); another
+    evaluates itself on the window only (:meth:`~camcal.dark_model.DarkModel.dark_frame_dn`); any other
     :class:`DarkFrameModel` is evaluated whole and cropped.
     """
     if isinstance(dark, DarkModel):
-        if tuple(dark.bias_dn.shape) != tuple(shape):
-            raise CamcalError(f"the frame's planes {tuple(shape)} do not match the dark model's "
-                              f"{tuple(dark.bias_dn.shape)} (another camera, crop or resolution)", path)
+        _check_dark_planes(dark, shape, path)
         try:
             return dark.dark_frame_dn(exposure_s, iso, window)
         except CamcalError as exc:
             raise CamcalError(exc.message, path) from None
-    bias = getattr(dark, "bias_dn", None)
-    if bias is not None and hasattr(dark, "dark_current_dn_per_s"):  # another model offering the same maps
-        if tuple(bias.shape) != tuple(shape):
-            raise CamcalError(f"the frame's planes {tuple(shape)} do not match the dark model's "
-                              f"{tuple(bias.shape)} (another camera, crop or resolution)", path)
-        if not np.isfinite(exposure_s) or exposure_s < 0:
-            raise CamcalError(f"exposure time must be a non-negative number of seconds, got {exposure_s}", path)
-        out = np.array(_window_of(bias, window), np.float32)
-        beta = dark.dark_current_dn_per_s
-        if beta is not None:
-            scale = 1.0 if iso is None else float(iso) / float(dark.iso)
-            out += _window_of(beta, window) * np.float32(exposure_s * scale)
-        return out
     try:
         d = dark.dark_frame_dn(exposure_s, iso)
     except CamcalError:
@@ -227,7 +221,8 @@ def correct_planes(
     black_level_dn : (C,) black level per plane from the file, DN (used without a dark model).
     full_shape : (C, h, w) of the whole frame's planes (default: the shape of ``planes``).
     window : the rows and columns of the frame's planes that ``planes`` holds.
-    variance : also compute the noise variance (needs a dark model with a gain, else None).
+    variance : also compute the noise variance (needs a :class:`~camcal.dark_model.DarkModel` with a known
+        dark current and a system gain, else None).
     inplace : float32 ``planes`` may be overwritten with the result (the hot path of ``apply``).
 
     Returns
@@ -249,17 +244,17 @@ def correct_planes(
         if beta is not None and exposure_s is None:
             raise CamcalError("dark correction needs the exposure time, which the file does not give", path)
         t = 0.0 if exposure_s is None else float(exposure_s)
-        bias = getattr(dark, "bias_dn", None)
-        if variance and bias is not None and beta is not None and calibration.noise_gain_dn_per_e is not None:
-            # keep the dark signal apart for the shot-noise term
-            if tuple(bias.shape) != tuple(shape):
-                raise CamcalError(f"the frame's planes {tuple(shape)} do not match the dark model's "
-                                  f"{tuple(bias.shape)} (another camera, crop or resolution)", path)
-            k = 1.0 if iso is None else float(iso) / float(dark.iso)
-            signal -= _window_of(bias, window)
-            ds = _window_of(beta, window) * np.float32(t * k)
-            signal -= ds
-            var = noise_variance(signal, ds, dark.read_noise_dn, calibration.noise_gain_dn_per_e, k, window)
+        if (variance and isinstance(dark, DarkModel) and beta is not None
+                and calibration.noise_gain_dn_per_e is not None):
+            # the dark frame in its two parts: the dark signal is shot noise too
+            _check_dark_planes(dark, shape, path)
+            try:
+                bias, dark_signal = dark.dark_frame_parts_dn(t, iso, window)
+            except CamcalError as exc:
+                raise CamcalError(exc.message, path) from None
+            signal -= bias
+            signal -= dark_signal
+            var = dark.noise_variance_dn2(signal, dark_signal, calibration.noise_gain_dn_per_e, iso, window)
         else:
             signal -= dark_frame(dark, t, iso, shape, window, channels, cfa_pattern, path)
     else:
@@ -306,22 +301,6 @@ def system_gain_dn_per_e(dark: Any, emva: Any = None) -> np.ndarray | None:
             if g is not None and np.isfinite(g) and g > 0:
                 k[i] = float(g) * scale
     return np.array(k, np.float32)[:, None, None]
-
-
-def noise_variance(signal_dn: np.ndarray, dark_signal_dn: np.ndarray, read_noise_dn: np.ndarray,
-                   gain_dn_per_e: np.ndarray, iso_scale: float, window: Window | None = None) -> np.ndarray:
-    """EMVA 1288 linear-model variance ``σ_read²·k² + K·k·max(signal + dark, 0)`` in DN², float32.
-
-    ``gain_dn_per_e`` (C, 1, 1) is the dark model's system gain K (DN per electron at its ISO),
-    ``iso_scale`` k = ISO/ISO_dark; ``signal_dn`` is above dark and before the flat division;
-    ``read_noise_dn`` the (C, h, w) read-noise map of the whole frame (``window`` selects from it).
-    """
-    var = dark_signal_dn + signal_dn
-    np.maximum(var, 0, out=var)
-    var *= gain_dn_per_e * np.float32(iso_scale)
-    rn = _window_of(read_noise_dn, window)
-    var += rn * rn * np.float32(iso_scale * iso_scale)
-    return var
 
 
 def correct_frame(frame: Frame, calibration: Calibration, *, window: Window | None = None,

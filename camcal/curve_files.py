@@ -43,8 +43,6 @@ from camcal.frame import PLANES
 from camcal.manifest import read_text_file
 from camcal.spectral_model import (
     ABSOLUTE_UNITS,
-    DEFAULT_REFERENCE_F_NUMBER,
-    DEFAULT_REFERENCE_ISO,
     RELATIVE_UNITS,
     SpectralSensitivity,
 )
@@ -188,6 +186,15 @@ def _columns_by_position(data: np.ndarray, path: Path, what: str) -> dict[str, n
     return {c: data[:, i] for i, c in enumerate(cols)}
 
 
+def _positive_or_none(v: Any) -> float | None:
+    """A reference ISO or f-number from a file's metadata: None when the file does not hold a positive number."""
+    try:
+        x = float(v)
+    except (TypeError, ValueError):
+        return None
+    return x if x > 0 else None
+
+
 def _sensitivity(cols: dict[str, np.ndarray], path: Path, notes: list[str],
                  meta: dict[str, Any] | None = None) -> SpectralSensitivity:
     wl = cols["wavelength"]
@@ -210,14 +217,18 @@ def _sensitivity(cols: dict[str, np.ndarray], path: Path, notes: list[str],
         raise CamcalError("has a negative uncertainty", path)
     meta = meta or {}
     mode = "absolute" if meta.get("mode") == "absolute" else "relative"
+    if mode == "absolute" and (_positive_or_none(meta.get("reference_iso")) is None
+                               or _positive_or_none(meta.get("reference_f_number")) is None):
+        raise CamcalError("its metadata says absolute but gives no reference_iso and reference_f_number (the "
+                          "setting the values refer to)", path)
     return SpectralSensitivity(
         wavelength_nm=wl[order],
         values={p: values[p][order] for p in PLANES},
         uncertainty={p: unc[p][order] for p in PLANES},
         units=str(meta.get("units") or (ABSOLUTE_UNITS if mode == "absolute" else RELATIVE_UNITS)),
         mode=mode,  # type: ignore[arg-type]
-        reference_iso=float(meta.get("reference_iso") or DEFAULT_REFERENCE_ISO),
-        reference_f_number=float(meta.get("reference_f_number") or DEFAULT_REFERENCE_F_NUMBER),
+        reference_iso=_positive_or_none(meta.get("reference_iso")),
+        reference_f_number=_positive_or_none(meta.get("reference_f_number")),
         bandwidth_nm=None if meta.get("bandwidth_nm") is None else float(meta["bandwidth_nm"]),
         deconvolved=bool(meta.get("deconvolved", False)),
         n_frames=dict(meta.get("n_frames") or {}),
@@ -325,7 +336,7 @@ def resample(s: SpectralSensitivity, grid_nm: np.ndarray) -> tuple[SpectralSensi
 
 
 def as_absolute(s: SpectralSensitivity, reference_iso: float, reference_f_number: float) -> SpectralSensitivity:
-    """Declare curves absolute: DN s^-1 per (W m^-2 sr^-1 nm^-1) per nm at (ISO_ref, N_ref), on axis."""
+    """Declare curves absolute: DN s⁻¹ per (W m⁻² sr⁻¹ nm⁻¹) per nm at (ISO_ref, N_ref), on axis."""
     if not (reference_iso > 0 and reference_f_number > 0):
         raise CamcalError("absolute curves need a positive reference ISO and f-number")
     return dataclasses.replace(s, mode="absolute", units=ABSOLUTE_UNITS, reference_iso=float(reference_iso),

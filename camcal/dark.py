@@ -11,7 +11,7 @@ times), following EMVA 1288 (release 4.0, §4.3 "dark current", §4.5 "DSNU"):
   against t, ``dark(t) = bias + β·t``, every stacked level weighted by its frame count.
   With bias frames they enter as one more point at their exposure time; without, the
   black level from the file is a prior point at t = 0 weighted as ``bias_prior_frames``
-  frames. β is in DN/s at the ISO of the frames.
+  frames. β is in DN s⁻¹ at the ISO of the frames.
 - **read noise**: the temporal standard deviation in DN of the bias frames (without bias
   frames: of the shortest dark exposure, extrapolated per channel to t = 0 by a line
   through the mean temporal variance against t, EMVA 1288 §4.3 "from the variance"),

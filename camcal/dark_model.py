@@ -15,6 +15,7 @@ import numpy as np
 from camcal.errors import CamcalError
 from camcal.frame import PLANES, RGB
 from camcal.store import load_stage, save_stage
+from camcal.units import DN, DN_PER_S
 
 HOT, DEAD, NOISY = 1, 2, 4
 """Bits of :attr:`DarkModel.defects`."""
@@ -35,9 +36,9 @@ class DarkModel:
     bias_dn : (4, h, w) float32
         Master bias in DN, black level included (the intercept at t = 0).
     dark_current_dn_per_s : (4, h, w) float32, or None
-        Dark current β in DN/s at :attr:`iso`; None when unknown (a bias-only calibration).
+        Dark current β in DN s⁻¹ at :attr:`iso`; None when unknown (a bias-only calibration).
     dark_current_unc_dn_per_s : (4, h, w) float32, or None
-        Standard uncertainty of β per pixel, DN/s.
+        Standard uncertainty of β per pixel, DN s⁻¹.
     read_noise_dn : (4, h, w) float32
         Temporal standard deviation of the dark signal in DN with the quantisation removed (below 1 DN
         of noise: the plane's value from :func:`camcal.dark.quantised_noise_fit`, see
@@ -85,14 +86,47 @@ class DarkModel:
         the bias (black level) does not change with ISO. A bias-only model (β unknown) gives its bias.
         ``window`` (rows, columns of each plane, plane pixels) evaluates that part only.
         """
+        bias, dark_signal = self.dark_frame_parts_dn(exposure_s, iso, window)
+        out = np.array(bias, np.float32)
+        if dark_signal is not None:
+            out += dark_signal
+        return out
+
+    def dark_frame_parts_dn(self, exposure_s: float, iso: float | None = None,
+                            window: tuple[slice, slice] | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+        """The two parts of :meth:`dark_frame_dn`: the bias (a read-only view of :attr:`bias_dn` on ``window``)
+        and the dark signal ``β·t·iso/self.iso`` in DN, float32, or None when β is unknown (bias-only model)."""
         if not np.isfinite(exposure_s) or exposure_s < 0:
             raise CamcalError(f"exposure time must be a non-negative number of seconds, got {exposure_s}")
         rows, cols = window if window is not None else (slice(None), slice(None))
-        out = np.array(self.bias_dn[:, rows, cols], np.float32)
+        dark_signal = None
         if self.dark_current_dn_per_s is not None:
-            scale = 1.0 if iso is None else float(iso) / float(self.iso)
-            out += self.dark_current_dn_per_s[:, rows, cols] * np.float32(exposure_s * scale)
-        return out
+            dark_signal = self.dark_current_dn_per_s[:, rows, cols] * np.float32(exposure_s * self.iso_scale(iso))
+        return self.bias_dn[:, rows, cols], dark_signal
+
+    def iso_scale(self, iso: float | None) -> float:
+        """k = ``iso / self.iso`` (1 when ``iso`` is None): the factor by which the dark current and the
+        noise in DN grow with the gain (EMVA 1288 release 4.0, eq. 6, with the gain in DN per electron ∝ ISO)."""
+        return 1.0 if iso is None else float(iso) / float(self.iso)
+
+    def noise_variance_dn2(self, signal_dn: np.ndarray, dark_signal_dn: np.ndarray, gain_dn_per_e: np.ndarray,
+                           iso: float | None = None, window: tuple[slice, slice] | None = None) -> np.ndarray:
+        """Temporal noise variance of a frame's dark-subtracted signal, DN², float32 (C, h, w).
+
+        EMVA 1288 release 4.0 linear camera model (eq. 6): ``σ² = σ_read²·k² + K·k·max(s + β·t·k, 0)``,
+        with ``s`` the signal above dark (``signal_dn``, before the flat division) and β·t·k the dark signal
+        (``dark_signal_dn``, from :meth:`dark_frame_parts_dn`; both carry shot noise), ``σ_read`` the
+        read-noise map (:attr:`read_noise_dn`), K ``gain_dn_per_e`` (C, 1, 1) the system gain in DN per
+        electron at :attr:`iso` and k :meth:`iso_scale`; all on ``window`` (plane pixels).
+        """
+        rows, cols = window if window is not None else (slice(None), slice(None))
+        k = self.iso_scale(iso)
+        var = dark_signal_dn + signal_dn
+        np.maximum(var, 0, out=var)
+        var *= gain_dn_per_e * np.float32(k)
+        rn = self.read_noise_dn[:, rows, cols]
+        var += rn * rn * np.float32(k * k)
+        return var
 
     @property
     def plane_names(self) -> tuple[str, ...]:
@@ -154,7 +188,7 @@ def dark_to_parts(model: DarkModel) -> tuple[dict, dict[str, np.ndarray]]:
         "white_level_dn": model.white_level_dn, "channels": model.channels, "summary": model.summary(),
         "dark_current_known": model.dark_current_dn_per_s is not None,
         "provenance": model.provenance,
-        "units": {"bias": "DN", "dark_current": "DN/s at iso", "dark_current_unc": "DN/s", "read_noise": "DN",
+        "units": {"bias": DN, "dark_current": f"{DN_PER_S} at iso", "dark_current_unc": DN_PER_S, "read_noise": DN,
                   "defects": "bits: 1 hot, 2 dead, 4 noisy"},
     }
     return data, maps

@@ -31,6 +31,7 @@ from camcal.synth.camera import LINEAR_FROM_PLANES, SyntheticCamera, frame_rngs,
 from camcal.synth.secchi import secchi_scenes, suggest_exposure_s
 from camcal.synth.session import SessionPlan, write_session
 from camcal.terminal import console, progress
+from camcal.units import CONCENTRATION, DN_PER_ELECTRON, DN_PER_S
 from camcal.water.band import BandInverse, band_model_from_profile
 
 CHL_UG_PER_L = 60.0
@@ -64,7 +65,7 @@ def _checks(truth: dict, contract: dict, survey: dict, vignetting_error: float) 
     for ch in ("R", "G", "B"):
         planes = ("G1", "G2") if ch == "G" else (ch,)
         t = float(np.mean([truth["dark_current_dn_per_s"][p] for p in planes]))
-        rows.append(Check("dark", f"β {ch} (DN/s)", t, d["dark_current_dn_per_s"][ch], 0.02))
+        rows.append(Check("dark", f"β {ch} ({DN_PER_S})", t, d["dark_current_dn_per_s"][ch], 0.02))
     t = float(np.mean(list(truth["read_noise_dn"].values())))
     rows.append(Check("dark", "read noise G (DN)", t, d["read_noise_dn"]["G"], 0.03))
     linear = contract["camera"].get("layout") == "linear"
@@ -75,7 +76,8 @@ def _checks(truth: dict, contract: dict, survey: dict, vignetting_error: float) 
     e = contract.get("emva1288")
     if e:  # the linearity series is shot in pairs: K by EMVA 1288 photon transfer
         g = e["channels"].get("G1") or e["channels"]["G"]
-        rows.append(Check("emva", "K G (DN/e⁻)", 1.0 / truth["gain_e_per_dn_at_iso"], g["K_dn_per_e"], 0.03))
+        rows.append(Check("emva", f"K G ({DN_PER_ELECTRON})", 1.0 / truth["gain_e_per_dn_at_iso"], g["K_dn_per_e"],
+                           0.03))
     f = contract["flat"]
     # the vignetting model against the camera's own map, its largest error over every pixel of every plane
     rows.append(Check("flat", "vignetting max error", 0.0, vignetting_error, 0.005, relative=False))
@@ -97,7 +99,7 @@ def _checks(truth: dict, contract: dict, survey: dict, vignetting_error: float) 
     rows.append(Check("apply", "disk L_R (W/m²/sr/nm)", survey["true_band_R"],
                       survey["band_R"], 0.03))
     rows.append(Check("apply", "ratio sub/ref R", survey["true_ratio"], survey["ratio"], 0.03))
-    rows.append(Check("water", "chl-a (µg/L)", survey["true_chl"], survey["chl"], 0.05))
+    rows.append(Check("water", f"chl-a ({CONCENTRATION})", survey["true_chl"], survey["chl"], 0.05))
     return rows
 
 
@@ -154,7 +156,7 @@ def run_demo(out: str | Path, *, size: tuple[int, int] = (384, 256), preset_name
         inv = inverse.concentration(ratio, sigma_ln_ratio=0.01)
         write_exr(out / "chlorophyll.exr", {"chl_ug_per_L": inv.c_ug_per_L, "chl_unc_ug_per_L": inv.sigma_ug_per_L,
                                             "reason": inv.reason.astype(np.float32)},
-                  {"units": "ug/L", "depth_m": DEPTH_M, "model": "band-aware, refined geometry, profile c_R"})
+                  {"units": CONCENTRATION, "depth_m": DEPTH_M, "model": "band-aware, refined geometry, profile c_R"})
         tick("water", 1, 1)
 
     # the disk region at half resolution, away from its edge
@@ -180,7 +182,8 @@ def run_demo(out: str | Path, *, size: tuple[int, int] = (384, 256), preset_name
     vig = float(np.max(np.abs(profile.flat.gain() / cam.vignetting_map[planes] - 1)))
     checks = _checks(truth, contract(profile), survey_vals, vig)
 
-    table = Table(title=f"camcal demo: truth against recovered (chl-a {CHL_UG_PER_L:g} µg/L at {100 * DEPTH_M:g} cm)",
+    table = Table(title=f"camcal demo: truth against recovered (chl-a {CHL_UG_PER_L:g} {CONCENTRATION} at "
+                        f"{100 * DEPTH_M:g} cm)",
                   title_justify="left", pad_edge=False)
     for col in ("stage", "quantity", "truth", "recovered", "error", "tolerance", ""):
         table.add_column(col, justify="left" if col in ("stage", "quantity") else "right")

@@ -105,7 +105,7 @@ class PhotonTransfer:
     saturation_index : index (in the sorted points) of the variance maximum.
     saturation_dn : μ_y.sat − μ_y.dark, the responsivity line at the saturation exposure, DN.
     saturation_exposure_s : the exposure x of the saturation point, s (at the series' reference setting).
-    responsivity_dn_per_s : slope R of the signal against x in the fit range, DN/s.
+    responsivity_dn_per_s : slope R of the signal against x in the fit range, DN s⁻¹.
     exposure_s, signal_dn, variance_dn2 : the points, sorted by exposure (signal above the zero-exposure level).
     photo_signal_dn : the points' signal above dark (μ_y − μ_y.dark), DN.
     """

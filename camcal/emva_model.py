@@ -7,6 +7,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from camcal.units import DN, DN_PER_ELECTRON, DN_PER_S, ELECTRONS, ELECTRONS_PER_DN, ELECTRONS_PER_S
+
 STANDARD = "EMVA 1288 release 4.0 (Linear)"
 
 
@@ -67,26 +69,26 @@ def sheet_rows(sheet: EmvaSheet) -> list[tuple[str, str, str, dict[str, float | 
         return {c: (None if not v.get(key) else 1.0 / float(v[key])) for c, v in ch.items()}
 
     rows = [
-        ("sensitivity", "overall system gain K", "DN/e⁻", col("K_dn_per_e")),
-        ("sensitivity", "uncertainty of K", "DN/e⁻", col("K_unc_dn_per_e")),
-        ("sensitivity", "1/K", "e⁻/DN", inv("K_dn_per_e")),
-        ("sensitivity", "temporal dark noise σ_y.dark", "DN", col("dark_noise_dn")),
-        ("sensitivity", "read noise σ_d·K (quantisation removed)", "DN", col("read_noise_dn")),
-        ("sensitivity", "read noise σ_d", "e⁻", col("read_noise_e")),
-        ("sensitivity", "absolute sensitivity threshold μ_e.min", "e⁻", col("threshold_e")),
-        ("sensitivity", "saturation capacity μ_y.sat", "DN", col("saturation_dn")),
-        ("sensitivity", "saturation capacity μ_e.sat", "e⁻", col("saturation_e")),
+        ("sensitivity", "overall system gain K", DN_PER_ELECTRON, col("K_dn_per_e")),
+        ("sensitivity", "uncertainty of K", DN_PER_ELECTRON, col("K_unc_dn_per_e")),
+        ("sensitivity", "1/K", ELECTRONS_PER_DN, inv("K_dn_per_e")),
+        ("sensitivity", "temporal dark noise σ_y.dark", DN, col("dark_noise_dn")),
+        ("sensitivity", "read noise σ_d·K (quantisation removed)", DN, col("read_noise_dn")),
+        ("sensitivity", "read noise σ_d", ELECTRONS, col("read_noise_e")),
+        ("sensitivity", "absolute sensitivity threshold μ_e.min", ELECTRONS, col("threshold_e")),
+        ("sensitivity", "saturation capacity μ_y.sat", DN, col("saturation_dn")),
+        ("sensitivity", "saturation capacity μ_e.sat", ELECTRONS, col("saturation_e")),
         ("sensitivity", "SNR_max", "", col("snr_max")),
         ("sensitivity", "SNR_max", "dB", col("snr_max_db")),
         ("sensitivity", "dynamic range DR", "dB", col("dynamic_range_db")),
         ("linearity", "linearity error LE", "%", col("linearity_error_pct")),
         ("linearity", "LE min", "%", col("linearity_error_min_pct")),
         ("linearity", "LE max", "%", col("linearity_error_max_pct")),
-        ("dark current", "dark current", "DN/s", col("dark_current_dn_per_s")),
-        ("dark current", "dark current", "e⁻/s", col("dark_current_e_per_s")),
-        ("nonuniformity", "DSNU_1288", "DN", col("dsnu_dn")),
-        ("nonuniformity", "uncertainty of DSNU", "DN", col("dsnu_unc_dn")),
-        ("nonuniformity", "DSNU_1288", "e⁻", col("dsnu_e")),
+        ("dark current", "dark current", DN_PER_S, col("dark_current_dn_per_s")),
+        ("dark current", "dark current", ELECTRONS_PER_S, col("dark_current_e_per_s")),
+        ("nonuniformity", "DSNU_1288", DN, col("dsnu_dn")),
+        ("nonuniformity", "uncertainty of DSNU", DN, col("dsnu_unc_dn")),
+        ("nonuniformity", "DSNU_1288", ELECTRONS, col("dsnu_e")),
         ("nonuniformity", "PRNU_1288", "%", col("prnu_pct")),
         ("nonuniformity", "uncertainty of PRNU", "%", col("prnu_unc_pct")),
         ("nonuniformity", "noise left in the flat map", "%", col("flat_map_noise_pct")),

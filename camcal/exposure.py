@@ -7,7 +7,7 @@ time over the squared f-number: the image-plane irradiance of a scene falls as
     relative exposure  x = (ISO · t / N²) / (ISO_ref / N_ref²)         [s]
 
 is the exposure time *at the reference setting* (ISO_ref, N_ref) that gives
-the same signal, and ``signal_dn / x`` is the DN rate (DN s^-1) at the reference
+the same signal, and ``signal_dn / x`` is the DN rate (DN s⁻¹) at the reference
 setting. This is the one function every stage uses.
 """
 
@@ -41,5 +41,5 @@ def frame_relative_exposure(
 
 
 def normalise(signal_dn: np.ndarray | float, x_s: float) -> np.ndarray | float:
-    """Signal (DN above dark) divided by the relative exposure: DN s^-1 at the reference setting."""
+    """Signal (DN above dark) divided by the relative exposure: DN s⁻¹ at the reference setting."""
     return np.asarray(signal_dn) / x_s if isinstance(signal_dn, np.ndarray) else signal_dn / x_s

@@ -13,6 +13,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
+import OpenImageIO as oiio
 
 from camcal.atomic import atomic_path
 from camcal.errors import CamcalError
@@ -69,8 +70,6 @@ def write_exr(
     datetime : the header's ``DateTime`` (EXR ``capDate``), ``"YYYY:MM:DD HH:MM:SS"``; by default
         OpenImageIO writes the current time, so two writes of the same data differ in that field.
     """
-    import OpenImageIO as oiio  # lazy: ~0.1 s at import, only for image files (benchmarks/RESULTS.md, Start-up)
-
     if not channels:
         raise CamcalError("no channels to write", path)
     if Path(path).is_dir():
@@ -129,8 +128,6 @@ def read_exr(
     (channels, metadata) : ``{name: float32 (H, W)}`` and ``{key: value}`` with the
     ``camcal:`` prefix removed and JSON attributes decoded.
     """
-    import OpenImageIO as oiio  # lazy: ~0.1 s at import, only for image files (benchmarks/RESULTS.md, Start-up)
-
     path = Path(path)
     if not path.is_file():
         raise CamcalError("no such EXR file", path)
@@ -193,8 +190,6 @@ def read_exr_header(path: str | Path) -> dict[str, object]:
     CamcalError
         The file cannot be opened as an image, or its metadata is damaged.
     """
-    import OpenImageIO as oiio  # lazy: OpenImageIO costs ~20 ms at start-up (benchmarks/RESULTS.md, Start-up)
-
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
         oiio.geterror()

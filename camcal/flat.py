@@ -46,6 +46,7 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
+from numpy.polynomial import legendre
 from scipy.optimize import least_squares
 
 from camcal.blocks import DEFAULT_BLOCKS, auto_downsample, block_mean  # noqa: F401 (re-exported)
@@ -182,8 +183,6 @@ def fit_2d_plane(
     Returns (level at ``centre``, coefficients normalised so the series is 1 at ``centre``, scale 1.0,
     relative RMS residual).
     """
-    from numpy.polynomial import legendre
-
     ok = np.isfinite(block) & (block > 0)
     d = block[ok]
     n_coef = int(_total_degree_mask(degree).sum())
@@ -236,7 +235,9 @@ def fit_flat_planes(
     cfa_pattern : CFA pattern the planes came from (None: the planes are full resolution).
     model : ``"radial"`` (DNG radial, centre free) or ``"2d"`` (Legendre series; the radial fit
         still gives the optical centre, where the 2-D model is normalised to 1).
-    downsample : block size for the fit, plane pixels (default: ~64 blocks on the long side).
+    downsample : block size for the fit, photo (full-resolution) pixels, whole CFA cells: a multiple of 2 for
+        CFA planes (default: ~64 blocks on the long side). The model's ``info["downsample"]`` is that block in
+        plane pixels.
     n_terms : radial coefficients fitted (1..5; the rest are 0).
     degree_2d : degree in x and y of the 2-D model.
     mask : (C, h, w) bool/uint8, True for pixels to ignore (hot pixels from the dark model).
@@ -252,10 +253,14 @@ def fit_flat_planes(
     if mask is not None and mask.shape != master.shape:
         raise CamcalError(f"defect mask has shape {mask.shape}, the flats have {master.shape}")
     _, h, w = master.shape
-    factor = int(downsample) if downsample else auto_downsample((h, w))
-    if factor < 1:
-        raise CamcalError("downsample must be at least 1")
     geom = PlaneGeometry.for_planes(channels, (h, w), cfa_pattern)
+    if downsample is None:
+        factor = auto_downsample((h, w))
+    elif int(downsample) < geom.scale or int(downsample) % geom.scale:
+        raise CamcalError(f"downsample {downsample}: the block is in photo pixels and must hold whole "
+                          f"{geom.scale}x{geom.scale} CFA cells (a positive multiple of {geom.scale})")
+    else:
+        factor = int(downsample) // geom.scale
     centres, ks, rms, levels, coef2d, scale2d = {}, {}, {}, {}, {}, {}
     for i, c in enumerate(channels):
         block, bx, by = block_mean(master[i], factor, None if mask is None else mask[i])
@@ -334,7 +339,7 @@ class FlatChecks:
     min_level : float
         Smallest median signal of the weakest plane, as a fraction of the range white − black.
         Below it the flat is too dark for a useful SNR (5 % of a 14-bit range is ~800 DN,
-        a shot-noise SNR of ~35 per pixel and frame at 1.6 e-/DN).
+        a shot-noise SNR of ~35 per pixel and frame at 1.6 e⁻/DN).
     max_level : float
         Largest median signal of the brightest plane (fraction of the range); above it the
         bright centre risks the non-linear top of the sensor's range.

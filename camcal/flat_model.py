@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from numpy.polynomial import legendre
 
 from camcal.errors import CamcalError
 from camcal.frame import plane_offsets
@@ -270,8 +271,6 @@ class FlatModel:
 
 
 def _eval_2d(model_2d: dict, geom: PlaneGeometry, channel: str, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    from numpy.polynomial import legendre
-
     u, v = _legendre_uv(geom, channel, x, y)
     coef = np.asarray(model_2d["coefficients"][channel], float)
     return float(model_2d["scale"][channel]) * legendre.legval2d(u, v, coef)

@@ -45,7 +45,12 @@ from datetime import UTC, datetime
 from fractions import Fraction
 from pathlib import Path
 
+import exifread
 import numpy as np
+import OpenImageIO as oiio
+import pillow_heif
+import rawpy
+from PIL import ImageCms
 
 from camcal.errors import CamcalError
 from camcal.frame import PLANES, RGB, TRACKED, Exposure, Frame, pattern_from_rawpy, plane_offsets
@@ -116,8 +121,6 @@ def is_heif(path: Path) -> bool:
 
 
 def _exif_reader():
-    import exifread  # lazy: only when a file's EXIF is read
-
     log = logging.getLogger("exifread")  # it logs "File format not recognized." to stderr on non-EXIF files
     if log.level == logging.NOTSET:
         log.setLevel(logging.ERROR)
@@ -138,8 +141,6 @@ def _exif_from_block(block: bytes | None) -> dict[str, object]:
 
 def _heif_exif_block(path: Path) -> bytes | None:
     """The EXIF block libheif finds in a HEIF file (exifread knows only some HEIF brands); None when none."""
-    import pillow_heif  # lazy: only for HEIF files
-
     try:
         with quiet_stderr():
             return pillow_heif.open_heif(str(path)).info.get("exif")
@@ -475,8 +476,6 @@ def saturated_fraction(data: np.ndarray, white_dn: float) -> float:
 
 
 def _load_raw(path: Path) -> Frame:
-    import rawpy  # lazy: only when a RAW file is decoded
-
     try:
         with quiet_stderr(), rawpy.imread(str(path)) as raw:
             sizes = raw.sizes
@@ -550,8 +549,6 @@ def open_image(path: Path, formats: tuple[str, ...] | None = None, what: str = "
     C-library messages are silenced; the format must be one of ``formats`` (OpenImageIO opens any
     format it knows whatever the file's name); the declared size must be within :func:`max_pixels`.
     """
-    import OpenImageIO as oiio  # lazy: ~0.1 s at import, only for image files (benchmarks/RESULTS.md, Start-up)
-
     with quiet_stderr():  # libpng/libjpeg print their own messages to fd 2 on damaged files
         inp = oiio.ImageInput.open(str(path))
     if inp is None:
@@ -579,8 +576,6 @@ def read_pixels(inp, spec, path: Path, nchannels: int, fmt) -> np.ndarray:
 
 
 def _load_processed(path: Path) -> Frame:
-    import OpenImageIO as oiio  # lazy: ~0.1 s at import, only for image files (benchmarks/RESULTS.md, Start-up)
-
     with open_image(path, ("jpeg", "tiff", "png"), "a JPEG, TIFF or PNG image") as (inp, spec):
         if spec.nchannels < 3:
             raise CamcalError(f"has {spec.nchannels} channel(s); camcal needs an RGB image", path)
@@ -618,17 +613,22 @@ def _load_processed(path: Path) -> Frame:
     )
     exp = _fill(exif_exp, oiio_exp)
     exp = dataclasses.replace(exp, make=oiio_exp.make or exif_exp.make, model=oiio_exp.model or exif_exp.model)
-    data = np.ascontiguousarray(data)
+    return _processed_frame(path, data, bits, exp, icc_name)
+
+
+def _processed_frame(path: Path, rgb: np.ndarray, bits: int, exposure: Exposure, icc_profile: str | None) -> Frame:
+    """A processed (JPEG, TIFF, PNG, HEIC) frame: (H, W, 3) ``rgb`` of ``bits`` bits, black level 0, white
+    level 2^bits − 1 (the encoded range; the tone curve is not undone here)."""
     return Frame(
-        data=data,
+        data=np.ascontiguousarray(rgb),
         kind="processed",
         cfa_pattern=None,
         black_level_dn={"R": 0.0, "G": 0.0, "B": 0.0},
         white_level_dn=float(2**bits - 1),
-        exposure=exp,
+        exposure=exposure,
         path=path,
         layout="processed",
-        icc_profile=icc_name,
+        icc_profile=icc_profile,
     )
 
 
@@ -637,8 +637,6 @@ def icc_description(icc: bytes | None) -> str | None:
     None when there is no profile or it cannot be read."""
     if not icc:
         return None
-    from PIL import ImageCms  # lazy: only for images that embed a profile
-
     try:
         desc = ImageCms.getProfileDescription(ImageCms.ImageCmsProfile(io.BytesIO(icc))).strip()
     except (OSError, ValueError, TypeError, ImageCms.PyCMSError):
@@ -648,8 +646,6 @@ def icc_description(icc: bytes | None) -> str | None:
 
 def _load_heif(path: Path) -> Frame:
     """A HEIC/HEIF photo as a processed frame: R, G, B of 8 bits (uint8) or 10/12 bits (uint16, not rescaled)."""
-    import pillow_heif  # lazy: only for HEIF files
-
     try:
         with quiet_stderr():
             heif = pillow_heif.open_heif(str(path), convert_hdr_to_8bit=False)
@@ -671,22 +667,12 @@ def _load_heif(path: Path) -> Frame:
     if pixels.ndim != 3 or pixels.shape[:2] != (h, w) or pixels.shape[2] < 3:
         raise CamcalError(f"decodes to an image of unexpected shape {pixels.shape}", path)
     if pixels.dtype == np.uint16 and bits < 16:
-        data = np.ascontiguousarray(pixels[..., :3] >> np.uint16(16 - bits))  # libheif gives the top bits
+        data = pixels[..., :3] >> np.uint16(16 - bits)  # libheif gives the top bits
     else:
-        data = np.ascontiguousarray(pixels[..., :3])
+        data = pixels[..., :3]
         bits = 8 * data.dtype.itemsize
     exp = exposure_from_exif(path, _exif_from_block(heif.info.get("exif")))
-    return Frame(
-        data=data,
-        kind="processed",
-        cfa_pattern=None,
-        black_level_dn={"R": 0.0, "G": 0.0, "B": 0.0},
-        white_level_dn=float(2**bits - 1),
-        exposure=exp,
-        path=path,
-        layout="processed",
-        icc_profile=icc_description(heif.info.get("icc_profile")),
-    )
+    return _processed_frame(path, data, bits, exp, icc_description(heif.info.get("icc_profile")))
 
 
 def is_raw_path(path: Path) -> bool:

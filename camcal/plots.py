@@ -45,6 +45,7 @@ from camcal.flat_model import FlatModel, radial_gain
 from camcal.frame import PLANES
 from camcal.response_model import ResponseModel
 from camcal.spectral_model import SpectralSensitivity
+from camcal.units import DN, DN_PER_S, SPECTRAL_RADIANCE
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -135,7 +136,7 @@ def dark_figure(dark: DarkModel) -> Figure:
     Parameters
     ----------
     dark : camcal.dark.DarkModel
-        β = ``dark_current_dn_per_s`` (4, h, w) in DN s^-1 at ``dark.iso`` (seed eq. 12, β term);
+        β = ``dark_current_dn_per_s`` (4, h, w) in DN s⁻¹ at ``dark.iso`` (seed eq. 12, β term);
         hot pixels are bit 1 of ``defects``. A bias-only model (β None) shows the bias in DN instead.
 
     Returns
@@ -148,8 +149,8 @@ def dark_figure(dark: DarkModel) -> Figure:
 
     has_beta = dark.dark_current_dn_per_s is not None
     values = np.asarray(dark.dark_current_dn_per_s if has_beta else dark.bias_dn, np.float64)
-    symbol, unit = ("β", "DN/s") if has_beta else ("bias", "DN")
-    what = f"dark current β [DN/s at ISO {dark.iso:g}]" if has_beta else "bias [DN] (no dark current: bias only)"
+    symbol, unit = ("β", DN_PER_S) if has_beta else ("bias", DN)
+    what = f"dark current β [{DN_PER_S} at ISO {dark.iso:g}]" if has_beta else "bias [DN] (no dark current: bias only)"
     hot = (np.asarray(dark.defects) & HOT) != 0
     fig = new_figure(11.0, 4.4)
     ax1, ax2 = fig.subplots(1, 2, width_ratios=[1.05, 1.0])
@@ -405,7 +406,7 @@ def spectral_figure(spec: SpectralSensitivity, truth: dict[str, np.ndarray] | No
             ax.plot(twl, np.asarray(v, float), ":", color=colour(name), lw=1.6, label=f"{name} truth")
         if wl.size > 1:  # the truth may span more than the measurement (the x axis is shared by all four axes)
             ax1.set_xlim(wl[0], wl[-1])
-    unit = "rel." if spec.mode == "relative" else "DN s⁻¹ per W m⁻² sr⁻¹ nm⁻¹"
+    unit = "rel." if spec.mode == "relative" else f"{DN_PER_S} per {SPECTRAL_RADIANCE}"
     ax1.set_title("c(λ): R, G (mean of G1, G2), B; bands ±1 σ"
                   + (", deconvolved" if spec.deconvolved else ""))
     ax2.set_title("the two green planes G1, G2 (±1 σ)")

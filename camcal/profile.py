@@ -20,6 +20,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+import jsonschema
 import numpy as np
 
 from camcal import __version__
@@ -32,9 +33,10 @@ from camcal.frame import PLANES, RGB
 from camcal.response_model import ResponseModel
 from camcal.spectral_model import SpectralSensitivity, spectral_from_dict, spectral_to_dict
 from camcal.store import to_jsonable
+from camcal.units import SPECTRAL_SENSITIVITY
 
 FORMAT = "camcal-profile"
-SCHEMA_VERSION = "1.7"  # 1.1: optional response.processed.colour_matrix; 1.2: optional spectral_sensitivity.source;
+SCHEMA_VERSION = "1.8"  # 1.1: optional response.processed.colour_matrix; 1.2: optional spectral_sensitivity.source;
 # 1.3: camera.layout, dark.layout, dark.dark_current_known, dark channels temporal_noise_dn, R, G, B planes (linear RAW)
 # 1.4: optional emva1288 section (EMVA 1288 summary: K from photon transfer, DSNU, PRNU, saturation, SNR, DR, LE)
 # 1.5: provenance.left_out and provenance.not_calibrated; reference iso / f_number may be null (no stage
@@ -42,8 +44,9 @@ SCHEMA_VERSION = "1.7"  # 1.1: optional response.processed.colour_matrix; 1.2: o
 # 1.6: spectral_sensitivity.source kinds "library" and "sweep_means" and source.library (the curve-library entry)
 # 1.7: flat.optics (the flats' f-number and focal length with their sources) and flat.apertures (models fitted at
 # other f-numbers); a 1.6 profile loads with the flats' optics unknown
+# 1.8: spectral_sensitivity.reference_iso / reference_f_number may be null (relative curves of unknown setting)
 SUPPORTED_MAJOR = 1
-SPECTRAL_UNITS_DEFAULT = "DN s^-1 per (W m^-2 sr^-1 nm^-1) per nm at ISO_ref, f/N_ref, on axis"
+SPECTRAL_UNITS_DEFAULT = SPECTRAL_SENSITIVITY
 
 
 @dataclass(frozen=True)
@@ -89,7 +92,7 @@ class CalibrationProfile:
     flat : camcal.flat.FlatModel or None
     response : dict of camcal.response.ResponseModel, keyed ``raw`` / ``processed``, or None
     spectral : camcal.spectral.SpectralSensitivity or None
-        Absolute c(λ) in DN s^-1 per (W m^-2 sr^-1 nm^-1) per nm at the reference setting, on axis.
+        Absolute c(λ) in DN s⁻¹ per (W m⁻² sr⁻¹ nm⁻¹) per nm at the reference setting, on axis.
     emva : camcal.emva.EmvaSheet or None
         The EMVA 1288 summary (system gain K from photon transfer, DSNU, PRNU, saturation, SNR_max, dynamic
         range, linearity error); the noise model uses its K (:meth:`camcal.correct.Calibration.of`).
@@ -216,8 +219,6 @@ def check_version(doc: dict, where: str | Path) -> None:
 
 def validate_document(doc: dict, where: str | Path) -> None:
     """Validate ``doc`` against the JSON Schema; one line naming the first offending field."""
-    import jsonschema
-
     check_version(doc, where)
     validator = jsonschema.Draft202012Validator(_schema())
     errors = sorted(validator.iter_errors(doc), key=lambda e: [str(p) for p in e.absolute_path])

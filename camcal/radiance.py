@@ -3,22 +3,22 @@
 Input everywhere is the **DN rate at the reference setting, on axis** per channel
 R, G, B (dark removed, flat corrected, linearised, divided by the relative
 exposure; see :mod:`camcal.apply`), and the channel sensitivities c_i(λ) in
-DN s^-1 per (W m^-2 sr^-1 nm^-1) per nm (seed §3.1). The forward model is
+DN s⁻¹ per (W m⁻² sr⁻¹ nm⁻¹) per nm (seed §3.1). The forward model is
 
     rate_i = ∫ c_i(λ) L(λ) dλ                                   (seed eq. 12/13, γ = 1)
 
 Estimators
 ----------
 ``band``
-    L_i = rate_i / ∫ c_i dλ, in W m^-2 sr^-1 nm^-1: the c_i-weighted mean spectral
+    L_i = rate_i / ∫ c_i dλ, in W m⁻² sr⁻¹ nm⁻¹: the c_i-weighted mean spectral
     radiance over the channel's band. Exact for any spectrum, by definition.
 ``narrowband``
     Assumes the light is confined to a band much narrower than c_i varies over,
     centred on λ0 (a line, or a scene seen through an interference filter):
-    rate_i = c_i(λ0) · L_band, so L_band = rate_i / c_i(λ0) in W m^-2 sr^-1 (the
+    rate_i = c_i(λ0) · L_band, so L_band = rate_i / c_i(λ0) in W m⁻² sr⁻¹ (the
     radiance integrated over the line). The channel with the largest c_i(λ0) is
     used (the red channel at 663 nm). With ``filter_fwhm_nm`` the result is
-    divided by that width to give a mean spectral radiance (W m^-2 sr^-1 nm^-1).
+    divided by that width to give a mean spectral radiance (W m⁻² sr⁻¹ nm⁻¹).
     c_i(λ0) is read off the sampled curve with a cubic spline (linear
     interpolation between 5 nm samples is biased by the curvature: −0.75 % at
     663 nm and +4.8 % at 672 nm on the D5100 red channel). A profile measured
@@ -54,6 +54,7 @@ from scipy.interpolate import CubicSpline
 
 from camcal.errors import CamcalError
 from camcal.reference_spectra import FWHM_TO_SIGMA, planck_radiance
+from camcal.units import IN_BAND_RADIANCE, SPECTRAL_RADIANCE
 
 RGB = ("R", "G", "B")
 ESTIMATORS = ("narrowband", "smooth")
@@ -65,7 +66,7 @@ class RadianceModel:
 
     Attributes
     ----------
-    band_integral : (3,) ∫ c_i dλ per channel, DN s^-1 per (W m^-2 sr^-1 nm^-1).
+    band_integral : (3,) ∫ c_i dλ per channel, DN s⁻¹ per (W m⁻² sr⁻¹ nm⁻¹).
     band_unc : (3,) its standard uncertainty.
     wavelength_nm : the target wavelength λ0, nm.
     estimator : "narrowband" or "smooth".
@@ -156,16 +157,16 @@ def radiance_model(
         weights = np.zeros(3)
         weights[best] = 1.0 / at[best]
         rel = _interp(wl, u[best], target_nm) / at[best]
-        units = "W m^-2 sr^-1 (in-band)"
+        units = f"{IN_BAND_RADIANCE} (in-band)"
         if filter_fwhm_nm:
             weights /= filter_fwhm_nm
-            units = "W m^-2 sr^-1 nm^-1 (mean over the filter band)"
+            units = f"{SPECTRAL_RADIANCE} (mean over the filter band)"
         return RadianceModel(band, band_unc, float(target_nm), estimator, weights, float(rel), units, RGB[best])
     m = smooth_operator(wl, c)
     row = np.array([np.interp(target_nm, wl, m[:, i]) for i in range(3)])
     # relative uncertainty from c(λ): first order, rate ~ c·L so δL/L ~ δc/c of the weighted band
     rel = float(np.sqrt(np.sum((band_unc / band) ** 2) / 3))
-    return RadianceModel(band, band_unc, float(target_nm), estimator, row, rel, "W m^-2 sr^-1 nm^-1", None)
+    return RadianceModel(band, band_unc, float(target_nm), estimator, row, rel, SPECTRAL_RADIANCE, None)
 
 
 def radiance_at(
@@ -175,7 +176,7 @@ def radiance_at(
 
     Parameters
     ----------
-    rates : (3, ...) DN s^-1 per channel R, G, B.
+    rates : (3, ...) DN s⁻¹ per channel R, G, B.
     rate_var : (3, ...) variance of the rates (noise), or None.
 
     Returns
@@ -197,7 +198,7 @@ def smooth_error_table(wavelength_nm: np.ndarray, c_rgb: dict[str, np.ndarray], 
     24 ColorChecker patches (Ohta) under D65 — all from colour-science.
     Returns rows ``{"spectrum", "true", "estimate", "error_pct"}``.
     """
-    import colour  # lazy: colour-science takes ~1-2 s to import (benchmarks/RESULTS.md, Start-up)
+    import colour  # loads matplotlib: kept off paths that do not plot
 
 
     wl = np.asarray(wavelength_nm, float)

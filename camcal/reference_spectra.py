@@ -2,7 +2,12 @@
 
 Spectra are plain float arrays on a wavelength grid in nm; conversion to and
 from colour-science types happens at the edges. Spectral radiance is in
-W m^-2 sr^-1 nm^-1 throughout.
+W m⁻² sr⁻¹ nm⁻¹ throughout.
+
+colour-science is imported inside the functions that use it, as matplotlib is: ``import colour`` (or any
+``colour.*`` submodule) runs ``colour/__init__.py``, which imports ``colour.plotting`` and with it matplotlib
+(about 0.2 s, and 1-3 s for colour itself), so a module-level import would load matplotlib on every path that
+reads a spectrum, including ``camcal calibrate``, which ``tests/test_structure.py`` keeps free of it.
 
 References
 ----------
@@ -25,8 +30,8 @@ WAVELENGTHS_NM = np.arange(380.0, 781.0, 1.0)
 CAMERAS = {"nikon-d5100": "Nikon 5100 (NPL)", "sigma-sd-merrill": "Sigma SDMerill (NPL)"}
 
 H_PLANCK = 6.62607015e-34  # J s
-C_LIGHT = 299792458.0  # m s^-1
-K_BOLTZMANN = 1.380649e-23  # J K^-1
+C_LIGHT = 299792458.0  # m s⁻¹
+K_BOLTZMANN = 1.380649e-23  # J K⁻¹
 C1_W_M2 = 2 * np.pi * H_PLANCK * C_LIGHT**2  # first radiation constant, W m^2
 C2_M_K = H_PLANCK * C_LIGHT / K_BOLTZMANN  # second radiation constant, m K
 
@@ -41,7 +46,7 @@ def camera_sensitivities(name: str, wavelengths_nm: np.ndarray = WAVELENGTHS_NM)
     Outside the measured range the curves are zero (no constant extrapolation).
     Each curve peaks at 1 as published.
     """
-    import colour  # lazy: colour-science takes ~1-2 s to import (benchmarks/RESULTS.md, Start-up)
+    import colour  # loads matplotlib: kept off paths that do not plot
 
     key = CAMERAS.get(name, name)
     if key not in colour.MSDS_CAMERA_SENSITIVITIES:
@@ -62,12 +67,12 @@ def camera_sensitivities(name: str, wavelengths_nm: np.ndarray = WAVELENGTHS_NM)
 
 
 def gaussian_line(center_nm: float, fwhm_nm: float, wavelengths_nm: np.ndarray = WAVELENGTHS_NM) -> np.ndarray:
-    """A Gaussian line of unit integral (nm^-1) on a regular grid: a monochromator's slit function.
+    """A Gaussian line of unit integral (nm⁻¹) on a regular grid: a monochromator's slit function.
 
     The line is ``colour.sd_gaussian(center_nm, fwhm_nm, method="FWHM")`` on the grid's
     :class:`colour.SpectralShape`, divided by its trapezoidal integral over the grid.
     """
-    import colour  # lazy: colour-science takes ~1-2 s to import (benchmarks/RESULTS.md, Start-up)
+    import colour  # loads matplotlib: kept off paths that do not plot
 
     wl = np.asarray(wavelengths_nm, float)
     step = np.diff(wl)
@@ -82,13 +87,13 @@ def gaussian_line(center_nm: float, fwhm_nm: float, wavelengths_nm: np.ndarray =
 
 
 def planck_radiance(temperature_k: float, wavelengths_nm: np.ndarray = WAVELENGTHS_NM) -> np.ndarray:
-    """Black-body spectral radiance in W m^-2 sr^-1 nm^-1 (Planck's law).
+    """Black-body spectral radiance in W m⁻² sr⁻¹ nm⁻¹ (Planck's law).
 
-    ``colour.colorimetry.planck_law`` (W sr^-1 m^-2 per m of wavelength, hence the 1e-9) with the exact SI
+    ``colour.colorimetry.planck_law`` (W sr⁻¹ m⁻² per m of wavelength, hence the 1e-9) with the exact SI
     radiation constants c1 = 2πhc² and c2 = hc/k rather than its CIE 15 defaults (c2 = 1.4388e-2 m K, the
     ITS-90 value, 1.6e-5 larger).
     """
-    from colour.colorimetry import planck_law  # lazy: colour-science takes ~1-2 s to import (see above)
+    from colour.colorimetry import planck_law  # loads matplotlib: kept off paths that do not plot
 
     wl = np.asarray(wavelengths_nm, float)
     b = planck_law(wl.ravel() * 1e-9, float(temperature_k), c1=C1_W_M2, c2=C2_M_K)

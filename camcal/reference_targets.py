@@ -8,7 +8,7 @@ setting (ISO_ref, N_ref), on axis, is
 
     rate_i = ∫ c_i(λ) L(λ) dλ = k_i ∫ c_rel,i(λ) L(λ) dλ = k_i P_i,
 
-so k_i = rate_i / P_i, and c_i = k_i c_rel,i in DN s^-1 per (W m^-2 sr^-1 nm^-1) per nm.
+so k_i = rate_i / P_i, and c_i = k_i c_rel,i in DN s⁻¹ per (W m⁻² sr⁻¹ nm⁻¹) per nm.
 
 Targets: a lamp or sphere port read by a spectroradiometer (L(λ) given), or a diffuse reflectance
 standard (grey card, Spectralon) of reflectance ρ(λ) under a measured irradiance E(λ), read as a
@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
@@ -57,18 +58,19 @@ from camcal.exposure import frame_relative_exposure
 from camcal.flat_model import load_flat
 from camcal.frame import PLANES, Frame
 from camcal.hashing import sha256_file
-from camcal.io import load_frame
+from camcal.io import load_frame, read_photo_metadata
 from camcal.manifest import exposure_overrides, read_manifest, safe_member
 from camcal.profile import SCHEMA_VERSION, CalibrationProfile, CameraIdentity, Provenance
 from camcal.region import DEFAULT_ROI_FRACTION, Region, central_roi
 from camcal.spectral_model import SpectralSensitivity
+from camcal.units import SPECTRAL_RADIANCE
 
 TARGETS_CSV = "targets.csv"
 #: Below this χ² p-value the targets disagree beyond their noise: the curves do not fit this camera.
 CONSISTENCY_P = 0.01
 #: Largest fraction of a channel's ∫c_rel a target spectrum may leave uncovered.
 MAX_UNCOVERED = 0.005
-RADIANCE_UNITS = "W m^-2 sr^-1 nm^-1"
+RADIANCE_UNITS = SPECTRAL_RADIANCE
 
 
 # ---- the one region measurement --------------------------------------------------------------------------
@@ -76,8 +78,8 @@ RADIANCE_UNITS = "W m^-2 sr^-1 nm^-1"
 class RegionRate:
     """Corrected DN rate of a photo's region per plane, at the reference setting.
 
-    rate_dn_per_s : (C,) mean over the region, DN s^-1 at (ISO_ref, N_ref), on axis (flat applied).
-    rate_unc_dn_per_s : (C,) standard error of that mean (spatial scatter / √n), DN s^-1.
+    rate_dn_per_s : (C,) mean over the region, DN s⁻¹ at (ISO_ref, N_ref), on axis (flat applied).
+    rate_unc_dn_per_s : (C,) standard error of that mean (spatial scatter / √n), DN s⁻¹.
     n_pixels : (C,) pixels used (saturated, defective and > 5 robust σ outliers left out).
     relative_exposure_s : x = (ISO·t/N²)/(ISO_ref/N_ref²), s.
     notes : what was (not) corrected.
@@ -159,7 +161,7 @@ class TargetSpectrum:
     """Known spectral radiance of a reference target.
 
     wavelength_nm : (m,) increasing, nm.
-    radiance : (m,) W m^-2 sr^-1 nm^-1.
+    radiance : (m,) W m⁻² sr⁻¹ nm⁻¹.
     radiance_unc : (m,) standard uncertainty, same unit, treated as fully correlated over λ (0: not stated).
     scale_unc_rel : a further relative standard uncertainty of the whole spectrum (0: none stated).
     description : how L was obtained (file names).
@@ -197,7 +199,7 @@ def _file_record(path: Path, stage: str, root: Path | None = None) -> dict:
 
 
 def radiance_target(name: str, path: str | Path, scale_unc_rel: float = 0.0) -> TargetSpectrum:
-    """A target whose spectral radiance was measured: file ``wavelength_nm, L [W m^-2 sr^-1 nm^-1][, u(L)]``."""
+    """A target whose spectral radiance was measured: file ``wavelength_nm, L [W m⁻² sr⁻¹ nm⁻¹][, u(L)]``."""
     path = Path(path)
     wl, L, u = _column_file(path, "radiance")
     return TargetSpectrum(name, wl, L, u, float(scale_unc_rel), f"radiance from {path.name}",
@@ -208,7 +210,7 @@ def reflectance_target(name: str, reflectance_path: str | Path, irradiance_path:
                        scale_unc_rel: float = 0.0) -> TargetSpectrum:
     """A Lambertian reflectance standard under a measured irradiance: L = ρ(λ) E(λ) / π.
 
-    Files: ``wavelength_nm, ρ (0..1)[, u(ρ)]`` and ``wavelength_nm, E [W m^-2 nm^-1][, u(E)]``; E is
+    Files: ``wavelength_nm, ρ (0..1)[, u(ρ)]`` and ``wavelength_nm, E [W m⁻² nm⁻¹][, u(E)]``; E is
     interpolated onto ρ's wavelengths (inside E's range). u(L)/L = √((u_ρ/ρ)² + (u_E/E)²).
     """
     rp, ip = Path(reflectance_path), Path(irradiance_path)
@@ -307,7 +309,7 @@ class TargetObservation:
     rates: tuple[RegionRate, ...]
 
     def rate(self) -> tuple[np.ndarray, np.ndarray]:
-        """Inverse-variance mean over the photos, (4,) DN s^-1, and its standard error."""
+        """Inverse-variance mean over the photos, (4,) DN s⁻¹, and its standard error."""
         r = np.array([x.rate_dn_per_s for x in self.rates])
         u = np.array([x.rate_unc_dn_per_s for x in self.rates])
         w = 1.0 / np.maximum(u, 1e-300) ** 2
@@ -318,7 +320,7 @@ class TargetObservation:
 class AbsoluteScale:
     """Per-plane scale factors k (c = k · c_rel) and how well the targets agree.
 
-    k, k_unc : dict plane -> DN s^-1 per (W m^-2 sr^-1 nm^-1) per nm per unit of c_rel.
+    k, k_unc : dict plane -> DN s⁻¹ per (W m⁻² sr⁻¹ nm⁻¹) per nm per unit of c_rel.
     targets : per target: name, photos, rate, predicted P, residual (rate/(kP) − 1) and z per plane.
     chi2, dof, p_value : χ² of the normalised residuals over targets and planes (None with one target).
     consistent : None with one target (nothing to compare), else p_value ≥ :data:`CONSISTENCY_P`.
@@ -530,6 +532,33 @@ def _layout_of(base: CalibrationProfile | None, targets: str | Path | None, came
     return camera.layout if camera is not None else "bayer"
 
 
+def targets_setting(targets_csv: str | Path) -> tuple[float, float]:
+    """The target photos' most common (ISO, f-number), from targets.csv and the photos' tags: never a default.
+
+    Raises
+    ------
+    CamcalError
+        No photo states both, naming the options that give them.
+    """
+    seen: Counter = Counter()
+    for _, photos in read_targets(targets_csv):
+        for path, overrides, _ in photos:
+            e = read_photo_metadata(path)
+            iso = overrides.get("iso") or e.iso
+            n = overrides.get("f_number") or e.f_number
+            if iso and n:
+                seen[(float(iso), float(n))] += 1
+    if not seen:
+        raise CamcalError("the reference setting is unknown: the target photos state no ISO and f-number (no tag, "
+                          "no iso and f_number columns in targets.csv); pass --reference-iso and "
+                          "--reference-f-number", targets_csv)
+    return seen.most_common(1)[0][0]
+
+
+def _float_or_none(v) -> float | None:
+    return None if v is None else float(v)
+
+
 def import_spectral(
     curves_path: str | Path | None = None,
     *,
@@ -559,6 +588,9 @@ def import_spectral(
         and scaled by :func:`fit_scale`.
     absolute : without targets, the curves are already absolute at (reference_iso, reference_f_number)
         (a camcal export keeps its own setting in ``.meta.json``).
+    reference_iso, reference_f_number : the reference setting; default the profile's (``base``), else the
+        absolute curves' own, else unknown: relative curves need none, an absolute scale (targets,
+        ``absolute``) then raises, naming the options.
     dark, flat : models (or files) for the target photos when ``base`` has none.
     camera : identity of a new profile; default from the first target photo.
 
@@ -581,10 +613,18 @@ def import_spectral(
         path = Path(curves_path)
         curves, used = read_spectral_file(path, fmt)
         curves = with_layout(curves, _layout_of(base, targets, camera))
+    # the reference setting: given, the profile's, or the absolute curves' own; otherwise unknown (a relative
+    # curve needs none), and asked for only where an absolute scale needs it
     ref_iso = reference_iso or (base.reference_iso if base else None) or (
-        curves.reference_iso if curves.mode == "absolute" else 100.0)
+        curves.reference_iso if curves.mode == "absolute" else None)
     ref_n = reference_f_number or (base.reference_f_number if base else None) or (
-        curves.reference_f_number if curves.mode == "absolute" else 4.0)
+        curves.reference_f_number if curves.mode == "absolute" else None)
+    if targets is not None and (ref_iso is None or ref_n is None):
+        iso, n = targets_setting(targets)
+        ref_iso, ref_n = ref_iso or iso, ref_n or n
+    if absolute and (ref_iso is None or ref_n is None):
+        raise CamcalError("--absolute curves are absolute at a reference setting, and none is known (no profile "
+                          "or metadata gives it): pass --reference-iso and --reference-f-number")
     dark = _model(dark, load_dark) if dark is not None else (base.dark if base else None)
     flat = _model(flat, load_flat) if flat is not None else (base.flat if base else None)
     inputs = [_file_record(path, "spectral_import")]
@@ -627,8 +667,8 @@ def import_spectral(
         source["library"] = library_record
     if grid_notes:
         source["notes"] = grid_notes
-    curves = dataclasses.replace(curves, source=source, reference_iso=float(ref_iso),
-                                 reference_f_number=float(ref_n))
+    curves = dataclasses.replace(curves, source=source, reference_iso=_float_or_none(ref_iso),
+                                 reference_f_number=_float_or_none(ref_n))
     options = {"spectral_import": {"file": path.name, "format": used, "camera": library_camera,
                                    "targets": None if targets is None
                                    else Path(targets).name, "absolute": bool(absolute),
@@ -646,7 +686,8 @@ def import_spectral(
         if camera is None:
             raise CamcalError("a new profile needs the camera's identity: give reference-target photos, an "
                               "existing profile, or the camera's make, model and size")
-        profile = CalibrationProfile(camera=camera, reference_iso=float(ref_iso), reference_f_number=float(ref_n),
+        profile = CalibrationProfile(camera=camera, reference_iso=_float_or_none(ref_iso),
+                                     reference_f_number=_float_or_none(ref_n),
                                      dark=dark, flat=flat, spectral=curves,
                                      provenance=Provenance(__version__, created, tuple(inputs), options))
     return profile, scale

@@ -6,7 +6,7 @@ encoded as PNG (matplotlib's Agg renderer, no pyplot, no backend change) and emb
 Sections, in pipeline order:
 
 * **Dark current** (seed eq. 12, β term; EMVA 1288 §8): histogram of the per-pixel dark current
-  β (DN s^-1 at the dark frames' ISO) per CFA plane with the hot pixels drawn separately, and a map
+  β (DN s⁻¹ at the dark frames' ISO) per CFA plane with the hot pixels drawn separately, and a map
   of β with the hot pixels circled.
 * **Vignetting** (DNG ``OpcodeList3`` WarpRectilinear/FixVignetteRadial model
   g = 1 + k0 r² + k1 r⁴ + k2 r⁶ + k3 r⁸ + k4 r¹⁰): relative illumination g against the normalised
@@ -47,6 +47,7 @@ from camcal.frame import PLANES
 from camcal.plots import dark_figure, flat_figure, png_bytes, response_figure, spectral_figure
 from camcal.profile import contract, flats_optics_text
 from camcal.spectral_model import describe_origin
+from camcal.units import DN_PER_S
 
 STAGE_TITLES = {"dark": "Dark current", "flat": "Vignetting (flat field)", "response": "Response curves",
                 "spectral_sensitivity": "Spectral sensitivity c(λ)"}
@@ -148,11 +149,11 @@ def _dark_section(profile, c: dict) -> str:
     d = c["dark"]
     rows = _channel_rows([
         ("bias", "DN", d["bias_dn"]),
-        ("dark current β", "DN/s", d["dark_current_dn_per_s"]),
-        ("β uncertainty", "DN/s", d["dark_current_unc_dn_per_s"]),
+        ("dark current β", DN_PER_S, d["dark_current_dn_per_s"]),
+        ("β uncertainty", DN_PER_S, d["dark_current_unc_dn_per_s"]),
         ("read noise", "DN", d["read_noise_dn"]),
         ("DSNU of bias", "DN", d["dsnu_bias_dn"]),
-        ("DSNU of β", "DN/s", d["dsnu_dark_current_dn_per_s"]),
+        ("DSNU of β", DN_PER_S, d["dsnu_dark_current_dn_per_s"]),
     ], _RGB)
     defects = _table(["defects", "count"], [["hot", d["hot_pixel_count"]], ["dead", d["dead_pixel_count"]],
                                              ["noisy", d["noisy_pixel_count"]]])
@@ -207,7 +208,7 @@ def _response_section(profile, c: dict) -> str:
             rows.append([name, ch.gamma, ch.gamma_unc, ch.alpha, ch.alpha_unc, ch.beta, ch.beta_unc,
                          ch.linearity_error_pct, f"{ch.pearson_r:.7f}", rate, ch.saturation_dn])
         parts.append(_table(["channel", "γ", "u(γ)", "α [DN s^-γ]", "u(α)", "β [DN]", "u(β)", "LE [%]", "r",
-                             "linear gain [DN/s]", "saturation [DN]"], rows))
+                             f"linear gain [{DN_PER_S}]", "saturation [DN]"], rows))
         sat_rows = [[name, ch.saturation_dn, ch.saturation_exposure_s if math.isfinite(ch.saturation_exposure_s)
                      else "not reached", f"{_num(ch.linear_range_dn[0])} – {_num(ch.linear_range_dn[1])}",
                      f"{_num(ch.fitted_exposure_s[0])} – {_num(ch.fitted_exposure_s[1])}"]

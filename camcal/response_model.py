@@ -83,7 +83,7 @@ class ChannelResponse:
     ----------
     alpha, alpha_unc : float
         Gain α and its standard uncertainty, DN s^-γ (x in s at the reference setting).
-        For RAW (γ ≈ 1) this is the DN rate, DN s^-1.
+        For RAW (γ ≈ 1) this is the DN rate, DN s⁻¹.
     gamma, gamma_unc : float
         Exponent γ (dimensionless).
     beta, beta_unc : float
@@ -141,7 +141,7 @@ class ResponseModel:
     reference_iso, reference_f_number : the setting x refers to
     tone : processed only: per channel the fitted sRGB-form transfer function with
         free exponent, the chosen inverse (``"srgb"`` or ``"eq12"``) and the linear
-        gain (DN s^-1) of the linearised values; None for raw.
+        gain (DN s⁻¹) of the linearised values; None for raw.
     white_level_dn : the files' white level, DN
     dark_subtracted : whether a dark model was subtracted before the fit (raw)
     points : per channel the measured series (x_s, mean_dn, sem_dn, used, saturated, files)
@@ -162,7 +162,7 @@ class ResponseModel:
 
     # -- use -----------------------------------------------------------------------------------------------------
     def linear_gain_dn_per_s(self, channel: str) -> float:
-        """The constant ratio ``linearise(g) / x`` of a channel, DN s^-1 at the reference setting.
+        """The constant ratio ``linearise(g) / x`` of a channel, DN s⁻¹ at the reference setting.
 
         RAW: the slope of the γ = 1 fit (α when absent). Processed: W / x_w, the linear DN rate of the
         de-toned values (W the white level, x_w the exposure reaching white).

@@ -32,6 +32,7 @@ from camcal.io import load_frame
 from camcal.plots import new_figure, write_png
 from camcal.profile import load_profile
 from camcal.region import Region
+from camcal.units import CONCENTRATION
 from camcal.water.band import band_model_from_profile
 from camcal.water.disk import DiskFit, disk_from_roi, find_disk, region_mean
 from camcal.water.field import FieldBandModel, FieldGeometry
@@ -243,7 +244,7 @@ def _shot_figure(s: Shot, res: SecchiResult, channel: str):
         lim = float(np.nanpercentile(np.abs(resid), 99)) if np.isfinite(resid).any() else 1.0
         im = axes[2].imshow(resid, cmap="RdBu_r", vmin=-lim, vmax=lim, interpolation="nearest")
         fig.colorbar(im, ax=axes[2], shrink=0.8)
-        axes[2].set_title(f"residual vs model at C = {s.c_ug_per_L:.3g} µg/L (relative)", fontsize=7)
+        axes[2].set_title(f"residual vs model at C = {s.c_ug_per_L:.3g} {CONCENTRATION} (relative)", fontsize=7)
     for a in axes:
         a.set_xticks([])
         a.set_yticks([])
@@ -267,11 +268,11 @@ def write_diagnostics(res: SecchiResult, outdir: str | Path, channel: str = "R")
             s.path.name, s.kind, "" if s.depth_m is None else f"{s.depth_m:g}",
             "" if not np.isfinite(s.ratio) else f"{s.ratio:.5f}", c,
             max(s.terms, key=s.terms.get) if s.terms else "", s.error or "; ".join(s.notes))) + "</tr>")
-    head = (f"<h1>Secchi survey: C = {res.c_ug_per_L:.4g} ± {res.sigma_ug_per_L:.2g} µg/L</h1>"
+    head = (f"<h1>Secchi survey: C = {res.c_ug_per_L:.4g} ± {res.sigma_ug_per_L:.2g} {CONCENTRATION}</h1>"
             f"<p>dominant uncertainty: {html.escape(str(res.dominant))}; light: "
             f"{html.escape(json.dumps(res.meta['band_model'].get('light')))}</p>")
     table = ("<table border=1 cellpadding=3><tr><th>photo</th><th>kind</th><th>depth (m)</th><th>ratio</th>"
-             "<th>C (µg/L)</th><th>dominant</th><th>notes</th></tr>" + "".join(rows) + "</table>")
+             f"<th>C ({CONCENTRATION})</th><th>dominant</th><th>notes</th></tr>" + "".join(rows) + "</table>")
     page = ("<!doctype html><html><head><meta charset='utf-8'><title>camcal secchi</title></head><body>"
             + head + table + "".join(figs) + "</body></html>")
     atomic_write_text(out / "secchi.json", json.dumps(result_json(res), indent=1, allow_nan=False))

@@ -14,15 +14,15 @@ Convention stored (finite bandwidth)
 ------------------------------------
 A monochromator does not emit one wavelength: at setting λ_j it emits
 L(λ') = L_j · φ_j(λ' − λ_j), where L_j is the *band-integrated* radiance the
-reference detector reports (W m^-2 sr^-1) and φ_j the slit function (unit
-integral, nm^-1, FWHM = ``bandwidth_nm``). The DN rate is then (seed §3.1 with a
+reference detector reports (W m⁻² sr⁻¹) and φ_j the slit function (unit
+integral, nm⁻¹, FWHM = ``bandwidth_nm``). The DN rate is then (seed §3.1 with a
 finite band)
 
     d_j / x_j = ∫ c(λ') L(λ') dλ' = L_j · (c ⊛ φ_j)(λ_j)
 
 so the ratio rate / L_j measures the **slit-weighted sensitivity**
-(c ⊛ φ_j)(λ_j), in DN s^-1 per (W m^-2 sr^-1 nm^-1) per nm (the same unit as c,
-because (W m^-2 sr^-1 nm^-1)·nm = W m^-2 sr^-1). That is what
+(c ⊛ φ_j)(λ_j), in DN s⁻¹ per (W m⁻² sr⁻¹ nm⁻¹) per nm (the same unit as c,
+because (W m⁻² sr⁻¹ nm⁻¹)·nm = W m⁻² sr⁻¹). That is what
 ``SpectralSensitivity.values`` holds when ``deconvolved`` is False. Its bias
 against c(λ) is, to second order, (σ²/2)·c''(λ) with σ = FWHM/2.3548 for a
 Gaussian slit (FWHM²/24·c'' for a triangular one); :meth:`SpectralSensitivity.summary`
@@ -32,7 +32,7 @@ regularised estimate of c(λ) itself at the same wavelengths
 
 Relative mode divides everything by the largest value over all planes (the
 reference radiance may then be in arbitrary units); absolute mode keeps
-DN s^-1 per (W m^-2 sr^-1 nm^-1) per nm at (ISO_ref, N_ref), on axis (the flat
+DN s⁻¹ per (W m⁻² sr⁻¹ nm⁻¹) per nm at (ISO_ref, N_ref), on axis (the flat
 model brings the region of interest to the optical centre).
 
 References
@@ -81,6 +81,7 @@ from camcal.spectral_model import (  # noqa: F401 (re-exported)
     to_relative,
 )
 from camcal.threads import thread_count
+from camcal.units import IN_BAND_RADIANCE
 
 
 class SweepWarning(UserWarning):
@@ -116,7 +117,7 @@ class SweepRow:
     path: Path
     wavelength_nm: float
     radiance_w_m2_sr: float
-    """Band-integrated radiance from the reference detector, W m^-2 sr^-1 (or arbitrary units)."""
+    """Band-integrated radiance from the reference detector, W m⁻² sr⁻¹ (or arbitrary units)."""
     radiance_unc_w_m2_sr: float | None
     bandwidth_nm: float | None
     overrides: dict[str, float | None]
@@ -231,7 +232,7 @@ def _robust_mask(m: np.ndarray, valid: np.ndarray | None = None, nsigma: float =
 def combine_wavelength(results: Sequence[_FrameResult]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per-plane sensitivity of one monochromator setting from its frames.
 
-    Each frame's ROI is divided by its relative exposure x_k and band radiance
+    Each frame's ROI is divided by its relative exposure x_k and in-band radiance
     L_k: y_k = d_k / (x_k L_k) (seed §3.1). Per pixel the temporal mean and
     variance (ddof=1) over the frames are taken; pixels more than 5 robust
     sigmas from the ROI median (hot or dead) and pixels invalid in any frame (known defects, saturated:
@@ -315,7 +316,7 @@ def measure_sweep(
     roi : a :class:`camcal.region.Region` (photo pixels, rounded outward to whole planes' pixels),
         (x0, y0, x1, y1) in plane pixels (half resolution for Bayer), or a fraction of
         each side for a centred box (default 0.2).
-    mode : "absolute" (DN s^-1 per (W m^-2 sr^-1 nm^-1) per nm at the reference
+    mode : "absolute" (DN s⁻¹ per (W m⁻² sr⁻¹ nm⁻¹) per nm at the reference
         setting) or "relative" (divided by the largest value over all planes).
     deconvolve : bool
         Remove the slit function (``bandwidth_nm`` required) with
@@ -371,7 +372,7 @@ class SweepSetting:
     Attributes
     ----------
     wavelength_nm : the setting, nm.
-    value : (C,) c per plane before deconvolution, DN s^-1 per (W m^-2 sr^-1 nm^-1) per nm at the reference
+    value : (C,) c per plane before deconvolution, DN s⁻¹ per (W m⁻² sr⁻¹ nm⁻¹) per nm at the reference
         setting (:func:`combine_wavelength`).
     noise_unc : (C,) its standard uncertainty from the frames' noise, same unit.
     reference_unc_rel : relative standard uncertainty of the reference radiance.
@@ -538,7 +539,7 @@ def measure_sweep_settings(
         if lit and here < NO_LIGHT_FRACTION * min(neighbours):
             leave_out(row, f"no light recorded (shutter closed or trigger missed): {sig:.3g} DN above dark at "
                            f"{wl:g} nm, where the reference detector read {row.radiance_w_m2_sr:.3g} "
-                           f"W m^-2 sr^-1 and the neighbouring wavelengths recorded light")
+                           f"{IN_BAND_RADIANCE} and the neighbouring wavelengths recorded light")
             dropped.append(f"{wl:g} nm (its only frame recorded no light)")
             del by_wl[wl]
     settings = [by_wl[w] for w in order if w in by_wl]
@@ -605,7 +606,7 @@ def no_light(frames: Sequence[_FrameResult]) -> list[tuple[_FrameResult, str]]:
             expected = ref * r.relative_exposure_s * r.row.radiance_w_m2_sr
             out.append((r, f"no light recorded (shutter closed or trigger missed): {s:.3g} DN above dark at "
                            f"{r.row.wavelength_nm:g} nm, where its repeats recorded {expected:.3g} DN for the same "
-                           f"exposure and the reference detector read {r.row.radiance_w_m2_sr:.3g} W m^-2 sr^-1"))
+                           f"exposure and the reference detector read {r.row.radiance_w_m2_sr:.3g} {IN_BAND_RADIANCE}"))
     return out
 
 
@@ -661,7 +662,7 @@ def slit_functions(grid_nm: np.ndarray, centre_nm: np.ndarray, fwhm_nm: np.ndarr
     Gaussian: ``colour.sd_gaussian(centre, fwhm, method="FWHM")``; triangular: 1 − |offset|/FWHM, clipped at 0.
     """
     if shape == "gaussian":
-        import colour  # lazy: colour-science takes ~1-2 s to import (benchmarks/RESULTS.md, Start-up)
+        import colour  # loads matplotlib: kept off paths that do not plot
 
         grid = colour.SpectralShape(float(grid_nm[0]), float(grid_nm[-1]), float(grid_nm[1] - grid_nm[0]))
         return np.stack([np.asarray(colour.sd_gaussian(float(c), float(f), shape=grid, method="FWHM").values)

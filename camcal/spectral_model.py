@@ -17,6 +17,7 @@ from camcal.errors import CamcalError
 from camcal.frame import PLANES, RGB
 from camcal.reference_spectra import FWHM_TO_SIGMA
 from camcal.store import to_jsonable
+from camcal.units import RELATIVE, SPECTRAL_SENSITIVITY
 
 DEFAULT_REFERENCE_ISO = 100.0
 
@@ -24,10 +25,10 @@ DEFAULT_REFERENCE_ISO = 100.0
 DEFAULT_REFERENCE_F_NUMBER = 4.0
 
 
-ABSOLUTE_UNITS = "DN s^-1 per (W m^-2 sr^-1 nm^-1) per nm at ISO_ref, f/N_ref, on axis"
+ABSOLUTE_UNITS = SPECTRAL_SENSITIVITY
 
 
-RELATIVE_UNITS = "relative"
+RELATIVE_UNITS = RELATIVE
 
 
 @dataclass(frozen=True)
@@ -48,8 +49,9 @@ class SpectralSensitivity:
     units : str
         ``"relative"`` or :data:`ABSOLUTE_UNITS`.
     mode : {"relative", "absolute"}
-    reference_iso, reference_f_number : float
-        Setting the DN rates are normalised to.
+    reference_iso, reference_f_number : float or None
+        Setting the DN rates are normalised to; None when unknown, which only relative curves may be (a
+        relative curve needs no exposure setting; its absolute scale, when set, refers to one).
     bandwidth_nm : float or None
         Median slit FWHM, nm, when known.
     deconvolved : bool
@@ -70,8 +72,8 @@ class SpectralSensitivity:
     uncertainty: dict[str, np.ndarray]
     units: str
     mode: Literal["relative", "absolute"]
-    reference_iso: float = DEFAULT_REFERENCE_ISO
-    reference_f_number: float = DEFAULT_REFERENCE_F_NUMBER
+    reference_iso: float | None = None
+    reference_f_number: float | None = None
     bandwidth_nm: float | None = None
     deconvolved: bool = False
     n_frames: dict[str, int] = field(default_factory=dict)
@@ -118,7 +120,7 @@ class SpectralSensitivity:
 
         The four planes (keeping G1 and G2) are in :meth:`to_colour_planes`.
         """
-        from colour.characterisation import RGB_CameraSensitivities
+        from colour.characterisation import RGB_CameraSensitivities  # loads matplotlib: kept off paths that do not plot
 
         rgb = self.rgb()
         data = np.column_stack([rgb["R"], rgb["G"], rgb["B"]])
@@ -126,7 +128,7 @@ class SpectralSensitivity:
 
     def to_colour_planes(self):
         """colour-science :class:`MultiSpectralDistributions` labelled R, G1, G2, B."""
-        import colour
+        import colour  # loads matplotlib: kept off paths that do not plot
 
         data = np.column_stack([self.values[p] for p in self.plane_names])
         return colour.MultiSpectralDistributions(data, self.wavelength_nm, labels=list(self.plane_names),
@@ -256,6 +258,10 @@ def _planes_of(values: dict) -> tuple[str, ...]:
     return PLANES if "G1" in values else RGB
 
 
+def _float_or_none(v: Any) -> float | None:
+    return None if v is None else float(v)
+
+
 def spectral_from_dict(d: dict[str, Any]) -> SpectralSensitivity:
     """Rebuild a :class:`SpectralSensitivity` from :func:`spectral_to_dict` output."""
     try:
@@ -264,7 +270,8 @@ def spectral_from_dict(d: dict[str, Any]) -> SpectralSensitivity:
             values={p: np.asarray(d["values"][p], float) for p in _planes_of(d["values"])},
             uncertainty={p: np.asarray(d["uncertainty"][p], float) for p in _planes_of(d["values"])},
             units=str(d["units"]), mode="absolute" if d["mode"] == "absolute" else "relative",
-            reference_iso=float(d["reference_iso"]), reference_f_number=float(d["reference_f_number"]),
+            reference_iso=_float_or_none(d.get("reference_iso")),
+            reference_f_number=_float_or_none(d.get("reference_f_number")),
             bandwidth_nm=None if d.get("bandwidth_nm") is None else float(d["bandwidth_nm"]),
             deconvolved=bool(d.get("deconvolved", False)), n_frames=dict(d.get("n_frames") or {}),
             notes=tuple(str(n) for n in d.get("notes") or ()),

@@ -19,7 +19,9 @@ import math
 from importlib import resources
 from pathlib import Path
 
+import jsonschema
 import numpy as np
+from referencing import Registry, Resource
 
 from camcal import __version__
 from camcal.atomic import atomic_write_text
@@ -78,9 +80,6 @@ def _schema_text(name: str) -> str:
 @functools.cache
 def _stage_validator(kind: str):
     """A Draft 2020-12 validator of the stage file ``kind``; its ``data`` refers to the profile schema's $defs."""
-    import jsonschema  # as camcal.profile: only when a file is validated
-    from referencing import Registry, Resource
-
     profile = json.loads(_schema_text("profile"))
     registry = Registry().with_resource(profile["$id"], Resource.from_contents(profile))
     return jsonschema.Draft202012Validator(json.loads(_schema_text(kind)), registry=registry)

@@ -34,6 +34,9 @@ from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
+import pandas as pd
+import pvlib
+
 from camcal.errors import CamcalError
 from camcal.frame import Exposure
 from camcal.io import read_photo_metadata
@@ -247,9 +250,6 @@ def sun_position(utc: datetime, latitude_deg: float, longitude_deg: float, altit
     source : str
         Recorded on the result.
     """
-    import pandas as pd  # lazy: pvlib and pandas take seconds to import, only for the sun
-    import pvlib
-
     if not (-90.0 <= latitude_deg <= 90.0 and -180.0 <= longitude_deg <= 180.0):
         raise CamcalError(f"position {latitude_deg}°, {longitude_deg}° is outside latitude ±90°, longitude ±180°")
     u = utc.replace(tzinfo=UTC) if utc.tzinfo is None else utc.astimezone(UTC)

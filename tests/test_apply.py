@@ -24,6 +24,7 @@ from camcal.reference_spectra import WAVELENGTHS_NM, gaussian_line, planck_radia
 from camcal.region import Region
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
 from camcal.synth.session import exposure_for_level
+from camcal.units import BAND_RADIANCE, IN_BAND_RADIANCE
 from tests.conftest import assert_one_line_error, run_cli
 
 LINE_BAND_W_M2_SR = 2.0
@@ -76,7 +77,7 @@ def test_narrowband_line_within_1pct(photos, profile, camera):
     assert set(img.channels) == {"R", "G", "B", "L663", "L663_unc", "R_unc", "G_unc", "B_unc"}
     assert img.shape == (128, 192)  # half resolution of 384x256
     assert img.metadata["estimator_channel"] == "R"
-    assert img.metadata["units"]["L663"].startswith("W m^-2 sr^-1")
+    assert img.metadata["units"]["L663"].startswith(IN_BAND_RADIANCE)
     # target 1 %; measured ≈0.05 % (noise 0.01 %, c(λ0) spline 0.05 %)
     assert mean(img.channels["L663"]) == pytest.approx(LINE_BAND_W_M2_SR, rel=0.01)
     tb = true_band(camera, LINE)
@@ -220,7 +221,7 @@ def test_cli_exr_and_roi_stats(tmp_path, photos, profile_path, profile):
     assert meta["profile_sha256"] == profile.content_sha256
     assert meta["wavelength_nm"] == pytest.approx(663.0) and meta["estimator"] == "narrowband"
     assert meta["source_name"] == src.name and meta["exposure"]["iso"] == 100
-    assert meta["units"]["R"] == "W m^-2 sr^-1 nm^-1" and "half resolution" in meta["resolution"]
+    assert meta["units"]["R"] == BAND_RADIANCE and "half resolution" in meta["resolution"]
     rows = (out / "roi_stats.csv").read_text().splitlines()
     assert rows[0] == "file,channel,n,mean,median,sigma,region"
     stats = {r.split(",")[1]: r.split(",") for r in rows[1:]}

@@ -18,7 +18,9 @@ import rawpy
 from camcal.calibrate import calibrate_session
 from camcal.correct import Calibration, correct_planes, require_valid
 from camcal.dark import DEAD, HOT, NOISY, fit_dark, quantised_noise_fit
+from camcal.dark_model import DarkModel
 from camcal.errors import CamcalError
+from camcal.frame import PLANES
 from camcal.profile import contract
 from camcal.synth.camera import SyntheticCamera, preset
 from camcal.synth.session import SessionPlan, write_session
@@ -28,23 +30,21 @@ REALDATA = Path(__file__).resolve().parents[1].parent / "shared" / "realdata"
 PI_DARKS = sorted((REALDATA / "pi").glob("dark_frame_*.dng")) if REALDATA.is_dir() else []
 
 
-class _Dark:
-    """A minimal dark model with maps (what camcal.dark.DarkModel offers the correction path)."""
-
-    def __init__(self, shape, rng):
-        self.bias_dn = (500 + rng.normal(0, 1, shape)).astype(np.float32)
-        self.dark_current_dn_per_s = rng.uniform(1, 3, shape).astype(np.float32)
-        self.read_noise_dn = np.full(shape, 2.0, np.float32)
-        self.defects = np.zeros(shape, np.uint8)
-        self.iso = 100.0
-
-    def dark_frame_dn(self, exposure_s, iso):
-        return self.bias_dn + self.dark_current_dn_per_s * exposure_s * iso / self.iso
+def _dark(shape, rng, read_noise_dn=None) -> DarkModel:
+    """A dark model of known maps at ISO 100: bias ~500 DN, β 1-3 DN/s, read noise 2 DN (or ``read_noise_dn``),
+    no defects; per-plane numbers without a gain from the dark (so Calibration.of finds K = 0)."""
+    return DarkModel(
+        bias_dn=(500 + rng.normal(0, 1, shape)).astype(np.float32),
+        dark_current_dn_per_s=rng.uniform(1, 3, shape).astype(np.float32),
+        dark_current_unc_dn_per_s=np.zeros(shape, np.float32),
+        read_noise_dn=np.full(shape, 2.0, np.float32) if read_noise_dn is None else read_noise_dn,
+        defects=np.zeros(shape, np.uint8), iso=100.0, cfa_pattern="RGGB", temperature_c=None,
+        channels={p: {"hot_pixel_count": 0, "dead_pixel_count": 0, "noisy_pixel_count": 0} for p in PLANES})
 
 
 def test_correct_planes_against_independent_formulas(rng):
     shape = (4, 6, 8)
-    dark = _Dark(shape, rng)
+    dark = _dark(shape, rng)
     dark.defects[0, 1, 1] = HOT
     gain = rng.uniform(0.6, 1.0, shape).astype(np.float32)
     k = np.array([0.5, 0.6, 0.6, 0.7], np.float32)[:, None, None]
@@ -88,26 +88,19 @@ def test_correction_divides_by_the_flat_gain(how):
     rng = np.random.default_rng(3)
     shape = (4, 5, 7)
 
-    class Dark:
-        bias_dn = (500 + rng.normal(0, 1, shape)).astype(np.float32)
-        dark_current_dn_per_s = rng.uniform(1, 3, shape).astype(np.float32)
-        iso = 100.0
-
-        def dark_frame_dn(self, exposure_s, iso):  # not used: the maps are
-            raise AssertionError
-
+    dark = _dark(shape, rng)
     gain = rng.uniform(0.5, 0.9, shape).astype(np.float32)
-    cal = Calibration.of(Dark(), _Flat(gain)) if how == "of" else Calibration(dark=Dark(), flat_gain=gain)
+    cal = Calibration.of(dark, _Flat(gain)) if how == "of" else Calibration(dark=dark, flat_gain=gain)
     raw = rng.uniform(800, 3000, shape).astype(np.float32)
     out = correct_planes(raw.copy(), cal, exposure_s=4.0, iso=400.0, white_level_dn=4095,
                          black_level_dn=np.full(4, 512.0))
-    expect = (raw.astype(np.float64) - Dark.bias_dn - Dark.dark_current_dn_per_s * 4.0 * 4.0) / gain
+    expect = (raw.astype(np.float64) - dark.bias_dn - dark.dark_current_dn_per_s * 4.0 * 4.0) / gain
     np.testing.assert_allclose(out.signal_dn, expect, rtol=1e-5)
 
 
 def test_correct_planes_on_a_window_equals_the_whole_frame(rng):
     shape = (4, 10, 12)
-    dark = _Dark(shape, rng)
+    dark = _dark(shape, rng)
     cal = Calibration.of(dark)
     raw = rng.integers(520, 4000, shape).astype(np.float32)
     whole = correct_planes(raw.copy(), cal, exposure_s=3.0, iso=100.0, white_level_dn=4095,
@@ -126,8 +119,7 @@ def test_variance_on_a_window_below_and_near_the_bias(rng):
     per-pixel read-noise map and raw values below the bias and within 1 DN above it (the shot term is 0 and
     then tiny there: clipped at 0, not at anything else)."""
     shape = (4, 8, 10)
-    dark = _Dark(shape, rng)
-    dark.read_noise_dn = rng.uniform(1.0, 4.0, shape).astype(np.float32)
+    dark = _dark(shape, rng, read_noise_dn=rng.uniform(1.0, 4.0, shape).astype(np.float32))
     gain = rng.uniform(0.6, 1.0, shape).astype(np.float32)
     kdn = np.array([0.5, 0.6, 0.6, 0.7], np.float32)[:, None, None]
     cal = Calibration(dark=dark, flat_gain=gain, inv_flat_gain=1 / gain, noise_gain_dn_per_e=kdn)

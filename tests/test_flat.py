@@ -328,3 +328,18 @@ def test_stray_saturated_pixels_are_masked_not_refused(tmp_path):
     # 4 flats of a 128x96 sensor: the model's largest error is 0.29 / 0.37 % without stuck pixels and
     # 0.52 / 0.25 % with them (seeds 1 / 2; the PRNU maps differ between the two cameras)
     assert float(err.max()) < 0.0075
+
+
+def test_downsample_is_a_block_in_photo_pixels():
+    """``--downsample`` is in photo pixels like every pixel option (issue 30 item 8): 16 photo pixels of a Bayer
+    sensor are 8 plane pixels; a block that splits a 2x2 CFA cell is refused; full-resolution planes take it
+    as it is."""
+    yy, xx = np.mgrid[0:64, 0:96]
+    plane = (1.0 - 0.3 * (((xx - 48) / 48.0) ** 2 + ((yy - 32) / 48.0) ** 2)).astype(np.float32)
+    master = np.stack([plane] * 4)
+    assert fit_flat_planes(master, downsample=16, with_prnu=False).info["downsample"] == 8
+    with pytest.raises(CamcalError, match="photo pixels"):
+        fit_flat_planes(master, downsample=15, with_prnu=False)
+    rgb = np.stack([plane] * 3)
+    fm = fit_flat_planes(rgb, channels=("R", "G", "B"), cfa_pattern=None, downsample=5, with_prnu=False)
+    assert fm.info["downsample"] == 5

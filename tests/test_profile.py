@@ -9,6 +9,7 @@ import pytest
 from camcal.container import JSON_MEMBER, MAPS_MEMBER
 from camcal.errors import CamcalError
 from camcal.profile import SCHEMA_VERSION, contract, diff_profiles, load_profile, save_profile
+from camcal.units import SPECTRAL_SENSITIVITY
 from tests.conftest import assert_one_line_error, run_cli
 
 
@@ -32,7 +33,7 @@ def test_contract_keys(shown):
     s = c["spectral_sensitivity"]
     n = len(s["wavelength_nm"])
     assert n == 61 and all(len(s[k]) == n for k in ("R", "G", "B", "R_unc", "G_unc", "B_unc"))
-    assert "DN s^-1" in s["units"]
+    assert s["units"] == SPECTRAL_SENSITIVITY
     # G is the mean of G1 and G2
     assert c["dark"]["bias_dn"]["G"] == pytest.approx(0.5 * (c["dark"]["bias_dn"]["G1"] + c["dark"]["bias_dn"]["G2"]))
 

@@ -319,3 +319,25 @@ def test_target_errors(targets, tmp_path, profile_path):
     assert_one_line_error(run_cli("profile", "import-spectral", d / "truth_rel.csv", "--into", profile_path,
                                   "--targets", tmp_path / "t", "-o", tmp_path / "o.camcal"), "radiance file")
     assert not (tmp_path / "o.camcal").exists()
+
+
+def test_a_relative_import_has_no_reference_setting_and_an_absolute_one_asks_for_it(tmp_path):
+    """Issue 30: a value the user did not give is never a default. Relative curves need no exposure setting: the
+    profile keeps none (not ISO 100, f/4). Curves declared absolute do: without one, one line names the options;
+    given, it is kept."""
+    (tmp_path / "p.csv").write_text("wavelength_nm,R,G,B\n400,0.1,0.2,0.9\n410,0.2,0.3,1.0\n")
+    rel = tmp_path / "rel.camcal"
+    proc = run_cli("profile", "import-spectral", tmp_path / "p.csv", "--make", "X", "--camera-model", "Y",
+                   "--size", "64x64", "-o", rel)
+    assert proc.returncode == 0, proc.stderr
+    p = load_profile(rel)
+    assert p.spectral.mode == "relative" and p.spectral.reference_iso is None and p.reference_iso is None
+    assert p.spectral.reference_f_number is None and p.reference_f_number is None
+    args = ("profile", "import-spectral", tmp_path / "p.csv", "--absolute", "--make", "X", "--camera-model", "Y",
+            "--size", "64x64", "-o", tmp_path / "abs.camcal")
+    assert_one_line_error(run_cli(*args), "--reference-iso and --reference-f-number")
+    assert not (tmp_path / "abs.camcal").exists()
+    proc = run_cli(*args, "--reference-iso", "200", "--reference-f-number", "2.8")
+    assert proc.returncode == 0, proc.stderr
+    a = load_profile(tmp_path / "abs.camcal")
+    assert (a.spectral.reference_iso, a.spectral.reference_f_number, a.reference_iso) == (200.0, 2.8, 200.0)

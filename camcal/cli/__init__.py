@@ -17,6 +17,11 @@ from collections.abc import Sequence
 
 import typer
 
+try:  # typer >= 0.20 vendors click as ``typer._click``; older versions raise click's own
+    from typer._click.exceptions import ClickException
+except ImportError:  # pragma: no cover - depends on the installed typer
+    from click.exceptions import ClickException
+
 from camcal import __version__
 from camcal.atomic import remove_pending
 from camcal.cli.aliases import rewrite
@@ -83,10 +88,6 @@ def commands_for(argv: Sequence[str]) -> tuple[str, ...]:
 
 def _usage_error_type() -> type[Exception]:
     """Typer >= 0.20 vendors click as ``typer._click``; older versions raise click's own."""
-    try:
-        from typer._click.exceptions import ClickException
-    except ImportError:  # pragma: no cover - depends on the installed typer
-        from click.exceptions import ClickException
     return ClickException
 
 

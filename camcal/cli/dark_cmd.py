@@ -12,6 +12,7 @@ from camcal.dark import fit_dark
 from camcal.dark_model import save_dark
 from camcal.errors import CamcalError
 from camcal.frame import PLANES
+from camcal.units import DN, DN_PER_S
 
 
 def _num(value, fmt: str) -> str:
@@ -62,7 +63,7 @@ def register(app: typer.Typer) -> None:
                           f"{c['dsnu_bias_dn']:.3f}", _num(c.get("dsnu_dark_current_dn_per_s"), ".3g"),
                           str(c["hot_pixel_count"]), str(c["dead_pixel_count"]), str(c["noisy_pixel_count"]))
         console.print(table)
-        console.print("bias, read noise (σ read) and bias DSNU in DN; dark current β and its DSNU in DN/s "
+        console.print(f"bias, read noise (σ read) and bias DSNU in {DN}; dark current β and its DSNU in {DN_PER_S} "
                       f"at ISO {model.iso:g}")
         if not model.exposure_times_s or model.channels[PLANES[0]].get("dark_current_dn_per_s") is None:
             console.print("dark current β: not calibrated (bias frames only; apply subtracts the bias and says so)")

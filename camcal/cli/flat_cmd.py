@@ -26,7 +26,8 @@ def register(app: typer.Typer) -> None:
         model: str = typer.Option("radial", "--vignetting-model", help="radial (DNG radial, fitted centre) or 2d "
                                   "(Legendre)."),
         downsample: int | None = typer.Option(None, "--downsample", min=1,
-                                              help="Block size of the fit, plane px (default ~64 blocks across)."),
+                                              help="Block size of the fit in photo pixels, whole CFA cells (even for "
+                                              "a Bayer sensor; default ~64 blocks across)."),
         terms: int = typer.Option(3, "--terms", min=1, max=5, help="Radial coefficients k0.. to fit (1-5)."),
         degree: int = typer.Option(4, "--degree", min=1, max=12, help="Total degree of the 2-D model."),
         no_prnu: bool = typer.Option(False, "--no-prnu", help="Do not compute the PRNU map."),

@@ -16,6 +16,7 @@ from camcal.errors import CamcalError
 from camcal.profile import CameraIdentity, contract, diff_profiles, flats_optics_text, load_profile, save_profile
 from camcal.reference_targets import import_spectral
 from camcal.spectral_model import describe_origin
+from camcal.units import DN, DN_PER_ELECTRON, DN_PER_S, SPECTRAL_SENSITIVITY
 
 
 def _fmt(v) -> str:
@@ -38,8 +39,8 @@ def print_contract(c: dict, title: str = "profile") -> None:
     rows = []
     if c["dark"]:
         d = c["dark"]
-        rows += [("bias", "DN", d["bias_dn"]), ("dark current β", "DN/s", d["dark_current_dn_per_s"]),
-                 ("read noise", "DN", d["read_noise_dn"])]
+        rows += [("bias", DN, d["bias_dn"]), ("dark current β", DN_PER_S, d["dark_current_dn_per_s"]),
+                 ("read noise", DN, d["read_noise_dn"])]
     if c["flat"]:
         rows += [("corner gain", "", c["flat"]["corner_gain"]), ("PRNU", "rel.", c["flat"]["prnu_rms"])]
     if c["response"]:
@@ -117,7 +118,8 @@ def print_emva(sheet: EmvaSheet, title: str = "profile") -> None:
     for row in sheet.photon_transfer:
         ks = ", ".join(f"{p} {v['K_dn_per_e']:.4g} ± {v['K_unc_dn_per_e']:.2g}" for p, v in row["channels"].items()
                        if v and v.get("K_dn_per_e") is not None and v.get("K_unc_dn_per_e") is not None)
-        console.print(f"photon transfer at ISO {row['iso']:g} ({row.get('pairs', 0)} frame pairs): K {ks} DN/e⁻",
+        console.print(f"photon transfer at ISO {row['iso']:g} ({row.get('pairs', 0)} frame pairs): "
+                      f"K {ks} {DN_PER_ELECTRON}",
                       soft_wrap=True)
     qe = sheet.quantum_efficiency
     if qe:
@@ -222,11 +224,13 @@ def register(app: typer.Typer) -> None:
         fmt: str = typer.Option("auto", "--format", help="auto, spectacle or plain."),
         targets: Path | None = typer.Option(None, "--targets", help="targets.csv (or its folder) of reference-target "
                                             "photos: sets the absolute scale of relative curves."),
-        absolute: bool = typer.Option(False, "--absolute", help="The file's values are already absolute (DN s^-1 per "
-                                      "W m^-2 sr^-1 nm^-1 per nm at the reference setting)."),
-        reference_iso: float | None = typer.Option(None, help="Reference ISO (default: the profile's, else 100)."),
-        reference_f_number: float | None = typer.Option(None, help="Reference f-number (default: the profile's, "
-                                                        "else 4)."),
+        absolute: bool = typer.Option(False, "--absolute",
+                                      help=f"The file's values are already absolute ({SPECTRAL_SENSITIVITY})."),
+        reference_iso: float | None = typer.Option(None, help="Reference ISO of an absolute scale (default: the "
+                                                   "profile's, or the absolute curves' own; relative curves need "
+                                                   "none)."),
+        reference_f_number: float | None = typer.Option(None, help="Reference f-number of an absolute scale "
+                                                        "(default: as --reference-iso)."),
         dark: Path | None = typer.Option(None, "--dark", help="Dark model for the target photos (camcal dark)."),
         flat: Path | None = typer.Option(None, "--flat", help="Flat model for the target photos (camcal flat)."),
         make: str | None = typer.Option(None, help="Camera make of a new profile without photos."),

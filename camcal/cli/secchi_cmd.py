@@ -13,6 +13,7 @@ from camcal.errors import CamcalError
 from camcal.region import Region
 from camcal.secchi import result_json, run_secchi, write_diagnostics
 from camcal.sun import parse_sun_option, photo_sun
+from camcal.units import CONCENTRATION
 from camcal.water.band import read_chlorophyll_csv
 from camcal.water.field import (
     DEFAULT_AOD_500NM,
@@ -69,7 +70,7 @@ def register(app: typer.Typer) -> None:
         epsilon_unc: str = typer.Option(None, help="Relative 1-σ of the absorber spectrum's scale: '3%' or 0.03."),
         albedo: float = typer.Option(1.0, help="Disk albedo relative to the reference."),
         n_water: float = typer.Option(1.33, help="Refractive index of water."),
-        background_absorption: float = typer.Option(0.0, help="Background (CDOM) absorption, m^-1."),
+        background_absorption: float = typer.Option(0.0, help="Background (CDOM) absorption, m⁻¹."),
         view_deg: float = typer.Option(0.0, help="Camera view angle from nadir in air, degrees."),
         reflectance: str = typer.Option("fresnel", help="fresnel (exact) or schlick."),
         transmittance: str = typer.Option("exact", help="Sky part: exact (T(θ) in the integral) or mean (T̄)."),
@@ -140,9 +141,10 @@ def register(app: typer.Typer) -> None:
                 else:
                     dom = max(s.terms, key=s.terms.get)
                     console.print(f"{s.path.name}: d = {s.depth_m:g} m, ratio {s.ratio:.5f}, C = {s.c_ug_per_L:.4g}"
-                                  f" ± {s.sigma_ug_per_L:.2g} ug/L (dominant: {dom})", markup=False)
+                                  f" ± {s.sigma_ug_per_L:.2g} {CONCENTRATION} (dominant: {dom})", markup=False)
             if np.isfinite(res.c_ug_per_L):
-                console.print(f"C = {res.c_ug_per_L:.4g} ± {res.sigma_ug_per_L:.2g} ug/L (dominant: {res.dominant})",
+                console.print(f"C = {res.c_ug_per_L:.4g} ± {res.sigma_ug_per_L:.2g} {CONCENTRATION} "
+                              f"(dominant: {res.dominant})",
                               markup=False)
             if page is not None:
                 console.print(f"wrote {page}", markup=False)

@@ -21,6 +21,7 @@ from camcal.region import Region
 from camcal.session import resolve_exposure
 from camcal.spectral import measure_sweep, read_sweep
 from camcal.sweep_means import sweep_means_sensitivity
+from camcal.units import SPECTRAL_SENSITIVITY
 
 
 def _means(means: Path, responsivity: Path | None, reduction: str, output: Path, png: Path | None,
@@ -82,9 +83,8 @@ def register(app: typer.Typer) -> None:
                                     "<stem>.meta.json beside it."),
         dark: Path | None = typer.Option(None, "--dark", help="Dark model (camcal dark -o dark.json)."),
         flat: Path | None = typer.Option(None, "--flat", help="Flat model (camcal flat -o flat.json)."),
-        mode: str = typer.Option("absolute", "--sweep-mode", help="absolute (DN s^-1 per W m^-2 sr^-1 at the "
-                                 "reference setting) "
-                                 "or relative (peak 1)."),
+        mode: str = typer.Option("absolute", "--sweep-mode", help=f"absolute ({SPECTRAL_SENSITIVITY}) or "
+                                 "relative (peak 1)."),
         roi: str | None = typer.Option(None, "--roi", help="Region x,y,w,h in photo pixels at full resolution "
                                        "(rounded outward to whole plane pixels)."),
         roi_fraction: float | None = typer.Option(None, "--roi-fraction", parser=fraction, help="('20%' or 0.2) "

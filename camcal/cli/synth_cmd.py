@@ -14,6 +14,7 @@ from camcal.synth.camera import Scene, SyntheticCamera, preset
 from camcal.synth.exif import place_time_from_text
 from camcal.synth.messy import plant_problems
 from camcal.synth.session import STAGES, SessionPlan, write_session
+from camcal.units import IN_BAND_RADIANCE, SPECTRAL_RADIANCE
 
 
 def _camera(pattern: str | None, bits: int | None, width: int | None, height: int | None, seed: int,
@@ -114,7 +115,8 @@ def register(app: typer.Typer) -> None:
         out_arg: Path | None = typer.Argument(None, metavar="FILE", help="Output file: .dng, .jpg or .heic (or -o)."),
         out_opt: Path | None = typer.Option(None, "-o", "--output", help="Output file: .dng, .jpg or .heic."),
         scene: str = typer.Option("uniform", help="uniform (flat spectrum), line (monochromator), lamp (black body)."),
-        radiance: float = typer.Option(0.02, help="uniform: W m-2 sr-1 nm-1; line: band W m-2 sr-1; lamp: peak."),
+        radiance: float = typer.Option(0.02, help=f"uniform: {SPECTRAL_RADIANCE}; line: in-band {IN_BAND_RADIANCE}; "
+                                        "lamp: peak."),
         wavelength: float = typer.Option(663.0, help="line centre, nm."),
         fwhm: float = typer.Option(5.0, help="line FWHM, nm."),
         temperature: float = typer.Option(3200.0, help="lamp temperature, K."),

@@ -285,9 +285,9 @@ def register(app: typer.Typer) -> None:
         cutoff_deg=typer.Option(None, help="Cutoff angle θc, degrees (seed: π/2.1; refined: air-side sky cutoff)."),
         view_deg=typer.Option(0.0, help="refined/lamp: camera view angle from nadir in air, degrees."),
         n_water=typer.Option(1.33, help="refined/lamp: refractive index of water."),
-        water_absorption=typer.Option(0.425, help="refined/lamp, narrowband: pure-water absorption, m^-1 "
+        water_absorption=typer.Option(0.425, help="refined/lamp, narrowband: pure-water absorption, m⁻¹ "
                                        "(Pope & Fry 1997 at 663 nm; --profile uses their full spectrum)."),
-        background_absorption=typer.Option(0.0, help="refined/lamp: background (CDOM) absorption, m^-1."),
+        background_absorption=typer.Option(0.0, help="refined/lamp: background (CDOM) absorption, m⁻¹."),
         reflectance=typer.Option("fresnel", help="refined/lamp: fresnel (exact) or schlick."),
         transmittance=typer.Option("mean", help="refined: mean (T̄, E₃ closed form) or exact (T(θ) inside the "
                                    "integral, quadrature)."),

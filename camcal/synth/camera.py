@@ -2,9 +2,9 @@
 
 Signal chain per pixel (all per CFA plane, at half resolution):
 
-1. Photo-electron rate from the scene's spectral radiance L(λ) (W m^-2 sr^-1 nm^-1)::
+1. Photo-electron rate from the scene's spectral radiance L(λ) (W m⁻² sr⁻¹ nm⁻¹)::
 
-       e_rate = A_pix · π / (4 N²) · τ · ∫ QE_i(λ) L(λ) λ / (h c) dλ        [e- s^-1]
+       e_rate = A_pix · π / (4 N²) · τ · ∫ QE_i(λ) L(λ) λ / (h c) dλ        [e⁻ s⁻¹]
 
    (image-plane irradiance of a distant Lambertian scene through an f/N lens,
    A_pix the pixel area, τ the lens transmittance), times the vignetting
@@ -12,13 +12,13 @@ Signal chain per pixel (all per CFA plane, at half resolution):
 2. Electrons collected: Poisson((e_rate + dark_rate) · t), clipped at the full well.
 3. Read noise: Gaussian, σ_read electrons (input referred).
 4. DN = electrons · (ISO / ISO_base) / K + black level (+ bias pattern), rounded,
-   clipped to [0, white level]. K is the system gain in e-/DN at the base ISO.
+   clipped to [0, white level]. K is the system gain in e⁻/DN at the base ISO.
 
 So the DN rate per unit exposure ISO·t/N² is constant (seed §2.1), and the
 spectral sensitivity at the reference setting (ISO_ref, N_ref) is::
 
        c_i(λ) = A_pix · π/(4 N_ref²) · τ · QE_i(λ) · λ/(h c) · ISO_ref/(ISO_base · K)
-              [DN s^-1 per W m^-2 sr^-1 nm^-1, per nm]
+              [DN s⁻¹ per W m⁻² sr⁻¹ nm⁻¹, per nm]
 
 with DN rate = ∫ c_i(λ) L(λ) dλ (seed §3.1, d = t ∫ c L dλ).
 
@@ -48,6 +48,7 @@ from functools import cached_property
 from pathlib import Path
 
 import numpy as np
+import OpenImageIO as oiio
 
 from camcal.atomic import atomic_write_bytes, atomic_write_text
 from camcal.errors import CamcalError
@@ -57,6 +58,7 @@ from camcal.synth.dng import write_dng, write_linear_dng
 from camcal.synth.exif import PlaceTime, encode_exif_app1
 from camcal.synth.heic import write_heic
 from camcal.synth.tone import apply_tone
+from camcal.units import SPECTRAL_SENSITIVITY
 
 LINEAR_FROM_PLANES: tuple[int, int, int] = (0, 1, 3)
 """Indices into :data:`camcal.frame.PLANES` of the R, G, B channels of a synthetic linear RAW: R, G1, B."""
@@ -84,7 +86,7 @@ class SensorParams:
     """Read noise, electrons RMS (input referred, ISO independent)."""
     full_well_e: float = 40000.0
     dark_current_e_per_s: tuple[float, float, float, float] = (2.0, 2.0, 2.0, 2.0)
-    """Median dark current per plane, e- s^-1."""
+    """Median dark current per plane, e⁻ s⁻¹."""
     dark_current_spread: float = 0.25
     """Log-normal sigma of the per-pixel dark current."""
     hot_pixel_fraction: float = 3e-4
@@ -144,7 +146,7 @@ PRESETS: dict[str, SensorParams] = {
     # dark frames (Sony IMX296, 1456x1088, BGGR, black level 60, white 1023; ../shared/realdata/pi): read
     # noise 0.38-0.39 DN with the quantisation removed (0.45-0.48 DN as recorded), frame-to-frame offsets
     # of ~0.1 DN, a per-pixel bias spread of only ~0.02 DN (so the pixel means are NOT spread over whole
-    # DN: the regime where var - 1/12 fails). Gain ~10 e-/DN (full well ~10 ke- over 963 DN).
+    # DN: the regime where var - 1/12 fails). Gain ~10 e⁻/DN (full well ~10 ke- over 963 DN).
     "imx296": SensorParams(
         width=1456, height=1088, cfa_pattern="BGGR", bit_depth=10, black_level_dn=(60.0, 60.0, 60.0, 60.0),
         white_level_dn=1023, gain_e_per_dn=10.0, read_noise_e=3.9, full_well_e=10000.0,
@@ -152,7 +154,7 @@ PRESETS: dict[str, SensorParams] = {
         pixel_pitch_um=3.45, make="camcal", model="Synthetic IMX296", serial="SYN0296",
     ),
     # 0.3 % hot pixels that saturate at 30 s (the sweep's longest exposure in the blue) on the default
-    # camera: 500-3000 x the median dark current of 2 e-/s at 1.6 e-/DN reaches the 15 871 DN range in
+    # camera: 500-3000 x the median dark current of 2 e⁻ s⁻¹ at 1.6 e⁻/DN reaches the 15 871 DN range in
     # 8-48 s (the darks of 16 s and 32 s see them saturate too).
     "hot": SensorParams(hot_pixel_fraction=3e-3, hot_pixel_factor=(500.0, 3000.0), model="Synthetic D5100 hot"),
     # per-channel black levels and frame-to-frame offset jitter on the default camera
@@ -184,7 +186,7 @@ class Scene:
 
     ``components`` is a list of ``(weight, spectrum)``: ``weight`` is None
     (uniform) or an (H, W) array of full-resolution weights; ``spectrum`` is the
-    spectral radiance in W m^-2 sr^-1 nm^-1 on ``wavelengths_nm``.
+    spectral radiance in W m⁻² sr⁻¹ nm⁻¹ on ``wavelengths_nm``.
     """
 
     components: tuple[tuple[np.ndarray | None, np.ndarray], ...]
@@ -294,7 +296,7 @@ class SyntheticCamera:
         return rel * np.asarray(self.params.qe_peak)[:, None]
 
     def electron_response(self, f_number: float, wavelengths_nm: np.ndarray = WAVELENGTHS_NM) -> np.ndarray:
-        """(3, n) electrons s^-1 per (W m^-2 sr^-1 nm^-1) per nm, at f-number ``f_number``."""
+        """(3, n) electrons s⁻¹ per (W m⁻² sr⁻¹ nm⁻¹) per nm, at f-number ``f_number``."""
         p = self.params
         area_m2 = (p.pixel_pitch_um * 1e-6) ** 2
         qe = self.qe if wavelengths_nm is WAVELENGTHS_NM else np.stack(
@@ -306,7 +308,7 @@ class SyntheticCamera:
         return iso / (self.params.iso_base * self.params.gain_e_per_dn)
 
     def spectral_sensitivity(self, iso: float | None = None, f_number: float | None = None) -> np.ndarray:
-        """True c_i(λ), (3, n): DN s^-1 per (W m^-2 sr^-1 nm^-1) per nm, on-axis, at a setting.
+        """True c_i(λ), (3, n): DN s⁻¹ per (W m⁻² sr⁻¹ nm⁻¹) per nm, on-axis, at a setting.
 
         Defaults to the reference setting of the params.
         """
@@ -316,7 +318,7 @@ class SyntheticCamera:
         return self.electron_response(n) * self.dn_per_electron(iso)
 
     def channel_rates_e(self, spectrum: np.ndarray, f_number: float, wavelengths_nm=WAVELENGTHS_NM) -> np.ndarray:
-        """On-axis electron rate per channel (R, G, B) for a spectrum, e- s^-1."""
+        """On-axis electron rate per channel (R, G, B) for a spectrum, e⁻ s⁻¹."""
         resp = self.electron_response(f_number, wavelengths_nm)
         return np.trapezoid(resp * np.asarray(spectrum)[None, :], wavelengths_nm, axis=-1)
 
@@ -499,23 +501,9 @@ class SyntheticCamera:
         Processing as :meth:`render_processed` (8 bits), then JPEG at ``quality`` with 4:4:4 chroma.
         ``place``: GPS and time tags as in :meth:`write_dng`.
         """
-        p = self.params
-        iso = p.iso_base if iso is None else iso
-        f_number = p.reference_f_number if f_number is None else f_number
-        img = self.render_processed(scene, exposure_s=exposure_s, iso=iso, f_number=f_number, rng=rng, tone=tone,
-                                    gamma=gamma, colour_matrix=colour_matrix, bits=8)
-        return write_jpeg_file(
-            path,
-            img,
-            exposure_s=exposure_s,
-            f_number=f_number if tag_f_number else None,
-            iso=iso,
-            make=p.make,
-            model=p.model,
-            quality=quality,
-            capture_time=capture_time,
-            place=place,
-        )
+        img, tags = self._processed_photo(scene, exposure_s, iso, f_number, rng, tone, gamma, colour_matrix, 8,
+                                          tag_f_number, quality, capture_time, place)
+        return write_jpeg_file(path, img, **tags)
 
     def write_heic(
         self,
@@ -540,14 +528,24 @@ class SyntheticCamera:
         Processing as :meth:`render_processed`; encoded by pillow-heif (libheif, x265) at ``quality``
         with 4:4:4 chroma; ``place``: GPS and time tags as in :meth:`write_dng`.
         """
+        img, tags = self._processed_photo(scene, exposure_s, iso, f_number, rng, tone, gamma, colour_matrix, bits,
+                                          tag_f_number, quality, capture_time, place)
+        return write_heic(path, img, bits=bits, **tags)
+
+    def _processed_photo(self, scene: Scene, exposure_s: float, iso: float | None, f_number: float | None,
+                         rng: np.random.Generator, tone: str, gamma: float, colour_matrix: np.ndarray | None,
+                         bits: int, tag_f_number: bool, quality: int, capture_time: datetime | None,
+                         place: PlaceTime | None) -> tuple[np.ndarray, dict]:
+        """The image of :meth:`render_processed` (at the camera's base ISO and reference f-number unless
+        given) and the EXIF and encoder arguments the JPEG and HEIC writers share."""
         p = self.params
         iso = p.iso_base if iso is None else iso
         f_number = p.reference_f_number if f_number is None else f_number
         img = self.render_processed(scene, exposure_s=exposure_s, iso=iso, f_number=f_number, rng=rng, tone=tone,
                                     gamma=gamma, colour_matrix=colour_matrix, bits=bits)
-        return write_heic(path, img, bits=bits, quality=quality, exposure_s=exposure_s,
-                          f_number=f_number if tag_f_number else None, iso=iso, make=p.make, model=p.model,
-                          capture_time=capture_time, place=place)
+        tags = {"exposure_s": exposure_s, "f_number": f_number if tag_f_number else None, "iso": iso,
+                "make": p.make, "model": p.model, "quality": quality, "capture_time": capture_time, "place": place}
+        return img, tags
 
     def truth(self, iso: float | None = None) -> dict:
         """Ground truth of the fixed pattern and the radiometry, JSON-ready."""
@@ -595,7 +593,7 @@ class SyntheticCamera:
                 "R": c_ref[0].tolist(),
                 "G": c_ref[1].tolist(),
                 "B": c_ref[2].tolist(),
-                "units": "DN s^-1 per (W m^-2 sr^-1 nm^-1) per nm at reference ISO and f-number, on axis",
+                "units": SPECTRAL_SENSITIVITY,
                 "reference_iso": p.reference_iso,
                 "reference_f_number": p.reference_f_number,
             },
@@ -620,9 +618,6 @@ def write_jpeg_file(
     OpenImageIO encodes the pixels (4:4:4 chroma); camcal writes the Exif APP1
     segment itself so that exposure time and f-number are exact rationals.
     """
-    import OpenImageIO as oiio  # lazy: ~0.1 s at import, only for image files (benchmarks/RESULTS.md, Start-up)
-
-
     h, w, _ = rgb8.shape
     spec = oiio.ImageSpec(w, h, 3, oiio.UINT8)
     spec.attribute("Compression", f"jpeg:{int(quality)}")

@@ -16,7 +16,6 @@ CIPA DC-008, *Exif 2.3*, tags 33434, 33437, 34855, 36867.
 
 from __future__ import annotations
 
-import struct
 from datetime import datetime
 from pathlib import Path
 
@@ -37,6 +36,7 @@ from camcal.synth.exif import (  # noqa: F401  (encode_exif_app1: the JPEG write
     add_time_tags,
     encode_exif_app1,
     gps_ifd,
+    pack_tiff,
 )
 
 _CFA_CODE = {"R": 0, "G": 1, "B": 2}
@@ -209,29 +209,7 @@ def _encode_image(
     exif.add(42033, _ASCII, serial)
     if temperature_c is not None:
         exif.add(37888, _SRATIONAL, [temperature_c])  # Exif 2.31 Temperature
-
-    ifd0_off = 8
-    exif_off = ifd0_off + ifd0.size() + ifd0.data_size()
-    exif_off += exif_off & 1
-    gps_off = exif_off + exif.size() + exif.data_size()
-    gps_off += gps_off & 1
-    strip_off = gps_off + (gps.total_size() if gps is not None else 0)
-    strip_off += (-strip_off) % 16
-    ifd0.add(273, _LONG, [strip_off])
-    ifd0.add(34665, _LONG, [exif_off])
-    if gps is not None:
-        ifd0.add(TAG_GPS_IFD, _LONG, [gps_off])
-
-    out = bytearray(b"II*\x00" + struct.pack("<I", ifd0_off))
-    out += ifd0.pack(ifd0_off)
-    out += b"\x00" * (exif_off - len(out))
-    out += exif.pack(exif_off)
-    if gps is not None:
-        out += b"\x00" * (gps_off - len(out))
-        out += gps.pack(gps_off)
-    out += b"\x00" * (strip_off - len(out))
-    out += image.tobytes()
-    return bytes(out)
+    return pack_tiff(ifd0, exif, gps, image.tobytes())
 
 
 def write_dng(path: str | Path, mosaic: np.ndarray, **kwargs) -> Path:

@@ -275,21 +275,38 @@ def encode_exif_tiff(
     ifd0.add(306, _ASCII, when)
     if colour_space is not None:
         exif.add(40961, _SHORT, [int(colour_space)])
+    return pack_tiff(ifd0, exif, gps)
+
+
+def pack_tiff(ifd0: _IFD, exif: _IFD, gps: _IFD | None = None, strip: bytes | None = None) -> bytes:
+    """A little-endian TIFF (TIFF 6.0 §2): the header, IFD0 at offset 8, the Exif IFD and the GPS IFD (when
+    given) after it at even offsets, then ``strip`` (the image data, when given) at a 16-byte boundary.
+
+    IFD0's pointers to the Exif and GPS IFDs (34665, 34853) and its StripOffsets (273) are set here; IFD0 must
+    already hold those tags (any value), so that its size does not change when they are set.
+    """
     exif_off = 8 + ifd0.total_size()
     exif_off += exif_off & 1
     gps_off = exif_off + exif.total_size()
     gps_off += gps_off & 1
+    end = gps_off + (gps.total_size() if gps is not None else 0)
+    strip_off = end + (-end) % 16
     ifd0.add(TAG_EXIF_IFD, _LONG, [exif_off])
     if gps is not None:
         ifd0.add(TAG_GPS_IFD, _LONG, [gps_off])
-    tiff = bytearray(b"II*\x00" + struct.pack("<I", 8))
-    tiff += ifd0.pack(8)
-    tiff += b"\x00" * (exif_off - len(tiff))
-    tiff += exif.pack(exif_off)
+    if strip is not None:
+        ifd0.add(273, _LONG, [strip_off])
+    out = bytearray(b"II*\x00" + struct.pack("<I", 8))
+    out += ifd0.pack(8)
+    out += b"\x00" * (exif_off - len(out))
+    out += exif.pack(exif_off)
     if gps is not None:
-        tiff += b"\x00" * (gps_off - len(tiff))
-        tiff += gps.pack(gps_off)
-    return bytes(tiff)
+        out += b"\x00" * (gps_off - len(out))
+        out += gps.pack(gps_off)
+    if strip is not None:
+        out += b"\x00" * (strip_off - len(out))
+        out += strip
+    return bytes(out)
 
 
 def encode_exif_app1(

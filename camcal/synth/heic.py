@@ -16,6 +16,7 @@ from datetime import datetime
 from pathlib import Path
 
 import numpy as np
+import pillow_heif
 
 from camcal.atomic import atomic_write_bytes
 from camcal.synth.exif import PlaceTime, encode_exif_tiff
@@ -52,8 +53,6 @@ def write_heic(
     icc_profile : bytes, optional
         An ICC profile to embed (none by default: the pixels are sRGB-encoded).
     """
-    import pillow_heif  # lazy: ~0.2 s at import (Pillow and libheif), only when a HEIC is written
-
     rgb = np.ascontiguousarray(rgb)
     if rgb.ndim != 3 or rgb.shape[2] != 3:
         raise ValueError(f"a HEIC image must have shape (H, W, 3), got {rgb.shape}")

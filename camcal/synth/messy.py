@@ -29,6 +29,7 @@ from camcal.atomic import atomic_write_bytes, atomic_write_text
 from camcal.reference_spectra import WAVELENGTHS_NM
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera, frame_rngs, save_truth
 from camcal.synth.dng import write_dng
+from camcal.units import IN_BAND_RADIANCE
 
 TRUNCATED_FRACTION = 0.6
 """The planted truncated flat keeps this fraction of its bytes (the image data end early)."""
@@ -94,7 +95,7 @@ def plant_problems(session: str | Path, camera: SyntheticCamera) -> list[dict[st
     planted.append({"problem": "no_light", "file": f"sweep/{frame.name}", "verdict": "left out",
                     "reason": "no light recorded",
                     "what": f"shutter closed at {float(target['wavelength_nm']):g} nm while the reference detector "
-                            f"read {target['radiance_W_m2_sr']} W m^-2 sr^-1"})
+                            f"read {target['radiance_W_m2_sr']} {IN_BAND_RADIANCE}"})
 
     # the top of the linearity series: two more steps, fully saturated
     fields, rows = _rows(root / "linearity" / "frames.csv")

@@ -44,6 +44,7 @@ import numpy as np
 from camcal.errors import CamcalError
 from camcal.reference_spectra import WAVELENGTHS_NM
 from camcal.synth.camera import Scene, SyntheticCamera
+from camcal.units import CONCENTRATION
 from camcal.water.band import BandModel, bricaud_1998
 from camcal.water.models import RefinedModel, SeedModel
 from camcal.water.optics import fresnel_reflectance, schlick_reflectance
@@ -57,7 +58,7 @@ def daylight_white_radiance(wavelengths_nm: np.ndarray = WAVELENGTHS_NM, *, illu
                             irradiance_560_W_m2_nm: float = DAYLIGHT_IRRADIANCE_560_W_M2_NM) -> np.ndarray:
     """Spectral radiance of a perfect white Lambertian surface, L = E/π (W m⁻² sr⁻¹ nm⁻¹), E a CIE
     illuminant's relative spectrum (colour-science) scaled to ``irradiance_560_W_m2_nm`` at 560 nm."""
-    import colour  # lazy: colour-science takes ~1-2 s to import (benchmarks/RESULTS.md, Start-up)
+    import colour  # loads matplotlib: kept off paths that do not plot
 
     key = {k.lower(): k for k in colour.SDS_ILLUMINANTS}.get(str(illuminant).lower())
     if key is None:
@@ -201,7 +202,7 @@ def secchi_scenes(
     c = float(c_ug_per_L)
     d = float(depth_m)
     if not (np.isfinite(c) and c >= 0):
-        raise CamcalError(f"chlorophyll-a concentration must be >= 0 ug/L, got {c_ug_per_L!r}")
+        raise CamcalError(f"chlorophyll-a concentration must be >= 0 {CONCENTRATION}, got {c_ug_per_L!r}")
     if not (np.isfinite(d) and d > 0):
         raise CamcalError(f"disk depth must be positive, got {depth_m!r} m")
     if not (0 < background_albedo < disk_albedo <= 1):
@@ -251,7 +252,7 @@ def secchi_scenes(
         "background_albedo": float(background_albedo),
         "disk_centre_px": [float(cx), float(cy)],
         "disk_radius_px": float(radius_px),
-        "light": "CIE D65, 1.2 W m-2 nm-1 at 560 nm" if white_radiance is None else "given",
+        "light": "CIE D65, 1.2 W m⁻² nm⁻¹ at 560 nm" if white_radiance is None else "given",
         "reference_disk_radiance_560_W_m2_sr_nm": float(np.interp(560.0, wl, l_ref)),
     }
     return SecchiScenes(reference, submerged, weight, wl, l_ref, l_sub, bands["R"], truth)

@@ -41,7 +41,7 @@ STAGES = ("bias", "dark", "flat", "linearity", "sweep")
 
 @dataclass(frozen=True)
 class SessionPlan:
-    """What to shoot. Exposure times in s; radiances in W m^-2 sr^-1 (band) or per nm."""
+    """What to shoot. Exposure times in s; radiances in W m⁻² sr⁻¹ (in-band) or W m⁻² sr⁻¹ nm⁻¹ (spectral)."""
 
     stages: tuple[str, ...] = STAGES
     n_bias: int = 16
@@ -73,8 +73,8 @@ class SessionPlan:
     n_sweep: int = 3
     lamp_temperature_k: float = 3200.0
     sweep_peak_radiance_w_m2_sr: float = 0.2
-    """Band radiance of the monochromator output at the lamp's brightest wavelength (a QTH lamp through a
-    5 nm monochromator into an integrating sphere: 0.2 W m^-2 sr^-1 keeps 400 nm at a few % of full scale
+    """In-band radiance of the monochromator output at the lamp's brightest wavelength (a QTH lamp through a
+    5 nm monochromator into an integrating sphere: 0.2 W m⁻² sr⁻¹ keeps 400 nm at a few % of full scale
     within the exposure cap)."""
     sweep_max_exposure_s: float = 30.0
     """Longest exposure the sweep may use, s."""
@@ -96,7 +96,7 @@ class SessionPlan:
     photo_f_numbers: tuple[float, ...] = ()
     """One photo of a uniform scene at each of these f-numbers, in ``photos/`` (not a calibration stage)."""
     photo_radiance: float = 0.02
-    """Spectral radiance of the photos' uniform scene, W m^-2 sr^-1 nm^-1 (flat spectrum)."""
+    """Spectral radiance of the photos' uniform scene, W m⁻² sr⁻¹ nm⁻¹ (flat spectrum)."""
 
 
 def _csv(rows: list[dict[str, object]]) -> str:
@@ -135,7 +135,7 @@ class SweepShot:
     name: str
     wavelength_nm: float
     spectrum: np.ndarray
-    """Spectral radiance on :data:`WAVELENGTHS_NM`, W m^-2 sr^-1 nm^-1."""
+    """Spectral radiance on :data:`WAVELENGTHS_NM`, W m⁻² sr⁻¹ nm⁻¹."""
     exposure_s: float
     row: dict[str, object]
 
@@ -143,7 +143,7 @@ class SweepShot:
 def sweep_shots(camera: SyntheticCamera, plan: SessionPlan) -> tuple[list[SweepShot], dict]:
     """The sweep's frames (``plan.n_sweep`` per wavelength) and its truth record.
 
-    Band radiance follows a ``plan.lamp_temperature_k`` black body scaled to
+    In-band radiance follows a ``plan.lamp_temperature_k`` black body scaled to
     ``plan.sweep_peak_radiance_w_m2_sr`` at its brightest; the line is a Gaussian of
     ``plan.sweep_fwhm_nm``. Each wavelength's exposure puts its brightest channel at
     ``plan.sweep_level`` of full scale, capped at ``plan.sweep_max_exposure_s``.
@@ -166,7 +166,7 @@ def sweep_shots(camera: SyntheticCamera, plan: SessionPlan) -> tuple[list[SweepS
                 "bandwidth_nm": plan.sweep_fwhm_nm, "exposure_s": t, "iso": plan.iso, "f_number": n_ref,
             }
             shots.append(SweepShot(name, float(wl), spectrum, t, row))
-    info = {"wavelength_nm": wls.tolist(), "band_radiance_W_m2_sr": band.tolist(),
+    info = {"wavelength_nm": wls.tolist(), "in_band_radiance_W_m2_sr": band.tolist(),
             "fwhm_nm": plan.sweep_fwhm_nm, "lamp_temperature_k": plan.lamp_temperature_k,
             "exposure_s": [s.exposure_s for s in shots[:: max(1, plan.n_sweep)]]}
     return shots, info

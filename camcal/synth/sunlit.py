@@ -41,6 +41,7 @@ from datetime import datetime
 from pathlib import Path
 
 import numpy as np
+import pvlib
 
 from camcal.data import read_bundled_table
 from camcal.errors import CamcalError
@@ -48,6 +49,7 @@ from camcal.reference_spectra import WAVELENGTHS_NM
 from camcal.synth.camera import Scene, SyntheticCamera, save_truth
 from camcal.synth.exif import PlaceTime
 from camcal.synth.secchi import disk_weight, suggest_exposure_s
+from camcal.units import CONCENTRATION
 
 #: Solid angle of the sun's disk, sr (0.265° angular radius).
 SUN_SOLID_ANGLE_SR = 6.8e-5
@@ -99,8 +101,6 @@ class SunSky:
 
     def spectra(self, wavelengths_nm=WAVELENGTHS_NM) -> tuple[np.ndarray, np.ndarray]:
         """(DNI, DHI) in W m⁻² nm⁻¹ on ``wavelengths_nm`` (linear interpolation of SPECTRL2's grid)."""
-        import pvlib  # lazy: pvlib brings pandas, about a second at import, only for the sun
-
         z = float(self.sun_zenith_deg)
         s = pvlib.spectrum.spectrl2(apparent_zenith=z, aoi=z, surface_tilt=0.0, ground_albedo=0.06,
                                     surface_pressure=self.pressure_Pa,
@@ -168,7 +168,7 @@ def sunlit_scenes(camera: SyntheticCamera, *, sky: SunSky, c_ug_per_L: float, de
     is ``radius_fraction`` of half the short side; ``glint_xy`` places a sun glint on the water."""
     c, d = float(c_ug_per_L), float(depth_m)
     if not (np.isfinite(c) and c >= 0 and np.isfinite(d) and 0 < d <= 20):
-        raise CamcalError(f"sunlit scene: C must be >= 0 ug/L and the depth in (0, 20] m (got {c!r}, {d!r})")
+        raise CamcalError(f"sunlit scene: C must be >= 0 {CONCENTRATION} and the depth in (0, 20] m (got {c!r}, {d!r})")
     p = camera.params
     wl = WAVELENGTHS_NM
     radius_px = radius_fraction * 0.5 * min(p.width, p.height)

@@ -49,6 +49,7 @@ from camcal.errors import CamcalError
 from camcal.reference_spectra import WAVELENGTHS_NM
 from camcal.synth.camera import Scene, SyntheticCamera, save_truth
 from camcal.synth.secchi import disk_weight, suggest_exposure_s
+from camcal.units import CONCENTRATION
 from camcal.water.band import ChlorophyllAbsorption, solvent_spectrum
 from camcal.water.optics import N_WATER, fresnel_reflectance
 from camcal.water.purewater import pure_water_absorption_per_m
@@ -210,7 +211,7 @@ def tank_scenes(camera: SyntheticCamera, *, c_ug_per_L: float, depth_m: float, s
     setup = setup or TankSetup()
     c, d = float(c_ug_per_L), float(depth_m)
     if not (np.isfinite(c) and c >= 0):
-        raise CamcalError(f"tank: concentration must be >= 0 ug/L, got {c_ug_per_L!r}")
+        raise CamcalError(f"tank: concentration must be >= 0 {CONCENTRATION}, got {c_ug_per_L!r}")
     if not (np.isfinite(d) and 0 < d <= 10):
         raise CamcalError(f"tank: depth must be in (0, 10] m, got {depth_m!r}")
     absorber = absorber or blue_dye()
@@ -256,7 +257,7 @@ def tank_scenes(camera: SyntheticCamera, *, c_ug_per_L: float, depth_m: float, s
              "disk_centre_px": [cj, ci], "disk_radius_px": radius_px,
              "disk_centre_from_lamp_foot_m": float(x0), "absorber": absorber.source or "synthetic blue dye",
              "lamp": "3200 K black body (calibration_data/lamp_3200K.csv), "
-                     f"{setup.lamp_intensity_560_W_sr_nm:g} W sr-1 nm-1 at 560 nm",
+                     f"{setup.lamp_intensity_560_W_sr_nm:g} W sr⁻¹ nm⁻¹ at 560 nm",
              "renderer": "ray traced per pixel (numerical ray tube, Snell, Fresnel, absorption per wavelength)",
              "red_ratio_centre": float(np.sum(camera.spectral_sensitivity()[0] * centre_sub) /
                                        np.sum(camera.spectral_sensitivity()[0] * centre_dry))}

@@ -1,6 +1,6 @@
 """Synthetic reference targets: photos of known smooth spectra, with their spectrum files and targets.csv.
 
-A target fills the frame with one smooth spectral radiance L(λ) (W m^-2 sr^-1 nm^-1); the synthetic
+A target fills the frame with one smooth spectral radiance L(λ) (W m⁻² sr⁻¹ nm⁻¹); the synthetic
 camera (:class:`camcal.synth.camera.SyntheticCamera`) photographs it with all its noise (shot, read,
 dark current, PRNU, vignetting), so a photo's corrected DN rate on axis is ∫ c_i L dλ with the camera's
 true c_i (seed §3.1). The spectrum file is what a spectroradiometer would report, written exactly
@@ -22,7 +22,7 @@ from camcal.synth.session import exposure_for_level
 
 
 def smooth_target_spectra(level_w_m2_sr_nm: float = 0.05) -> dict[str, np.ndarray]:
-    """Three smooth spectra of different colour on :data:`WAVELENGTHS_NM`, W m^-2 sr^-1 nm^-1.
+    """Three smooth spectra of different colour on :data:`WAVELENGTHS_NM`, W m⁻² sr⁻¹ nm⁻¹.
 
     ``lamp_2856K``: a tungsten lamp (Planck, CIE illuminant A temperature), reddish;
     ``sky_9000K``: a bluish black body (a daylight-lit port); ``green_filtered``: a 4000 K lamp through a
@@ -73,7 +73,7 @@ def write_target_photos(
     ----------
     spectra : name -> spectral radiance on :data:`WAVELENGTHS_NM` (a spectroradiometer-read target):
         written as ``<name>.csv`` with columns ``wavelength_nm,radiance_W_m2_sr_nm``.
-    reflectance : name -> (reflectance ρ, irradiance E in W m^-2 nm^-1) on :data:`WAVELENGTHS_NM`: a
+    reflectance : name -> (reflectance ρ, irradiance E in W m⁻² nm⁻¹) on :data:`WAVELENGTHS_NM`: a
         Lambertian standard (L = ρE/π), written as ``<name>_reflectance.csv`` and ``<name>_irradiance.csv``.
     n_photos : photos per target.
     level : brightest channel's level on axis, fraction of full scale.

@@ -14,7 +14,7 @@ from camcal.errors import CamcalError
 
 def srgb_encode(x: np.ndarray) -> np.ndarray:
     """sRGB opto-electronic transfer function, linear [0, 1] -> encoded [0, 1] (``colour.cctf_encoding``)."""
-    import colour  # lazy: colour-science takes ~1-2 s to import (benchmarks/RESULTS.md, Start-up)
+    import colour  # loads matplotlib: kept off paths that do not plot
 
     return colour.cctf_encoding(np.clip(x, 0.0, 1.0), function="sRGB")
 

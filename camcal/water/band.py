@@ -402,7 +402,7 @@ def illuminant_spectrum(name: str | Path, wavelengths_nm) -> np.ndarray | None:
         lw, lv = read_spectrum_csv(text)
         s = np.interp(wl, lw, lv, left=np.nan, right=np.nan)
     else:
-        import colour  # lazy: colour-science takes ~1-2 s to import (benchmarks/RESULTS.md, Start-up)
+        import colour  # loads matplotlib: kept off paths that do not plot
 
         ckey = {k.lower(): k for k in colour.SDS_ILLUMINANTS}.get(key)
         if ckey is None:

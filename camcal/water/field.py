@@ -44,6 +44,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
+import pvlib
 
 from camcal.errors import CamcalError
 from camcal.manifest import read_text_file
@@ -89,8 +90,6 @@ class ClearSky:
 
     @functools.cached_property
     def _spectra(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        import pvlib  # lazy: pvlib brings pandas, about a second at import, only for the sun
-
         z = float(self.sun_zenith_deg)
         am = float(pvlib.atmosphere.get_relative_airmass(z))
         s = pvlib.spectrum.spectrl2(apparent_zenith=z, aoi=z, surface_tilt=0.0, ground_albedo=0.06,
