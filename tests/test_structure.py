@@ -138,11 +138,6 @@ def _runtime_dependencies() -> list[str]:
     return [re.split(r"[<>=!~\[; ]", d, maxsplit=1)[0] for d in deps]
 
 
-# a dependency that another branch starts importing (the Secchi-disk finder uses scikit-image); empty this set
-# when that lands, so that the test checks it like the others
-NOT_YET_IMPORTED = {"scikit-image"}
-
-
 @pytest.mark.parametrize("dist", _runtime_dependencies())
 def test_every_declared_dependency_is_imported_by_camcal(dist):
     """Issue 25: a runtime dependency in pyproject.toml is one the package imports (its import name from the
@@ -151,9 +146,26 @@ def test_every_declared_dependency_is_imported_by_camcal(dist):
                     if dist.lower().replace("_", "-") in {x.lower().replace("_", "-") for x in dists}}
     assert import_names, f"{dist} is declared but not installed"
     imported = bool(import_names & _third_party_imports())
-    if dist in NOT_YET_IMPORTED and not imported:
-        pytest.skip(f"{dist}: imported by work on another branch")
     assert imported, f"{dist} is declared in pyproject.toml but camcal/ never imports {sorted(import_names)}"
+
+
+def _declared_distributions() -> set[str]:
+    """Runtime dependencies and every extra of pyproject.toml, normalised (PEP 503)."""
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    specs = list(project["dependencies"]) + [d for extra in project["optional-dependencies"].values() for d in extra]
+    return {re.split(r"[<>=!~\[; ]", d, maxsplit=1)[0].lower().replace("_", "-") for d in specs}
+
+
+def test_every_third_party_import_of_camcal_is_declared():
+    """Issue 25: what camcal/ imports is declared in pyproject.toml, not merely present because another
+    dependency pulls it in (Pillow under pillow-heif, pandas under pvlib, click under typer)."""
+    declared = _declared_distributions()
+    missing = []
+    for name in sorted(_third_party_imports() - set(sys.stdlib_module_names) - {"camcal"}):
+        dists = {d.lower().replace("_", "-") for d in _distributions().get(name, [])}
+        if not dists & declared:
+            missing.append(f"{name} (from {sorted(dists) or 'no installed distribution'})")
+    assert not missing, f"imported by camcal/ but not declared in pyproject.toml: {missing}"
 
 
 # the fitting code of each stage; a model module (camcal.<stage>_model) holds what the stage's results are
