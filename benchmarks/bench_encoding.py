@@ -14,6 +14,7 @@ the same run.
 
 from __future__ import annotations
 
+import argparse
 import datetime
 import os
 import platform
@@ -96,5 +97,8 @@ def main(width: int = 3000, height: int = 2000) -> None:
 
 
 if __name__ == "__main__":
-    args = [int(a) for a in sys.argv[1:3]]
-    main(*args)
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("width", type=int, nargs="?", default=3000, help="photo width, pixels (default 3000)")
+    parser.add_argument("height", type=int, nargs="?", default=2000, help="photo height, pixels (default 2000)")
+    cli = parser.parse_args()
+    main(cli.width, cli.height)
