@@ -17,6 +17,7 @@ import pytest
 from scipy.optimize import brentq
 from scipy.special import erf, eval_legendre
 
+from camcal import units
 from camcal.correct import Corrected, dark_frame, system_gain_dn_per_e
 from camcal.dark import _fit_lines, _noise_model, subtract_dark
 from camcal.dark_model import DarkModel
@@ -92,10 +93,10 @@ def test_narrowband_estimator_off_a_sample_picks_the_strongest_channel_and_divid
     assert m.channel == "G"
     np.testing.assert_allclose(m.weights, [0.0, 1.0 / c_true["G"], 0.0], rtol=1e-4)
     assert m.weights_unc_rel == pytest.approx(0.03, rel=1e-3)
-    assert m.units.startswith("W m^-2 sr^-1 (")
+    assert m.units.startswith(f"{units.IN_BAND_RADIANCE} (")
     mf = radiance_model(wl, c, u, 663.0, "narrowband", filter_fwhm_nm=10.0)
     np.testing.assert_allclose(mf.weights, m.weights / 10.0, rtol=1e-12)
-    assert "nm^-1" in mf.units
+    assert units.SPECTRAL_RADIANCE in mf.units
 
 
 def test_smooth_estimator_reproduces_a_spectrum_the_prior_explains():
@@ -115,7 +116,7 @@ def test_smooth_estimator_reproduces_a_spectrum_the_prior_explains():
     m = radiance_model(wl, dict(zip("RGB", c, strict=True)), None, 663.0, "smooth")
     i = int(np.flatnonzero(wl == 663.0)[0])  # a grid node
     assert float(m.weights @ rates) == pytest.approx(spectrum[i], rel=1e-4)
-    assert m.channel is None and m.units == "W m^-2 sr^-1 nm^-1"
+    assert m.channel is None and m.units == units.SPECTRAL_RADIANCE
     assert m.wavelength_nm == 663.0 and m.estimator == "smooth"
     # between grid nodes the estimate is read linearly from the reconstruction on the grid
     m2 = radiance_model(wl, dict(zip("RGB", c, strict=True)), None, 664.0, "smooth")
@@ -764,13 +765,6 @@ def test_uncertainty_helpers_on_closed_forms():
 
 # ---- correct: the dark frame of other models, the system gain from photon transfer, the frame summaries ----------
 
-class _MapsDark:
-    """A dark model offering bias and β maps (not a DarkModel): duck-typed like one."""
-
-    def __init__(self, bias, beta, iso):
-        self.bias_dn, self.dark_current_dn_per_s, self.iso = bias, beta, iso
-
-
 class _FrameDark:
     """A third-party model that only evaluates whole frames: a dict per plane, a mosaic, or a scalar."""
 
@@ -793,13 +787,12 @@ def test_dark_frame_of_maps_off_the_reference_iso_on_a_window():
     bias = (1000 + rng.integers(0, 20, (4, 3, 4))).astype(np.float32)
     beta = np.full((4, 3, 4), 1.5, np.float32)
     win = (slice(1, 3), slice(0, 2))
-    got = dark_frame(_MapsDark(bias, beta, 200.0), 5.0, 800.0, (4, 3, 4), win)
+    got = dark_frame(_dark_model(bias, beta, 200.0), 5.0, 800.0, (4, 3, 4), win)
     np.testing.assert_allclose(got, bias[:, 1:3, 0:2] + 30.0, rtol=1e-7)
-    np.testing.assert_allclose(dark_frame(_MapsDark(bias, None, 200.0), 5.0, 800.0, (4, 3, 4)), bias)
     with pytest.raises(CamcalError, match="non-negative"):
-        dark_frame(_MapsDark(bias, beta, 200.0), float("nan"), 800.0, (4, 3, 4))
+        dark_frame(_dark_model(bias, beta, 200.0), float("nan"), 800.0, (4, 3, 4))
     with pytest.raises(CamcalError, match="do not match"):
-        dark_frame(_MapsDark(bias, beta, 200.0), 5.0, 800.0, (4, 3, 5))
+        dark_frame(_dark_model(bias, beta, 200.0), 5.0, 800.0, (4, 3, 5))
 
 
 def test_dark_frame_of_a_whole_frame_model_per_plane_mosaic_or_scalar():
@@ -1055,7 +1048,7 @@ def test_radiance_model_at_the_ends_of_the_curve_and_on_short_curves():
     assert m.band_unc.shape == (3,) and not np.any(m.band_unc)
     assert radiance_model(wl, c, None, line_fwhm_nm=1.0).weights == pytest.approx(m.weights, rel=1e-15)
     mf = radiance_model(wl, c, None, filter_fwhm_nm=5.0)
-    assert mf.units == "W m^-2 sr^-1 nm^-1 (mean over the filter band)"
+    assert mf.units == f"{units.SPECTRAL_RADIANCE} (mean over the filter band)"
     # short curves
     w4 = np.array([600.0, 640.0, 680.0, 720.0])
     r4 = np.array([10.0, 30.0, 25.0, 5.0])
