@@ -366,12 +366,11 @@ def _failure(src: Path, out: Path, exc: BaseException, t0: float) -> PhotoResult
 def _skipped(src: Path, out: Path, options: BatchOptions, mask_image, t0: float) -> PhotoResult:
     """A photo whose EXR is current: nothing is computed; ROI statistics are read back from the EXR."""
     stats = ()
-    meta = None
     if options.roi is not None or options.mask_path is not None:
-
         channels, meta = read_exr(out)
         stats = _stats(channels, options, mask_image, src, meta)
-    meta = meta if meta is not None else exr_header(out)
+    else:
+        meta = exr_header(out)
     return PhotoResult(str(src), str(out), "skipped", None, time.perf_counter() - t0, stats,
                        ((meta or {}).get("optics") or {}).get("warning"))
 
@@ -383,11 +382,8 @@ def _skip_current(photo: str, outdir: str, options: BatchOptions, mask_image) ->
     out = output_path(src, outdir)
     try:
         return _skipped(src, out, options, mask_image, t0)
-    except CamcalError as exc:
-        return PhotoResult(str(src), str(out), "failed", str(exc), time.perf_counter() - t0)
     except Exception as exc:  # a batch reports every failure and goes on
-        msg = " ".join(f"{type(exc).__name__}: {exc}".split())
-        return PhotoResult(str(src), str(out), "failed", f"{src}: internal error: {msg}", time.perf_counter() - t0)
+        return _failure(src, out, exc, t0)
 
 
 # ---- the runner ------------------------------------------------------------------------------------------------------

@@ -11,12 +11,18 @@ from camcal.synth.camera import Scene
 from tests.conftest import assert_one_line_error, run_cli
 
 
-def _pixel_type(path) -> str:
+def _spec(path) -> tuple[str, str]:
+    """(pixel type, compression) of an EXR, read with OpenImageIO itself."""
     inp = oiio.ImageInput.open(str(path))
     try:
-        return str(inp.spec().format)
+        spec = inp.spec()
+        return str(spec.format), str(spec.getattribute("compression"))
     finally:
         inp.close()
+
+
+def _pixel_type(path) -> str:
+    return _spec(path)[0]
 
 
 def test_precision_half_against_float(tmp_path, camera, profile_path):
@@ -49,11 +55,7 @@ def test_precision_half_against_float(tmp_path, camera, profile_path):
 
 
 def _compression(path) -> str:
-    inp = oiio.ImageInput.open(str(path))
-    try:
-        return str(inp.spec().getattribute("compression"))
-    finally:
-        inp.close()
+    return _spec(path)[1]
 
 
 def test_compression_option_is_written_and_resumed(tmp_path, camera, profile_path):
