@@ -220,8 +220,13 @@ def prepare(
                "line_fwhm_nm": line_fwhm_nm, "with_prnu": with_prnu}
     cal = Calibration.of(profile.dark, profile.flat if flat_planes is not None else None, with_prnu=with_prnu,
                          emva=getattr(profile, "emva", None))
-    rgb_cal = Calibration(flat_gain=flat_rgb, inv_flat_gain=None if flat_rgb is None else 1.0 / flat_rgb)
+    rgb_cal = _rgb_calibration(flat_rgb)
     return ApplyPlan(profile, model, flat_planes, flat_rgb, options, prnu_rel, cal, rgb_cal)
+
+
+def _rgb_calibration(flat_rgb: np.ndarray | None) -> Calibration:
+    """The calibration of binned R, G, B (processed photos): the flat gain only."""
+    return Calibration(flat_gain=flat_rgb, inv_flat_gain=None if flat_rgb is None else 1.0 / flat_rgb)
 
 
 def _flat_maps(gain: np.ndarray | None, profile) -> tuple[np.ndarray | None, np.ndarray | None]:
@@ -262,7 +267,7 @@ def plan_for_optics(plan: ApplyPlan, exposure, path: Path | None, notes: list[st
         cal = plan.calibration
         if flat_planes is not None:
             cal = replace(cal, flat_gain=flat_planes, inv_flat_gain=(1.0 / flat_planes).astype(np.float32))
-        rgb_cal = Calibration(flat_gain=flat_rgb, inv_flat_gain=None if flat_rgb is None else 1.0 / flat_rgb)
+        rgb_cal = _rgb_calibration(flat_rgb)
         other = replace(plan, flat_planes=flat_planes, flat_rgb=flat_rgb, calibration=cal, rgb_calibration=rgb_cal)
         plan.flat_plans[choice.key] = other
     return other, choice
