@@ -915,6 +915,8 @@ def test_smooth_error_table_truth_and_estimate_for_a_black_body_and_d65():
     assert {r["spectrum"]: r for r in smooth_error_table(wl, c)}["CIE D65"]["true"] == rows["CIE D65"]["true"]
     errors = np.array([r["error_pct"] for r in rows.values()]) / 100
     assert smooth_spread_rel(wl, c, 663.0) == pytest.approx(np.sqrt(np.mean(errors**2)), rel=1e-12)
+    # the default λ0 is the L663 map's 663 nm (camcal apply's default --wavelength)
+    assert smooth_spread_rel(wl, c) == pytest.approx(np.sqrt(np.mean(errors**2)), rel=1e-12)
     # a ColorChecker patch under D65: the product of the illuminant and the patch's reflectance at 663 nm
     skin = colour.SDS_COLOURCHECKERS["ColorChecker N Ohta"]["dark skin"]
     at_nodes = [80.2146 * skin[660.0], 81.2462 * skin[665.0]]  # the product on the grid, read linearly at 663 nm
