@@ -8,17 +8,34 @@ from dataclasses import replace
 import numpy as np
 import pvlib
 import pytest
+from scipy.special import eval_legendre
 
 from camcal.errors import CamcalError
+from camcal.flat import fit_2d_plane
+from camcal.flat_model import PlaneGeometry
 from camcal.spectral import merge_sweeps
-from camcal.spectral_model import SpectralSensitivity
+from camcal.spectral_model import RELATIVE_UNITS, SpectralSensitivity, to_relative
 from camcal.water.band import bricaud_1998
-from camcal.water.field import ClearSky, FieldGeometry, MeasuredSky, OvercastSky, field_band_model
+from camcal.water.field import (
+    DEFAULT_AOD_500NM,
+    DEFAULT_DAY_OF_YEAR,
+    DEFAULT_OZONE_ATM_CM,
+    DEFAULT_PRECIPITABLE_WATER_CM,
+    DEFAULT_PRESSURE_PA,
+    ClearSky,
+    FieldGeometry,
+    MeasuredSky,
+    OvercastSky,
+    field_band_model,
+    read_sky_csv,
+)
+from camcal.water.invert import Inversion
 from camcal.water.models import LampModel, RefinedModel
 from camcal.water.purewater import pure_water_absorption_per_m
 from camcal.water.uncertainty import (
     C_GRID_UG_PER_L,
     Uncertain,
+    all_terms,
     derivative_c,
     dominant,
     forward_for,
@@ -226,3 +243,218 @@ def test_field_model_aerosol_input_changes_the_clear_sky():
     direct, diffuse = s.irradiance(wl)
     assert float(hazy.ratio(12.0, 0.6)) == pytest.approx(
         _field_truth(wl, direct, diffuse, 40.0, FieldGeometry(), 12.0, 0.6), rel=2e-4)
+
+
+def test_measured_sky_csv_any_column_order_comments_and_refusals(tmp_path):
+    """The CSV's columns are found by name (any order, extra columns ignored), '#' lines skipped; a missing
+    column, a non-number, fewer than two rows, falling wavelengths, negative or all-zero diffuse are refused."""
+    p = tmp_path / "sky.csv"
+    p.write_text("# measured at noon\ndiffuse_horizontal,note,wavelength_nm,direct_horizontal\n"
+                 "0.5,1,500,1.0\n# a comment\n0.7,2,600,3.0\n\n1.5,3,700,2.0\n")
+    sky = read_sky_csv(p, 33.0)
+    assert sky.sun_zenith_deg == 33.0 and sky.source == str(p)
+    np.testing.assert_array_equal(sky.wavelengths_nm, [500.0, 600.0, 700.0])
+    np.testing.assert_array_equal(sky.direct_horizontal, [1.0, 3.0, 2.0])
+    np.testing.assert_array_equal(sky.diffuse_horizontal, [0.5, 0.7, 1.5])
+    bad = {"columns": "wavelength_nm,direct_horizontal\n500,1\n600,2\n",
+           "a row is not numbers": "wavelength_nm,direct_horizontal,diffuse_horizontal\n500,1,x\n600,2,1\n",
+           "two complete rows": "wavelength_nm,direct_horizontal,diffuse_horizontal\n500,1,1\n",
+           "must increase": "wavelength_nm,direct_horizontal,diffuse_horizontal\n600,1,1\n500,2,1\n",
+           "be >= 0": "wavelength_nm,direct_horizontal,diffuse_horizontal\n500,-1,1\n600,2,1\n",
+           "diffuse not all 0": "wavelength_nm,direct_horizontal,diffuse_horizontal\n500,1,0\n600,2,0\n"}
+    for phrase, text in bad.items():
+        p.write_text(text)
+        with pytest.raises(CamcalError, match=phrase):
+            read_sky_csv(p, 30.0)
+    p.write_text("wavelength_nm,direct_horizontal,diffuse_horizontal\n500,1,1\n600,2,nan\n")
+    with pytest.raises(CamcalError, match="finite numbers"):
+        read_sky_csv(p, 30.0)
+
+
+def test_field_description_gives_the_in_band_diffuse_fraction_and_the_light():
+    """The in-band diffuse fraction is Σ c E_g f dλ / Σ c E_g dλ: with a constant fraction 0.3 it is 0.3; the
+    light is described by the sky's own record."""
+    sky_wl = np.arange(500.0, 781.0, 20.0)
+    sky = MeasuredSky(45.0, sky_wl, 0.7 * np.linspace(1.0, 2.0, sky_wl.size),
+                      0.3 * np.linspace(1.0, 2.0, sky_wl.size), source="noon.csv")
+    d = field_band_model(FIELD_WL, FIELD_C, sky=sky, geometry=FieldGeometry(transmittance="mean")).describe()
+    assert d["diffuse_fraction_in_band"] == pytest.approx(0.3, rel=1e-12)
+    assert d["geometry"] == "field (sun + sky, flat surface)" and d["sky_transmittance"] == "mean"
+    assert d["light"] == {"sky": "measured", "source": "noon.csv", "sun_zenith_deg": 45.0}
+    ramp = MeasuredSky(45.0, sky_wl, np.ones(sky_wl.size), np.linspace(0.0, 2.0, sky_wl.size))
+    e_dif = np.interp(FIELD_WL, sky_wl, np.linspace(0.0, 2.0, sky_wl.size))
+    f = e_dif / (1.0 + e_dif)
+    w = FIELD_C * (1.0 + e_dif)
+    expect = np.trapezoid(w * f, FIELD_WL) / np.trapezoid(w, FIELD_WL)  # c negligible at the grid's ends
+    got = field_band_model(FIELD_WL, FIELD_C, sky=ramp).describe()["diffuse_fraction_in_band"]
+    assert got == pytest.approx(expect, rel=1e-9)
+    assert OvercastSky().describe() == {"sky": "overcast (diffuse only)"}
+    assert ClearSky(20.0).describe() == {
+        "sky": "clear (SPECTRL2, Bird & Riordan 1986, pvlib)", "sun_zenith_deg": 20.0,
+        "aerosol_optical_depth_500nm": DEFAULT_AOD_500NM, "precipitable_water_cm": DEFAULT_PRECIPITABLE_WATER_CM,
+        "ozone_atm_cm": DEFAULT_OZONE_ATM_CM, "pressure_Pa": DEFAULT_PRESSURE_PA,
+        "day_of_year": DEFAULT_DAY_OF_YEAR}
+
+
+def test_all_terms_adds_the_ratio_noise_term_when_one_was_given():
+    """The inversion's own σ_C is the 'ratio' term only when it is known somewhere; the stated inputs follow."""
+    model = RefinedModel(water_absorption_per_m=0.0)
+    c = np.array([[40.0, np.nan], [200.0, 90.0]])
+    inputs = [Uncertain("epsilon", 1.0, 0.02, "relative")]
+    known = Inversion(c * 0.0, c, np.array([[1.5, np.nan], [2.0, np.nan]]), c * 0.0, np.zeros(c.shape, np.uint8))
+    terms = all_terms(known, model, 0.4, inputs)
+    assert list(terms) == ["ratio", "epsilon"]
+    np.testing.assert_array_equal(terms["ratio"], known.sigma_ug_per_L)
+    np.testing.assert_allclose(terms["epsilon"][np.isfinite(c)], 0.02 * c[np.isfinite(c)], rtol=2e-3)
+    unknown = Inversion(c * 0.0, c, np.full(c.shape, np.nan), c * 0.0, np.zeros(c.shape, np.uint8))
+    assert list(all_terms(unknown, model, 0.4, inputs)) == ["epsilon"]
+
+
+# ---- spectral_model: the colour-science views and the summary's derived figures -------------------------------
+
+def _bayer_curves():
+    wl = np.arange(400.0, 701.0, 5.0)
+    vals = {"R": _gauss(wl, 600, 30, 2.0), "G1": _gauss(wl, 530, 35, 3.0), "G2": _gauss(wl, 530, 35, 3.4),
+            "B": _gauss(wl, 490, 20, 1.5)}
+    unc = {p: 0.01 * v + 1e-3 for p, v in vals.items()}
+    return SpectralSensitivity(wl, vals, unc, "DN/s per W/(m2 sr nm)", "absolute", 100.0, 4.0, bandwidth_nm=10.0)
+
+
+def test_colour_views_are_the_mean_green_and_the_four_planes():
+    s = _bayer_curves()
+    cs = s.to_colour()
+    np.testing.assert_array_equal(cs.wavelengths, s.wavelength_nm)
+    np.testing.assert_allclose(cs.values[:, 1], 0.5 * (s.values["G1"] + s.values["G2"]), rtol=1e-12)
+    np.testing.assert_allclose(cs.values[:, 0], s.values["R"], rtol=1e-12)
+    np.testing.assert_allclose(cs.values[:, 2], s.values["B"], rtol=1e-12)
+    assert cs.name == "camcal c(λ) [DN/s per W/(m2 sr nm)]"
+    planes = s.to_colour_planes()
+    assert list(planes.labels) == ["R", "G1", "G2", "B"] and planes.name == "camcal c(λ) planes [DN/s per W/(m2 sr nm)]"
+    np.testing.assert_allclose(planes.values[:, 2], s.values["G2"], rtol=1e-12)
+
+
+def test_sensitivity_summary_figures_against_closed_forms():
+    """Peak 3.4 (G2) at 530 nm; λ_eff of a Gaussian is its centre and its equivalent width s√(2π) (trapezoid on
+    5 nm, curves negligible at the ends); the relative uncertainty at the peak 0.01 + 1e-3/peak; the slit bias
+    (σ²/2) c'' with σ = 10 nm FWHM → 4.25 nm and c'' of a Gaussian written out, RMS over the grid / 3.4."""
+    s = _bayer_curves()
+    sm = s.summary()
+    assert sm["peak_value"] == pytest.approx(3.4) and sm["n_wavelengths"] == 61
+    assert sm["wavelength_range_nm"] == [400.0, 700.0] and sm["mode"] == "absolute" and sm["bandwidth_nm"] == 10.0
+    assert sm["peak_wavelength_nm"] == {"R": 600.0, "G1": 530.0, "G2": 530.0, "B": 490.0, "G": 530.0}
+    for k, (mu, sd) in {"R": (600, 30), "G": (530, 35), "B": (490, 20)}.items():
+        assert sm["effective_wavelength_nm"][k] == pytest.approx(mu, abs=0.05)
+        assert sm["effective_bandwidth_nm"][k] == pytest.approx(sd * np.sqrt(2 * np.pi), rel=2e-3)
+    for p, peak in {"R": 2.0, "G1": 3.0, "G2": 3.4, "B": 1.5}.items():
+        assert sm["max_relative_uncertainty_at_peak"][p] == pytest.approx(0.01 + 1e-3 / peak, rel=1e-9)
+    sigma = 10.0 / (2 * np.sqrt(2 * np.log(2)))
+    wl = s.wavelength_nm
+    c2 = _gauss(wl, 600, 30, 2.0) * (((wl - 600) / 30**2) ** 2 - 1 / 30**2)
+    rms = np.sqrt(np.mean((0.5 * sigma**2 * c2) ** 2)) / 3.4
+    assert sm["slit_bias_rms_of_peak"]["R"] == pytest.approx(rms, rel=2e-2)
+    assert sm["notes"] == [] and sm["deconvolved"] is False and sm["reference_iso"] == 100.0
+    assert sm["reference_f_number"] == 4.0 and sm["units"] == "DN/s per W/(m2 sr nm)"
+
+
+def test_rgb_curves_views_and_figures_of_a_dim_and_an_empty_channel():
+    """Linear-RAW curves (R, G, B): rgb() is the planes themselves; a channel that is zero everywhere has no
+    effective wavelength or bandwidth (NaN), and a dim one (area 0.05 nm) has them all the same (centroid 550
+    nm, equivalent width s√(2π) on a 2 nm grid)."""
+    wl = np.arange(450.0, 651.0, 2.0)
+    dim = _gauss(wl, 550.0, 10.0, 0.002)
+    s = SpectralSensitivity(wl, {"R": np.zeros(wl.size), "G": dim, "B": -0.1 * np.ones(wl.size)},
+                            {p: np.full(wl.size, 1e-4) for p in "RGB"}, "relative", "relative")
+    rgb = s.rgb()
+    assert list(rgb) == ["R", "G", "B"] and rgb["G"] is s.values["G"] and rgb["R"] is s.values["R"]
+    assert rgb["B"] is s.values["B"]
+    assert list(s.channels()) == ["R", "G", "B"]
+    lam, width = s.effective_wavelength_nm(), s.effective_bandwidth_nm()
+    assert np.isnan(lam["R"]) and np.isnan(width["R"]) and np.isnan(lam["B"]) and np.isnan(width["B"])
+    assert lam["G"] == pytest.approx(550.0, abs=1e-9)
+    assert width["G"] == pytest.approx(10.0 * np.sqrt(2 * np.pi), rel=1e-6)
+    assert s.peak_wavelength_nm()["G"] == 550.0
+
+
+def test_to_relative_divides_by_the_largest_value_over_all_planes():
+    s = _bayer_curves()
+    r = to_relative(s)
+    for p in s.plane_names:
+        np.testing.assert_allclose(r.values[p], s.values[p] / 3.4, rtol=1e-12)
+        np.testing.assert_allclose(r.uncertainty[p], s.uncertainty[p] / 3.4, rtol=1e-12)
+    assert r.mode == "relative" and r.units == RELATIVE_UNITS and r.reference_iso == 100.0
+    zero = SpectralSensitivity(s.wavelength_nm, {p: 0 * v for p, v in s.values.items()}, s.uncertainty,
+                               "relative", "relative")
+    with pytest.raises(CamcalError, match="no positive value; cannot normalise"):
+        to_relative(zero)
+    small = SpectralSensitivity(s.wavelength_nm, {p: 0.5 * v / 3.4 for p, v in s.values.items()}, s.uncertainty,
+                                "relative", "relative")
+    assert max(float(v.max()) for v in to_relative(small).values.values()) == pytest.approx(1.0)
+
+
+def test_slit_bias_needs_a_bandwidth_four_samples_and_a_curve_not_deconvolved():
+    """Four samples are enough for the not-a-knot spline (a cubic is reproduced exactly: c'' = 6 a λ + 2 b);
+    three, no bandwidth, or a deconvolved curve give zeros shaped like the grid."""
+    wl = np.array([500.0, 510.0, 520.0, 530.0])
+    x = wl - 515.0
+    cubic = 1e-4 * x**3 + 0.01 * x**2 + 2.0
+    s = SpectralSensitivity(wl, {p: cubic for p in "RGB"}, {p: 0.01 * cubic for p in "RGB"}, "relative",
+                            "relative", bandwidth_nm=5.0)
+    sigma2 = (5.0 / (2 * np.sqrt(2 * np.log(2)))) ** 2
+    np.testing.assert_allclose(s.slit_bias()["G"], 0.5 * sigma2 * (6e-4 * x + 0.02), rtol=1e-9)
+    for other in (replace(s, bandwidth_nm=None), replace(s, deconvolved=True),
+                  SpectralSensitivity(wl[:3], {p: cubic[:3] for p in "RGB"}, {p: cubic[:3] for p in "RGB"},
+                                      "relative", "relative", bandwidth_nm=5.0)):
+        bias = other.slit_bias()
+        assert list(bias) == ["R", "G", "B"]
+        assert all(b.shape == other.wavelength_nm.shape and not b.any() for b in bias.values())
+
+
+# ---- flat: the weighted 2-D Legendre fit ---------------------------------------------------------------------
+
+def _legendre_flat(scale):
+    """Plane B of a 72 × 96 RGGB frame (36 × 48 planes, B at full-resolution offsets (1, 1)): u, v are the
+    full-resolution coordinates mapped to [−1, 1] over the frame, so u = 2 (2x + 1)/95 − 1, v = 2 (2y + 1)/71 − 1."""
+    geom = PlaneGeometry.for_planes(("R", "G1", "G2", "B"), (36, 48), "RGGB")
+    yy, xx = np.mgrid[0:36:3, 0:48:3].astype(float)
+    u, v = 2 * (2 * xx + 1) / 95.0 - 1, 2 * (2 * yy + 1) / 71.0 - 1
+    surf = scale * (1.0 - 0.15 * eval_legendre(2, u) + 0.1 * u - 0.05 * v - 0.1 * eval_legendre(2, v))
+    return geom, xx, yy, u, v, surf
+
+
+def test_2d_flat_fit_is_the_relative_weighted_least_squares_on_positive_blocks():
+    """On data with a fixed ±5 % pattern the fit is the least-squares solution with weights 1/d (relative
+    residuals), computed here with the Legendre design written out; blocks that are 0 or NaN are left out; the
+    level is the series at the centre and the RMS the relative residual."""
+    geom, xx, yy, u, v, surf = _legendre_flat(0.8)
+    pattern = 1 + 0.05 * np.sin(7 * xx + 3 * yy)
+    data = surf * pattern
+    data[0, 0], data[2, 3] = 0.0, np.nan
+    level, coef, scale, rms = fit_2d_plane(data, xx, yy, geom, "B", 2, (20.0, 12.0))
+    ok = np.isfinite(data) & (data > 0)
+    d, uu, vv = data[ok], u[ok], v[ok]
+    terms = [(i, j) for i in range(3) for j in range(3) if i + j <= 2]
+    design = np.stack([eval_legendre(i, uu) * eval_legendre(j, vv) for i, j in terms], axis=1)
+    sol = np.linalg.lstsq(design / d[:, None], np.ones(d.size), rcond=None)[0]
+    uc, vc = 2 * 41.0 / 95.0 - 1, 2 * 25.0 / 71.0 - 1
+    expect_level = sum(c * eval_legendre(i, uc) * eval_legendre(j, vc) for c, (i, j) in zip(sol, terms, strict=True))
+    assert level == pytest.approx(expect_level, rel=1e-9)
+    for c, (i, j) in zip(sol, terms, strict=True):
+        assert coef[i, j] * level == pytest.approx(c, rel=1e-7, abs=1e-12)
+    assert coef[2, 2] == 0 and coef[1, 2] == 0 and scale == 1.0
+    assert rms == pytest.approx(np.sqrt(np.mean((d / (design @ sol) - 1) ** 2)), rel=1e-9)
+    assert level < 1  # a dim flat: levels below 1 DN are fitted too
+
+
+def test_2d_flat_fit_guards_the_number_of_blocks_and_the_sign_at_the_centre():
+    """Degree 2 has 6 terms and needs 2 × 6 = 12 usable blocks; a centre where the fitted series is negative
+    is refused."""
+    geom, xx, yy, u, v, surf = _legendre_flat(1.0)
+    data = np.full(surf.shape, np.nan)
+    data.flat[:12] = surf.flat[:12]
+    fit_2d_plane(data, xx, yy, geom, "B", 2, (20.0, 12.0))
+    data.flat[11] = np.nan
+    with pytest.raises(CamcalError, match=r"too few usable blocks \(11\) for a degree-2 2-D model"):
+        fit_2d_plane(data, xx, yy, geom, "B", 2, (20.0, 12.0))
+    tilt = 1.0 + 0.9 * u  # positive on the frame, negative left of it (u < −1.11)
+    with pytest.raises(CamcalError, match="not positive at the optical centre"):
+        fit_2d_plane(tilt, xx, yy, geom, "B", 1, (-30.0, 12.0))
