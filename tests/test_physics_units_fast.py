@@ -8,11 +8,13 @@ from dataclasses import replace
 import numpy as np
 import pvlib
 import pytest
+from scipy.optimize import brentq
 from scipy.special import eval_legendre
 
 from camcal.errors import CamcalError
 from camcal.flat import fit_2d_plane
 from camcal.flat_model import PlaneGeometry
+from camcal.response import fit_srgb_form
 from camcal.spectral import merge_sweeps
 from camcal.spectral_model import RELATIVE_UNITS, SpectralSensitivity, to_relative
 from camcal.water.band import bricaud_1998
@@ -458,3 +460,89 @@ def test_2d_flat_fit_guards_the_number_of_blocks_and_the_sign_at_the_centre():
     tilt = 1.0 + 0.9 * u  # positive on the frame, negative left of it (u < −1.11)
     with pytest.raises(CamcalError, match="not positive at the optical centre"):
         fit_2d_plane(tilt, xx, yy, geom, "B", 1, (-30.0, 12.0))
+
+
+# ---- response: the sRGB-form fit's statistics ----------------------------------------------------------------
+
+def _srgb_numeric(lin, p, a=0.055):
+    """The sRGB form with exponent p from its definition (toe where the line through 0 touches the curve)."""
+    lb = brentq(lambda v: (1 + a) * v**p - a - v * (1 + a) * p * v ** (p - 1), 1e-9, 0.5)
+    lin = np.asarray(lin, float)
+    return np.where(lin <= lb, (1 + a) * p * lb ** (p - 1) * lin, (1 + a) * np.maximum(lin, lb) ** p - a)
+
+
+@pytest.mark.parametrize("bump_dn", [0.9, 0.05], ids=["chi2_above_1", "chi2_below_1"])
+def test_srgb_form_fit_statistics_are_those_of_weighted_least_squares(bump_dn):
+    """Data of p = 0.45, x_w = 30 ms with a fixed ±bump pattern, σ = 0.3 DN (one point 0.6 DN): at
+    the returned (p, ln x_w) the weighted residuals r_k = (W V(x/x_w; p) − g)/σ are orthogonal to the Jacobian
+    (the normal equations, differences written out here), χ²_red = Σ r²/(n − 2), the RMS in DN, and
+    σ_p = √(inv(JᵀJ)₀₀ · max(1, χ²_red))."""
+    x = np.geomspace(1e-4, 2.5e-2, 12)
+    g = 255.0 * _srgb_numeric(x / 0.03, 0.45) + bump_dn * np.where(np.arange(12) % 2, 1.0, -1.0)
+    sig = np.full(12, 0.3)
+    sig[4] = 0.6
+    s = sig
+    fit = fit_srgb_form(x, g, sig, 255.0, p0=0.6, x_white0=0.02)
+    p, lxw = fit["exponent"], np.log(fit["x_white_s"])
+
+    def resid(pp, ll):
+        return (255.0 * _srgb_numeric(x / np.exp(ll), pp) - g) / s
+
+    r = resid(p, lxw)
+    h = 1e-6
+    jac = np.stack([(resid(p + h, lxw) - resid(p - h, lxw)) / (2 * h),
+                    (resid(p, lxw + h) - resid(p, lxw - h)) / (2 * h)], axis=1)
+    assert np.abs(jac.T @ r).max() < 1e-3 * np.abs(jac).sum(axis=0).max()
+    chi2 = float(np.sum(r**2) / 10)
+    assert fit["chi2_red"] == pytest.approx(chi2, rel=1e-4)
+    assert (chi2 > 1) == (bump_dn > 0.5)
+    assert fit["rms_dn"] == pytest.approx(float(np.sqrt(np.mean((r * s) ** 2))), rel=1e-4)
+    cov = np.linalg.inv(jac.T @ jac) * max(1.0, chi2)
+    assert fit["exponent_unc"] == pytest.approx(float(np.sqrt(cov[0, 0])), rel=1e-3)
+    assert fit["form"] == "srgb" and fit["offset_a"] == 0.055 and fit["toe_slope"] > 1
+
+
+def test_srgb_form_fit_bounds_the_exponent_and_needs_three_points_for_statistics():
+    """The exponent stays in [0.05, 0.99] whatever the start (a linear response, p = 1, ends at the bound 0.99);
+    with two points there is no degree of freedom: χ² and σ_p are NaN."""
+    x = np.geomspace(1e-3, 2e-2, 8)
+    g = 255.0 * np.minimum(x / 0.03, 1.0)
+    fit = fit_srgb_form(x, g, np.full(8, 0.3), 255.0, p0=1.5, x_white0=0.03)
+    assert fit["exponent"] == pytest.approx(0.99, abs=1e-9)
+    assert 0.05 <= fit_srgb_form(x, g, np.full(8, 0.3), 255.0, p0=0.01, x_white0=0.03)["exponent"] <= 0.99
+    two = fit_srgb_form(x[[2, 6]], 255.0 * _srgb_numeric(x[[2, 6]] / 0.03, 0.45), np.full(2, 0.3), 255.0,
+                        p0=0.5, x_white0=0.03)
+    assert np.isnan(two["chi2_red"]) and np.isnan(two["exponent_unc"])
+    three = fit_srgb_form(x[[1, 4, 7]], 255.0 * _srgb_numeric(x[[1, 4, 7]] / 0.03, 0.45) + [0.3, -0.3, 0.3],
+                          np.full(3, 0.3), 255.0, p0=0.5, x_white0=0.03)
+    assert np.isfinite(three["chi2_red"]) and np.isfinite(three["exponent_unc"])
+
+
+# ---- water/field: the geometry's two forms at a non-default index, reflectance and view -----------------------
+
+def _schlick_from_air(theta_air, n):
+    """Schlick (1994) at the air-side angle: R = R0 + (1 − R0)(1 − cos θ)⁵, R0 = ((n − 1)/(n + 1))²."""
+    r0 = ((n - 1) / (n + 1)) ** 2
+    return r0 + (1 - r0) * (1 - np.cos(theta_air)) ** 5
+
+
+@pytest.mark.parametrize("transmittance", ["mean", "exact"])
+def test_field_geometry_forms_carry_every_setting(transmittance):
+    """n = 1.34, Schlick, albedo 0.7, view 0.35 rad, sun at 50°: the direct beam is
+    ρ (1 − R(θs)) (1 − R(θv)) / n² exp(−τ (1/cos β + 1/cos θv,w)) with sin θs = n sin β (Schlick from the air
+    side for both crossings, by reciprocity), and the sky part is the refined model with the same settings
+    (its exact form on 32 nodes instead of 128: within 2e-5)."""
+    n, th_s, view = 1.34, np.radians(50.0), 0.35
+    g = FieldGeometry(sun_zenith_rad=th_s, albedo=0.7, n_water=n, view_angle_rad=view, reflectance="schlick",
+                      transmittance=transmittance)
+    beta, view_w = np.arcsin(np.sin(th_s) / n), np.arcsin(np.sin(view) / n)
+    assert g.refracted_sun_rad() == pytest.approx(beta, rel=1e-12)
+    tau = np.array([0.0, 0.3, 1.2])
+    k = 0.7 * (1 - _schlick_from_air(th_s, n)) * (1 - _schlick_from_air(view, n)) / n**2
+    np.testing.assert_allclose(g.direct_form().ratio(tau),
+                               k * np.exp(-tau * (1 / np.cos(beta) + 1 / np.cos(view_w))), rtol=1e-9)
+    sky = RefinedModel(albedo=0.7, n_water=n, view_angle_rad=view, reflectance="schlick",
+                       transmittance=transmittance).closed_form()
+    np.testing.assert_allclose(g.sky_form().ratio(tau), sky.ratio(tau), rtol=2e-5)
+    if transmittance == "exact":
+        assert g.sky_form().nodes == 32
