@@ -15,9 +15,9 @@ from camcal.errors import CamcalError
 from camcal.flat import fit_2d_plane
 from camcal.flat_model import PlaneGeometry
 from camcal.response import fit_srgb_form
-from camcal.spectral import merge_sweeps
+from camcal.spectral import deconvolve_slit, merge_sweeps, slit_matrix
 from camcal.spectral_model import RELATIVE_UNITS, SpectralSensitivity, to_relative
-from camcal.water.band import bricaud_1998
+from camcal.water.band import ChlorophyllAbsorption, bricaud_1998
 from camcal.water.field import (
     DEFAULT_AOD_500NM,
     DEFAULT_DAY_OF_YEAR,
@@ -41,8 +41,11 @@ from camcal.water.uncertainty import (
     derivative_c,
     dominant,
     forward_for,
+    interpolate_term,
     interpolate_terms,
     model_ratio,
+    solve_c,
+    term_sigma_c,
     uncertainty_terms,
 )
 from camcal.water.units import CHLA_MOLAR_MASS_G_PER_MOL
@@ -185,16 +188,18 @@ def test_measured_and_overcast_skies():
     assert OvercastSky().with_(sun_zenith_deg=40.0) == OvercastSky()
 
 
-def _field_truth(sky_wl, direct, diffuse, sun_deg, geom, c, d):
+def _field_truth(sky_wl, direct, diffuse, sun_deg, geom, c, d, *, chl=None, a_scale=1.0, water=None,
+                 background=0.0):
     """B = Σ c E_g R dλ / Σ c E_g dλ (trapezoid rule) with R = (1 − f) R_dir + f R_sky, E_g = E_dir + E_dif,
-    f = E_dif / E_g; R_dir and R_sky from the geometry's closed forms at the sun's angle."""
+    f = E_dif / E_g; R_dir and R_sky from the geometry's closed forms at the sun's angle; τ = (a_w + a_bg +
+    s A C^E) d with A, E of ``chl`` (Bricaud et al. 1998 by default) and a_w of Pope & Fry (1997) by default."""
     e_dir, e_dif = np.interp(FIELD_WL, sky_wl, direct), np.interp(FIELD_WL, sky_wl, diffuse)
     glob = e_dir + e_dif
     f = e_dif / glob
-    chl = bricaud_1998()
-    a = np.interp(FIELD_WL, chl.wavelengths_nm, chl.coefficient_m2_per_mg, right=0.0)
-    tau = (pure_water_absorption_per_m(FIELD_WL) + a * c ** np.interp(FIELD_WL, chl.wavelengths_nm,
-                                                                       chl.exponent)) * d
+    chl = chl or bricaud_1998()
+    a = np.interp(FIELD_WL, chl.wavelengths_nm, chl.coefficient_m2_per_mg, left=0.0, right=0.0)
+    a_w = pure_water_absorption_per_m(FIELD_WL) if water is None else water
+    tau = (a_w + background + a_scale * a * c ** np.interp(FIELD_WL, chl.wavelengths_nm, chl.exponent)) * d
     g = replace(geom, sun_zenith_rad=np.radians(sun_deg))
     r = (1 - f) * g.direct_form().ratio(tau) + f * g.sky_form().ratio(tau)
     return np.trapezoid(FIELD_C * glob * r, FIELD_WL) / np.trapezoid(FIELD_C * glob, FIELD_WL)
@@ -546,3 +551,102 @@ def test_field_geometry_forms_carry_every_setting(transmittance):
     np.testing.assert_allclose(g.sky_form().ratio(tau), sky.ratio(tau), rtol=2e-5)
     if transmittance == "exact":
         assert g.sky_form().nodes == 32
+
+
+def test_field_model_inputs_absorbers_and_uncertainty_terms():
+    """A field model built with its own chlorophyll spectrum, water and background absorption: B(C) against the
+    rendering; its illuminant is the normalised global irradiance; the 'sun_zenith', 'diffuse_fraction' and
+    'epsilon' inputs of the uncertainty module re-render with that input changed (ε scales A), and each σ_C term
+    is |∂B/∂p| σ_p / |∂B/∂C| with both derivatives from renderings (central differences)."""
+    sky_wl = np.arange(500.0, 781.0, 20.0)
+    glob = np.linspace(1.0, 2.0, sky_wl.size)
+    diffuse = 0.4 * glob
+    sky = MeasuredSky(45.0, sky_wl, glob - diffuse, diffuse)
+    chl = ChlorophyllAbsorption(np.array([500.0, 640.0, 700.0]), np.array([0.01, 0.02, 0.005]),
+                                np.array([0.8, 0.7, 0.9]), "test")
+    water = 0.3 + 0.001 * (FIELD_WL - 520.0)
+    geom = FieldGeometry(view_angle_rad=0.2)
+    u_c = 0.02 * FIELD_C
+    model = field_band_model(FIELD_WL, FIELD_C, sky=sky, geometry=geom, chlorophyll=chl,
+                             water_absorption_per_m=water, background_absorption_per_m=0.15, sensitivity_sigma=u_c)
+    c, d = np.array([8.0, 30.0]), 0.5
+
+    def truth(cc, sun=45.0, dif=1.0, scale=1.0):
+        return np.array([_field_truth(sky_wl, glob - diffuse, dif * diffuse, sun, geom, x, d, chl=chl,
+                                      a_scale=scale, water=water, background=0.15) for x in np.atleast_1d(cc)])
+
+    np.testing.assert_allclose(model.ratio(c, d), truth(c), rtol=1e-5)
+    e_g = np.interp(FIELD_WL, sky_wl, glob)
+    np.testing.assert_allclose(model.illuminant, e_g / e_g.max(), rtol=1e-12)  # the shape, largest value 1
+    np.testing.assert_array_equal(model.sensitivity_sigma, u_c)
+    np.testing.assert_allclose(forward_for(model, d, "sun_zenith")(30.0, c), truth(c, sun=30.0), rtol=1e-5)
+    np.testing.assert_allclose(forward_for(model, d, "diffuse_fraction")(1.3, c), truth(c, dif=1.3), rtol=1e-5)
+    np.testing.assert_allclose(forward_for(model, d, "epsilon")(1.2, c), truth(c, scale=1.2), rtol=1e-5)
+    db_dc = (truth(c * 1.001) - truth(c * 0.999)) / (0.002 * c)
+    inputs = [Uncertain("sun_zenith", 45.0, 2.0, "deg"), Uncertain("diffuse_fraction", 1.0, 0.1, "relative"),
+              Uncertain("epsilon", 1.0, 0.05, "relative")]
+    terms = uncertainty_terms(model, d, c, inputs)
+    for q, kw in zip(inputs, [{"sun": 46.0}, {"dif": 1.05}, {"scale": 1.025}], strict=True):
+        key, hi = next(iter(kw.items()))
+        lo = {"sun": 44.0, "dif": 0.95, "scale": 0.975}[key]
+        db_dp = (truth(c, **{key: hi}) - truth(c, **{key: lo})) / (2 * (hi - q.value))
+        np.testing.assert_allclose(terms[q.name], np.abs(db_dp / db_dc) * q.sigma, rtol=0.02, err_msg=q.name)
+    sb = model.ratio_sigma_from_sensitivity(c, d, u_c)
+    np.testing.assert_allclose(terms["sensitivity"], np.abs(sb / db_dc), rtol=0.02)
+
+
+def test_lamp_height_and_angle_terms_from_models_built_at_the_changed_geometry():
+    """The lamp's height (m) and angle (degrees) enter through models built with that height or angle (radians):
+    σ_C = |∂B/∂p| σ_p / |∂B/∂C|, ∂B/∂p from lamp models built here at p ± σ/2, ∂B/∂C from the closed form."""
+    model = LampModel(1.0, np.radians(20.0), water_absorption_per_m=0.0)
+    depth, c = 0.3, np.array([60.0, 250.0])
+    mol = c / (CHLA_MOLAR_MASS_G_PER_MOL * 1e6)
+    inputs = [Uncertain("lamp_height", 1.0, 0.02, "m"), Uncertain("lamp_angle", 20.0, 2.0, "deg")]
+    terms = uncertainty_terms(model, depth, c, inputs)
+    tau = np.log(10) * model.epsilon_L_per_mol_cm * mol * 100 * depth
+    db_dc = model.closed_form_at(depth).ratio_derivative(tau) * tau / c
+    hi, lo = LampModel(1.01, np.radians(20.0), water_absorption_per_m=0.0), LampModel(
+        0.99, np.radians(20.0), water_absorption_per_m=0.0)
+    db_dh = (hi.ratio(mol, depth) - lo.ratio(mol, depth)) / 0.02
+    np.testing.assert_allclose(terms["lamp_height"], np.abs(db_dh / db_dc) * 0.02, rtol=1e-3)
+    hi, lo = (LampModel(1.0, np.radians(a), water_absorption_per_m=0.0) for a in (21.0, 19.0))
+    db_da = (hi.ratio(mol, depth) - lo.ratio(mol, depth)) / 2.0
+    np.testing.assert_allclose(terms["lamp_angle"], np.abs(db_da / db_dc) * 2.0, rtol=1e-3)
+    assert np.all(terms["lamp_height"] > 0) and np.all(terms["lamp_angle"] > 0)
+
+
+def test_solve_c_brackets_between_a_millionth_and_the_upper_bound():
+    """B(C) = exp(−0.03 C): C = ln(1/B)/0.03 for 0.5 µg/L and 9e4 µg/L (inside 1e-6..1e5); a root at 2e5 or a
+    ratio above B(1e-6) is no solution (NaN); the upper bound can be raised."""
+    def forward(cc):
+        return np.exp(-3e-5 * np.asarray(cc, float))
+
+    for c in (0.5, 9e4):
+        assert solve_c(forward, float(np.exp(-3e-5 * c))) == pytest.approx(c, rel=1e-9)
+    assert np.isnan(solve_c(forward, float(np.exp(-3e-5 * 2e5))))
+    assert solve_c(forward, float(np.exp(-3e-5 * 2e5)), c_hi_ug_per_L=1e6) == pytest.approx(2e5, rel=1e-9)
+    assert np.isnan(solve_c(forward, 1.0))
+
+
+def test_term_with_no_spread_and_a_table_with_no_positive_node():
+    """An input without uncertainty gives zeros shaped like C; a table without a positive node interpolates to 0
+    where C is finite and NaN where it is not."""
+    c = np.array([[1.0, 2.0], [3.0, np.nan]])
+    z = term_sigma_c(lambda p, cc: np.exp(-p * cc), Uncertain("x", 0.03, 0.0, ""), c, -np.ones(c.shape))
+    assert z.shape == (2, 2) and not z.any()
+    out = interpolate_term(np.zeros(C_GRID_UG_PER_L.size), c)
+    assert out[0, 0] == 0.0 and out[1, 0] == 0.0 and np.isnan(out[1, 1])
+
+
+def test_deconvolution_needs_four_wavelengths_and_defaults_to_a_gaussian_slit():
+    """Four samples are enough (three are refused); the default slit is the Gaussian: a curve convolved with a
+    5 nm-FWHM Gaussian by the forward operator is deconvolved back with the default."""
+    wl = np.arange(500.0, 561.0, 5.0)
+    truth = _gauss(wl, 530.0, 12.0) + 0.1
+    measured = slit_matrix(wl, 5.0, "gaussian") @ truth
+    c, u = deconvolve_slit(wl, measured, np.full(wl.size, 1e-6), 5.0, regularisation=1e-12)
+    np.testing.assert_allclose(c[2:-2], truth[2:-2], rtol=1e-3)
+    c4, _ = deconvolve_slit(wl[:4], measured[:4], np.full(4, 1e-3), 5.0)
+    assert np.all(np.isfinite(c4))
+    with pytest.raises(CamcalError, match="at least 4 wavelengths"):
+        deconvolve_slit(wl[:3], measured[:3], np.full(3, 1e-3), 5.0)
