@@ -13,8 +13,8 @@ from scipy.special import eval_legendre
 
 from camcal.errors import CamcalError
 from camcal.flat import fit_2d_plane
-from camcal.flat_model import PlaneGeometry
-from camcal.response import fit_srgb_form
+from camcal.flat_model import FlatModel, PlaneGeometry, dead_pixels
+from camcal.response import emva_linearity_error, fit_line, fit_srgb_form, saturation_point
 from camcal.spectral import deconvolve_slit, merge_sweeps, slit_matrix
 from camcal.spectral_model import RELATIVE_UNITS, SpectralSensitivity, to_relative
 from camcal.water.band import ChlorophyllAbsorption, bricaud_1998
@@ -650,3 +650,57 @@ def test_deconvolution_needs_four_wavelengths_and_defaults_to_a_gaussian_slit():
     assert np.all(np.isfinite(c4))
     with pytest.raises(CamcalError, match="at least 4 wavelengths"):
         deconvolve_slit(wl[:3], measured[:3], np.full(3, 1e-3), 5.0)
+
+
+# ---- response: the straight line, the saturation point and the EMVA linearity error at their edges -------------
+
+def test_straight_line_fit_at_its_edges():
+    """Two points: the line through them, no degree of freedom (χ² and uncertainties NaN); three points: one
+    degree of freedom, finite; a σ of 0 is held at 1e-9 (the line passes through that point); all x equal:
+    singular normal equations, NaN uncertainties."""
+    two = fit_line([1.0, 3.0], [10.0, 16.0], [1.0, 1.0])
+    assert two["rate"] == pytest.approx(3.0) and two["offset"] == pytest.approx(7.0)
+    assert np.isnan(two["chi2_red"]) and np.isnan(two["rate_unc"]) and np.isnan(two["offset_unc"])
+    three = fit_line([1.0, 2.0, 3.0], [10.0, 13.5, 16.0], [0.5, 0.5, 0.5])
+    # residuals of the unweighted line 3x + 7.1667: −0.1667, +0.3333, −0.1667 → χ² = 0.1667/0.25 = 2/3 (1 dof)
+    assert three["chi2_red"] == pytest.approx(((1 / 6) ** 2 * 2 + (1 / 3) ** 2) / 0.25, rel=1e-9)
+    assert np.isfinite(three["rate_unc"])
+    pinned = fit_line([1.0, 2.0, 3.0], [10.0, 13.5, 16.0], [1.0, 0.0, 1.0])
+    assert pinned["rate"] * 2 + pinned["offset"] == pytest.approx(13.5, abs=1e-6)
+    flat = fit_line([2.0, 2.0, 2.0], [10.0, 11.0, 12.0], [1.0, 1.0, 1.0])
+    assert np.isnan(flat["rate_unc"]) and np.isnan(flat["offset_unc"])
+
+
+def test_saturation_point_with_no_frame_used():
+    sat = saturation_point(np.array([1.0, 2.0]), [3000.0, 4000.0], [4095.0, 4095.0], [True, True], [False, False],
+                           4095.0)
+    assert (sat.level_dn, sat.exposure_s, sat.reached, sat.n_saturated) == (4095.0, 1.0, True, 2)
+    assert all(np.isnan(v) for v in (*sat.fitted_range_dn, *sat.fitted_exposure_s))
+    assert len(sat.fitted_range_dn) == 2 and len(sat.fitted_exposure_s) == 2
+
+
+def test_emva_linearity_error_is_half_the_spread_of_the_relative_deviations():
+    """EMVA 1288 (release 4.0, §8.4): the line μ = a x + b minimising Σ ((μ − a x − b)/μ)² over the points
+    between 5 % and 95 % of saturation (here 1000 DN: the first and last points are out), δ = 100 (μ − fit)/fit,
+    LE = (max δ − min δ)/2, percent."""
+    x = np.array([1.0, 2.0, 4.0, 6.0, 8.0, 10.0, 12.0])
+    mu = np.array([20.0, 152.0, 301.0, 452.0, 597.0, 748.0, 990.0])
+    sel = slice(1, 6)
+    xs, ys = x[sel], mu[sel]
+    a, b = np.linalg.lstsq(np.stack([xs / ys, 1 / ys], axis=1), np.ones(5), rcond=None)[0]
+    dev = 100 * (ys - (a * xs + b)) / (a * xs + b)
+    assert emva_linearity_error(x, mu, 1000.0) == pytest.approx((dev.max() - dev.min()) / 2, rel=1e-9)
+    assert emva_linearity_error(x, 75.0 * x, 1000.0) == pytest.approx(0.0, abs=1e-9)
+
+
+def test_dead_pixels_are_strictly_below_the_threshold_and_none_without_a_response_map():
+    chans = ("R", "G1", "G2", "B")
+    prnu = np.ones((4, 2, 3), np.float32)
+    prnu[0, 0, 0], prnu[1, 1, 2], prnu[3, 0, 1] = 0.5, 0.49, 0.3
+    fm = FlatModel(channels=chans, centre_px={c: (1.0, 1.0) for c in chans}, k={c: (0.0,) for c in chans},
+                   model_2d=None, prnu=prnu, residual_rms={}, shape=(2, 3), cfa_pattern="RGGB")
+    dead = dead_pixels(fm)
+    assert dead.dtype == bool and dead.sum() == 2 and dead[1, 1, 2] and dead[3, 0, 1] and not dead[0, 0, 0]
+    assert dead_pixels(fm, threshold=0.6).sum() == 3 and dead_pixels(fm, threshold=0.31).sum() == 1
+    none = dead_pixels(replace(fm, prnu=None))
+    assert none.shape == (4, 2, 3) and none.dtype == bool and not none.any()
