@@ -288,13 +288,13 @@ def test_field_description_gives_the_in_band_diffuse_fraction_and_the_light():
     assert d["diffuse_fraction_in_band"] == pytest.approx(0.3, rel=1e-12)
     assert d["geometry"] == "field (sun + sky, flat surface)" and d["sky_transmittance"] == "mean"
     assert d["light"] == {"sky": "measured", "source": "noon.csv", "sun_zenith_deg": 45.0}
-    ramp = MeasuredSky(45.0, sky_wl, np.ones(sky_wl.size), np.linspace(0.0, 2.0, sky_wl.size))
-    e_dif = np.interp(FIELD_WL, sky_wl, np.linspace(0.0, 2.0, sky_wl.size))
+    ramp = MeasuredSky(45.0, sky_wl, np.ones(sky_wl.size), np.linspace(0.0, 1.5, sky_wl.size) ** 2)
+    e_dif = np.interp(FIELD_WL, sky_wl, np.linspace(0.0, 1.5, sky_wl.size) ** 2)  # not symmetric about 640 nm
     f = e_dif / (1.0 + e_dif)
     w = FIELD_C * (1.0 + e_dif)
     expect = np.trapezoid(w * f, FIELD_WL) / np.trapezoid(w, FIELD_WL)  # c negligible at the grid's ends
     got = field_band_model(FIELD_WL, FIELD_C, sky=ramp).describe()["diffuse_fraction_in_band"]
-    assert got == pytest.approx(expect, rel=1e-9)
+    assert got == pytest.approx(expect, rel=1e-6)  # the model's end weights differ from the trapezoid's by c(ends)
     assert OvercastSky().describe() == {"sky": "overcast (diffuse only)"}
     assert ClearSky(20.0).describe() == {
         "sky": "clear (SPECTRL2, Bird & Riordan 1986, pvlib)", "sun_zenith_deg": 20.0,
@@ -338,6 +338,7 @@ def test_colour_views_are_the_mean_green_and_the_four_planes():
     planes = s.to_colour_planes()
     assert list(planes.labels) == ["R", "G1", "G2", "B"] and planes.name == "camcal c(λ) planes [DN/s per W/(m2 sr nm)]"
     np.testing.assert_allclose(planes.values[:, 2], s.values["G2"], rtol=1e-12)
+    np.testing.assert_array_equal(planes.wavelengths, s.wavelength_nm)
 
 
 def test_sensitivity_summary_figures_against_closed_forms():
@@ -380,6 +381,8 @@ def test_rgb_curves_views_and_figures_of_a_dim_and_an_empty_channel():
     assert lam["G"] == pytest.approx(550.0, abs=1e-9)
     assert width["G"] == pytest.approx(10.0 * np.sqrt(2 * np.pi), rel=1e-6)
     assert s.peak_wavelength_nm()["G"] == 550.0
+    # relative uncertainty at the peak of a curve whose peak is below 1: 1e-4 / 0.002
+    assert s.summary()["max_relative_uncertainty_at_peak"]["G"] == pytest.approx(0.05, rel=1e-9)
 
 
 def test_to_relative_divides_by_the_largest_value_over_all_planes():
