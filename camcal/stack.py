@@ -285,18 +285,23 @@ def _sorted_float32(x: np.ndarray, work: np.ndarray | None = None) -> np.ndarray
     per pair one ``np.minimum`` and one ``np.maximum`` over a plane, SIMD in the band's own 16-bit type), then
     are converted to float32 plane by plane: 2.5x faster than ``np.sort`` of the float32 band along axis 0 and
     5x faster than ``np.sort`` of the uint16 band at 32 frames (numpy has no vectorised 16-bit sort on AVX2),
-    with the same result (a sort is a sort). Float bands, and more than :data:`NETWORK_MAX_FRAMES` frames, use
-    :func:`numpy.sort` (its NaN ordering kept).
+    with the same result (a sort is a sort). float32 bands (preprocessed frames, NaN = masked) go through the
+    same network with ``np.fmin`` for the low side, so a NaN goes high and ends last as with :func:`numpy.sort`.
+    Other float types, and more than :data:`NETWORK_MAX_FRAMES` frames, use :func:`numpy.sort`.
     """
     n = x.shape[0]
-    if x.dtype.kind not in "ui" or n > NETWORK_MAX_FRAMES:
+    integer = x.dtype.kind in "ui"
+    if (not integer and x.dtype != np.float32) or n > NETWORK_MAX_FRAMES:
         d = x if x.dtype == np.float32 else x.astype(np.float32)
         d.sort(axis=0)
         return d
+    # float32 (a preprocessed stack, NaN = masked): np.fmin keeps the number of a (number, NaN) pair low and
+    # np.maximum sends the NaN high, so NaN ends last as with np.sort
+    low_of = np.minimum if integer else np.fmin
     planes = list(x)
     spare = np.empty_like(planes[0])
     for i, j in _sorting_network(n):
-        low = np.minimum(planes[i], planes[j], out=spare)
+        low = low_of(planes[i], planes[j], out=spare)
         spare = planes[i]
         np.maximum(spare, planes[j], out=planes[j])
         planes[i] = low
@@ -588,7 +593,7 @@ def _bands(spill: Path, n: int, shape: tuple[int, int, int], dtype: np.dtype, me
         y0, y1 = band
         if not hasattr(scratch, "raw"):
             scratch.raw = np.empty(n * c * rows * w, dtype)
-            scratch.work = np.empty(n * c * rows * w, np.float32) if dtype.kind in "ui" else None
+            scratch.work = np.empty(n * c * rows * w, np.float32) if n <= NETWORK_MAX_FRAMES else None
         buf = scratch.raw[:n * c * (y1 - y0) * w].reshape(n, c, y1 - y0, w)
         for i in range(n):
             for k in range(c):
