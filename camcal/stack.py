@@ -336,7 +336,8 @@ def _clipped_moments(d2: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np
     for i in (*range(i0), *range(i1, n)):
         np.greater_equal(d2[i], lo, out=keep)
         keep &= np.less_equal(d2[i], hi, out=inside)
-        np.multiply(d2[i], keep, out=row)
+        row.fill(0)
+        np.copyto(row, d2[i], where=keep)  # not d·keep: a lost NaN (a masked value) would make the sum NaN
         s1 += row
         row *= row
         s2 += row
