@@ -395,7 +395,7 @@ def calibrate_session(
         def fit_linearity():
             nonlocal series, pairs
             series = measure_series(index.frames["linearity"], dark=dark, reference_iso=ref_iso,
-                                    reference_f_number=ref_n, progress=cb("linearity"))
+                                    reference_f_number=ref_n, progress=cb("linearity"), jobs=opts.jobs)
             pairs = series["raw"].pairs if "raw" in series else None
             return fit_series_set(series)
 

@@ -29,6 +29,13 @@ from camcal.threads import thread_count
 
 COMPRESSIONS = ("none", "zip", "zips", "piz", "pxr24", "b44", "dwaa", "dwab", "zstd", "rle")
 
+BAND_BYTES = 64 << 20
+"""Bytes of pixels interleaved and handed to OpenEXR at a time when the channels are separate arrays."""
+
+BAND_ROWS_MULTIPLE = 32
+"""A band is a whole number of OpenEXR's largest line blocks (32 rows for piz, pxr24, b44 and zstd), so that no
+block is split between two writes."""
+
 
 def interleaved(arrays: list[np.ndarray]) -> np.ndarray | None:
     """The C-contiguous (H, W, C) float32 array whose channels ``arrays`` are, in order, or None.
@@ -66,7 +73,8 @@ def write_exr(
     channels : ``{name: (H, W) array}``; all the same shape.
     metadata : header attributes; numbers and strings as-is, other values as JSON.
     half : store 16-bit half floats instead of float32.
-    compression : one of :data:`COMPRESSIONS`.
+    compression : one of :data:`COMPRESSIONS`; ``zip``, ``zips`` and ``zstd`` may add a level after a colon
+        (``zstd:1``: the profile's maps, :mod:`camcal.container`).
     datetime : the header's ``DateTime`` (EXR ``capDate``), ``"YYYY:MM:DD HH:MM:SS"``; by default
         OpenImageIO writes the current time, so two writes of the same data differ in that field.
     """
@@ -74,16 +82,16 @@ def write_exr(
         raise CamcalError("no channels to write", path)
     if Path(path).is_dir():
         raise CamcalError("is a folder; give the EXR a file name", path)
-    if compression not in COMPRESSIONS:
-        raise CamcalError(f"unknown EXR compression {compression!r}; choose from {', '.join(COMPRESSIONS)}")
+    name, _, level = compression.partition(":")
+    if name not in COMPRESSIONS or (level and not level.isdigit()):
+        raise CamcalError(f"unknown EXR compression {compression!r}; choose from {', '.join(COMPRESSIONS)} (zip, "
+                          "zips and zstd may name a level, e.g. zstd:1)")
     names = list(channels)
     arrays = [np.asarray(channels[n], dtype=np.float32) for n in names]
     shape = arrays[0].shape
     if any(a.shape != shape or a.ndim != 2 for a in arrays):
         raise CamcalError("EXR channels must be 2-D arrays of one shape", path)
     pixels = interleaved(arrays)
-    if pixels is None:
-        pixels = np.stack(arrays, axis=-1)
     h, w = shape
     spec = oiio.ImageSpec(w, h, len(names), oiio.HALF if half else oiio.FLOAT)
     spec.channelnames = tuple(names)
@@ -103,7 +111,14 @@ def write_exr(
         out = oiio.ImageOutput.create(str(tmp))
         if out is None or not out.open(str(tmp), spec):
             raise CamcalError(f"cannot write EXR: {oiio.geterror()}", path)
-        ok = out.write_image(pixels)
+        if pixels is not None:
+            ok = out.write_image(pixels)
+        else:  # separate maps: interleaved a band of rows at a time (no copy of the whole image in memory)
+            rows = max(BAND_ROWS_MULTIPLE, BAND_BYTES // max(1, w * len(arrays) * 4)
+                       // BAND_ROWS_MULTIPLE * BAND_ROWS_MULTIPLE)
+            ok = all(out.write_scanlines(y, min(h, y + rows), 0,
+                                         np.stack([a[y:y + rows] for a in arrays], axis=-1))
+                     for y in range(0, h, rows))
         err = out.geterror()
         out.close()
         if not ok:

@@ -25,6 +25,7 @@ A frame of a linearity series at or past saturation is *used*: it marks the end 
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 from collections import Counter
 from collections.abc import Callable, Mapping
@@ -33,6 +34,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from camcal.errors import CamcalError
+from camcal.hashing import sha256_file
 from camcal.io import load_frame
 from camcal.session import SessionIndex, StageFrames
 from camcal.stack import frame_digest
@@ -176,7 +178,10 @@ def screen_session(index: SessionIndex, checks: Mapping[str, StageCheck] | None 
 
     def work(item):
         s, ref = item
-        return frame_facts(ref.path, ref.overrides, checks.get(s))
+        facts = frame_facts(ref.path, ref.overrides, checks.get(s))
+        with contextlib.suppress(OSError):  # the file is in the page cache now: its provenance hash is cheap
+            sha256_file(ref.path)
+        return facts
 
     first_pixels = None
     for _s, ref in items[:1]:  # the thread rule looks at the frame size; a header read is not worth it here
