@@ -5,6 +5,8 @@ same frame copied twice, a JPEG of another camera dropped into ``flat/``, an ove
 :func:`screen_session` decodes every frame of every stage once (threads, one frame in memory per
 thread) and gives each a :class:`Verdict`: used, or left out with its reason. The stages then fit the
 frames that are used; ``camcal calibrate`` lists the others (``provenance.left_out`` of the profile).
+Each file is also hashed (SHA-256, :func:`camcal.hashing.sha256_file`) in the thread that decoded it, while
+its bytes are in the page cache; the hash is remembered for the profile's provenance.
 
 Reasons, in the order they are judged (the first that applies is given; docs/reliability.md lists them):
 
