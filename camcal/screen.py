@@ -182,7 +182,7 @@ def screen_session(index: SessionIndex, checks: Mapping[str, StageCheck] | None 
         s, ref = item
         facts = frame_facts(ref.path, ref.overrides, checks.get(s))
         with contextlib.suppress(OSError):  # the file is in the page cache now: its provenance hash is cheap
-            sha256_file(ref.path)
+            sha256_file(ref.path, remember=True)
         return facts
 
     first_pixels = None

@@ -182,18 +182,24 @@ def test_read_ahead_keeps_order_bounds_frames_in_flight_and_raises_in_turn(tmp_p
 
 
 def test_file_hash_is_remembered_until_the_file_changes(tmp_path):
-    """The remembered SHA-256 of a file is that of its bytes now: rewritten with other bytes of the same size,
-    it is hashed again."""
+    """A remembered SHA-256 is that of the file's bytes now: the file rewritten (another size, so that its state
+    differs even within one tick of the file system's clock) is hashed again; a hash not asked to be remembered
+    is never reused, whatever the clock."""
     import hashlib
 
     from camcal.hashing import hash_files, sha256_file
 
+    def sha(b):
+        return hashlib.sha256(b).hexdigest()
+
     p = tmp_path / "a.bin"
     p.write_bytes(b"x" * 5000)
-    assert sha256_file(p) == hashlib.sha256(b"x" * 5000).hexdigest()
-    p.write_bytes(b"y" * 5000)
-    assert sha256_file(p) == hashlib.sha256(b"y" * 5000).hexdigest()
+    assert sha256_file(p, remember=True) == sha(b"x" * 5000)
+    assert sha256_file(p) == sha(b"x" * 5000)
+    p.write_bytes(b"y" * 5001)
+    assert sha256_file(p) == sha(b"y" * 5001)
     q = tmp_path / "b.bin"
     q.write_bytes(b"z" * 7)
-    assert hash_files([p, q], threads=2) == {p: hashlib.sha256(b"y" * 5000).hexdigest(),
-                                              q: hashlib.sha256(b"z" * 7).hexdigest()}
+    assert sha256_file(q) == sha(b"z" * 7)
+    q.write_bytes(b"w" * 7)  # same size, maybe the same clock tick: not remembered, so read again
+    assert hash_files([p, q], threads=2) == {p: sha(b"y" * 5001), q: sha(b"w" * 7)}
