@@ -378,6 +378,8 @@ def _raw_pixels(frame: Frame, plan: ApplyPlan, t: float, iso: float, inv_x: floa
                      "dark current was not")
     band_k = [np.float32(inv_x / model.band_integral[i]) for i in range(3)]
     used = [(i, np.float32(model.weights[i] * inv_x)) for i in range(3) if model.weights[i] != 0]
+    if not used:
+        raise CamcalError("the radiance estimator has no non-zero weight; the profile's c(λ) is unusable", frame.path)
     rel = _rel_unc(model)
     nan = np.float32(np.nan)
     out = np.empty((h, w, len(OUTPUT_CHANNELS)), np.float32)
@@ -418,24 +420,30 @@ def _raw_pixels(frame: Frame, plan: ApplyPlan, t: float, iso: float, inv_x: floa
             for i in range(3):
                 var[i] += (plan.prnu_rel[i] * signal[i]) ** 2
         o = out[r0:r1]
-        for i in range(3):
-            np.multiply(signal[i], band_k[i], out=o[..., i])
-            if var is None:
-                o[..., 5 + i] = nan
-            else:
-                np.sqrt(var[i], out=o[..., 5 + i])
-                o[..., 5 + i] *= band_k[i]
-        value = np.zeros((n, w), np.float32)
-        noise = np.zeros((n, w), np.float32)
-        for i, wi in used:
+        # L(λ0) = Σ w_i·s_i over the used channels and its noise Σ w_i²·var_i, in that order (no zero-filled
+        # accumulators: 0 + x is x), then ⊕ the relative c(λ) term
+        i0, w0 = used[0]
+        value = signal[i0] * w0
+        for i, wi in used[1:]:
             value += signal[i] * wi
-            if var is not None:
+        o[..., 3] = value
+        if var is None:  # no noise model: the c(λ) term alone
+            noise = np.zeros((n, w), np.float32)
+            o[..., 5:] = nan
+        else:
+            noise = var[i0] * (w0 * w0)
+            for i, wi in used[1:]:
                 noise += var[i] * (wi * wi)
         if rel:
-            noise += (value * rel) ** 2
-        np.sqrt(noise, out=noise)
-        o[..., 3] = value
-        o[..., 4] = noise
+            value *= rel
+            value *= value
+            noise += value
+        np.sqrt(noise, out=o[..., 4])
+        for i in range(3):
+            np.multiply(signal[i], band_k[i], out=o[..., i])
+            if var is not None:
+                np.sqrt(var[i], out=var[i])  # σ in place: var[i] is not used after this
+                np.multiply(var[i], band_k[i], out=o[..., 5 + i])
 
     _run_bands(work, h, threads)
     return out
