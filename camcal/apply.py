@@ -218,8 +218,11 @@ def prepare(
         prnu_rel = np.array(rms, np.float32)[:, None, None]
     options = {"wavelength_nm": float(wavelength_nm), "estimator": estimator, "filter_fwhm_nm": filter_fwhm_nm,
                "line_fwhm_nm": line_fwhm_nm, "with_prnu": with_prnu}
-    cal = Calibration.of(profile.dark, profile.flat if flat_planes is not None else None, with_prnu=with_prnu,
-                         emva=getattr(profile, "emva", None))
+    cal = Calibration.of(profile.dark, None, emva=getattr(profile, "emva", None))
+    if flat_planes is not None:  # the gain evaluated above, not a second time (a worker's start-up)
+        if not np.all(np.isfinite(flat_planes)) or np.any(flat_planes <= 0):
+            raise CamcalError("the flat model's gain is not positive and finite everywhere")
+        cal = replace(cal, flat_gain=flat_planes, inv_flat_gain=(1.0 / flat_planes).astype(np.float32))
     rgb_cal = _rgb_calibration(flat_rgb)
     return ApplyPlan(profile, model, flat_planes, flat_rgb, options, prnu_rel, cal, rgb_cal)
 
