@@ -107,8 +107,8 @@ def write_exr(
     spec.attribute("compression", compression)
     if precision == "mixed":
         unc = [i for i, n in enumerate(names) if n.endswith(UNCERTAINTY_SUFFIX)]
-        fits, why = half_fits([arrays[i] for i in unc])
-        if unc and fits:
+        fits, why = half_fits([arrays[i] for i in unc]) if unc else (False, "no uncertainty channels")
+        if fits:
             spec.channelformats = tuple(oiio.TypeDesc(oiio.HALF if i in unc else oiio.FLOAT)
                                         for i in range(len(names)))
         spec.attribute("camcal:uncertainty_precision", "half" if fits else f"float ({why})")
