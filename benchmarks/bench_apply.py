@@ -11,8 +11,9 @@ Photos/s of each, their ratio, and the peak RSS of the largest worker (``RUSAGE_
 each count: flat in the count. Runs alternate floor / camcal; medians.
 
 Floor (the unavoidable work, measured in the same run): ``rawpy`` decode of the DNG (mosaic copied
-out) plus an OpenImageIO write of an EXR of the same size as camcal's output (5 float32 channels at
-3000x2000, zip). camcal: :func:`camcal.io.load_frame` + :func:`camcal.apply.apply_prepared` +
+out) plus an OpenImageIO write of an EXR of the same size as camcal's output (8 float32 channels at
+3000x2000, with ``BatchOptions``' default compression). camcal: :func:`camcal.io.load_frame` +
+:func:`camcal.apply.apply_prepared` +
 :func:`camcal.exr.write_exr` (what a batch worker does per photo; the profile-dependent maps are
 prepared once per worker and timed separately). Target: camcal ≤ 1.3x the floor.
 
@@ -111,21 +112,29 @@ def build(work: Path):
 
 
 def floor_once(photo: Path, out: Path) -> float:
+    """Decode ``photo`` with rawpy and write an EXR of camcal's output size with its default encoding (seconds).
+
+    Eight float32 channels at half resolution (R, G, B, L663 and a 1σ channel each), with the compression of
+    ``BatchOptions()``: the floor writes what camcal writes, so the ratio reads as camcal's distance to it.
+    """
     import OpenImageIO as oiio
     import rawpy
 
+    from camcal.batch import BatchOptions
+
+    compression = BatchOptions().compression
     t0 = time.perf_counter()
     with rawpy.imread(str(photo)) as raw:
         mosaic = np.array(raw.raw_image_visible, dtype=np.uint16, copy=True)
     h, w = mosaic.shape[0] // 2, mosaic.shape[1] // 2
-    pixels = np.empty((h, w, 5), np.float32)
+    pixels = np.empty((h, w, 8), np.float32)
     pixels[..., :4] = np.moveaxis(mosaic.reshape(h, 2, w, 2).transpose(1, 3, 0, 2).reshape(4, h, w), 0, -1)
-    pixels[..., 4] = pixels[..., 0]
-    pixels *= np.float32(1.2345678e-4)  # non-integer floats, so zip compresses them like camcal's radiances
-    spec = oiio.ImageSpec(w, h, 5, oiio.FLOAT)
-    spec.channelnames = ("R", "G", "B", "L663", "L663_unc")
+    pixels[..., 4:] = pixels[..., :4]
+    pixels *= np.float32(1.2345678e-4)  # non-integer floats, so a compression sees them like camcal's radiances
+    spec = oiio.ImageSpec(w, h, 8, oiio.FLOAT)
+    spec.channelnames = ("R", "G", "B", "L663", "L663_unc", "R_unc", "G_unc", "B_unc")
     spec.attribute("DateTime", "2026:01:01 12:00:00")
-    spec.attribute("compression", "zip")
+    spec.attribute("compression", compression)
     o = oiio.ImageOutput.create(str(out))
     o.open(str(out), spec)
     o.write_image(pixels)
@@ -319,7 +328,8 @@ def single_section() -> None:
     print(f"Machine: {os.cpu_count()} cores, CPython {platform.python_version()}, {platform.machine()}; "
           f"{datetime.date.today().isoformat()}; load average {load:.1f} at the end of the run.\n")
     print(f"`python benchmarks/bench_apply.py`: one {WIDTH}x{HEIGHT} (24 MP) RGGB 14-bit DNG → EXR with R, G, B, "
-          f"L663, L663_unc at {WIDTH // 2}x{HEIGHT // 2}, float32, zip; best of {REPEATS}, interleaved.\n")
+          f"L663 and their 1σ channels at {WIDTH // 2}x{HEIGHT // 2}, {BatchOptions().precision} "
+          f"{BatchOptions().compression} (the default); best of {REPEATS}, interleaved.\n")
     print("| what | time (s) | ratio to floor |")
     print("|---|---:|---:|")
     print(f"| floor: rawpy decode + OpenImageIO EXR write of the same size ({size_floor:.0f} MB) | {f:.3f} | 1.00 |")
