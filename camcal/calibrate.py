@@ -375,14 +375,14 @@ def calibrate_session(
             stacks = stack_darks(index.frames["dark"], bias_frames, dark_opts, jobs=opts.jobs, progress=cb("dark"))
             record.leave_out([Verdict("dark", name, reason) for name, reason in stacks.left_out])
             dark_stacks = stacks
-            return fit_dark_stacks(stacks, dark_opts)
+            return fit_dark_stacks(stacks, dark_opts, jobs=opts.jobs)
 
         dark = record.attempt("dark", fit_darks)
     if dark is None and bias_frames is not None:
         def fit_bias():
             nonlocal dark_stacks
             dark_stacks = stack_darks(None, bias_frames, jobs=opts.jobs, progress=cb("bias"))
-            return fit_dark_stacks(dark_stacks)
+            return fit_dark_stacks(dark_stacks, jobs=opts.jobs)
 
         dark = record.attempt("bias", fit_bias)
         if dark is not None:
