@@ -4,15 +4,16 @@ Run ``python benchmarks/bench_apply.py``; prints a Markdown section for ``benchm
 ``--batch`` measures only the batch (below) at ``--counts 8,16,32`` photos; ``--quick`` is a small smoke run
 (1200x800, 2 and 4 photos); ``--width/--height`` choose the photo size.
 
-Batch (``--batch``): ``run_batch(profile, photos[:n], out, BatchOptions(), jobs=2)`` (the CLI's default output,
-float32 zip) in a fresh subprocess per run, against the floor of the same photos: a 2-process (spawn) pool whose
-workers do the floor's rawpy decode + OpenImageIO write per photo. Photos/s of each, their ratio, and the peak
-RSS of the largest worker (``RUSAGE_CHILDREN``, fresh per run), at each count: flat in the count. Runs
-alternate floor / camcal; medians.
+Batch (``--batch``): ``run_batch(profile, photos[:n], out, BatchOptions(), jobs=2)`` (the CLI's default
+output, ``BatchOptions``' precision and compression) in a fresh subprocess per run, against the floor of the
+same photos: a 2-process (spawn) pool whose workers do the floor's rawpy decode + OpenImageIO write per photo.
+Photos/s of each, their ratio, and the peak RSS of the largest worker (``RUSAGE_CHILDREN``, fresh per run), at
+each count: flat in the count. Runs alternate floor / camcal; medians.
 
 Floor (the unavoidable work, measured in the same run): ``rawpy`` decode of the DNG (mosaic copied
-out) plus an OpenImageIO write of an EXR of the same size as camcal's output (5 float32 channels at
-3000x2000, zip). camcal: :func:`camcal.io.load_frame` + :func:`camcal.apply.apply_prepared` +
+out) plus an OpenImageIO write of an EXR of the same size as camcal's output (8 float32 channels at
+3000x2000, with ``BatchOptions``' default compression). camcal: :func:`camcal.io.load_frame` +
+:func:`camcal.apply.apply_prepared` +
 :func:`camcal.exr.write_exr` (what a batch worker does per photo; the profile-dependent maps are
 prepared once per worker and timed separately). Target: camcal ≤ 1.3x the floor.
 
@@ -111,21 +112,29 @@ def build(work: Path):
 
 
 def floor_once(photo: Path, out: Path) -> float:
+    """Decode ``photo`` with rawpy and write an EXR of camcal's output size with its default encoding (seconds).
+
+    Eight float32 channels at half resolution (R, G, B, L663 and a 1σ channel each), with the compression of
+    ``BatchOptions()``: the floor writes what camcal writes, so the ratio reads as camcal's distance to it.
+    """
     import OpenImageIO as oiio
     import rawpy
 
+    from camcal.batch import BatchOptions
+
+    compression = BatchOptions().compression
     t0 = time.perf_counter()
     with rawpy.imread(str(photo)) as raw:
         mosaic = np.array(raw.raw_image_visible, dtype=np.uint16, copy=True)
     h, w = mosaic.shape[0] // 2, mosaic.shape[1] // 2
-    pixels = np.empty((h, w, 5), np.float32)
+    pixels = np.empty((h, w, 8), np.float32)
     pixels[..., :4] = np.moveaxis(mosaic.reshape(h, 2, w, 2).transpose(1, 3, 0, 2).reshape(4, h, w), 0, -1)
-    pixels[..., 4] = pixels[..., 0]
-    pixels *= np.float32(1.2345678e-4)  # non-integer floats, so zip compresses them like camcal's radiances
-    spec = oiio.ImageSpec(w, h, 5, oiio.FLOAT)
-    spec.channelnames = ("R", "G", "B", "L663", "L663_unc")
+    pixels[..., 4:] = pixels[..., :4]
+    pixels *= np.float32(1.2345678e-4)  # non-integer floats, so a compression sees them like camcal's radiances
+    spec = oiio.ImageSpec(w, h, 8, oiio.FLOAT)
+    spec.channelnames = ("R", "G", "B", "L663", "L663_unc", "R_unc", "G_unc", "B_unc")
     spec.attribute("DateTime", "2026:01:01 12:00:00")
-    spec.attribute("compression", "zip")
+    spec.attribute("compression", compression)
     o = oiio.ImageOutput.create(str(out))
     o.open(str(out), spec)
     o.write_image(pixels)
@@ -135,18 +144,21 @@ def floor_once(photo: Path, out: Path) -> float:
 
 def camcal_once(photo: Path, plan, out: Path) -> float:
     from camcal.apply import apply_prepared
+    from camcal.batch import BatchOptions
     from camcal.exr import write_exr
     from camcal.io import load_frame
 
+    opts = BatchOptions()  # the default output
     t0 = time.perf_counter()
     image = apply_prepared(load_frame(photo), plan)
-    write_exr(out, image.channels, image.metadata, compression="zip")
+    write_exr(out, image.channels, image.metadata, precision=opts.precision, compression=opts.compression)
     return time.perf_counter() - t0
 
 
 def breakdown(photo: Path, plan, out: Path) -> dict[str, float]:
     """Seconds of each step of :func:`camcal_once` (wall and CPU of this process)."""
     from camcal.apply import apply_prepared
+    from camcal.batch import BatchOptions
     from camcal.exr import write_exr
     from camcal.io import load_frame
 
@@ -159,7 +171,8 @@ def breakdown(photo: Path, plan, out: Path) -> dict[str, float]:
     c1 = clock()
     image = apply_prepared(frame, plan)
     c2 = clock()
-    write_exr(out, image.channels, image.metadata, compression="zip")
+    opts = BatchOptions()  # the default output
+    write_exr(out, image.channels, image.metadata, precision=opts.precision, compression=opts.compression)
     c3 = clock()
     return {"decode": (c1[0] - c0[0], c1[1] - c0[1]), "apply": (c2[0] - c1[0], c2[1] - c1[1]),
             "write": (c3[0] - c2[0], c3[1] - c2[1])}
@@ -195,7 +208,10 @@ def batch_section(counts: list[int], jobs: int, runs: int) -> None:
     import statistics
     import subprocess
 
+    from camcal.batch import BatchOptions
+
     build(WORK)
+    opts = BatchOptions()
     size = ["--width", str(WIDTH), "--height", str(HEIGHT), "--counts", ",".join(map(str, counts))]
 
     def sub(kind: str, n: int) -> dict:
@@ -220,7 +236,8 @@ def batch_section(counts: list[int], jobs: int, runs: int) -> None:
           f"{datetime.date.today().isoformat()}; load average {os.getloadavg()[0]:.1f} at the end of the run.\n")
     print(f"`python benchmarks/bench_apply.py --batch --width {WIDTH} --height {HEIGHT} --counts "
           f"{','.join(map(str, counts))} --jobs {jobs} --runs {runs}`: {WIDTH}x{HEIGHT} ({mp:.0f} MP) RGGB 14-bit "
-          f"DNGs → EXR (R, G, B, L663, L663_unc, float32 zip: the default output), `run_batch(jobs={jobs})` in a "
+          f"DNGs → EXR (R, G, B, L663 and their 1σ channels, {opts.precision} {opts.compression}: the default "
+          f"output), `run_batch(jobs={jobs})` in a "
           f"fresh process per run against the floor (rawpy decode + OpenImageIO write of the same size, a {jobs}-"
           f"process spawn pool, start-up included in both); medians of {runs} alternating runs.\n")
     print("| photos | floor (photos/s) | floor worker peak (MB) | camcal (photos/s) | camcal worker peak (MB) "
@@ -311,7 +328,8 @@ def single_section() -> None:
     print(f"Machine: {os.cpu_count()} cores, CPython {platform.python_version()}, {platform.machine()}; "
           f"{datetime.date.today().isoformat()}; load average {load:.1f} at the end of the run.\n")
     print(f"`python benchmarks/bench_apply.py`: one {WIDTH}x{HEIGHT} (24 MP) RGGB 14-bit DNG → EXR with R, G, B, "
-          f"L663, L663_unc at {WIDTH // 2}x{HEIGHT // 2}, float32, zip; best of {REPEATS}, interleaved.\n")
+          f"L663 and their 1σ channels at {WIDTH // 2}x{HEIGHT // 2}, {BatchOptions().precision} "
+          f"{BatchOptions().compression} (the default); best of {REPEATS}, interleaved.\n")
     print("| what | time (s) | ratio to floor |")
     print("|---|---:|---:|")
     print(f"| floor: rawpy decode + OpenImageIO EXR write of the same size ({size_floor:.0f} MB) | {f:.3f} | 1.00 |")

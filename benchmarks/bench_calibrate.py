@@ -218,7 +218,7 @@ def main() -> None:
         "|---|---:|---:|---:|",
     ]
     total_wall, total_cpu = stages["total"]
-    labels = dict(STAGES, save_profile="writing the profile (schema validation, hashes)")
+    labels = dict(STAGES, save_profile="writing the profile (maps EXR, hashes, schema validation)")
     accounted = 0.0
     for name, (wall, cpu) in sorted(stages["spent"].items(), key=lambda kv: -kv[1][0]):
         accounted += wall

@@ -218,8 +218,11 @@ def prepare(
         prnu_rel = np.array(rms, np.float32)[:, None, None]
     options = {"wavelength_nm": float(wavelength_nm), "estimator": estimator, "filter_fwhm_nm": filter_fwhm_nm,
                "line_fwhm_nm": line_fwhm_nm, "with_prnu": with_prnu}
-    cal = Calibration.of(profile.dark, profile.flat if flat_planes is not None else None, with_prnu=with_prnu,
-                         emva=getattr(profile, "emva", None))
+    cal = Calibration.of(profile.dark, None, emva=getattr(profile, "emva", None))
+    if flat_planes is not None:  # the gain evaluated above, not a second time (a worker's start-up)
+        if not np.all(np.isfinite(flat_planes)) or np.any(flat_planes <= 0):
+            raise CamcalError("the flat model's gain is not positive and finite everywhere")
+        cal = replace(cal, flat_gain=flat_planes, inv_flat_gain=(1.0 / flat_planes).astype(np.float32))
     rgb_cal = _rgb_calibration(flat_rgb)
     return ApplyPlan(profile, model, flat_planes, flat_rgb, options, prnu_rel, cal, rgb_cal)
 
@@ -378,6 +381,8 @@ def _raw_pixels(frame: Frame, plan: ApplyPlan, t: float, iso: float, inv_x: floa
                      "dark current was not")
     band_k = [np.float32(inv_x / model.band_integral[i]) for i in range(3)]
     used = [(i, np.float32(model.weights[i] * inv_x)) for i in range(3) if model.weights[i] != 0]
+    if not used:
+        raise CamcalError("the radiance estimator has no non-zero weight; the profile's c(λ) is unusable", frame.path)
     rel = _rel_unc(model)
     nan = np.float32(np.nan)
     out = np.empty((h, w, len(OUTPUT_CHANNELS)), np.float32)
@@ -418,24 +423,30 @@ def _raw_pixels(frame: Frame, plan: ApplyPlan, t: float, iso: float, inv_x: floa
             for i in range(3):
                 var[i] += (plan.prnu_rel[i] * signal[i]) ** 2
         o = out[r0:r1]
-        for i in range(3):
-            np.multiply(signal[i], band_k[i], out=o[..., i])
-            if var is None:
-                o[..., 5 + i] = nan
-            else:
-                np.sqrt(var[i], out=o[..., 5 + i])
-                o[..., 5 + i] *= band_k[i]
-        value = np.zeros((n, w), np.float32)
-        noise = np.zeros((n, w), np.float32)
-        for i, wi in used:
+        # L(λ0) = Σ w_i·s_i over the used channels and its noise Σ w_i²·var_i, in that order (no zero-filled
+        # accumulators: 0 + x is x), then ⊕ the relative c(λ) term
+        i0, w0 = used[0]
+        value = signal[i0] * w0
+        for i, wi in used[1:]:
             value += signal[i] * wi
-            if var is not None:
+        o[..., 3] = value
+        if var is None:  # no noise model: the c(λ) term alone
+            noise = np.zeros((n, w), np.float32)
+            o[..., 5:] = nan
+        else:
+            noise = var[i0] * (w0 * w0)
+            for i, wi in used[1:]:
                 noise += var[i] * (wi * wi)
         if rel:
-            noise += (value * rel) ** 2
-        np.sqrt(noise, out=noise)
-        o[..., 3] = value
-        o[..., 4] = noise
+            value *= rel
+            value *= value
+            noise += value
+        np.sqrt(noise, out=o[..., 4])
+        for i in range(3):
+            np.multiply(signal[i], band_k[i], out=o[..., i])
+            if var is not None:
+                np.sqrt(var[i], out=var[i])  # σ in place: var[i] is not used after this
+                np.multiply(var[i], band_k[i], out=o[..., 5 + i])
 
     _run_bands(work, h, threads)
     return out

@@ -83,8 +83,10 @@ class BatchOptions:
     allow_other_camera: bool = False
     roi: Region | None = None
     mask_path: str | None = None
-    half: bool = False
-    compression: str = "zip"
+    precision: str = "float"
+    """EXR pixel type (:data:`camcal.exr.PRECISIONS`): ``float``, ``half`` or ``mixed`` (1σ channels in half)."""
+    compression: str = "none"
+    """EXR compression (:data:`camcal.exr.COMPRESSIONS`); the default is measured in docs/apply.md."""
     threads: int | None = None  # threads of one photo's arithmetic; None: the batch runner's share of the cores
     strict: bool = False
     """Refuse a photo whose f-number or focal length the flats were not measured at (:func:`camcal.apply.
@@ -230,16 +232,37 @@ def _is_current(out: Path, profile_sha256: str | None, options: BatchOptions) ->
     return (meta.get("profile_sha256") == profile_sha256 and meta.get("estimator") == options.estimator
             and isinstance(wl, int | float) and math.isclose(float(wl), options.wavelength_nm)
             and (meta.get("options") or {}).get("filter_fwhm_nm") == options.filter_fwhm_nm
-            and meta.get("exr_pixel_type") == ("half" if options.half else "float")
+            and _precision_of(meta) == options.precision
             and meta.get("exr_compression") == options.compression
             and not (options.strict and (meta.get("optics") or {}).get("mismatch")))
 
 
+def _precision_of(meta: dict) -> str:
+    """The ``precision`` an EXR was written with, from its header: a ``mixed`` request whose 1σ values did not fit
+    half (``uncertainty_precision`` "float (...)") is a ``mixed`` file with float32 pixels."""
+    pixel_type = meta.get("exr_pixel_type")
+    if pixel_type == "float" and str(meta.get("uncertainty_precision") or "").startswith("float"):
+        return "mixed"
+    return str(pixel_type)
+
+
+_MASKS: dict[tuple, object] = {}
+
+
 def _load_mask(options: BatchOptions):
+    """The mask image of ``options``, read once per process and per (file, mtime, size), not once per photo."""
     if options.mask_path is None:
         return None
-
-    return read_mask(options.mask_path)
+    p = Path(options.mask_path)
+    try:
+        st = p.stat()
+    except OSError:
+        return read_mask(p)  # reports the missing file
+    key = (str(p.resolve()), st.st_mtime_ns, st.st_size)
+    if key not in _MASKS:
+        _MASKS.clear()
+        _MASKS[key] = read_mask(p)
+    return _MASKS[key]
 
 
 def _stats(channels: dict, options: BatchOptions, mask_image, where: Path, meta: dict | None) -> tuple[dict, ...]:
@@ -312,8 +335,9 @@ def process_photos(photos: Sequence[str], profile_path: str, outdir: str, option
                 finish(step)
                 continue
             image, pending, capture_time = step
-            fut = writer.submit(write_exr, pending.output, image.channels, image.metadata, half=options.half,
-                                compression=options.compression, datetime=exr_datetime(capture_time))
+            fut = writer.submit(write_exr, pending.output, image.channels, image.metadata,
+                                precision=options.precision, compression=options.compression,
+                                datetime=exr_datetime(capture_time))
             writing = (fut, pending, t0)
             del image, step
         settle()
@@ -516,8 +540,10 @@ def run_batch(
     # outputs already written with this profile and these options: skipped here, no worker started
     todo = []
     mask_image = _load_mask(options) if options.mask_path is not None else None
+    leftovers = any(outdir.glob(".*.part*"))  # one listing of the folder, not one per photo
     for a in args:
-        clear_stale(output_path(a[0], a[2]))  # temporary files of a killed earlier run
+        if leftovers:
+            clear_stale(output_path(a[0], a[2]))  # temporary files of a killed earlier run
         if _is_current(output_path(a[0], a[2]), plan.profile.content_sha256, options):
             done(_skip_current(a[0], a[2], options, mask_image))  # the header (and pixels for ROI statistics)
         else:

@@ -2,7 +2,9 @@
 
 Order: dark (with bias/ when present) → flat (dark-corrected) → linearity
 (dark-corrected) → sweep (dark- and flat-corrected). Every input file is
-hashed (SHA-256) into the profile's provenance.
+hashed (SHA-256) into the profile's provenance: each frame once, by the screening
+beside its decode (the file is then in the page cache), remembered for the stages
+that compare files by content and for the provenance.
 """
 
 from __future__ import annotations
@@ -33,7 +35,7 @@ from camcal.flat import (
 )
 from camcal.flat_model import DEAD_RESPONSE, FlatModel, choose_flat, dead_pixels, same_f_number
 from camcal.frame import Frame
-from camcal.hashing import sha256_file
+from camcal.hashing import hash_files
 from camcal.io import load_frame
 from camcal.manifest import SESSION_DEFAULTS, session_camera_facts
 from camcal.profile import CalibrationProfile, CameraIdentity, Provenance
@@ -48,6 +50,7 @@ from camcal.spectral import (
     sensitivity_from_settings,
     sweep_rows,
 )
+from camcal.threads import thread_count
 
 __all__ = ["NORMALISING_STAGES", "STAGES", "CalibrateOptions", "calibrate_session", "camera_identity",
            "present_stages"]
@@ -86,10 +89,15 @@ class CalibrateOptions:
     strict: bool = False
 
 
-def _inputs(index: SessionIndex) -> list[dict]:
-    """Provenance rows (stage, file, SHA-256, bytes) of every input file the session index found."""
+def _inputs(index: SessionIndex, jobs: int | None = None) -> list[dict]:
+    """Provenance rows (stage, file, SHA-256, bytes) of every input file the session index found.
+
+    The frames were hashed by the screening beside their decode (:func:`camcal.screen.screen_session`); their
+    remembered hashes are used (:func:`camcal.hashing.sha256_file`), the other files hashed in threads."""
+    paths = [p for s in index.stages for p in index.inputs.get(s, ())]
+    hashes = hash_files(paths, thread_count(jobs, len(paths)))
     return [{"stage": s, "file": p.relative_to(index.root).as_posix() if p.is_relative_to(index.root)
-             else f"{s}/{p.name}", "sha256": sha256_file(p), "bytes": p.stat().st_size}
+             else f"{s}/{p.name}", "sha256": hashes[p], "bytes": p.stat().st_size}
             for s in index.stages for p in index.inputs.get(s, ())]
 
 
@@ -367,14 +375,14 @@ def calibrate_session(
             stacks = stack_darks(index.frames["dark"], bias_frames, dark_opts, jobs=opts.jobs, progress=cb("dark"))
             record.leave_out([Verdict("dark", name, reason) for name, reason in stacks.left_out])
             dark_stacks = stacks
-            return fit_dark_stacks(stacks, dark_opts)
+            return fit_dark_stacks(stacks, dark_opts, jobs=opts.jobs)
 
         dark = record.attempt("dark", fit_darks)
     if dark is None and bias_frames is not None:
         def fit_bias():
             nonlocal dark_stacks
             dark_stacks = stack_darks(None, bias_frames, jobs=opts.jobs, progress=cb("bias"))
-            return fit_dark_stacks(dark_stacks)
+            return fit_dark_stacks(dark_stacks, jobs=opts.jobs)
 
         dark = record.attempt("bias", fit_bias)
         if dark is not None:
@@ -395,7 +403,7 @@ def calibrate_session(
         def fit_linearity():
             nonlocal series, pairs
             series = measure_series(index.frames["linearity"], dark=dark, reference_iso=ref_iso,
-                                    reference_f_number=ref_n, progress=cb("linearity"))
+                                    reference_f_number=ref_n, progress=cb("linearity"), jobs=opts.jobs)
             pairs = series["raw"].pairs if "raw" in series else None
             return fit_series_set(series)
 
@@ -453,7 +461,7 @@ def calibrate_session(
     provenance = Provenance(
         camcal_version=__version__,
         created_utc=datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
-        inputs=tuple(_inputs(index)),
+        inputs=tuple(_inputs(index, opts.jobs)),
         options={**asdict(opts), "session": session.name, "stages": list(index.stages)},
         left_out=tuple(v.record() for v in record.left_out),
         not_calibrated=tuple(record.not_calibrated),

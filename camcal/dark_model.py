@@ -125,7 +125,9 @@ class DarkModel:
         np.maximum(var, 0, out=var)
         var *= gain_dn_per_e * np.float32(k)
         rn = self.read_noise_dn[:, rows, cols]
-        var += rn * rn * np.float32(k * k)
+        read_var = rn * rn
+        read_var *= np.float32(k * k)
+        var += read_var
         return var
 
     @property

@@ -28,6 +28,22 @@ from camcal.limits import (
 from camcal.threads import thread_count
 
 COMPRESSIONS = ("none", "zip", "zips", "piz", "pxr24", "b44", "dwaa", "dwab", "zstd", "rle")
+PRECISIONS = ("float", "half", "mixed")
+"""Pixel types of :func:`write_exr`: ``float`` every channel 32-bit, ``half`` every channel 16-bit, ``mixed``
+the uncertainty channels (names ending in :data:`UNCERTAINTY_SUFFIX`) 16-bit and the others 32-bit."""
+UNCERTAINTY_SUFFIX = "_unc"
+"""Channels holding a standard uncertainty (1σ): half float in the ``mixed`` layout."""
+HALF_MAX = 65504.0
+"""Largest finite half float."""
+HALF_MIN_NORMAL = 2.0**-14
+"""Smallest normal half float (6.1e-5): below it a half keeps fewer than 11 significant bits."""
+
+BAND_BYTES = 64 << 20
+"""Bytes of pixels interleaved and handed to OpenEXR at a time when the channels are separate arrays."""
+
+BAND_ROWS_MULTIPLE = 32
+"""A band is a whole number of OpenEXR's largest line blocks (32 rows for piz, pxr24, b44 and zstd), so that no
+block is split between two writes."""
 
 
 def interleaved(arrays: list[np.ndarray]) -> np.ndarray | None:
@@ -57,6 +73,7 @@ def write_exr(
     half: bool = False,
     compression: str = "zip",
     datetime: str | None = None,
+    precision: str | None = None,
 ) -> Path:
     """Write named 2-D float channels to an OpenEXR file, atomically.
 
@@ -65,8 +82,13 @@ def write_exr(
     path : output path (``.exr``).
     channels : ``{name: (H, W) array}``; all the same shape.
     metadata : header attributes; numbers and strings as-is, other values as JSON.
-    half : store 16-bit half floats instead of float32.
-    compression : one of :data:`COMPRESSIONS`.
+    half : store 16-bit half floats instead of float32 (the same as ``precision="half"``).
+    compression : one of :data:`COMPRESSIONS`; ``zip``, ``zips`` and ``zstd`` may add a level after a colon
+        (``zstd:1``: the profile's maps, :mod:`camcal.container`).
+    precision : one of :data:`PRECISIONS` (default ``"half"`` if ``half`` else ``"float"``). ``"mixed"``: the
+        channels named ``*_unc`` are stored as half floats when every finite non-zero value of them lies in
+        half's normal range (:data:`HALF_MIN_NORMAL` to :data:`HALF_MAX`, where half keeps 11 significant bits),
+        otherwise as float32; the header attribute ``camcal:uncertainty_precision`` says which and why.
     datetime : the header's ``DateTime`` (EXR ``capDate``), ``"YYYY:MM:DD HH:MM:SS"``; by default
         OpenImageIO writes the current time, so two writes of the same data differ in that field.
     """
@@ -74,20 +96,30 @@ def write_exr(
         raise CamcalError("no channels to write", path)
     if Path(path).is_dir():
         raise CamcalError("is a folder; give the EXR a file name", path)
-    if compression not in COMPRESSIONS:
-        raise CamcalError(f"unknown EXR compression {compression!r}; choose from {', '.join(COMPRESSIONS)}")
+    name, _, level = compression.partition(":")
+    if name not in COMPRESSIONS or (level and not level.isdigit()):
+        raise CamcalError(f"unknown EXR compression {compression!r}; choose from {', '.join(COMPRESSIONS)} (zip, "
+                          "zips and zstd may name a level, e.g. zstd:1)")
+    precision = precision or ("half" if half else "float")
+    if precision not in PRECISIONS:
+        raise CamcalError(f"unknown EXR precision {precision!r}; choose from {', '.join(PRECISIONS)}")
     names = list(channels)
     arrays = [np.asarray(channels[n], dtype=np.float32) for n in names]
     shape = arrays[0].shape
     if any(a.shape != shape or a.ndim != 2 for a in arrays):
         raise CamcalError("EXR channels must be 2-D arrays of one shape", path)
     pixels = interleaved(arrays)
-    if pixels is None:
-        pixels = np.stack(arrays, axis=-1)
     h, w = shape
-    spec = oiio.ImageSpec(w, h, len(names), oiio.HALF if half else oiio.FLOAT)
+    spec = oiio.ImageSpec(w, h, len(names), oiio.HALF if precision == "half" else oiio.FLOAT)
     spec.channelnames = tuple(names)
     spec.attribute("compression", compression)
+    if precision == "mixed":
+        unc = [i for i, n in enumerate(names) if n.endswith(UNCERTAINTY_SUFFIX)]
+        fits, why = half_fits([arrays[i] for i in unc]) if unc else (False, "no uncertainty channels")
+        if fits:
+            spec.channelformats = tuple(oiio.TypeDesc(oiio.HALF if i in unc else oiio.FLOAT)
+                                        for i in range(len(names)))
+        spec.attribute("camcal:uncertainty_precision", "half" if fits else f"float ({why})")
     if datetime is not None:
         spec.attribute("DateTime", str(datetime))
     for key, value in (metadata or {}).items():
@@ -103,12 +135,55 @@ def write_exr(
         out = oiio.ImageOutput.create(str(tmp))
         if out is None or not out.open(str(tmp), spec):
             raise CamcalError(f"cannot write EXR: {oiio.geterror()}", path)
-        ok = out.write_image(pixels)
+        if pixels is not None:
+            ok = out.write_image(pixels)
+        else:  # separate maps: interleaved a band of rows at a time (no copy of the whole image in memory)
+            rows = max(BAND_ROWS_MULTIPLE, BAND_BYTES // max(1, w * len(arrays) * 4)
+                       // BAND_ROWS_MULTIPLE * BAND_ROWS_MULTIPLE)
+            ok = all(out.write_scanlines(y, min(h, y + rows), 0,
+                                         np.stack([a[y:y + rows] for a in arrays], axis=-1))
+                     for y in range(0, h, rows))
         err = out.geterror()
         out.close()
         if not ok:
             raise CamcalError(f"cannot write EXR: {err}", path)
     return Path(path)
+
+
+def half_fits(arrays: list[np.ndarray], rows: int = 64) -> tuple[bool, str]:
+    """Whether every finite non-zero value of ``arrays`` lies in half's normal range (its magnitude from
+    :data:`HALF_MIN_NORMAL` to :data:`HALF_MAX`), and if not, why (the smallest and largest magnitudes).
+
+    Zeros, NaN and infinities are stored exactly by a half. Row blocks of ``rows`` rows on
+    :func:`camcal.threads.thread_count` threads (the arrays may be strided views of one interleaved image).
+    """
+    if not arrays:
+        return True, ""
+    h = arrays[0].shape[0]
+
+    def extremes(y: int) -> tuple[float, float]:
+        lo, hi = np.inf, 0.0
+        for a in arrays:
+            m = np.abs(a[y: y + rows])
+            np.copyto(m, np.float32(np.inf), where=m == 0)  # zero is exact: not the smallest magnitude
+            lo = min(lo, float(np.fmin.reduce(m, axis=None)))  # fmin/fmax skip NaN
+            np.copyto(m, np.float32(0), where=np.isinf(m))
+            hi = max(hi, float(np.fmax.reduce(m, axis=None)))
+        return lo, hi
+
+    starts = range(0, h, rows)
+    threads = thread_count(work_items=len(starts))
+    if threads <= 1:
+        parts = [extremes(y) for y in starts]
+    else:
+        with ThreadPoolExecutor(max_workers=threads) as pool:
+            parts = list(pool.map(extremes, starts))
+    lo = min(p[0] for p in parts)
+    hi = max(p[1] for p in parts)
+    if lo >= HALF_MIN_NORMAL and hi <= HALF_MAX:
+        return True, ""
+    return False, (f"finite non-zero values from {lo:.3g} to {hi:.3g}, outside half's normal range "
+                   f"{HALF_MIN_NORMAL:.3g} to {HALF_MAX:g}")
 
 
 def read_exr(
@@ -182,7 +257,8 @@ def camcal_attributes(spec, path: str | Path) -> dict[str, object]:
 def read_exr_header(path: str | Path) -> dict[str, object]:
     """camcal's metadata of an EXR file from its header alone (no pixels are read); see :func:`camcal_attributes`.
 
-    The pixel type of the file (``"half"`` or ``"float"``) is added as ``exr_pixel_type``, its compression
+    The pixel type of the file (``"half"``, ``"float"``, or ``"mixed"`` when its channels differ) is added as
+    ``exr_pixel_type``, its compression
     (one of :data:`COMPRESSIONS`) as ``exr_compression``.
 
     Raises
@@ -196,7 +272,9 @@ def read_exr_header(path: str | Path) -> dict[str, object]:
         raise CamcalError("cannot open as EXR (damaged or not an image)", path)
     try:
         spec = inp.spec()
-        return {**camcal_attributes(spec, path), "exr_pixel_type": str(spec.format),
+        formats = {str(f) for f in spec.channelformats or []}
+        pixel_type = "mixed" if len(formats) > 1 else str(spec.format)
+        return {**camcal_attributes(spec, path), "exr_pixel_type": pixel_type,
                 "exr_compression": str(spec.getattribute("compression") or "none").lower()}
     finally:
         inp.close()

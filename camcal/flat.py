@@ -75,7 +75,7 @@ from camcal.flat_model import (  # noqa: F401 (re-exported)
     save_flat,
 )
 from camcal.frame import PLANES, Exposure, Frame
-from camcal.io import list_frames, load_folder_frame
+from camcal.io import list_frames
 from camcal.session import StageFrames, aperture_folders, folder_of, stage_files
 from camcal.stack import combine_frames
 
@@ -376,6 +376,26 @@ class FlatOptions:
                 "degree_2d": self.degree_2d, "with_prnu": self.with_prnu}
 
 
+def _medians_above(planes: np.ndarray, black: np.ndarray) -> np.ndarray:
+    """Per-plane median of ``planes − black`` (C, h, w) − (C, 1, 1), as :func:`numpy.median` gives it.
+
+    Integer planes (DN) take the two middle order statistics from a histogram (:func:`numpy.bincount`, one pass
+    instead of a selection over a float64 copy) and average them minus the black level in float64, the very
+    operations of ``np.median(planes - black)``; other planes go to :func:`numpy.median`.
+    """
+    c = planes.shape[0]
+    if planes.dtype.kind not in "ui" or planes[0].size == 0 or (planes.dtype.kind == "i" and planes.min() < 0):
+        return np.median((planes - black).reshape(c, -1), axis=1)
+    n = planes[0].size
+    out = np.empty(c)
+    for k in range(c):
+        cum = np.cumsum(np.bincount(planes[k].ravel()))
+        lo, hi = np.searchsorted(cum, [(n - 1) // 2, n // 2], side="right")  # the order statistics' values
+        bk = np.float64(black.reshape(c)[k])
+        out[k] = ((np.float64(lo) - bk) + (np.float64(hi) - bk)) / 2
+    return out
+
+
 def check_flat_frame(frame: Frame, checks: FlatChecks = FlatChecks(),  # noqa: B008
                      shape: tuple[int, int] | None = None, reference: str | None = None,
                      defects: np.ndarray | None = None) -> None:
@@ -394,7 +414,7 @@ def check_flat_frame(frame: Frame, checks: FlatChecks = FlatChecks(),  # noqa: B
         raise CamcalError(f"is {frame.shape[1]}x{frame.shape[0]} pixels but the flats{ref} are "
                           f"{shape[1]}x{shape[0]}: mismatched sizes (one camera, one mode)", path)
     white = float(frame.white_level_dn)
-    planes = frame.planes()
+    planes = frame.planes(dtype=frame.data.dtype)  # the file's own type: integer DN stay integer (exact)
     at_white = planes >= white
     if defects is not None and defects.shape == at_white.shape:
         at_white &= ~defects
@@ -403,7 +423,7 @@ def check_flat_frame(frame: Frame, checks: FlatChecks = FlatChecks(),  # noqa: B
         raise CamcalError(f"flat is saturated: {100 * clipped:.3g} % of pixels at the white level ({white:g} DN) "
                           f"outside known defects; shorten the exposure or dim the source", path)
     black = frame.black_vector()
-    med = np.median((planes - black).reshape(planes.shape[0], -1), axis=1)
+    med = _medians_above(planes, black)
     span = white - black.ravel()
     frac = med / span
     lo = int(np.argmin(frac))
@@ -499,31 +519,40 @@ def master_flat(
     dark_model = as_dark_model(dark)
     cal = Calibration.of(dark_model)
     paths, manifest = stage_files(flat_folder)
-    first = load_folder_frame(paths[0], manifest)
-    plane_shape = (first.shape[0] // 2, first.shape[1] // 2) if first.layout == "bayer" else first.shape
-    if dark_model is not None:
-        dshape = tuple(np.asarray(dark_model.bias_dn).shape)
-        if dshape[-2:] != plane_shape:
-            raise CamcalError(f"the dark model is for {dshape[-1]}x{dshape[-2]} planes but the flats have "
-                              f"{plane_shape[1]}x{plane_shape[0]} planes: mismatched sizes", paths[0])
-        dpat = getattr(dark_model, "cfa_pattern", None)
-        if dpat and first.cfa_pattern and dpat != first.cfa_pattern:
-            raise CamcalError(f"the dark model is for CFA pattern {dpat} but the flats are {first.cfa_pattern}",
-                              paths[0])
-    check_flat_frame(first, checks, defects=cal.defects)
-    ref_shape = first.shape
+    first: dict = {}  # of the first frame, which combine_frames decodes first, in this thread: shape, level
+
+    def check_first(frame: Frame) -> None:
+        plane_shape = (frame.shape[0] // 2, frame.shape[1] // 2) if frame.layout == "bayer" else frame.shape
+        if dark_model is not None:
+            dshape = tuple(np.asarray(dark_model.bias_dn).shape)
+            if dshape[-2:] != plane_shape:
+                raise CamcalError(f"the dark model is for {dshape[-1]}x{dshape[-2]} planes but the flats have "
+                                  f"{plane_shape[1]}x{plane_shape[0]} planes: mismatched sizes", frame.path)
+            dpat = getattr(dark_model, "cfa_pattern", None)
+            if dpat and frame.cfa_pattern and dpat != frame.cfa_pattern:
+                raise CamcalError(f"the dark model is for CFA pattern {dpat} but the flats are {frame.cfa_pattern}",
+                                  frame.path)
+        check_flat_frame(frame, checks, defects=cal.defects)
 
     def check(frame: Frame) -> None:
-        check_flat_frame(frame, checks, shape=ref_shape, reference=paths[0].name, defects=cal.defects)
+        if "shape" not in first:
+            check_first(frame)
+            first["shape"] = frame.shape
+            return
+        check_flat_frame(frame, checks, shape=first["shape"], reference=paths[0].name, defects=cal.defects)
 
     def corrected(frame: Frame) -> tuple[np.ndarray, np.ndarray]:
         corr = correct_frame(frame, cal)
         require_valid(corr, frame.path, what="flat")
-        med = np.array([np.median(corr.signal_dn[k][~corr.invalid[k]]) for k in range(corr.signal_dn.shape[0])])
+        # the valid values are a copy already: the median may reorder it
+        med = np.array([np.median(corr.signal_dn[k][~corr.invalid[k]], overwrite_input=True)
+                        for k in range(corr.signal_dn.shape[0])])
         return corr.masked(np.nan), med
 
     def preprocess(frame: Frame) -> np.ndarray:
         planes, med = corrected(frame)
+        if "level" not in first:  # the first frame: preprocessed first, in this thread
+            first["level"] = med
         if np.any(med <= 0):
             raise CamcalError("flat has no signal above dark in some plane", frame.path)
         planes /= med[:, None, None].astype(np.float32)
@@ -532,14 +561,14 @@ def master_flat(
     res = combine_frames(paths, method=method, sigma=sigma, preprocess=preprocess, manifest=manifest, check=check,
                          jobs=jobs, progress=progress)
     optics = flats_optics(res.exposures, folder_of(flat_folder))
-    # per-plane level in DN: recomputed from the first frame (the check guarantees all are similar)
-    level = {c: float(m) for c, m in zip(first.channel_names, corrected(first)[1], strict=True)}
+    # per-plane level in DN: that of the first frame (the check guarantees all are similar)
+    level = {c: float(m) for c, m in zip(res.channel_names, first["level"], strict=True)}
     var = None
     if getattr(res, "variance", None) is not None and res.n_frames > 1:
         var = (np.asarray(res.variance, np.float32) / np.maximum(np.asarray(res.count, np.float32), 1.0))
     return MasterFlat(
         value=np.asarray(res.value, np.float32), variance_of_mean=var, level_dn=level, n_frames=int(res.n_frames),
-        paths=tuple(Path(p) for p in res.paths), channels=tuple(res.channel_names), cfa_pattern=first.cfa_pattern,
+        paths=tuple(Path(p) for p in res.paths), channels=tuple(res.channel_names), cfa_pattern=res.cfa_pattern,
         method=str(res.method), exposure_s=tuple(e.exposure_s for e in res.exposures),
         mean_all=None if var is None or res.mean_all is None else np.asarray(res.mean_all, np.float32),
         variance_all=None if var is None or res.variance_all is None else np.asarray(res.variance_all, np.float32),

@@ -36,14 +36,19 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import io
+import itertools
 import logging
 import math
 import os
 import sys
 import threading
+from collections import deque
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from datetime import UTC, datetime
 from fractions import Fraction
 from pathlib import Path
+from typing import TypeVar
 
 import exifread
 import numpy as np
@@ -56,6 +61,9 @@ from camcal.errors import CamcalError
 from camcal.frame import PLANES, RGB, TRACKED, Exposure, Frame, pattern_from_rawpy, plane_offsets
 from camcal.limits import DEFAULT_MAX_PIXELS, check_expansion, declared_image_bytes, max_pixels  # noqa: F401
 from camcal.manifest import FRAMES_CSV, exposure_overrides, parse_utc_offset, read_manifest, session_defaults_for
+
+T = TypeVar("T")
+R = TypeVar("R")
 
 RAW_EXTENSIONS = {
     ".dng", ".cr2", ".cr3", ".crw", ".nef", ".nrw", ".arw", ".srf", ".sr2", ".orf", ".rw2", ".raf",
@@ -789,3 +797,27 @@ def iter_folder(folder: str | Path):
     files, manifest = folder_files(folder)
     for p in files:
         yield p, load_folder_frame(p, manifest)
+
+
+def read_ahead(items: Iterable[T], load: Callable[[T], R], threads: int = 1) -> Iterator[R]:
+    """``load(item)`` of each item, in order, with up to ``threads`` of the next items loading in threads meanwhile.
+
+    The caller works on one frame while the next ones decode (LibRaw and OpenImageIO release the GIL). At most
+    ``threads + 1`` results exist at once, so memory does not grow with the number of items. An error of
+    ``load`` is raised when its item's turn comes, as a plain loop would; ``threads <= 0`` is that plain loop.
+    """
+    if threads <= 0:
+        yield from map(load, items)
+        return
+    it = iter(items)
+    with ThreadPoolExecutor(max_workers=threads) as pool:
+        pending = deque(pool.submit(load, x) for x in itertools.islice(it, threads))
+        try:
+            while pending:
+                done = pending.popleft()
+                for x in itertools.islice(it, 1):
+                    pending.append(pool.submit(load, x))
+                yield done.result()
+        finally:
+            for f in pending:  # the caller stopped early (an error): do not decode what nobody will read
+                f.cancel()

@@ -55,7 +55,7 @@ from camcal.correct import Calibration, DarkFrameModel, correct_planes
 from camcal.emva import linearity_error, pair_statistics
 from camcal.errors import CamcalError, TooFewFrames
 from camcal.exposure import relative_exposure
-from camcal.io import load_folder_frame
+from camcal.io import load_folder_frame, read_ahead
 from camcal.region import Region
 from camcal.response_model import (  # noqa: F401 (re-exported)
     RESPONSE_KIND,
@@ -71,6 +71,7 @@ from camcal.response_model import (  # noqa: F401 (re-exported)
     srgb_form_toe,
 )
 from camcal.session import StageFrames, folder_of, stage_files
+from camcal.threads import thread_count
 
 SERIES_ROI_FRACTION = math.sqrt(0.10)
 """Default central fraction of the exposure series, of each side (camcal.region's convention): √0.10 ≈ 0.316,
@@ -259,10 +260,13 @@ def measure_series(
     reference_iso: float | None = None,
     reference_f_number: float | None = None,
     progress: Callable[[int, int], None] | None = None,
+    jobs: int | None = None,
 ) -> dict[str, ExposureSeries]:
     """ROI statistics of every frame of an exposure-series folder, grouped by kind.
 
-    Frames are read one at a time (memory does not grow with their number).
+    Frames are read in file order, the next ones decoding in threads while one is measured (``jobs``:
+    :func:`camcal.threads.thread_count`); at most one frame per thread plus the one measured are in memory,
+    so memory does not grow with their number.
     Without an explicit reference, the most common ISO and f-number of the
     series are used (ties: the smaller value).
 
@@ -281,8 +285,10 @@ def measure_series(
     defects = cal.defects
     pairs: list[dict] = []
     previous: tuple | None = None  # (setting, planes above dark, file name) of an unpaired RAW frame
-    for i, path in enumerate(files):
-        frame = load_folder_frame(path, manifest)
+    # the thread rule looks at the frame size: a RAW file's bytes are about two per pixel (no header read)
+    threads = thread_count(jobs, len(files), max(files[0].stat().st_size // 2, 1) if files else None)
+    frames = read_ahead(files, lambda p: load_folder_frame(p, manifest), threads if threads > 1 else 0)
+    for i, (path, frame) in enumerate(zip(files, frames, strict=True)):
         e = frame.exposure
         t, iso, n = e.require("exposure_s", path), e.require("iso", path), e.require("f_number", path)
         planes = frame.planes(np.float32)

@@ -5,6 +5,8 @@ same frame copied twice, a JPEG of another camera dropped into ``flat/``, an ove
 :func:`screen_session` decodes every frame of every stage once (threads, one frame in memory per
 thread) and gives each a :class:`Verdict`: used, or left out with its reason. The stages then fit the
 frames that are used; ``camcal calibrate`` lists the others (``provenance.left_out`` of the profile).
+Each file is also hashed (SHA-256, :func:`camcal.hashing.sha256_file`) in the thread that decoded it, while
+its bytes are in the page cache; the hash is remembered for the profile's provenance.
 
 Reasons, in the order they are judged (the first that applies is given; docs/reliability.md lists them):
 
@@ -25,6 +27,7 @@ A frame of a linearity series at or past saturation is *used*: it marks the end 
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 from collections import Counter
 from collections.abc import Callable, Mapping
@@ -33,6 +36,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from camcal.errors import CamcalError
+from camcal.hashing import sha256_file
 from camcal.io import load_frame
 from camcal.session import SessionIndex, StageFrames
 from camcal.stack import frame_digest
@@ -176,7 +180,10 @@ def screen_session(index: SessionIndex, checks: Mapping[str, StageCheck] | None 
 
     def work(item):
         s, ref = item
-        return frame_facts(ref.path, ref.overrides, checks.get(s))
+        facts = frame_facts(ref.path, ref.overrides, checks.get(s))
+        with contextlib.suppress(OSError):  # the file is in the page cache now: its provenance hash is cheap
+            sha256_file(ref.path, remember=True)
+        return facts
 
     first_pixels = None
     for _s, ref in items[:1]:  # the thread rule looks at the frame size; a header read is not worth it here

@@ -4,8 +4,8 @@ Every calibration stage (bias, dark, flat, sweep, profile) averages N frames of 
 setting per pixel and per channel plane. :func:`combine_frames` does it with each
 file decoded exactly once and memory that does not grow with N:
 
-- ``method="mean"``: running (Welford) mean and sum of squared deviations in float64,
-  one frame in memory at a time (Welford 1962; Chan, Golub & LeVeque 1983).
+- ``method="mean"``: running sums of the deviations from the first frame and of their squares in
+  float64 (the shifted-data algorithm, Chan, Golub & LeVeque 1983), one frame in memory at a time.
 - ``method="median"`` / ``"sigma_clip"``: each decoded frame is spilled to a temporary
   raw file (uint16 when the planes are integer DN, as with the default preprocessing,
   float32 otherwise); the statistics are then computed over *row bands* read back with
@@ -285,18 +285,23 @@ def _sorted_float32(x: np.ndarray, work: np.ndarray | None = None) -> np.ndarray
     per pair one ``np.minimum`` and one ``np.maximum`` over a plane, SIMD in the band's own 16-bit type), then
     are converted to float32 plane by plane: 2.5x faster than ``np.sort`` of the float32 band along axis 0 and
     5x faster than ``np.sort`` of the uint16 band at 32 frames (numpy has no vectorised 16-bit sort on AVX2),
-    with the same result (a sort is a sort). Float bands, and more than :data:`NETWORK_MAX_FRAMES` frames, use
-    :func:`numpy.sort` (its NaN ordering kept).
+    with the same result (a sort is a sort). float32 bands (preprocessed frames, NaN = masked) go through the
+    same network with ``np.fmin`` for the low side, so a NaN goes high and ends last as with :func:`numpy.sort`.
+    Other float types, and more than :data:`NETWORK_MAX_FRAMES` frames, use :func:`numpy.sort`.
     """
     n = x.shape[0]
-    if x.dtype.kind not in "ui" or n > NETWORK_MAX_FRAMES:
+    integer = x.dtype.kind in "ui"
+    if (not integer and x.dtype != np.float32) or n > NETWORK_MAX_FRAMES:
         d = x if x.dtype == np.float32 else x.astype(np.float32)
         d.sort(axis=0)
         return d
+    # float32 (a preprocessed stack, NaN = masked): np.fmin keeps the number of a (number, NaN) pair low and
+    # np.maximum sends the NaN high, so NaN ends last as with np.sort
+    low_of = np.minimum if integer else np.fmin
     planes = list(x)
     spare = np.empty_like(planes[0])
     for i, j in _sorting_network(n):
-        low = np.minimum(planes[i], planes[j], out=spare)
+        low = low_of(planes[i], planes[j], out=spare)
         spare = planes[i]
         np.maximum(spare, planes[j], out=planes[j])
         planes[i] = low
@@ -331,7 +336,8 @@ def _clipped_moments(d2: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np
     for i in (*range(i0), *range(i1, n)):
         np.greater_equal(d2[i], lo, out=keep)
         keep &= np.less_equal(d2[i], hi, out=inside)
-        np.multiply(d2[i], keep, out=row)
+        row.fill(0)
+        np.copyto(row, d2[i], where=keep)  # not d·keep: a lost NaN (a masked value) would make the sum NaN
         s1 += row
         row *= row
         s2 += row
@@ -428,10 +434,8 @@ def combine_frames(
         try:
             metas: list[_Meta | None] = [None] * n
             metas[0] = first_meta
-            acc = _Welford((c, h, w)) if method == "mean" else None
-            if acc is not None:
-                acc.add(first_planes)
-            else:
+            acc = _ShiftedSums(first_planes) if method == "mean" else None
+            if acc is None:
                 dec.spill_write(0, first_planes)
             del first_planes
             if progress:
@@ -522,26 +526,52 @@ def _run(items: list[tuple[int, str]], jobs: int, worker: Callable[[tuple[int, s
                 fut.cancel()
 
 
-class _Welford:
-    """Running mean and sum of squared deviations (Welford's algorithm), float64."""
+class _ShiftedSums:
+    """Running per-pixel mean and variance as sums of deviations from the first frame, float64.
 
-    def __init__(self, shape: tuple[int, ...]) -> None:
-        self.n = 0
-        self.mean = np.zeros(shape, np.float64)
-        self.m2 = np.zeros(shape, np.float64)
+    With d = x − x₀ (x₀ the first frame): mean = x₀ + Σd / n and variance = (Σd² − (Σd)² / n) / (n − 1), the
+    shifted-data algorithm (Chan, Golub & LeVeque 1983, "Algorithms for computing the sample variance", §4):
+    exact for integer DN (every d and d² is a whole number well inside float64's 2⁵³), and free of the
+    cancellation of plain sums for float planes, x₀ being close to the mean. Each frame is added in chunks of
+    :data:`CHUNK` values, so the two temporaries stay in the cache: a third of the memory traffic of Welford's
+    update (which needs five full-frame float64 temporaries), with the same result within float rounding.
+    """
+
+    CHUNK = 1 << 16
+
+    def __init__(self, first: np.ndarray) -> None:
+        self.shape = first.shape
+        self.shift = np.array(first).reshape(-1)  # a copy in the frame's own type (uint16 DN: 2 bytes a value)
+        self.n = 1
+        self.s1 = np.zeros(self.shift.size, np.float64)
+        self.s2 = np.zeros(self.shift.size, np.float64)
 
     def add(self, x: np.ndarray) -> None:
+        x = np.asarray(x).reshape(-1)
+        d = np.empty(min(self.CHUNK, x.size), np.float64)
+        for i in range(0, x.size, self.CHUNK):
+            j = min(x.size, i + self.CHUNK)
+            dd = d[:j - i]
+            np.subtract(x[i:j], self.shift[i:j], out=dd, dtype=np.float64)
+            self.s1[i:j] += dd
+            dd *= dd
+            self.s2[i:j] += dd
         self.n += 1
-        delta = x - self.mean
-        self.mean += delta / self.n
-        delta2 = x - self.mean
-        delta *= delta2
-        self.m2 += delta
 
     def result(self) -> tuple[np.ndarray, ...]:
-        mean = self.mean.astype(np.float32)
-        var = (self.m2 / (self.n - 1)).astype(np.float32) if self.n > 1 else np.full(mean.shape, np.nan, np.float32)
-        return mean, mean, var, np.full(mean.shape, self.n, np.int32)
+        n = self.n
+        mean = np.empty(self.shift.size, np.float32)
+        var = np.empty(self.shift.size, np.float32)
+        for i in range(0, self.shift.size, self.CHUNK):
+            j = min(self.shift.size, i + self.CHUNK)
+            s1 = self.s1[i:j]
+            mean[i:j] = self.shift[i:j] + s1 / n
+            if n > 1:
+                var[i:j] = np.maximum(self.s2[i:j] - s1 * s1 / n, 0.0) / (n - 1)
+        if n <= 1:
+            var[:] = np.nan
+        mean, var = mean.reshape(self.shape), var.reshape(self.shape)
+        return mean, mean, var, np.full(mean.shape, n, np.int32)
 
 
 def _bands(spill: Path, n: int, shape: tuple[int, int, int], dtype: np.dtype, method: str, sigma: float,
@@ -564,7 +594,7 @@ def _bands(spill: Path, n: int, shape: tuple[int, int, int], dtype: np.dtype, me
         y0, y1 = band
         if not hasattr(scratch, "raw"):
             scratch.raw = np.empty(n * c * rows * w, dtype)
-            scratch.work = np.empty(n * c * rows * w, np.float32) if dtype.kind in "ui" else None
+            scratch.work = np.empty(n * c * rows * w, np.float32) if n <= NETWORK_MAX_FRAMES else None
         buf = scratch.raw[:n * c * (y1 - y0) * w].reshape(n, c, y1 - y0, w)
         for i in range(n):
             for k in range(c):

@@ -144,3 +144,62 @@ def test_pixel_limit_refuses_before_decoding(tmp_path, camera, monkeypatch):
     monkeypatch.setenv("CAMCAL_MAX_PIXELS", "1000")
     with pytest.raises(CamcalError, match="above the limit"):
         load_frame(path)
+
+
+def test_read_ahead_keeps_order_bounds_frames_in_flight_and_raises_in_turn(tmp_path, rng):
+    """Frames come back in file order however the threads finish; never more than threads + 1 are held; a
+    damaged file raises when its turn comes (the frames before it were all delivered)."""
+    import threading
+    import time
+
+    from camcal.io import read_ahead
+
+    paths = []
+    for i in range(6):
+        mosaic = rng.integers(0, 4000, size=(32, 48)).astype(np.uint16)
+        paths.append(write_dng(tmp_path / f"f{i}.dng", mosaic, cfa_pattern="RGGB", black_level_dn=(256.0,) * 4,
+                               white_level_dn=4095, exposure_s=1 / (i + 1), f_number=4, iso=100))
+    (tmp_path / "f3.dng").write_bytes(b"II*\x00 damaged")
+    held, peak, lock = [0], [0], threading.Lock()
+
+    def load(p):
+        time.sleep(0.02 * (7 - int(p.stem[1:])))  # later files finish first
+        frame = load_frame(p)
+        with lock:
+            held[0] += 1
+            peak[0] = max(peak[0], held[0])
+        return frame
+
+    got = []
+    with pytest.raises(CamcalError, match="f3.dng"):
+        for frame in read_ahead(paths, load, threads=2):
+            got.append(frame.path.name)
+            with lock:
+                held[0] -= 1
+    assert got == ["f0.dng", "f1.dng", "f2.dng"]
+    assert peak[0] <= 3
+    assert [f.path.name for f in read_ahead(paths[:3], load_frame, threads=0)] == got
+
+
+def test_file_hash_is_remembered_until_the_file_changes(tmp_path):
+    """A remembered SHA-256 is that of the file's bytes now: the file rewritten (another size, so that its state
+    differs even within one tick of the file system's clock) is hashed again; a hash not asked to be remembered
+    is never reused, whatever the clock."""
+    import hashlib
+
+    from camcal.hashing import hash_files, sha256_file
+
+    def sha(b):
+        return hashlib.sha256(b).hexdigest()
+
+    p = tmp_path / "a.bin"
+    p.write_bytes(b"x" * 5000)
+    assert sha256_file(p, remember=True) == sha(b"x" * 5000)
+    assert sha256_file(p) == sha(b"x" * 5000)
+    p.write_bytes(b"y" * 5001)
+    assert sha256_file(p) == sha(b"y" * 5001)
+    q = tmp_path / "b.bin"
+    q.write_bytes(b"z" * 7)
+    assert sha256_file(q) == sha(b"z" * 7)
+    q.write_bytes(b"w" * 7)  # same size, maybe the same clock tick: not remembered, so read again
+    assert hash_files([p, q], threads=2) == {p: sha(b"y" * 5001), q: sha(b"w" * 7)}

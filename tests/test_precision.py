@@ -1,11 +1,12 @@
-"""``camcal apply --precision half|float`` (issue 28): the pixel type written, and half's rounding bound."""
+"""``camcal apply --precision float|half|mixed`` and ``--compression`` (issue 28): the pixel type written, half's
+rounding bound, resuming."""
 
 from __future__ import annotations
 
 import numpy as np
 import OpenImageIO as oiio
 
-from camcal.exr import read_exr
+from camcal.exr import read_exr, read_exr_header
 from camcal.reference_spectra import gaussian_line
 from camcal.synth.camera import Scene
 from tests.conftest import assert_one_line_error, run_cli
@@ -67,7 +68,8 @@ def test_compression_option_is_written_and_resumed(tmp_path, camera, profile_pat
     proc = run_cli("apply", profile_path, photo, "-o", out, "--jobs", "1")
     assert proc.returncode == 0, proc.stderr
     exr = out / "c.dng.exr"
-    assert _compression(exr) == "zip"  # the default
+    assert _compression(exr) == "none"  # the default (docs/apply.md: the measured choice)
+    assert _pixel_type(exr) == "float"
     zipped, _ = read_exr(exr)
     # another compression is other settings: the EXR is redone, not skipped
     proc = run_cli("apply", profile_path, photo, "-o", out, "--compression", "piz", "--jobs", "1")
@@ -81,3 +83,35 @@ def test_compression_option_is_written_and_resumed(tmp_path, camera, profile_pat
     assert proc.returncode == 0 and "0 written, 1 already done" in proc.stdout, proc.stdout + proc.stderr
     bad = run_cli("apply", profile_path, photo, "-o", tmp_path / "x", "--compression", "jpeg")
     assert_one_line_error(bad, "--compression")
+
+
+def test_mixed_precision_is_written_read_and_resumed(tmp_path, camera, profile_path):
+    """``--precision mixed``: R, G, B, L663 as float32 (the same values as ``float``), the 1σ channels in half when
+    they fit its normal range, else float32 with the header saying why; a rerun skips it, ``float`` redoes it."""
+    photo = tmp_path / "photos" / "m.dng"
+    photo.parent.mkdir()
+    camera.write_dng(photo, Scene.uniform(1.3 * gaussian_line(663.0, 5.0)), exposure_s=0.02, iso=100, f_number=4.0,
+                     rng=np.random.default_rng(5))
+    for prec in ("float", "mixed"):
+        proc = run_cli("apply", profile_path, photo, "-o", tmp_path / prec, "--precision", prec, "--jobs", "1")
+        assert proc.returncode == 0, proc.stderr
+    f, m = tmp_path / "float" / "m.dng.exr", tmp_path / "mixed" / "m.dng.exr"
+    cf, _ = read_exr(f)
+    cm, _ = read_exr(m)
+    head = read_exr_header(m)
+    for name in ("R", "G", "B", "L663"):
+        assert np.array_equal(cf[name], cm[name], equal_nan=True), name  # radiance stays float32, lossless
+    sigmas = [n for n in cf if n.endswith("_unc")]
+    if head["uncertainty_precision"] == "half":
+        assert head["exr_pixel_type"] == "mixed"
+        for name in sigmas:
+            ok = np.isfinite(cf[name]) & (cf[name] > 0)
+            assert np.abs(cm[name][ok] / cf[name][ok] - 1).max() <= 2.0**-11 * (1 + 1e-6), name
+    else:  # this photo's σ in W m⁻² sr⁻¹ nm⁻¹ fell outside half's normal range: kept as float32
+        assert head["exr_pixel_type"] == "float" and "normal range" in head["uncertainty_precision"]
+        for name in sigmas:
+            assert np.array_equal(cf[name], cm[name], equal_nan=True), name
+    proc = run_cli("apply", profile_path, photo, "-o", tmp_path / "mixed", "--precision", "mixed", "--jobs", "1")
+    assert proc.returncode == 0 and "0 written, 1 already done" in proc.stdout, proc.stdout + proc.stderr
+    proc = run_cli("apply", profile_path, photo, "-o", tmp_path / "mixed", "--jobs", "1")  # the default: float
+    assert proc.returncode == 0 and "1 written, 0 already done" in proc.stdout, proc.stdout + proc.stderr

@@ -73,6 +73,28 @@ def test_sigma_clip_rejects_the_cosmic_ray(stack_dir):
     assert np.all(plain.value[hit] > res.value[hit] + 500)
 
 
+def test_sigma_clip_combines_a_pixel_masked_in_some_frames_from_the_others(stack_dir):
+    """NaN marks a masked pixel (the flat stage masks saturated pixels per frame): masked in one frame, the
+    sigma-clipped value is that of the other frames; masked in every frame, it stays NaN with count 0."""
+    files, x = _cube(stack_dir[0])
+    files, x = files[:3] + files[4:], np.delete(x, 3, axis=0)  # the 8 frames without the cosmic ray
+
+    def masked(frame):
+        planes = frame.planes()
+        if frame.path.name == files[2].name:
+            planes[0, 7, 3:9] = np.nan  # masked in this frame only
+        planes[2, 4, 4] = np.nan  # masked in every frame
+        return planes
+
+    res = combine_frames(files, method="sigma_clip", preprocess=masked, jobs=1)
+    others = np.delete(x, 2, axis=0)[:, 0, 7, 3:9]  # the 7 unmasked values of those pixels
+    assert np.all(res.count[0, 7, 3:9] <= 7) and np.all(res.count[0, 7, 3:9] >= 6)
+    # the clipped mean of 7 values of ~5 DN noise: within 3 DN of their plain mean (at most one clipped value)
+    assert np.all(np.isfinite(res.value[0, 7, 3:9]))
+    assert np.all(np.abs(res.value[0, 7, 3:9] - others.mean(0)) < 3.0)
+    assert np.isnan(res.value[2, 4, 4]) and res.count[2, 4, 4] == 0
+
+
 def test_processed_frames_and_custom_preprocess(tmp_path):
     cam = SyntheticCamera(SensorParams(width=96, height=64, seed=3))
     scene = Scene.uniform(np.ones(401) * 0.02)

@@ -9,7 +9,7 @@ import typer
 from camcal.batch import BatchOptions, report_rows, run_batch
 from camcal.cli.common import console, err_console, print_json, progress
 from camcal.errors import CamcalError
-from camcal.exr import COMPRESSIONS
+from camcal.exr import COMPRESSIONS, PRECISIONS
 from camcal.region import Region
 
 
@@ -34,14 +34,15 @@ def register(app: typer.Typer) -> None:
         mask: Path | None = typer.Option(None, "--mask", help="Mask image (non-zero = in): statistics."),
         allow_other_camera: bool = typer.Option(False, "--allow-other-camera",
                                                 help="Accept photos of another camera model than the profile's."),
-        precision: str = typer.Option("float", "--precision",
-                                      help="EXR pixels: float (32-bit, default) or half (16-bit; docs/apply.md "
-                                      "says when it is enough)."),
+        precision: str = typer.Option(BatchOptions.precision, "--precision",
+                                      help="EXR pixels: float (32-bit, default), half (16-bit; docs/apply.md "
+                                      "says when it is enough) or mixed (the 1σ channels in half when their "
+                                      "values fit it)."),
         half: bool = typer.Option(False, "--half", hidden=True, help="Same as --precision half."),
-        compression: str = typer.Option("zip", "--compression",
-                                        help="EXR compression: zip (default), none, zips, piz, pxr24, b44, dwaa, "
-                                        "dwab, zstd or rle; measured in docs/apply.md (pxr24, b44 and dwaa/dwab "
-                                        "are lossy)."),
+        compression: str = typer.Option(BatchOptions.compression, "--compression",
+                                        help="EXR compression: none (default: lossless, the fastest), zip, zips, "
+                                        "piz, pxr24, b44, dwaa, dwab, zstd or rle; measured in docs/apply.md "
+                                        "(pxr24, b44 and dwaa/dwab are lossy)."),
         strict: bool = typer.Option(False, "--strict",
                                     help="Refuse photos whose f-number or focal length the flats were not measured "
                                          "at (or cannot be checked); the rest of the batch goes on."),
@@ -54,9 +55,9 @@ def register(app: typer.Typer) -> None:
 
         if roi is not None and mask is not None:
             raise CamcalError("give --roi or --mask, not both")
-        if precision not in ("half", "float"):
-            raise CamcalError(f"--precision must be half or float, got {precision!r}")
-        half = half or precision == "half"
+        if precision not in PRECISIONS:
+            raise CamcalError(f"--precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
+        precision = "half" if half else precision
         if compression not in COMPRESSIONS:
             raise CamcalError(f"--compression must be one of {', '.join(COMPRESSIONS)}, got {compression!r}")
         if jobs is not None and jobs < 1:
@@ -64,7 +65,7 @@ def register(app: typer.Typer) -> None:
         opts = BatchOptions(wavelength_nm=wavelength, estimator=estimator, filter_fwhm_nm=filter_fwhm,
                             line_fwhm_nm=line_fwhm, allow_other_camera=allow_other_camera,
                             roi=Region.parse(roi) if roi is not None else None,
-                            mask_path=None if mask is None else str(mask), half=half, compression=compression,
+                            mask_path=None if mask is None else str(mask), precision=precision, compression=compression,
                             strict=strict)
         with progress() as bar:
             task = bar.add_task("apply", total=None)
