@@ -78,7 +78,9 @@ def build(work: Path):
         for ph in photos[1:]:
             if not ph.exists():
                 shutil.copyfile(photos[0], ph)  # same content: throughput does not depend on it
-        return load_profile(prof_path), prof_path, photos
+        # written again by this code, so its maps are stored as camcal stores them now (their encoding sets how
+        # long a worker takes to load them)
+        return save_profile(load_profile(prof_path), prof_path), prof_path, photos
     small = _small_profile(work)
     p = cam.params
     k = cam.dn_per_electron(p.iso_base)
