@@ -26,14 +26,25 @@ def _pixel_type(path) -> str:
     return _spec(path)[0]
 
 
-def test_precision_half_against_float(tmp_path, camera, profile_path):
-    photo = tmp_path / "photos" / "h.dng"
-    photo.parent.mkdir()
+def _write_photo(camera, tmp_path, name: str, seed: int):
+    """A DNG of a uniform 663 nm line at the profile's reference setting, in ``tmp_path/photos``."""
+    photo = tmp_path / "photos" / name
+    photo.parent.mkdir(exist_ok=True)
     camera.write_dng(photo, Scene.uniform(1.3 * gaussian_line(663.0, 5.0)), exposure_s=0.02, iso=100, f_number=4.0,
-                     rng=np.random.default_rng(3))
-    for prec in ("float", "half"):
+                     rng=np.random.default_rng(seed))
+    return photo
+
+
+def _apply_each(tmp_path, profile_path, photo, precisions) -> None:
+    """``camcal apply`` of ``photo`` once per precision, each into ``tmp_path/<precision>``."""
+    for prec in precisions:
         proc = run_cli("apply", profile_path, photo, "-o", tmp_path / prec, "--precision", prec, "--jobs", "1")
         assert proc.returncode == 0, proc.stderr
+
+
+def test_precision_half_against_float(tmp_path, camera, profile_path):
+    photo = _write_photo(camera, tmp_path, "h.dng", 3)
+    _apply_each(tmp_path, profile_path, photo, ("float", "half"))
     f = tmp_path / "float" / "h.dng.exr"
     h = tmp_path / "half" / "h.dng.exr"
     assert _pixel_type(f) == "float" and _pixel_type(h) == "half"
@@ -60,24 +71,21 @@ def _compression(path) -> str:
 
 
 def test_compression_option_is_written_and_resumed(tmp_path, camera, profile_path):
-    photo = tmp_path / "photos" / "c.dng"
-    photo.parent.mkdir()
-    camera.write_dng(photo, Scene.uniform(1.3 * gaussian_line(663.0, 5.0)), exposure_s=0.02, iso=100, f_number=4.0,
-                     rng=np.random.default_rng(4))
+    photo = _write_photo(camera, tmp_path, "c.dng", 4)
     out = tmp_path / "out"
     proc = run_cli("apply", profile_path, photo, "-o", out, "--jobs", "1")
     assert proc.returncode == 0, proc.stderr
     exr = out / "c.dng.exr"
     assert _compression(exr) == "none"  # the default (docs/apply.md: the measured choice)
     assert _pixel_type(exr) == "float"
-    zipped, _ = read_exr(exr)
+    default, _ = read_exr(exr)
     # another compression is other settings: the EXR is redone, not skipped
     proc = run_cli("apply", profile_path, photo, "-o", out, "--compression", "piz", "--jobs", "1")
     assert proc.returncode == 0 and "1 written, 0 already done" in proc.stdout, proc.stdout + proc.stderr
     assert _compression(exr) == "piz"
     piz, _ = read_exr(exr)
-    for name in zipped:  # piz is lossless: the same values
-        assert np.array_equal(zipped[name], piz[name], equal_nan=True), name
+    for name in default:  # both lossless: the same values
+        assert np.array_equal(default[name], piz[name], equal_nan=True), name
     # the same compression again: skipped from the header
     proc = run_cli("apply", profile_path, photo, "-o", out, "--compression", "piz", "--jobs", "1")
     assert proc.returncode == 0 and "0 written, 1 already done" in proc.stdout, proc.stdout + proc.stderr
@@ -88,13 +96,8 @@ def test_compression_option_is_written_and_resumed(tmp_path, camera, profile_pat
 def test_mixed_precision_is_written_read_and_resumed(tmp_path, camera, profile_path):
     """``--precision mixed``: R, G, B, L663 as float32 (the same values as ``float``), the 1σ channels in half when
     they fit its normal range, else float32 with the header saying why; a rerun skips it, ``float`` redoes it."""
-    photo = tmp_path / "photos" / "m.dng"
-    photo.parent.mkdir()
-    camera.write_dng(photo, Scene.uniform(1.3 * gaussian_line(663.0, 5.0)), exposure_s=0.02, iso=100, f_number=4.0,
-                     rng=np.random.default_rng(5))
-    for prec in ("float", "mixed"):
-        proc = run_cli("apply", profile_path, photo, "-o", tmp_path / prec, "--precision", prec, "--jobs", "1")
-        assert proc.returncode == 0, proc.stderr
+    photo = _write_photo(camera, tmp_path, "m.dng", 5)
+    _apply_each(tmp_path, profile_path, photo, ("float", "mixed"))
     f, m = tmp_path / "float" / "m.dng.exr", tmp_path / "mixed" / "m.dng.exr"
     cf, _ = read_exr(f)
     cm, _ = read_exr(m)
