@@ -61,7 +61,6 @@ nominal values).
 from __future__ import annotations
 
 import math
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -77,7 +76,7 @@ from camcal.frame import PLANES, Frame, plane_offsets, rgb_from_planes
 from camcal.io import open_image, read_pixels
 from camcal.radiance import RadianceModel, radiance_model, smooth_spread_rel
 from camcal.region import Region
-from camcal.threads import default_threads
+from camcal.threads import default_threads, thread_map
 from camcal.units import BAND_RADIANCE
 
 BAND_UNITS = BAND_RADIANCE
@@ -325,13 +324,7 @@ BAND_ROWS = 16
 def _run_bands(work, n_rows: int, threads: int) -> None:
     """Run ``work(r0, r1)`` over bands of :data:`BAND_ROWS` rows, on ``threads`` threads (numpy releases the GIL)."""
     bands = [(r, min(r + BAND_ROWS, n_rows)) for r in range(0, n_rows, BAND_ROWS)]
-    if threads <= 1 or len(bands) < 2:
-        for b in bands:
-            work(*b)
-        return
-    with ThreadPoolExecutor(max_workers=min(threads, len(bands))) as pool:
-        for _ in pool.map(lambda b: work(*b), bands):
-            pass
+    thread_map(lambda b: work(*b), bands, threads)
 
 
 def _raw_check(frame: Frame, plan: ApplyPlan) -> None:

@@ -36,7 +36,6 @@ import hashlib
 import math
 import warnings
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -66,7 +65,7 @@ from camcal.hashing import sha256_file
 from camcal.io import exposure_from_exif
 from camcal.session import StageFrames, folder_of, stage_files
 from camcal.stack import METHODS, StackResult, combine_frames
-from camcal.threads import thread_count
+from camcal.threads import thread_count, thread_map
 
 QUANTISATION_VAR_DN2 = 1.0 / 12.0
 """Variance of rounding to integer DN (EMVA 1288 σ_q²), DN²."""
@@ -729,14 +728,7 @@ def _run_bands(one: Callable[[tuple], None], shape: tuple[int, ...], jobs: int |
     """Call ``one(index)`` for every band of ``shape`` (:func:`_band_index`), in ``jobs`` threads
     (:func:`camcal.threads.thread_count`; numpy releases the GIL in its element-wise loops)."""
     bands = _band_index(shape)
-    n = thread_count(jobs, len(bands), int(np.prod(shape)))
-    if n <= 1:
-        for idx in bands:
-            one(idx)
-        return
-    with ThreadPoolExecutor(n, thread_name_prefix="camcal-dark-fit") as pool:
-        for _ in pool.map(one, bands):  # re-raises the first error
-            pass
+    thread_map(one, bands, thread_count(jobs, len(bands), int(np.prod(shape))), "camcal-dark-fit")
 
 
 def _fit_lines(obs, white: float, *, variance: Callable[[np.ndarray, tuple], np.ndarray] | None = None,
@@ -873,11 +865,7 @@ def _max_median_mean(x: np.ndarray) -> float:
 
 def _run_planes(one: Callable[[int], object], c: int, jobs: int | None, plane_pixels: int) -> list:
     """``[one(k) for k in range(c)]`` in ``jobs`` threads (:func:`camcal.threads.thread_count`), in plane order."""
-    n = thread_count(jobs, c, plane_pixels)
-    if n <= 1:
-        return [one(k) for k in range(c)]
-    with ThreadPoolExecutor(n, thread_name_prefix="camcal-dark-plane") as pool:
-        return list(pool.map(one, range(c)))
+    return thread_map(one, range(c), thread_count(jobs, c, plane_pixels), "camcal-dark-plane")
 
 
 def _channel_summary(b, b_var, beta, beta_var, var_t, defects, stacks, have_bias: bool, gain,

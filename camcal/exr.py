@@ -9,7 +9,6 @@ under ``camcal:json:<name>``. Writes are atomic.
 from __future__ import annotations
 
 import json
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -25,7 +24,7 @@ from camcal.limits import (
     max_exr_samples,
     max_pixels,
 )
-from camcal.threads import thread_count
+from camcal.threads import thread_count, thread_map
 
 COMPRESSIONS = ("none", "zip", "zips", "piz", "pxr24", "b44", "dwaa", "dwab", "zstd", "rle")
 PRECISIONS = ("float", "half", "mixed")
@@ -172,12 +171,7 @@ def half_fits(arrays: list[np.ndarray], rows: int = 64) -> tuple[bool, str]:
         return lo, hi
 
     starts = range(0, h, rows)
-    threads = thread_count(work_items=len(starts))
-    if threads <= 1:
-        parts = [extremes(y) for y in starts]
-    else:
-        with ThreadPoolExecutor(max_workers=threads) as pool:
-            parts = list(pool.map(extremes, starts))
+    parts = thread_map(extremes, starts, thread_count(work_items=len(starts)))
     lo = min(p[0] for p in parts)
     hi = max(p[1] for p in parts)
     if lo >= HALF_MIN_NORMAL and hi <= HALF_MAX:
@@ -315,12 +309,5 @@ def _deinterleave(data: np.ndarray, index: list[int], rows: int = 8) -> np.ndarr
     def work(y: int) -> None:
         out[:, y: y + rows] = np.moveaxis(data[y: y + rows, :, sel], -1, 0)
 
-    threads = thread_count(work_items=-(-h // rows))
-    if threads <= 1:
-        for y in range(0, h, rows):
-            work(y)
-    else:
-        with ThreadPoolExecutor(max_workers=threads) as pool:
-            for _ in pool.map(work, range(0, h, rows)):
-                pass
+    thread_map(work, range(0, h, rows), thread_count(work_items=-(-h // rows)))
     return out

@@ -17,8 +17,9 @@ import os
 import threading
 from collections import OrderedDict
 from collections.abc import Iterable
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+
+from camcal.threads import thread_map
 
 BLOCK_BYTES = 1 << 20
 """Bytes read at a time."""
@@ -62,7 +63,4 @@ def sha256_file(path: str | Path, *, remember: bool = False) -> str:
 def hash_files(paths: Iterable[str | Path], threads: int = 1) -> dict[Path, str]:
     """:func:`sha256_file` of each of ``paths`` (``threads`` at a time); ``{path: hex digest}``."""
     paths = [Path(p) for p in paths]
-    if threads <= 1 or len(paths) < 2:
-        return {p: sha256_file(p) for p in paths}
-    with ThreadPoolExecutor(max_workers=threads) as pool:
-        return dict(zip(paths, pool.map(sha256_file, paths), strict=True))
+    return dict(zip(paths, thread_map(sha256_file, paths, threads), strict=True))

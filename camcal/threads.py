@@ -10,8 +10,14 @@ inside one process; a batch of photos divides the cores among its worker process
 from __future__ import annotations
 
 import os
+from collections.abc import Callable, Iterable
+from concurrent.futures import ThreadPoolExecutor
+from typing import TypeVar
 
 from camcal.errors import CamcalError
+
+T = TypeVar("T")
+R = TypeVar("R")
 
 MAX_DEFAULT_THREADS = 4
 """Threads used by default, at most."""
@@ -64,3 +70,15 @@ def thread_count(requested: int | None = None, work_items: int | None = None,
     if work_items is not None:
         n = min(n, max(1, int(work_items)))
     return n
+
+
+def thread_map(fn: Callable[[T], R], items: Iterable[T], threads: int, name: str = "camcal") -> list[R]:
+    """``[fn(x) for x in items]``, in order, on up to ``threads`` threads (a plain loop for one thread or item).
+
+    The first error of ``fn`` is raised, as the loop would raise it. numpy, LibRaw, OpenImageIO and hashlib
+    release the GIL, so bands of an array, planes or files share the cores this way."""
+    items = list(items)
+    if threads <= 1 or len(items) < 2:
+        return [fn(x) for x in items]
+    with ThreadPoolExecutor(max_workers=min(threads, len(items)), thread_name_prefix=name) as pool:
+        return list(pool.map(fn, items))
