@@ -12,7 +12,7 @@ from scipy.optimize import brentq, minimize
 from scipy.special import eval_legendre
 from scipy.stats import norm
 
-from camcal.correct import Calibration, correct_planes
+from camcal.correct import Calibration, correct_planes, system_gain_dn_per_e
 from camcal.dark_model import DarkModel
 from camcal.errors import CamcalError
 from camcal.flat import fit_2d_plane, fit_radial_plane
@@ -1068,3 +1068,55 @@ def test_a_band_model_without_a_sensitivity_uncertainty_has_no_sensitivity_term(
     model = BandModel(wl, np.exp(-0.5 * ((wl - 650.0) / 20.0) ** 2), water_absorption_per_m=0.0)
     terms = uncertainty_terms(model, 0.3, np.array([5.0, 50.0]), [Uncertain("depth", 0.3, 0.01, "m")])
     assert set(terms) == {"depth"} and np.all(terms["depth"] > 0)
+
+
+def test_measured_sky_csv_limits_of_what_it_accepts(tmp_path):
+    """Accepted: an indented '#' comment, wavelength steps of 0.5 nm, zero and sub-unit irradiances (a zero
+    direct beam, one zero diffuse value). Refused: a repeated wavelength, a negative diffuse value, a file of
+    comments only (no header)."""
+    p = tmp_path / "sky.csv"
+    p.write_text("wavelength_nm,direct_horizontal,diffuse_horizontal\n   # indented comment\n"
+                 "500.0,0.0,0.0\n500.5,0.5,0.4\n501.0,0.9,0.8\n")
+    sky = read_sky_csv(p, 20.0)
+    np.testing.assert_array_equal(sky.wavelengths_nm, [500.0, 500.5, 501.0])
+    np.testing.assert_array_equal(sky.direct_horizontal, [0.0, 0.5, 0.9])
+    np.testing.assert_array_equal(sky.diffuse_horizontal, [0.0, 0.4, 0.8])
+    head = "wavelength_nm,direct_horizontal,diffuse_horizontal\n"
+    for phrase, text in (("must increase", head + "500,1,1\n500,2,1\n600,2,1\n"),
+                         ("be >= 0", head + "500,1,-0.1\n600,2,1\n"),
+                         ("needs columns", "# nothing but a comment\n")):
+        p.write_text(text)
+        with pytest.raises(CamcalError, match=phrase):
+            read_sky_csv(p, 20.0)
+
+
+def test_system_gain_of_third_party_dark_models():
+    """K per plane from a dark model's summary ('gain_dn_per_e_from_dark'), in the model's own plane
+    order (R, G, B here; R, G1, G2, B for a model that does not say); a plane whose gain is unknown (None, or
+    missing) gets 0 (no shot-noise term); a model without read noise, or without a summary, gives None."""
+    class Linear:
+        read_noise_dn = 2.0
+        plane_names = ("R", "G", "B")
+
+        def summary(self):
+            return {"gain_dn_per_e_from_dark": {"R": 0.5, "G": None}}
+
+    k = system_gain_dn_per_e(Linear())
+    assert k.dtype == np.float32 and k.shape == (3, 1, 1)
+    np.testing.assert_array_equal(k[:, 0, 0], [0.5, 0.0, 0.0])
+
+    class NoSummary:
+        read_noise_dn = 2.0
+
+    class NoReadNoise(Linear):
+        read_noise_dn = None
+
+    assert system_gain_dn_per_e(NoSummary()) is None and system_gain_dn_per_e(NoReadNoise()) is None
+
+    class NoPlaneNames:  # a Bayer model that does not name its planes: R, G1, G2, B
+        read_noise_dn = 2.0
+
+        def summary(self):
+            return {"gain_dn_per_e_from_dark": {"G2": 0.3}}
+
+    np.testing.assert_array_equal(system_gain_dn_per_e(NoPlaneNames())[:, 0, 0], np.float32([0.0, 0.0, 0.3, 0.0]))
