@@ -40,7 +40,7 @@ from camcal.io import load_frame
 from camcal.manifest import SESSION_DEFAULTS, session_camera_facts
 from camcal.profile import CalibrationProfile, CameraIdentity, Provenance
 from camcal.response import fit_series_set, measure_series
-from camcal.screen import Screening, StageCheck, Verdict, screen_session
+from camcal.screen import Screening, StageCheck, StageJudge, Verdict, screen_session
 from camcal.session import STAGES, SessionIndex, aperture_groups, index_session, present_stages
 from camcal.spectral import (
     SweepOptions,
@@ -217,6 +217,16 @@ def _flat_mask(master, dark):
     return mask
 
 
+def _judged(index: SessionIndex, stage: str, judge: StageJudge, record: _Record) -> SessionIndex:
+    """Record the verdicts ``judge`` gave while its stage decoded its frames, and take the frames it left out
+    out of ``index``."""
+    record.screened(judge.left_out())
+    out = {p for p, r in judge.reasons.items() if r is not None}
+    frames = index.frames[stage]
+    kept = replace(frames, frames=tuple(r for r in frames.frames if r.path not in out))
+    return replace(index, frames={**index.frames, stage: kept})
+
+
 def stage_checks(options: CalibrateOptions | None = None) -> dict[str, StageCheck]:
     """Each stage's own check of one frame, run when the session is screened (:func:`camcal.screen.screen_session`):
     dark and bias frames RAW and not saturated; flats RAW, well exposed and not saturated beyond use
@@ -247,12 +257,22 @@ def _sweep_check(index: SessionIndex) -> StageCheck | None:
 
 @dataclass
 class _Record:
-    """What a calibration left out, as it goes (the profile's provenance.left_out and not_calibrated)."""
+    """What a calibration left out, as it goes (the profile's provenance.left_out and not_calibrated).
+
+    ``left_out`` lists first the verdicts of the frames (:mod:`camcal.screen`: unreadable, copies, another
+    camera, the stage checks), in stage and file order, whether the screening or the stage itself judged them
+    (:meth:`screened`), then what the stages left out from what they measured (a dark alone at its exposure
+    time, a sweep frame saturated or without light).
+    """
 
     strict: bool
     root: Path
     left_out: list[Verdict] = field(default_factory=list)
     not_calibrated: list[dict] = field(default_factory=list)
+    n_screened: int = 0
+    """How many of ``left_out`` are frame verdicts (they come first)."""
+    order: Callable[[Verdict], tuple] | None = None
+    """Sort key of a frame verdict: (stage, place in the stage's file order)."""
 
     def leave_out(self, verdicts: list[Verdict]) -> None:
         if self.strict and verdicts:
@@ -260,6 +280,16 @@ class _Record:
             raise CamcalError(f"{v.reason} (--strict: a frame that cannot be used refuses the session; without "
                               "--strict it is left out and listed)", self.root / v.stage / v.file)
         self.left_out.extend(verdicts)
+
+    def screened(self, verdicts: list[Verdict]) -> None:
+        """Add frame verdicts among the others, in stage and file order (a stage judging its own frames)."""
+        self.leave_out(verdicts)
+        del self.left_out[len(self.left_out) - len(verdicts):]
+        block = self.left_out[:self.n_screened] + list(verdicts)
+        if self.order is not None:
+            block.sort(key=self.order)
+        self.left_out[:self.n_screened] = block
+        self.n_screened = len(block)
 
     def skip(self, stage: str, exc: TooFewFrames) -> None:
         """Record that ``stage`` is not calibrated (too few usable frames); strict: raise."""
@@ -334,8 +364,11 @@ def calibrate_session(
     """Calibrate every stage present in ``session``; returns the profile and notes (skipped stages...).
 
     The session is read once (:func:`camcal.session.index_session`: stage folders, manifests, session
-    defaults) and screened (:func:`camcal.screen.screen_session`: every frame decoded once and given a verdict);
-    every stage receives its usable frames from that index. Frames left out are listed in the profile's
+    defaults) and screened (:func:`camcal.screen.screen_session`): the frames of the linearity series and the
+    sweep's rows are judged by their stage as it decodes them (:class:`camcal.screen.StageJudge`), the others
+    (bias, dark, flat, the sweep's JPEG twins) decoded and judged first; every frame is decoded once for its
+    verdict and its stage, the linearity and sweep frames once in all (``options.strict``: every frame
+    judged first). Every stage receives its usable frames from that index. Frames left out are listed in the profile's
     ``provenance.left_out``; a stage with too few usable frames is not calibrated and listed in
     ``provenance.not_calibrated`` (the other stages are). With ``options.strict`` either refuses the session.
     ``progress(stage, done, total)`` is called as frames are processed.
@@ -351,9 +384,21 @@ def calibrate_session(
     sweep_check = _sweep_check(index)
     if sweep_check is not None:
         checks["sweep"] = sweep_check
-    screening = screen_session(index, checks, jobs=opts.jobs, progress=cb("check frames"))
-    record = _Record(opts.strict, session)
+    # the linearity series and the sweep's rows judge their own frames as they decode them (each decoded once);
+    # --strict refuses at the first frame that cannot be used: every frame is judged first
+    defer: dict[str, set[str]] = {}
+    if not opts.strict:
+        if "linearity" in index.stages:
+            defer["linearity"] = {r.path.name for r in index.frames["linearity"].frames}
+        if "sweep" in index.stages and index.sweep_manifest is not None:
+            defer["sweep"] = set(index.sweep_manifest)
+    screening = screen_session(index, checks, jobs=opts.jobs, progress=cb("check frames"), defer=defer)
+    stage_rank = {s: i for i, s in enumerate(index.stages)}
+    file_rank = {s: {p.name: i for p, i in screening.order.get(s, {}).items()} for s in index.stages}
+    record = _Record(opts.strict, session, order=lambda v: (stage_rank[v.stage], file_rank[v.stage].get(v.file, 0)))
     record.leave_out(screening.left_out())
+    record.n_screened = len(record.left_out)
+    judges = {s: screening.judge(s, checks.get(s)) for s in screening.deferred}
     index = replace(index, frames=dict(screening.kept))
     camera = identity_from_screening(index, screening)
     stages = [s for s in index.stages if index.frames[s].frames]
@@ -401,14 +446,29 @@ def calibrate_session(
                              "profile has no defect map")
     if "linearity" in stages:
         def fit_linearity():
-            nonlocal series, pairs
-            series = measure_series(index.frames["linearity"], dark=dark, reference_iso=ref_iso,
-                                    reference_f_number=ref_n, progress=cb("linearity"), jobs=opts.jobs)
+            nonlocal series, pairs, index
+            judge = judges.get("linearity")
+            try:
+                series = measure_series(index.frames["linearity"], dark=dark, reference_iso=ref_iso,
+                                        reference_f_number=ref_n, progress=cb("linearity"), jobs=opts.jobs,
+                                        judge=judge)
+            finally:
+                if judge is not None:
+                    index = _judged(index, "linearity", judge, record)
+            if judge is not None and not index.frames["linearity"].frames:
+                raise TooFewFrames("linearity", "frames", 1, 0, f"all {len(judge.left_out())} left out",
+                                   session / "linearity")
             pairs = series["raw"].pairs if "raw" in series else None
             return fit_series_set(series)
 
         response = record.attempt("linearity", fit_linearity)
     if "sweep" in stages:
+        judge = judges.get("sweep")
+        if judge is not None and judge.majority.raw_shape is None:
+            # no RAW frame to take the sweep's geometry from: its rows are judged before they are measured
+            deferred = set(screening.deferred["sweep"])
+            judge.judge_all([r for r in index.frames["sweep"].frames if r.path.name in deferred])
+            index, judge = _judged(index, "sweep", judge, record), None
         sweep = index.frames["sweep"]
         kept_names = {p.name for p in sweep.paths}
         rows = sweep_rows(sweep.folder, index.sweep_manifest) if index.sweep_manifest is not None else None
@@ -428,10 +488,24 @@ def calibrate_session(
                              f"{sweep_flat.optics.label()} vignetting model")
 
         def fit_sweep():
+            nonlocal index
             if not rows:
                 raise TooFewFrames("sweep", "frames listed in sweep.csv", 1, 0)
-            measured = measure_sweep_settings(sweep.folder, rows, dark=dark, flat=sweep_flat, options=sweep_opts,
-                                              jobs=opts.jobs, progress=cb("sweep"))
+            try:
+                measured = measure_sweep_settings(sweep.folder, rows, dark=dark, flat=sweep_flat,
+                                                  options=sweep_opts, jobs=opts.jobs, progress=cb("sweep"),
+                                                  judge=judge)
+            except TooFewFrames:
+                if judge is None or any(r is None for r in judge.reasons.values()):
+                    raise
+                # every row left out as it was decoded: as when the screening leaves them out
+                if all(r.path in judge.reasons for r in sweep.frames):
+                    n = len(screening.left_out("sweep")) + len(judge.left_out())
+                    raise TooFewFrames("sweep", "frames", 1, 0, f"all {n} left out", session / "sweep") from None
+                raise TooFewFrames("sweep", "frames listed in sweep.csv", 1, 0) from None
+            finally:
+                if judge is not None:
+                    index = _judged(index, "sweep", judge, record)
             record.leave_out([Verdict("sweep", name, reason) for name, reason in measured.left_out])
             require_wavelengths(measured, listed=listed)
             return sensitivity_from_settings(measured, sweep_opts)
@@ -440,8 +514,8 @@ def calibrate_session(
         if spectral is not None and flat is None:
             notes.append("sweep without a flat model: c(λ) refers to the region of interest, not the optical axis")
         if response is not None and "processed" in response:
-            if twin_pairs(sweep):  # the sweep's colours; the series adds a broadband one
-                cm = fit_colour_matrix([sweep, index.frames["linearity"]], response["processed"])
+            if twin_pairs(index.frames["sweep"]):  # the sweep's colours; the series adds a broadband one
+                cm = fit_colour_matrix([index.frames["sweep"], index.frames["linearity"]], response["processed"])
                 response = {**response, "processed": replace(response["processed"], colour_matrix=cm)}
             else:
                 notes.append("JPEG response without a colour matrix (the sweep has no JPEG twins): JPEG radiance "
@@ -458,6 +532,8 @@ def calibrate_session(
                            dark_stacks=dark_stacks, dark=dark, master_flat=master, flat_prnu=prnu, pairs=pairs,
                            spectral=spectral, pixel_pitch_um=session_camera_facts(session / stages[0]).get(
                                "pixel_pitch_um"))
+    if judges:  # the identity from the frames used, as decoded (a stage's frames were known by their header)
+        camera = identity_from_screening(index, replace(screening, kept=dict(index.frames)))
     provenance = Provenance(
         camcal_version=__version__,
         created_utc=datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
