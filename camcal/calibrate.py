@@ -220,7 +220,9 @@ def _flat_mask(master, dark):
 def _judged(index: SessionIndex, stage: str, judge: StageJudge, record: _Record) -> SessionIndex:
     """Record the verdicts ``judge`` gave while its stage decoded its frames, and take the frames it left out
     out of ``index``."""
-    record.screened(judge.left_out())
+    new = [v for v in judge.left_out() if v.file not in judge.reported]
+    judge.reported.update(v.file for v in new)
+    record.screened(new)
     out = {p for p, r in judge.reasons.items() if r is not None}
     frames = index.frames[stage]
     kept = replace(frames, frames=tuple(r for r in frames.frames if r.path not in out))
@@ -291,18 +293,32 @@ class _Record:
         self.left_out[:self.n_screened] = block
         self.n_screened = len(block)
 
-    def skip(self, stage: str, exc: TooFewFrames) -> None:
-        """Record that ``stage`` is not calibrated (too few usable frames); strict: raise."""
+    n_all_left_out: int = 0
+    """How many of ``not_calibrated`` (the first ones, in stage order) are stages whose every frame was left out."""
+
+    def skip(self, stage: str, exc: TooFewFrames, left_out: bool = False) -> None:
+        """Record that ``stage`` is not calibrated (too few usable frames); strict: raise. ``left_out``: ``exc``
+        may say every frame of the stage was left out (``all N left out``): such a stage goes first, in stage
+        order, whether the screening or the stage itself found its frames unusable."""
         if self.strict:
             raise exc
-        self.not_calibrated.append({"stage": stage, "reason": exc.message})
+        row = {"stage": stage, "reason": exc.message}
+        if not (left_out and exc.remaining == 0 and exc.message.endswith(" left out)")):
+            self.not_calibrated.append(row)
+            return
+        rank = STAGES.index(stage) if stage in STAGES else len(STAGES)
+        head = self.not_calibrated[:self.n_all_left_out]
+        at = next((i for i, r in enumerate(head) if (STAGES.index(r["stage"]) if r["stage"] in STAGES
+                                                      else len(STAGES)) > rank), len(head))
+        self.not_calibrated.insert(at, row)
+        self.n_all_left_out += 1
 
-    def attempt(self, stage: str, fit: Callable[[], object]):
+    def attempt(self, stage: str, fit: Callable[[], object], left_out: bool = False):
         """``fit()``; None when the stage has too few usable frames (recorded), unless strict."""
         try:
             return fit()
         except TooFewFrames as exc:
-            self.skip(stage, exc)
+            self.skip(stage, exc, left_out)
             return None
 
 
@@ -388,8 +404,9 @@ def calibrate_session(
     # --strict refuses at the first frame that cannot be used: every frame is judged first
     defer: dict[str, set[str]] = {}
     if not opts.strict:
-        if "linearity" in index.stages:
-            defer["linearity"] = {r.path.name for r in index.frames["linearity"].frames}
+        for s in ("bias", "dark", "linearity"):
+            if s in index.stages:
+                defer[s] = {r.path.name for r in index.frames[s].frames}
         if "sweep" in index.stages and index.sweep_manifest is not None:
             defer["sweep"] = set(index.sweep_manifest)
     screening = screen_session(index, checks, jobs=opts.jobs, progress=cb("check frames"), defer=defer)
@@ -405,31 +422,47 @@ def calibrate_session(
     for s in index.stages:
         if s not in stages:
             record.skip(s, TooFewFrames(s, "frames", 1, 0, f"all {len(screening.left_out(s))} left out",
-                                        session / s))
+                                        session / s), left_out=True)
     ref_iso, ref_n, notes = _reference(index, opts, required=any(s in stages for s in NORMALISING_STAGES))
 
     dark = flat = spectral = None
     response = None
     dark_stacks = master = prnu = pairs = series = None
     bias_frames = index.stage("bias") if "bias" in stages else None
+    dark_judge, bias_judge = judges.get("dark"), judges.get("bias")
     if "dark" in stages:
         dark_opts = DarkOptions(method=opts.dark_method)
 
         def fit_darks():
-            nonlocal dark_stacks
-            stacks = stack_darks(index.frames["dark"], bias_frames, dark_opts, jobs=opts.jobs, progress=cb("dark"))
+            nonlocal dark_stacks, index
+            try:
+                stacks = stack_darks(index.frames["dark"], bias_frames, dark_opts, jobs=opts.jobs,
+                                     progress=cb("dark"), judge=dark_judge, bias_judge=bias_judge)
+            finally:
+                for s, j in (("bias", bias_judge), ("dark", dark_judge)):
+                    if j is not None and s in index.frames:
+                        index = _judged(index, s, j, record)
             record.leave_out([Verdict("dark", name, reason) for name, reason in stacks.left_out])
             dark_stacks = stacks
             return fit_dark_stacks(stacks, dark_opts, jobs=opts.jobs)
 
-        dark = record.attempt("dark", fit_darks)
+        dark = record.attempt("dark", fit_darks, left_out=dark_judge is not None)
+        if bias_frames is not None and bias_judge is not None and not index.frames["bias"].frames:
+            record.skip("bias", TooFewFrames("bias", "frames", 1, 0, f"all {len(bias_judge.left_out())} left out",
+                                             session / "bias"), left_out=True)
+            bias_frames = None  # every bias frame left out as the dark stage decoded them
     if dark is None and bias_frames is not None:
         def fit_bias():
-            nonlocal dark_stacks
-            dark_stacks = stack_darks(None, bias_frames, jobs=opts.jobs, progress=cb("bias"))
+            nonlocal dark_stacks, index
+            try:
+                dark_stacks = stack_darks(None, index.stage("bias"), jobs=opts.jobs, progress=cb("bias"),
+                                          bias_judge=bias_judge)
+            finally:
+                if bias_judge is not None:
+                    index = _judged(index, "bias", bias_judge, record)
             return fit_dark_stacks(dark_stacks, jobs=opts.jobs)
 
-        dark = record.attempt("bias", fit_bias)
+        dark = record.attempt("bias", fit_bias, left_out=bias_judge is not None)
         if dark is not None:
             notes.append("bias/ without dark/: bias, read noise and noisy pixels calibrated; dark current unknown "
                          "(apply subtracts the bias only; add dark frames at two exposure times to measure it)")
@@ -461,7 +494,7 @@ def calibrate_session(
             pairs = series["raw"].pairs if "raw" in series else None
             return fit_series_set(series)
 
-        response = record.attempt("linearity", fit_linearity)
+        response = record.attempt("linearity", fit_linearity, left_out=True)
     if "sweep" in stages:
         judge = judges.get("sweep")
         if judge is not None and judge.majority.raw_shape is None:
@@ -510,7 +543,7 @@ def calibrate_session(
             require_wavelengths(measured, listed=listed)
             return sensitivity_from_settings(measured, sweep_opts)
 
-        spectral = record.attempt("sweep", fit_sweep)
+        spectral = record.attempt("sweep", fit_sweep, left_out=True)
         if spectral is not None and flat is None:
             notes.append("sweep without a flat model: c(λ) refers to the region of interest, not the optical axis")
         if response is not None and "processed" in response:

@@ -265,6 +265,8 @@ class StageJudge:
         self.facts = facts if facts is not None else {}
         self.reasons: dict[Path, str | None] = {}
         self.retracted: list[Path] = []
+        self.reported: set[str] = set()
+        """Names of the frames whose verdict the caller has recorded already."""
 
     def load(self, path: Path, loader: Callable[[Path], object]) -> tuple[object | None, FrameFacts]:
         """``(frame, facts)``: the frame ``loader(path)`` decodes (None when it cannot) and what judging needs."""
