@@ -8,11 +8,13 @@ from __future__ import annotations
 
 import json
 import shutil
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+import camcal.io as camcal_io
 from camcal.calibrate import calibrate_session, stage_checks
 from camcal.errors import CamcalError
 from camcal.profile import load_profile
@@ -20,6 +22,7 @@ from camcal.response import MIN_EXPOSURES, fit_series, measure_series, saturatio
 from camcal.screen import screen_session
 from camcal.session import index_session
 from camcal.spectral import MIN_WAVELENGTHS
+from camcal.stack import combine_frames
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
 from camcal.synth.dng import write_dng
 from camcal.synth.messy import plant_problems
@@ -310,3 +313,68 @@ def test_calibrate_refuses_when_no_stage_can_be_calibrated(tmp_path, tiny_camera
     shutil.copyfile(s / "bias" / "bias_000.dng", s / "bias" / "bias_001.dng")
     with pytest.raises(CamcalError, match="no stage could be calibrated.*2 usable frames.*1 remain"):
         calibrate_session(s)
+
+
+# ---- each frame decoded once (issue 28) ------------------------------------------------------------------------
+
+
+def test_bias_dark_linearity_and_sweep_frames_are_decoded_once(tiny, monkeypatch):
+    """The stages that judge their own frames decode each of them once in a whole calibration: the screening
+    reads only their headers. Counted at the RAW decoder, which every stage reaches through camcal.io.load_frame."""
+    counts: Counter = Counter()
+    real = camcal_io._load_raw
+
+    def counting(path):
+        counts[Path(path).relative_to(tiny).as_posix()] += 1
+        return real(path)
+
+    monkeypatch.setattr(camcal_io, "_load_raw", counting)
+    profile, _ = calibrate_session(tiny)
+    assert profile.dark is not None and profile.response and profile.spectral is not None
+    for stage in ("bias", "dark", "linearity", "sweep"):
+        names = sorted(p.name for p in (tiny / stage).glob("*.dng"))
+        assert names and {n: counts[f"{stage}/{n}"] for n in names} == dict.fromkeys(names, 1), stage
+
+
+def test_messy_bias_judged_while_stacked_gives_the_clean_stack(tiny):
+    """A copy and a truncated file among the bias frames, judged as they are stacked (2 decode threads): the
+    same verdicts as the screening gives, and exactly the stack of the clean frames alone (mean and
+    sigma-clipped, kept planes included)."""
+    clean = sorted((tiny / "bias").glob("bias_*.dng"))
+    shutil.copyfile(clean[0], tiny / "bias" / "bias_000_copy.dng")
+    (tiny / "bias" / "bias_000_cut.dng").write_bytes(clean[1].read_bytes()[:5000])
+    index = index_session(tiny)
+    names = {r.path.name for r in index.frames["bias"].frames}
+    expected = _left_out(tiny)
+    assert set(expected) == {"bias/bias_000_copy.dng", "bias/bias_000_cut.dng"}
+    for method in ("mean", "sigma_clip"):
+        screening = screen_session(index, stage_checks(), defer={"bias": names})
+        assert screening.left_out() == []  # nothing judged before the stage
+        judge = screening.judge("bias", stage_checks()["bias"])
+        got = combine_frames(index.frames["bias"].paths, method=method, judge=judge, jobs=2, keep_frames=2)
+        want = combine_frames(clean, method=method, jobs=1, keep_frames=2)
+        assert {f"bias/{v.file}": v.reason for v in judge.left_out()} == expected
+        assert got.paths == want.paths and got.n_frames == len(clean)
+        for name in ("value", "mean", "variance", "count", "variance_all", "mean_all"):
+            assert np.array_equal(getattr(got, name), getattr(want, name), equal_nan=True), (method, name)
+        assert all(np.array_equal(a, b) for a, b in zip(got.kept_planes, want.kept_planes, strict=True))
+
+
+def test_a_copy_read_before_its_original_passes_its_place_to_the_original(tiny):
+    """Frames given out of file order (the copy before the frame it copies): the copy is combined first, then
+    found to be the copy when the original comes; the original takes its place, and the stack is that of the
+    frames without the copy."""
+    b = sorted((tiny / "bias").glob("bias_*.dng"))
+    copy = tiny / "bias" / "bias_000_copy.dng"
+    shutil.copyfile(b[0], copy)
+    index = index_session(tiny)
+    names = {r.path.name for r in index.frames["bias"].frames}
+    for method in ("mean", "sigma_clip"):
+        judge = screen_session(index, stage_checks(), defer={"bias": names}).judge("bias", stage_checks()["bias"])
+        got = combine_frames([b[1], copy, b[0], b[2]], method=method, judge=judge, jobs=1, keep_frames=3)
+        want = combine_frames([b[1], b[0], b[2]], method=method, jobs=1, keep_frames=3)
+        assert [v.file for v in judge.left_out()] == [copy.name] and judge.retracted == [copy]
+        assert got.paths == want.paths
+        for name in ("value", "mean", "variance", "count"):
+            assert np.array_equal(getattr(got, name), getattr(want, name), equal_nan=True), (method, name)
+        assert all(np.array_equal(x, y) for x, y in zip(got.kept_planes, want.kept_planes, strict=True))
