@@ -1,10 +1,11 @@
 """``camcal calibrate``: run every stage whose folder exists, in order, into one profile.
 
 Order: dark (with bias/ when present) → flat (dark-corrected) → linearity
-(dark-corrected) → sweep (dark- and flat-corrected). Every input file is
-hashed (SHA-256) into the profile's provenance: each frame once, by the screening
-beside its decode (the file is then in the page cache), remembered for the stages
-that compare files by content and for the provenance.
+(dark-corrected) → sweep (dark- and flat-corrected). Each frame is decoded once for its verdict
+and its fit (:mod:`camcal.screen`): bias, dark, linearity frames and the sweep's rows are judged by their
+stage as it decodes them, the flats and the sweep's JPEG twins by the screening first. Every input file is
+hashed (SHA-256) into the profile's provenance: each frame once, beside its decode (the file is then in the
+page cache), remembered for the stages that compare files by content and for the provenance.
 """
 
 from __future__ import annotations
@@ -92,8 +93,8 @@ class CalibrateOptions:
 def _inputs(index: SessionIndex, jobs: int | None = None) -> list[dict]:
     """Provenance rows (stage, file, SHA-256, bytes) of every input file the session index found.
 
-    The frames were hashed by the screening beside their decode (:func:`camcal.screen.screen_session`); their
-    remembered hashes are used (:func:`camcal.hashing.sha256_file`), the other files hashed in threads."""
+    The frames were hashed beside their decode (:mod:`camcal.screen`: by the screening or the stage's judge);
+    their remembered hashes are used (:func:`camcal.hashing.sha256_file`), the other files hashed in threads."""
     paths = [p for s in index.stages for p in index.inputs.get(s, ())]
     hashes = hash_files(paths, thread_count(jobs, len(paths)))
     return [{"stage": s, "file": p.relative_to(index.root).as_posix() if p.is_relative_to(index.root)
@@ -230,7 +231,7 @@ def _judged(index: SessionIndex, stage: str, judge: StageJudge, record: _Record)
 
 
 def stage_checks(options: CalibrateOptions | None = None) -> dict[str, StageCheck]:
-    """Each stage's own check of one frame, run when the session is screened (:func:`camcal.screen.screen_session`):
+    """Each stage's own check of one frame, run when the frame is judged (:mod:`camcal.screen`):
     dark and bias frames RAW and not saturated; flats RAW, well exposed and not saturated beyond use
     (:func:`camcal.flat.check_flat_frame`); no check for the linearity series (saturated frames are data) and for
     the sweep's RAW rows beyond being RAW (saturation and missing light are judged on the region of interest)."""

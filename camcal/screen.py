@@ -2,27 +2,43 @@
 
 A real session holds frames a careful person would not fit: a file truncated by a card reader, the
 same frame copied twice, a JPEG of another camera dropped into ``flat/``, an over-exposed flat.
-:func:`screen_session` decodes every frame of every stage once (threads, one frame in memory per
-thread) and gives each a :class:`Verdict`: used, or left out with its reason. The stages then fit the
+Every frame of every stage gets a :class:`Verdict`: used, or left out with its reason. The stages fit the
 frames that are used; ``camcal calibrate`` lists the others (``provenance.left_out`` of the profile).
-Each file is also hashed (SHA-256, :func:`camcal.hashing.sha256_file`) in the thread that decoded it, while
-its bytes are in the page cache; the hash is remembered for the profile's provenance.
+
+Where a frame is judged (each frame decoded once for its verdict and its stage):
+
+- :func:`screen_session` reads every frame's header (:func:`camcal.io.frame_header`: kind, RAW layout, size,
+  make and model, no pixel decoded) for the session's camera, layout and size (:class:`Majority`), and decodes
+  (threads, one frame in memory per thread) and judges the frames whose stage does not judge them itself.
+- The stages given a :class:`StageJudge` (``camcal calibrate``: bias and dark stacks,
+  :func:`camcal.stack.combine_frames`; the linearity series, :func:`camcal.response.measure_series`; the sweep's
+  rows, :func:`camcal.spectral.measure_sweep_settings`) judge each frame as they decode it for their fit, in
+  their one streaming pass, and leave a frame judged unusable out of what they accumulate. ``--strict`` judges
+  every frame in :func:`screen_session` first (all or nothing, refused at the first problem).
+
+Both give the same verdicts, formed in one place (:func:`_reason`), in the same stage and file order. Each file
+is also hashed (SHA-256, :func:`camcal.hashing.sha256_file`) in the thread that decoded it, while its bytes are
+in the page cache; the hash is remembered for the profile's provenance.
 
 Reasons, in the order they are judged (the first that applies is given; docs/reliability.md lists them):
 
 - ``unreadable: <why>``: the file cannot be decoded (truncated, damaged, image data stripped, an
   unsupported layout); ``<why>`` is the reader's one-line message.
-- ``duplicate: the same pixels as <file> (a copy of one exposure); the first copy is kept``.
+- ``duplicate: the same pixels as <file> (a copy of one exposure); the first copy is kept``: the first copy in
+  the stage's file order, whatever order a stage reads its frames in (:meth:`StageJudge.decide`).
 - ``another camera: ...`` / ``another layout: ...`` / ``another size: ...``: the frame's make and model,
   RAW layout or size differ from the session's (the most common among its RAW frames; processed
   images are compared with the session camera's own processed images, else with its Bayer frames' size).
+  The session's values come from the headers of the frames a stage judges and the decode of the others; a file
+  whose header cannot be read takes no part (its decode names the problem), and a DNG whose header does not
+  say its layout is decoded to tell it.
 - the stage's own frame check (:data:`StageCheck`), e.g. ``not RAW: ...``, ``saturated: ...``: a dark
   frame with light in it, a flat saturated beyond use or too dark, a sweep row that is not a RAW file.
 
-Judged later, inside the stage that can see it (:mod:`camcal.spectral`): a sweep frame saturated in its
-region of interest, and a sweep frame that recorded no light while the reference detector saw light.
-A frame of a linearity series at or past saturation is *used*: it marks the end of the linear range
-(:mod:`camcal.response`).
+Judged later, inside the stage that can see it: a dark frame alone at its exposure time once its companions
+are left out (:mod:`camcal.dark`); a sweep frame saturated in its region of interest, and a sweep frame that
+recorded no light while the reference detector saw light (:mod:`camcal.spectral`). A frame of a linearity
+series at or past saturation is *used*: it marks the end of the linear range (:mod:`camcal.response`).
 """
 
 from __future__ import annotations
