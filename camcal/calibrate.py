@@ -182,12 +182,17 @@ def _reference(index: SessionIndex, opts: CalibrateOptions,
             if ref.iso is not None and ref.f_number is not None:  # manifest, tag or session.toml: no decode
                 exp_iso, exp_n, src_iso, src_n = ref.iso, ref.f_number, ref.iso_source, ref.f_number_source
             else:  # only LibRaw (a maker header) can tell: decode
-                e = load_frame(p).exposure
+                try:
+                    e = load_frame(p).exposure
+                except CamcalError:  # unreadable: its stage leaves it out (camcal.screen)
+                    continue
                 exp_iso, exp_n, src_iso, src_n = e.iso, e.f_number, e.source("iso"), e.source("f_number")
             key = (row.get("iso") or exp_iso, row.get("f_number") or exp_n)
             settings[key] += 1
             origin.setdefault(key, (csv_name if row.get("iso") else src_iso,
                                     csv_name if row.get("f_number") else src_n))
+        if not settings:  # every frame looked at unreadable
+            continue
         (fi, fn), _ = settings.most_common(1)[0]
         iso, n = iso or fi, n or fn
         if not required:
