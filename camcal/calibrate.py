@@ -2,8 +2,9 @@
 
 Order: dark (with bias/ when present) → flat (dark-corrected) → linearity
 (dark-corrected) → sweep (dark- and flat-corrected). Each frame is decoded once for its verdict
-and its fit (:mod:`camcal.screen`): bias, dark, linearity frames and the sweep's rows are judged by their
-stage as it decodes them, the flats and the sweep's JPEG twins by the screening first. Every input file is
+and its fit (:mod:`camcal.screen`): bias, dark, flat (of one f-number) and linearity frames and the sweep's
+rows are judged by their stage as it decodes them; the sweep's JPEG twins and flats of several f-numbers by
+the screening first. Every input file is
 hashed (SHA-256) into the profile's provenance: each frame once, beside its decode (the file is then in the
 page cache), remembered for the stages that compare files by content and for the provenance.
 """
@@ -329,13 +330,16 @@ class _Record:
 
 
 def _fit_flats(index: SessionIndex, dark, opts: CalibrateOptions, ref_n: float | None, record: _Record,
-               notes: list[str], cb) -> tuple[FlatModel | None, MasterFlat | None]:
+               notes: list[str], cb, judge: StageJudge | None = None) -> tuple[FlatModel | None, MasterFlat | None]:
     """The flat stage: one vignetting model per f-number of the flats (:func:`camcal.session.aperture_groups`).
 
     The primary model (the profile's ``flat``: dead pixels, PRNU, the sweep's flat correction) is the one at the
     reference f-number, else the one of most frames (the smaller f-number on a tie); the others are its
     :attr:`~camcal.flat_model.FlatModel.apertures`. Flats of unknown f-number beside known ones are left out.
     Returns (primary model, its master flat), (None, None) when no group could be fitted.
+
+    ``judge``: the flat stage's :class:`camcal.screen.StageJudge` when its frames (of one f-number) are judged
+    as the master flat decodes them.
     """
     flat_opts = FlatOptions(model=opts.flat_model)
     groups = aperture_groups(index.frames["flat"])
@@ -355,13 +359,13 @@ def _fit_flats(index: SessionIndex, dark, opts: CalibrateOptions, ref_n: float |
 
         def fit(g=g, label=label, kwargs=kwargs):
             mf = master_flat(g.frames, dark, method=flat_opts.method, sigma=flat_opts.sigma,
-                             checks=flat_opts.checks, jobs=opts.jobs, progress=cb(label))
+                             checks=flat_opts.checks, jobs=opts.jobs, progress=cb(label), judge=judge)
             fm = fit_master(mf, dark, **kwargs)
             if g.f_number is not None and fm.optics.f_number is None:  # the folder's f-number (not in the files)
                 fm = replace(fm, optics=replace(fm.optics, f_number=g.f_number, f_number_source=g.f_number_source))
             return fm, mf
 
-        result = record.attempt(label, fit)
+        result = record.attempt(label, fit, left_out=judge is not None)
         if result is not None:
             fitted.append(result)
         elif i == 0 and len(groups) > 1:
@@ -386,10 +390,11 @@ def calibrate_session(
     """Calibrate every stage present in ``session``; returns the profile and notes (skipped stages...).
 
     The session is read once (:func:`camcal.session.index_session`: stage folders, manifests, session
-    defaults) and screened (:func:`camcal.screen.screen_session`): the frames of the linearity series and the
-    sweep's rows are judged by their stage as it decodes them (:class:`camcal.screen.StageJudge`), the others
-    (bias, dark, flat, the sweep's JPEG twins) decoded and judged first; every frame is decoded once for its
-    verdict and its stage, the linearity and sweep frames once in all (``options.strict``: every frame
+    defaults) and screened (:func:`camcal.screen.screen_session`): the bias, dark, flat (of one f-number) and
+    linearity frames and the sweep's rows are judged by their stage as it decodes them
+    (:class:`camcal.screen.StageJudge`), the others (the sweep's JPEG twins, flats of several f-numbers)
+    decoded and judged first; every frame is decoded once for its
+    verdict and its stage, those judged by their stage once in all (``options.strict``: every frame
     judged first). Every stage receives its usable frames from that index. Frames left out are listed in the profile's
     ``provenance.left_out``; a stage with too few usable frames is not calibrated and listed in
     ``provenance.not_calibrated`` (the other stages are). With ``options.strict`` either refuses the session.
@@ -413,6 +418,9 @@ def calibrate_session(
         for s in ("bias", "dark", "linearity"):
             if s in index.stages:
                 defer[s] = {r.path.name for r in index.frames[s].frames}
+        # flats of one f-number (flats of several are grouped, and their groups weighed, on the frames used)
+        if "flat" in index.stages and len(aperture_groups(index.frames["flat"])) == 1:
+            defer["flat"] = {r.path.name for r in index.frames["flat"].frames}
         if "sweep" in index.stages and index.sweep_manifest is not None:
             defer["sweep"] = set(index.sweep_manifest)
     screening = screen_session(index, checks, jobs=opts.jobs, progress=cb("check frames"), defer=defer)
@@ -473,7 +481,12 @@ def calibrate_session(
             notes.append("bias/ without dark/: bias, read noise and noisy pixels calibrated; dark current unknown "
                          "(apply subtracts the bias only; add dark frames at two exposure times to measure it)")
     if "flat" in stages:
-        flat, master = _fit_flats(index, dark, opts, ref_n, record, notes, cb)
+        flat_judge = judges.get("flat")
+        try:
+            flat, master = _fit_flats(index, dark, opts, ref_n, record, notes, cb, flat_judge)
+        finally:
+            if flat_judge is not None:
+                index = _judged(index, "flat", flat_judge, record)
         if flat is not None:
             if master is not None and master.mean_all is not None:
                 prnu = flat_prnu(master, flat, _flat_mask(master, dark))

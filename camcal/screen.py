@@ -9,8 +9,9 @@ Where a frame is judged (each frame decoded once for its verdict and its stage):
 
 - :func:`screen_session` reads every frame's header (:func:`camcal.io.frame_header`: kind, RAW layout, size,
   make and model, no pixel decoded) for the session's camera, layout and size (:class:`Majority`), and decodes
-  (threads, one frame in memory per thread) and judges the frames whose stage does not judge them itself.
-- The stages given a :class:`StageJudge` (``camcal calibrate``: bias and dark stacks,
+  (threads, one frame in memory per thread) and judges the frames whose stage does not judge them itself
+  (in ``camcal calibrate``: the sweep's JPEG twins, and flats of several f-numbers, grouped on the frames used).
+- The stages given a :class:`StageJudge` (``camcal calibrate``: the bias and dark stacks and the master flat,
   :func:`camcal.stack.combine_frames`; the linearity series, :func:`camcal.response.measure_series`; the sweep's
   rows, :func:`camcal.spectral.measure_sweep_settings`) judge each frame as they decode it for their fit, in
   their one streaming pass, and leave a frame judged unusable out of what they accumulate. ``--strict`` judges

@@ -318,9 +318,10 @@ def test_calibrate_refuses_when_no_stage_can_be_calibrated(tmp_path, tiny_camera
 # ---- each frame decoded once (issue 28) ------------------------------------------------------------------------
 
 
-def test_bias_dark_linearity_and_sweep_frames_are_decoded_once(tiny, monkeypatch):
-    """The stages that judge their own frames decode each of them once in a whole calibration: the screening
-    reads only their headers. Counted at the RAW decoder, which every stage reaches through camcal.io.load_frame."""
+def test_every_frame_is_decoded_once(tiny, monkeypatch):
+    """Each stage judges its own frames as it decodes them: in a whole calibration every frame is decoded once
+    (the screening reads only headers). Counted at the RAW decoder, which every stage reaches through
+    camcal.io.load_frame."""
     counts: Counter = Counter()
     real = camcal_io._load_raw
 
@@ -331,7 +332,7 @@ def test_bias_dark_linearity_and_sweep_frames_are_decoded_once(tiny, monkeypatch
     monkeypatch.setattr(camcal_io, "_load_raw", counting)
     profile, _ = calibrate_session(tiny)
     assert profile.dark is not None and profile.response and profile.spectral is not None
-    for stage in ("bias", "dark", "linearity", "sweep"):
+    for stage in ("bias", "dark", "flat", "linearity", "sweep"):
         names = sorted(p.name for p in (tiny / stage).glob("*.dng"))
         assert names and {n: counts[f"{stage}/{n}"] for n in names} == dict.fromkeys(names, 1), stage
 
