@@ -4,9 +4,9 @@ Order: dark (with bias/ when present) → flat (dark-corrected) → linearity
 (dark-corrected) → sweep (dark- and flat-corrected). Each frame is decoded once for its verdict
 and its fit (:mod:`camcal.screen`): bias, dark, flat (of one f-number) and linearity frames and the sweep's
 rows are judged by their stage as it decodes them; the sweep's JPEG twins and flats of several f-numbers by
-the screening first. Every input file is
-hashed (SHA-256) into the profile's provenance: each frame once, beside its decode (the file is then in the
-page cache), remembered for the stages that compare files by content and for the provenance.
+the screening first. Every input file is hashed (SHA-256) into the profile's provenance: each frame once,
+beside its decode (the file is then in the page cache), remembered for the stages that compare files by
+content and for the provenance.
 """
 
 from __future__ import annotations
@@ -282,6 +282,8 @@ class _Record:
     """How many of ``left_out`` are frame verdicts (they come first)."""
     order: Callable[[Verdict], tuple] | None = None
     """Sort key of a frame verdict: (stage, place in the stage's file order)."""
+    n_all_left_out: int = 0
+    """How many of ``not_calibrated`` (the first ones, in stage order) are stages whose every frame was left out."""
 
     def leave_out(self, verdicts: list[Verdict]) -> None:
         if self.strict and verdicts:
@@ -299,9 +301,6 @@ class _Record:
             block.sort(key=self.order)
         self.left_out[:self.n_screened] = block
         self.n_screened = len(block)
-
-    n_all_left_out: int = 0
-    """How many of ``not_calibrated`` (the first ones, in stage order) are stages whose every frame was left out."""
 
     def skip(self, stage: str, exc: TooFewFrames, left_out: bool = False) -> None:
         """Record that ``stage`` is not calibrated (too few usable frames); strict: raise. ``left_out``: ``exc``
@@ -393,11 +392,10 @@ def calibrate_session(
     defaults) and screened (:func:`camcal.screen.screen_session`): the bias, dark, flat (of one f-number) and
     linearity frames and the sweep's rows are judged by their stage as it decodes them
     (:class:`camcal.screen.StageJudge`), the others (the sweep's JPEG twins, flats of several f-numbers)
-    decoded and judged first; every frame is decoded once for its
-    verdict and its stage, those judged by their stage once in all (``options.strict``: every frame
-    judged first). Every stage receives its usable frames from that index. Frames left out are listed in the profile's
-    ``provenance.left_out``; a stage with too few usable frames is not calibrated and listed in
-    ``provenance.not_calibrated`` (the other stages are). With ``options.strict`` either refuses the session.
+    decoded and judged first (``options.strict``: every frame judged first); every stage receives its usable
+    frames from that index. Frames left out are listed in the profile's ``provenance.left_out``; a stage with
+    too few usable frames is not calibrated and listed in ``provenance.not_calibrated`` (the other stages are).
+    With ``options.strict`` either refuses the session.
     ``progress(stage, done, total)`` is called as frames are processed.
     """
     opts = options or CalibrateOptions()
@@ -411,8 +409,8 @@ def calibrate_session(
     sweep_check = _sweep_check(index)
     if sweep_check is not None:
         checks["sweep"] = sweep_check
-    # the linearity series and the sweep's rows judge their own frames as they decode them (each decoded once);
-    # --strict refuses at the first frame that cannot be used: every frame is judged first
+    # the stages judge their own frames as they decode them (each frame decoded once; the screening reads
+    # headers); --strict refuses at the first frame that cannot be used: every frame is judged first
     defer: dict[str, set[str]] = {}
     if not opts.strict:
         for s in ("bias", "dark", "linearity"):
