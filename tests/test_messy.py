@@ -379,3 +379,24 @@ def test_a_copy_read_before_its_original_passes_its_place_to_the_original(tiny):
         for name in ("value", "mean", "variance", "count"):
             assert np.array_equal(getattr(got, name), getattr(want, name), equal_nan=True), (method, name)
         assert all(np.array_equal(x, y) for x, y in zip(got.kept_planes, want.kept_planes, strict=True))
+
+
+def test_copies_in_the_linearity_series_and_the_sweep_are_left_out_as_they_are_measured(tiny, tiny_session):
+    """A copy of a linearity frame and of a sweep row, judged by their stages as they decode them: each left out
+    as a duplicate of its original, and the response and c(λ) exactly those of the clean session."""
+    clean, _ = calibrate_session(tiny_session)
+    lin = sorted((tiny / "linearity").glob("lin_*.dng"))[3]
+    shutil.copyfile(lin, lin.with_name(lin.stem + "_copy.dng"))
+    sweep = tiny / "sweep" / "sweep_600.0nm_01.dng"
+    shutil.copyfile(tiny / "sweep" / "sweep_600.0nm_00.dng", sweep)  # the second repeat is a copy of the first
+    profile, _ = calibrate_session(tiny)
+    left = {r["file"]: r["reason"] for r in profile.provenance.left_out}
+    assert left == {
+        f"linearity/{lin.stem}_copy.dng": f"duplicate: the same pixels as {lin.name} (a copy of one exposure); the "
+                                          "first copy is kept",
+        "sweep/sweep_600.0nm_01.dng": "duplicate: the same pixels as sweep_600.0nm_00.dng (a copy of one "
+                                      "exposure); the first copy is kept"}
+    for ch in ("R", "G1", "G2", "B"):
+        m, c = profile.response["raw"].channels[ch], clean.response["raw"].channels[ch]
+        assert (m.alpha, m.gamma, m.beta) == (c.alpha, c.gamma, c.beta), ch
+    assert profile.spectral.n_frames["600"] == 1 and clean.spectral.n_frames["600"] == 2
