@@ -305,11 +305,13 @@ class StageJudge:
         if facts.error is None:
             self.facts[path] = facts
         first = None
-        rank = self.order.get(path, len(self.order))
+        rank = self.order.get(path)
+        if rank is None:  # not a frame of the stage's index: after all of them
+            rank = self.order[path] = len(self.order)
         if facts.error is None and facts.digest:
             seen = self.seen.setdefault(facts.digest, (rank, path))
-            if seen[0] < rank:
-                first = seen[1].name
+            if seen[0] < rank or (seen[1] != path and seen[1] not in self.reasons):
+                first = seen[1].name  # (a frame the screening judged keeps its verdict)
             elif seen[1] != path:  # this one comes first in file order: the one seen before is its copy
                 self.seen[facts.digest] = (rank, path)
                 if self.reasons.get(seen[1]) is None:
