@@ -387,20 +387,28 @@ def _stack_judged(dark, bias, options: DarkOptions, check, jobs: int | None,
         except TooFewFrames:  # every bias frame left out: as without bias frames
             bias_folder = None
         done = len(bias_files)
-    darks: list[tuple[float, StackResult]] = []
-    for t in sorted(groups):
-        # the read-noise stack (the shortest exposure time with two frames or more) keeps its first frames
-        keep = QUANTISED_FIT_FRAMES if bias_stack is None and not any(s.n_frames > 1 for _, s in darks) else 0
-        try:
-            st = combine_frames(groups[t], method=options.method, sigma=options.sigma, manifest=manifest,
-                                check=check, jobs=jobs, progress=_progress_from(progress, done, total),
-                                keep_frames=keep, judge=judge)
-        except TooFewFrames:  # every frame at this time left out: as if never taken
-            st = None
-        done += len(groups[t])
-        if st is not None:
-            darks.append((t, st))
-    used = {p for _, st in darks for p in st.paths}
+    start = done
+    while True:
+        darks: list[tuple[float, StackResult]] = []
+        done = start
+        retracted = len(judge.retracted) if judge is not None else 0
+        for t in sorted(groups):
+            # the read-noise stack (the shortest exposure time with two frames or more) keeps its first frames
+            keep = QUANTISED_FIT_FRAMES if bias_stack is None and not any(s.n_frames > 1 for _, s in darks) else 0
+            try:
+                st = combine_frames(groups[t], method=options.method, sigma=options.sigma, manifest=manifest,
+                                    check=check, jobs=jobs, progress=_progress_from(progress, done, total),
+                                    keep_frames=keep, judge=judge)
+            except TooFewFrames:  # every frame at this time left out: as if never taken
+                st = None
+            done += len(groups[t])
+            if st is not None:
+                darks.append((t, st))
+        used = {p for _, st in darks for p in st.paths}
+        # a copy stacked at one exposure time, its original (first in file order) found at a later one: stacked
+        # again with the verdicts fixed (rare: a copy given another exposure time than its original)
+        if judge is None or not used & set(judge.retracted[retracted:]):
+            break
     if not used:
         n = sum(len(g) for g in groups.values())
         raise TooFewFrames("dark", "frames", 1, 0, f"all {n} left out", dark_folder)

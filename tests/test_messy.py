@@ -400,3 +400,20 @@ def test_copies_in_the_linearity_series_and_the_sweep_are_left_out_as_they_are_m
         m, c = profile.response["raw"].channels[ch], clean.response["raw"].channels[ch]
         assert (m.alpha, m.gamma, m.beta) == (c.alpha, c.gamma, c.beta), ch
     assert profile.spectral.n_frames["600"] == 1 and clean.spectral.n_frames["600"] == 2
+
+
+def test_a_dark_copy_given_another_exposure_time_is_left_out_and_not_stacked(tiny, tiny_session):
+    """A copy of a 16 s dark listed at 2 s in frames.csv: stacked with the 2 s frames before its original (16 s)
+    shows it is a copy; the darks are stacked again without it, and the dark model is exactly the clean one."""
+    clean, _ = calibrate_session(tiny_session)
+    copy = tiny / "dark" / "dark_016.000s_00_copy.dng"
+    shutil.copyfile(tiny / "dark" / "dark_016.000s_00.dng", copy)
+    with (tiny / "dark" / "frames.csv").open("a") as fh:
+        fh.write(f"{copy.name},2.0,100.0,4.0,24.0\n")
+    profile, _ = calibrate_session(tiny)
+    assert {r["file"]: r["reason"] for r in profile.provenance.left_out} == {
+        f"dark/{copy.name}": "duplicate: the same pixels as dark_016.000s_00.dng (a copy of one exposure); the "
+                             "first copy is kept"}
+    for name in ("bias_dn", "dark_current_dn_per_s", "read_noise_dn"):
+        a, b = getattr(profile.dark, name, None), getattr(clean.dark, name, None)
+        assert a is not None and np.array_equal(np.asarray(a), np.asarray(b), equal_nan=True), name
