@@ -301,107 +301,102 @@ def _integer_band_stats(x: np.ndarray, method: str, sigma: float,
     """
     n = x.shape[0]
     shape = x.shape[1:]
-    planes = [p.reshape(-1) for p in _sorted_planes(x)]
-    med = _sorted_median(planes)
-    size = med.size
-    # sums of the deviations from the median and of their squares, plane by plane (a plane and the sums stay
-    # in the cache; float32: exact below EXACT_SQUARES, as a deviation is a whole or half DN)
-    sd = np.zeros(size, np.float32)
-    sdd = np.zeros(size, np.float32)
-    dev = np.empty(size, np.float32) if work is None else work.reshape(-1)[:size]
-    for plane in planes:
-        dev[...] = plane
-        dev -= med
-        sd += dev
-        dev *= dev
-        sdd += dev
-    loud = np.flatnonzero(sdd >= EXACT_SQUARES)
-    s1 = sd.astype(np.float64)
-    s2 = sdd.astype(np.float64)
-    if loud.size:  # hot pixels, cosmic rays: their sums again, exactly, in float64
-        dl = np.stack([p[loud] for p in planes]).astype(np.float64) - med[loud]
-        s1[loud] = dl.sum(axis=0)
-        s2[loud] = np.einsum("ij,ij->j", dl, dl)
-        sd[loud] = s1[loud]
-        sdd[loud] = s2[loud]
+    band = _SortedBand(x, work)
+    med, sd, sdd = band.med, band.sd, band.sdd
     mean_all = med + sd.astype(np.float64) / n
     var_all = _all_variance(sd, sdd, n)
     if method == "median":
-        return tuple(a.reshape(shape) for a in (med, mean_all, var_all, np.full(size, n, np.int32), var_all,
+        return tuple(a.reshape(shape) for a in (med, mean_all, var_all, np.full(med.size, n, np.int32), var_all,
                                                 mean_all))
-    thr = _pass1_threshold(planes, var_all, sigma, med)
-    m, v, cnt = _clipped_sorted_integer(planes, med, s1, s2, -thr, thr)
+    thr = _pass1_threshold(band.planes, var_all, sigma, med)
+    m, v, cnt = band.clipped_moments(-thr, thr)
     thr = _pass2_threshold(v, med, sigma)
-    m, v, cnt = _clipped_sorted_integer(planes, med, s1, s2, m - thr, m + thr)
+    m, v, cnt = band.clipped_moments(m - thr, m + thr)
     mean = med + m.astype(np.float64)
     var_all, mean_all = var_all.reshape(shape), mean_all.reshape(shape)
     return mean.reshape(shape), mean.reshape(shape), v.reshape(shape), cnt.reshape(shape), var_all, mean_all
 
 
-def _integer_bounds(med: np.ndarray, lo: np.ndarray, hi: np.ndarray, dtype: np.dtype) -> tuple[np.ndarray, ...]:
-    """Integer bounds ``LO <= u <= HI`` equivalent to ``lo <= u - med <= hi`` for the values ``u`` of an integer
-    ``dtype``.
+class _SortedBand:
+    """An integer (N, ...) band sorted along axis 0 (flat planes), with the sums of all its values' deviations
+    from their median and of their squares (float32, exact: see :data:`EXACT_SQUARES`)."""
 
-    ``u - med`` (``med`` a whole or half number) is exact in float32, so the comparison is exact; the bound is
-    first rounded from ``lo + med`` and then moved by one where that rounding was wrong, so ``LO`` is the
-    smallest whole number with ``LO - med >= lo`` (``HI`` the largest with ``HI - med <= hi``). Returns
-    ``LO``, ``HI`` clipped to the range of ``dtype``, in that type, and ``empty``, where no value can be kept
-    (``LO > HI``, or a NaN bound).
-    """
-    top = np.iinfo(dtype).max
-    lo_i = np.ceil(lo + med)
-    lo_i -= (lo_i - 1) - med >= lo
-    lo_i += lo_i - med < lo
-    hi_i = np.floor(hi + med)
-    hi_i += (hi_i + 1) - med <= hi
-    hi_i -= hi_i - med > hi
-    empty = ~(lo_i <= hi_i) | ~(lo_i <= top) | ~(hi_i >= 0)  # "~(a <= b)": a NaN bound keeps nothing
-    lo_i[empty] = 0
-    hi_i[empty] = 0
-    return np.clip(lo_i, 0, top).astype(dtype), np.clip(hi_i, 0, top).astype(dtype), empty
+    def __init__(self, x: np.ndarray, work: np.ndarray | None = None) -> None:
+        n = x.shape[0]
+        self.planes = planes = [p.reshape(-1) for p in _sorted_planes(x)]
+        self.med = med = _sorted_median(planes)
+        size = med.size
+        # plane by plane, so a plane and the sums stay in the cache; the deviations of the lowest and highest
+        # ranks are kept: each clip compares them with the bounds first
+        self.sd = sd = np.zeros(size, np.float32)
+        self.sdd = sdd = np.zeros(size, np.float32)
+        square = np.empty(size, np.float32) if work is None else work.reshape(-1)[:size]
+        for k, plane in enumerate(planes):
+            dev = np.empty(size, np.float32) if k in (0, n - 1) else square
+            dev[...] = plane
+            dev -= med  # exact: a whole DN less a whole or half DN
+            sd += dev
+            if k == 0:
+                self.lowest = dev
+            if k == n - 1:
+                self.highest = dev
+            np.multiply(dev, dev, out=square)
+            sdd += square
+        self.loud = np.flatnonzero(sdd >= EXACT_SQUARES)
+        self.loud_dev = np.empty((n, 0))
+        if self.loud.size:  # hot pixels, cosmic rays: their sums again, exactly, in float64
+            self.loud_dev = np.stack([p[self.loud] for p in planes]).astype(np.float64) - med[self.loud]
+            sd[self.loud] = self.loud_dev.sum(axis=0)
+            sdd[self.loud] = np.einsum("ij,ij->j", self.loud_dev, self.loud_dev)
 
+    def clipped_moments(self, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Mean, variance (ddof=1) and count of the deviations ``d`` from the median with ``lo <= d <= hi``.
 
-def _clipped_sorted_integer(planes: list[np.ndarray], med: np.ndarray, s1_all: np.ndarray, s2_all: np.ndarray,
-                            lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Mean, variance (ddof=1) and count of the values ``u`` with ``lo <= u - med <= hi`` (float32 bounds).
-
-    ``planes`` are the N sorted integer planes of a band (flat), ``s1_all``/``s2_all`` the exact sums of all
-    deviations ``u - med`` and of their squares (float64). A pixel loses its lowest ranks below ``LO`` and its
-    highest above ``HI``: rank 0 and rank N-1 are compared for every pixel, each further rank only for the
-    pixels that lost the one before. The removed values are subtracted from the sums (float64, exact), and the
-    moments follow as in :func:`_clipped_moments`.
-    """
-    n = len(planes)
-    size = med.size
-    dtype = planes[0].dtype
-    with np.errstate(invalid="ignore"):
-        lo_b, hi_b, empty = _integer_bounds(med, lo, hi, dtype)
-    where: list[np.ndarray] = []
-    values: list[np.ndarray] = []
-    for ranks, bound, lost in ((range(n), lo_b, np.less), (range(n - 1, -1, -1), hi_b, np.greater)):
-        idx = np.flatnonzero(lost(planes[ranks[0]], bound))
-        for r in ranks:
-            if r != ranks[0]:
-                idx = idx[lost(planes[r][idx], bound[idx])]
-            if not idx.size:
-                break
-            where.append(idx)
-            values.append(planes[r][idx])
-    if where:
-        at = np.concatenate(where)
-        dev = np.concatenate(values).astype(np.float64) - med[at]
-        s1 = s1_all - np.bincount(at, dev, size)
-        s2 = s2_all - np.bincount(at, dev * dev, size)
-        cnt = n - np.bincount(at, minlength=size).astype(np.int32)
-    else:
-        s1, s2, cnt = s1_all, s2_all, np.full(size, n, np.int32)
-    s1 = s1.astype(np.float32)
-    s2 = s2.astype(np.float32)
-    if empty.any():
-        s1[empty] = 0
-        s2[empty] = 0
-        cnt[empty] = 0
-    return _moments(s1, s2, cnt)
+        The same result as :func:`_clipped_moments` (masking every value). A sorted pixel loses its lowest
+        ranks below ``lo`` and its highest above ``hi``: rank 0 and rank N-1 are compared for every pixel, each
+        further rank only for the pixels that lost the one before, and the values lost are taken off the sums
+        of all values. Exact in float32: every partial result is the sum of a subset of the pixel's values (or
+        squares), at most the sum of them all, below :data:`EXACT_SQUARES`. The loud pixels above it are
+        summed from their float64 deviations instead.
+        """
+        n = len(self.planes)
+        s1 = self.sd.copy()
+        s2 = self.sdd.copy()
+        cnt = np.full(s1.shape, n, np.int32)
+        lost_first = np.empty(s1.shape, bool)
+        taken = np.empty(s1.shape, np.float32)
+        for ranks, bound, first, lost_of in ((range(n), lo, self.lowest, np.less),
+                                             (range(n - 1, -1, -1), hi, self.highest, np.greater)):
+            # rank 0 (N-1): about a tenth of the pixels lose it, so it is taken off every pixel (0 or its value)
+            lost_of(first, bound, out=lost_first)  # a NaN bound loses nothing here: see "inverted" below
+            np.multiply(first, lost_first, out=taken)
+            s1 -= taken
+            taken *= taken
+            s2 -= taken
+            cnt -= lost_first
+            idx = np.flatnonzero(lost_first)
+            for r in ranks[1:]:  # further ranks: only the pixels that lost the one before
+                dev = self.planes[r][idx].astype(np.float32) - self.med[idx]
+                lost = lost_of(dev, bound[idx])
+                idx, dev = idx[lost], dev[lost]
+                if not idx.size:
+                    break
+                s1[idx] -= dev
+                s2[idx] -= dev * dev
+                cnt[idx] -= 1
+        with np.errstate(invalid="ignore"):
+            inverted = ~(lo <= hi)
+        if inverted.any():  # bounds that keep nothing (NaN, or lo > hi): no value is lost twice
+            s1[inverted] = 0
+            s2[inverted] = 0
+            cnt[inverted] = 0
+        if self.loud.size:
+            d = self.loud_dev
+            keep = (d >= lo[self.loud]) & (d <= hi[self.loud])
+            s1[self.loud] = np.where(keep, d, 0).sum(axis=0)
+            s2[self.loud] = np.where(keep, d * d, 0).sum(axis=0)
+            cnt[self.loud] = keep.sum(axis=0)
+        return _moments(s1, s2, cnt)
 
 
 def _moments(s1: np.ndarray, s2: np.ndarray, cnt: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
