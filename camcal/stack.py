@@ -257,15 +257,26 @@ def _all_variance(sd: np.ndarray, sdd: np.ndarray, n: int) -> np.ndarray:
         return np.maximum(sdd - sd * sd / n, 0) / (n - 1)
 
 
-def _pass1_threshold(d: np.ndarray | Sequence[np.ndarray], var_all: np.ndarray, sigma: float,
-                     shift: np.ndarray | None = None) -> np.ndarray:
+def _pass1_threshold(d: np.ndarray | Sequence[np.ndarray], var_all: np.ndarray, sigma: float) -> np.ndarray:
     """Pass 1 half-width: ``sigma`` robust standard deviations, the interquartile range of the sorted values
-    ``d`` (axis 0, or a list of sorted planes, less ``shift``) / 1.349, or the plain standard deviation where
-    the interquartile range is 0."""
-    q75, q25 = (_sorted_quantile(d, q, shift) for q in (0.75, 0.25))
-    scale = (q75 - q25) / np.float32(IQR_TO_SIGMA)
+    ``d`` (axis 0) / 1.349, or the plain standard deviation where the interquartile range is 0."""
+    scale = (_sorted_quantile(d, 0.75) - _sorted_quantile(d, 0.25)) / np.float32(IQR_TO_SIGMA)
     scale = np.where(scale > 0, scale, np.sqrt(np.nan_to_num(var_all)))
     return (sigma * scale).astype(np.float32)
+
+
+class _RankView:
+    """Some ranks of a sorted band, indexable by rank (``view[k]``) with ``len`` N, for :func:`_sorted_quantile`."""
+
+    def __init__(self, ranks: dict[int, np.ndarray], n: int) -> None:
+        self.ranks = ranks
+        self.n = n
+
+    def __len__(self) -> int:
+        return self.n
+
+    def __getitem__(self, k: int) -> np.ndarray:
+        return self.ranks[k]
 
 
 def _pass2_threshold(v: np.ndarray, med: np.ndarray, sigma: float) -> np.ndarray:
@@ -287,17 +298,16 @@ def _integer_band_stats(x: np.ndarray, method: str, sigma: float,
                         work: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
     """:func:`_band_stats` of an integer (N, ...) band (uint8/uint16 DN; ``x`` is overwritten).
 
-    The band is sorted by a sorting network in its own type; the sums of all deviations from the median and
-    of their squares are taken plane by plane in float32 (``work``, when given, holds one plane of
-    deviations). The values a clip removes from a sorted pixel are its lowest and highest ranks, so each
-    clipping pass compares the first and the last sorted plane with the pixel's bounds made integer
-    (:func:`_integer_bounds`) and follows only the pixels that lost a value into the next ranks (fewer at
-    each rank: about 11 % of a 12 MP dark band's pixels lose their lowest value to pass 1, 0.1 % their
-    fourth lowest). The kept values' sums are the sums of all values minus the values removed, all exact
-    (float32 sums of all values are exact below :data:`EXACT_SQUARES`, the few pixels above it are summed
-    again in float64; removed values are summed in float64), so the result is the same as masking every
-    value (:func:`_clipped_moments`), bit for bit where those float32 sums are exact, and closer to the exact
-    value where they are not.
+    The band is sorted by a sorting network in its own type (:class:`_SortedBand`); the sums of all
+    deviations from the median and of their squares are taken plane by plane in float32 (``work``, when
+    given, holds one plane). The values a clip removes from a sorted pixel are its lowest and highest ranks,
+    so a clipping pass (:meth:`_SortedBand.clipped_moments`) takes them off those sums rank by rank from
+    both ends, following only the pixels that lost the rank before (fewer at each rank: about 11 % of a
+    12 MP dark band's pixels lose their lowest value to pass 1, 0.1 % their fourth lowest), instead of
+    masking every value of every pixel (:func:`_clipped_moments`). The result is the same: bit for bit
+    where the float32 sums are exact (all pixels whose squared deviations sum to less than
+    :data:`EXACT_SQUARES`), and the exact value rounded once to float32 for the few pixels above it, which
+    are summed in float64 instead.
     """
     n = x.shape[0]
     shape = x.shape[1:]
@@ -308,7 +318,7 @@ def _integer_band_stats(x: np.ndarray, method: str, sigma: float,
     if method == "median":
         return tuple(a.reshape(shape) for a in (med, mean_all, var_all, np.full(med.size, n, np.int32), var_all,
                                                 mean_all))
-    thr = _pass1_threshold(band.planes, var_all, sigma, med)
+    thr = _pass1_threshold(_RankView(band.dev, n), var_all, sigma)
     m, v, cnt = band.clipped_moments(-thr, thr)
     thr = _pass2_threshold(v, med, sigma)
     m, v, cnt = band.clipped_moments(m - thr, m + thr)
@@ -331,17 +341,18 @@ class _SortedBand:
         self.sd = sd = np.zeros(size, np.float32)
         self.sdd = sdd = np.zeros(size, np.float32)
         square = np.empty(size, np.float32) if work is None else work.reshape(-1)[:size]
+        kept_ranks = {0, n - 1, *_quantile_ranks(n, 0.25), *_quantile_ranks(n, 0.75)}
+        self.dev: dict[int, np.ndarray] = {}  # deviations of the ranks used again: the ends, the quartiles
         for k, plane in enumerate(planes):
-            dev = np.empty(size, np.float32) if k in (0, n - 1) else square
+            dev = np.empty(size, np.float32) if k in kept_ranks else square
             dev[...] = plane
             dev -= med  # exact: a whole DN less a whole or half DN
             sd += dev
-            if k == 0:
-                self.lowest = dev
-            if k == n - 1:
-                self.highest = dev
+            if k in kept_ranks:
+                self.dev[k] = dev
             np.multiply(dev, dev, out=square)
             sdd += square
+        self.lowest, self.highest = self.dev[0], self.dev[n - 1]
         self.loud = np.flatnonzero(sdd >= EXACT_SQUARES)
         self.loud_dev = np.empty((n, 0))
         if self.loud.size:  # hot pixels, cosmic rays: their sums again, exactly, in float64
@@ -519,20 +530,20 @@ def _sorted_median(s: np.ndarray | Sequence[np.ndarray]) -> np.ndarray:
     return np.float32(0.5) * (s[n // 2 - 1].astype(np.float32) + s[n // 2].astype(np.float32))
 
 
-def _sorted_quantile(s: np.ndarray | Sequence[np.ndarray], q: float, shift: np.ndarray | None = None) -> np.ndarray:
-    """Quantile of sorted values along axis 0 (linear interpolation, numpy's default), float32.
+def _quantile_ranks(n: int, q: float) -> tuple[int, int]:
+    """The two ranks of ``n`` sorted values that :func:`_sorted_quantile` interpolates between."""
+    lo = int(np.floor(q * (n - 1)))
+    return lo, min(lo + 1, n - 1)
 
-    ``s`` is an array or a list of sorted planes; with ``shift``, of the planes as float32 less ``shift``."""
+
+def _sorted_quantile(s: np.ndarray | Sequence[np.ndarray], q: float) -> np.ndarray:
+    """Quantile of sorted values along axis 0 (linear interpolation, numpy's default).
+
+    ``s``: an array, or anything that gives the sorted planes by rank (``s[k]``) and their number (``len``)."""
     n = len(s)
-    pos = q * (n - 1)
-    lo = int(np.floor(pos))
-    hi = min(lo + 1, n - 1)
-    f = np.float32(pos - lo)
-    a, b = s[lo], s[hi]
-    if shift is not None:
-        a = a.astype(np.float32) - shift
-        b = b.astype(np.float32) - shift
-    return a + f * (b - a)
+    lo, hi = _quantile_ranks(n, q)
+    f = np.float32(q * (n - 1) - lo)
+    return s[lo] + f * (s[hi] - s[lo])
 
 
 # --------------------------------------------------------------------------------------------
