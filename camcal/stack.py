@@ -58,7 +58,7 @@ class StackResult:
         Combined value per ``method`` (mean, median or sigma-clipped mean), in the
         units of the planes (DN for raw and processed frames).
     mean : (C, h, w) float32
-        Plain mean of the values used.
+        Plain mean of the values used (the same array as ``value`` for ``mean`` and ``sigma_clip``).
     variance : (C, h, w) float32
         Temporal variance (ddof=1) of the values used, units squared; NaN where fewer
         than two values were used.
@@ -762,7 +762,7 @@ def _bands(spill: Path, n: int, shape: tuple[int, int, int], dtype: np.dtype, me
     rows = max(1, min(h, int(band_mb * 1e6 / (n * c * w * 4))))
     bands = [(y0, min(h, y0 + rows)) for y0 in range(0, h, rows)]
     value = np.empty(shape, np.float32)
-    mean = np.empty(shape, np.float32)
+    mean = value if method == "sigma_clip" else np.empty(shape, np.float32)  # the clipped mean is the value
     var = np.empty(shape, np.float32)
     count = np.empty(shape, np.int32)
     var_all = np.empty(shape, np.float32) if method == "sigma_clip" else var
@@ -792,7 +792,8 @@ def _bands(spill: Path, n: int, shape: tuple[int, int, int], dtype: np.dtype, me
         v, m, s2, cnt, s2_all, m_all = _band_stats(buf, method, sigma, scratch.work)
         del buf
         value[:, y0:y1] = v
-        mean[:, y0:y1] = m
+        if mean is not value:
+            mean[:, y0:y1] = m
         var[:, y0:y1] = s2
         count[:, y0:y1] = cnt
         if var_all is not var:
