@@ -261,7 +261,9 @@ def _pass1_threshold(d: np.ndarray | Sequence[np.ndarray], var_all: np.ndarray, 
     """Pass 1 half-width: ``sigma`` robust standard deviations, the interquartile range of the sorted values
     ``d`` (axis 0) / 1.349, or the plain standard deviation where the interquartile range is 0."""
     scale = (_sorted_quantile(d, 0.75) - _sorted_quantile(d, 0.25)) / np.float32(IQR_TO_SIGMA)
-    scale = np.where(scale > 0, scale, np.sqrt(np.nan_to_num(var_all)))
+    fallback = ~(scale > 0)
+    if fallback.any():  # np.fmax(NaN, 0) = 0: a NaN variance (one value) gives 0
+        scale[fallback] = np.fmax(np.sqrt(var_all[fallback]), 0)
     return (sigma * scale).astype(np.float32)
 
 
@@ -282,7 +284,8 @@ class _RankView:
 def _pass2_threshold(v: np.ndarray, med: np.ndarray, sigma: float) -> np.ndarray:
     """Pass 2 half-width: ``sigma`` standard deviations (ddof=1) of the pass-1 values, plus 1e-6 of the median
     so that a pixel whose kept values are all equal keeps them."""
-    return sigma * np.sqrt(np.nan_to_num(v)).astype(np.float32) + np.float32(1e-6) * np.abs(med)
+    sd = np.fmax(np.sqrt(v), 0)  # a NaN variance (fewer than 2 values) gives 0
+    return sigma * sd.astype(np.float32, copy=False) + np.float32(1e-6) * np.abs(med)
 
 
 DENSE_RANKS = 2
@@ -318,7 +321,9 @@ def _integer_band_stats(x: np.ndarray, method: str, sigma: float,
     shape = x.shape[1:]
     band = _SortedBand(x, work)
     med, sd, sdd = band.med, band.sd, band.sdd
-    mean_all = med + sd.astype(np.float64) / n
+    mean_all = sd.astype(np.float64)
+    mean_all /= n
+    mean_all += med.astype(np.float64)  # converted once: numpy's mixed-type arithmetic is slower, same result
     var_all = _all_variance(sd, sdd, n)
     if method == "median":
         return tuple(a.reshape(shape) for a in (med, mean_all, var_all, np.full(med.size, n, np.int32), var_all,
@@ -327,7 +332,8 @@ def _integer_band_stats(x: np.ndarray, method: str, sigma: float,
     m, v, cnt = band.clipped_moments(-thr, thr)
     thr = _pass2_threshold(v, med, sigma)
     m, v, cnt = band.clipped_moments(m - thr, m + thr)
-    mean = med + m.astype(np.float64)
+    mean = m.astype(np.float64)
+    mean += med.astype(np.float64)
     var_all, mean_all = var_all.reshape(shape), mean_all.reshape(shape)
     return mean.reshape(shape), mean.reshape(shape), v.reshape(shape), cnt.reshape(shape), var_all, mean_all
 
