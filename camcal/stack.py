@@ -14,7 +14,9 @@ file decoded exactly once and memory that does not grow with N:
   ``band_mb`` megabytes whatever the number of frames.
 
 Decoding can run in 2 threads (``jobs=2``; LibRaw releases the GIL) that write straight into the spill
-file; the band statistics run in ``jobs`` threads (numpy's sort releases the GIL).
+file; the band statistics run in ``jobs`` threads (numpy releases the GIL). Each band is sorted along the
+frame axis once; integer bands (the default planes) stay integer and a clip takes the values a pixel loses
+off the sums of all its values, rank by rank from both ends (:class:`_SortedBand`).
 
 Sigma clipping (``sigma_clip``) per pixel: pass 1 keeps values within ``sigma`` robust
 standard deviations (interquartile range / 1.349) of the median; pass 2 keeps
