@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 from camcal.reference_spectra import WAVELENGTHS_NM, gaussian_line
 from camcal.water.band import BandModel, bricaud_1998, solvent_spectrum
 from camcal.water.invert import Reason, invert_images, invert_ratio, tau_newton, tau_table
-from camcal.water.models import RefinedModel, SeedModel
+from camcal.water.models import LampModel, RefinedModel, SeedModel
 from camcal.water.purewater import pure_water_absorption_per_m
 from camcal.water.units import mol_per_L_to_ug_per_L
 
@@ -170,3 +170,124 @@ def test_denormal_depth_is_a_reason_not_an_infinity():
     for method in ("table", "newton"):
         inv = invert_ratio(np.array([0.5]), SeedModel(), 5e-324, method=method)
         assert inv.reason[0] == Reason.BAD_DEPTH and np.isnan(inv.c_ug_per_L[0])
+
+
+def _quadrature_ratio(cf, tau):
+    """R(τ) = K e^(−vτ) ∫_0^θc e^(−mτ/cos θ) cos θ sin θ dθ by adaptive quadrature (not the E₃ closed form)."""
+    from scipy.integrate import quad
+
+    theta_c = np.arccos(cf.mu_c)
+    integral = quad(lambda t: np.exp(-cf.path_factor * tau / np.cos(t)) * np.cos(t) * np.sin(t), 0.0, theta_c,
+                    epsabs=0.0, epsrel=1e-13, limit=200)[0]
+    return cf.scale * np.exp(-cf.view_factor * tau) * integral
+
+
+@pytest.mark.parametrize("model", [SeedModel(), RefinedModel(view_angle_rad=0.5)], ids=["seed", "refined"])
+def test_tau_newton_against_brentq_on_the_quadrature_ratio(model):
+    """τ from ``tau_newton`` against Brent's root of ln R(τ) − ln r with R by quadrature, from τ = 1e-6 to near the
+    table's end; Newton from the first-order start converges in a few steps (bisection alone would need ~50), so a
+    budget of 12 iterations must already give the root. Tolerance: quadrature to 1e-13 relative, so the root to
+    ≈1e-13/|d ln R/dτ|·…; 1e-10 relative leaves margin."""
+    from scipy.optimize import brentq
+
+    cf = model.closed_form()
+    tau_max = 600.0 / (cf.path_factor + cf.view_factor)
+    taus = np.array([1e-6, 1e-3, 0.05, 0.7, 3.0, 20.0, 0.9 * tau_max])
+    ratios = np.array([_quadrature_ratio(cf, t) for t in taus])
+    expect = [brentq(lambda t, r=r: np.log(_quadrature_ratio(cf, t)) - np.log(r), 0.0, tau_max, xtol=1e-300,
+                     rtol=1e-14) for r in ratios]
+    got, why = tau_newton(ratios, cf, max_iter=12)
+    assert why.tolist() == [0] * taus.size
+    np.testing.assert_allclose(got, expect, rtol=1e-10)
+
+
+def test_tau_newton_edges_and_flags():
+    """The clear-water ratio gives τ = 0; the ratio at the deepest tabulated τ (600/(m + v)) is solved, not refused,
+    and one part in 10⁶ darker is TOO_DARK; NaN, ≤ 0 and above-clear-water ratios are NaN with their reason; the
+    shape of the input is kept."""
+    cf = RefinedModel(view_angle_rad=0.3).closed_form()
+    tau_max = 600.0 / (cf.path_factor + cf.view_factor)
+    r0, rmin = cf.ratio_at_zero, float(cf.ratio(tau_max))
+    r = np.array([[r0, rmin, rmin * (1 - 1e-6)], [np.nan, -0.5, r0 * (1 + 1e-9)]])
+    tau, why = tau_newton(r, cf)
+    assert tau.shape == why.shape == (2, 3)
+    assert why.tolist() == [[0, 0, Reason.TOO_DARK], [Reason.NOT_FINITE, Reason.NOT_POSITIVE,
+                                                       Reason.ABOVE_CLEAR_WATER]]
+    assert tau[0, 0] == 0.0
+    assert tau[0, 1] == pytest.approx(tau_max, rel=1e-12)
+    assert np.isnan(tau[0, 2]) and np.isnan(tau[1]).all()
+
+
+@pytest.mark.parametrize("method", ["newton", "table"])
+def test_per_pixel_depths_match_scenes_rendered_one_depth_at_a_time(method):
+    """An array of depths (one per pixel): C, τ and σ_C of each pixel against that pixel's own scene, rendered by
+    the model's forward ratio at its scalar depth. τ = (a_w + a_bg + ln10 ε C·100) d is written out; σ_C =
+    σ_ln r / |d ln R/dC|, the derivative by central differences of the forward ratio (step 1e-3 relative: error
+    ~1e-6). Pixels at the clear-water boundary: τ a hair (5e-11) below the background is clear water (C = 0),
+    5e-10 below it (more than the 1e-9·τ_bg the inversion forgives) is brighter than clear water allows. A bad
+    depth is named BAD_DEPTH whatever its ratio."""
+    m = RefinedModel(view_angle_rad=0.4, background_absorption_per_m=0.3)
+    cf = m.closed_form()
+    c = np.array([1e-8, 1e-7, 2.5e-7, 4e-7, 1e-6, 3e-7])
+    d = np.array([0.12, 0.3, 0.45, 0.2, 0.6, 1e-6])  # the last one exactly the smallest depth inverted
+    r = np.array([float(m.ratio(ci, di)) for ci, di in zip(c, d, strict=True)])
+    sig = np.array([0.01, 0.02, 0.005, 0.01, 0.03, 0.01])
+    inv = invert_ratio(r, m, d, sigma_ln_ratio=sig, method=method)
+    assert inv.reason.tolist() == [0] * c.size
+    # the last pixel: at 1 µm C·τ-per-C is ~1e-7 of τ, so only a loose check of C
+    np.testing.assert_allclose(inv.c_mol_per_L[:5], c[:5], rtol=1e-8)
+    assert inv.c_mol_per_L[5] == pytest.approx(c[5], rel=1e-3)
+    np.testing.assert_allclose(inv.c_ug_per_L, mol_per_L_to_ug_per_L(inv.c_mol_per_L), rtol=1e-15)
+    tau = (m.water_absorption_per_m + 0.3 + np.log(10) * m.epsilon_L_per_mol_cm * c * 100) * d
+    np.testing.assert_allclose(inv.tau, tau, rtol=1e-10)
+    h = 1e-3 * c[:5]
+    dlnr_dc = (np.log([float(m.ratio(ci + hi, di)) for ci, hi, di in zip(c, h, d, strict=False)])
+               - np.log([float(m.ratio(ci - hi, di)) for ci, hi, di in zip(c, h, d, strict=False)])) / (2 * h)
+    np.testing.assert_allclose(inv.sigma_ug_per_L[:5], mol_per_L_to_ug_per_L(sig[:5] / np.abs(dlnr_dc)), rtol=1e-5)
+    # no σ given: NaN σ, the same C
+    plain = invert_ratio(r, m, d, method=method)
+    assert np.isnan(plain.sigma_ug_per_L).all()
+    np.testing.assert_allclose(plain.c_mol_per_L[:5], c[:5], rtol=1e-8)
+    # the clear-water boundary and bad depths
+    dd = np.array([0.25, 0.25, 0.25, np.nan, 0.5 * 1e-6, 0.25])
+    tau_bg = (m.water_absorption_per_m + 0.3) * 0.25
+    r2 = np.array([float(cf.ratio(tau_bg - 5e-11)), float(cf.ratio(tau_bg - 5e-10)), float(cf.ratio(tau_bg)),
+                   float(cf.ratio(0.01)), 0.5, float(m.ratio(2e-7, 0.25))])
+    inv2 = invert_ratio(r2, m, dd, sigma_ln_ratio=0.01, method=method)
+    assert inv2.reason.tolist() == [0, Reason.ABOVE_CLEAR_WATER, 0, Reason.BAD_DEPTH, Reason.BAD_DEPTH, 0]
+    assert inv2.c_mol_per_L[0] == 0.0 and inv2.c_mol_per_L[2] == pytest.approx(0.0, abs=1e-18)
+    bad = [1, 3, 4]
+    assert np.isnan(inv2.c_mol_per_L[bad]).all() and np.isnan(inv2.tau[bad]).all()
+    assert np.isnan(inv2.sigma_ug_per_L[bad]).all()
+    assert inv2.c_mol_per_L[5] == pytest.approx(2e-7, rel=1e-8)
+    assert inv2.tau[0] == pytest.approx(tau_bg, rel=1e-9)
+
+
+@pytest.mark.parametrize("method", ["newton", "table"])
+def test_lamp_model_per_pixel_depth_array_of_one_depth(method):
+    """The lamp model takes an array of depths only if they are all the same (its geometry depends on the depth).
+    C of each pixel against the C its scene was rendered with (the forward ratio at the scalar depth); τ written
+    out, (a_w + a_bg) d + ln10 ε C·100 d; σ_C = σ_ln r / (s · ln10 ε·100 d) exactly, d ln R/dC of the single
+    exponential R = K e^(−sτ) with s = 1/cos β + 1/μv from Snell written out."""
+    from camcal.errors import CamcalError
+
+    m = LampModel(height_m=0.8, lamp_angle_rad=0.5, view_angle_rad=0.3, background_absorption_per_m=0.2)
+    c = np.array([5e-8, 2e-7, 6e-7])
+    r = np.array([float(m.ratio(ci, 0.3)) for ci in c])
+    s = 1 / np.cos(np.arcsin(np.sin(0.5) / m.n_water)) + 1 / np.cos(np.arcsin(np.sin(0.3) / m.n_water))
+    per_c = np.log(10) * m.epsilon_L_per_mol_cm * 100 * 0.3
+    for depth in (0.3, np.array([0.3]), np.full(3, 0.3), np.array([0.3, np.nan, 0.3])):
+        inv = invert_ratio(r, m, depth, sigma_ln_ratio=0.02, method=method)
+        bad = ~np.isfinite(np.broadcast_to(depth, 3))
+        assert inv.reason.tolist() == [Reason.BAD_DEPTH if b else 0 for b in bad]
+        ok = ~bad
+        np.testing.assert_allclose(inv.c_mol_per_L[ok], c[ok], rtol=1e-9)
+        tau = (m.water_absorption_per_m + 0.2) * 0.3 + per_c * c
+        np.testing.assert_allclose(inv.tau[ok], tau[ok], rtol=1e-10)
+        np.testing.assert_allclose(inv.sigma_ug_per_L[ok], mol_per_L_to_ug_per_L(0.02 / (s * per_c)), rtol=1e-8)
+    with pytest.raises(CamcalError, match="one depth at a time"):
+        invert_ratio(r, m, np.array([0.3, 0.31, 0.3]), method=method)
+    # every depth below 1 µm, or so deep the geometry overflows: every pixel BAD_DEPTH, no exception
+    for depth in (np.full(3, 5e-7), 1e300, np.full(3, 1e300)):
+        inv = invert_ratio(r, m, depth, sigma_ln_ratio=0.02, method=method)
+        assert inv.reason.tolist() == [Reason.BAD_DEPTH] * 3 and np.isnan(inv.c_mol_per_L).all()
