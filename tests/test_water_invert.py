@@ -291,3 +291,20 @@ def test_lamp_model_per_pixel_depth_array_of_one_depth(method):
     for depth in (np.full(3, 5e-7), 1e300, np.full(3, 1e300)):
         inv = invert_ratio(r, m, depth, sigma_ln_ratio=0.02, method=method)
         assert inv.reason.tolist() == [Reason.BAD_DEPTH] * 3 and np.isnan(inv.c_mol_per_L).all()
+
+
+def test_inversion_summary_counts_and_statistics_written_out():
+    """Counts per reason by name and the statistics of the valid pixels, on values whose median, mean and
+    linear-interpolation percentiles are known by hand: 1…5 µg/L → median 3, mean 3, p05 = 1 + 0.05·4 = 1.2,
+    p95 = 1 + 0.95·4 = 4.8."""
+    from camcal.water.invert import Inversion
+
+    c = np.array([3.0, np.nan, 1.0, 5.0, np.nan, 2.0, np.nan, 4.0])
+    reason = np.array([0, 1, 0, 0, 4, 0, 4, 0], dtype=np.uint8)
+    nan = np.full(c.shape, np.nan)
+    s = Inversion(c * 1e-9, c, nan, nan, reason).summary()
+    assert s == {"pixels": 8, "valid": 5, "reasons": {"ok": 5, "not_finite": 1, "too_dark": 2},
+                 "median_ug_per_L": 3.0, "mean_ug_per_L": 3.0,
+                 "p05_ug_per_L": pytest.approx(1.2, rel=1e-12), "p95_ug_per_L": pytest.approx(4.8, rel=1e-12)}
+    none = Inversion(nan[:2], nan[:2], nan[:2], nan[:2], np.array([3, 3], dtype=np.uint8)).summary()
+    assert none == {"pixels": 2, "valid": 0, "reasons": {"above_clear_water": 2}}
