@@ -308,3 +308,29 @@ def test_inversion_summary_counts_and_statistics_written_out():
                  "p05_ug_per_L": pytest.approx(1.2, rel=1e-12), "p95_ug_per_L": pytest.approx(4.8, rel=1e-12)}
     none = Inversion(nan[:2], nan[:2], nan[:2], nan[:2], np.array([3, 3], dtype=np.uint8)).summary()
     assert none == {"pixels": 2, "valid": 0, "reasons": {"above_clear_water": 2}}
+
+
+def test_invert_images_sigma_from_both_radiances_and_a_dim_reference():
+    """Images of C (rendered by the forward ratio) over a reference radiance that varies from 0.4 to 3 (below 1
+    too): C per pixel against the truth; σ_C = √((σ_s/L_s)² + (σ_ref/L_ref)²) / |d ln R/dC| with the derivative
+    by central differences of the forward ratio (step 1e-3 relative: error ~1e-6), for both σ given, only the
+    reference's, only the submerged one's; a zero reference is BAD_REFERENCE."""
+    m = RefinedModel(view_angle_rad=0.2)
+    c = np.linspace(5e-8, 6e-7, 20).reshape(4, 5)
+    ref = np.linspace(0.4, 3.0, 20).reshape(4, 5)
+    ref[3, 4] = 0.0
+    d = 0.35
+    sub = m.ratio(c, d) * ref
+    sub[3, 4] = 0.7
+    h = 1e-3 * c
+    dlnr_dc = (np.log(m.ratio(c + h, d)) - np.log(m.ratio(c - h, d))) / (2 * h)
+    ok = np.ones(c.shape, dtype=bool)
+    ok[3, 4] = False
+    for s_sub, s_ref, rel in ((0.01 * sub, 0.02 * ref, np.hypot(0.01, 0.02)), (None, 0.02 * ref, 0.02),
+                              (0.01 * sub, None, 0.01)):
+        inv = invert_images(sub, ref, m, d, sigma_submerged=s_sub, sigma_reference=s_ref)
+        assert inv.reason[3, 4] == Reason.BAD_REFERENCE and np.all(inv.reason[ok] == 0)
+        np.testing.assert_allclose(inv.c_mol_per_L[ok], c[ok], rtol=1e-9)
+        np.testing.assert_allclose(inv.sigma_ug_per_L[ok], mol_per_L_to_ug_per_L(rel / np.abs(dlnr_dc[ok])),
+                                   rtol=1e-5)
+    assert np.isnan(invert_images(sub, ref, m, d).sigma_ug_per_L).all()
