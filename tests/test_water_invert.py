@@ -334,3 +334,41 @@ def test_invert_images_sigma_from_both_radiances_and_a_dim_reference():
         np.testing.assert_allclose(inv.sigma_ug_per_L[ok], mol_per_L_to_ug_per_L(rel / np.abs(dlnr_dc[ok])),
                                    rtol=1e-5)
     assert np.isnan(invert_images(sub, ref, m, d).sigma_ug_per_L).all()
+
+
+def test_scalar_depth_fast_path_with_background_absorption():
+    """The image path (one depth, one σ) with a background absorption: C, τ and σ_C against scenes rendered by the
+    forward ratio, τ written out, σ_C from central differences of the forward ratio (as above); τ 5e-11 below
+    the background is clear water (C = 0), 5e-10 below it brighter than clear water allows (the inversion
+    forgives 1e-9·τ_bg, τ_bg ≈ 0.18 here)."""
+    m = RefinedModel(view_angle_rad=0.4, background_absorption_per_m=0.3)
+    cf, d = m.closed_form(), 0.25
+    c = np.array([[1e-8, 1e-7], [2.5e-7, 8e-7]])
+    r = m.ratio(c, d)
+    inv = invert_ratio(r, m, d, sigma_ln_ratio=0.01)
+    assert inv.reason.shape == (2, 2) and np.all(inv.reason == 0)
+    np.testing.assert_allclose(inv.c_mol_per_L, c, rtol=1e-9)
+    tau_bg = (m.water_absorption_per_m + 0.3) * d
+    np.testing.assert_allclose(inv.tau, tau_bg + np.log(10) * m.epsilon_L_per_mol_cm * c * 100 * d, rtol=1e-10)
+    h = 1e-3 * c
+    dlnr_dc = (np.log(m.ratio(c + h, d)) - np.log(m.ratio(c - h, d))) / (2 * h)
+    np.testing.assert_allclose(inv.sigma_ug_per_L, mol_per_L_to_ug_per_L(0.01 / np.abs(dlnr_dc)), rtol=1e-5)
+    r2 = np.array([float(cf.ratio(tau_bg - 5e-11)), float(cf.ratio(tau_bg - 5e-10))])
+    inv2 = invert_ratio(r2, m, d, sigma_ln_ratio=0.01)
+    assert inv2.reason.tolist() == [0, Reason.ABOVE_CLEAR_WATER]
+    assert inv2.c_mol_per_L[0] == 0.0 and inv2.tau[0] == pytest.approx(tau_bg, rel=1e-9)
+    assert np.isnan([inv2.c_mol_per_L[1], inv2.tau[1], inv2.sigma_ug_per_L[1]]).all()
+
+
+@pytest.mark.filterwarnings("ignore:overflow encountered:RuntimeWarning")  # the µg/L conversion overflows (reported)
+@pytest.mark.parametrize("method", ["newton", "table"])
+def test_concentration_that_overflows_is_too_dark(method):
+    """A molar absorption so small (1e-305 L/mol/cm) that τ per unit C is ~1e-306: any τ above clear water gives
+    C = ∞, which becomes NaN with reason TOO_DARK; the clear-water ratio stays C = 0."""
+    m = SeedModel(epsilon_L_per_mol_cm=1e-305)
+    cf = m.closed_form()
+    r = np.array([cf.ratio_at_zero, float(cf.ratio(0.5))])
+    for depth in (0.3, np.full(2, 0.3)):
+        inv = invert_ratio(r, m, depth, sigma_ln_ratio=0.01, method=method)
+        assert inv.reason.tolist() == [0, Reason.TOO_DARK] and inv.c_mol_per_L[0] == 0.0
+        assert np.isnan([inv.c_mol_per_L[1], inv.c_ug_per_L[1], inv.sigma_ug_per_L[1], inv.tau[1]]).all()
