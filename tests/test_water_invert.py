@@ -210,7 +210,7 @@ def test_tau_newton_edges_and_flags():
     r0, rmin = cf.ratio_at_zero, float(cf.ratio(tau_max))
     r = np.array([[r0, rmin, rmin * (1 - 1e-6)], [np.nan, -0.5, r0 * (1 + 1e-9)]])
     tau, why = tau_newton(r, cf)
-    assert tau.shape == why.shape == (2, 3)
+    assert tau.shape == why.shape == (2, 3) and why.dtype == np.uint8
     assert why.tolist() == [[0, 0, Reason.TOO_DARK], [Reason.NOT_FINITE, Reason.NOT_POSITIVE,
                                                        Reason.ABOVE_CLEAR_WATER]]
     assert tau[0, 0] == 0.0
