@@ -1120,3 +1120,27 @@ def test_system_gain_of_third_party_dark_models():
             return {"gain_dn_per_e_from_dark": {"G2": 0.3}}
 
     np.testing.assert_array_equal(system_gain_dn_per_e(NoPlaneNames())[:, 0, 0], np.float32([0.0, 0.0, 0.3, 0.0]))
+
+
+def test_third_party_dark_frame_is_split_only_when_a_mosaic_of_the_frame():
+    """A third-party dark model's 2-D frame is split into planes only when the frame has a CFA pattern and the
+    2-D frame is exactly the mosaic (2h × 2w); a mosaic-sized frame without a pattern, or a 2-D frame of another
+    size with one, is refused with its shape named. The split planes are the mosaic's samples (RGGB: R at
+    (0, 0), G at (0, 1) and (1, 0), B at (1, 1))."""
+    from camcal.correct import dark_frame
+
+    class Mosaic:
+        def __init__(self, frame):
+            self.frame = frame
+
+        def dark_frame_dn(self, exposure_s, iso):
+            return self.frame
+
+    mosaic = np.arange(4 * 6, dtype=float).reshape(4, 6)
+    got = dark_frame(Mosaic(mosaic), 1.0, 100.0, (4, 2, 3), cfa_pattern="RGGB")
+    np.testing.assert_array_equal(got, np.stack([mosaic[0::2, 0::2], mosaic[0::2, 1::2], mosaic[1::2, 0::2],
+                                                 mosaic[1::2, 1::2]]))
+    with pytest.raises(CamcalError, match=r"has shape \(4, 6\)"):
+        dark_frame(Mosaic(mosaic), 1.0, 100.0, (4, 2, 3), cfa_pattern=None)
+    with pytest.raises(CamcalError, match=r"has shape \(2, 3\)"):
+        dark_frame(Mosaic(mosaic[:2, :3]), 1.0, 100.0, (4, 2, 3), cfa_pattern="RGGB")
