@@ -1144,3 +1144,22 @@ def test_third_party_dark_frame_is_split_only_when_a_mosaic_of_the_frame():
         dark_frame(Mosaic(mosaic), 1.0, 100.0, (4, 2, 3), cfa_pattern=None)
     with pytest.raises(CamcalError, match=r"has shape \(2, 3\)"):
         dark_frame(Mosaic(mosaic[:2, :3]), 1.0, 100.0, (4, 2, 3), cfa_pattern="RGGB")
+
+
+def test_field_description_diffuse_fraction_on_an_uneven_grid_with_negative_sensitivity():
+    """The in-band diffuse fraction weights each sample by its wavelength step and by the sensitivity clipped at
+    0: on a grid whose step grows from 2 to 8 nm, with a measured sensitivity that dips below 0 (noise) in its
+    tails, against the trapezoid rule over the clipped sensitivity (its interior weights are the central steps;
+    the clipped sensitivity is 0 at the grid's ends, so the end weights do not matter)."""
+    wl = np.cumsum(np.r_[520.0, np.linspace(2.0, 8.0, 50)])
+    c = _gauss(wl, 600.0, 25.0) - 0.05
+    sky_wl = np.arange(500.0, 801.0, 20.0)
+    e_dif_sky = np.linspace(0.0, 1.5, sky_wl.size) ** 2
+    sky = MeasuredSky(45.0, sky_wl, np.ones(sky_wl.size), e_dif_sky)
+    e_dif = np.interp(wl, sky_wl, e_dif_sky)
+    f = e_dif / (1.0 + e_dif)
+    w = np.clip(c, 0.0, None) * (1.0 + e_dif)
+    assert w[0] == 0.0 and w[-1] == 0.0 and np.ptp(np.diff(wl)) > 5.0
+    expect = np.trapezoid(w * f, wl) / np.trapezoid(w, wl)
+    got = field_band_model(wl, c, sky=sky).describe()["diffuse_fraction_in_band"]
+    assert got == pytest.approx(expect, rel=1e-9)
