@@ -1163,3 +1163,16 @@ def test_field_description_diffuse_fraction_on_an_uneven_grid_with_negative_sens
     expect = np.trapezoid(w * f, wl) / np.trapezoid(w, wl)
     got = field_band_model(wl, c, sky=sky).describe()["diffuse_fraction_in_band"]
     assert got == pytest.approx(expect, rel=1e-9)
+
+
+def test_srgb_form_fit_exponent_stays_below_one_for_a_response_steeper_than_linear():
+    """A response that follows the sRGB form with p = 1.2 above its knee (a curve bending up, which the form's
+    documented range 0.05 ≤ p ≤ 0.99 excludes): the fit must stay in range (p ≤ 0.99 and a poor χ²), not follow
+    the data to p = 1.2 (χ² ≈ 0), whatever its start."""
+    from camcal.response_model import SRGB_OFFSET_A
+
+    x = np.linspace(0.3, 1.0, 8) * 0.03
+    g = 255.0 * ((1 + SRGB_OFFSET_A) * (x / 0.03) ** 1.2 - SRGB_OFFSET_A)
+    for p0 in (0.5, 0.9):
+        fit = fit_srgb_form(x, g, np.full(8, 0.3), 255.0, p0=p0, x_white0=0.03)
+        assert 0.05 <= fit["exponent"] <= 0.99 and fit["chi2_red"] > 100.0
