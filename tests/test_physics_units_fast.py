@@ -1176,3 +1176,33 @@ def test_srgb_form_fit_exponent_stays_below_one_for_a_response_steeper_than_line
     for p0 in (0.5, 0.9):
         fit = fit_srgb_form(x, g, np.full(8, 0.3), 255.0, p0=p0, x_white0=0.03)
         assert 0.05 <= fit["exponent"] <= 0.99 and fit["chi2_red"] > 100.0
+
+
+def test_slit_matrix_is_the_slit_mean_of_the_natural_spline_on_a_grid_with_a_long_last_step():
+    """The last step (40 nm) longer than the slit's reach (3 FWHM = 15 nm), so the last slit lies wholly beyond
+    the one before: on a line, the closed form a + b·E[clip(X, λ_0, λ_n)] (as above); on a parabola, which a
+    natural spline does not reproduce near the ends (c'' = 0 there), the Gaussian mean of the clamped natural
+    spline through the node values by adaptive quadrature (scipy.integrate.quad). Tolerance: the operator's
+    0.1 nm trapezoid rule over a spline with kinks at the clamps (measured 4e-6 on values up to 1, at the end
+    nodes); a not-a-knot spline differs by 1e-4 to 4e-3 at four of the six nodes."""
+    from scipy.integrate import quad
+    from scipy.interpolate import CubicSpline
+
+    wl = np.array([400.0, 404.0, 409.0, 415.0, 420.0, 460.0])
+    fwhm = 5.0
+    sigma = fwhm / (2 * np.sqrt(2 * np.log(2)))
+    a = slit_matrix(wl, fwhm)
+
+    def clamped_mean(f, mu):
+        lo, hi = wl[0], wl[-1]
+        inside = quad(lambda x: f(x) * norm.pdf(x, mu, sigma), lo, hi, points=list(wl[(wl > mu - 8 * sigma)
+                                                                                    & (wl < mu + 8 * sigma)]),
+                      epsabs=1e-13, limit=200)[0]
+        return inside + f(lo) * norm.cdf(lo, mu, sigma) + f(hi) * norm.sf(hi, mu, sigma)
+
+    line = lambda x: 0.3 + 0.01 * x  # noqa: E731
+    np.testing.assert_allclose(a @ line(wl), [clamped_mean(line, m) for m in wl], rtol=1e-6)
+    values = ((wl - 400.0) / 60.0) ** 2
+    spline = CubicSpline(wl, values, bc_type="natural")
+    expect = [clamped_mean(lambda x: float(spline(x)), m) for m in wl]
+    np.testing.assert_allclose(a @ values, expect, rtol=0, atol=2e-5)
