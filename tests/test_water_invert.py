@@ -246,7 +246,7 @@ def test_per_pixel_depths_match_scenes_rendered_one_depth_at_a_time(method):
     np.testing.assert_allclose(inv.sigma_ug_per_L[:5], mol_per_L_to_ug_per_L(sig[:5] / np.abs(dlnr_dc)), rtol=1e-5)
     # no σ given: NaN σ, the same C
     plain = invert_ratio(r, m, d, method=method)
-    assert np.isnan(plain.sigma_ug_per_L).all()
+    assert plain.sigma_ug_per_L.shape == r.shape and np.isnan(plain.sigma_ug_per_L).all()
     np.testing.assert_allclose(plain.c_mol_per_L[:5], c[:5], rtol=1e-8)
     # the clear-water boundary and bad depths
     dd = np.array([0.25, 0.25, 0.25, np.nan, 0.5 * 1e-6, 0.25])
@@ -287,8 +287,12 @@ def test_lamp_model_per_pixel_depth_array_of_one_depth(method):
         np.testing.assert_allclose(inv.sigma_ug_per_L[ok], mol_per_L_to_ug_per_L(0.02 / (s * per_c)), rtol=1e-8)
     with pytest.raises(CamcalError, match="one depth at a time"):
         invert_ratio(r, m, np.array([0.3, 0.31, 0.3]), method=method)
-    # every depth below 1 µm, or so deep the geometry overflows: every pixel BAD_DEPTH, no exception
-    for depth in (np.full(3, 5e-7), 1e300, np.full(3, 1e300)):
+    # exactly the smallest depth inverted (1 µm): the geometry of that depth (τ per C is ~1e-7 of the above)
+    r_min = np.array([float(m.ratio(ci, 1e-6)) for ci in c])
+    for depth in (1e-6, np.full(3, 1e-6)):
+        np.testing.assert_allclose(invert_ratio(r_min, m, depth, method=method).c_mol_per_L, c, rtol=1e-3)
+    # every depth below 1 µm or not finite, or so deep the geometry overflows: every pixel BAD_DEPTH
+    for depth in (np.full(3, 5e-7), np.full(3, np.nan), 1e300, np.full(3, 1e300)):
         inv = invert_ratio(r, m, depth, sigma_ln_ratio=0.02, method=method)
         assert inv.reason.tolist() == [Reason.BAD_DEPTH] * 3 and np.isnan(inv.c_mol_per_L).all()
 
@@ -353,6 +357,10 @@ def test_scalar_depth_fast_path_with_background_absorption():
     h = 1e-3 * c
     dlnr_dc = (np.log(m.ratio(c + h, d)) - np.log(m.ratio(c - h, d))) / (2 * h)
     np.testing.assert_allclose(inv.sigma_ug_per_L, mol_per_L_to_ug_per_L(0.01 / np.abs(dlnr_dc)), rtol=1e-5)
+    # one σ per pixel (a 1-D array) with the one depth
+    sig = np.array([0.01, 0.02, 0.03, 0.04])
+    inv1 = invert_ratio(r.ravel(), m, d, sigma_ln_ratio=sig)
+    np.testing.assert_allclose(inv1.sigma_ug_per_L, mol_per_L_to_ug_per_L(sig / np.abs(dlnr_dc.ravel())), rtol=1e-5)
     r2 = np.array([float(cf.ratio(tau_bg - 5e-11)), float(cf.ratio(tau_bg - 5e-10))])
     inv2 = invert_ratio(r2, m, d, sigma_ln_ratio=0.01)
     assert inv2.reason.tolist() == [0, Reason.ABOVE_CLEAR_WATER]
