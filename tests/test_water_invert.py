@@ -233,7 +233,7 @@ def test_per_pixel_depths_match_scenes_rendered_one_depth_at_a_time(method):
     r = np.array([float(m.ratio(ci, di)) for ci, di in zip(c, d, strict=True)])
     sig = np.array([0.01, 0.02, 0.005, 0.01, 0.03, 0.01])
     inv = invert_ratio(r, m, d, sigma_ln_ratio=sig, method=method)
-    assert inv.reason.tolist() == [0] * c.size
+    assert inv.reason.tolist() == [0] * c.size and inv.reason.dtype == np.uint8
     # the last pixel: at 1 µm C·τ-per-C is ~1e-7 of τ, so only a loose check of C
     np.testing.assert_allclose(inv.c_mol_per_L[:5], c[:5], rtol=1e-8)
     assert inv.c_mol_per_L[5] == pytest.approx(c[5], rel=1e-3)
@@ -334,6 +334,9 @@ def test_invert_images_sigma_from_both_radiances_and_a_dim_reference():
                               (0.01 * sub, None, 0.01)):
         inv = invert_images(sub, ref, m, d, sigma_submerged=s_sub, sigma_reference=s_ref)
         assert inv.reason[3, 4] == Reason.BAD_REFERENCE and np.all(inv.reason[ok] == 0)
+        assert inv.tau.dtype == inv.c_ug_per_L.dtype == np.float64 and np.isnan(inv.tau[3, 4])
+        np.testing.assert_allclose(inv.c_ug_per_L[ok], mol_per_L_to_ug_per_L(c[ok]), rtol=1e-9)
+        np.testing.assert_allclose(inv.tau[ok], m.tau(c[ok], d), rtol=1e-10)
         np.testing.assert_allclose(inv.c_mol_per_L[ok], c[ok], rtol=1e-9)
         np.testing.assert_allclose(inv.sigma_ug_per_L[ok], mol_per_L_to_ug_per_L(rel / np.abs(dlnr_dc[ok])),
                                    rtol=1e-5)
@@ -380,3 +383,23 @@ def test_concentration_that_overflows_is_too_dark(method):
         inv = invert_ratio(r, m, depth, sigma_ln_ratio=0.01, method=method)
         assert inv.reason.tolist() == [0, Reason.TOO_DARK] and inv.c_mol_per_L[0] == 0.0
         assert np.isnan([inv.c_mol_per_L[1], inv.c_ug_per_L[1], inv.sigma_ug_per_L[1], inv.tau[1]]).all()
+
+
+def test_tau_table_first_order_below_its_first_node_and_refusals_without_slope():
+    """Ratios within 1e-14 (in ln) of clear water are below the table's first node: τ = δ/slope₀ and dτ/d(−ln r)
+    = 1/slope₀, slope₀ = −d ln R/dτ at 0 here by a forward difference of the closed form over 1e-9 (error
+    ~1e-8·ln: the derivative of E₃ has a log term at 0); and without the slope, bad ratios get their reasons."""
+    cf = SeedModel().closed_form()
+    table = tau_table(cf)
+    r0 = cf.ratio_at_zero
+    r = r0 * np.array([1 - 2e-15, 1 - 6e-15])
+    delta = np.log(r0) - np.log(r)
+    assert np.all((delta > 0) & (delta < 1e-14))
+    slope0 = -(np.log(cf.ratio(1e-9)) - np.log(r0)) / 1e-9
+    tau, why, slope = table.tau(r, with_slope=True)
+    assert why.tolist() == [0, 0] and why.dtype == np.uint8
+    np.testing.assert_allclose(tau, delta / slope0, rtol=1e-5)
+    np.testing.assert_allclose(slope, 1 / slope0, rtol=1e-5)
+    tau, why = table.tau(np.array([np.nan, 2 * r0, -1.0, 1e-300, r[0]]))
+    assert why.tolist() == [Reason.NOT_FINITE, Reason.ABOVE_CLEAR_WATER, Reason.NOT_POSITIVE, Reason.TOO_DARK, 0]
+    assert np.isnan(tau[:4]).all() and tau[4] > 0
