@@ -121,7 +121,8 @@ def _robust(x: np.ndarray) -> tuple[float, float]:
     x = x[np.isfinite(x)]
     if x.size == 0:
         return float("nan"), float("nan")
-    med = float(np.median(x))
+    # x is a copy (the finite values): the selections may reorder it, and a median does not depend on the order
+    med = float(np.median(x, overwrite_input=True))
     # the median found once: scipy's MAD takes it as its centre instead of finding it again
     return med, float(median_abs_deviation(x, center=lambda _x, axis: np.float64(med), scale="normal"))
 
@@ -747,7 +748,9 @@ def _fit_lines(obs, white: float, *, variance: Callable[[np.ndarray, tuple], np.
 
     The closed-form sums run over row bands of about :data:`FIT_BAND_PIXELS` pixels in ``jobs`` threads, in
     float64 with the operations of the whole-array formulas in the same order: the result does not depend on
-    the banding or the number of threads (every value is bit-identical).
+    the banding or the number of threads (every value is bit-identical). A band whose levels are all below
+    saturation and whose weights are all positive (the usual band) skips the masking of the weights; its values
+    are the same.
     """
     shape = np.broadcast_shapes(*(np.shape(y) for _, y, _, _ in obs))
     obs = [(t, np.broadcast_to(y, shape), np.broadcast_to(n, shape), None if v is None else np.broadcast_to(v, shape))
@@ -763,8 +766,12 @@ def _fit_lines(obs, white: float, *, variance: Callable[[np.ndarray, tuple], np.
         s = st = stt = sy = sty = cnt = None
         for t, y, n, _v in obs:
             yb = np.asarray(y[idx], np.float64)
-            w = np.where(yb < white - 1.0, np.asarray(n[idx], np.float64), 0.0)
-            pos = w > 0
+            w = np.asarray(n[idx], np.float64)
+            if float(yb.max()) < white - 1.0 and float(w.min()) > 0:
+                pos = None  # every level of the band below saturation, every weight positive (the usual band)
+            else:
+                w = np.where(yb < white - 1.0, w, 0.0)
+                pos = w > 0
             ys.append(yb)
             ws.append(w)
             used.append(pos)
@@ -774,7 +781,7 @@ def _fit_lines(obs, white: float, *, variance: Callable[[np.ndarray, tuple], np.
             s += w
             wt = w * t
             st += wt
-            cnt += pos
+            cnt += 1 if pos is None else pos
             if with_fit:
                 sy += w * yb
                 sty += wt * yb
@@ -800,7 +807,7 @@ def _fit_lines(obs, white: float, *, variance: Callable[[np.ndarray, tuple], np.
                 c = w / s
                 c -= tbar * a
                 vb = variance(yb, idx) if variance is not None else np.asarray(v[idx], np.float64)
-                per = np.where(pos, vb / np.where(pos, w, 1.0), 0.0)
+                per = vb / w if pos is None else np.where(pos, vb / np.where(pos, w, 1.0), 0.0)
                 a *= a
                 a *= per
                 bv += a
@@ -833,13 +840,15 @@ def _noise_model(stats: list[tuple[float, StackResult]], b: np.ndarray,
             ok = np.isfinite(var) & b_ok
             # hot and noisy pixels out: above 5x the median, or (quantised data below 1 DN of noise, whose
             # median variance is often 0) above 5x the mean; the means and the median in float64
-            thr = 5 * _max_median_mean(np.asarray(var[ok], np.float64))
-            ok &= var < np.float64(thr)  # compared in float64 (a numpy float64 promotes float32)
+            v = np.asarray(var[ok], np.float64)  # in raster order; _max_median_mean keeps that order
+            thr = np.float64(5 * _max_median_mean(v))
+            below = v < thr  # compared in float64, as ``var < thr`` promotes the float32 variances
+            ok &= var < thr
             if not ok.any():
                 raise CamcalError(f"the dark frames at {_t:g} s show no temporal noise at all",
                                   st.paths[0].parent if st.paths else None)
             xs.append(float(np.mean(np.asarray(st.value[k][ok], np.float64) - b[k][ok])))
-            ys.append(float(np.mean(np.asarray(var[ok], np.float64))))
+            ys.append(float(np.mean(v[below])))  # the values of var[ok], in the same order
         if len(xs) >= 2 and np.ptp(xs) > 0:
             slope, icpt = np.polyfit(xs, ys, 1)
             g[k], v0[k] = max(slope, 0.0), max(icpt, 1e-6)
@@ -851,7 +860,7 @@ def _noise_model(stats: list[tuple[float, StackResult]], b: np.ndarray,
 
 
 def _max_median_mean(x: np.ndarray) -> float:
-    """``max(median(x), mean(x))`` of a 1-D float64 array (``x`` may be reordered).
+    """``max(median(x), mean(x))`` of a 1-D float64 array (``x`` is not modified).
 
     When at least ``n // 2 + 1`` values lie at or below the mean, both middle order statistics do, so the median
     is at most the mean and the maximum is the mean: one comparison instead of a selection (a skewed variance
@@ -860,7 +869,7 @@ def _max_median_mean(x: np.ndarray) -> float:
     mean = float(np.mean(x))
     if np.count_nonzero(x <= mean) >= x.size // 2 + 1:
         return mean
-    return max(float(np.median(x, overwrite_input=True)), mean)
+    return max(float(np.median(x)), mean)
 
 
 def _run_planes(one: Callable[[int], object], c: int, jobs: int | None, plane_pixels: int) -> list:
@@ -895,7 +904,7 @@ def _channel_summary(b, b_var, beta, beta_var, var_t, defects, stacks, have_bias
             "bias_unc_dn": float(1.2533 * np.std(bk) / np.sqrt(bk.size)),
             "dark_current_dn_per_s": med_beta,
             "dark_current_unc_dn_per_s": float(1.2533 * rs_beta / np.sqrt(betak.size)),
-            "dark_current_pixel_unc_dn_per_s": float(np.median(np.sqrt(beta_var[k][good]))),
+            "dark_current_pixel_unc_dn_per_s": float(np.median(np.sqrt(beta_var[k][good]), overwrite_input=True)),
             "dark_current_mean_dn_per_s": float(np.mean(betak)),
             "read_noise_dn": float(np.sqrt(max(rn_var, 0.0))),
             "temporal_noise_dn": float(noise.temporal_noise_dn[k]),

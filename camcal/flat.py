@@ -376,6 +376,25 @@ class FlatOptions:
                 "degree_2d": self.degree_2d, "with_prnu": self.with_prnu}
 
 
+HISTOGRAM_ROWS = 256
+"""Rows of a plane counted at a time by :func:`_histogram` (their index copy stays in the cache)."""
+
+
+def _histogram(plane: np.ndarray) -> np.ndarray:
+    """``np.bincount(plane.ravel())`` of a non-negative integer plane, counted in bands of :data:`HISTOGRAM_ROWS`
+    rows: :func:`numpy.bincount` converts its input to a platform integer first, a copy 4x the size of a 16-bit
+    plane, which per band stays in the cache (twice as fast at 24 MP)."""
+    total = np.zeros(0, np.intp)
+    for y in range(0, plane.shape[0], HISTOGRAM_ROWS):
+        counts = np.bincount(plane[y:y + HISTOGRAM_ROWS].ravel())
+        if counts.size < total.size:
+            total[:counts.size] += counts
+        else:
+            counts[:total.size] += total
+            total = counts
+    return total
+
+
 def _medians_above(planes: np.ndarray, black: np.ndarray) -> np.ndarray:
     """Per-plane median of ``planes − black`` (C, h, w) − (C, 1, 1), as :func:`numpy.median` gives it.
 
@@ -389,7 +408,7 @@ def _medians_above(planes: np.ndarray, black: np.ndarray) -> np.ndarray:
     n = planes[0].size
     out = np.empty(c)
     for k in range(c):
-        cum = np.cumsum(np.bincount(planes[k].ravel()))
+        cum = np.cumsum(_histogram(planes[k]))
         lo, hi = np.searchsorted(cum, [(n - 1) // 2, n // 2], side="right")  # the order statistics' values
         bk = np.float64(black.reshape(c)[k])
         out[k] = ((np.float64(lo) - bk) + (np.float64(hi) - bk)) / 2
@@ -418,7 +437,7 @@ def check_flat_frame(frame: Frame, checks: FlatChecks = FlatChecks(),  # noqa: B
     at_white = planes >= white
     if defects is not None and defects.shape == at_white.shape:
         at_white &= ~defects
-    clipped = float(np.mean(at_white))
+    clipped = np.count_nonzero(at_white) / at_white.size  # the fraction np.mean gives, without a float pass
     if clipped > checks.max_clipped_fraction:
         raise CamcalError(f"flat is saturated: {100 * clipped:.3g} % of pixels at the white level ({white:g} DN) "
                           f"outside known defects; shorten the exposure or dim the source", path)
@@ -517,7 +536,7 @@ def master_flat(
     bias the combine; the combined master is thus normalised per channel (median ≈ 1).
     """
     dark_model = as_dark_model(dark)
-    cal = Calibration.of(dark_model)
+    cal = Calibration.of(dark_model).remembering_dark_frames()  # one exposure: the dark frame computed once
     paths, manifest = stage_files(flat_folder)
     first: dict = {}  # of the first frame, which combine_frames decodes first, in this thread: shape, level
 
@@ -547,7 +566,9 @@ def master_flat(
         # the valid values are a copy already: the median may reorder it
         med = np.array([np.median(corr.signal_dn[k][~corr.invalid[k]], overwrite_input=True)
                         for k in range(corr.signal_dn.shape[0])])
-        return corr.masked(np.nan), med
+        signal = corr.signal_dn  # this frame's own array (its planes, corrected in place): masked in place
+        signal[corr.invalid] = np.nan
+        return signal, med
 
     def preprocess(frame: Frame) -> np.ndarray:
         planes, med = corrected(frame)
