@@ -790,10 +790,14 @@ def _fit_lines(obs, white: float, *, variance: Callable[[np.ndarray, tuple], np.
         with np.errstate(invalid="ignore", divide="ignore"):
             d = s * stt - st * st
             ok = (cnt >= 2) & (d > 0)
+            every = bool(ok.all())  # the usual band: a line for every pixel, nothing to set to NaN
             if with_fit:
-                bb = np.where(ok, (s * sty - st * sy) / d, np.nan)
+                bb = (s * sty - st * sy) / d
+                if not every:
+                    bb = np.where(ok, bb, np.nan)
                 beta[idx] = bb
-                b[idx] = np.where(ok, (sy - bb * st) / s, np.nan)
+                bi = (sy - bb * st) / s
+                b[idx] = bi if every else np.where(ok, bi, np.nan)
             n_times[idx] = cnt
             if not with_variance:
                 return
@@ -814,8 +818,8 @@ def _fit_lines(obs, white: float, *, variance: Callable[[np.ndarray, tuple], np.
                 c *= c
                 c *= per
                 cv += c
-        beta_var[idx] = np.where(ok, bv, np.nan)
-        b_var[idx] = np.where(ok, cv, np.nan)
+        beta_var[idx] = bv if every else np.where(ok, bv, np.nan)
+        b_var[idx] = cv if every else np.where(ok, cv, np.nan)
 
     _run_bands(one, shape, jobs)
     return beta, beta_var, b, b_var, n_times
