@@ -224,6 +224,7 @@ def fit_flat_planes(
     with_prnu: bool = True,
     noise_var: np.ndarray | None = None,
     info: dict | None = None,
+    smooth_out: list | None = None,
 ) -> FlatModel:
     """Fit the vignetting model (and PRNU) to a master flat held in memory.
 
@@ -245,6 +246,9 @@ def fit_flat_planes(
     noise_var : (C, h, w) variance of ``master`` (same units squared), to remove temporal noise
         from the PRNU RMS estimate.
     info : provenance to store in the model.
+    smooth_out : a list to which the smooth model A·g (float64, (C, h, w), the PRNU map's divisor) is appended
+        when the PRNU is computed, for :func:`flat_prnu` of the same fit (:func:`fit_master`) without evaluating
+        the model again.
     """
     master = np.asarray(master)
     if master.ndim != 3 or master.shape[0] != len(channels):
@@ -281,7 +285,9 @@ def fit_flat_planes(
     )
     if not with_prnu:
         return fm
-    smooth = fm.gain().astype(np.float64) * np.array([levels[c] for c in channels])[:, None, None]
+    smooth = _smooth_model(fm)
+    if smooth_out is not None:
+        smooth_out.append(smooth)
     prnu = master / smooth
     prnu_rms = {}
     for i, c in enumerate(channels):
@@ -671,11 +677,13 @@ def fit_master(
         "exposure_s": list(mf.exposure_s),
         "flat_level_dn": mf.level_dn,
     }
+    smooth: list[np.ndarray] = []
     fm = fit_flat_planes(mf.value, channels=mf.channels, cfa_pattern=mf.cfa_pattern, model=model,
                          downsample=downsample, n_terms=n_terms, degree_2d=degree_2d, mask=mask, with_prnu=with_prnu,
-                         noise_var=mf.variance_of_mean, info=info)
+                         noise_var=mf.variance_of_mean, info=info, smooth_out=smooth)
     if with_prnu and mf.mean_all is not None:
-        fm = dataclasses.replace(fm, prnu_rms={c: p.value for c, p in flat_prnu(mf, fm, mask).items()})
+        figures = _prnu_figures(mf, fm.channels, smooth[0], mask)
+        fm = dataclasses.replace(fm, prnu_rms={c: p.value for c, p in figures.items()})
     # the master is normalised per plane: report the on-axis level in DN of the frames
     level_dn = {c: fm.level_dn[c] * mf.level_dn[c] for c in fm.channels}
     return dataclasses.replace(fm, level_dn=level_dn, optics=mf.optics)
@@ -692,16 +700,26 @@ def flat_prnu(mf: MasterFlat, fm: FlatModel, mask: np.ndarray | None = None) -> 
     the master's normalised units). Pixels masked by ``mask``, non-finite or not responding
     (:data:`DEAD_RESPONSE`) are left out.
     """
+    return _prnu_figures(mf, fm.channels, _smooth_model(fm), mask)
+
+
+def _smooth_model(fm: FlatModel) -> np.ndarray:
+    """A·g per plane (float64, (C, h, w)): the fitted vignetting model at the fitted levels ``fm.level_dn``."""
+    return fm.gain().astype(np.float64) * np.array([fm.level_dn[c] for c in fm.channels])[:, None, None]
+
+
+def _prnu_figures(mf: MasterFlat, channels: tuple[str, ...], smooth: np.ndarray,
+                  mask: np.ndarray | None) -> dict[str, Nonuniformity]:
+    """:func:`flat_prnu` about the smooth model ``smooth`` (:func:`_smooth_model` of the fit)."""
     if mf.mean_all is None or mf.variance_all is None:
         raise CamcalError("the master flat has no unclipped statistics (a single frame?)")
-    smooth = fm.gain().astype(np.float64) * np.array([fm.level_dn[c] for c in fm.channels])[:, None, None]
     out = {}
-    for i, c in enumerate(fm.channels):
+    for i, c in enumerate(channels):
         rel = mf.mean_all[i] / smooth[i]
         good = np.isfinite(rel) & (smooth[i] > 0) & np.isfinite(mf.variance_all[i])
         if mask is not None:
             good &= ~np.asarray(mask[i], bool)
-        med = float(np.median(rel[good]))
+        med = float(np.median(rel[good], overwrite_input=True))  # the selection is a copy
         good &= (rel >= DEAD_RESPONSE * med) & (rel <= (2.0 - DEAD_RESPONSE) * med)
         sv = spatial_variance(rel, mf.variance_all[i] / smooth[i] ** 2, mf.n_frames, good)
         out[c] = prnu(sv)
