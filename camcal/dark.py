@@ -420,11 +420,16 @@ def fit_dark_stacks(stacks: DarkStacks, options: DarkOptions = DarkOptions(),  #
     dark_stats = [(t, st) for t, st in stack_list] + ([(0.0, bias_stack)] if bias_stack is not None else [])
     noise_v0, noise_gain = _noise_model(dark_stats, b, jobs)
     v0_full, g_full = (np.broadcast_to(a, b.shape) for a in (noise_v0, noise_gain))
-    zero_level = np.where(np.isfinite(b), b, black)  # the fitted bias, the black level where there is no line
+    black_full = np.broadcast_to(black, b.shape)
 
     def modelled(level: np.ndarray, idx: tuple) -> np.ndarray:
-        """The noise model's per-frame variance of the band's levels, DN²: v0 + g · max(level − bias, 0)."""
-        signal = np.maximum(level - zero_level[idx], 0.0)
+        """The noise model's per-frame variance of the band's levels, DN²: v0 + g · max(level − bias, 0), the bias
+        being the fitted one, the black level where there is no line (per band: no whole-frame copy)."""
+        zero_level = b[idx]
+        finite = np.isfinite(zero_level)
+        if not finite.all():
+            zero_level = np.where(finite, zero_level, black_full[idx])
+        signal = np.maximum(level - zero_level, 0.0)
         signal *= g_full[idx]
         return v0_full[idx] + signal
 
@@ -474,7 +479,7 @@ def fit_dark_stacks(stacks: DarkStacks, options: DarkOptions = DarkOptions(),  #
     return DarkModel(
         bias_dn=b.astype(np.float32),
         dark_current_dn_per_s=beta.astype(np.float32),
-        dark_current_unc_dn_per_s=np.sqrt(beta_var).astype(np.float32),
+        dark_current_unc_dn_per_s=np.sqrt(beta_var, out=beta_var).astype(np.float32),  # its last use
         read_noise_dn=read_noise.astype(np.float32),
         defects=defects,
         iso=float(iso),
@@ -606,7 +611,9 @@ def temporal_noise(stack: StackResult, var_t: np.ndarray, defects: np.ndarray, n
             noisy[k] = var_t[k] > vhat * bound
 
     _run_planes(plane, c, jobs, var_t[0].size)
-    rn_map = np.sqrt(np.maximum(var_t - QUANTISATION_VAR_DN2, 0.0))
+    rn_map = var_t - QUANTISATION_VAR_DN2  # then max(·, 0) and √ in place: one array, not three
+    np.maximum(rn_map, 0.0, out=rn_map)
+    np.sqrt(rn_map, out=rn_map)
     read = np.full(c, np.nan)
     dsnu = np.full(c, np.nan)
     quantised = temporal < SUB_DN_NOISE
@@ -896,19 +903,22 @@ def _channel_summary(b, b_var, beta, beta_var, var_t, defects, stacks, have_bias
         else:
             # EMVA 1288: temporal dark variance grows linearly with t; extrapolate its plane mean to t = 0
             ts = np.array([t for t, _ in stacks])
-            vs = np.array([float(np.mean(np.asarray(s.variance_all[k], np.float64)[good])) for _, s in stacks])
+            vs = np.array([float(np.mean(np.asarray(s.variance_all[k][good], np.float64))) for _, s in stacks])
             rn_var = float(np.polyfit(ts, vs, 1)[1]) if ts.size >= 2 else float(vs[0])
             rn_var -= QUANTISATION_VAR_DN2
-        dsnu_bias2 = float(np.var(bk)) - float(np.mean(b_var[k][good]))
+        var_bk = np.var(bk)  # np.std(bk) is its square root
+        dsnu_bias2 = float(var_bk) - float(np.mean(b_var[k][good]))
         if noise.quantised[k]:
             dsnu_bias2 = float(noise.dsnu_dn[k]) ** 2
-        dsnu_beta2 = float(np.var(betak)) - float(np.mean(beta_var[k][good]))
+        beta_var_k = beta_var[k][good]  # a copy: its square roots are taken in place for their median
+        dsnu_beta2 = float(np.var(betak)) - float(np.mean(beta_var_k))
         return {
             "bias_dn": float(np.mean(bk)),  # the mean: a median of quantised levels sticks to half DN
-            "bias_unc_dn": float(1.2533 * np.std(bk) / np.sqrt(bk.size)),
+            "bias_unc_dn": float(1.2533 * np.sqrt(var_bk) / np.sqrt(bk.size)),
             "dark_current_dn_per_s": med_beta,
             "dark_current_unc_dn_per_s": float(1.2533 * rs_beta / np.sqrt(betak.size)),
-            "dark_current_pixel_unc_dn_per_s": float(np.median(np.sqrt(beta_var[k][good]), overwrite_input=True)),
+            "dark_current_pixel_unc_dn_per_s": float(np.median(np.sqrt(beta_var_k, out=beta_var_k),
+                                                               overwrite_input=True)),
             "dark_current_mean_dn_per_s": float(np.mean(betak)),
             "read_noise_dn": float(np.sqrt(max(rn_var, 0.0))),
             "temporal_noise_dn": float(noise.temporal_noise_dn[k]),
