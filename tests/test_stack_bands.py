@@ -1,0 +1,92 @@
+"""The band statistics of the stack combiner on integer bands, against plain numpy and the masked float path.
+
+Integer bands (uint16 DN, the default planes) are clipped on their sorted ranks: a pass takes the values a
+pixel loses off the sums of all its values, following only the pixels that lost the rank before. Float32
+bands (preprocessed frames) mask every value (``_clipped_moments``). Both must give the sigma clip of the
+module docstring, computed here a third way, with numpy in float64 on every pixel.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from camcal.stack import IQR_TO_SIGMA, _band_stats
+
+
+def _outliers(n: int) -> int:
+    """Outliers per pixel that a robust scale (the interquartile range) still sees as such: a tenth."""
+    return max(1, n // 10)
+
+
+def _band(n: int, seed: int) -> np.ndarray:
+    """An (n, 4, 8, 60) uint16 dark band: 5 DN of noise on 520 DN, with pixels that clip deep and loud ones."""
+    rng = np.random.default_rng(seed)
+    x = np.rint(520 + 5 * rng.standard_normal((n, 4, 8, 60))).astype(np.int64)
+    x[:, 0, 0, 0] = 16000 + np.rint(30 * rng.standard_normal(n))  # a hot pixel: sums of squares far above 2^22
+    x[: n // 4, 0, 0, 1] += 4000  # random telegraph: a quarter of the frames high
+    x[:, 0, 0, 2] = 700  # every value equal: nothing to clip
+    x[:, 0, 0, 3] = rng.integers(0, 16384, n)  # uniform over the whole range: loud, deep clipping chains
+    k = _outliers(n)
+    x[:k, 1, 1, 5:9] = 9000  # cosmic rays in k frames: k ranks lost at the top
+    x[-k:, 1, 2, 5:9] = 0  # and k values at 0: k ranks lost at the bottom
+    x[0, 2, 3, 10] = 65535  # the type's extremes
+    x[1, 2, 3, 10] = 0
+    return rng.permuted(x, axis=0).astype(np.uint16)  # frames in any order
+
+
+def _numpy_sigma_clip(x: np.ndarray, sigma: float) -> tuple[np.ndarray, ...]:
+    """The module's two-pass sigma clip per pixel, in float64 with numpy's median, quantile, mean and var."""
+    v = x.astype(np.float64)
+    n = v.shape[0]
+    med = np.median(v, axis=0)
+    q25, q75 = np.quantile(v, [0.25, 0.75], axis=0)
+    scale = (q75 - q25) / IQR_TO_SIGMA
+    scale = np.where(scale > 0, scale, v.std(axis=0, ddof=1))
+    keep = np.abs(v - med) <= sigma * scale
+    m1 = np.where(keep, v, 0).sum(0) / keep.sum(0)
+    s1 = np.sqrt(np.where(keep, (v - m1) ** 2, 0).sum(0) / np.maximum(keep.sum(0) - 1, 1))
+    keep = np.abs(v - m1) <= sigma * s1 + 1e-6 * np.abs(med)
+    cnt = keep.sum(0)
+    mean = np.where(keep, v, 0).sum(0) / cnt
+    var = np.where(keep, (v - mean) ** 2, 0).sum(0) / (cnt - 1)
+    return mean, var, cnt, v.var(axis=0, ddof=1), v.mean(axis=0), med, n
+
+
+@pytest.mark.parametrize(("n", "seed"), [(32, 1), (9, 2), (64, 3)])
+def test_integer_band_sigma_clip_is_numpys(n, seed):
+    x = _band(n, seed)
+    value, mean, var, cnt, var_all, mean_all = _band_stats(x.copy(), "sigma_clip", 3.0)
+    ref_mean, ref_var, ref_cnt, ref_var_all, ref_mean_all, _, _ = _numpy_sigma_clip(x, 3.0)
+    # the same values are kept: the comparisons are exact in both (whole DN against float32 bounds)
+    np.testing.assert_array_equal(cnt, ref_cnt)
+    k = _outliers(n)
+    assert cnt[1, 1, 5:9].max() <= n - k and cnt[1, 2, 5:9].max() <= n - k  # the cosmic rays and zeros went
+    assert cnt[0, 0, 2] == n  # equal values all stay
+    # the rest is float32 rounding of the results (sums exact): relative 2^-24, one unit more for the variance
+    np.testing.assert_allclose(value, ref_mean, rtol=2e-7, atol=0)
+    np.testing.assert_array_equal(value, mean)
+    np.testing.assert_allclose(var, ref_var, rtol=3e-7, atol=1e-12)
+    np.testing.assert_allclose(var_all, ref_var_all, rtol=3e-7)
+    np.testing.assert_allclose(mean_all, ref_mean_all, rtol=2e-7)
+
+
+@pytest.mark.parametrize(("n", "seed"), [(32, 4), (7, 5)])
+def test_integer_band_matches_the_masked_float_path(n, seed):
+    """The rank-wise clip of an integer band gives what masking every value of the same band as float32 gives:
+    bit for bit where the float32 sums are exact (deviations from the median squared sum to less than 2^22),
+    within float32 rounding at the loud pixels, where the integer path is the exact one."""
+    x = _band(n, seed)
+    fast = _band_stats(x.copy(), "sigma_clip", 3.0)
+    masked = _band_stats(x.astype(np.float32), "sigma_clip", 3.0)
+    v = x.astype(np.float64)
+    loud = ((v - np.median(v, axis=0)) ** 2).sum(0) >= 2.0**22
+    assert 2 <= loud.sum() < loud.size // 10
+    for a, b in zip(fast, masked, strict=True):
+        np.testing.assert_array_equal(a[~loud], b[~loud])
+        np.testing.assert_allclose(a[loud], b[loud], rtol=1e-5)
+    med = _band_stats(x.copy(), "median", 3.0)
+    for a, b in zip(med, _band_stats(x.astype(np.float32), "median", 3.0), strict=True):
+        np.testing.assert_array_equal(a[~loud], b[~loud])
+        np.testing.assert_allclose(a[loud], b[loud], rtol=1e-5)
+    np.testing.assert_array_equal(med[0], np.median(v, axis=0).astype(np.float32))
