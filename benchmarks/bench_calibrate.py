@@ -13,7 +13,8 @@ Each measurement is a fresh process (medians of the alternating runs):
 - baseline: ``camcal.io.load_frame`` + ``Frame.planes`` of every file once, in 2 threads (camcal's own decode);
 - ``camcal calibrate SESSION -o P.camcal``: the whole command, wall and CPU time (children included);
 - where the time goes: ``calibrate_session`` + ``save_profile`` in one process with each stage's entry point
-  timed (wall and CPU of the process, all its threads): screening, dark stacks and fit, flat, linearity, sweep,
+  timed (wall and CPU of the process, all its threads): screening (every frame's header read: each stage judges
+  its frames as it decodes them), dark stacks and fit, flat, linearity, sweep,
   EMVA sheet, input hashes, writing the profile. Their shares are of that run's total, imports excluded.
 """
 
@@ -38,15 +39,15 @@ sys.path.insert(0, str(HERE.parent))  # run from a checkout without installing
 # (module attribute of camcal.calibrate, label): the stages' entry points, timed where calibrate calls them
 STAGES = (
     ("index_session", "index the session (folders, manifests)"),
-    ("screen_session", "screening: every frame decoded and judged"),
-    ("stack_darks", "dark + bias stacks"),
+    ("screen_session", "screening: every frame's header read (its stage decodes and judges it)"),
+    ("stack_darks", "dark + bias stacks (each frame decoded and judged once)"),
     ("fit_dark_stacks", "dark fit"),
-    ("master_flat", "master flat"),
+    ("master_flat", "master flat (each frame decoded and judged once)"),
     ("fit_master", "flat fit"),
     ("flat_prnu", "flat PRNU"),
-    ("measure_series", "linearity series"),
+    ("measure_series", "linearity series (each frame decoded and judged once)"),
     ("fit_series_set", "linearity fit"),
-    ("measure_sweep_settings", "sweep"),
+    ("measure_sweep_settings", "sweep (each row decoded and judged once)"),
     ("sensitivity_from_settings", "spectral sensitivity fit"),
     ("build_sheet", "EMVA 1288 sheet"),
     ("_inputs", "input hashes"),

@@ -1,10 +1,12 @@
 """``camcal calibrate``: run every stage whose folder exists, in order, into one profile.
 
 Order: dark (with bias/ when present) → flat (dark-corrected) → linearity
-(dark-corrected) → sweep (dark- and flat-corrected). Every input file is
-hashed (SHA-256) into the profile's provenance: each frame once, by the screening
-beside its decode (the file is then in the page cache), remembered for the stages
-that compare files by content and for the provenance.
+(dark-corrected) → sweep (dark- and flat-corrected). Each frame is decoded once for its verdict
+and its fit (:mod:`camcal.screen`): bias, dark, flat (of one f-number) and linearity frames and the sweep's
+rows are judged by their stage as it decodes them; the sweep's JPEG twins and flats of several f-numbers by
+the screening first. Every input file is hashed (SHA-256) into the profile's provenance: each frame once,
+beside its decode (the file is then in the page cache), remembered for the stages that compare files by
+content and for the provenance.
 """
 
 from __future__ import annotations
@@ -40,7 +42,7 @@ from camcal.io import load_frame
 from camcal.manifest import SESSION_DEFAULTS, session_camera_facts
 from camcal.profile import CalibrationProfile, CameraIdentity, Provenance
 from camcal.response import fit_series_set, measure_series
-from camcal.screen import Screening, StageCheck, Verdict, screen_session
+from camcal.screen import Screening, StageCheck, StageJudge, Verdict, screen_session
 from camcal.session import STAGES, SessionIndex, aperture_groups, index_session, present_stages
 from camcal.spectral import (
     SweepOptions,
@@ -92,8 +94,8 @@ class CalibrateOptions:
 def _inputs(index: SessionIndex, jobs: int | None = None) -> list[dict]:
     """Provenance rows (stage, file, SHA-256, bytes) of every input file the session index found.
 
-    The frames were hashed by the screening beside their decode (:func:`camcal.screen.screen_session`); their
-    remembered hashes are used (:func:`camcal.hashing.sha256_file`), the other files hashed in threads."""
+    The frames were hashed beside their decode (:mod:`camcal.screen`: by the screening or the stage's judge);
+    their remembered hashes are used (:func:`camcal.hashing.sha256_file`), the other files hashed in threads."""
     paths = [p for s in index.stages for p in index.inputs.get(s, ())]
     hashes = hash_files(paths, thread_count(jobs, len(paths)))
     return [{"stage": s, "file": p.relative_to(index.root).as_posix() if p.is_relative_to(index.root)
@@ -181,12 +183,17 @@ def _reference(index: SessionIndex, opts: CalibrateOptions,
             if ref.iso is not None and ref.f_number is not None:  # manifest, tag or session.toml: no decode
                 exp_iso, exp_n, src_iso, src_n = ref.iso, ref.f_number, ref.iso_source, ref.f_number_source
             else:  # only LibRaw (a maker header) can tell: decode
-                e = load_frame(p).exposure
+                try:
+                    e = load_frame(p).exposure
+                except CamcalError:  # unreadable: its stage leaves it out (camcal.screen)
+                    continue
                 exp_iso, exp_n, src_iso, src_n = e.iso, e.f_number, e.source("iso"), e.source("f_number")
             key = (row.get("iso") or exp_iso, row.get("f_number") or exp_n)
             settings[key] += 1
             origin.setdefault(key, (csv_name if row.get("iso") else src_iso,
                                     csv_name if row.get("f_number") else src_n))
+        if not settings:  # every frame looked at unreadable
+            continue
         (fi, fn), _ = settings.most_common(1)[0]
         iso, n = iso or fi, n or fn
         if not required:
@@ -217,8 +224,20 @@ def _flat_mask(master, dark):
     return mask
 
 
+def _judged(index: SessionIndex, stage: str, judge: StageJudge, record: _Record) -> SessionIndex:
+    """Record the verdicts ``judge`` gave while its stage decoded its frames, and take the frames it left out
+    out of ``index``."""
+    new = [v for v in judge.left_out() if v.file not in judge.reported]
+    judge.reported.update(v.file for v in new)
+    record.screened(new)
+    out = {p for p, r in judge.reasons.items() if r is not None}
+    frames = index.frames[stage]
+    kept = replace(frames, frames=tuple(r for r in frames.frames if r.path not in out))
+    return replace(index, frames={**index.frames, stage: kept})
+
+
 def stage_checks(options: CalibrateOptions | None = None) -> dict[str, StageCheck]:
-    """Each stage's own check of one frame, run when the session is screened (:func:`camcal.screen.screen_session`):
+    """Each stage's own check of one frame, run when the frame is judged (:mod:`camcal.screen`):
     dark and bias frames RAW and not saturated; flats RAW, well exposed and not saturated beyond use
     (:func:`camcal.flat.check_flat_frame`); no check for the linearity series (saturated frames are data) and for
     the sweep's RAW rows beyond being RAW (saturation and missing light are judged on the region of interest)."""
@@ -247,12 +266,24 @@ def _sweep_check(index: SessionIndex) -> StageCheck | None:
 
 @dataclass
 class _Record:
-    """What a calibration left out, as it goes (the profile's provenance.left_out and not_calibrated)."""
+    """What a calibration left out, as it goes (the profile's provenance.left_out and not_calibrated).
+
+    ``left_out`` lists first the verdicts of the frames (:mod:`camcal.screen`: unreadable, copies, another
+    camera, the stage checks), in stage and file order, whether the screening or the stage itself judged them
+    (:meth:`screened`), then what the stages left out from what they measured (a dark alone at its exposure
+    time, a sweep frame saturated or without light).
+    """
 
     strict: bool
     root: Path
     left_out: list[Verdict] = field(default_factory=list)
     not_calibrated: list[dict] = field(default_factory=list)
+    n_screened: int = 0
+    """How many of ``left_out`` are frame verdicts (they come first)."""
+    order: Callable[[Verdict], tuple] | None = None
+    """Sort key of a frame verdict: (stage, place in the stage's file order)."""
+    n_all_left_out: int = 0
+    """How many of ``not_calibrated`` (the first ones, in stage order) are stages whose every frame was left out."""
 
     def leave_out(self, verdicts: list[Verdict]) -> None:
         if self.strict and verdicts:
@@ -261,29 +292,53 @@ class _Record:
                               "--strict it is left out and listed)", self.root / v.stage / v.file)
         self.left_out.extend(verdicts)
 
-    def skip(self, stage: str, exc: TooFewFrames) -> None:
-        """Record that ``stage`` is not calibrated (too few usable frames); strict: raise."""
+    def screened(self, verdicts: list[Verdict]) -> None:
+        """Add frame verdicts among the others, in stage and file order (a stage judging its own frames)."""
+        self.leave_out(verdicts)
+        del self.left_out[len(self.left_out) - len(verdicts):]
+        block = self.left_out[:self.n_screened] + list(verdicts)
+        if self.order is not None:
+            block.sort(key=self.order)
+        self.left_out[:self.n_screened] = block
+        self.n_screened = len(block)
+
+    def skip(self, stage: str, exc: TooFewFrames, left_out: bool = False) -> None:
+        """Record that ``stage`` is not calibrated (too few usable frames); strict: raise. ``left_out``: ``exc``
+        may say every frame of the stage was left out (``all N left out``): such a stage goes first, in stage
+        order, whether the screening or the stage itself found its frames unusable."""
         if self.strict:
             raise exc
-        self.not_calibrated.append({"stage": stage, "reason": exc.message})
+        row = {"stage": stage, "reason": exc.message}
+        if not (left_out and exc.remaining == 0 and exc.message.endswith(" left out)")):
+            self.not_calibrated.append(row)
+            return
+        rank = STAGES.index(stage) if stage in STAGES else len(STAGES)
+        head = self.not_calibrated[:self.n_all_left_out]
+        at = next((i for i, r in enumerate(head) if (STAGES.index(r["stage"]) if r["stage"] in STAGES
+                                                      else len(STAGES)) > rank), len(head))
+        self.not_calibrated.insert(at, row)
+        self.n_all_left_out += 1
 
-    def attempt(self, stage: str, fit: Callable[[], object]):
+    def attempt(self, stage: str, fit: Callable[[], object], left_out: bool = False):
         """``fit()``; None when the stage has too few usable frames (recorded), unless strict."""
         try:
             return fit()
         except TooFewFrames as exc:
-            self.skip(stage, exc)
+            self.skip(stage, exc, left_out)
             return None
 
 
 def _fit_flats(index: SessionIndex, dark, opts: CalibrateOptions, ref_n: float | None, record: _Record,
-               notes: list[str], cb) -> tuple[FlatModel | None, MasterFlat | None]:
+               notes: list[str], cb, judge: StageJudge | None = None) -> tuple[FlatModel | None, MasterFlat | None]:
     """The flat stage: one vignetting model per f-number of the flats (:func:`camcal.session.aperture_groups`).
 
     The primary model (the profile's ``flat``: dead pixels, PRNU, the sweep's flat correction) is the one at the
     reference f-number, else the one of most frames (the smaller f-number on a tie); the others are its
     :attr:`~camcal.flat_model.FlatModel.apertures`. Flats of unknown f-number beside known ones are left out.
     Returns (primary model, its master flat), (None, None) when no group could be fitted.
+
+    ``judge``: the flat stage's :class:`camcal.screen.StageJudge` when its frames (of one f-number) are judged
+    as the master flat decodes them.
     """
     flat_opts = FlatOptions(model=opts.flat_model)
     groups = aperture_groups(index.frames["flat"])
@@ -303,13 +358,13 @@ def _fit_flats(index: SessionIndex, dark, opts: CalibrateOptions, ref_n: float |
 
         def fit(g=g, label=label, kwargs=kwargs):
             mf = master_flat(g.frames, dark, method=flat_opts.method, sigma=flat_opts.sigma,
-                             checks=flat_opts.checks, jobs=opts.jobs, progress=cb(label))
+                             checks=flat_opts.checks, jobs=opts.jobs, progress=cb(label), judge=judge)
             fm = fit_master(mf, dark, **kwargs)
             if g.f_number is not None and fm.optics.f_number is None:  # the folder's f-number (not in the files)
                 fm = replace(fm, optics=replace(fm.optics, f_number=g.f_number, f_number_source=g.f_number_source))
             return fm, mf
 
-        result = record.attempt(label, fit)
+        result = record.attempt(label, fit, left_out=judge is not None)
         if result is not None:
             fitted.append(result)
         elif i == 0 and len(groups) > 1:
@@ -334,10 +389,13 @@ def calibrate_session(
     """Calibrate every stage present in ``session``; returns the profile and notes (skipped stages...).
 
     The session is read once (:func:`camcal.session.index_session`: stage folders, manifests, session
-    defaults) and screened (:func:`camcal.screen.screen_session`: every frame decoded once and given a verdict);
-    every stage receives its usable frames from that index. Frames left out are listed in the profile's
-    ``provenance.left_out``; a stage with too few usable frames is not calibrated and listed in
-    ``provenance.not_calibrated`` (the other stages are). With ``options.strict`` either refuses the session.
+    defaults) and screened (:func:`camcal.screen.screen_session`): the bias, dark, flat (of one f-number) and
+    linearity frames and the sweep's rows are judged by their stage as it decodes them
+    (:class:`camcal.screen.StageJudge`), the others (the sweep's JPEG twins, flats of several f-numbers)
+    decoded and judged first (``options.strict``: every frame judged first); every stage receives its usable
+    frames from that index. Frames left out are listed in the profile's ``provenance.left_out``; a stage with
+    too few usable frames is not calibrated and listed in ``provenance.not_calibrated`` (the other stages are).
+    With ``options.strict`` either refuses the session.
     ``progress(stage, done, total)`` is called as frames are processed.
     """
     opts = options or CalibrateOptions()
@@ -351,45 +409,82 @@ def calibrate_session(
     sweep_check = _sweep_check(index)
     if sweep_check is not None:
         checks["sweep"] = sweep_check
-    screening = screen_session(index, checks, jobs=opts.jobs, progress=cb("check frames"))
-    record = _Record(opts.strict, session)
+    # the stages judge their own frames as they decode them (each frame decoded once; the screening reads
+    # headers); --strict refuses at the first frame that cannot be used: every frame is judged first
+    defer: dict[str, set[str]] = {}
+    if not opts.strict:
+        for s in ("bias", "dark", "linearity"):
+            if s in index.stages:
+                defer[s] = {r.path.name for r in index.frames[s].frames}
+        # flats of one f-number (flats of several are grouped, and their groups weighed, on the frames used)
+        if "flat" in index.stages and len(aperture_groups(index.frames["flat"])) == 1:
+            defer["flat"] = {r.path.name for r in index.frames["flat"].frames}
+        if "sweep" in index.stages and index.sweep_manifest is not None:
+            defer["sweep"] = set(index.sweep_manifest)
+    screening = screen_session(index, checks, jobs=opts.jobs, progress=cb("check frames"), defer=defer)
+    stage_rank = {s: i for i, s in enumerate(index.stages)}
+    file_rank = {s: {p.name: i for p, i in screening.order.get(s, {}).items()} for s in index.stages}
+    record = _Record(opts.strict, session, order=lambda v: (stage_rank[v.stage], file_rank[v.stage].get(v.file, 0)))
     record.leave_out(screening.left_out())
+    record.n_screened = len(record.left_out)
+    judges = {s: screening.judge(s, checks.get(s)) for s in screening.deferred}
     index = replace(index, frames=dict(screening.kept))
     camera = identity_from_screening(index, screening)
     stages = [s for s in index.stages if index.frames[s].frames]
     for s in index.stages:
         if s not in stages:
             record.skip(s, TooFewFrames(s, "frames", 1, 0, f"all {len(screening.left_out(s))} left out",
-                                        session / s))
+                                        session / s), left_out=True)
     ref_iso, ref_n, notes = _reference(index, opts, required=any(s in stages for s in NORMALISING_STAGES))
 
     dark = flat = spectral = None
     response = None
     dark_stacks = master = prnu = pairs = series = None
     bias_frames = index.stage("bias") if "bias" in stages else None
+    dark_judge, bias_judge = judges.get("dark"), judges.get("bias")
     if "dark" in stages:
         dark_opts = DarkOptions(method=opts.dark_method)
 
         def fit_darks():
-            nonlocal dark_stacks
-            stacks = stack_darks(index.frames["dark"], bias_frames, dark_opts, jobs=opts.jobs, progress=cb("dark"))
+            nonlocal dark_stacks, index
+            try:
+                stacks = stack_darks(index.frames["dark"], bias_frames, dark_opts, jobs=opts.jobs,
+                                     progress=cb("dark"), judge=dark_judge, bias_judge=bias_judge)
+            finally:
+                for s, j in (("bias", bias_judge), ("dark", dark_judge)):
+                    if j is not None and s in index.frames:
+                        index = _judged(index, s, j, record)
             record.leave_out([Verdict("dark", name, reason) for name, reason in stacks.left_out])
             dark_stacks = stacks
             return fit_dark_stacks(stacks, dark_opts, jobs=opts.jobs)
 
-        dark = record.attempt("dark", fit_darks)
+        dark = record.attempt("dark", fit_darks, left_out=dark_judge is not None)
+        if bias_frames is not None and bias_judge is not None and not index.frames["bias"].frames:
+            record.skip("bias", TooFewFrames("bias", "frames", 1, 0, f"all {len(bias_judge.left_out())} left out",
+                                             session / "bias"), left_out=True)
+            bias_frames = None  # every bias frame left out as the dark stage decoded them
     if dark is None and bias_frames is not None:
         def fit_bias():
-            nonlocal dark_stacks
-            dark_stacks = stack_darks(None, bias_frames, jobs=opts.jobs, progress=cb("bias"))
+            nonlocal dark_stacks, index
+            try:
+                dark_stacks = stack_darks(None, index.stage("bias"), jobs=opts.jobs, progress=cb("bias"),
+                                          bias_judge=bias_judge)
+            finally:
+                if bias_judge is not None:
+                    index = _judged(index, "bias", bias_judge, record)
             return fit_dark_stacks(dark_stacks, jobs=opts.jobs)
 
-        dark = record.attempt("bias", fit_bias)
+        dark = record.attempt("bias", fit_bias, left_out=bias_judge is not None)
         if dark is not None:
             notes.append("bias/ without dark/: bias, read noise and noisy pixels calibrated; dark current unknown "
                          "(apply subtracts the bias only; add dark frames at two exposure times to measure it)")
     if "flat" in stages:
-        flat, master = _fit_flats(index, dark, opts, ref_n, record, notes, cb)
+        flat_judge = judges.get("flat")
+        try:
+            flat, master = _fit_flats(index, dark, opts, ref_n, record, notes, cb, flat_judge)
+        finally:
+            if flat_judge is not None:
+                index = _judged(index, "flat", flat_judge, record)
         if flat is not None:
             if master is not None and master.mean_all is not None:
                 prnu = flat_prnu(master, flat, _flat_mask(master, dark))
@@ -401,14 +496,29 @@ def calibrate_session(
                              "profile has no defect map")
     if "linearity" in stages:
         def fit_linearity():
-            nonlocal series, pairs
-            series = measure_series(index.frames["linearity"], dark=dark, reference_iso=ref_iso,
-                                    reference_f_number=ref_n, progress=cb("linearity"), jobs=opts.jobs)
+            nonlocal series, pairs, index
+            judge = judges.get("linearity")
+            try:
+                series = measure_series(index.frames["linearity"], dark=dark, reference_iso=ref_iso,
+                                        reference_f_number=ref_n, progress=cb("linearity"), jobs=opts.jobs,
+                                        judge=judge)
+            finally:
+                if judge is not None:
+                    index = _judged(index, "linearity", judge, record)
+            if judge is not None and not index.frames["linearity"].frames:
+                raise TooFewFrames("linearity", "frames", 1, 0, f"all {len(judge.left_out())} left out",
+                                   session / "linearity")
             pairs = series["raw"].pairs if "raw" in series else None
             return fit_series_set(series)
 
-        response = record.attempt("linearity", fit_linearity)
+        response = record.attempt("linearity", fit_linearity, left_out=True)
     if "sweep" in stages:
+        judge = judges.get("sweep")
+        if judge is not None and judge.majority.raw_shape is None:
+            # no RAW frame to take the sweep's geometry from: its rows are judged before they are measured
+            deferred = set(screening.deferred["sweep"])
+            judge.judge_all([r for r in index.frames["sweep"].frames if r.path.name in deferred])
+            index, judge = _judged(index, "sweep", judge, record), None
         sweep = index.frames["sweep"]
         kept_names = {p.name for p in sweep.paths}
         rows = sweep_rows(sweep.folder, index.sweep_manifest) if index.sweep_manifest is not None else None
@@ -428,20 +538,34 @@ def calibrate_session(
                              f"{sweep_flat.optics.label()} vignetting model")
 
         def fit_sweep():
+            nonlocal index
             if not rows:
                 raise TooFewFrames("sweep", "frames listed in sweep.csv", 1, 0)
-            measured = measure_sweep_settings(sweep.folder, rows, dark=dark, flat=sweep_flat, options=sweep_opts,
-                                              jobs=opts.jobs, progress=cb("sweep"))
+            try:
+                measured = measure_sweep_settings(sweep.folder, rows, dark=dark, flat=sweep_flat,
+                                                  options=sweep_opts, jobs=opts.jobs, progress=cb("sweep"),
+                                                  judge=judge)
+            except TooFewFrames:
+                if judge is None or any(r is None for r in judge.reasons.values()):
+                    raise
+                # every row left out as it was decoded: as when the screening leaves them out
+                if all(r.path in judge.reasons for r in sweep.frames):
+                    n = len(screening.left_out("sweep")) + len(judge.left_out())
+                    raise TooFewFrames("sweep", "frames", 1, 0, f"all {n} left out", session / "sweep") from None
+                raise TooFewFrames("sweep", "frames listed in sweep.csv", 1, 0) from None
+            finally:
+                if judge is not None:
+                    index = _judged(index, "sweep", judge, record)
             record.leave_out([Verdict("sweep", name, reason) for name, reason in measured.left_out])
             require_wavelengths(measured, listed=listed)
             return sensitivity_from_settings(measured, sweep_opts)
 
-        spectral = record.attempt("sweep", fit_sweep)
+        spectral = record.attempt("sweep", fit_sweep, left_out=True)
         if spectral is not None and flat is None:
             notes.append("sweep without a flat model: c(λ) refers to the region of interest, not the optical axis")
         if response is not None and "processed" in response:
-            if twin_pairs(sweep):  # the sweep's colours; the series adds a broadband one
-                cm = fit_colour_matrix([sweep, index.frames["linearity"]], response["processed"])
+            if twin_pairs(index.frames["sweep"]):  # the sweep's colours; the series adds a broadband one
+                cm = fit_colour_matrix([index.frames["sweep"], index.frames["linearity"]], response["processed"])
                 response = {**response, "processed": replace(response["processed"], colour_matrix=cm)}
             else:
                 notes.append("JPEG response without a colour matrix (the sweep has no JPEG twins): JPEG radiance "
@@ -458,6 +582,8 @@ def calibrate_session(
                            dark_stacks=dark_stacks, dark=dark, master_flat=master, flat_prnu=prnu, pairs=pairs,
                            spectral=spectral, pixel_pitch_um=session_camera_facts(session / stages[0]).get(
                                "pixel_pitch_um"))
+    if judges:  # the identity from the frames used, as decoded (a stage's frames were known by their header)
+        camera = identity_from_screening(index, replace(screening, kept=dict(index.frames)))
     provenance = Provenance(
         camcal_version=__version__,
         created_utc=datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),

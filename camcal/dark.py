@@ -63,6 +63,7 @@ from camcal.errors import CamcalError, FrameLeftOut, MissingMetadataError, TooFe
 from camcal.frame import Frame
 from camcal.hashing import sha256_file
 from camcal.io import exposure_from_exif
+from camcal.screen import StageJudge
 from camcal.session import StageFrames, folder_of, stage_files
 from camcal.stack import METHODS, StackResult, combine_frames
 from camcal.threads import thread_count, thread_map
@@ -268,11 +269,16 @@ def stack_darks(
     *,
     jobs: int | None = 1,
     progress: Callable[[int, int], None] | None = None,
+    judge: StageJudge | None = None,
+    bias_judge: StageJudge | None = None,
 ) -> DarkStacks:
     """The file step of the dark stage: list the frames, group the darks by exposure time, combine each group
     and the bias frames (:func:`camcal.stack.combine_frames`), check sizes, patterns and ISO.
 
     ``dark`` / ``bias`` : folders or the session index's :class:`camcal.session.StageFrames`.
+    ``judge`` / ``bias_judge`` : the dark and bias stages' :class:`camcal.screen.StageJudge` (both or neither):
+    each frame is judged as it is stacked, and what follows (a frame alone at its exposure time, too few
+    exposure times) is decided on the frames used (:func:`_stack_judged`).
 
     Raises
     ------
@@ -283,6 +289,8 @@ def stack_darks(
     if options.method not in METHODS:
         raise CamcalError(f"unknown combination method {options.method!r}; choose from {', '.join(METHODS)}")
     check = dark_frame_check(options.saturation_fraction)
+    if judge is not None or bias_judge is not None:
+        return _stack_judged(dark, bias, options, check, jobs, progress, judge, bias_judge)
     if dark is None:
         if bias is None:
             raise CamcalError("the dark model needs dark frames, bias frames or both")
@@ -338,6 +346,95 @@ def stack_darks(
     _check_stacks([s for _, s in darks] + ([bias_stack] if bias_stack is not None else []), dark_folder)
     return DarkStacks(tuple(darks), bias_stack, dark_folder, bias_folder, tuple(p.name for p in files),
                       tuple(p.name for p in bias_files), left_out)
+
+
+def _stack_judged(dark, bias, options: DarkOptions, check, jobs: int | None,
+                  progress: Callable[[int, int], None] | None, judge: StageJudge | None,
+                  bias_judge: StageJudge | None) -> DarkStacks:
+    """:func:`stack_darks` with each frame judged as it is stacked (:func:`camcal.stack.combine_frames`'s
+    ``judge``); the rules that follow from what is left out are those of :func:`stack_darks` on the frames used:
+    an exposure time whose frames are all left out is as if never taken, a frame alone at its exposure time is
+    left out while other times have two or more, the bias-only model needs two frames, the dark-current fit two
+    exposure times or bias frames."""
+    if dark is None:
+        if bias is None:
+            raise CamcalError("the dark model needs dark frames, bias frames or both")
+        files, manifest = stage_files(bias)
+        bias_folder = folder_of(bias)
+        st = combine_frames(files, method="mean", manifest=manifest, check=check, jobs=jobs, progress=progress,
+                            keep_frames=QUANTISED_FIT_FRAMES, judge=bias_judge)
+        if st.n_frames < 2:
+            raise TooFewFrames("bias", "frames (a bias-only calibration measures the read noise between frames)",
+                               2, st.n_frames, path=bias_folder)
+        _check_stacks([st], bias_folder)
+        return DarkStacks((), st, None, bias_folder, (), tuple(p.name for p in st.paths))
+    files, manifest = stage_files(dark)
+    bias_files, bias_manifest = stage_files(bias) if bias is not None else ([], {})
+    refuse_shared_frames(files, bias_files)  # before any frame is left out: a copy is refused, not set aside
+    times = _exposure_times(dark, files, manifest)
+    dark_folder = folder_of(dark)
+    groups: dict[float, list[Path]] = {}
+    for p, t in zip(files, times, strict=True):
+        groups.setdefault(float(f"{t:.6g}"), []).append(p)
+    bias_folder = folder_of(bias) if bias is not None else None
+    total = len(files) + len(bias_files)
+    done = 0
+    bias_stack = None
+    if bias_files:
+        try:
+            bias_stack = combine_frames(bias_files, method="mean", manifest=bias_manifest, check=check, jobs=jobs,
+                                        progress=_progress_from(progress, 0, total), keep_frames=QUANTISED_FIT_FRAMES,
+                                        judge=bias_judge)
+        except TooFewFrames:  # every bias frame left out: as without bias frames
+            bias_folder = None
+        done = len(bias_files)
+    start = done
+    while True:
+        darks: list[tuple[float, StackResult]] = []
+        done = start
+        retracted = len(judge.retracted) if judge is not None else 0
+        for t in sorted(groups):
+            # the read-noise stack (the shortest exposure time with two frames or more) keeps its first frames
+            keep = QUANTISED_FIT_FRAMES if bias_stack is None and not any(s.n_frames > 1 for _, s in darks) else 0
+            try:
+                st = combine_frames(groups[t], method=options.method, sigma=options.sigma, manifest=manifest,
+                                    check=check, jobs=jobs, progress=_progress_from(progress, done, total),
+                                    keep_frames=keep, judge=judge)
+            except TooFewFrames:  # every frame at this time left out: as if never taken
+                st = None
+            done += len(groups[t])
+            if st is not None:
+                darks.append((t, st))
+        used = {p for _, st in darks for p in st.paths}
+        # a copy stacked at one exposure time, its original (first in file order) found at a later one: stacked
+        # again with the verdicts fixed (rare: a copy given another exposure time than its original)
+        if judge is None or not used & set(judge.retracted[retracted:]):
+            break
+    if not used:
+        n = sum(len(g) for g in groups.values())
+        raise TooFewFrames("dark", "frames", 1, 0, f"all {n} left out", dark_folder)
+    # a frame alone at its exposure time has no temporal noise to measure: left out while other times have two
+    lone = [(t, st) for t, st in darks if st.n_frames < 2]
+    left_out: tuple[tuple[str, str], ...] = ()
+    if lone and len(lone) < len(darks):
+        left_out = tuple((st.paths[0].name, f"alone at its exposure time ({t:g} s): the dark model measures the "
+                                            "temporal noise of each exposure time from two or more frames")
+                         for t, st in lone)
+        for name, reason in left_out:
+            warnings.warn(f"left out: {name}: {reason}", FrameLeftOut, stacklevel=3)
+        darks = [(t, st) for t, st in darks if st.n_frames >= 2]
+        used = {p for _, st in darks for p in st.paths}
+    files = [p for p in files if p in used]
+    if bias_folder is None and len(darks) < 2:
+        (t0, _), = darks
+        raise TooFewFrames("dark", "exposure times (or bias frames)", 2, 1,
+                           f"all {len(files)} dark frames have one exposure time ({t0:g} s); the dark-current fit "
+                           "needs two or more exposure times, or bias frames (--bias)", dark_folder)
+    if bias_stack is not None and bias_stack.n_frames < 1:
+        bias_stack = None
+    _check_stacks([s for _, s in darks] + ([bias_stack] if bias_stack is not None else []), dark_folder)
+    return DarkStacks(tuple(darks), bias_stack, dark_folder, bias_folder, tuple(p.name for p in files),
+                      tuple(p.name for p in bias_stack.paths) if bias_stack is not None else (), left_out)
 
 
 def fit_dark(

@@ -76,6 +76,7 @@ from camcal.flat_model import (  # noqa: F401 (re-exported)
 )
 from camcal.frame import PLANES, Exposure, Frame
 from camcal.io import list_frames
+from camcal.screen import StageJudge
 from camcal.session import StageFrames, aperture_folders, folder_of, stage_files
 from camcal.stack import combine_frames
 
@@ -532,8 +533,12 @@ def master_flat(
     checks: FlatChecks = FlatChecks(),  # noqa: B008
     jobs: int | None = 1,
     progress: Callable | None = None,
+    judge: StageJudge | None = None,
 ) -> MasterFlat:
     """Correct, normalise and combine every flat of a folder (streaming, :mod:`camcal.stack`).
+
+    ``judge``: the stage's :class:`camcal.screen.StageJudge`, given to :func:`camcal.stack.combine_frames`: each
+    flat is judged as it is decoded, and one left out is not combined.
 
     Each frame goes through the one correction path (:func:`camcal.correct.correct_frame`): its
     planes minus the dark model's expected bias + dark (or, without a dark model, the file's black
@@ -586,7 +591,7 @@ def master_flat(
         return planes
 
     res = combine_frames(paths, method=method, sigma=sigma, preprocess=preprocess, manifest=manifest, check=check,
-                         jobs=jobs, progress=progress)
+                         jobs=jobs, progress=progress, judge=judge)
     optics = flats_optics(res.exposures, folder_of(flat_folder))
     # per-plane level in DN: that of the first frame (the check guarantees all are similar)
     level = {c: float(m) for c, m in zip(res.channel_names, first["level"], strict=True)}

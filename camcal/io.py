@@ -727,6 +727,78 @@ def load_frame(
     return frame if exp is frame.exposure else dataclasses.replace(frame, exposure=exp)
 
 
+@dataclasses.dataclass(frozen=True)
+class FrameHeader:
+    """What a file's header says without decoding its pixels (:func:`frame_header`).
+
+    ``layout`` is None when the header does not tell it (a DNG whose image is in a sub-IFD): the file must be
+    decoded to know it.
+    """
+
+    kind: str
+    layout: str | None
+    shape: tuple[int, int]
+    make: str | None
+    model: str | None
+
+
+#: PhotometricInterpretation of a DNG's colour filter array and of its linear (demosaiced) RAW image.
+_CFA_PHOTOMETRIC, _LINEAR_PHOTOMETRIC = "32803", "34892"
+
+
+def frame_header(path: str | Path) -> FrameHeader:
+    """Kind, RAW layout, size, make and model of an image file from its header, no pixel decoded.
+
+    RAW files: LibRaw's open (sizes, before any unpacking) and the EXIF tags (make, model, and the layout when
+    the main IFD holds the colour filter array or a linear RAW image; other RAW formats than DNG are Bayer
+    mosaics or refused when decoded). Processed images: OpenImageIO's header (JPEG, TIFF, PNG), libheif's
+    (HEIC). The size is the one :func:`load_frame` gives (a Bayer mosaic cut to even rows and columns).
+
+    Raises
+    ------
+    CamcalError
+        The header cannot be read (the decode would fail too, with its own message).
+    """
+    path = Path(path)
+    _check_file(path)
+    if is_heif(path):
+        try:
+            with quiet_stderr():
+                heif = pillow_heif.open_heif(str(path), convert_hdr_to_8bit=False)
+        except (ValueError, RuntimeError, OSError, SyntaxError) as exc:
+            raise CamcalError(f"cannot open as a HEIC/HEIF image: {exc}", path) from None
+        w, h = heif.size
+        exif = exposure_from_exif(path, _exif_from_block(heif.info.get("exif")))
+        return FrameHeader("processed", "processed", (int(h), int(w)), exif.make, exif.model)
+    tags = _exif_tags(path)
+    exif = exposure_from_exif(path, tags)
+    if not is_raw_path(path):
+        with open_image(path, ("jpeg", "tiff", "png"), "a JPEG, TIFF or PNG image") as (_inp, spec):
+            make, model = spec.getattribute("Make"), spec.getattribute("Model")
+            shape = (int(spec.height), int(spec.width))
+        return FrameHeader("processed", "processed", shape, make or exif.make, model or exif.model)
+    try:
+        with quiet_stderr(), rawpy.imread(str(path)) as raw:  # open only: sizes and colours need no unpacking
+            sizes = raw.sizes
+            h, w = int(sizes.height), int(sizes.width)
+            _check_pixels(path, int(sizes.raw_width), int(sizes.raw_height))
+            _check_size_for_pixels(path, int(sizes.raw_width), int(sizes.raw_height))
+    except (rawpy.LibRawError, OSError, ValueError, MemoryError) as exc:
+        raise CamcalError(f"cannot read the RAW header: {type(exc).__name__}", path) from None
+    photometric = str(tags.get("Image PhotometricInterpretation", "")) if tags else ""
+    if photometric == _CFA_PHOTOMETRIC or (tags and "Image CFARepeatPatternDim" in tags):
+        layout: str | None = "bayer"
+    elif photometric == _LINEAR_PHOTOMETRIC:
+        layout = "linear"
+    elif path.suffix.lower() == ".dng":
+        layout = None  # the image is in a sub-IFD: CFA or linear is known after decoding
+    else:
+        layout = "bayer"
+    if layout == "bayer":
+        h, w = h // 2 * 2, w // 2 * 2
+    return FrameHeader("raw", layout, (h, w), exif.make, exif.model)
+
+
 def read_photo_metadata(path: str | Path, defaults: dict[str, float | str] | None = None) -> Exposure:
     """A photo's EXIF metadata (exposure, capture time, offset, GPS), each value with its source, without
     decoding its pixels; ``session.toml`` fills what the file does not hold (``defaults`` as in

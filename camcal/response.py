@@ -70,6 +70,7 @@ from camcal.response_model import (  # noqa: F401 (re-exported)
     srgb_form_encode,
     srgb_form_toe,
 )
+from camcal.screen import StageJudge
 from camcal.session import StageFrames, folder_of, stage_files
 from camcal.threads import thread_count
 
@@ -261,8 +262,13 @@ def measure_series(
     reference_f_number: float | None = None,
     progress: Callable[[int, int], None] | None = None,
     jobs: int | None = None,
+    judge: StageJudge | None = None,
 ) -> dict[str, ExposureSeries]:
     """ROI statistics of every frame of an exposure-series folder, grouped by kind.
+
+    ``judge``: the stage's :class:`camcal.screen.StageJudge`: each frame is judged as it is decoded (unreadable,
+    a copy, another camera...) and a frame left out is skipped, as if it were not in the folder; without a
+    judge, an unreadable frame is an error.
 
     Frames are read in file order, the next ones decoding in threads while one is measured (``jobs``:
     :func:`camcal.threads.thread_count`); at most one frame per thread plus the one measured are in memory,
@@ -287,8 +293,18 @@ def measure_series(
     previous: tuple | None = None  # (setting, planes above dark, file name) of an unpaired RAW frame
     # the thread rule looks at the frame size: a RAW file's bytes are about two per pixel (no header read)
     threads = thread_count(jobs, len(files), max(files[0].stat().st_size // 2, 1) if files else None)
-    frames = read_ahead(files, lambda p: load_folder_frame(p, manifest), threads if threads > 1 else 0)
+    if judge is None:
+        frames = read_ahead(files, lambda p: load_folder_frame(p, manifest), threads if threads > 1 else 0)
+    else:
+        frames = read_ahead(files, lambda p: judge.load(p, lambda q: load_folder_frame(q, manifest)),
+                            threads if threads > 1 else 0)
     for i, (path, frame) in enumerate(zip(files, frames, strict=True)):
+        if judge is not None:
+            frame, facts = frame
+            if judge.decide(path, facts) is not None:  # left out: as if it were not in the folder
+                if progress:
+                    progress(i + 1, len(files))
+                continue
         e = frame.exposure
         t, iso, n = e.require("exposure_s", path), e.require("iso", path), e.require("f_number", path)
         planes = frame.planes(np.float32)

@@ -2,27 +2,44 @@
 
 A real session holds frames a careful person would not fit: a file truncated by a card reader, the
 same frame copied twice, a JPEG of another camera dropped into ``flat/``, an over-exposed flat.
-:func:`screen_session` decodes every frame of every stage once (threads, one frame in memory per
-thread) and gives each a :class:`Verdict`: used, or left out with its reason. The stages then fit the
+Every frame of every stage gets a :class:`Verdict`: used, or left out with its reason. The stages fit the
 frames that are used; ``camcal calibrate`` lists the others (``provenance.left_out`` of the profile).
-Each file is also hashed (SHA-256, :func:`camcal.hashing.sha256_file`) in the thread that decoded it, while
-its bytes are in the page cache; the hash is remembered for the profile's provenance.
+
+Where a frame is judged (each frame decoded once for its verdict and its stage):
+
+- :func:`screen_session` reads every frame's header (:func:`camcal.io.frame_header`: kind, RAW layout, size,
+  make and model, no pixel decoded) for the session's camera, layout and size (:class:`Majority`), and decodes
+  (threads, one frame in memory per thread) and judges the frames whose stage does not judge them itself
+  (in ``camcal calibrate``: the sweep's JPEG twins, and flats of several f-numbers, grouped on the frames used).
+- The stages given a :class:`StageJudge` (``camcal calibrate``: the bias and dark stacks and the master flat,
+  :func:`camcal.stack.combine_frames`; the linearity series, :func:`camcal.response.measure_series`; the sweep's
+  rows, :func:`camcal.spectral.measure_sweep_settings`) judge each frame as they decode it for their fit, in
+  their one streaming pass, and leave a frame judged unusable out of what they accumulate. ``--strict`` judges
+  every frame in :func:`screen_session` first (all or nothing, refused at the first problem).
+
+Both give the same verdicts, formed in one place (:func:`_reason`), in the same stage and file order. Each file
+is also hashed (SHA-256, :func:`camcal.hashing.sha256_file`) in the thread that decoded it, while its bytes are
+in the page cache; the hash is remembered for the profile's provenance.
 
 Reasons, in the order they are judged (the first that applies is given; docs/reliability.md lists them):
 
 - ``unreadable: <why>``: the file cannot be decoded (truncated, damaged, image data stripped, an
   unsupported layout); ``<why>`` is the reader's one-line message.
-- ``duplicate: the same pixels as <file> (a copy of one exposure); the first copy is kept``.
+- ``duplicate: the same pixels as <file> (a copy of one exposure); the first copy is kept``: the first copy in
+  the stage's file order, whatever order a stage reads its frames in (:meth:`StageJudge.decide`).
 - ``another camera: ...`` / ``another layout: ...`` / ``another size: ...``: the frame's make and model,
   RAW layout or size differ from the session's (the most common among its RAW frames; processed
   images are compared with the session camera's own processed images, else with its Bayer frames' size).
+  The session's values come from the headers of the frames a stage judges and the decode of the others; a file
+  whose header cannot be read takes no part (its decode names the problem), and a DNG whose header does not
+  say its layout is decoded to tell it.
 - the stage's own frame check (:data:`StageCheck`), e.g. ``not RAW: ...``, ``saturated: ...``: a dark
   frame with light in it, a flat saturated beyond use or too dark, a sweep row that is not a RAW file.
 
-Judged later, inside the stage that can see it (:mod:`camcal.spectral`): a sweep frame saturated in its
-region of interest, and a sweep frame that recorded no light while the reference detector saw light.
-A frame of a linearity series at or past saturation is *used*: it marks the end of the linear range
-(:mod:`camcal.response`).
+Judged later, inside the stage that can see it: a dark frame alone at its exposure time once its companions
+are left out (:mod:`camcal.dark`); a sweep frame saturated in its region of interest, and a sweep frame that
+recorded no light while the reference detector saw light (:mod:`camcal.spectral`). A frame of a linearity
+series at or past saturation is *used*: it marks the end of the linear range (:mod:`camcal.response`).
 """
 
 from __future__ import annotations
@@ -30,15 +47,15 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 from collections import Counter
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Collection, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
 from camcal.errors import CamcalError
 from camcal.hashing import sha256_file
-from camcal.io import load_frame
-from camcal.session import SessionIndex, StageFrames
+from camcal.io import frame_header, load_frame
+from camcal.session import FrameRef, SessionIndex, StageFrames
 from camcal.stack import frame_digest
 from camcal.threads import thread_count
 
@@ -112,19 +129,27 @@ class Screening:
     verdicts: tuple[Verdict, ...]
     facts: Mapping[Path, FrameFacts]
     camera: tuple[str | None, str | None]
+    majority: Majority = dataclasses.field(default_factory=lambda: Majority())
+    deferred: Mapping[str, list[str]] = dataclasses.field(default_factory=dict)
+    """Per stage, the names of the frames its stage judges itself (:meth:`judge`); not in ``verdicts``."""
+    order: Mapping[str, Mapping[Path, int]] = dataclasses.field(default_factory=dict)
+    """Per stage, each frame's place in the stage's file order."""
+    digests: Mapping[str, Mapping[bytes, tuple[int, str]]] = dataclasses.field(default_factory=dict)
+    """Per stage, the pixel digests of the frames decoded here: (place in file order, name) of the first copy."""
 
     def left_out(self, stage: str | None = None) -> list[Verdict]:
         """Verdicts of the frames left out (of ``stage``, or of every stage)."""
         return [v for v in self.verdicts if not v.used and (stage is None or v.stage == stage)]
 
+    def judge(self, stage: str, check: StageCheck | None = None) -> StageJudge:
+        """The :class:`StageJudge` of ``stage``'s deferred frames: the session's majority, the stage's file order
+        and the digests of its frames judged here (a deferred copy of one of them is a duplicate)."""
+        return StageJudge(stage, self.majority, check, self.order.get(stage, {}), self.digests.get(stage),
+                          self.facts)  # type: ignore[arg-type]
 
-def frame_facts(path: Path, overrides: Mapping[str, float | None] | None = None,
-                check: StageCheck | None = None) -> FrameFacts:
-    """Decode ``path`` once and return its :class:`FrameFacts` (the stage ``check`` run on it)."""
-    try:
-        frame = load_frame(path, dict(overrides or {}))
-    except CamcalError as exc:
-        return FrameFacts(path, error=exc.message)
+
+def _facts_of(frame, check: StageCheck | None) -> FrameFacts:
+    """The :class:`FrameFacts` of a decoded frame (the stage ``check`` run on it)."""
     check_error = None
     if check is not None:
         try:
@@ -135,8 +160,31 @@ def frame_facts(path: Path, overrides: Mapping[str, float | None] | None = None,
     # a frame with every value at the white level holds no noise: two separate over-exposed frames have the same
     # pixels without being copies, so it takes no part in the duplicate check
     digest = b"" if int(frame.data.min()) >= frame.white_level_dn else frame_digest(frame.data)
-    return FrameFacts(path, frame.kind, frame.layout, tuple(frame.shape), frame.cfa_pattern,  # type: ignore[arg-type]
-                      e.make, e.model, e.serial, digest, None, check_error)
+    return FrameFacts(frame.path, frame.kind, frame.layout, tuple(frame.shape),  # type: ignore[arg-type]
+                      frame.cfa_pattern, e.make, e.model, e.serial, digest, None, check_error)
+
+
+def frame_facts(path: Path, overrides: Mapping[str, float | None] | None = None,
+                check: StageCheck | None = None) -> FrameFacts:
+    """Decode ``path`` once and return its :class:`FrameFacts` (the stage ``check`` run on it)."""
+    try:
+        frame = load_frame(path, dict(overrides or {}))
+    except CamcalError as exc:
+        return FrameFacts(path, error=exc.message)
+    return dataclasses.replace(_facts_of(frame, check), path=path)
+
+
+def header_facts(path: Path, overrides: Mapping[str, float | None] | None = None) -> FrameFacts:
+    """What the session majority needs of a frame (kind, layout, size, make, model), from its header alone
+    (:func:`camcal.io.frame_header`); decoded when the header does not tell its RAW layout. ``error`` is set
+    when the header cannot be read (the frame's own decode then names the problem)."""
+    try:
+        h = frame_header(path)
+    except CamcalError as exc:
+        return FrameFacts(path, error=exc.message)
+    if h.layout is None:
+        return frame_facts(path, overrides)
+    return FrameFacts(path, h.kind, h.layout, h.shape, None, h.make, h.model)
 
 
 def _most_common(values: list) -> object:
@@ -148,6 +196,37 @@ def _most_common(values: list) -> object:
 
 def _camera_name(make: str | None, model: str | None) -> str:
     return " ".join(x for x in (make, model) if x) or "an unnamed camera"
+
+
+@dataclass(frozen=True)
+class Majority:
+    """The session's camera, RAW layout and sizes: the most common among its RAW frames (module docstring).
+
+    ``processed_shape``: the size of the session camera's own processed images (JPEG twins), else of its Bayer
+    RAW frames (a camera writes its JPEGs at the sensor's size; a linear RAW frame's size says nothing of them).
+    """
+
+    camera: tuple[str | None, str | None] = (None, None)
+    layout: str | None = None
+    raw_shape: tuple[int, int] | None = None
+    processed_shape: tuple[int, int] | None = None
+
+    @classmethod
+    def of(cls, facts: list[FrameFacts]) -> Majority:
+        readable = [f for f in facts if f.error is None]
+        raw = [f for f in readable if f.kind == "raw"]
+        camera = _most_common([(f.make, f.model) for f in raw or readable]) if readable else (None, None)
+        layout = _most_common([f.layout for f in raw]) if raw else None
+        raw_shape = _most_common([f.shape for f in raw if f.layout == layout]) if raw else None
+        own = [f.shape for f in readable if f.kind != "raw" and (f.make, f.model) == camera]
+        processed_shape = _most_common(own) if own else (raw_shape if layout == "bayer" else None)
+        return cls(camera, layout, raw_shape, processed_shape)  # type: ignore[arg-type]
+
+    def mismatch(self, f: FrameFacts) -> str | None:
+        """The reason a readable frame is not of the session's camera, layout or size; None when it is."""
+        if f.kind == "raw":
+            return _mismatch(f, self.camera, self.layout, self.raw_shape)
+        return _mismatch(f, self.camera, None, self.processed_shape)
 
 
 def _mismatch(f: FrameFacts, camera: tuple, layout: str | None, shape: tuple | None) -> str | None:
@@ -167,19 +246,123 @@ def _mismatch(f: FrameFacts, camera: tuple, layout: str | None, shape: tuple | N
     return f"another {what}: {this}; the session's frames are {theirs}"
 
 
+def _duplicate(first: str) -> str:
+    return f"duplicate: the same pixels as {first} (a copy of one exposure); the first copy is kept"
+
+
+def _reason(f: FrameFacts, majority: Majority, duplicate_of: str | None) -> str | None:
+    """The one place a verdict is formed, in the order of the module docstring: unreadable, duplicate, another
+    camera/layout/size, the stage's own check. ``duplicate_of``: the first copy's name when ``f`` is a copy."""
+    if f.error is not None:
+        return f"unreadable: {f.error}"
+    if duplicate_of is not None:
+        return _duplicate(duplicate_of)
+    return majority.mismatch(f) or f.check_error
+
+
+class StageJudge:
+    """The verdicts of one stage's frames, given while the stage decodes them for its own fit (each frame decoded
+    once: no screening decode before the stage).
+
+    :meth:`load` runs in the stage's decode threads: it decodes the frame with the stage's own loader, hashes the
+    file beside the decode (its bytes are in the page cache) and runs the stage check. :meth:`decide` runs in
+    the stage's own thread, frame after frame, and gives the verdict (:func:`_reason`: the same reasons as
+    :func:`screen_session`). A copy is told by its pixel digest; the copy first in the stage's file order is
+    kept, whatever order the stage reads them in: when the kept copy comes after a copy already used,
+    :attr:`retracted` names the one used, now a duplicate (the stage leaves it out again).
+    """
+
+    def __init__(self, stage: str, majority: Majority, check: StageCheck | None, order: Mapping[Path, int],
+                 seen: Mapping[bytes, tuple[int, str]] | None = None, facts: dict[Path, FrameFacts] | None = None):
+        self.stage = stage
+        self.majority = majority
+        self.check = check
+        self.order = dict(order)
+        self.seen: dict[bytes, tuple[int, Path]] = {d: (i, Path(n)) for d, (i, n) in (seen or {}).items()}
+        self.facts = facts if facts is not None else {}
+        self.reasons: dict[Path, str | None] = {}
+        self.retracted: list[Path] = []
+        self.reported: set[str] = set()
+        """Names of the frames whose verdict the caller has recorded already."""
+
+    def load(self, path: Path, loader: Callable[[Path], object]) -> tuple[object | None, FrameFacts]:
+        """``(frame, facts)``: the frame ``loader(path)`` decodes (None when it cannot) and what judging needs."""
+        try:
+            frame = loader(path)
+        except CamcalError as exc:
+            facts = FrameFacts(path, error=exc.message)
+            frame = None
+        else:
+            facts = dataclasses.replace(_facts_of(frame, self.check), path=path)
+        with contextlib.suppress(OSError):  # the file is in the page cache now: its provenance hash is cheap
+            sha256_file(path, remember=True)
+        return frame, facts
+
+    def decide(self, path: Path, facts: FrameFacts) -> str | None:
+        """The verdict of ``path`` (None: used); recorded. A path judged already keeps its verdict."""
+        if path in self.reasons:
+            return self.reasons[path]
+        if facts.error is None:
+            self.facts[path] = facts
+        first = None
+        rank = self.order.get(path)
+        if rank is None:  # not a frame of the stage's index: after all of them
+            rank = self.order[path] = len(self.order)
+        if facts.error is None and facts.digest:
+            seen = self.seen.setdefault(facts.digest, (rank, path))
+            if seen[0] < rank or (seen[1] != path and seen[1] not in self.reasons):
+                first = seen[1].name  # (a frame the screening judged keeps its verdict)
+            elif seen[1] != path:  # this one comes first in file order: the one seen before is its copy
+                self.seen[facts.digest] = (rank, path)
+                if self.reasons.get(seen[1]) is None:
+                    self.retracted.append(seen[1])
+                self.reasons[seen[1]] = _duplicate(path.name)
+        reason = _reason(facts, self.majority, first)
+        self.reasons[path] = reason
+        return reason
+
+    def judge_all(self, refs: Sequence[FrameRef]) -> list[FrameRef]:
+        """Decode and judge ``refs`` one after another (for a stage that cannot judge while it measures);
+        returns the ones used."""
+        kept = []
+        for ref in refs:
+            _frame, facts = self.load(ref.path, lambda p, ref=ref: load_frame(p, dict(ref.overrides or {})))
+            if self.decide(ref.path, facts) is None:
+                kept.append(ref)
+        return [r for r in kept if self.reasons.get(r.path) is None]
+
+    def verdicts(self) -> list[Verdict]:
+        """The verdicts given so far, in the stage's file order."""
+        return [Verdict(self.stage, p.name, r) for p, r in sorted(self.reasons.items(),
+                                                                   key=lambda kv: self.order.get(kv[0], 1 << 30))]
+
+    def left_out(self) -> list[Verdict]:
+        return [v for v in self.verdicts() if not v.used]
+
+
 def screen_session(index: SessionIndex, checks: Mapping[str, StageCheck] | None = None, *, jobs: int | None = None,
-                   progress: Progress | None = None) -> Screening:
-    """Decode every frame of ``index`` once and give each a :class:`Verdict` (module docstring).
+                   progress: Progress | None = None,
+                   defer: Mapping[str, Collection[str]] | None = None) -> Screening:
+    """Give every frame of ``index`` a :class:`Verdict` (module docstring).
 
     ``checks``: per stage, the stage's own frame check. ``jobs``: decoding threads
     (:func:`camcal.threads.thread_count`). ``progress(done, total)`` after each frame.
+
+    ``defer``: per stage, the names of the frames the stage judges itself while it decodes them
+    (:meth:`Screening.judge`): they are not decoded here, only their headers read for the session's camera,
+    layout and size (:func:`header_facts`); they stay in ``kept`` until their stage judges them. The other
+    frames are decoded here, each once.
     """
     checks = checks or {}
+    defer = defer or {}
     items = [(s, ref) for s in index.stages for ref in index.frames[s].frames]
+    deferred = {(s, ref.path) for s, ref in items if ref.path.name in defer.get(s, ())}
     total = len(items)
 
     def work(item):
         s, ref = item
+        if (s, ref.path) in deferred:
+            return header_facts(ref.path, ref.overrides)
         facts = frame_facts(ref.path, ref.overrides, checks.get(s))
         with contextlib.suppress(OSError):  # the file is in the page cache now: its provenance hash is cheap
             sha256_file(ref.path, remember=True)
@@ -195,35 +378,28 @@ def screen_session(index: SessionIndex, checks: Mapping[str, StageCheck] | None 
             facts.append(f)
             if progress:
                 progress(i + 1, total)
-    readable = [f for f in facts if f.error is None]
-    raw = [f for f in readable if f.kind == "raw"]
-    camera = _most_common([(f.make, f.model) for f in raw or readable]) if readable else (None, None)
-    layout = _most_common([f.layout for f in raw]) if raw else None
-    raw_shape = _most_common([f.shape for f in raw if f.layout == layout]) if raw else None
-    # processed images: the size of the session camera's own (JPEG twins), else of its Bayer RAW frames (a camera
-    # writes its JPEGs at the sensor's size; a linear RAW frame's size says nothing of them)
-    own = [f.shape for f in readable if f.kind != "raw" and (f.make, f.model) == camera]
-    processed_shape = _most_common(own) if own else (raw_shape if layout == "bayer" else None)
+    majority = Majority.of(facts)
 
     verdicts: list[Verdict] = []
     kept: dict[str, list] = {s: [] for s in index.stages}
-    seen: dict[tuple[str, bytes], str] = {}
+    seen: dict[str, dict[bytes, tuple[int, str]]] = {s: {} for s in index.stages}
+    rank = {s: 0 for s in index.stages}
     for (s, ref), f in zip(items, facts, strict=True):
-        reason = None
-        if f.error is not None:
-            reason = f"unreadable: {f.error}"
-        else:
-            first = seen.setdefault((s, f.digest), ref.path.name) if f.digest else ref.path.name
-            if first != ref.path.name:
-                reason = f"duplicate: the same pixels as {first} (a copy of one exposure); the first copy is kept"
-            elif f.kind == "raw":
-                reason = _mismatch(f, camera, layout, raw_shape)  # type: ignore[arg-type]
-            else:
-                reason = _mismatch(f, camera, None, processed_shape)  # type: ignore[arg-type]
-            if reason is None and f.check_error is not None:
-                reason = f.check_error
+        i = rank[s]
+        rank[s] += 1
+        if (s, ref.path) in deferred:
+            kept[s].append(ref)
+            continue
+        first = None
+        if f.error is None and f.digest:
+            j, name = seen[s].setdefault(f.digest, (i, ref.path.name))
+            first = name if name != ref.path.name else None
+        reason = _reason(f, majority, first)
         verdicts.append(Verdict(s, ref.path.name, reason))
         if reason is None:
             kept[s].append(ref)
     kept_frames = {s: dataclasses.replace(index.frames[s], frames=tuple(kept[s])) for s in index.stages}
-    return Screening(kept_frames, tuple(verdicts), {f.path: f for f in facts}, camera)  # type: ignore[arg-type]
+    order = {s: {ref.path: i for i, ref in enumerate(index.frames[s].frames)} for s in index.stages}
+    return Screening(kept_frames, tuple(verdicts), {f.path: f for f in facts}, majority.camera,  # type: ignore[arg-type]
+                     majority, {s: sorted(p.name for t, p in deferred if t == s) for s in index.stages
+                                if any(t == s for t, _ in deferred)}, order, seen)

@@ -62,10 +62,11 @@ from camcal.dark_model import DarkModel, as_dark_model
 from camcal.errors import CamcalError, FrameLeftOut, TooFewFrames
 from camcal.exposure import frame_relative_exposure
 from camcal.flat_model import FlatModel, as_flat_model
-from camcal.frame import Frame, split_planes
+from camcal.frame import PLANES, RGB, Frame, split_planes
 from camcal.io import load_frame
 from camcal.manifest import exposure_overrides, read_manifest, safe_member
 from camcal.region import DEFAULT_ROI_FRACTION, Region, central_roi
+from camcal.screen import FrameFacts, StageJudge
 from camcal.session import SWEEP_CSV, SWEEP_REQUIRED
 from camcal.spectral_model import (  # noqa: F401 (re-exported)
     ABSOLUTE_UNITS,
@@ -185,9 +186,10 @@ class _FrameResult:
 
 
 def _process_frame(row: SweepRow, cal: Calibration, roi: tuple[int, int, int, int], ref_iso: float, ref_n: float,
-                   roi_shape_check: Callable[[Frame], None]) -> _FrameResult:
-    """Decode one file once and correct its ROI through :mod:`camcal.correct` (dark, flat, invalid mask)."""
-    frame = load_frame(row.path, row.overrides)
+                   roi_shape_check: Callable[[Frame], None], frame: Frame | None = None) -> _FrameResult:
+    """Decode one file once (unless its ``frame`` is given) and correct its ROI through :mod:`camcal.correct`
+    (dark, flat, invalid mask)."""
+    frame = load_frame(row.path, row.overrides) if frame is None else frame
     if frame.kind != "raw":
         raise CamcalError("is not a RAW file; the spectral sweep needs linear RAW data", row.path)
     roi_shape_check(frame)
@@ -413,9 +415,15 @@ def measure_sweep_settings(
     options: SweepOptions = SweepOptions(),  # noqa: B008
     jobs: int | None = 2,
     progress: Callable[[int, int], None] | None = None,
+    judge: StageJudge | None = None,
 ) -> SweepMeasurement:
     """The file step of the sweep: decode every frame of ``rows`` once (in threads), correct its ROI
     (:mod:`camcal.correct`), skip saturated frames and combine each wavelength (:func:`combine_wavelength`).
+
+    ``judge``: the stage's :class:`camcal.screen.StageJudge`: each frame is judged as it is decoded
+    (unreadable, a copy, another camera, not RAW...) and a frame left out is skipped, as if its row were not
+    in ``sweep.csv``; the frames' geometry is then the session's (:attr:`camcal.screen.Majority.layout` and
+    ``raw_shape``), which every frame kept has. Without a judge, an unreadable frame is an error.
 
     Raises
     ------
@@ -439,14 +447,17 @@ def measure_sweep_settings(
 
     if options.mode == "absolute" and flat is None:
         warn("no flat model: absolute values refer to the ROI, not the optical axis (vignetting not removed)")
-    # geometry from the first frame (header decode only once: the first frame is decoded again by the pool)
-    first = load_frame(rows[0].path, rows[0].overrides)
-    if first.kind != "raw":
-        raise CamcalError("is not a RAW file; the spectral sweep needs linear RAW data", rows[0].path)
-    shape_hw = (first.shape[0] // 2, first.shape[1] // 2) if first.layout == "bayer" else first.shape
-    full_shape = first.shape
-    layout, names = first.layout, first.channel_names
-    del first
+    if judge is not None and judge.majority.layout is not None and judge.majority.raw_shape is not None:
+        # the session's RAW geometry: every frame the judge keeps has it (no frame decoded twice)
+        layout, full_shape = judge.majority.layout, judge.majority.raw_shape
+        names = PLANES if layout == "bayer" else RGB
+    else:  # geometry from the first frame (decoded again by the pool)
+        first = load_frame(rows[0].path, rows[0].overrides)
+        if first.kind != "raw":
+            raise CamcalError("is not a RAW file; the spectral sweep needs linear RAW data", rows[0].path)
+        full_shape, layout, names = first.shape, first.layout, first.channel_names
+        del first
+    shape_hw = (full_shape[0] // 2, full_shape[1] // 2) if layout == "bayer" else full_shape
     if isinstance(roi, Region):
         ys, xs = roi.window(shape_hw, 2 if layout == "bayer" else 1, Path(sweep_folder))
         box = (xs.start, ys.start, xs.stop, ys.stop)
@@ -468,91 +479,124 @@ def measure_sweep_settings(
             raise CamcalError(f"frame is {frame.shape[1]}x{frame.shape[0]} pixels, the sweep's first frame is "
                               f"{full_shape[1]}x{full_shape[0]}", frame.path)
 
-    def work(row: SweepRow) -> _FrameResult:
-        return _process_frame(row, cal, box, reference_iso, reference_f_number, shape_check)
+    def work(row: SweepRow) -> tuple[FrameFacts | None, _FrameResult | None]:
+        if judge is None:
+            return None, _process_frame(row, cal, box, reference_iso, reference_f_number, shape_check)
+        frame, facts = judge.load(row.path, lambda p: load_frame(p, row.overrides))
+        if frame is None or facts.check_error is not None or judge.majority.mismatch(facts) is not None:
+            return facts, None  # left out whatever else the judge finds: nothing to measure
+        return facts, _process_frame(row, cal, box, reference_iso, reference_f_number, shape_check, frame)
 
     # group by wavelength (file order kept inside a group)
     groups: dict[float, list[SweepRow]] = {}
     for r in rows:
         groups.setdefault(r.wavelength_nm, []).append(r)
     wls = sorted(groups)
-    settings: list[SweepSetting] = []
-    defect_saturated: dict[float, int] = {}
-    done = 0
-    total = len(rows)
     ordered = [r for wl in wls for r in groups[wl]]
     threads = thread_count(jobs, len(ordered), full_shape[0] * full_shape[1])
-    left_out: list[tuple[str, str]] = []
-    dropped: list[str] = []
-    single: dict[float, tuple[SweepRow, float]] = {}  # lone frames, judged against their neighbours
 
-    def leave_out(row: SweepRow, reason: str) -> None:
-        left_out.append((row.path.name, reason))
-        warnings.warn(f"left out: {row.path.name}: {reason}", LeftOutWarning, stacklevel=4)
+    def measure() -> SweepMeasurement:
+        settings: list[SweepSetting] = []
+        defect_saturated: dict[float, int] = {}
+        done = 0
+        total = len(rows)
+        left_out: list[tuple[str, str]] = []
+        dropped: list[str] = []
+        single: dict[float, tuple[SweepRow, float]] = {}  # lone frames, judged against their neighbours
+        listed: set[float] = set()  # wavelengths with a frame the judge kept (all, without a judge)
 
-    with ThreadPoolExecutor(max_workers=threads) as pool:
-        results = pool.map(work, ordered) if threads > 1 else map(work, ordered)
-        it = iter(results)
-        for wl in wls:
-            frames: list[_FrameResult] = []
-            for _ in groups[wl]:
-                res = next(it)
-                done += 1
-                if progress:
-                    progress(done, total)
-                if res.defect_saturated:
-                    defect_saturated[wl] = max(defect_saturated.get(wl, 0), res.defect_saturated)
-                if res.saturated_fraction > max_saturated_fraction:
-                    leave_out(res.row, f"saturated: {100 * res.saturated_fraction:.2g} % of the region of interest "
-                                       f"outside known defects is at the white level at {wl:g} nm (shorten the "
-                                       "exposure)")
+        def leave_out(row: SweepRow, reason: str) -> None:
+            left_out.append((row.path.name, reason))
+            warnings.warn(f"left out: {row.path.name}: {reason}", LeftOutWarning, stacklevel=5)
+
+        with ThreadPoolExecutor(max_workers=threads) as pool:
+            results = pool.map(work, ordered) if threads > 1 else map(work, ordered)
+            it = iter(results)
+            for wl in wls:
+                frames: list[_FrameResult] = []
+                rows_kept: list[SweepRow] = []  # the rows of this wavelength the judge kept: as if the only ones
+                for row in groups[wl]:
+                    facts, res = next(it)
+                    done += 1
+                    if progress:
+                        progress(done, total)
+                    if judge is not None and judge.decide(row.path, facts) is not None:
+                        continue
+                    rows_kept.append(row)
+                    if res.defect_saturated:
+                        defect_saturated[wl] = max(defect_saturated.get(wl, 0), res.defect_saturated)
+                    if res.saturated_fraction > max_saturated_fraction:
+                        leave_out(res.row, f"saturated: {100 * res.saturated_fraction:.2g} % of the region of "
+                                           f"interest outside known defects is at the white level at {wl:g} nm "
+                                           "(shorten the exposure)")
+                        continue
+                    frames.append(res)
+                if not rows_kept:
                     continue
-                frames.append(res)
-            dark_frames = no_light(frames)
-            for res, reason in dark_frames:
-                leave_out(res.row, reason)
-            frames = [r for r in frames if all(r is not d for d, _ in dark_frames)]
-            if len(frames) < max(1, min_frames):
-                dropped.append(f"{wl:g} nm ({len(frames)} of {len(groups[wl])} frames usable, "
-                               f"{max(1, min_frames)} needed)")
+                listed.add(wl)
+                dark_frames = no_light(frames)
+                for res, reason in dark_frames:
+                    leave_out(res.row, reason)
+                frames = [r for r in frames if all(r is not d for d, _ in dark_frames)]
+                if len(frames) < max(1, min_frames):
+                    dropped.append(f"{wl:g} nm ({len(frames)} of {len(rows_kept)} frames usable, "
+                                   f"{max(1, min_frames)} needed)")
+                    continue
+                if len(frames) == 1:
+                    single[wl] = (frames[0].row, frame_signal(frames[0])[0])
+                v, u, ur = combine_wavelength(frames)
+                bws = {r.bandwidth_nm for r in rows_kept if r.bandwidth_nm is not None}
+                if len(bws) > 1:
+                    raise CamcalError(f"rows at {wl:g} nm give different bandwidth_nm values {sorted(bws)}",
+                                      csv_path)
+                settings.append(SweepSetting(wl, np.asarray(v, np.float64), np.asarray(u, np.float64), float(ur),
+                                             len(frames), bws.pop() if bws else None))
+                del frames
+        # a frame alone at its wavelength: no light when it records nothing while both neighbours are clearly lit
+        by_wl = {st.wavelength_nm: st for st in settings}
+        order = [st.wavelength_nm for st in settings]
+        for k, wl in enumerate(order):
+            if wl not in single or k == 0 or k == len(order) - 1:
                 continue
-            if len(frames) == 1:
-                single[wl] = (frames[0].row, frame_signal(frames[0])[0])
-            v, u, ur = combine_wavelength(frames)
-            bws = {r.bandwidth_nm for r in groups[wl] if r.bandwidth_nm is not None}
-            if len(bws) > 1:
-                raise CamcalError(f"rows at {wl:g} nm give different bandwidth_nm values {sorted(bws)}", csv_path)
-            settings.append(SweepSetting(wl, np.asarray(v, np.float64), np.asarray(u, np.float64), float(ur),
-                                         len(frames), bws.pop() if bws else None))
-            del frames
-    # a frame alone at its wavelength: no light when it records nothing while both neighbours are clearly lit
-    by_wl = {st.wavelength_nm: st for st in settings}
-    order = [st.wavelength_nm for st in settings]
-    for k, wl in enumerate(order):
-        if wl not in single or k == 0 or k == len(order) - 1:
-            continue
-        row, sig = single[wl]
-        lit = all(float(np.max(by_wl[order[j]].value)) > NO_LIGHT_SIGMAS * float(
-            by_wl[order[j]].noise_unc[int(np.argmax(by_wl[order[j]].value))]) for j in (k - 1, k + 1))
-        neighbours = [float(np.max(by_wl[order[j]].value)) for j in (k - 1, k + 1)]
-        here = float(np.max(by_wl[wl].value))
-        if lit and here < NO_LIGHT_FRACTION * min(neighbours):
-            leave_out(row, f"no light recorded (shutter closed or trigger missed): {sig:.3g} DN above dark at "
-                           f"{wl:g} nm, where the reference detector read {row.radiance_w_m2_sr:.3g} "
-                           f"{IN_BAND_RADIANCE} and the neighbouring wavelengths recorded light")
-            dropped.append(f"{wl:g} nm (its only frame recorded no light)")
-            del by_wl[wl]
-    settings = [by_wl[w] for w in order if w in by_wl]
-    if defect_saturated:
-        ws = sorted(defect_saturated)
-        notes.append(f"hot pixels saturate: up to {max(defect_saturated.values())} known defects of the ROI reach "
-                     f"the white level at {ws[0]:g}-{ws[-1]:g} nm; they are masked (frames kept)")
-    if dropped:
-        notes.append(f"{len(dropped)} wavelength(s) without a usable frame dropped from c(λ): {', '.join(dropped)}")
-    if not settings:
-        raise TooFewFrames("sweep", "wavelengths", 1, 0, f"{len(wls)} in sweep.csv; dropped: {', '.join(dropped)}",
-                           csv_path)
-    return SweepMeasurement(tuple(settings), tuple(names), tuple(notes), csv_path, tuple(left_out), len(wls))
+            row, sig = single[wl]
+            lit = all(float(np.max(by_wl[order[j]].value)) > NO_LIGHT_SIGMAS * float(
+                by_wl[order[j]].noise_unc[int(np.argmax(by_wl[order[j]].value))]) for j in (k - 1, k + 1))
+            neighbours = [float(np.max(by_wl[order[j]].value)) for j in (k - 1, k + 1)]
+            here = float(np.max(by_wl[wl].value))
+            if lit and here < NO_LIGHT_FRACTION * min(neighbours):
+                leave_out(row, f"no light recorded (shutter closed or trigger missed): {sig:.3g} DN above dark at "
+                               f"{wl:g} nm, where the reference detector read {row.radiance_w_m2_sr:.3g} "
+                               f"{IN_BAND_RADIANCE} and the neighbouring wavelengths recorded light")
+                dropped.append(f"{wl:g} nm (its only frame recorded no light)")
+                del by_wl[wl]
+        settings = [by_wl[w] for w in order if w in by_wl]
+        out_notes = list(notes)
+        if defect_saturated:
+            ws = sorted(defect_saturated)
+            out_notes.append(f"hot pixels saturate: up to {max(defect_saturated.values())} known defects of the ROI "
+                             f"reach the white level at {ws[0]:g}-{ws[-1]:g} nm; they are masked (frames kept)")
+        if dropped:
+            out_notes.append(f"{len(dropped)} wavelength(s) without a usable frame dropped from c(λ): "
+                             f"{', '.join(dropped)}")
+        if not settings:
+            raise TooFewFrames("sweep", "wavelengths", 1, 0, f"{len(listed)} in sweep.csv; dropped: "
+                               f"{', '.join(dropped)}", csv_path)
+        return SweepMeasurement(tuple(settings), tuple(names), tuple(out_notes), csv_path, tuple(left_out),
+                                len(listed))
+
+    if judge is None:
+        return measure()
+    while True:
+        retracted = len(judge.retracted)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            measured = measure()
+        if len(judge.retracted) == retracted:
+            for w in caught:  # the warnings of the measurement that is kept
+                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+            return measured
+        # a copy first in file order was read after its copy had been used at another wavelength: measured
+        # again, the verdicts now fixed (rare: a copy named before its original but listed at a later wavelength)
 
 
 def require_wavelengths(measured: SweepMeasurement, needed: int = MIN_WAVELENGTHS, listed: int | None = None) -> None:

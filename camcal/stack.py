@@ -36,14 +36,18 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from camcal.atomic import scratch_file
-from camcal.errors import CamcalError
+from camcal.errors import CamcalError, TooFewFrames
 from camcal.frame import Exposure, Frame
 from camcal.io import folder_files, folder_manifest, load_folder_frame
 from camcal.threads import thread_count
+
+if TYPE_CHECKING:  # camcal.screen uses this module's frame digest
+    from camcal.screen import FrameFacts, StageJudge
 
 METHODS = ("mean", "median", "sigma_clip")
 IQR_TO_SIGMA = 1.349
@@ -161,6 +165,7 @@ class _Decoder:
         self.spill_dtype = np.dtype(np.uint16 if preprocess is None else np.float32)
         self.spill_fd: int | None = None
         self.lock = threading.Lock()
+        self.judge: StageJudge | None = None
 
     def _manifest_for(self, path: Path) -> dict:
         if self.manifest is not None:
@@ -171,8 +176,14 @@ class _Decoder:
                 self.manifests[folder] = folder_manifest(folder)
             return self.manifests[folder]
 
+    def load(self, path: Path) -> Frame:
+        return load_folder_frame(path, self._manifest_for(path))
+
     def decode(self, index: int, path: Path) -> tuple[_Meta, np.ndarray]:
-        frame: Frame = load_folder_frame(path, self._manifest_for(path))
+        return self.planes_of(index, path, self.load(path))
+
+    def planes_of(self, index: int, path: Path, frame: Frame) -> tuple[_Meta, np.ndarray]:
+        """The check, the planes (preprocessed) and the :class:`_Meta` of a decoded frame."""
         if self.check is not None:
             self.check(frame)
         pre = self.preprocess
@@ -182,7 +193,8 @@ class _Decoder:
             raise CamcalError(f"preprocessing gave an array of shape {planes.shape}, expected (C, h, w)", path)
         meta = _Meta(index, frame.exposure, frame.kind, frame.cfa_pattern, frame.channel_names,
                      tuple(float(v) for v in frame.black_vector().ravel()), float(frame.white_level_dn), frame.shape,
-                     tuple(planes.shape), frame_digest(frame.data))
+                     tuple(planes.shape),
+                     frame_digest(frame.data) if self.judge is None else b"")  # a judge tells copies itself
         return meta, planes
 
     def spill_write(self, index: int, planes: np.ndarray) -> None:
@@ -214,6 +226,23 @@ class _Decoder:
             self.spill_write(index, planes)
             return meta, planes if index < self.keep_frames else None
         return meta, planes
+
+    def judged_worker(self, item: tuple[int, str]) -> tuple[int, FrameFacts, _Meta | None, np.ndarray | None]:
+        """Decode one frame in a pool thread and give what its judge needs (:class:`camcal.screen.StageJudge`);
+        a frame the judge will leave out (unreadable, another camera, the stage check) goes no further, the
+        others are spilled (median/clip) or returned (mean) as by :meth:`worker`."""
+        assert self.judge is not None and self.first is not None
+        index, path = item[0], Path(item[1])
+        frame, facts = self.judge.load(path, self.load)
+        if frame is None or facts.check_error is not None or self.judge.majority.mismatch(facts) is not None:
+            return index, facts, None, None
+        meta, planes = self.planes_of(index, path, frame)  # type: ignore[arg-type]
+        del frame
+        _check_same(meta, self.first, path)
+        if self.spill_path is not None:
+            self.spill_write(index, planes)
+            return index, facts, meta, planes if index < self.keep_frames else None
+        return index, facts, meta, planes
 
 
 # --------------------------------------------------------------------------------------------
@@ -591,6 +620,7 @@ def combine_frames(
     band_mb: float = 8.0,
     spill_dir: str | Path | None = None,
     keep_frames: int = 0,
+    judge: StageJudge | None = None,
 ) -> StackResult:
     """Combine frames per pixel and per channel plane, reading each file once.
 
@@ -611,6 +641,11 @@ def combine_frames(
     spill_dir : folder for the temporary spill file (default: the system temp folder).
     keep_frames : keep the planes of the first ``keep_frames`` frames (``StackResult.kept_planes``), so
         statistics of single frames need no second decode.
+    judge : the stage's :class:`camcal.screen.StageJudge`: each frame is judged as it is decoded; a frame left
+        out (unreadable, a copy, another camera, layout or size, the stage's check) is not combined, as if it
+        were not in ``paths`` (the result's ``paths``, ``exposures`` and ``n_frames`` are the frames used).
+        Raises :class:`camcal.errors.TooFewFrames` when every frame is left out. Without a judge, any such frame
+        is an error.
 
     Returns
     -------
@@ -632,6 +667,9 @@ def combine_frames(
     n = len(paths)
 
     dec = _Decoder(manifest, check, preprocess, keep_frames)  # this call's settings, given to the threads
+    if judge is not None:
+        dec.judge = judge
+        return _combine_judged(paths, method, sigma, dec, jobs, progress, band_mb, spill_dir, keep_frames)
     first_meta, first_planes = dec.decode(0, paths[0])
     dec.first = first_meta
     jobs = thread_count(jobs, n, first_meta.frame_shape[0] * first_meta.frame_shape[1])
@@ -678,6 +716,143 @@ def combine_frames(
         mean_all=mean_all,
         kept_planes=tuple(kept[i] for i in sorted(kept)),
     )
+
+
+def _combine_judged(paths: tuple[Path, ...], method: str, sigma: float, dec: _Decoder, jobs: int | None,
+                    progress: Callable[[int, int], None] | None, band_mb: float, spill_dir: str | Path | None,
+                    keep_frames: int) -> StackResult:
+    """:func:`combine_frames` with a judge: the frames it leaves out are not combined.
+
+    The first usable frame is decoded in this thread (its size sets the threads and the stack's shape); the
+    others in the pool. Copies: the judge keeps the first in file order (:meth:`camcal.screen.StageJudge.decide`);
+    when it comes after the copy already combined, the two have the same pixels: the sums are unchanged and the
+    slot (median/clip) or the kept planes pass to it. The spilled slots of the frames left out are closed up
+    (the frames after them moved down) before the band statistics, so these see the frames used as if alone.
+    """
+    judge = dec.judge
+    assert judge is not None
+    n = len(paths)
+    done = 0
+
+    def tick() -> None:
+        nonlocal done
+        done += 1
+        if progress:
+            progress(done, n)
+
+    start = 0
+    first_meta = first_planes = None
+    while start < n:  # the first usable frame, in this thread
+        path = paths[start]
+        frame, facts = judge.load(path, dec.load)
+        start += 1
+        tick()
+        if judge.decide(path, facts) is None:
+            first_meta, first_planes = dec.planes_of(start - 1, path, frame)  # type: ignore[arg-type]
+            del frame
+            break
+    if first_meta is None or first_planes is None:
+        raise TooFewFrames(judge.stage, "frames", 1, 0, f"all {n} left out", paths[0].parent)
+    first_index = start - 1
+    dec.first = first_meta
+    jobs = thread_count(jobs, n, first_meta.frame_shape[0] * first_meta.frame_shape[1])
+    c, h, w = first_planes.shape
+    index_of = {p: i for i, p in enumerate(paths)}
+    used: dict[int, _Meta] = {first_index: first_meta}
+    kept: dict[int, np.ndarray] = {first_index: first_planes} if keep_frames > 0 else {}
+    spill = scratch_file("camcal-stack-", ".raw", spill_dir) if method != "mean" else contextlib.nullcontext()
+    with spill as spill_path:
+        dec.spill_path = spill_path
+        try:
+            acc = _ShiftedSums(first_planes) if method == "mean" else None
+            if acc is None:
+                dec.spill_write(first_index, first_planes)
+            del first_planes
+            items = [(i, str(paths[i])) for i in range(start, n)]
+            for index, facts, meta, planes in _run(items, jobs, dec.judged_worker):  # type: ignore[arg-type]
+                tick()
+                retracted = len(judge.retracted)
+                if judge.decide(paths[index], facts) is not None:
+                    continue
+                assert meta is not None
+                used[index] = meta
+                copy_of = [index_of[p] for p in judge.retracted[retracted:] if index_of.get(p) in used]
+                for j in copy_of:  # this frame's copy, combined already: the same pixels, now this frame's
+                    del used[j]
+                    if j in kept:
+                        kept[index] = kept.pop(j)
+                if copy_of:
+                    continue
+                if acc is not None and planes is not None:
+                    acc.add(planes)
+                if planes is not None and keep_frames > 0:
+                    kept[index] = planes
+                    if len(kept) > keep_frames:
+                        del kept[max(kept)]
+            dec.close_spill()
+            order = sorted(used)
+            if acc is not None:
+                value, mean, var, count = acc.result()
+                var_all, mean_all = var, mean
+            else:
+                _close_up(spill_path, order, c * h * w * dec.spill_dtype.itemsize)
+                for pos, i in enumerate(order[:keep_frames]):  # kept planes the threads did not return
+                    if i not in kept:
+                        kept[i] = _read_slot(spill_path, pos, (c, h, w), dec.spill_dtype)
+                value, mean, var, count, var_all, mean_all = _bands(spill_path, len(order), (c, h, w),
+                                                                    dec.spill_dtype, method, sigma, jobs, band_mb)
+        finally:
+            dec.close_spill()
+    n_used = len(order)
+    count_dtype = np.int16 if n_used < 2**15 else np.int32
+    return StackResult(
+        value=value, mean=mean, variance=var, count=count.astype(count_dtype), n_frames=n_used, method=method,
+        exposures=tuple(used[i].exposure for i in order), paths=tuple(paths[i] for i in order),
+        channel_names=first_meta.channel_names, kind=first_meta.kind, cfa_pattern=first_meta.cfa_pattern,
+        black_level_dn=first_meta.black, white_level_dn=first_meta.white, frame_shape=first_meta.frame_shape,
+        variance_all=var_all, mean_all=mean_all,
+        kept_planes=tuple(kept[i] for i in order[:keep_frames] if i in kept),
+    )
+
+
+def _close_up(spill: Path, order: list[int], nbytes: int) -> None:
+    """Move the spilled slots ``order`` (ascending) down to slots 0, 1, ... (the slots between are left out)."""
+    if order == list(range(len(order))):
+        return
+    fd = os.open(spill, os.O_RDWR)
+    try:
+        buf = bytearray(min(nbytes, 1 << 24))
+        mv = memoryview(buf)
+        for pos, i in enumerate(order):
+            if i == pos:
+                continue
+            for off in range(0, nbytes, len(buf)):
+                size = min(len(buf), nbytes - off)
+                got = os.preadv(fd, [mv[:size]], i * nbytes + off)
+                if got != size:
+                    raise CamcalError("temporary stack file ended early (disk full?)", spill)
+                put = 0
+                while put < size:
+                    put += os.pwrite(fd, mv[put:size], pos * nbytes + off + put)
+    finally:
+        os.close(fd)
+
+
+def _read_slot(spill: Path, pos: int, shape: tuple[int, int, int], dtype: np.dtype) -> np.ndarray:
+    """The planes spilled at slot ``pos``."""
+    out = np.empty(shape, dtype)
+    mv = memoryview(out.reshape(-1)).cast("B")
+    fd = os.open(spill, os.O_RDONLY)
+    try:
+        got = 0
+        while got < mv.nbytes:
+            r = os.preadv(fd, [mv[got:]], pos * mv.nbytes + got)
+            if r <= 0:
+                raise CamcalError("temporary stack file ended early (disk full?)", spill)
+            got += r
+    finally:
+        os.close(fd)
+    return out
 
 
 DIGEST_STRIDE = 16

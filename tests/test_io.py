@@ -1,6 +1,7 @@
 """Real files through real decoders: DNG via LibRaw (rawpy), JPEG via OpenImageIO/exifread."""
 
 from datetime import datetime
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -8,9 +9,9 @@ import rawpy
 
 from camcal.errors import CamcalError, MissingMetadataError
 from camcal.frame import PATTERNS, PLANES, split_planes
-from camcal.io import iter_folder, load_frame
+from camcal.io import frame_header, iter_folder, load_frame
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
-from camcal.synth.dng import write_dng
+from camcal.synth.dng import encode_linear_dng, write_dng
 
 
 @pytest.mark.parametrize("bits", [12, 14])
@@ -203,3 +204,35 @@ def test_file_hash_is_remembered_until_the_file_changes(tmp_path):
     assert sha256_file(q) == sha(b"z" * 7)
     q.write_bytes(b"w" * 7)  # same size, maybe the same clock tick: not remembered, so read again
     assert hash_files([p, q], threads=2) == {p: sha(b"y" * 5001), q: sha(b"w" * 7)}
+
+
+_REAL = Path(__file__).resolve().parents[1] / ".." / "shared" / "realdata"
+_HEADER_FILES = sorted(p for d in ("raw", "pi", "jpeg", "heic") for p in (_REAL / d).glob("*") if p.is_file())
+
+
+@pytest.mark.skipif(not _HEADER_FILES, reason="../shared/realdata is absent")
+@pytest.mark.parametrize("path", _HEADER_FILES, ids=lambda p: p.name)
+def test_frame_header_tells_what_the_decode_tells(path):
+    """The header read the session screening uses instead of a decode (issue 28) gives the kind, size, make and
+    model the decode gives; the RAW layout too, or None (never a wrong one) when only the decode can tell."""
+    head = frame_header(path)
+    frame = load_frame(path)
+    assert (head.kind, head.shape, head.make, head.model) == (frame.kind, tuple(frame.shape), frame.exposure.make,
+                                                              frame.exposure.model)
+    assert head.layout in (None, frame.layout)
+
+
+def test_frame_header_of_synthetic_bayer_and_linear_dngs(tmp_path):
+    rgb = np.random.default_rng(1).integers(100, 4000, (64, 96, 3)).astype(np.uint16)
+    (tmp_path / "lin.dng").write_bytes(encode_linear_dng(rgb, black_level_dn=64, white_level_dn=4095,
+                                                         exposure_s=0.01, f_number=4, iso=100))
+    SyntheticCamera(SensorParams(width=66, height=64)).write_dng(tmp_path / "cfa.dng", Scene.dark(),
+                                                                   exposure_s=0.01, iso=100, f_number=4,
+                                                                   rng=np.random.default_rng(2))
+    for name, layout, shape in (("lin.dng", "linear", (64, 96)), ("cfa.dng", "bayer", (64, 66))):
+        head = frame_header(tmp_path / name)
+        assert (head.kind, head.layout, head.shape) == ("raw", layout, shape)
+        assert head.shape == load_frame(tmp_path / name).shape
+    with pytest.raises(CamcalError):
+        (tmp_path / "cut.dng").write_bytes((tmp_path / "cfa.dng").read_bytes()[:200])
+        frame_header(tmp_path / "cut.dng")

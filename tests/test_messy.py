@@ -8,11 +8,13 @@ from __future__ import annotations
 
 import json
 import shutil
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+import camcal.io as camcal_io
 from camcal.calibrate import calibrate_session, stage_checks
 from camcal.errors import CamcalError
 from camcal.profile import load_profile
@@ -20,6 +22,7 @@ from camcal.response import MIN_EXPOSURES, fit_series, measure_series, saturatio
 from camcal.screen import screen_session
 from camcal.session import index_session
 from camcal.spectral import MIN_WAVELENGTHS
+from camcal.stack import combine_frames
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
 from camcal.synth.dng import write_dng
 from camcal.synth.messy import plant_problems
@@ -310,3 +313,107 @@ def test_calibrate_refuses_when_no_stage_can_be_calibrated(tmp_path, tiny_camera
     shutil.copyfile(s / "bias" / "bias_000.dng", s / "bias" / "bias_001.dng")
     with pytest.raises(CamcalError, match="no stage could be calibrated.*2 usable frames.*1 remain"):
         calibrate_session(s)
+
+
+# ---- each frame decoded once (issue 28) ------------------------------------------------------------------------
+
+
+def test_every_frame_is_decoded_once(tiny, monkeypatch):
+    """Each stage judges its own frames as it decodes them: in a whole calibration every frame is decoded once
+    (the screening reads only headers). Counted at the RAW decoder, which every stage reaches through
+    camcal.io.load_frame."""
+    counts: Counter = Counter()
+    real = camcal_io._load_raw
+
+    def counting(path):
+        counts[Path(path).relative_to(tiny).as_posix()] += 1
+        return real(path)
+
+    monkeypatch.setattr(camcal_io, "_load_raw", counting)
+    profile, _ = calibrate_session(tiny)
+    assert profile.dark is not None and profile.response and profile.spectral is not None
+    for stage in ("bias", "dark", "flat", "linearity", "sweep"):
+        names = sorted(p.name for p in (tiny / stage).glob("*.dng"))
+        assert names and {n: counts[f"{stage}/{n}"] for n in names} == dict.fromkeys(names, 1), stage
+
+
+def test_messy_bias_judged_while_stacked_gives_the_clean_stack(tiny):
+    """A copy and a truncated file among the bias frames, judged as they are stacked (2 decode threads): the
+    same verdicts as the screening gives, and exactly the stack of the clean frames alone (mean and
+    sigma-clipped, kept planes included)."""
+    clean = sorted((tiny / "bias").glob("bias_*.dng"))
+    shutil.copyfile(clean[0], tiny / "bias" / "bias_000_copy.dng")
+    (tiny / "bias" / "bias_000_cut.dng").write_bytes(clean[1].read_bytes()[:5000])
+    index = index_session(tiny)
+    names = {r.path.name for r in index.frames["bias"].frames}
+    expected = _left_out(tiny)
+    assert set(expected) == {"bias/bias_000_copy.dng", "bias/bias_000_cut.dng"}
+    for method in ("mean", "sigma_clip"):
+        screening = screen_session(index, stage_checks(), defer={"bias": names})
+        assert screening.left_out() == []  # nothing judged before the stage
+        judge = screening.judge("bias", stage_checks()["bias"])
+        got = combine_frames(index.frames["bias"].paths, method=method, judge=judge, jobs=2, keep_frames=2)
+        want = combine_frames(clean, method=method, jobs=1, keep_frames=2)
+        assert {f"bias/{v.file}": v.reason for v in judge.left_out()} == expected
+        assert got.paths == want.paths and got.n_frames == len(clean)
+        for name in ("value", "mean", "variance", "count", "variance_all", "mean_all"):
+            assert np.array_equal(getattr(got, name), getattr(want, name), equal_nan=True), (method, name)
+        assert all(np.array_equal(a, b) for a, b in zip(got.kept_planes, want.kept_planes, strict=True))
+
+
+def test_a_copy_read_before_its_original_passes_its_place_to_the_original(tiny):
+    """Frames given out of file order (the copy before the frame it copies): the copy is combined first, then
+    found to be the copy when the original comes; the original takes its place, and the stack is that of the
+    frames without the copy."""
+    b = sorted((tiny / "bias").glob("bias_*.dng"))
+    copy = tiny / "bias" / "bias_000_copy.dng"
+    shutil.copyfile(b[0], copy)
+    index = index_session(tiny)
+    names = {r.path.name for r in index.frames["bias"].frames}
+    for method in ("mean", "sigma_clip"):
+        judge = screen_session(index, stage_checks(), defer={"bias": names}).judge("bias", stage_checks()["bias"])
+        got = combine_frames([b[1], copy, b[0], b[2]], method=method, judge=judge, jobs=1, keep_frames=3)
+        want = combine_frames([b[1], b[0], b[2]], method=method, jobs=1, keep_frames=3)
+        assert [v.file for v in judge.left_out()] == [copy.name] and judge.retracted == [copy]
+        assert got.paths == want.paths
+        for name in ("value", "mean", "variance", "count"):
+            assert np.array_equal(getattr(got, name), getattr(want, name), equal_nan=True), (method, name)
+        assert all(np.array_equal(x, y) for x, y in zip(got.kept_planes, want.kept_planes, strict=True))
+
+
+def test_copies_in_the_linearity_series_and_the_sweep_are_left_out_as_they_are_measured(tiny, tiny_session):
+    """A copy of a linearity frame and of a sweep row, judged by their stages as they decode them: each left out
+    as a duplicate of its original, and the response and c(λ) exactly those of the clean session."""
+    clean, _ = calibrate_session(tiny_session)
+    lin = sorted((tiny / "linearity").glob("lin_*.dng"))[3]
+    shutil.copyfile(lin, lin.with_name(lin.stem + "_copy.dng"))
+    sweep = tiny / "sweep" / "sweep_600.0nm_01.dng"
+    shutil.copyfile(tiny / "sweep" / "sweep_600.0nm_00.dng", sweep)  # the second repeat is a copy of the first
+    profile, _ = calibrate_session(tiny)
+    left = {r["file"]: r["reason"] for r in profile.provenance.left_out}
+    assert left == {
+        f"linearity/{lin.stem}_copy.dng": f"duplicate: the same pixels as {lin.name} (a copy of one exposure); the "
+                                          "first copy is kept",
+        "sweep/sweep_600.0nm_01.dng": "duplicate: the same pixels as sweep_600.0nm_00.dng (a copy of one "
+                                      "exposure); the first copy is kept"}
+    for ch in ("R", "G1", "G2", "B"):
+        m, c = profile.response["raw"].channels[ch], clean.response["raw"].channels[ch]
+        assert (m.alpha, m.gamma, m.beta) == (c.alpha, c.gamma, c.beta), ch
+    assert profile.spectral.n_frames["600"] == 1 and clean.spectral.n_frames["600"] == 2
+
+
+def test_a_dark_copy_given_another_exposure_time_is_left_out_and_not_stacked(tiny, tiny_session):
+    """A copy of a 16 s dark listed at 2 s in frames.csv: stacked with the 2 s frames before its original (16 s)
+    shows it is a copy; the darks are stacked again without it, and the dark model is exactly the clean one."""
+    clean, _ = calibrate_session(tiny_session)
+    copy = tiny / "dark" / "dark_016.000s_00_copy.dng"
+    shutil.copyfile(tiny / "dark" / "dark_016.000s_00.dng", copy)
+    with (tiny / "dark" / "frames.csv").open("a") as fh:
+        fh.write(f"{copy.name},2.0,100.0,4.0,24.0\n")
+    profile, _ = calibrate_session(tiny)
+    assert {r["file"]: r["reason"] for r in profile.provenance.left_out} == {
+        f"dark/{copy.name}": "duplicate: the same pixels as dark_016.000s_00.dng (a copy of one exposure); the "
+                             "first copy is kept"}
+    for name in ("bias_dn", "dark_current_dn_per_s", "read_noise_dn"):
+        a, b = getattr(profile.dark, name, None), getattr(clean.dark, name, None)
+        assert a is not None and np.array_equal(np.asarray(a), np.asarray(b), equal_nan=True), name
