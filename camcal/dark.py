@@ -122,7 +122,8 @@ def _robust(x: np.ndarray) -> tuple[float, float]:
     x = x[np.isfinite(x)]
     if x.size == 0:
         return float("nan"), float("nan")
-    med = float(np.median(x))
+    # x is a copy (the finite values): the selections may reorder it, and a median does not depend on the order
+    med = float(np.median(x, overwrite_input=True))
     # the median found once: scipy's MAD takes it as its centre instead of finding it again
     return med, float(median_abs_deviation(x, center=lambda _x, axis: np.float64(med), scale="normal"))
 
@@ -477,11 +478,16 @@ def fit_dark_stacks(stacks: DarkStacks, options: DarkOptions = DarkOptions(),  #
     dark_stats = [(t, st) for t, st in stack_list] + ([(0.0, bias_stack)] if bias_stack is not None else [])
     noise_v0, noise_gain = _noise_model(dark_stats, b, jobs)
     v0_full, g_full = (np.broadcast_to(a, b.shape) for a in (noise_v0, noise_gain))
-    zero_level = np.where(np.isfinite(b), b, black)  # the fitted bias, the black level where there is no line
+    black_full = np.broadcast_to(black, b.shape)
 
     def modelled(level: np.ndarray, idx: tuple) -> np.ndarray:
-        """The noise model's per-frame variance of the band's levels, DN²: v0 + g · max(level − bias, 0)."""
-        signal = np.maximum(level - zero_level[idx], 0.0)
+        """The noise model's per-frame variance of the band's levels, DN²: v0 + g · max(level − bias, 0), the bias
+        being the fitted one, the black level where there is no line (per band: no whole-frame copy)."""
+        zero_level = b[idx]
+        finite = np.isfinite(zero_level)
+        if not finite.all():
+            zero_level = np.where(finite, zero_level, black_full[idx])
+        signal = np.maximum(level - zero_level, 0.0)
         signal *= g_full[idx]
         return v0_full[idx] + signal
 
@@ -531,7 +537,7 @@ def fit_dark_stacks(stacks: DarkStacks, options: DarkOptions = DarkOptions(),  #
     return DarkModel(
         bias_dn=b.astype(np.float32),
         dark_current_dn_per_s=beta.astype(np.float32),
-        dark_current_unc_dn_per_s=np.sqrt(beta_var).astype(np.float32),
+        dark_current_unc_dn_per_s=np.sqrt(beta_var, out=beta_var).astype(np.float32),  # its last use
         read_noise_dn=read_noise.astype(np.float32),
         defects=defects,
         iso=float(iso),
@@ -663,7 +669,9 @@ def temporal_noise(stack: StackResult, var_t: np.ndarray, defects: np.ndarray, n
             noisy[k] = var_t[k] > vhat * bound
 
     _run_planes(plane, c, jobs, var_t[0].size)
-    rn_map = np.sqrt(np.maximum(var_t - QUANTISATION_VAR_DN2, 0.0))
+    rn_map = var_t - QUANTISATION_VAR_DN2  # then max(·, 0) and √ in place: one array, not three
+    np.maximum(rn_map, 0.0, out=rn_map)
+    np.sqrt(rn_map, out=rn_map)
     read = np.full(c, np.nan)
     dsnu = np.full(c, np.nan)
     quantised = temporal < SUB_DN_NOISE
@@ -805,7 +813,9 @@ def _fit_lines(obs, white: float, *, variance: Callable[[np.ndarray, tuple], np.
 
     The closed-form sums run over row bands of about :data:`FIT_BAND_PIXELS` pixels in ``jobs`` threads, in
     float64 with the operations of the whole-array formulas in the same order: the result does not depend on
-    the banding or the number of threads (every value is bit-identical).
+    the banding or the number of threads (every value is bit-identical). A band whose levels are all below
+    saturation and whose weights are all positive (the usual band) skips the masking of the weights; its values
+    are the same.
     """
     shape = np.broadcast_shapes(*(np.shape(y) for _, y, _, _ in obs))
     obs = [(t, np.broadcast_to(y, shape), np.broadcast_to(n, shape), None if v is None else np.broadcast_to(v, shape))
@@ -821,8 +831,12 @@ def _fit_lines(obs, white: float, *, variance: Callable[[np.ndarray, tuple], np.
         s = st = stt = sy = sty = cnt = None
         for t, y, n, _v in obs:
             yb = np.asarray(y[idx], np.float64)
-            w = np.where(yb < white - 1.0, np.asarray(n[idx], np.float64), 0.0)
-            pos = w > 0
+            w = np.asarray(n[idx], np.float64)
+            if float(yb.max()) < white - 1.0 and float(w.min()) > 0:
+                pos = None  # every level of the band below saturation, every weight positive (the usual band)
+            else:
+                w = np.where(yb < white - 1.0, w, 0.0)
+                pos = w > 0
             ys.append(yb)
             ws.append(w)
             used.append(pos)
@@ -832,7 +846,7 @@ def _fit_lines(obs, white: float, *, variance: Callable[[np.ndarray, tuple], np.
             s += w
             wt = w * t
             st += wt
-            cnt += pos
+            cnt += 1 if pos is None else pos
             if with_fit:
                 sy += w * yb
                 sty += wt * yb
@@ -841,10 +855,14 @@ def _fit_lines(obs, white: float, *, variance: Callable[[np.ndarray, tuple], np.
         with np.errstate(invalid="ignore", divide="ignore"):
             d = s * stt - st * st
             ok = (cnt >= 2) & (d > 0)
+            every = bool(ok.all())  # the usual band: a line for every pixel, nothing to set to NaN
             if with_fit:
-                bb = np.where(ok, (s * sty - st * sy) / d, np.nan)
+                bb = (s * sty - st * sy) / d
+                if not every:
+                    bb = np.where(ok, bb, np.nan)
                 beta[idx] = bb
-                b[idx] = np.where(ok, (sy - bb * st) / s, np.nan)
+                bi = (sy - bb * st) / s
+                b[idx] = bi if every else np.where(ok, bi, np.nan)
             n_times[idx] = cnt
             if not with_variance:
                 return
@@ -858,15 +876,15 @@ def _fit_lines(obs, white: float, *, variance: Callable[[np.ndarray, tuple], np.
                 c = w / s
                 c -= tbar * a
                 vb = variance(yb, idx) if variance is not None else np.asarray(v[idx], np.float64)
-                per = np.where(pos, vb / np.where(pos, w, 1.0), 0.0)
+                per = vb / w if pos is None else np.where(pos, vb / np.where(pos, w, 1.0), 0.0)
                 a *= a
                 a *= per
                 bv += a
                 c *= c
                 c *= per
                 cv += c
-        beta_var[idx] = np.where(ok, bv, np.nan)
-        b_var[idx] = np.where(ok, cv, np.nan)
+        beta_var[idx] = bv if every else np.where(ok, bv, np.nan)
+        b_var[idx] = cv if every else np.where(ok, cv, np.nan)
 
     _run_bands(one, shape, jobs)
     return beta, beta_var, b, b_var, n_times
@@ -891,13 +909,15 @@ def _noise_model(stats: list[tuple[float, StackResult]], b: np.ndarray,
             ok = np.isfinite(var) & b_ok
             # hot and noisy pixels out: above 5x the median, or (quantised data below 1 DN of noise, whose
             # median variance is often 0) above 5x the mean; the means and the median in float64
-            thr = 5 * _max_median_mean(np.asarray(var[ok], np.float64))
-            ok &= var < np.float64(thr)  # compared in float64 (a numpy float64 promotes float32)
+            v = np.asarray(var[ok], np.float64)  # in raster order; _max_median_mean keeps that order
+            thr = np.float64(5 * _max_median_mean(v))
+            below = v < thr  # compared in float64, as ``var < thr`` promotes the float32 variances
+            ok &= var < thr
             if not ok.any():
                 raise CamcalError(f"the dark frames at {_t:g} s show no temporal noise at all",
                                   st.paths[0].parent if st.paths else None)
             xs.append(float(np.mean(np.asarray(st.value[k][ok], np.float64) - b[k][ok])))
-            ys.append(float(np.mean(np.asarray(var[ok], np.float64))))
+            ys.append(float(np.mean(v[below])))  # the values of var[ok], in the same order
         if len(xs) >= 2 and np.ptp(xs) > 0:
             slope, icpt = np.polyfit(xs, ys, 1)
             g[k], v0[k] = max(slope, 0.0), max(icpt, 1e-6)
@@ -909,7 +929,7 @@ def _noise_model(stats: list[tuple[float, StackResult]], b: np.ndarray,
 
 
 def _max_median_mean(x: np.ndarray) -> float:
-    """``max(median(x), mean(x))`` of a 1-D float64 array (``x`` may be reordered).
+    """``max(median(x), mean(x))`` of a 1-D float64 array (``x`` is not modified).
 
     When at least ``n // 2 + 1`` values lie at or below the mean, both middle order statistics do, so the median
     is at most the mean and the maximum is the mean: one comparison instead of a selection (a skewed variance
@@ -918,7 +938,7 @@ def _max_median_mean(x: np.ndarray) -> float:
     mean = float(np.mean(x))
     if np.count_nonzero(x <= mean) >= x.size // 2 + 1:
         return mean
-    return max(float(np.median(x, overwrite_input=True)), mean)
+    return max(float(np.median(x)), mean)
 
 
 def _run_planes(one: Callable[[int], object], c: int, jobs: int | None, plane_pixels: int) -> list:
@@ -941,19 +961,22 @@ def _channel_summary(b, b_var, beta, beta_var, var_t, defects, stacks, have_bias
         else:
             # EMVA 1288: temporal dark variance grows linearly with t; extrapolate its plane mean to t = 0
             ts = np.array([t for t, _ in stacks])
-            vs = np.array([float(np.mean(np.asarray(s.variance_all[k], np.float64)[good])) for _, s in stacks])
+            vs = np.array([float(np.mean(np.asarray(s.variance_all[k][good], np.float64))) for _, s in stacks])
             rn_var = float(np.polyfit(ts, vs, 1)[1]) if ts.size >= 2 else float(vs[0])
             rn_var -= QUANTISATION_VAR_DN2
-        dsnu_bias2 = float(np.var(bk)) - float(np.mean(b_var[k][good]))
+        var_bk = np.var(bk)  # np.std(bk) is its square root
+        dsnu_bias2 = float(var_bk) - float(np.mean(b_var[k][good]))
         if noise.quantised[k]:
             dsnu_bias2 = float(noise.dsnu_dn[k]) ** 2
-        dsnu_beta2 = float(np.var(betak)) - float(np.mean(beta_var[k][good]))
+        beta_var_k = beta_var[k][good]  # a copy: its square roots are taken in place for their median
+        dsnu_beta2 = float(np.var(betak)) - float(np.mean(beta_var_k))
         return {
             "bias_dn": float(np.mean(bk)),  # the mean: a median of quantised levels sticks to half DN
-            "bias_unc_dn": float(1.2533 * np.std(bk) / np.sqrt(bk.size)),
+            "bias_unc_dn": float(1.2533 * np.sqrt(var_bk) / np.sqrt(bk.size)),
             "dark_current_dn_per_s": med_beta,
             "dark_current_unc_dn_per_s": float(1.2533 * rs_beta / np.sqrt(betak.size)),
-            "dark_current_pixel_unc_dn_per_s": float(np.median(np.sqrt(beta_var[k][good]))),
+            "dark_current_pixel_unc_dn_per_s": float(np.median(np.sqrt(beta_var_k, out=beta_var_k),
+                                                               overwrite_input=True)),
             "dark_current_mean_dn_per_s": float(np.mean(betak)),
             "read_noise_dn": float(np.sqrt(max(rn_var, 0.0))),
             "temporal_noise_dn": float(noise.temporal_noise_dn[k]),

@@ -139,15 +139,24 @@ def test_variance_on_a_window_below_and_near_the_bias(rng):
     assert plain.variance_dn2 is None  # computed only when asked for (the hot path of apply skips it)
 
 
-def test_clipped_at_zero_only_with_a_black_level_and_float32_out(rng):
+def test_raw_zero_is_clipped_only_with_a_black_level_and_float32_out(rng):
     """A raw 0 is clipped when the black level is above 0 (and a raw 1 is not); with a zero black level (processed
-    RGB) 0 is a value. The result is float32; a dark model without a dark-current attribute still needs t."""
+    RGB) 0 is a value. The result is float32, also when integer planes are corrected "in place" (they cannot be:
+    a float32 copy is made); a dark model without a dark-current attribute still needs t.
+
+    (Named so that the mutation run's test selection, which leaves out ``test_cli*``, keeps it.)"""
     raw = np.full((4, 2, 3), 300.0, np.float32)
     raw[0, 0, 0], raw[1, 0, 0] = 0, 1
     with_black = correct_planes(raw.copy(), Calibration(), exposure_s=None, iso=None, white_level_dn=4095,
                                 black_level_dn=np.full(4, 64.0))
     assert with_black.invalid[0, 0, 0] and not with_black.invalid[1, 0, 0]
+    assert with_black.clipped[0, 0, 0] and not with_black.clipped[1, 0, 0] and with_black.clipped.sum() == 1
     assert with_black.signal_dn.dtype == np.float32
+    ints = raw.astype(np.uint16)
+    as_ints = correct_planes(ints, Calibration(), exposure_s=None, iso=None, white_level_dn=4095,
+                             black_level_dn=np.full(4, 64.0), inplace=True)
+    assert as_ints.signal_dn.dtype == np.float32 and as_ints.signal_dn[2, 1, 1] == 300.0 - 64.0
+    assert ints[2, 1, 1] == 300  # the integer input is left as it was
     zero = correct_planes(raw.copy(), Calibration(), exposure_s=None, iso=None, white_level_dn=4095,
                           black_level_dn=np.zeros(4))
     assert not zero.invalid.any()
@@ -367,3 +376,25 @@ def test_real_pi_same_dark_frame_twice_is_named(tmp_path):
     (tmp_path / "S" / "session.toml").write_text("f_number = 1.2\n")
     proc = run_cli("calibrate", tmp_path / "S", "-o", tmp_path / "x.camcal")
     assert_one_line_error(proc, "b.dng", "same pixels as a.dng")
+
+
+def test_remembered_dark_frame_gives_the_same_correction(rng):
+    """A calibration that keeps its dark frames (the master flat's frames share one exposure) corrects exactly as
+    one that computes the dark frame for every frame; it computes it once per exposure and ISO, and never for a
+    window (a window is cut from the dark model itself)."""
+    shape = (4, 6, 8)
+    dark = _dark(shape, rng)
+    plain = Calibration.of(dark)
+    kept = plain.remembering_dark_frames()
+    kw = {"iso": 100.0, "white_level_dn": 4095, "black_level_dn": np.full(4, 512.0)}
+    for t in (2.0, 2.0, 4.0):
+        raw = rng.integers(520, 4000, shape).astype(np.float32)
+        a = correct_planes(raw.copy(), plain, exposure_s=t, **kw)
+        b = correct_planes(raw.copy(), kept, exposure_s=t, **kw)
+        assert np.array_equal(a.signal_dn, b.signal_dn) and np.array_equal(a.invalid, b.invalid)
+    assert len(kept.dark_frames) == 2 and plain.dark_frames is None
+    window = (slice(1, 4), slice(2, 6))
+    raw = rng.integers(520, 4000, (4, 3, 4)).astype(np.float32)
+    a = correct_planes(raw.copy(), plain, exposure_s=2.0, full_shape=shape, window=window, **kw)
+    b = correct_planes(raw.copy(), kept, exposure_s=2.0, full_shape=shape, window=window, **kw)
+    assert np.array_equal(a.signal_dn, b.signal_dn) and len(kept.dark_frames) == 2

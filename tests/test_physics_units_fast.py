@@ -8,16 +8,19 @@ from dataclasses import replace
 import numpy as np
 import pvlib
 import pytest
-from scipy.optimize import brentq
+from scipy.optimize import brentq, minimize
 from scipy.special import eval_legendre
+from scipy.stats import norm
 
+from camcal.correct import Calibration, correct_planes, system_gain_dn_per_e
+from camcal.dark_model import DarkModel
 from camcal.errors import CamcalError
-from camcal.flat import fit_2d_plane
+from camcal.flat import fit_2d_plane, fit_radial_plane
 from camcal.flat_model import FlatModel, PlaneGeometry, dead_pixels
-from camcal.response import emva_linearity_error, fit_line, fit_srgb_form, saturation_point
+from camcal.response import emva_linearity_error, fit_eq12, fit_line, fit_srgb_form, saturation_point
 from camcal.spectral import deconvolve_slit, merge_sweeps, slit_matrix
 from camcal.spectral_model import RELATIVE_UNITS, SpectralSensitivity, to_relative
-from camcal.water.band import ChlorophyllAbsorption, bricaud_1998
+from camcal.water.band import BandModel, ChlorophyllAbsorption, bricaud_1998
 from camcal.water.field import (
     DEFAULT_AOD_500NM,
     DEFAULT_DAY_OF_YEAR,
@@ -225,6 +228,9 @@ def test_field_band_ratio_weights_by_the_global_irradiance_and_varies_each_input
     assert float(lower.ratio(c, d)) == pytest.approx(_field_truth(sky_wl, direct, diffuse, 30.0, geom, c, d),
                                                      rel=1e-5)
     r, dr = model.ratio_and_derivative(np.array([c, 2 * c]), d)
+    assert r.shape == (2,)
+    np.testing.assert_allclose(r, [_field_truth(sky_wl, direct, diffuse, 45.0, geom, cc, d) for cc in (c, 2 * c)],
+                               rtol=1e-5)
     h = 1e-3 * c
     num = (model.ratio(np.array([c + h, 2 * c + h]), d) - model.ratio(np.array([c - h, 2 * c - h]), d)) / (2 * h)
     np.testing.assert_allclose(dr, num, rtol=1e-5)
@@ -707,3 +713,410 @@ def test_dead_pixels_are_strictly_below_the_threshold_and_none_without_a_respons
     assert dead_pixels(fm, threshold=0.6).sum() == 3 and dead_pixels(fm, threshold=0.31).sum() == 1
     none = dead_pixels(replace(fm, prnu=None))
     assert none.shape == (4, 2, 3) and none.dtype == bool and not none.any()
+
+
+# ---- flat: the radial fit on data the model cannot represent exactly, its masks and guards ---------------------
+
+def _radial_fit_by_definition(d, fx, fy, full_w, full_h, n_terms, start):
+    """The relative least-squares fit written out: for a centre (full-resolution px) the coefficients solve the
+    normal equations of Σ((A·Σ k_i r²ⁱ − d)/d)²; the centre minimises that sum (Nelder–Mead, not the trust-region
+    solver of the code). r² is normalised by the distance to the farthest image corner."""
+    def solve(c):
+        rmax = max(np.hypot(a - c[0], b - c[1]) for a in (0.0, full_w - 1.0) for b in (0.0, full_h - 1.0))
+        r2 = ((fx - c[0]) ** 2 + (fy - c[1]) ** 2) / rmax**2
+        a = np.stack([r2**i for i in range(n_terms + 1)], axis=-1) / d[:, None]
+        coef = np.linalg.solve(a.T @ a, a.T @ np.ones_like(d))
+        return coef, a @ coef - 1.0
+
+    res = minimize(lambda c: float(np.sum(solve(c)[1] ** 2)), start, method="Nelder-Mead",
+                   options={"xatol": 1e-9, "fatol": 1e-18, "maxiter": 4000})
+    coef, rel = solve(res.x)
+    return coef, res.x, 1.0 / (rel + 1.0) - 1.0  # d/model − 1, the RMS the fit reports
+
+
+def test_radial_fit_of_a_tilted_gain_is_the_relative_least_squares_optimum():
+    """A normalised flat (on-axis 0.9, below 1 everywhere, so a cut at 1 instead of 0 would drop every block),
+    vignetting with an r⁶ term and a 10 % tilt the two-term radial model cannot follow, one NaN, one zero and one
+    negative block. The fit must be the minimum of the relative residuals Σ(model/d − 1)² over centre and
+    coefficients, computed here by the written-out normal equations and another optimiser: the level, the
+    centre, k and the relative RMS."""
+    h, w = 16, 20
+    geom = PlaneGeometry.for_planes(("R", "G1", "G2", "B"), (h, w), "RGGB")
+    yy, xx = np.mgrid[0:h, 0:w].astype(float)
+    fx, fy = 2 * xx + 1, 2 * yy  # G1: column offset 1
+    fcx, fcy = 2 * 8.3 + 1, 2 * 7.1
+    r2 = ((fx - fcx) ** 2 + (fy - fcy) ** 2) / (2 * w) ** 2
+    block = 0.9 * (1 - 0.45 * r2 + 0.1 * r2**2 - 0.3 * r2**3) * (1 + 0.1 * (xx - w / 2) / w)
+    block[3, 4], block[10, 15], block[14, 7] = np.nan, 0.0, -0.2
+    ok = np.isfinite(block) & (block > 0)
+    coef, centre_full, rel = _radial_fit_by_definition(block[ok], fx[ok], fy[ok], 2 * w, 2 * h, 2, (fcx, fcy))
+    level, centre, k, rms = fit_radial_plane(block, xx, yy, geom, "G1", n_terms=2)
+    assert level == pytest.approx(coef[0], rel=1e-6)
+    assert centre == pytest.approx(((centre_full[0] - 1) / 2, centre_full[1] / 2), abs=1e-4)
+    np.testing.assert_allclose(k, (coef[1] / coef[0], coef[2] / coef[0], 0.0, 0.0, 0.0), rtol=0, atol=1e-5)
+    assert rms == pytest.approx(float(np.sqrt(np.mean(rel**2))), rel=1e-5)
+    assert 1e-3 < rms < 0.05  # the model does not fit exactly: a residual that tests the weighting
+
+
+def test_radial_fit_needs_four_blocks_per_parameter():
+    """n_terms = 2 fits 5 parameters (A, k0, k1, the centre's x and y): 20 usable blocks are enough, 19 are not
+    (the error names the count)."""
+    geom = PlaneGeometry.for_planes(("R", "G1", "G2", "B"), (4, 5), "RGGB")
+    yy, xx = np.mgrid[0:4, 0:5].astype(float)
+    block = 0.8 * (1 - 0.2 * ((xx - 2.1) ** 2 + (yy - 1.4) ** 2) / 30.0)
+    level, _, _, rms = fit_radial_plane(block, xx, yy, geom, "G1", n_terms=2)
+    assert 0.7 < level < 0.9 and rms < 1e-3
+    block[0, 0] = np.nan
+    with pytest.raises(CamcalError, match=r"channel G1: too few usable blocks \(19\)"):
+        fit_radial_plane(block, xx, yy, geom, "G1", n_terms=2)
+
+
+# ---- water/uncertainty: the tabulated terms where a power law would hide the path taken --------------------------
+
+def test_interpolated_terms_follow_the_table_not_a_power_law():
+    """A table curved in log-log (not a power law, so extrapolating a neighbouring cell shows), on the default
+    log-uniform grid: each C in the top and bottom cells gives the log-log line between its two nodes. A table
+    with zeros below a node gives that node's value below it (only positive nodes are used). A grid whose log
+    steps differ by less than a factor 2 (not log-uniform) is interpolated between its own nodes."""
+    grid = C_GRID_UG_PER_L
+    lg = np.log(grid)
+    kink = np.exp(0.1 * (lg - lg[grid.size // 2]) ** 2)  # a parabola in log-log: no two cells on one line
+    c = np.array([grid[-1] * 0.999, np.sqrt(grid[-2] * grid[-1]), grid[0] * 1.001, np.sqrt(grid[0] * grid[1])])
+
+    def loglog(x, xs, ys):
+        i = np.searchsorted(xs, x) - 1
+        f = (np.log(x) - np.log(xs[i])) / (np.log(xs[i + 1]) - np.log(xs[i]))
+        return np.exp(np.log(ys[i]) + f * (np.log(ys[i + 1]) - np.log(ys[i])))
+
+    got = interpolate_terms({"k": kink}, c, grid)["k"]
+    np.testing.assert_allclose(got, [loglog(x, grid, kink) for x in c], rtol=1e-9)
+    first = 5  # zeros on the first five nodes
+    z = np.where(np.arange(grid.size) < first, 0.0, 2.0 * grid**0.3)
+    below = np.array([grid[1], grid[first - 1] * 1.01, np.sqrt(grid[first - 1] * grid[first])])
+    np.testing.assert_allclose(interpolate_terms({"z": z}, below, grid)["z"], 2.0 * grid[first] ** 0.3, rtol=1e-12)
+    np.testing.assert_allclose(interpolate_term(z, below, grid), 2.0 * grid[first] ** 0.3, rtol=1e-12)
+    uneven = np.array([1.0, 2.0, 3.0, 10.0, 20.0])  # log steps 0.69, 0.41, 1.20, 0.69
+    vals = np.array([1.0, 4.0, 2.0, 8.0, 3.0])
+    x = np.array([1.5, 2.5, 5.0, 15.0])
+    np.testing.assert_allclose(interpolate_terms({"u": vals}, x, uneven)["u"],
+                               [loglog(v, uneven, vals) for v in x], rtol=1e-12)
+
+
+# ---- response: eq. 12 with one degree of freedom, small signals, three points ------------------------------------
+
+def test_eq12_fit_with_one_degree_of_freedom_on_a_small_scale_and_through_three_points():
+    """Four points of a linear sensor with ±3 alternating errors, all scaled by 1e-4 (α ≈ 0.4, uncertainties
+    far below 1) and σ = 0.5e-4: χ²_red = Σ(r/σ)²/(4 − 3) from the fitted curve's residuals, and each
+    uncertainty is that of the Jacobian J = (x^γ, α x^γ ln x, 1) written out here, inv(JᵀJ/σ²) × χ²_red.
+    Three points: the fitted curve goes through them (α back from the fit's scaled variable)."""
+    x = np.array([0.01, 0.12, 0.3, 0.5])
+    g = (1000.0 + 4000.0 * x + 3.0 * np.array([1, -1, 1, -1])) * 1e-4
+    sigma = np.full(4, 0.5e-4)
+    fit = fit_eq12(x, g, sigma)
+    a, gam, b = fit["alpha"], fit["gamma"], fit["beta"]
+    resid = g - (a * x**gam + b)
+    chi2_red = float(np.sum((resid / sigma) ** 2) / 1)
+    assert chi2_red > 1.5 and fit["chi2_red"] == pytest.approx(chi2_red, rel=1e-6)
+    jac = np.stack([x**gam, a * x**gam * np.log(x), np.ones_like(x)], axis=1) / sigma[:, None]
+    cov = np.linalg.inv(jac.T @ jac) * chi2_red
+    assert fit["alpha_unc"] < 0.1
+    for key, i in (("alpha_unc", 0), ("gamma_unc", 1), ("beta_unc", 2)):
+        assert fit[key] == pytest.approx(np.sqrt(cov[i, i]), rel=1e-3)
+    three = fit_eq12(x[:3], g[:3], sigma[:3])
+    np.testing.assert_allclose(three["alpha"] * x[:3] ** three["gamma"] + three["beta"], g[:3], rtol=1e-6)
+    assert np.isnan(three["chi2_red"]) and np.isnan(three["gamma_unc"])
+
+
+# ---- flat_model: the geometry of a sensor without a mosaic; the gains' storage type -----------------------------
+
+def test_plane_geometry_without_a_mosaic_is_the_identity_and_rmax_the_farthest_corner():
+    """A linear-RAW (no CFA) frame: plane pixels are image pixels (scale 1, no offset), and the normalising
+    radius is the distance to the farthest of the four corners (0 or W − 1, 0 or H − 1), for a centre near
+    each side."""
+    geom = PlaneGeometry.for_planes(("R", "G", "B"), (30, 40), None)
+    assert geom.full_shape == (30, 40)
+    fx, fy = geom.to_full("G", np.array([0.0, 7.5]), np.array([3.0, 29.0]))
+    np.testing.assert_array_equal(fx, [0.0, 7.5])
+    np.testing.assert_array_equal(fy, [3.0, 29.0])
+    for cx, cy in ((37.5, 2.0), (1.5, 27.0), (20.0, 14.5)):
+        far = max(np.hypot(x - cx, y - cy) for x in (0.0, 39.0) for y in (0.0, 29.0))
+        assert geom.rmax_full("B", cx, cy) == pytest.approx(far, rel=1e-15)
+    bayer = PlaneGeometry.for_planes(("R", "G1", "G2", "B"), (30, 40), "RGGB")
+    assert bayer.full_shape == (60, 80) and bayer.to_full("B", 2.0, 3.0) == (5.0, 7.0)
+
+
+def test_flat_gains_are_float32_maps():
+    """The gain maps are stored and applied as float32 (the correction divides float32 planes by them)."""
+    chans = ("R", "G1", "G2", "B")
+    prnu = np.full((4, 6, 8), 1.01, np.float32)
+    fm = FlatModel(channels=chans, centre_px={c: (3.5, 2.5) for c in chans},
+                   k={c: (-0.3, 0.05, 0.0, 0.0, 0.0) for c in chans}, model_2d=None, prnu=prnu, residual_rms={},
+                   shape=(6, 8), cfa_pattern="RGGB")
+    coef = [[1.0, 0.05, -0.1], [0.08, -0.03, 0.0], [-0.2, 0.0, 0.0]]
+    m2 = {"kind": "legendre2d", "degree": 2, "coefficients": {c: coef for c in chans}, "scale": {c: 0.9 for c in chans}}
+    for g in (fm.gain(), fm.gain(with_prnu=True), fm.radial_gain(), replace(fm, model_2d=m2).gain()):
+        assert g.dtype == np.float32 and g.shape == (4, 6, 8)
+    with pytest.raises(CamcalError, match="no PRNU map"):
+        replace(fm, prnu=None).gain(with_prnu=True)
+
+
+# ---- spectral_model: what a spectral sensitivity refuses ---------------------------------------------------------
+
+@pytest.mark.parametrize("wl", [np.array([[500.0, 510.0]]), np.array([]), np.array([500.0, 510.0, 505.0]),
+                                np.array([500.0, 510.0, 510.0])], ids=["2-D", "empty", "decreasing", "repeated"])
+def test_spectral_sensitivity_refuses_wavelengths_that_do_not_increase(wl):
+    vals = {p: np.ones(wl.shape) for p in "RGB"}
+    with pytest.raises(CamcalError, match="wavelengths must be a non-empty increasing 1-D array"):
+        SpectralSensitivity(wl, vals, vals, "relative", "relative")
+
+
+def test_spectral_sensitivity_checks_its_planes_and_accepts_one_wavelength():
+    one = SpectralSensitivity(np.array([550.0]), {p: np.ones(1) for p in "RGB"}, {p: np.ones(1) for p in "RGB"},
+                              "relative", "relative")
+    assert one.plane_names == ("R", "G", "B")
+    wl = np.array([500.0, 510.0])
+    with pytest.raises(CamcalError, match="of 2 values each"):
+        SpectralSensitivity(wl, {p: np.ones(3) for p in "RGB"}, {p: np.ones(2) for p in "RGB"}, "relative",
+                            "relative")
+    with pytest.raises(CamcalError, match="of 2 values each"):
+        SpectralSensitivity(wl, {p: np.ones(2) for p in "RG"}, {p: np.ones(2) for p in "RG"}, "relative",
+                            "relative")
+    with pytest.raises(CamcalError, match="name different planes"):
+        SpectralSensitivity(wl, {p: np.ones(2) for p in "RGB"}, {p: np.ones(2) for p in ("R", "G1", "G2", "B")},
+                            "relative", "relative")
+
+
+def test_lamp_inputs_of_a_band_model_change_its_geometry():
+    """A band model over a lamp geometry: varying 'lamp_height' (m) or 'lamp_angle' (degrees) gives the ratio of
+    the band model built here with a lamp at that height or angle (radians), and differs from the nominal one."""
+    wl = np.arange(600.0, 701.0, 10.0)
+    s = np.exp(-0.5 * ((wl - 650.0) / 20.0) ** 2)
+
+    def band(height_m, angle_deg):
+        return BandModel(wl, s, geometry=LampModel(height_m, np.radians(angle_deg), water_absorption_per_m=0.0),
+                         water_absorption_per_m=0.0)
+
+    model, c, depth = band(1.0, 20.0), np.array([5.0, 50.0]), 0.3
+    for name, p, built in (("lamp_height", 1.05, band(1.05, 20.0)), ("lamp_angle", 25.0, band(1.0, 25.0))):
+        got = forward_for(model, depth, name)(p, c)
+        np.testing.assert_allclose(got, built.ratio(c, depth), rtol=1e-12)
+        assert np.all(np.abs(got / model.ratio(c, depth) - 1) > 1e-4)
+
+
+# ---- correct: a third-party dark model that returns whole frames, through the one correction path -------------
+
+class _WholeFrameDark:
+    """A dark model that evaluates whole frames only: a dict per named plane, or a CFA mosaic (DN)."""
+
+    def __init__(self, kind):
+        self.kind = kind
+
+    def dark_frame_dn(self, exposure_s, iso):
+        level = 60.0 + 0.5 * exposure_s * iso / 100.0  # 70 DN at 10 s, ISO 200
+        if self.kind == "dict":
+            return {p: np.full((3, 4), level + 2.0 * i) for i, p in enumerate(("R", "G", "B"))}
+        return np.arange(48, dtype=float).reshape(6, 8) + level
+
+
+def test_correction_with_a_whole_frame_dark_model_uses_the_frames_planes_and_pattern():
+    """Linear RAW planes named R, G, B with a dark model giving a dict per plane: each plane loses its own dark
+    level (70, 72, 74 DN). A BGGR mosaic dark frame is split by the frame's pattern: the B plane is the mosaic's
+    even rows and columns, R its odd ones."""
+    raw = np.full((3, 3, 4), 500.0, np.float32)
+    out = correct_planes(raw, Calibration(dark=_WholeFrameDark("dict")), exposure_s=10.0, iso=200.0,
+                         white_level_dn=4095, black_level_dn=np.zeros(3), channels=("R", "G", "B"))
+    np.testing.assert_allclose(out.signal_dn[:, 0, 0], [430.0, 428.0, 426.0])
+    raw4 = np.full((4, 3, 4), 500.0, np.float32)
+    out = correct_planes(raw4, Calibration(dark=_WholeFrameDark("mosaic")), exposure_s=10.0, iso=200.0,
+                         white_level_dn=4095, black_level_dn=np.zeros(4), cfa_pattern="BGGR")
+    mosaic = np.arange(48, dtype=float).reshape(6, 8) + 70.0
+    np.testing.assert_allclose(out.signal_dn[3], 500.0 - mosaic[0::2, 0::2])  # B
+    np.testing.assert_allclose(out.signal_dn[0], 500.0 - mosaic[1::2, 1::2])  # R
+
+
+def test_eq12_fit_keeps_alpha_and_gamma_within_their_bounds():
+    """Eq. 12's parameters are bounded, α ≥ 0 and 0.02 ≤ γ ≤ 10: a signal that falls with exposure gives α at
+    0 (below 1e-6 DN/s^γ) and γ at its lower bound; one that rises as x¹² gives γ at 10."""
+    x = np.array([1.0, 2.0, 3.0, 4.0, 5.0, 6.0])
+    falling = fit_eq12(x, 100.0 - 5.0 * x, np.ones(6))
+    assert 0.0 <= falling["alpha"] < 1e-6 and falling["gamma"] == pytest.approx(0.02, abs=1e-5)
+    steep = fit_eq12(x, 500.0 * (x / 6.0) ** 12 + 5.0, np.ones(6))
+    assert steep["gamma"] == pytest.approx(10.0, abs=1e-6)
+
+
+# ---- spectral: the regularised deconvolution written out on an uneven grid ---------------------------------------
+
+def _tikhonov_by_definition(wl, a, m, u, alpha_rel):
+    """min ||W^½(Ac − m)||² + α||D₂c||², W = diag(1/u²), D₂ the second derivative per nm² of the parabola
+    through each three neighbouring samples (from its Vandermonde system, not a difference formula), α =
+    alpha_rel · tr(AᵀWA)/tr(D₂ᵀD₂); returns c, the estimator R and the GCV score n‖W^½(Ac − m)‖²/(n − tr AR)²
+    (Hansen 2010, §5.4)."""
+    n = wl.size
+    d2 = np.zeros((n - 2, n))
+    for i in range(n - 2):
+        d2[i, i:i + 3] = 2.0 * np.linalg.solve(np.vander(wl[i:i + 3], 3), np.eye(3))[0]
+    w = np.diag(1.0 / u**2)
+    ata, dtd = a.T @ w @ a, d2.T @ d2
+    alpha = alpha_rel * np.trace(ata) / np.trace(dtd)
+    r = np.linalg.inv(ata + alpha * dtd) @ a.T @ w
+    c = r @ m
+    res = np.sqrt(np.diag(w)) * (a @ c - m)
+    return c, r, n * float(res @ res) / (n - np.trace(a @ r)) ** 2
+
+
+def test_deconvolution_on_an_uneven_grid_is_the_tikhonov_estimator_with_gcv():
+    """On an uneven grid (4 nm steps jittered by up to ±1.2 nm) with unequal σ and Gaussian noise of that σ on a
+    slit-blurred curve: with a given regularisation the result is the Tikhonov estimator written out here (second
+    derivative per nm² from the parabola through each three samples); without one, the estimator whose α
+    minimises the GCV score over the 49 values 10⁻¹⁰…10² (relative to the trace ratio); the uncertainty is
+    √diag(R diag(u²) Rᵀ). The noise makes GCV choose an interior α (≈ 10^0.5) where a neighbouring grid value
+    moves c by ~1e-3, so the grid itself is checked."""
+    base = np.arange(400.0, 481.0, 4.0)
+    wl = base + np.random.default_rng(5).uniform(-1.2, 1.2, base.size)
+    a = slit_matrix(wl, 8.0)
+    truth = np.exp(-0.5 * ((wl - 440.0) / 25.0) ** 2)
+    u = 0.01 * (1.0 + 0.5 * np.cos(wl / 7.0))
+    m = a @ truth + u * np.random.default_rng(1).standard_normal(wl.size)
+    # the estimator is written out with explicit inverses here, np.linalg.solve in the code: they agree to ~1e-8
+    c, uc = deconvolve_slit(wl, m, u, 8.0, regularisation=1e-3)
+    want, r, _ = _tikhonov_by_definition(wl, a, m, u, 1e-3)
+    np.testing.assert_allclose(c, want, rtol=1e-6, atol=1e-10)
+    np.testing.assert_allclose(uc, np.sqrt(np.diag(r @ np.diag(u**2) @ r.T)), rtol=1e-6)
+    scores = [(_tikhonov_by_definition(wl, a, m, u, 10.0**lg)[2], lg) for lg in np.linspace(-10, 2, 49)]
+    best = min(scores)[1]
+    assert -10 < best < 2  # an interior minimum: the grid's ends are not what decides
+    c, uc = deconvolve_slit(wl, m, u, 8.0)
+    want, r, _ = _tikhonov_by_definition(wl, a, m, u, 10.0**best)
+    np.testing.assert_allclose(c, want, rtol=1e-6, atol=1e-10)
+    np.testing.assert_allclose(uc, np.sqrt(np.diag(r @ np.diag(u**2) @ r.T)), rtol=1e-6)
+
+
+def test_slit_matrix_on_a_line_is_the_gaussian_mean_of_the_clamped_line():
+    """c(λ) = a + bλ is its own natural cubic spline, held at the end values outside the sampled range, so the
+    measured value at λ_j through a Gaussian slit (σ = FWHM/(2√(2 ln 2))) is a + b·E[clip(X, λ_0, λ_n)] with
+    X ~ N(λ_j, σ): E[clip] = μ + E[(λ_0 − X)⁺] − E[(X − λ_n)⁺], E[(L − X)⁺] = (L − μ)Φ(z) + σφ(z), z = (L − μ)/σ
+    (normal distribution from scipy.stats). A first step of 2.5 FWHM and a last one of 0.5 FWHM make the held
+    ends matter over the whole slit."""
+    wl = np.array([400.0, 425.0, 430.0, 436.0, 441.0, 447.0, 452.0, 457.0])
+    fwhm = 10.0
+    sigma = fwhm / (2 * np.sqrt(2 * np.log(2)))
+    a, b = 0.3, 0.01
+    got = slit_matrix(wl, fwhm) @ (a + b * wl)
+
+    def below(limit, mu):  # E[(limit − X)⁺]
+        z = (limit - mu) / sigma
+        return (limit - mu) * norm.cdf(z) + sigma * norm.pdf(z)
+
+    def above(limit, mu):  # E[(X − limit)⁺]
+        z = (mu - limit) / sigma
+        return (mu - limit) * norm.cdf(z) + sigma * norm.pdf(z)
+
+    want = a + b * (wl + below(wl[0], wl) - above(wl[-1], wl))
+    np.testing.assert_allclose(got, want, rtol=2e-6)  # quadrature on a 0.1 nm grid
+    assert abs(got[0] - (a + b * wl[0])) > 0.01  # the held end is visible (b σ/√(2π) ≈ 0.017)
+
+
+def test_field_model_with_the_mean_sky_transmittance_and_a_varied_sky_keeps_its_light():
+    """With the hemispheric-mean transmittance (a sky form that is not the exact one), B(C) and dB/dC follow the
+    rendering (the derivative by central differences of it); a model varied to 1.5× the diffuse irradiance has
+    as illuminant the new global irradiance E_dir + 1.5 E_dif on its grid, normalised to a maximum of 1."""
+    sky_wl = np.arange(500.0, 781.0, 20.0)
+    glob = np.linspace(1.0, 2.0, sky_wl.size)
+    diffuse = glob * np.linspace(0.6, 0.2, sky_wl.size)
+    direct = glob - diffuse
+    geom = FieldGeometry(transmittance="mean")
+    model = field_band_model(FIELD_WL, FIELD_C, sky=MeasuredSky(45.0, sky_wl, direct, diffuse), geometry=geom)
+    c, d = 12.0, 0.6
+    r, dr = model.ratio_and_derivative(np.array([c]), d)
+    assert float(r[0]) == pytest.approx(_field_truth(sky_wl, direct, diffuse, 45.0, geom, c, d), rel=1e-5)
+    h = 1e-3 * c
+    num = (_field_truth(sky_wl, direct, diffuse, 45.0, geom, c + h, d)
+           - _field_truth(sky_wl, direct, diffuse, 45.0, geom, c - h, d)) / (2 * h)
+    assert float(dr[0]) == pytest.approx(num, rel=1e-4)
+    more = model.varied("diffuse_fraction", 1.5)
+    light = np.interp(FIELD_WL, sky_wl, direct + 1.5 * diffuse)
+    np.testing.assert_allclose(more.illuminant, light / light.max(), rtol=1e-12)
+
+
+def test_a_dark_model_without_dark_current_needs_no_exposure_time():
+    """A dark model that knows only the bias (no dark current, β = None) corrects a frame whose file gives no
+    exposure time: the signal is raw − bias."""
+    bias = np.full((4, 2, 3), 100.0, np.float32)
+    bias[1, 0, 2] = 130.0
+    z = np.zeros(bias.shape, np.float32)
+    dark = DarkModel(bias_dn=bias, dark_current_dn_per_s=None, dark_current_unc_dn_per_s=None, read_noise_dn=z + 2,
+                     defects=np.zeros(bias.shape, np.uint8), iso=100.0, cfa_pattern="RGGB", temperature_c=None)
+    raw = np.full((4, 2, 3), 700.0, np.float32)
+    out = correct_planes(raw, Calibration(dark=dark), exposure_s=None, iso=100.0, white_level_dn=4095,
+                         black_level_dn=np.full(4, 100.0))
+    np.testing.assert_array_equal(out.signal_dn, 700.0 - bias)
+
+
+def test_relative_uncertainty_at_the_peak_for_peaks_below_one():
+    """The summary's relative uncertainty at each plane's peak is u(λ_peak)/c(λ_peak), also for relative curves
+    whose peaks are below 1 (0.125, 0.25, 0.375 here)."""
+    wl = np.array([500.0, 510.0, 520.0, 530.0])
+    vals = {p: np.array([0.1, 0.5, 0.3, 0.2]) * (i + 1) / 4 for i, p in enumerate("RGB")}
+    unc = {p: np.array([0.01, 0.05, 0.02, 0.02]) for p in "RGB"}
+    got = SpectralSensitivity(wl, vals, unc, "relative", "relative").summary()["max_relative_uncertainty_at_peak"]
+    assert got == pytest.approx({"R": 0.05 / 0.125, "G": 0.05 / 0.25, "B": 0.05 / 0.375}, rel=1e-12)
+
+
+def test_a_band_model_without_a_sensitivity_uncertainty_has_no_sensitivity_term():
+    """u_c(λ) unknown (None): the terms are those of the stated inputs only."""
+    wl = np.arange(600.0, 701.0, 10.0)
+    model = BandModel(wl, np.exp(-0.5 * ((wl - 650.0) / 20.0) ** 2), water_absorption_per_m=0.0)
+    terms = uncertainty_terms(model, 0.3, np.array([5.0, 50.0]), [Uncertain("depth", 0.3, 0.01, "m")])
+    assert set(terms) == {"depth"} and np.all(terms["depth"] > 0)
+
+
+def test_measured_sky_csv_limits_of_what_it_accepts(tmp_path):
+    """Accepted: an indented '#' comment, wavelength steps of 0.5 nm, zero and sub-unit irradiances (a zero
+    direct beam, one zero diffuse value). Refused: a repeated wavelength, a negative diffuse value, a file of
+    comments only (no header)."""
+    p = tmp_path / "sky.csv"
+    p.write_text("wavelength_nm,direct_horizontal,diffuse_horizontal\n   # indented comment\n"
+                 "500.0,0.0,0.0\n500.5,0.5,0.4\n501.0,0.9,0.8\n")
+    sky = read_sky_csv(p, 20.0)
+    np.testing.assert_array_equal(sky.wavelengths_nm, [500.0, 500.5, 501.0])
+    np.testing.assert_array_equal(sky.direct_horizontal, [0.0, 0.5, 0.9])
+    np.testing.assert_array_equal(sky.diffuse_horizontal, [0.0, 0.4, 0.8])
+    head = "wavelength_nm,direct_horizontal,diffuse_horizontal\n"
+    for phrase, text in (("must increase", head + "500,1,1\n500,2,1\n600,2,1\n"),
+                         ("be >= 0", head + "500,1,-0.1\n600,2,1\n"),
+                         ("needs columns", "# nothing but a comment\n")):
+        p.write_text(text)
+        with pytest.raises(CamcalError, match=phrase):
+            read_sky_csv(p, 20.0)
+
+
+def test_system_gain_of_third_party_dark_models():
+    """K per plane from a dark model's summary ('gain_dn_per_e_from_dark'), in the model's own plane
+    order (R, G, B here; R, G1, G2, B for a model that does not say); a plane whose gain is unknown (None, or
+    missing) gets 0 (no shot-noise term); a model without read noise, or without a summary, gives None."""
+    class Linear:
+        read_noise_dn = 2.0
+        plane_names = ("R", "G", "B")
+
+        def summary(self):
+            return {"gain_dn_per_e_from_dark": {"R": 0.5, "G": None}}
+
+    k = system_gain_dn_per_e(Linear())
+    assert k.dtype == np.float32 and k.shape == (3, 1, 1)
+    np.testing.assert_array_equal(k[:, 0, 0], [0.5, 0.0, 0.0])
+
+    class NoSummary:
+        read_noise_dn = 2.0
+
+    class NoReadNoise(Linear):
+        read_noise_dn = None
+
+    assert system_gain_dn_per_e(NoSummary()) is None and system_gain_dn_per_e(NoReadNoise()) is None
+
+    class NoPlaneNames:  # a Bayer model that does not name its planes: R, G1, G2, B
+        read_noise_dn = 2.0
+
+        def summary(self):
+            return {"gain_dn_per_e_from_dark": {"G2": 0.3}}
+
+    np.testing.assert_array_equal(system_gain_dn_per_e(NoPlaneNames())[:, 0, 0], np.float32([0.0, 0.0, 0.3, 0.0]))

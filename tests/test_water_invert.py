@@ -14,6 +14,16 @@ from camcal.water.models import RefinedModel, SeedModel
 from camcal.water.purewater import pure_water_absorption_per_m
 from camcal.water.units import mol_per_L_to_ug_per_L
 
+
+@pytest.fixture(autouse=True)
+def _fresh_tau_tables():
+    """Each test builds the τ tables it uses: ``tau_table`` caches them per closed form, and a table cached by an
+    earlier test (or by the mutation run's clean pass, whose process the workers are forked from) would hide a
+    change to ``TauTable`` from every later test."""
+    tau_table.cache_clear()
+    yield
+
+
 SEED_C = np.linspace(1e-7, 5e-7, 41)  # seed §5 ranges
 SEED_D = np.linspace(0.10, 0.50, 41)[:, None]
 
