@@ -21,6 +21,9 @@ Both give the same verdicts, formed in one place (:func:`_reason`), in the same 
 is also hashed (SHA-256, :func:`camcal.hashing.sha256_file`) in the thread that decoded it, while its bytes are
 in the page cache; the hash is remembered for the profile's provenance.
 
+A stack combined on its own (``camcal dark``, :func:`camcal.stack.combine_frames` without a stage's judge) goes
+through the same code with a :class:`StrictJudge`: no frame is left out, an unreadable frame or a copy is an error.
+
 Reasons, in the order they are judged (the first that applies is given; docs/reliability.md lists them):
 
 - ``unreadable: <why>``: the file cannot be decoded (truncated, damaged, image data stripped, an

@@ -2,7 +2,9 @@
 
 Every calibration stage (bias, dark, flat, sweep, profile) averages N frames of one
 setting per pixel and per channel plane. :func:`combine_frames` does it with each
-file decoded exactly once and memory that does not grow with N:
+file decoded exactly once and memory that does not grow with N. Each frame is judged as it is decoded (the
+stage's :class:`camcal.screen.StageJudge` leaves an unusable frame out; by default a
+:class:`camcal.screen.StrictJudge` makes it an error):
 
 - ``method="mean"``: running sums of the deviations from the first frame and of their squares in
   float64 (the shifted-data algorithm, Chan, Golub & LeVeque 1983), one frame in memory at a time.
