@@ -6,6 +6,9 @@ A profile file is a ZIP archive (``.camcal``) with exactly two members:
 - ``maps.exr`` — every per-pixel map as a named float32 channel (stored; EXR
   compresses itself). Absent when the profile holds no maps.
 
+Members are found by name. ``maps.exr`` is written first, hashed as it is copied in (one read of the maps),
+then ``profile.json`` with that hash.
+
 ``profile.json`` carries ``integrity.content_sha256``, the SHA-256 of the
 document's canonical JSON (sorted keys, no spaces) *without* the ``integrity``
 member, and ``integrity.maps_sha256``, the SHA-256 of ``maps.exr``. Reading
@@ -21,7 +24,6 @@ import contextlib
 import hashlib
 import json
 import math
-import shutil
 import struct
 import tempfile
 import zipfile
@@ -33,7 +35,6 @@ import numpy as np
 from camcal.atomic import atomic_path
 from camcal.errors import CamcalError
 from camcal.exr import read_exr, write_exr
-from camcal.hashing import sha256_file
 from camcal.limits import (
     MAX_PROFILE_JSON_BYTES,
     STREAM_BLOCK_BYTES,
@@ -72,22 +73,24 @@ def write_container(path: str | Path, doc: dict, maps: dict[str, np.ndarray]) ->
         if maps:
             write_exr(mp, maps, {"content": "camcal profile maps"}, compression=MAPS_COMPRESSION)
         doc = dict(doc)
-        doc["integrity"] = {
-            "algorithm": "sha256",
-            "content_sha256": content_hash(doc),
-            "maps_sha256": sha256_file(mp) if maps else None,
-        }
-        text = json.dumps(doc, indent=1, sort_keys=False, allow_nan=False).encode("utf-8")
         with atomic_path(path) as tmp:
             with zipfile.ZipFile(tmp, "w") as zf:
-                zf.writestr(zipfile.ZipInfo(JSON_MEMBER, date_time=(2020, 1, 1, 0, 0, 0)), text,
-                            compress_type=zipfile.ZIP_DEFLATED)
-                if maps:  # streamed from the EXR in blocks: the maps are never all in memory as bytes
+                maps_sha256 = None
+                if maps:  # streamed from the EXR in blocks, hashed as it is copied: read once, never all in memory
                     info = zipfile.ZipInfo(MAPS_MEMBER, date_time=(2020, 1, 1, 0, 0, 0))
                     info.compress_type = zipfile.ZIP_STORED
                     info.file_size = mp.stat().st_size
+                    digest = hashlib.sha256()
                     with open(mp, "rb") as src, zf.open(info, "w") as dst:
-                        shutil.copyfileobj(src, dst, STREAM_BLOCK_BYTES)
+                        for block in iter(lambda: src.read(STREAM_BLOCK_BYTES), b""):
+                            digest.update(block)
+                            dst.write(block)
+                    maps_sha256 = digest.hexdigest()
+                doc["integrity"] = {"algorithm": "sha256", "content_sha256": content_hash(doc),
+                                    "maps_sha256": maps_sha256}
+                text = json.dumps(doc, indent=1, sort_keys=False, allow_nan=False).encode("utf-8")
+                zf.writestr(zipfile.ZipInfo(JSON_MEMBER, date_time=(2020, 1, 1, 0, 0, 0)), text,
+                            compress_type=zipfile.ZIP_DEFLATED)
     return path
 
 

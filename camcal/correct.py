@@ -28,7 +28,7 @@ too few valid pixels are left in a channel, and says why.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
@@ -68,6 +68,9 @@ class Calibration:
     inv_flat_gain : 1 / ``flat_gain`` (float32), computed once.
     noise_gain_dn_per_e : (C, 1, 1) float32 system gain K of the dark model at its ISO, DN per electron
         (the slope of its photon-transfer line), or None.
+    dark_frames : None, or a dict in which the whole-frame dark frames are kept by (exposure, ISO) and reused
+        (:meth:`remembering_dark_frames`): for a stack of frames of one exposure, such as the flats, the dark frame
+        is computed once instead of once per frame. Not for a batch of photos of many exposures (a frame each).
     """
 
     dark: Any = None
@@ -75,6 +78,12 @@ class Calibration:
     defects: np.ndarray | None = None
     inv_flat_gain: np.ndarray | None = None
     noise_gain_dn_per_e: np.ndarray | None = None
+    dark_frames: dict | None = None
+
+    def remembering_dark_frames(self) -> Calibration:
+        """This calibration, keeping each whole-frame dark frame it computes for the next frame of the same
+        exposure time and ISO (the same values, computed once)."""
+        return replace(self, dark_frames={})
 
     @staticmethod
     def of(dark: Any = None, flat: Any = None, *, with_prnu: bool = False, emva: Any = None) -> Calibration:
@@ -193,6 +202,23 @@ def dark_frame(dark: Any, exposure_s: float, iso: float | None, shape: tuple[int
     return np.ascontiguousarray(_window_of(d, window), np.float32)
 
 
+def _dark_frame_of(calibration: Calibration, exposure_s: float, iso: float | None, shape: tuple[int, int, int],
+                   window: Window | None, channels: tuple[str, ...], cfa_pattern: str | None,
+                   path: Path | None) -> np.ndarray:
+    """:func:`dark_frame` of ``calibration.dark``, taken from and kept in ``calibration.dark_frames`` when it is a
+    dict and the whole frame is corrected (the kept array is never written to)."""
+    memo = calibration.dark_frames
+    if memo is None or window is not None:
+        return dark_frame(calibration.dark, exposure_s, iso, shape, window, channels, cfa_pattern, path)
+    key = (float(exposure_s), None if iso is None else float(iso), tuple(shape), tuple(channels), cfa_pattern)
+    frame = memo.get(key)
+    if frame is None:  # two threads may both compute it: the same values
+        frame = dark_frame(calibration.dark, exposure_s, iso, shape, window, channels, cfa_pattern, path)
+        frame.flags.writeable = False
+        memo[key] = frame
+    return frame
+
+
 def correct_planes(
     planes: np.ndarray,
     calibration: Calibration,
@@ -256,7 +282,7 @@ def correct_planes(
             signal -= dark_signal
             var = dark.noise_variance_dn2(signal, dark_signal, calibration.noise_gain_dn_per_e, iso, window)
         else:
-            signal -= dark_frame(dark, t, iso, shape, window, channels, cfa_pattern, path)
+            signal -= _dark_frame_of(calibration, t, iso, shape, window, channels, cfa_pattern, path)
     else:
         signal -= black
     if calibration.flat_gain is not None:

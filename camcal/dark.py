@@ -122,7 +122,8 @@ def _robust(x: np.ndarray) -> tuple[float, float]:
     x = x[np.isfinite(x)]
     if x.size == 0:
         return float("nan"), float("nan")
-    med = float(np.median(x))
+    # x is a copy (the finite values): the selections may reorder it, and a median does not depend on the order
+    med = float(np.median(x, overwrite_input=True))
     # the median found once: scipy's MAD takes it as its centre instead of finding it again
     return med, float(median_abs_deviation(x, center=lambda _x, axis: np.float64(med), scale="normal"))
 
@@ -261,6 +262,40 @@ def _sample_digest(path: Path) -> bytes:
     return h.digest()
 
 
+def _exposure_time_rules(groups: dict[float, list[Path]], have_bias: bool, folder: Path
+                         ) -> tuple[dict[float, list[Path]], tuple[tuple[str, str], ...]]:
+    """The rules on the dark frames grouped by exposure time (s): a frame alone at its exposure time has no
+    temporal noise to measure and is left out (with a :class:`FrameLeftOut` warning) while other times have two
+    frames or more; without bias frames, the dark-current fit needs two exposure times.
+
+    Returns
+    -------
+    groups : the exposure times kept and their frames.
+    left_out : ``(file name, reason)`` of the frames left out.
+
+    Raises
+    ------
+    TooFewFrames
+        No bias frames and fewer than two exposure times.
+    """
+    lone = {t: g for t, g in groups.items() if len(g) < 2}
+    left_out: tuple[tuple[str, str], ...] = ()
+    if lone and len(lone) < len(groups):
+        left_out = tuple((g[0].name, f"alone at its exposure time ({t:g} s): the dark model measures the temporal "
+                                     "noise of each exposure time from two or more frames") for t, g in lone.items())
+        for name, reason in left_out:
+            warnings.warn(f"left out: {name}: {reason}", FrameLeftOut, stacklevel=3)
+        groups = {t: g for t, g in groups.items() if t not in lone}
+    if not have_bias and len(groups) < 2:
+        if not groups:
+            raise TooFewFrames("dark", "frames", 1, 0, path=folder)
+        ((t0, g0),) = groups.items()
+        raise TooFewFrames("dark", "exposure times (or bias frames)", 2, 1,
+                           f"all {len(g0)} dark frames have one exposure time ({t0:g} s); the dark-current fit "
+                           "needs two or more exposure times, or bias frames (--bias)", folder)
+    return groups, left_out
+
+
 def stack_darks(
     dark: str | Path | StageFrames | None,
     bias: str | Path | StageFrames | None = None,
@@ -274,10 +309,21 @@ def stack_darks(
     """The file step of the dark stage: list the frames, group the darks by exposure time, combine each group
     and the bias frames (:func:`camcal.stack.combine_frames`), check sizes, patterns and ISO.
 
-    ``dark`` / ``bias`` : folders or the session index's :class:`camcal.session.StageFrames`.
-    ``judge`` / ``bias_judge`` : the dark and bias stages' :class:`camcal.screen.StageJudge` (both or neither):
-    each frame is judged as it is stacked, and what follows (a frame alone at its exposure time, too few
-    exposure times) is decided on the frames used (:func:`_stack_judged`).
+    Parameters
+    ----------
+    dark, bias : folders or the session index's :class:`camcal.session.StageFrames`.
+    options : the combination method and the saturation limit of the frame check (:func:`dark_frame_check`).
+    jobs, progress : as for :func:`camcal.stack.combine_frames` (``progress`` counts the frames of all stacks).
+    judge, bias_judge : the dark and bias stages' :class:`camcal.screen.StageJudge`: each frame is judged as it
+        is stacked, and the rules that follow from what is left out (:func:`_exposure_time_rules`; an exposure
+        time whose frames are all left out is as if never taken; every bias frame left out is as without bias
+        frames; a bias-only model needs two frames) are applied to the frames used. Without a judge a frame that
+        cannot be used is an error (:class:`camcal.screen.StrictJudge`), and the exposure-time rules are applied
+        to the files before any is decoded.
+
+    Returns
+    -------
+    DarkStacks
 
     Raises
     ------
@@ -288,73 +334,6 @@ def stack_darks(
     if options.method not in METHODS:
         raise CamcalError(f"unknown combination method {options.method!r}; choose from {', '.join(METHODS)}")
     check = dark_frame_check(options.saturation_fraction)
-    if judge is not None or bias_judge is not None:
-        return _stack_judged(dark, bias, options, check, jobs, progress, judge, bias_judge)
-    if dark is None:
-        if bias is None:
-            raise CamcalError("the dark model needs dark frames, bias frames or both")
-        files, manifest = stage_files(bias)
-        bias_folder = folder_of(bias)
-        if len(files) < 2:
-            raise TooFewFrames("bias", "frames (a bias-only calibration measures the read noise between frames)",
-                               2, len(files), path=bias_folder)
-        st = combine_frames(files, method="mean", manifest=manifest, check=check, jobs=jobs, progress=progress,
-                            keep_frames=QUANTISED_FIT_FRAMES)
-        _check_stacks([st], bias_folder)
-        return DarkStacks((), st, None, bias_folder, (), tuple(p.name for p in files))
-    files, manifest = stage_files(dark)
-    bias_files, bias_manifest = stage_files(bias) if bias is not None else ([], {})
-    refuse_shared_frames(files, bias_files)  # before any frame is left out: a copy is refused, not set aside
-    times = _exposure_times(dark, files, manifest)
-    dark_folder = folder_of(dark)
-    groups: dict[float, list[Path]] = {}
-    for p, t in zip(files, times, strict=True):
-        groups.setdefault(float(f"{t:.6g}"), []).append(p)
-    # a frame alone at its exposure time has no temporal noise to measure: left out while other times have two
-    lone = {t: g for t, g in groups.items() if len(g) < 2}
-    left_out: tuple[tuple[str, str], ...] = ()
-    if lone and len(lone) < len(groups):
-        left_out = tuple((g[0].name, f"alone at its exposure time ({t:g} s): the dark model measures the temporal "
-                                     "noise of each exposure time from two or more frames") for t, g in lone.items())
-        for name, reason in left_out:
-            warnings.warn(f"left out: {name}: {reason}", FrameLeftOut, stacklevel=2)
-        groups = {t: g for t, g in groups.items() if t not in lone}
-        files = [p for p in files if all(p.name != n for n, _ in left_out)]
-    bias_folder = folder_of(bias) if bias is not None else None
-    if bias_folder is None and len(groups) < 2:
-        if not groups:
-            raise TooFewFrames("dark", "frames", 1, 0, path=dark_folder)
-        (t0,) = groups
-        raise TooFewFrames("dark", "exposure times (or bias frames)", 2, 1,
-                           f"all {len(files)} dark frames have one exposure time ({t0:g} s); the dark-current fit "
-                           "needs two or more exposure times, or bias frames (--bias)", dark_folder)
-    total = len(files) + len(bias_files)
-    done = 0
-    bias_stack = None
-    if bias_files:
-        bias_stack = combine_frames(bias_files, method="mean", manifest=bias_manifest, check=check, jobs=jobs,
-                                    progress=_progress_from(progress, 0, total), keep_frames=QUANTISED_FIT_FRAMES)
-        done = len(bias_files)
-    darks: list[tuple[float, StackResult]] = []
-    for i, t in enumerate(sorted(groups)):
-        keep = QUANTISED_FIT_FRAMES if i == 0 and bias_stack is None else 0  # the read-noise stack
-        st = combine_frames(groups[t], method=options.method, sigma=options.sigma, manifest=manifest, check=check,
-                            jobs=jobs, progress=_progress_from(progress, done, total), keep_frames=keep)
-        done += len(groups[t])
-        darks.append((t, st))
-    _check_stacks([s for _, s in darks] + ([bias_stack] if bias_stack is not None else []), dark_folder)
-    return DarkStacks(tuple(darks), bias_stack, dark_folder, bias_folder, tuple(p.name for p in files),
-                      tuple(p.name for p in bias_files), left_out)
-
-
-def _stack_judged(dark, bias, options: DarkOptions, check, jobs: int | None,
-                  progress: Callable[[int, int], None] | None, judge: StageJudge | None,
-                  bias_judge: StageJudge | None) -> DarkStacks:
-    """:func:`stack_darks` with each frame judged as it is stacked (:func:`camcal.stack.combine_frames`'s
-    ``judge``); the rules that follow from what is left out are those of :func:`stack_darks` on the frames used:
-    an exposure time whose frames are all left out is as if never taken, a frame alone at its exposure time is
-    left out while other times have two or more, the bias-only model needs two frames, the dark-current fit two
-    exposure times or bias frames."""
     if dark is None:
         if bias is None:
             raise CamcalError("the dark model needs dark frames, bias frames or both")
@@ -372,12 +351,14 @@ def _stack_judged(dark, bias, options: DarkOptions, check, jobs: int | None,
     refuse_shared_frames(files, bias_files)  # before any frame is left out: a copy is refused, not set aside
     times = _exposure_times(dark, files, manifest)
     dark_folder = folder_of(dark)
+    bias_folder = folder_of(bias) if bias is not None else None
     groups: dict[float, list[Path]] = {}
     for p, t in zip(files, times, strict=True):
         groups.setdefault(float(f"{t:.6g}"), []).append(p)
-    bias_folder = folder_of(bias) if bias is not None else None
-    total = len(files) + len(bias_files)
-    done = 0
+    left_out: tuple[tuple[str, str], ...] = ()
+    if judge is None:  # no dark frame is left out by judging: the rules hold for the files, none decoded yet
+        groups, left_out = _exposure_time_rules(groups, bias is not None, dark_folder)
+    total = sum(len(g) for g in groups.values()) + len(bias_files)
     bias_stack = None
     if bias_files:
         try:
@@ -386,11 +367,9 @@ def _stack_judged(dark, bias, options: DarkOptions, check, jobs: int | None,
                                         judge=bias_judge)
         except TooFewFrames:  # every bias frame left out: as without bias frames
             bias_folder = None
-        done = len(bias_files)
-    start = done
     while True:
         darks: list[tuple[float, StackResult]] = []
-        done = start
+        done = len(bias_files)
         retracted = len(judge.retracted) if judge is not None else 0
         for t in sorted(groups):
             # the read-noise stack (the shortest exposure time with two frames or more) keeps its first frames
@@ -399,11 +378,10 @@ def _stack_judged(dark, bias, options: DarkOptions, check, jobs: int | None,
                 st = combine_frames(groups[t], method=options.method, sigma=options.sigma, manifest=manifest,
                                     check=check, jobs=jobs, progress=_progress_from(progress, done, total),
                                     keep_frames=keep, judge=judge)
-            except TooFewFrames:  # every frame at this time left out: as if never taken
-                st = None
-            done += len(groups[t])
-            if st is not None:
                 darks.append((t, st))
+            except TooFewFrames:  # every frame at this time left out: as if never taken
+                pass
+            done += len(groups[t])
         used = {p for _, st in darks for p in st.paths}
         # a copy stacked at one exposure time, its original (first in file order) found at a later one: stacked
         # again with the verdicts fixed (rare: a copy given another exposure time than its original)
@@ -412,28 +390,12 @@ def _stack_judged(dark, bias, options: DarkOptions, check, jobs: int | None,
     if not used:
         n = sum(len(g) for g in groups.values())
         raise TooFewFrames("dark", "frames", 1, 0, f"all {n} left out", dark_folder)
-    # a frame alone at its exposure time has no temporal noise to measure: left out while other times have two
-    lone = [(t, st) for t, st in darks if st.n_frames < 2]
-    left_out: tuple[tuple[str, str], ...] = ()
-    if lone and len(lone) < len(darks):
-        left_out = tuple((st.paths[0].name, f"alone at its exposure time ({t:g} s): the dark model measures the "
-                                            "temporal noise of each exposure time from two or more frames")
-                         for t, st in lone)
-        for name, reason in left_out:
-            warnings.warn(f"left out: {name}: {reason}", FrameLeftOut, stacklevel=3)
-        darks = [(t, st) for t, st in darks if st.n_frames >= 2]
-        used = {p for _, st in darks for p in st.paths}
-    files = [p for p in files if p in used]
-    if bias_folder is None and len(darks) < 2:
-        (t0, _), = darks
-        raise TooFewFrames("dark", "exposure times (or bias frames)", 2, 1,
-                           f"all {len(files)} dark frames have one exposure time ({t0:g} s); the dark-current fit "
-                           "needs two or more exposure times, or bias frames (--bias)", dark_folder)
-    if bias_stack is not None and bias_stack.n_frames < 1:
-        bias_stack = None
+    kept, lone = _exposure_time_rules({t: list(st.paths) for t, st in darks}, bias_folder is not None, dark_folder)
+    darks = [(t, st) for t, st in darks if t in kept]
+    used = {p for g in kept.values() for p in g}
     _check_stacks([s for _, s in darks] + ([bias_stack] if bias_stack is not None else []), dark_folder)
-    return DarkStacks(tuple(darks), bias_stack, dark_folder, bias_folder, tuple(p.name for p in files),
-                      tuple(p.name for p in bias_stack.paths) if bias_stack is not None else (), left_out)
+    return DarkStacks(tuple(darks), bias_stack, dark_folder, bias_folder, tuple(p.name for p in files if p in used),
+                      tuple(p.name for p in bias_stack.paths) if bias_stack is not None else (), left_out + lone)
 
 
 def fit_dark(
@@ -516,11 +478,16 @@ def fit_dark_stacks(stacks: DarkStacks, options: DarkOptions = DarkOptions(),  #
     dark_stats = [(t, st) for t, st in stack_list] + ([(0.0, bias_stack)] if bias_stack is not None else [])
     noise_v0, noise_gain = _noise_model(dark_stats, b, jobs)
     v0_full, g_full = (np.broadcast_to(a, b.shape) for a in (noise_v0, noise_gain))
-    zero_level = np.where(np.isfinite(b), b, black)  # the fitted bias, the black level where there is no line
+    black_full = np.broadcast_to(black, b.shape)
 
     def modelled(level: np.ndarray, idx: tuple) -> np.ndarray:
-        """The noise model's per-frame variance of the band's levels, DN²: v0 + g · max(level − bias, 0)."""
-        signal = np.maximum(level - zero_level[idx], 0.0)
+        """The noise model's per-frame variance of the band's levels, DN²: v0 + g · max(level − bias, 0), the bias
+        being the fitted one, the black level where there is no line (per band: no whole-frame copy)."""
+        zero_level = b[idx]
+        finite = np.isfinite(zero_level)
+        if not finite.all():
+            zero_level = np.where(finite, zero_level, black_full[idx])
+        signal = np.maximum(level - zero_level, 0.0)
         signal *= g_full[idx]
         return v0_full[idx] + signal
 
@@ -570,7 +537,7 @@ def fit_dark_stacks(stacks: DarkStacks, options: DarkOptions = DarkOptions(),  #
     return DarkModel(
         bias_dn=b.astype(np.float32),
         dark_current_dn_per_s=beta.astype(np.float32),
-        dark_current_unc_dn_per_s=np.sqrt(beta_var).astype(np.float32),
+        dark_current_unc_dn_per_s=np.sqrt(beta_var, out=beta_var).astype(np.float32),  # its last use
         read_noise_dn=read_noise.astype(np.float32),
         defects=defects,
         iso=float(iso),
@@ -702,7 +669,9 @@ def temporal_noise(stack: StackResult, var_t: np.ndarray, defects: np.ndarray, n
             noisy[k] = var_t[k] > vhat * bound
 
     _run_planes(plane, c, jobs, var_t[0].size)
-    rn_map = np.sqrt(np.maximum(var_t - QUANTISATION_VAR_DN2, 0.0))
+    rn_map = var_t - QUANTISATION_VAR_DN2  # then max(·, 0) and √ in place: one array, not three
+    np.maximum(rn_map, 0.0, out=rn_map)
+    np.sqrt(rn_map, out=rn_map)
     read = np.full(c, np.nan)
     dsnu = np.full(c, np.nan)
     quantised = temporal < SUB_DN_NOISE
@@ -844,7 +813,9 @@ def _fit_lines(obs, white: float, *, variance: Callable[[np.ndarray, tuple], np.
 
     The closed-form sums run over row bands of about :data:`FIT_BAND_PIXELS` pixels in ``jobs`` threads, in
     float64 with the operations of the whole-array formulas in the same order: the result does not depend on
-    the banding or the number of threads (every value is bit-identical).
+    the banding or the number of threads (every value is bit-identical). A band whose levels are all below
+    saturation and whose weights are all positive (the usual band) skips the masking of the weights; its values
+    are the same.
     """
     shape = np.broadcast_shapes(*(np.shape(y) for _, y, _, _ in obs))
     obs = [(t, np.broadcast_to(y, shape), np.broadcast_to(n, shape), None if v is None else np.broadcast_to(v, shape))
@@ -860,8 +831,12 @@ def _fit_lines(obs, white: float, *, variance: Callable[[np.ndarray, tuple], np.
         s = st = stt = sy = sty = cnt = None
         for t, y, n, _v in obs:
             yb = np.asarray(y[idx], np.float64)
-            w = np.where(yb < white - 1.0, np.asarray(n[idx], np.float64), 0.0)
-            pos = w > 0
+            w = np.asarray(n[idx], np.float64)
+            if float(yb.max()) < white - 1.0 and float(w.min()) > 0:
+                pos = None  # every level of the band below saturation, every weight positive (the usual band)
+            else:
+                w = np.where(yb < white - 1.0, w, 0.0)
+                pos = w > 0
             ys.append(yb)
             ws.append(w)
             used.append(pos)
@@ -871,7 +846,7 @@ def _fit_lines(obs, white: float, *, variance: Callable[[np.ndarray, tuple], np.
             s += w
             wt = w * t
             st += wt
-            cnt += pos
+            cnt += 1 if pos is None else pos
             if with_fit:
                 sy += w * yb
                 sty += wt * yb
@@ -880,10 +855,14 @@ def _fit_lines(obs, white: float, *, variance: Callable[[np.ndarray, tuple], np.
         with np.errstate(invalid="ignore", divide="ignore"):
             d = s * stt - st * st
             ok = (cnt >= 2) & (d > 0)
+            every = bool(ok.all())  # the usual band: a line for every pixel, nothing to set to NaN
             if with_fit:
-                bb = np.where(ok, (s * sty - st * sy) / d, np.nan)
+                bb = (s * sty - st * sy) / d
+                if not every:
+                    bb = np.where(ok, bb, np.nan)
                 beta[idx] = bb
-                b[idx] = np.where(ok, (sy - bb * st) / s, np.nan)
+                bi = (sy - bb * st) / s
+                b[idx] = bi if every else np.where(ok, bi, np.nan)
             n_times[idx] = cnt
             if not with_variance:
                 return
@@ -897,15 +876,15 @@ def _fit_lines(obs, white: float, *, variance: Callable[[np.ndarray, tuple], np.
                 c = w / s
                 c -= tbar * a
                 vb = variance(yb, idx) if variance is not None else np.asarray(v[idx], np.float64)
-                per = np.where(pos, vb / np.where(pos, w, 1.0), 0.0)
+                per = vb / w if pos is None else np.where(pos, vb / np.where(pos, w, 1.0), 0.0)
                 a *= a
                 a *= per
                 bv += a
                 c *= c
                 c *= per
                 cv += c
-        beta_var[idx] = np.where(ok, bv, np.nan)
-        b_var[idx] = np.where(ok, cv, np.nan)
+        beta_var[idx] = bv if every else np.where(ok, bv, np.nan)
+        b_var[idx] = cv if every else np.where(ok, cv, np.nan)
 
     _run_bands(one, shape, jobs)
     return beta, beta_var, b, b_var, n_times
@@ -930,13 +909,15 @@ def _noise_model(stats: list[tuple[float, StackResult]], b: np.ndarray,
             ok = np.isfinite(var) & b_ok
             # hot and noisy pixels out: above 5x the median, or (quantised data below 1 DN of noise, whose
             # median variance is often 0) above 5x the mean; the means and the median in float64
-            thr = 5 * _max_median_mean(np.asarray(var[ok], np.float64))
-            ok &= var < np.float64(thr)  # compared in float64 (a numpy float64 promotes float32)
+            v = np.asarray(var[ok], np.float64)  # in raster order; _max_median_mean keeps that order
+            thr = np.float64(5 * _max_median_mean(v))
+            below = v < thr  # compared in float64, as ``var < thr`` promotes the float32 variances
+            ok &= var < thr
             if not ok.any():
                 raise CamcalError(f"the dark frames at {_t:g} s show no temporal noise at all",
                                   st.paths[0].parent if st.paths else None)
             xs.append(float(np.mean(np.asarray(st.value[k][ok], np.float64) - b[k][ok])))
-            ys.append(float(np.mean(np.asarray(var[ok], np.float64))))
+            ys.append(float(np.mean(v[below])))  # the values of var[ok], in the same order
         if len(xs) >= 2 and np.ptp(xs) > 0:
             slope, icpt = np.polyfit(xs, ys, 1)
             g[k], v0[k] = max(slope, 0.0), max(icpt, 1e-6)
@@ -948,7 +929,7 @@ def _noise_model(stats: list[tuple[float, StackResult]], b: np.ndarray,
 
 
 def _max_median_mean(x: np.ndarray) -> float:
-    """``max(median(x), mean(x))`` of a 1-D float64 array (``x`` may be reordered).
+    """``max(median(x), mean(x))`` of a 1-D float64 array (``x`` is not modified).
 
     When at least ``n // 2 + 1`` values lie at or below the mean, both middle order statistics do, so the median
     is at most the mean and the maximum is the mean: one comparison instead of a selection (a skewed variance
@@ -957,7 +938,7 @@ def _max_median_mean(x: np.ndarray) -> float:
     mean = float(np.mean(x))
     if np.count_nonzero(x <= mean) >= x.size // 2 + 1:
         return mean
-    return max(float(np.median(x, overwrite_input=True)), mean)
+    return max(float(np.median(x)), mean)
 
 
 def _run_planes(one: Callable[[int], object], c: int, jobs: int | None, plane_pixels: int) -> list:
@@ -980,19 +961,22 @@ def _channel_summary(b, b_var, beta, beta_var, var_t, defects, stacks, have_bias
         else:
             # EMVA 1288: temporal dark variance grows linearly with t; extrapolate its plane mean to t = 0
             ts = np.array([t for t, _ in stacks])
-            vs = np.array([float(np.mean(np.asarray(s.variance_all[k], np.float64)[good])) for _, s in stacks])
+            vs = np.array([float(np.mean(np.asarray(s.variance_all[k][good], np.float64))) for _, s in stacks])
             rn_var = float(np.polyfit(ts, vs, 1)[1]) if ts.size >= 2 else float(vs[0])
             rn_var -= QUANTISATION_VAR_DN2
-        dsnu_bias2 = float(np.var(bk)) - float(np.mean(b_var[k][good]))
+        var_bk = np.var(bk)  # np.std(bk) is its square root
+        dsnu_bias2 = float(var_bk) - float(np.mean(b_var[k][good]))
         if noise.quantised[k]:
             dsnu_bias2 = float(noise.dsnu_dn[k]) ** 2
-        dsnu_beta2 = float(np.var(betak)) - float(np.mean(beta_var[k][good]))
+        beta_var_k = beta_var[k][good]  # a copy: its square roots are taken in place for their median
+        dsnu_beta2 = float(np.var(betak)) - float(np.mean(beta_var_k))
         return {
             "bias_dn": float(np.mean(bk)),  # the mean: a median of quantised levels sticks to half DN
-            "bias_unc_dn": float(1.2533 * np.std(bk) / np.sqrt(bk.size)),
+            "bias_unc_dn": float(1.2533 * np.sqrt(var_bk) / np.sqrt(bk.size)),
             "dark_current_dn_per_s": med_beta,
             "dark_current_unc_dn_per_s": float(1.2533 * rs_beta / np.sqrt(betak.size)),
-            "dark_current_pixel_unc_dn_per_s": float(np.median(np.sqrt(beta_var[k][good]))),
+            "dark_current_pixel_unc_dn_per_s": float(np.median(np.sqrt(beta_var_k, out=beta_var_k),
+                                                               overwrite_input=True)),
             "dark_current_mean_dn_per_s": float(np.mean(betak)),
             "read_noise_dn": float(np.sqrt(max(rn_var, 0.0))),
             "temporal_noise_dn": float(noise.temporal_noise_dn[k]),

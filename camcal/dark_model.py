@@ -176,12 +176,19 @@ def with_dead_pixels(model: DarkModel, dead: np.ndarray, source: str) -> DarkMod
     return dataclasses.replace(model, defects=defects, channels=channels, provenance=prov)
 
 
+def _finite_or_big(plane: np.ndarray) -> np.ndarray:
+    """``plane`` with its non-finite values (a β of unknown uncertainty: inf) stored as 3e38; the plane itself
+    (no copy) when every value is finite, the usual case."""
+    finite = np.isfinite(plane)
+    return plane if finite.all() else np.where(finite, plane, np.float32(3.0e38))
+
+
 def dark_to_parts(model: DarkModel) -> tuple[dict, dict[str, np.ndarray]]:
     """The JSON part and the named maps (``bias.R`` ...) of a model; used by files and profiles."""
     arrays = {"bias": model.bias_dn, "dark_current": model.dark_current_dn_per_s,
               "dark_current_unc": model.dark_current_unc_dn_per_s, "read_noise": model.read_noise_dn,
               "defects": model.defects.astype(np.float32)}
-    maps = {f"{m}.{p}": np.where(np.isfinite(arrays[m][k]), arrays[m][k], np.float32(3.0e38))
+    maps = {f"{m}.{p}": _finite_or_big(arrays[m][k])
             for m in _MAPS if arrays[m] is not None for k, p in enumerate(model.plane_names)}
     data = {
         "iso": model.iso, "cfa_pattern": model.cfa_pattern, "layout": model.layout,

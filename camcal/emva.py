@@ -270,12 +270,13 @@ def spatial_variance(average_dn: np.ndarray, temporal_variance_dn2: np.ndarray, 
     error of a sample variance, ``√(2/(N−1))·s²_measured``, combined with that of the subtracted temporal term
     (each per-pixel variance has L − 1 degrees of freedom: ``√(2/(N(L−1)))·σ²_stack/L``).
     """
-    avg = np.asarray(average_dn, np.float64)
-    var = np.asarray(temporal_variance_dn2, np.float64)
+    avg = np.asarray(average_dn)
+    var = np.asarray(temporal_variance_dn2)
     good = np.isfinite(avg) & np.isfinite(var)
     if valid is not None:
         good &= np.asarray(valid, bool)
-    a, s = avg[good], var[good]
+    # the selected pixels converted to float64 (not the whole planes first: the same values, in the same order)
+    a, s = np.asarray(avg[good], np.float64), np.asarray(var[good], np.float64)
     n = int(a.size)
     if n < 2 or n_frames < 2:
         nan = float("nan")
@@ -479,8 +480,9 @@ def build_sheet(*, channels: tuple[str, ...], iso: float, dark_stacks=None, dark
         for k, c in enumerate(channels if groups else ()):
             good = np.ones(groups[0][1].value.shape[1:], bool) if defects is None else ~defects[k]
             ts = [t for t, _ in groups]
-            vs = [float(np.mean(np.asarray(s.variance_all if s.variance_all is not None else s.variance,
-                                           np.float64)[k][good])) for _, s in groups]
+            # plane k only, converted to float64 after the selection (the same values in the same order)
+            vs = [float(np.mean(np.asarray((s.variance_all if s.variance_all is not None else s.variance)[k][good],
+                                           np.float64))) for _, s in groups]
             dt = dark_temporal(np.array(ts), np.array(vs))
             v0 = dt.dark_variance_dn2
             info = summary.get(c) or {}

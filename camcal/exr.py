@@ -139,14 +139,30 @@ def write_exr(
         else:  # separate maps: interleaved a band of rows at a time (no copy of the whole image in memory)
             rows = max(BAND_ROWS_MULTIPLE, BAND_BYTES // max(1, w * len(arrays) * 4)
                        // BAND_ROWS_MULTIPLE * BAND_ROWS_MULTIPLE)
-            ok = all(out.write_scanlines(y, min(h, y + rows), 0,
-                                         np.stack([a[y:y + rows] for a in arrays], axis=-1))
+            band = np.empty((min(rows, h), w, len(arrays)), np.float32)  # one buffer for every band
+            ok = all(out.write_scanlines(y, min(h, y + rows), 0, _interleave(arrays, y, min(h, y + rows), band))
                      for y in range(0, h, rows))
         err = out.geterror()
         out.close()
         if not ok:
             raise CamcalError(f"cannot write EXR: {err}", path)
     return Path(path)
+
+
+INTERLEAVE_ROWS = 4
+"""Rows interleaved at a time by :func:`_interleave`: their pixels of every channel (4 x 3000 x 28 x 4 bytes for
+the maps of a 24 MP profile) stay in the cache while each channel is written into them, twice as fast as a whole
+band at once."""
+
+
+def _interleave(arrays: list[np.ndarray], y0: int, y1: int, buffer: np.ndarray) -> np.ndarray:
+    """Rows ``y0:y1`` of the 2-D ``arrays`` as one (rows, W, C) array (a view of ``buffer``), a few rows at a
+    time (:data:`INTERLEAVE_ROWS`)."""
+    out = buffer[:y1 - y0]
+    for y in range(y0, y1, INTERLEAVE_ROWS):
+        stop = min(y1, y + INTERLEAVE_ROWS)
+        np.stack([a[y:stop] for a in arrays], axis=-1, out=out[y - y0:stop - y0])
+    return out
 
 
 def half_fits(arrays: list[np.ndarray], rows: int = 64) -> tuple[bool, str]:

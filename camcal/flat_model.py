@@ -80,9 +80,16 @@ class PlaneGeometry:
 
 
 def radial_gain(r2: np.ndarray, k: tuple[float, ...] | np.ndarray) -> np.ndarray:
-    """DNG radial model g = 1 + k0 r² + k1 r⁴ + ... (Horner), r² given."""
+    """DNG radial model g = 1 + k0 r² + k1 r⁴ + ... (Horner), r² given.
+
+    Trailing zero coefficients (k3 = k4 = 0 of a three-term fit) are skipped: with a finite r² their Horner
+    steps leave exactly 0, so the values are those of the full sum."""
+    k = tuple(k)
+    top = max((i for i, kk in enumerate(k) if kk != 0), default=-1)
     g = np.zeros(np.shape(r2), dtype=np.float64)
-    for kk in reversed(tuple(k)):
+    if top >= 0 and np.all(np.isfinite(r2)):
+        k = k[:top + 1]
+    for kk in reversed(k):
         g += kk
         g *= r2
     g += 1.0

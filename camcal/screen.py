@@ -21,6 +21,9 @@ Both give the same verdicts, formed in one place (:func:`_reason`), in the same 
 is also hashed (SHA-256, :func:`camcal.hashing.sha256_file`) in the thread that decoded it, while its bytes are
 in the page cache; the hash is remembered for the profile's provenance.
 
+A stack combined on its own (``camcal dark``, :func:`camcal.stack.combine_frames` without a stage's judge) goes
+through the same code with a :class:`StrictJudge`: no frame is left out, an unreadable frame or a copy is an error.
+
 Reasons, in the order they are judged (the first that applies is given; docs/reliability.md lists them):
 
 - ``unreadable: <why>``: the file cannot be decoded (truncated, damaged, image data stripped, an
@@ -46,17 +49,19 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import hashlib
 from collections import Counter
 from collections.abc import Callable, Collection, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from camcal.errors import CamcalError
 from camcal.hashing import sha256_file
 from camcal.io import frame_header, load_frame
 from camcal.session import FrameRef, SessionIndex, StageFrames
-from camcal.stack import frame_digest
 from camcal.threads import thread_count
 
 StageCheck = Callable[["object"], None]
@@ -64,6 +69,17 @@ StageCheck = Callable[["object"], None]
 reason) when the stage cannot use the frame."""
 
 Progress = Callable[[int, int], None]
+
+DIGEST_STRIDE = 16
+"""Every 16th value enters a frame's digest (5 ms for 12 MP instead of 40 ms for every value): two separate
+exposures never agree on 750 000 noisy values, even below 1 DN of noise (57 % agree per pixel on the IMX296)."""
+
+
+def frame_digest(data: np.ndarray) -> bytes:
+    """BLAKE2b of every :data:`DIGEST_STRIDE`-th value of a decoded frame (its shape and type included)."""
+    h = hashlib.blake2b(repr((data.shape, data.dtype.str)).encode(), digest_size=16)
+    h.update(np.ascontiguousarray(data.reshape(-1)[::DIGEST_STRIDE]))
+    return h.digest()
 
 
 @dataclass(frozen=True)
@@ -107,7 +123,7 @@ class FrameFacts:
     model: str | None = None
     serial: str | None = None
     digest: bytes = b""
-    """:func:`camcal.stack.frame_digest` of the pixels; empty for a frame with every value at the white level."""
+    """:func:`frame_digest` of the pixels; empty for a frame with every value at the white level."""
     error: str | None = None
     check_error: str | None = None
 
@@ -338,6 +354,34 @@ class StageJudge:
 
     def left_out(self) -> list[Verdict]:
         return [v for v in self.verdicts() if not v.used]
+
+
+class StrictJudge(StageJudge):
+    """The judge of a stack combined on its own (:func:`camcal.stack.combine_frames` without a stage's judge):
+    every frame must be usable, none is left out. :meth:`load` lets the reader's error through (an unreadable
+    frame is an error); :meth:`decide` refuses a copy (two frames with the same pixels, or one file given twice)
+    and passes every other frame. No file is hashed: there is no profile provenance to give.
+    """
+
+    def __init__(self, paths: Sequence[Path]) -> None:
+        order: dict[Path, int] = {}
+        for i, p in enumerate(paths):
+            order.setdefault(Path(p), i)
+        super().__init__("frames", Majority(), None, order)
+
+    def load(self, path: Path, loader: Callable[[Path], object]) -> tuple[object, FrameFacts]:
+        frame = loader(path)
+        return frame, FrameFacts(path, digest=frame_digest(frame.data))  # type: ignore[attr-defined]
+
+    def decide(self, path: Path, facts: FrameFacts) -> None:
+        """None (used), or :class:`CamcalError` naming the later of two frames with the same pixels."""
+        rank = self.order.get(path, len(self.order))
+        seen = self.seen.setdefault(facts.digest, (rank, path))
+        if seen != (rank, path) or path in self.reasons:
+            (_, first), (_, copy) = sorted([seen, (rank, path)])
+            raise CamcalError(f"has the same pixels as {first.name} (the same frame twice, or a copy): "
+                              "each frame of a stack must be a separate exposure", copy)
+        self.reasons[path] = None
 
 
 def screen_session(index: SessionIndex, checks: Mapping[str, StageCheck] | None = None, *, jobs: int | None = None,

@@ -2,7 +2,9 @@
 
 Every calibration stage (bias, dark, flat, sweep, profile) averages N frames of one
 setting per pixel and per channel plane. :func:`combine_frames` does it with each
-file decoded exactly once and memory that does not grow with N:
+file decoded exactly once and memory that does not grow with N. Each frame is judged as it is decoded (the
+stage's :class:`camcal.screen.StageJudge` leaves an unusable frame out; by default a
+:class:`camcal.screen.StrictJudge` makes it an error):
 
 - ``method="mean"``: running sums of the deviations from the first frame and of their squares in
   float64 (the shifted-data algorithm, Chan, Golub & LeVeque 1983), one frame in memory at a time.
@@ -29,14 +31,12 @@ from __future__ import annotations
 
 import contextlib
 import functools
-import hashlib
 import os
 import threading
 from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -44,10 +44,8 @@ from camcal.atomic import scratch_file
 from camcal.errors import CamcalError, TooFewFrames
 from camcal.frame import Exposure, Frame
 from camcal.io import folder_files, folder_manifest, load_folder_frame
+from camcal.screen import FrameFacts, StageJudge, StrictJudge
 from camcal.threads import thread_count
-
-if TYPE_CHECKING:  # camcal.screen uses this module's frame digest
-    from camcal.screen import FrameFacts, StageJudge
 
 METHODS = ("mean", "median", "sigma_clip")
 IQR_TO_SIGMA = 1.349
@@ -131,8 +129,6 @@ class _Meta:
     white: float
     frame_shape: tuple[int, int]
     planes_shape: tuple[int, ...]
-    digest: bytes = b""
-    """Digest of the decoded pixels (:func:`frame_digest`): two frames with the same digest are copies."""
 
 
 def _check_same(meta: _Meta, first: _Meta, path: Path) -> None:
@@ -154,8 +150,9 @@ class _Decoder:
     """
 
     def __init__(self, manifest: dict | None, check: Callable[[Frame], None] | None,
-                 preprocess: Callable[[Frame], np.ndarray] | None, keep_frames: int = 0) -> None:
+                 preprocess: Callable[[Frame], np.ndarray] | None, keep_frames: int, judge: StageJudge) -> None:
         self.manifest = manifest
+        self.judge = judge
         self.keep_frames = keep_frames
         self.check = check
         self.preprocess = preprocess
@@ -165,7 +162,6 @@ class _Decoder:
         self.spill_dtype = np.dtype(np.uint16 if preprocess is None else np.float32)
         self.spill_fd: int | None = None
         self.lock = threading.Lock()
-        self.judge: StageJudge | None = None
 
     def _manifest_for(self, path: Path) -> dict:
         if self.manifest is not None:
@@ -179,9 +175,6 @@ class _Decoder:
     def load(self, path: Path) -> Frame:
         return load_folder_frame(path, self._manifest_for(path))
 
-    def decode(self, index: int, path: Path) -> tuple[_Meta, np.ndarray]:
-        return self.planes_of(index, path, self.load(path))
-
     def planes_of(self, index: int, path: Path, frame: Frame) -> tuple[_Meta, np.ndarray]:
         """The check, the planes (preprocessed) and the :class:`_Meta` of a decoded frame."""
         if self.check is not None:
@@ -193,8 +186,7 @@ class _Decoder:
             raise CamcalError(f"preprocessing gave an array of shape {planes.shape}, expected (C, h, w)", path)
         meta = _Meta(index, frame.exposure, frame.kind, frame.cfa_pattern, frame.channel_names,
                      tuple(float(v) for v in frame.black_vector().ravel()), float(frame.white_level_dn), frame.shape,
-                     tuple(planes.shape),
-                     frame_digest(frame.data) if self.judge is None else b"")  # a judge tells copies itself
+                     tuple(planes.shape))
         return meta, planes
 
     def spill_write(self, index: int, planes: np.ndarray) -> None:
@@ -216,22 +208,11 @@ class _Decoder:
         if fd is not None:
             os.close(fd)
 
-    def worker(self, item: tuple[int, str]) -> tuple[_Meta, np.ndarray | None]:
-        """Decode one frame in a pool thread; spill it (median/clip) or return it (mean)."""
-        index, path = item
-        meta, planes = self.decode(index, Path(path))
-        assert self.first is not None  # set from frame 0 before any worker runs
-        _check_same(meta, self.first, Path(path))
-        if self.spill_path is not None:
-            self.spill_write(index, planes)
-            return meta, planes if index < self.keep_frames else None
-        return meta, planes
-
-    def judged_worker(self, item: tuple[int, str]) -> tuple[int, FrameFacts, _Meta | None, np.ndarray | None]:
+    def worker(self, item: tuple[int, str]) -> tuple[int, FrameFacts, _Meta | None, np.ndarray | None]:
         """Decode one frame in a pool thread and give what its judge needs (:class:`camcal.screen.StageJudge`);
         a frame the judge will leave out (unreadable, another camera, the stage check) goes no further, the
-        others are spilled (median/clip) or returned (mean) as by :meth:`worker`."""
-        assert self.judge is not None and self.first is not None
+        others are spilled (median/clip; their planes returned only when kept) or returned (mean)."""
+        assert self.first is not None  # set from the first frame used before any worker runs
         index, path = item[0], Path(item[1])
         frame, facts = self.judge.load(path, self.load)
         if frame is None or facts.check_error is not None or self.judge.majority.mismatch(facts) is not None:
@@ -633,7 +614,8 @@ def combine_frames(
         (raw: R, G1, G2, B planes in DN; processed: R, G, B).
     manifest : ``frames.csv`` rows (:func:`camcal.io.folder_manifest`) applied to every file;
         None reads each file's own folder manifest.
-    check : called with each decoded frame; raise :class:`CamcalError` to refuse it.
+    check : called with each decoded frame the judge keeps; raise :class:`CamcalError` to refuse it (an error
+        whatever the judge).
     jobs : threads to decode and to compute band statistics in; None: automatic, from the first frame's size
         (:func:`camcal.threads.thread_count`).
     progress : ``progress(done, total)`` after each decoded frame.
@@ -644,8 +626,8 @@ def combine_frames(
     judge : the stage's :class:`camcal.screen.StageJudge`: each frame is judged as it is decoded; a frame left
         out (unreadable, a copy, another camera, layout or size, the stage's check) is not combined, as if it
         were not in ``paths`` (the result's ``paths``, ``exposures`` and ``n_frames`` are the frames used).
-        Raises :class:`camcal.errors.TooFewFrames` when every frame is left out. Without a judge, any such frame
-        is an error.
+        Raises :class:`camcal.errors.TooFewFrames` when every frame is left out. Default: a
+        :class:`camcal.screen.StrictJudge`, for which such a frame is an error.
 
     Returns
     -------
@@ -654,8 +636,16 @@ def combine_frames(
     Raises
     ------
     CamcalError
-        No frames, an unknown method, an unreadable file, frames of different sizes,
-        kinds or CFA patterns, or whatever ``check`` raises.
+        No frames, an unknown method, frames of different sizes, kinds or CFA patterns, or whatever ``check``
+        raises; without a judge, an unreadable file or two frames with the same pixels (a copy).
+
+    Notes
+    -----
+    The first usable frame is decoded in this thread (its size sets the threads and the stack's shape); the
+    others in the pool. Copies: the judge keeps the first in file order (:meth:`camcal.screen.StageJudge.decide`);
+    when it comes after the copy already combined, the two have the same pixels: the sums are unchanged and the
+    slot (median/clip) or the kept planes pass to it. The spilled slots of the frames left out are closed up
+    (the frames after them moved down) before the band statistics, so these see the frames used as if alone.
     """
     paths = tuple(Path(p) for p in paths)
     if method not in METHODS:
@@ -665,73 +655,8 @@ def combine_frames(
     if not np.isfinite(sigma) or sigma <= 0:
         raise CamcalError(f"sigma must be a positive number, got {sigma}")
     n = len(paths)
-
-    dec = _Decoder(manifest, check, preprocess, keep_frames)  # this call's settings, given to the threads
-    if judge is not None:
-        dec.judge = judge
-        return _combine_judged(paths, method, sigma, dec, jobs, progress, band_mb, spill_dir, keep_frames)
-    first_meta, first_planes = dec.decode(0, paths[0])
-    dec.first = first_meta
-    jobs = thread_count(jobs, n, first_meta.frame_shape[0] * first_meta.frame_shape[1])
-    c, h, w = first_planes.shape
-    kept: dict[int, np.ndarray] = {0: first_planes} if keep_frames > 0 else {}
-    # median / sigma_clip spill every frame to a private file, removed however the block ends
-    spill = scratch_file("camcal-stack-", ".raw", spill_dir) if method != "mean" else contextlib.nullcontext()
-    with spill as spill_path:
-        dec.spill_path = spill_path
-        try:
-            metas: list[_Meta | None] = [None] * n
-            metas[0] = first_meta
-            acc = _ShiftedSums(first_planes) if method == "mean" else None
-            if acc is None:
-                dec.spill_write(0, first_planes)
-            del first_planes
-            if progress:
-                progress(1, n)
-            items = [(i, str(p)) for i, p in enumerate(paths)][1:]
-            for done, (meta, planes) in enumerate(_run(items, jobs, dec.worker), start=2):
-                metas[meta.index] = meta
-                if meta.index < keep_frames and planes is not None:
-                    kept[meta.index] = planes
-                if acc is not None and planes is not None:
-                    acc.add(planes)
-                if progress:
-                    progress(done, n)
-            dec.close_spill()
-            _refuse_copies(metas, paths)
-            if acc is not None:
-                value, mean, var, count = acc.result()
-                var_all, mean_all = var, mean
-            else:
-                value, mean, var, count, var_all, mean_all = _bands(spill_path, n, (c, h, w), dec.spill_dtype, method,
-                                                          sigma, jobs, band_mb)
-        finally:
-            dec.close_spill()
-    count_dtype = np.int16 if n < 2**15 else np.int32
-    return StackResult(
-        value=value, mean=mean, variance=var, count=count.astype(count_dtype), n_frames=n, method=method,
-        exposures=tuple(m.exposure for m in metas), paths=paths, channel_names=first_meta.channel_names,
-        kind=first_meta.kind, cfa_pattern=first_meta.cfa_pattern, black_level_dn=first_meta.black,
-        white_level_dn=first_meta.white, frame_shape=first_meta.frame_shape, variance_all=var_all,
-        mean_all=mean_all,
-        kept_planes=tuple(kept[i] for i in sorted(kept)),
-    )
-
-
-def _combine_judged(paths: tuple[Path, ...], method: str, sigma: float, dec: _Decoder, jobs: int | None,
-                    progress: Callable[[int, int], None] | None, band_mb: float, spill_dir: str | Path | None,
-                    keep_frames: int) -> StackResult:
-    """:func:`combine_frames` with a judge: the frames it leaves out are not combined.
-
-    The first usable frame is decoded in this thread (its size sets the threads and the stack's shape); the
-    others in the pool. Copies: the judge keeps the first in file order (:meth:`camcal.screen.StageJudge.decide`);
-    when it comes after the copy already combined, the two have the same pixels: the sums are unchanged and the
-    slot (median/clip) or the kept planes pass to it. The spilled slots of the frames left out are closed up
-    (the frames after them moved down) before the band statistics, so these see the frames used as if alone.
-    """
-    judge = dec.judge
-    assert judge is not None
-    n = len(paths)
+    judge = judge if judge is not None else StrictJudge(paths)
+    dec = _Decoder(manifest, check, preprocess, keep_frames, judge)  # this call's settings, given to the threads
     done = 0
 
     def tick() -> None:
@@ -760,6 +685,7 @@ def _combine_judged(paths: tuple[Path, ...], method: str, sigma: float, dec: _De
     index_of = {p: i for i, p in enumerate(paths)}
     used: dict[int, _Meta] = {first_index: first_meta}
     kept: dict[int, np.ndarray] = {first_index: first_planes} if keep_frames > 0 else {}
+    # median / sigma_clip spill every frame to a private file, removed however the block ends
     spill = scratch_file("camcal-stack-", ".raw", spill_dir) if method != "mean" else contextlib.nullcontext()
     with spill as spill_path:
         dec.spill_path = spill_path
@@ -769,7 +695,7 @@ def _combine_judged(paths: tuple[Path, ...], method: str, sigma: float, dec: _De
                 dec.spill_write(first_index, first_planes)
             del first_planes
             items = [(i, str(paths[i])) for i in range(start, n)]
-            for index, facts, meta, planes in _run(items, jobs, dec.judged_worker):  # type: ignore[arg-type]
+            for index, facts, meta, planes in _run(items, jobs, dec.worker):
                 tick()
                 retracted = len(judge.retracted)
                 if judge.decide(paths[index], facts) is not None:
@@ -855,32 +781,8 @@ def _read_slot(spill: Path, pos: int, shape: tuple[int, int, int], dtype: np.dty
     return out
 
 
-DIGEST_STRIDE = 16
-"""Every 16th value enters a frame's digest (5 ms for 12 MP instead of 40 ms for every value): two separate
-exposures never agree on 750 000 noisy values, even below 1 DN of noise (57 % agree per pixel on the IMX296)."""
-
-
-def frame_digest(data: np.ndarray) -> bytes:
-    """BLAKE2b of every :data:`DIGEST_STRIDE`-th value of a decoded frame (its shape and type included)."""
-    h = hashlib.blake2b(repr((data.shape, data.dtype.str)).encode(), digest_size=16)
-    h.update(np.ascontiguousarray(data.reshape(-1)[::DIGEST_STRIDE]))
-    return h.digest()
-
-
-def _refuse_copies(metas: list[_Meta | None], paths: tuple[Path, ...]) -> None:
-    """Refuse two frames with identical pixels (the same file twice, or a copy): detected by content."""
-    seen: dict[bytes, int] = {}
-    for i, m in enumerate(metas):
-        if m is None or not m.digest:
-            continue
-        j = seen.setdefault(m.digest, i)
-        if j != i:
-            raise CamcalError(f"has the same pixels as {paths[j].name} (the same frame twice, or a copy): "
-                              "each frame of a stack must be a separate exposure", paths[i])
-
-
-def _run(items: list[tuple[int, str]], jobs: int, worker: Callable[[tuple[int, str]], tuple[_Meta, np.ndarray | None]]):
-    """Yield ``(meta, planes-or-None)`` per item, decoding ``jobs`` frames at a time in threads.
+def _run(items: list[tuple[int, str]], jobs: int, worker: Callable[[tuple[int, str]], tuple]):
+    """Yield ``worker(item)`` per item, decoding ``jobs`` frames at a time in threads.
 
     LibRaw and OpenImageIO release the GIL while reading and decoding, so threads
     give most of the gain of processes without forking a process that may hold

@@ -376,3 +376,25 @@ def test_real_pi_same_dark_frame_twice_is_named(tmp_path):
     (tmp_path / "S" / "session.toml").write_text("f_number = 1.2\n")
     proc = run_cli("calibrate", tmp_path / "S", "-o", tmp_path / "x.camcal")
     assert_one_line_error(proc, "b.dng", "same pixels as a.dng")
+
+
+def test_remembered_dark_frame_gives_the_same_correction(rng):
+    """A calibration that keeps its dark frames (the master flat's frames share one exposure) corrects exactly as
+    one that computes the dark frame for every frame; it computes it once per exposure and ISO, and never for a
+    window (a window is cut from the dark model itself)."""
+    shape = (4, 6, 8)
+    dark = _dark(shape, rng)
+    plain = Calibration.of(dark)
+    kept = plain.remembering_dark_frames()
+    kw = {"iso": 100.0, "white_level_dn": 4095, "black_level_dn": np.full(4, 512.0)}
+    for t in (2.0, 2.0, 4.0):
+        raw = rng.integers(520, 4000, shape).astype(np.float32)
+        a = correct_planes(raw.copy(), plain, exposure_s=t, **kw)
+        b = correct_planes(raw.copy(), kept, exposure_s=t, **kw)
+        assert np.array_equal(a.signal_dn, b.signal_dn) and np.array_equal(a.invalid, b.invalid)
+    assert len(kept.dark_frames) == 2 and plain.dark_frames is None
+    window = (slice(1, 4), slice(2, 6))
+    raw = rng.integers(520, 4000, (4, 3, 4)).astype(np.float32)
+    a = correct_planes(raw.copy(), plain, exposure_s=2.0, full_shape=shape, window=window, **kw)
+    b = correct_planes(raw.copy(), kept, exposure_s=2.0, full_shape=shape, window=window, **kw)
+    assert np.array_equal(a.signal_dn, b.signal_dn) and len(kept.dark_frames) == 2

@@ -343,3 +343,20 @@ def test_downsample_is_a_block_in_photo_pixels():
     rgb = np.stack([plane] * 3)
     fm = fit_flat_planes(rgb, channels=("R", "G", "B"), cfa_pattern=None, downsample=5, with_prnu=False)
     assert fm.info["downsample"] == 5
+
+
+def test_histogram_median_of_integer_planes_is_numpys(rng):
+    """The flat check's per-plane median of integer planes (a banded histogram) is exactly ``np.median`` of the
+    planes minus the black level: odd and even pixel counts, planes taller than one histogram band, ties, a
+    single value, a value 0 and uint16 values near the top of the range."""
+    from camcal.flat import HISTOGRAM_ROWS, _histogram, _medians_above
+
+    black = np.array([512.0, 511.5, 512.0, 0.0])[:, None, None]
+    for h, w in ((HISTOGRAM_ROWS * 2 + 3, 7), (HISTOGRAM_ROWS + 1, 6), (1, 1), (2, 1), (5, 4)):
+        planes = rng.integers(400, 700, (4, h, w)).astype(np.uint16)
+        planes[1] = 600  # every value tied
+        planes[2, 0, 0] = 0
+        planes[3].flat[: max(1, planes[3].size // 2)] = 65535
+        expect = np.median((planes - black).reshape(4, -1), axis=1)
+        assert np.array_equal(_medians_above(planes, black), expect), (h, w)
+        assert np.array_equal(_histogram(planes[0]), np.bincount(planes[0].ravel()))
