@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 
 from camcal.reference_spectra import WAVELENGTHS_NM, gaussian_line
 from camcal.water.band import BandModel, bricaud_1998, solvent_spectrum
-from camcal.water.invert import Reason, invert_images, invert_ratio, tau_newton, tau_table
+from camcal.water.invert import Reason, TauTable, invert_images, invert_ratio, tau_newton, tau_table
 from camcal.water.models import LampModel, RefinedModel, SeedModel
 from camcal.water.purewater import pure_water_absorption_per_m
 from camcal.water.units import mol_per_L_to_ug_per_L
@@ -403,3 +403,78 @@ def test_tau_table_first_order_below_its_first_node_and_refusals_without_slope()
     tau, why = table.tau(np.array([np.nan, 2 * r0, -1.0, 1e-300, r[0]]))
     assert why.tolist() == [Reason.NOT_FINITE, Reason.ABOVE_CLEAR_WATER, Reason.NOT_POSITIVE, Reason.TOO_DARK, 0]
     assert np.isnan(tau[:4]).all() and tau[4] > 0
+
+
+def test_tau_table_keeps_its_closed_form():
+    """The table is of the closed form it was built from (callers read ``table.cf`` back)."""
+    cf = RefinedModel(view_angle_rad=0.4).closed_form()
+    assert tau_table(cf).cf == cf
+    assert TauTable(SeedModel().closed_form(), nodes=16).cf == SeedModel().closed_form()
+
+
+def test_tau_table_last_cells_and_last_node():
+    """The table's last cells reach τ_max = 600 / (m + s) (300 for the seed: m = 2, s = 0): ratios rendered by the
+    forward closed form at τ within 2 % of τ_max (the last few cells, ~1.4 in τ wide) come back to 1e-9, and the
+    ratio at τ_max itself, which lands on the last node (its cell index clipped to the last cell), is τ_max."""
+    cf = SeedModel().closed_form()
+    tau_max = 600.0 / 2.0
+    tau = np.array([294.0, 295.5, 296.9, 297.6, 298.3, 298.9, 299.3, 299.7, 299.95, tau_max])
+    got, why = tau_table(cf).tau(cf.ratio(tau))
+    assert why.tolist() == [0] * tau.size
+    np.testing.assert_allclose(got, tau, rtol=1e-9)
+    # the last node at several node counts (where ln δ_max lands on or just past the last node)
+    for nodes in (2, 3, 5, 16):
+        got, why = TauTable(cf, nodes=nodes).tau(cf.ratio(np.array([tau_max])))
+        assert why.tolist() == [0]
+        np.testing.assert_allclose(got, [tau_max], rtol=1e-12)
+
+
+def test_tau_table_first_cells():
+    """With 512 nodes the first cells span δ = ln R(0) − ln r from 1e-14 to ~1.2e-14, wide enough for float64
+    ratios to fall inside them: there τ = δ/slope₀ to first order (the next term is ~δ ln δ relative),
+    slope₀ = 2m/(1 + μc) written out (m = 2, s = 0 for the seed). Tolerance 3 %: the table's own nodes there are
+    solved from ratios R(0)·e^(−δ) rounded to ~1e-16, i.e. ~1 % of δ (a node moved to τ_max errs by 10¹⁶)."""
+    cf = SeedModel().closed_form()
+    r0 = cf.ratio_at_zero
+    r = r0 * (1 - np.array([1.02e-14, 1.05e-14, 1.1e-14, 1.2e-14]))
+    delta = np.log(r0) - np.log(r)
+    assert np.all((delta > 1e-14) & (delta < 1.25e-14))
+    got, why = TauTable(cf, nodes=512).tau(r)
+    assert why.tolist() == [0] * r.size
+    np.testing.assert_allclose(got, delta / (2 * 2 / (1 + cf.mu_c)), rtol=3e-2)
+
+
+def test_tau_table_float32_ratios_are_read_in_float64():
+    """float32 ratios are exact binary numbers: their τ is that of the same value in float64, against Brent's root
+    of ln R(τ) = ln r on the forward closed form (a float32 logarithm would err by ~1e-7 relative)."""
+    from scipy.optimize import brentq
+
+    cf = SeedModel().closed_form()
+    r32 = (cf.ratio_at_zero * np.array([0.9, 0.5, 0.1, 1e-3])).astype(np.float32)
+    want = [brentq(lambda t, ri=float(ri): np.log(cf.ratio(t)) - np.log(ri), 1e-9, 300.0, xtol=1e-15, rtol=1e-15)
+            for ri in r32]
+    got, why = tau_table(cf).tau(r32)
+    assert why.tolist() == [0] * 4
+    np.testing.assert_allclose(got, want, rtol=1e-9)
+
+
+def test_one_depth_image_path_reasons_are_uint8():
+    """The reasons are one byte per pixel (uint8, as :class:`Reason`'s codes and the per-pixel path), also on the
+    one-depth image path."""
+    m = SeedModel()
+    r = np.array([m.ratio(2e-7, 0.2), np.nan, 2.0])
+    for depth in (0.2, np.full(3, 0.2)):
+        inv = invert_ratio(r, m, depth)
+        assert inv.reason.dtype == np.uint8
+        assert inv.reason.tolist() == [0, Reason.NOT_FINITE, Reason.ABOVE_CLEAR_WATER]
+
+
+def test_lamp_model_geometry_that_overflows_to_an_infinite_ratio_is_bad_depth():
+    """At 1e120 m the lamp model's irradiance ratio overflows: (x² + (H+d)²)^1.5 is inf, E_air = 0 and R(0) =
+    E_w/E_air = inf while its slope (the path factor) stays finite: every pixel BAD_DEPTH, nothing inverted."""
+    m = LampModel(height_m=0.8, lamp_angle_rad=0.5, view_angle_rad=0.3, background_absorption_per_m=0.2)
+    with np.errstate(all="ignore"):
+        assert np.isinf(m.closed_form_at(1e120).ratio_at_zero)
+    for method in ("table", "newton"):
+        inv = invert_ratio(np.array([0.5, 0.1]), m, 1e120, method=method)
+        assert inv.reason.tolist() == [Reason.BAD_DEPTH] * 2 and np.isnan(inv.c_mol_per_L).all()
