@@ -7,6 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from camcal.errors import CamcalError
 from camcal.reference_spectra import WAVELENGTHS_NM, gaussian_line
 from camcal.water.band import BandModel, bricaud_1998, solvent_spectrum
 from camcal.water.invert import Reason, TauTable, invert_images, invert_ratio, tau_newton, tau_table
@@ -269,8 +270,6 @@ def test_lamp_model_per_pixel_depth_array_of_one_depth(method):
     C of each pixel against the C its scene was rendered with (the forward ratio at the scalar depth); τ written
     out, (a_w + a_bg) d + ln10 ε C·100 d; σ_C = σ_ln r / (s · ln10 ε·100 d) exactly, d ln R/dC of the single
     exponential R = K e^(−sτ) with s = 1/cos β + 1/μv from Snell written out."""
-    from camcal.errors import CamcalError
-
     m = LampModel(height_m=0.8, lamp_angle_rad=0.5, view_angle_rad=0.3, background_absorption_per_m=0.2)
     c = np.array([5e-8, 2e-7, 6e-7])
     r = np.array([float(m.ratio(ci, 0.3)) for ci in c])
@@ -478,3 +477,18 @@ def test_lamp_model_geometry_that_overflows_to_an_infinite_ratio_is_bad_depth():
     for method in ("table", "newton"):
         inv = invert_ratio(np.array([0.5, 0.1]), m, 1e120, method=method)
         assert inv.reason.tolist() == [Reason.BAD_DEPTH] * 2 and np.isnan(inv.c_mol_per_L).all()
+
+
+@pytest.mark.parametrize("method", ["table", "newton"])
+def test_a_disk_that_sends_no_light_back_is_refused_in_one_line(method):
+    """A lamp model whose R(0) is 0 (albedo 0) or whose R(τ_max) underflows to 0 (albedo 1e-300 at 1e12 m, where
+    the fallback geometry at 1 m still has R(0) ≈ 1e-300) has nothing to invert: a CamcalError naming the cause,
+    not an IndexError from the τ table. A seed model with albedo 0 likewise."""
+    lamp = LampModel(height_m=0.8, lamp_angle_rad=0.5, view_angle_rad=0.3, albedo=0.0)
+    with pytest.raises(CamcalError, match="albedo 0"):
+        invert_ratio(np.array([0.5, 0.1]), lamp, 0.3, method=method)
+    tiny = LampModel(height_m=0.8, lamp_angle_rad=0.5, view_angle_rad=0.3, albedo=1e-300)
+    with pytest.raises(CamcalError, match="albedo"), np.errstate(all="ignore"):
+        invert_ratio(np.array([1e-301]), tiny, 1e12, method="table")
+    with pytest.raises(CamcalError, match="albedo 0"):
+        invert_ratio(np.array([0.5]), SeedModel(albedo=0.0), 0.3, method=method)

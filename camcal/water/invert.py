@@ -125,7 +125,11 @@ class TauTable:
         self.cf = cf
         r0 = cf.ratio_at_zero
         tau_max = MAX_PATH_TAU / (cf.path_factor + cf.view_factor)
-        delta_max = float(np.log(r0) - np.log(cf.ratio(tau_max)))
+        with np.errstate(divide="ignore"):
+            delta_max = float(np.log(r0) - np.log(cf.ratio(tau_max)))
+        if not np.isfinite(delta_max):  # R(0) = 0, or R(τ_max) below the smallest float: no table to build
+            raise CamcalError(f"the model's ratio R(τ) cannot be tabulated up to τ = {tau_max:g} (R(0) = {r0:g}, "
+                              f"R(τ_max) = {float(cf.ratio(tau_max)):g}): is the disk's albedo 0 or absurdly small?")
         w = np.linspace(np.log(DELTA_MIN), np.log(delta_max), nodes)
         delta = np.exp(w)
         delta[-1] = delta_max
@@ -284,6 +288,9 @@ def invert_ratio(ratio, model, depth_m, *, sigma_ln_ratio=None, method: str = "t
             scalar_depth = False
     else:
         cf = model.closed_form()
+    if not (np.isfinite(cf.ratio_at_zero) and cf.ratio_at_zero > 0):  # e.g. albedo 0: no light comes back at all
+        raise CamcalError(f"the {model.name} model sends no light back from the disk in clear water "
+                          f"(R(0) = {cf.ratio_at_zero:g}; is its albedo 0?): there is nothing to invert")
     scalar_sigma = sigma_ln_ratio is None or np.ndim(sigma_ln_ratio) == 0
     if method == "table" and scalar_depth and scalar_sigma:
         return _finite_or_reason(_invert_table_scalar(r, model, cf, float(depth_m), sigma_ln_ratio))
