@@ -9,6 +9,7 @@ of the suite; docs/testing.md lists them and how to rerun the mutation campaign.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +17,7 @@ import pytest
 from scipy.integrate import quad
 
 from camcal.apply import apply
-from camcal.dark import HOT, DarkStacks, fit_dark_stacks
+from camcal.dark import HOT, DarkStacks, _noise_model, fit_dark_stacks
 from camcal.frame import PLANES, Exposure
 from camcal.io import load_frame
 from camcal.profile import load_profile
@@ -134,6 +135,64 @@ def test_long_dim_photo_at_f8_gives_the_true_radiance(tmp_path, camera, profile_
                      rng=np.random.default_rng(29))
     got = float(np.nanmean(apply(load_frame(p), profile).channels["L663"]))
     assert got == pytest.approx(LINE_BAND_W_M2_SR * scale, rel=0.01)
+
+
+def _noise_stack(signal_dn: float, t_s: float, var_all_dn2: float, var_clipped_dn2: float | None,
+                 bias: np.ndarray) -> StackResult:
+    """A sigma-clipped dark stack at ``bias + signal`` whose unclipped variance (``variance_all``) and clipped
+    variance (``variance``) differ; ``var_clipped_dn2=None`` gives a stack that only has ``variance`` (as a stack
+    whose variance_all is None), holding ``var_all_dn2``."""
+    st = _stack(bias + signal_dn, t_s, 4095.0, 1000.0)
+    var_all = np.full(bias.shape, var_all_dn2, np.float32)
+    if var_clipped_dn2 is None:
+        return replace(st, variance=var_all, variance_all=None)
+    return replace(st, variance=np.full(bias.shape, var_clipped_dn2, np.float32), variance_all=var_all)
+
+
+def test_dark_noise_line_reads_the_unclipped_variance_and_its_guards():
+    """The temporal-noise line variance = v0 + g·(level − bias) of ``_noise_model``, per plane, against values
+    written out (all inputs exact in float32, so the two-point line is exact to rounding):
+
+    - it reads each stack's unclipped variance (``variance_all``, v0 = 0.5 DN², g = 0.5 DN/e⁻ through
+      (20, 10.5) and (20.5, 10.75)), not the clipped one (twice as large here), and ``variance`` when a stack has
+      no ``variance_all``;
+    - two stacks are enough for a line, even 0.5 DN apart; two stacks at the same level give no slope (g = 0,
+      v0 = the first stack's variance: a fit through one x would return 8, 0.4 for (20, 16), (20, 16));
+    - v0 is floored at 1e-6 DN² only: 0.5 DN² and a single stack's 0.625 DN² are kept as they are; a line with a
+      negative intercept gives 1e-6, a falling one g = 0;
+    - a pixel whose bias is not finite, or whose variance is not finite, is left out of the plane means.
+    """
+    shape = (4, 3, 3)
+    bias = np.full(shape, 1000.0)
+    bias[:, 0, 0] = np.nan  # its stack values are finite: only the bias says to leave it out
+    stats = [(1.0, _noise_stack(20.0, 1.0, 10.5, 21.0, bias)), (2.0, _noise_stack(20.5, 2.0, 10.75, 21.5, bias))]
+    stats[1][1].variance_all[:, 2, 1] = np.nan
+    v0, g = _noise_model(stats, bias)
+    np.testing.assert_allclose(v0.ravel(), 0.5, rtol=1e-9)
+    np.testing.assert_allclose(g.ravel(), 0.5, rtol=1e-9)
+    # stacks without variance_all: their variance is read
+    v0, g = _noise_model([(1.0, _noise_stack(20.0, 1.0, 10.5, None, bias)),
+                          (2.0, _noise_stack(20.5, 2.0, 10.75, None, bias))], bias)
+    np.testing.assert_allclose(v0.ravel(), 0.5, rtol=1e-9)
+    np.testing.assert_allclose(g.ravel(), 0.5, rtol=1e-9)
+    # two stacks at the same level (no dark current): no line
+    v0, g = _noise_model([(1.0, _noise_stack(20.0, 1.0, 16.0, 32.0, bias)),
+                          (4.0, _noise_stack(20.0, 4.0, 16.0, 32.0, bias))], bias)
+    np.testing.assert_allclose(v0.ravel(), 16.0, rtol=1e-12)
+    assert np.all(g == 0)
+    # one stack below 1 DN² (no variance_all): its variance, not the floor
+    v0, g = _noise_model([(1.0, _noise_stack(0.25, 1.0, 0.625, None, bias))], bias)
+    np.testing.assert_allclose(v0.ravel(), 0.625, rtol=1e-12)
+    assert np.all(g == 0)
+    # a negative intercept (-1 + 0.5 s) is floored at 1e-6; a falling line (30 - 0.5 s) has g = 0
+    v0, g = _noise_model([(1.0, _noise_stack(20.0, 1.0, 9.0, 18.0, bias)),
+                          (2.0, _noise_stack(24.0, 2.0, 11.0, 22.0, bias))], bias)
+    assert np.all(v0 == 1e-6)
+    np.testing.assert_allclose(g.ravel(), 0.5, rtol=1e-9)
+    v0, g = _noise_model([(1.0, _noise_stack(20.0, 1.0, 20.0, 40.0, bias)),
+                          (2.0, _noise_stack(24.0, 2.0, 18.0, 36.0, bias))], bias)
+    assert np.all(g == 0)
+    np.testing.assert_allclose(v0.ravel(), 30.0, rtol=1e-9)
 
 
 # ---- water: the refined model against an independent rendering --------------------------------------------

@@ -492,3 +492,129 @@ def test_a_disk_that_sends_no_light_back_is_refused_in_one_line(method):
         invert_ratio(np.array([1e-301]), tiny, 1e12, method="table")
     with pytest.raises(CamcalError, match="albedo 0"):
         invert_ratio(np.array([0.5]), SeedModel(albedo=0.0), 0.3, method=method)
+
+
+# ---- the chunked image path: more chunks than one, in one thread and in two --------------------------------------
+
+def _spy_on_chunks(monkeypatch, chunk: int) -> list[np.ndarray]:
+    """Lower the image path's chunk size to ``chunk`` pixels and record the ratios each call of
+    ``TauTable.tau_into`` (one chunk of work) receives."""
+    from camcal.water import invert
+
+    monkeypatch.setattr(invert, "CHUNK", chunk)
+    seen: list[np.ndarray] = []
+    original = TauTable.tau_into
+
+    def spy(self, r, tau, reason, slope):
+        seen.append(np.array(r, copy=True))
+        return original(self, r, tau, reason, slope)
+
+    monkeypatch.setattr(TauTable, "tau_into", spy)
+    return seen
+
+
+def _assert_each_pixel_once(seen: list[np.ndarray], flat: np.ndarray, chunk: int, threads: str) -> None:
+    """The chunks partition the image: ⌈n/chunk⌉ one-dimensional pieces of at most ``chunk`` pixels that hold every
+    pixel exactly once (in order on one thread; any order on two). Work and memory per chunk stay bounded."""
+    assert len(seen) == -(-flat.size // chunk)
+    assert all(s.ndim == 1 and 0 < s.size <= chunk for s in seen)
+    got = np.concatenate(seen)
+    if threads == "1":
+        np.testing.assert_array_equal(got, flat)
+    else:
+        np.testing.assert_array_equal(np.sort(got), np.sort(flat))
+
+
+@pytest.mark.parametrize("threads", ["1", "2"])
+def test_tau_table_over_several_chunks_against_the_forward_ratio(monkeypatch, threads):
+    """50 ratios rendered by the forward closed form at known τ (1e-3 … 250), read in chunks of 7 pixels on one and
+    on two threads (CAMCAL_THREADS): τ to 1e-9 (the table's accuracy is ~3e-11) and dτ/d(−ln r) against
+    −1/(d ln R/dτ) of the closed form, each pixel read exactly once."""
+    monkeypatch.setenv("CAMCAL_THREADS", threads)
+    seen = _spy_on_chunks(monkeypatch, 7)
+    cf = RefinedModel(view_angle_rad=0.4).closed_form()
+    tau = np.logspace(-3, np.log10(250.0), 50).reshape(5, 10)
+    r = cf.ratio(tau)
+    got, why, slope = TauTable(cf, nodes=2048).tau(r, with_slope=True)
+    assert got.shape == why.shape == slope.shape == (5, 10) and np.all(why == 0)
+    np.testing.assert_allclose(got, tau, rtol=1e-9)
+    np.testing.assert_allclose(slope, -1.0 / cf.dlog_ratio_dtau(tau), rtol=1e-6)
+    _assert_each_pixel_once(seen, r.ravel(), 7, threads)
+
+
+@pytest.mark.parametrize("threads", ["1", "2"])
+def test_one_depth_image_path_over_several_chunks(monkeypatch, threads):
+    """The one-depth image path (invert_ratio with a scalar depth) in chunks of 5 pixels, on one and two threads:
+    C of 40 pixels rendered by the forward ratio of a model with a background absorption, against the truth; σ_C
+    from central differences of the forward ratio (step 1e-3 relative: ~1e-6); pixels with a reason (not
+    finite, brighter than clear water) in different chunks; each pixel read exactly once."""
+    monkeypatch.setenv("CAMCAL_THREADS", threads)
+    seen = _spy_on_chunks(monkeypatch, 5)
+    m = RefinedModel(view_angle_rad=0.3, background_absorption_per_m=0.2)
+    d = 0.3
+    c = np.linspace(2e-8, 8e-7, 40).reshape(8, 5)
+    r = m.ratio(c, d)
+    r[1, 2], r[6, 0] = np.nan, 1.5 * m.ratio(0.0, d)
+    inv = invert_ratio(r, m, d, sigma_ln_ratio=0.02)
+    bad = np.zeros(c.shape, bool)
+    bad[1, 2] = bad[6, 0] = True
+    assert inv.reason[1, 2] == Reason.NOT_FINITE and inv.reason[6, 0] == Reason.ABOVE_CLEAR_WATER
+    assert np.all(inv.reason[~bad] == 0) and np.isnan(inv.c_mol_per_L[bad]).all()
+    np.testing.assert_allclose(inv.c_mol_per_L[~bad], c[~bad], rtol=1e-9)
+    np.testing.assert_allclose(inv.c_ug_per_L[~bad], mol_per_L_to_ug_per_L(c[~bad]), rtol=1e-9)
+    h = 1e-3 * c
+    dlnr_dc = (np.log(m.ratio(c + h, d)) - np.log(m.ratio(c - h, d))) / (2 * h)
+    np.testing.assert_allclose(inv.sigma_ug_per_L[~bad], mol_per_L_to_ug_per_L(0.02 / np.abs(dlnr_dc[~bad])),
+                               rtol=1e-5)
+    _assert_each_pixel_once(seen, r.ravel(), 5, threads)
+
+
+# ---- invert_images with the lamp's per-pixel geometry and with a band model ----------------------------------------
+
+def test_invert_images_with_each_pixels_own_lamp_geometry():
+    """``pixel_geometry``: each pixel of a 6 × 8 image rendered with its own lamp geometry (the lamp angle that
+    reaches that pixel's disk point, written out with ``lamp_angle_reaching`` and the forward ratio) over a
+    reference of 2: C back to 1e-9; σ_C from a 1 % σ of the submerged radiance against central differences of
+    that pixel's forward ratio (~1e-6); the centre's geometry would be off by ≥ 1 % at the image's edge."""
+    from dataclasses import replace
+
+    from camcal.water.lampfield import PixelGeometry
+    from camcal.water.models import lamp_angle_reaching
+
+    lamp = LampModel(0.5, np.radians(30))
+    d = 0.3
+    geom = PixelGeometry(0.02, (3.5, 2.5), 180.0)
+    x = geom.distances_m((6, 8), lamp, d)
+    c = np.linspace(5e-8, 3e-7, 48).reshape(6, 8)
+    ref = np.full(c.shape, 2.0)
+    sub = np.empty(c.shape)
+    dlnr_dc = np.empty(c.shape)
+    for i in np.ndindex(c.shape):
+        here = replace(lamp, lamp_angle_rad=lamp_angle_reaching(0.5, d, float(x[i])))
+        sub[i] = float(here.ratio(c[i], d)) * ref[i]
+        h = 1e-3 * c[i]
+        dlnr_dc[i] = (np.log(float(here.ratio(c[i] + h, d))) - np.log(float(here.ratio(c[i] - h, d)))) / (2 * h)
+    inv = invert_images(sub, ref, lamp, d, sigma_submerged=0.01 * sub, pixel_geometry=geom)
+    assert np.all(inv.reason == 0)
+    np.testing.assert_allclose(inv.c_mol_per_L, c, rtol=1e-9)
+    np.testing.assert_allclose(inv.sigma_ug_per_L, mol_per_L_to_ug_per_L(0.01 / np.abs(dlnr_dc)), rtol=1e-5)
+    centre = invert_images(sub, ref, lamp, d).c_mol_per_L
+    assert np.max(np.abs(centre / c - 1)) > 0.01
+
+
+def test_invert_images_with_a_band_model_at_one_depth():
+    """A band model (a 20 nm-wide channel at 650 nm, refined geometry off nadir): images of C from 5 to 150 µg/L
+    rendered by the band's forward ratio B(C) over a reference of 3, inverted by ``invert_images``: C to 1e-8
+    (the band inverse is a table, measured ~1e-9), σ_C from a 1 % σ of each radiance as √2 % / |d ln B / d ln C|
+    with the derivative by central differences of B (~1e-6)."""
+    band = BandModel(WAVELENGTHS_NM, gaussian_line(650.0, 20.0), geometry=RefinedModel(view_angle_rad=0.3))
+    d = 0.4
+    c = np.linspace(5.0, 150.0, 12).reshape(3, 4)  # µg/L
+    ref = np.full(c.shape, 3.0)
+    sub = band.ratio(c, d) * ref
+    inv = invert_images(sub, ref, band, d, sigma_submerged=0.01 * sub, sigma_reference=0.01 * ref)
+    assert np.all(inv.reason == 0)
+    np.testing.assert_allclose(inv.c_ug_per_L, c, rtol=1e-8)
+    h = 1e-3 * c
+    dlnb_dlnc = (np.log(band.ratio(c + h, d)) - np.log(band.ratio(c - h, d))) / (2 * h) * c
+    np.testing.assert_allclose(inv.sigma_ug_per_L, np.hypot(0.01, 0.01) * c / np.abs(dlnb_dlnc), rtol=1e-5)
