@@ -17,7 +17,7 @@ import pytest
 from scipy.integrate import quad
 
 from camcal.apply import apply
-from camcal.dark import HOT, DarkStacks, _noise_model, fit_dark_stacks
+from camcal.dark import HOT, DarkStacks, _fit_lines, _noise_model, fit_dark_stacks
 from camcal.frame import PLANES, Exposure
 from camcal.io import load_frame
 from camcal.profile import load_profile
@@ -193,6 +193,50 @@ def test_dark_noise_line_reads_the_unclipped_variance_and_its_guards():
                           (2.0, _noise_stack(24.0, 2.0, 18.0, 36.0, bias))], bias)
     assert np.all(g == 0)
     np.testing.assert_allclose(v0.ravel(), 30.0, rtol=1e-9)
+
+
+def test_dark_line_fit_cut_one_dn_below_white_and_frame_counts():
+    """``_fit_lines``' saturation cut and its usable-time count, one pixel per case against values written out
+    (white level 4095 DN: levels at or above 4094 DN get zero weight, the documented cut):
+
+    - a level of exactly 4094 DN is cut, whether it is the band's brightest level (no line: one usable time) or
+      another pixel of the band is saturated; 4093.5 DN is kept (β through two points);
+    - a group with no frames at a pixel (count 0) is not a usable time there; a group of one frame is.
+    """
+    white = 4095.0
+    one = np.array([1.0])
+
+    def fit(levels_1s, levels_10s, n_1s=(4.0,), n_10s=(4.0,)):
+        obs = [(1.0, np.array(levels_1s), np.array(n_1s) * one, 2.0 * one),
+               (10.0, np.array(levels_10s), np.array(n_10s) * one, 2.0 * one)]
+        return _fit_lines(obs, white)
+
+    beta, _, b, _, n_times = fit([1100.0], [4094.0])
+    assert np.isnan(beta[0]) and np.isnan(b[0]) and n_times.tolist() == [1]
+    beta, _, _, _, n_times = fit([1100.0, 1100.0], [4094.0, 4095.0])
+    assert np.isnan(beta).all() and n_times.tolist() == [1, 1]
+    beta, _, b, _, n_times = fit([1100.0, 1100.0], [4093.5, 4095.0])
+    assert beta[0] == pytest.approx((4093.5 - 1100.0) / 9.0, rel=1e-12) and n_times.tolist() == [2, 1]
+    assert b[0] == pytest.approx(1100.0 - (4093.5 - 1100.0) / 9.0, rel=1e-12)
+    # frame counts: none at 10 s → one usable time; one frame at each time (with a saturated pixel in the band)
+    beta, _, _, _, n_times = fit([1100.0], [1200.0], n_10s=(0.0,))
+    assert np.isnan(beta[0]) and n_times.tolist() == [1]
+    beta, _, _, _, n_times = fit([1100.0, 1100.0], [1200.0, 4095.0], n_1s=(1.0, 1.0), n_10s=(1.0, 1.0))
+    assert beta[0] == pytest.approx(100.0 / 9.0, rel=1e-12) and n_times.tolist() == [2, 1]
+
+
+def test_dark_line_fit_returns_none_for_the_parts_not_asked_for():
+    """``with_fit=False`` returns β and b as None, ``with_variance=False`` var(β) and var(b) as None (documented:
+    the callers ask for one or the other); the parts asked for are the exact line through two points."""
+    obs = [(1.0, np.array([1100.0]), np.array([4.0]), np.array([2.0])),
+           (3.0, np.array([1130.0]), np.array([4.0]), np.array([2.0]))]
+    beta, beta_var, b, b_var, n_times = _fit_lines(obs, 4095.0, with_variance=False)
+    assert beta_var is None and b_var is None and n_times.tolist() == [2]
+    assert beta[0] == pytest.approx(15.0, rel=1e-12) and b[0] == pytest.approx(1085.0, rel=1e-12)
+    beta, beta_var, b, b_var, _ = _fit_lines(obs, 4095.0, with_fit=False)
+    assert beta is None and b is None
+    # var(β) of two points with weights n = 4 and per-frame variance 2: 2 σ²/n / Δt² = 2·0.5/4 = 0.25 (DN/s)²
+    assert beta_var[0] == pytest.approx(0.25, rel=1e-12)
 
 
 # ---- water: the refined model against an independent rendering --------------------------------------------

@@ -23,7 +23,7 @@ from camcal.dark import _fit_lines, _noise_model, subtract_dark
 from camcal.dark_model import DarkModel
 from camcal.errors import CamcalError
 from camcal.flat import _total_degree_mask, correct_flat, fit_2d_plane, fit_radial_plane
-from camcal.flat_model import FlatModel, PlaneGeometry, dead_pixels
+from camcal.flat_model import FlatModel, PlaneGeometry, dead_pixels, radial_gain
 from camcal.frame import PLANES, Exposure
 from camcal.radiance import (
     RadianceModel,
@@ -267,6 +267,47 @@ def test_correct_flat_divides_by_the_gain():
     yy, xx = np.mgrid[0:30, 0:40].astype(float)
     g = np.stack([_dng_radial_gain(c, 10.0, 20.0, (-0.3, 0.05, 0.0, 0.0, 0.0), xx, yy) for c in fm.channels])
     np.testing.assert_allclose(correct_flat(planes * g, fm), planes, rtol=1e-5)
+
+
+def test_flat_corner_gain_is_the_smallest_of_the_four_corners_of_each_plane():
+    """Each plane's optical centre near a different corner, so that each plane's smallest corner gain is at a
+    different corner (the one farthest from its centre): the four corners of every plane against the DNG
+    polynomial written out."""
+    k = (-0.35, 0.08, -0.05, 0.02, -0.01)
+    centres = {"R": (33.0, 24.0), "G1": (6.0, 25.0), "G2": (34.0, 4.0), "B": (5.0, 5.0)}
+    fm = FlatModel(channels=("R", "G1", "G2", "B"), centre_px=centres, k={c: k for c in centres}, model_2d=None,
+                   prnu=None, residual_rms={}, shape=FLAT_SHAPE, cfa_pattern="RGGB")
+    got = fm.corner_gain()
+    for c, (cx, cy) in centres.items():
+        corners = {(x, y): float(_dng_radial_gain(c, cx, cy, k, x, y)) for x in (0.0, 39.0) for y in (0.0, 29.0)}
+        assert got[c] == pytest.approx(min(corners.values()), rel=2e-7)  # float32 gains
+    farthest = {c: min(corners, key=corners.get) for c, corners in
+                ((c, {(x, y): float(_dng_radial_gain(c, *centres[c], k, x, y)) for x in (0.0, 39.0)
+                      for y in (0.0, 29.0)}) for c in centres)}
+    assert sorted(farthest.values()) == [(0.0, 0.0), (0.0, 29.0), (39.0, 0.0), (39.0, 29.0)]
+
+
+def test_radial_gain_with_zero_coefficients_is_the_power_sum():
+    """``radial_gain`` skips trailing zero coefficients; the values must stay those of g = 1 + Σ kᵢ r^(2i+2)
+    (numpy's polyval, written out): no vignetting at all (every k = 0), a zero before a non-zero coefficient,
+    and trailing zeros."""
+    r2 = np.linspace(0.0, 1.0, 11)
+    for k in ((0.0, 0.0, 0.0, 0.0, 0.0), (0.0, 0.05), (-0.3, 0.0, 0.02), (-0.3, 0.05, 0.0, 0.0, 0.0), ()):
+        np.testing.assert_allclose(radial_gain(r2, k), np.polynomial.polynomial.polyval(r2, [1.0, *k]),
+                                   rtol=1e-15, atol=1e-15)
+
+
+def test_correct_flat_with_the_prnu_map():
+    """``with_prnu=True`` divides by the radial gain times the PRNU map, the default by the gain alone: planes
+    made by multiplying a known signal by both come back to it (float32: 2e-7)."""
+    k = (-0.3, 0.05, 0.0, 0.0, 0.0)
+    prnu = (1.0 + 0.02 * np.random.default_rng(3).standard_normal((4, *FLAT_SHAPE))).astype(np.float32)
+    fm = _flat_model(k, (10.0, 20.0), prnu=prnu)
+    yy, xx = np.mgrid[0:30, 0:40].astype(float)
+    g = np.stack([_dng_radial_gain(c, 10.0, 20.0, k, xx, yy) for c in fm.channels])
+    planes = np.full((4, *FLAT_SHAPE), 500.0)
+    np.testing.assert_allclose(correct_flat(planes * g * prnu, fm, with_prnu=True), planes, rtol=2e-6)
+    np.testing.assert_allclose(correct_flat(planes * g, fm), planes, rtol=2e-6)
 
 
 def _dark_stack(level, t_s, var_dn2, n=8, white=4095.0, black=1000.0):
