@@ -195,6 +195,22 @@ def test_dark_noise_line_reads_the_unclipped_variance_and_its_guards():
     np.testing.assert_allclose(v0.ravel(), 30.0, rtol=1e-9)
 
 
+def test_dark_noise_line_leaves_out_pixels_noisier_than_five_times_the_plane():
+    """A 10 × 10 plane of variance 10.5 / 10.75 DN² (the line v0 = 0.5, g = 0.5 through signals 20 and 20.5) with
+    one pixel at 5.8× that in both stacks: the plane mean with it is 1.048×, so 5.8× is above the cut of 5× the
+    mean (5.24×) and the line is that of the other 99 pixels (a cut at 6× would keep it: v0 = 5.5, g = 2.8)."""
+    shape = (4, 10, 10)
+    bias = np.full(shape, 1000.0)
+    stats = []
+    for t, signal, var in ((1.0, 20.0, 10.5), (2.0, 20.5, 10.75)):
+        st = _noise_stack(signal, t, var, var, bias)
+        st.variance_all[:, 4, 7] = 5.8 * var
+        stats.append((t, st))
+    v0, g = _noise_model(stats, bias)
+    np.testing.assert_allclose(v0.ravel(), 0.5, rtol=1e-9)
+    np.testing.assert_allclose(g.ravel(), 0.5, rtol=1e-9)
+
+
 def test_dark_line_fit_cut_one_dn_below_white_and_frame_counts():
     """``_fit_lines``' saturation cut and its usable-time count, one pixel per case against values written out
     (white level 4095 DN: levels at or above 4094 DN get zero weight, the documented cut):
