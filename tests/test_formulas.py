@@ -241,6 +241,29 @@ def test_dark_line_fit_cut_one_dn_below_white_and_frame_counts():
     assert beta[0] == pytest.approx(100.0 / 9.0, rel=1e-12) and n_times.tolist() == [2, 1]
 
 
+def test_dark_line_fit_of_a_band_with_and_without_a_line():
+    """A band of two pixels, one with a line and one left with a single usable time (saturated at 10 s), and
+    exposures of 10 and 30 ms:
+
+    - the pixel with a line has β, b and their variances of the least squares written out (the covariance
+      A diag(σ²/n) Aᵀ of the linear estimator), even at 10-30 ms, where Σn·Σn(t − t̄)² is far below 1 s²;
+    - the pixel with one usable time has no line: β, b, var(β), var(b) NaN. With 3 frames at 0.7 s, Σn·Σnt² −
+      (Σnt)² rounds to 8.9e-16 instead of 0, so only the count of usable times (not that determinant) may decide.
+    """
+    white = 4095.0
+    for times, n in (((0.01, 0.03), 4.0), ((0.7, 10.0), 3.0)):
+        y = np.array([[1100.0, 1100.0], [1100.0 + 50.0 * (times[1] - times[0]), white]])
+        obs = [(t, y[i], np.full(2, n), np.full(2, 2.0)) for i, t in enumerate(times)]
+        beta, beta_var, b, b_var, n_times = _fit_lines(obs, white)
+        assert n_times.tolist() == [2, 1]
+        x = np.stack([np.ones(2), np.array(times)], axis=1)
+        a = np.linalg.solve(x.T @ (n * x), x.T * n)
+        cov = a @ np.diag(np.full(2, 2.0 / n)) @ a.T
+        assert beta[0] == pytest.approx(50.0, rel=1e-9) and b[0] == pytest.approx(1100.0 - 50.0 * times[0], rel=1e-12)
+        assert beta_var[0] == pytest.approx(cov[1, 1], rel=1e-9) and b_var[0] == pytest.approx(cov[0, 0], rel=1e-9)
+        assert np.isnan([beta[1], b[1], beta_var[1], b_var[1]]).all()
+
+
 def test_dark_line_fit_returns_none_for_the_parts_not_asked_for():
     """``with_fit=False`` returns β and b as None, ``with_variance=False`` var(β) and var(b) as None (documented:
     the callers ask for one or the other); the parts asked for are the exact line through two points."""
