@@ -15,8 +15,10 @@ from scipy.stats import norm
 from camcal.correct import Calibration, correct_planes, system_gain_dn_per_e
 from camcal.dark_model import DarkModel
 from camcal.errors import CamcalError
+from camcal.exposure import frame_relative_exposure
 from camcal.flat import fit_2d_plane, fit_radial_plane
 from camcal.flat_model import FlatModel, PlaneGeometry, dead_pixels
+from camcal.frame import Exposure
 from camcal.response import emva_linearity_error, fit_eq12, fit_line, fit_srgb_form, saturation_point
 from camcal.spectral import deconvolve_slit, merge_sweeps, slit_matrix
 from camcal.spectral_model import RELATIVE_UNITS, SpectralSensitivity, to_relative
@@ -51,7 +53,13 @@ from camcal.water.uncertainty import (
     term_sigma_c,
     uncertainty_terms,
 )
-from camcal.water.units import CHLA_MOLAR_MASS_G_PER_MOL
+from camcal.water.units import (
+    CHLA_MOLAR_MASS_G_PER_MOL,
+    parse_concentration_mol_per_L,
+    parse_epsilon_L_per_mol_cm,
+    parse_length_m,
+    specific_absorption_m2_per_mg,
+)
 
 
 def _gauss(wl, mu, s, a=1.0):
@@ -1206,3 +1214,32 @@ def test_slit_matrix_is_the_slit_mean_of_the_natural_spline_on_a_grid_with_a_lon
     spline = CubicSpline(wl, values, bc_type="natural")
     expect = [clamped_mean(lambda x: float(spline(x)), m) for m in wl]
     np.testing.assert_allclose(a @ values, expect, rtol=0, atol=2e-5)
+
+
+def test_unit_strings_are_converted_with_the_molar_mass_and_si_prefixes():
+    """The water module's unit strings against conversions written out: SI prefixes (µ = 1e-6, n = 1e-9, c = 1e-2,
+    m = 1e-3), the molar mass of chlorophyll-a (893.5 g/mol, C55H72MgN4O5) and the bare-number defaults (mol/L,
+    L/mol/cm, metres)."""
+    m = 893.5  # g/mol, written out (IUPAC standard atomic weights: 55·12.011 + 72·1.008 + 24.305 + 4·14.007 + 5·15.999)
+    assert parse_concentration_mol_per_L("2e-7") == pytest.approx(2e-7, rel=1e-15)
+    assert parse_concentration_mol_per_L("2e-7mol/L") == pytest.approx(2e-7, rel=1e-15)
+    assert parse_concentration_mol_per_L("3umol/L") == pytest.approx(3e-6, rel=1e-15)
+    assert parse_concentration_mol_per_L("40 nmol/l") == pytest.approx(40e-9, rel=1e-15)
+    assert parse_concentration_mol_per_L("0.17870g/L") == pytest.approx(0.1787 / m, rel=1e-15)
+    assert parse_concentration_mol_per_L("89ug/L") == pytest.approx(89e-6 / m, rel=1e-15)
+    assert parse_epsilon_L_per_mol_cm("78628") == pytest.approx(78628.0, rel=1e-15)
+    assert parse_epsilon_L_per_mol_cm("78628L/mol/cm") == pytest.approx(78628.0, rel=1e-15)
+    assert parse_epsilon_L_per_mol_cm("88L/g/cm") == pytest.approx(88.0 * m, rel=1e-15)
+    assert parse_epsilon_L_per_mol_cm("0.088L/mg/cm") == pytest.approx(88.0 * m, rel=1e-12)
+    assert parse_length_m("0.3") == pytest.approx(0.3, rel=1e-15)
+    assert parse_length_m("20cm") == pytest.approx(0.2, rel=1e-15)
+    assert parse_length_m("250mm") == pytest.approx(0.25, rel=1e-15)
+    # a* (natural log, m² mg⁻¹) of a decadic ε in L g⁻¹ cm⁻¹: 1 L = 1e-3 m³, 1 g = 1e3 mg, 1 cm = 1e-2 m
+    assert specific_absorption_m2_per_mg(88.0) == pytest.approx(np.log(10) * 88.0 * 1e-3 / (1e3 * 1e-2), rel=1e-12)
+
+
+def test_frame_relative_exposure_off_the_reference_setting():
+    """x = t·(ISO/ISO_ref)·(N_ref/N)² (seconds at the reference setting): 1/60 s at ISO 400 and f/5.6 for a
+    reference of ISO 100 at f/4 is (1/60)·4·(4/5.6)² s."""
+    e = Exposure(exposure_s=1 / 60, iso=400.0, f_number=5.6)
+    assert frame_relative_exposure(e, 100.0, 4.0) == pytest.approx((1 / 60) * 4 * (4 / 5.6) ** 2, rel=1e-14)
