@@ -34,7 +34,7 @@ import functools
 import os
 import threading
 from collections.abc import Callable, Sequence
-from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -166,6 +166,19 @@ class _Decoder:
         """Spill Bayer frames as their mosaic (set for a spilled stack of default planes whose first frame is
         a Bayer mosaic; the pattern is the same in every frame, :func:`_check_same`)."""
         self.lock = threading.Lock()
+        self.prefetched: dict[int, Future] = {}
+        """Frames whose decode was started ahead (:meth:`prefetch`), by index."""
+
+    def prefetch(self, pool: ThreadPoolExecutor, index: int, path: Path) -> None:
+        """Start decoding frame ``index`` in ``pool`` now (the next frame, while the first is decoded in the
+        calling thread: the second core is not left idle while the first frame sets the stack's shape)."""
+        self.prefetched[index] = pool.submit(self.judge.load, path, self.load)
+
+    def judged_load(self, index: int, path: Path) -> tuple[object | None, FrameFacts]:
+        """The judge's :meth:`camcal.screen.StageJudge.load` of frame ``index``, from :meth:`prefetch` when started."""
+        with self.lock:
+            ahead = self.prefetched.pop(index, None)
+        return ahead.result() if ahead is not None else self.judge.load(path, self.load)
 
     def _manifest_for(self, path: Path) -> dict:
         if self.manifest is not None:
@@ -232,7 +245,7 @@ class _Decoder:
         others are spilled (median/clip; their planes returned only when kept) or returned (mean)."""
         assert self.first is not None  # set from the first frame used before any worker runs
         index, path = item[0], Path(item[1])
-        frame, facts = self.judge.load(path, self.load)
+        frame, facts = self.judged_load(index, path)
         if frame is None or facts.check_error is not None or self.judge.majority.mismatch(facts) is not None:
             return index, facts, None, None
         spilled = self.spill_path is not None
@@ -416,7 +429,9 @@ class _SortedBand:
         n = len(self.planes)
         s1 = self.sd.copy()
         s2 = self.sdd.copy()
-        cnt = np.full(s1.shape, n, np.int32)
+        # counts in one byte (n <= NETWORK_MAX_FRAMES): a lost mask is subtracted as bytes, without numpy's
+        # buffered bool-to-int32 cast (several times slower than the subtraction itself)
+        cnt = np.full(s1.shape, n, np.uint8 if n <= 255 else np.int32)
         lost_rank = np.empty(s1.shape, bool)
         lost = np.empty(s1.shape, bool)
         taken = np.empty(s1.shape, np.float32)
@@ -431,11 +446,12 @@ class _SortedBand:
                     lost &= lost_rank  # a rank is lost only if the rank before it is
                 else:
                     lost[...] = lost_rank
-                np.multiply(self.dev[r], lost, out=taken)
+                np.copyto(taken, lost)  # 0 or 1 (a plain cast; multiplying by the bool mask casts it slowly)
+                taken *= self.dev[r]
                 s1 -= taken
                 taken *= taken
                 s2 -= taken
-                cnt -= lost
+                cnt -= lost.view(np.uint8) if cnt.dtype == np.uint8 else lost
             idx = np.flatnonzero(lost)
             for r in ranks[dense:]:  # deeper ranks: only the pixels that lost the one before
                 dev = self.planes[r][idx].astype(np.float32) - self.med[idx]
@@ -686,11 +702,26 @@ def combine_frames(
         if progress:
             progress(done, n)
 
+    ahead = ThreadPoolExecutor(1, thread_name_prefix="camcal-decode") if n > 1 and thread_count(jobs, n) > 1 else None
+    try:
+        if ahead is not None:
+            dec.prefetch(ahead, 1, paths[1])
+        return _combine(paths, method, sigma, keep_frames, spill_dir, band_mb, jobs, dec, judge, tick)
+    finally:
+        if ahead is not None:
+            ahead.shutdown(wait=True, cancel_futures=True)
+
+
+def _combine(paths: tuple[Path, ...], method: str, sigma: float, keep_frames: int, spill_dir: str | Path | None,
+             band_mb: float, jobs: int | None, dec: _Decoder, judge: StageJudge,
+             tick: Callable[[], None]) -> StackResult:
+    """:func:`combine_frames` once its arguments are checked and its decoder made."""
+    n = len(paths)
     start = 0
     first_meta = first_spill = first_planes = None
     while start < n:  # the first usable frame, in this thread
         path = paths[start]
-        frame, facts = judge.load(path, dec.load)
+        frame, facts = dec.judged_load(start, path)
         start += 1
         tick()
         if judge.decide(path, facts) is None:
