@@ -10,13 +10,15 @@ stage's :class:`camcal.screen.StageJudge` leaves an unusable frame out; by defau
   float64 (the shifted-data algorithm, Chan, Golub & LeVeque 1983), one frame in memory at a time.
 - ``method="median"`` / ``"sigma_clip"``: each decoded frame is spilled to a temporary
   raw file (uint16 when the planes are integer DN, as with the default preprocessing,
-  float32 otherwise); the statistics are then computed over *row bands* read back with
+  float32 otherwise; a Bayer frame with the default planes as its mosaic, split into planes band by band
+  after the statistics, which are per pixel); the statistics are then computed over *row bands* read back with
   explicit ``readinto`` calls (not ``np.memmap``, whose touched pages count against the
   resident set). The band height shrinks as N grows so the working set stays at about
   ``band_mb`` megabytes whatever the number of frames.
 
 Decoding can run in 2 threads (``jobs=2``; LibRaw releases the GIL) that write straight into the spill
-file; the band statistics run in ``jobs`` threads (numpy releases the GIL). Each band is sorted along the
+file (the second frame is decoded while the first, which sets the stack's shape, is decoded in the calling
+thread); the band statistics run in ``jobs`` threads (numpy releases the GIL). Each band is sorted along the
 frame axis once; integer bands (the default planes) stay integer and a clip takes the values a pixel loses
 off the sums of all its values, rank by rank from both ends (:class:`_SortedBand`).
 
