@@ -790,7 +790,8 @@ def _combine(paths: tuple[Path, ...], method: str, sigma: float, keep_frames: in
     n_used = len(order)
     count_dtype = np.int16 if n_used < 2**15 else np.int32
     return StackResult(
-        value=value, mean=mean, variance=var, count=count.astype(count_dtype), n_frames=n_used, method=method,
+        value=value, mean=mean, variance=var, count=count.astype(count_dtype, copy=False), n_frames=n_used,
+        method=method,
         exposures=tuple(used[i].exposure for i in order), paths=tuple(paths[i] for i in order),
         channel_names=first_meta.channel_names, kind=first_meta.kind, cfa_pattern=first_meta.cfa_pattern,
         black_level_dn=first_meta.black, white_level_dn=first_meta.white, frame_shape=first_meta.frame_shape,
