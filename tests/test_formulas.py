@@ -278,6 +278,56 @@ def test_dark_line_fit_returns_none_for_the_parts_not_asked_for():
     assert beta_var[0] == pytest.approx(0.25, rel=1e-12)
 
 
+def test_seed_appendix_inversions_off_axis_with_an_albedo():
+    """The seed's first-order and appendix inversions with an albedo of 0.7 at θ0 = 0.3 rad (with ρ = 1 at nadir,
+    2ρ and 2/ρ agree and θ0 drops out), against the formulas written out here from their docstrings: the
+    first-order ratio ρ(cos²θ0 − cos²θc)·10^(−2εdC); k = (cos²θ0 − cos²θc)/2 and
+    q = εd ln10 [(2θ sin 2θ + (1 − 2θ²) cos 2θ)/8] from θ0 to θc; the second-order ratio 2ρ 10^(−2εdC)(k − Cq)
+    solved back to C (Brent's method to 1e-13: rel 1e-10), with its limits r ∈ (0, 2ρk] and q > 0."""
+    m = SeedModel(albedo=0.7)
+    th0, d, c = 0.3, 0.2, np.array([1e-7, 3e-7])
+    ed = m.epsilon_L_per_mol_cm * 100.0 * d  # ε d, d in cm
+    cc = np.cos(th0) ** 2 - np.cos(m.cutoff_rad) ** 2
+    r1 = 0.7 * cc * 10.0 ** (-2 * ed * c)
+    np.testing.assert_allclose(m.invert_first_order(r1, d, th0), c, rtol=1e-12)
+
+    def f(t):
+        return (2 * t * np.sin(2 * t) + (1 - 2 * t * t) * np.cos(2 * t)) / 8
+
+    k = cc / 2
+    q = ed * np.log(10) * (f(m.cutoff_rad) - f(th0))
+    r2 = 2 * 0.7 * 10.0 ** (-2 * ed * c) * (k - c * q)
+    np.testing.assert_allclose(m.invert_second_order(r2, d, th0), c, rtol=1e-10)
+    written = (np.log(r2 / 1.4) + 2 * ed * np.log(10) + k - 1) / (q - np.log(10))
+    np.testing.assert_allclose(m.invert_appendix_as_written(r2, d, th0), written, rtol=1e-12)
+    corrected = (k - 1 - np.log(r2 / 1.4)) / (2 * np.log(10) * ed + q)
+    np.testing.assert_allclose(m.invert_appendix_corrected(r2, d, th0), corrected, rtol=1e-12)
+    # the limits: r = 2ρk is C = 0; above it, at 0 and below, NaN (and the values after a NaN are still solved)
+    top = 2 * 0.7 * k
+    got = m.invert_second_order(np.array([top * 1.2, top, 0.0, -1.0, r2[0]]), d, th0)
+    assert got.dtype == np.float64 and np.isnan(got[[0, 2, 3]]).all()
+    assert got[1] == pytest.approx(0.0, abs=1e-20) and got[4] == pytest.approx(c[0], rel=1e-10)
+    # a depth so small that q < 1 per mol/L (1e-7 m): still solved; at depth 0 (q = 0) NaN
+    tiny = 1e-7
+    et = m.epsilon_L_per_mol_cm * 100.0 * tiny
+    qt = et * np.log(10) * (f(m.cutoff_rad) - f(th0))
+    assert 0 < qt < 1
+    ct = 0.2 * k / qt  # mol/L (absurd, so that C·q is a fifth of k)
+    rt = 2 * 0.7 * 10.0 ** (-2 * et * ct) * (k - ct * qt)
+    assert m.invert_second_order(np.array([rt]), tiny, th0)[0] == pytest.approx(ct, rel=1e-10)
+    assert np.isnan(m.invert_second_order(np.array([0.5 * top]), 0.0, th0)).all()
+
+
+def test_lamp_angle_for_a_point_at_the_lamps_foot_is_zero():
+    """A disk point straight below the lamp is reached by the vertical ray: angle 0 (and a point 0.1 m away by
+    the angle whose air and water legs add up to 0.1 m: H tan a + d tan(asin(sin a / n)) = 0.1)."""
+    from camcal.water.models import lamp_angle_reaching
+
+    assert lamp_angle_reaching(0.5, 0.3, 0.0) == 0.0
+    a = lamp_angle_reaching(0.5, 0.3, 0.1)
+    assert 0.5 * np.tan(a) + 0.3 * np.tan(np.arcsin(np.sin(a) / 1.33)) == pytest.approx(0.1, rel=1e-12)
+
+
 # ---- water: the refined model against an independent rendering --------------------------------------------
 
 def _render_refined(c_mol_per_L, depth_m, *, view_air_rad, a_bg_per_m, a_w_per_m, eps, exact: bool, albedo=1.0,
