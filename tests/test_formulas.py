@@ -307,12 +307,13 @@ def test_seed_appendix_inversions_off_axis_with_an_albedo():
     got = m.invert_second_order(np.array([top * 1.2, top, 0.0, -1.0, r2[0]]), d, th0)
     assert got.dtype == np.float64 and np.isnan(got[[0, 2, 3]]).all()
     assert got[1] == pytest.approx(0.0, abs=1e-20) and got[4] == pytest.approx(c[0], rel=1e-10)
-    # a depth so small that q < 1 per mol/L (1e-7 m): still solved; at depth 0 (q = 0) NaN
-    tiny = 1e-7
+    # a depth so small that q ≪ 1 per mol/L (1e-8 m): C up to k/q is solved (here 0.9 k/q, beyond k·q); at
+    # depth 0 (q = 0) NaN
+    tiny = 1e-8
     et = m.epsilon_L_per_mol_cm * 100.0 * tiny
     qt = et * np.log(10) * (f(m.cutoff_rad) - f(th0))
-    assert 0 < qt < 1
-    ct = 0.2 * k / qt  # mol/L (absurd, so that C·q is a fifth of k)
+    assert 0 < qt < 0.5
+    ct = 0.9 * k / qt  # mol/L (absurd, so that C·q is 0.9 k)
     rt = 2 * 0.7 * 10.0 ** (-2 * et * ct) * (k - ct * qt)
     assert m.invert_second_order(np.array([rt]), tiny, th0)[0] == pytest.approx(ct, rel=1e-10)
     assert np.isnan(m.invert_second_order(np.array([0.5 * top]), 0.0, th0)).all()
