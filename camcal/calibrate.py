@@ -18,14 +18,12 @@ from dataclasses import asdict, dataclass, field, replace
 from datetime import UTC, datetime
 from pathlib import Path
 
-import numpy as np
-
 from camcal import __version__
 from camcal.camera_id import Sensor, match, preferred, sensor_of
 from camcal.colour_matrix import fit_colour_matrix, twin_pairs
 from camcal.dark import DarkOptions, dark_frame_check, fit_dark_stacks, stack_darks
 from camcal.dark_model import with_dead_pixels
-from camcal.emva import build_sheet
+from camcal.emva import Nonuniformity, build_sheet
 from camcal.errors import CamcalError, TooFewFrames
 from camcal.flat import (
     FlatChecks,
@@ -33,7 +31,6 @@ from camcal.flat import (
     MasterFlat,
     check_flat_frame,
     fit_master,
-    flat_prnu,
     master_flat,
 )
 from camcal.flat_model import DEAD_RESPONSE, FlatModel, choose_flat, dead_pixels, same_f_number
@@ -217,14 +214,6 @@ def _reference(index: SessionIndex, opts: CalibrateOptions,
                       "--reference-f-number", session)
 
 
-def _flat_mask(master, dark):
-    """Pixels left out of the flat's PRNU: masked in every frame, and the dark model's defects."""
-    mask = ~np.isfinite(master.value)
-    if dark is not None and dark.defects.shape == mask.shape:
-        mask |= dark.defects != 0
-    return mask
-
-
 def _judged(index: SessionIndex, stage: str, judge: StageJudge, record: _Record) -> SessionIndex:
     """Record the verdicts ``judge`` gave while its stage decoded its frames, and take the frames it left out
     out of ``index``."""
@@ -366,13 +355,16 @@ class _Judging:
 
 
 def _fit_flats(index: SessionIndex, dark, opts: CalibrateOptions, ref_n: float | None, record: _Record,
-               notes: list[str], cb, judge: StageJudge | None = None) -> tuple[FlatModel | None, MasterFlat | None]:
+               notes: list[str], cb, judge: StageJudge | None = None
+               ) -> tuple[FlatModel | None, MasterFlat | None, dict[str, Nonuniformity] | None]:
     """The flat stage: one vignetting model per f-number of the flats (:func:`camcal.session.aperture_groups`).
 
     The primary model (the profile's ``flat``: dead pixels, PRNU, the sweep's flat correction) is the one at the
     reference f-number, else the one of most frames (the smaller f-number on a tie); the others are its
     :attr:`~camcal.flat_model.FlatModel.apertures`. Flats of unknown f-number beside known ones are left out.
-    Returns (primary model, its master flat), (None, None) when no group could be fitted.
+    Returns (primary model, its master flat, its EMVA 1288 PRNU per plane or None without unclipped statistics),
+    (None, None, None) when no group could be fitted. The PRNU is the one :func:`camcal.flat.fit_master` reduced
+    the primary's PRNU map to (:func:`camcal.flat.flat_prnu`), not computed again.
 
     ``judge``: the flat stage's :class:`camcal.screen.StageJudge` when its frames (of one f-number) are judged
     as the master flat decodes them.
@@ -388,7 +380,7 @@ def _fit_flats(index: SessionIndex, dark, opts: CalibrateOptions, ref_n: float |
         primary = (next((g for g in groups if same_f_number(g.f_number, ref_n)), None)
                    or max(groups, key=lambda g: (len(g.frames.frames), -(g.f_number or 0.0))))
         groups = [primary] + [g for g in groups if g is not primary]
-    fitted: list[tuple[FlatModel, MasterFlat]] = []
+    fitted: list[tuple[FlatModel, MasterFlat, dict[str, Nonuniformity]]] = []
     for i, g in enumerate(groups):
         label = "flat" if len(groups) == 1 else f"flat f/{g.f_number:g}"
         kwargs = flat_opts.fit_kwargs() | ({} if i == 0 else {"with_prnu": False})
@@ -396,10 +388,12 @@ def _fit_flats(index: SessionIndex, dark, opts: CalibrateOptions, ref_n: float |
         def fit(g=g, label=label, kwargs=kwargs):
             mf = master_flat(g.frames, dark, method=flat_opts.method, sigma=flat_opts.sigma,
                              checks=flat_opts.checks, jobs=opts.jobs, progress=cb(label), judge=judge)
-            fm = fit_master(mf, dark, **kwargs)
+            prnu: dict[str, Nonuniformity] = {}
+            # the PRNU figures of the first model fitted (the primary's, unless it could not be fitted)
+            fm = fit_master(mf, dark, prnu_out=None if fitted else prnu, **kwargs)
             if g.f_number is not None and fm.optics.f_number is None:  # the folder's f-number (not in the files)
                 fm = replace(fm, optics=replace(fm.optics, f_number=g.f_number, f_number_source=g.f_number_source))
-            return fm, mf
+            return fm, mf, prnu
 
         result = record.attempt(label, fit, left_out=judge is not None)
         if result is not None:
@@ -407,17 +401,17 @@ def _fit_flats(index: SessionIndex, dark, opts: CalibrateOptions, ref_n: float |
         elif i == 0 and len(groups) > 1:
             notes.append(f"the flats at f/{g.f_number:g} could not be fitted; the next f-number's model is primary")
     if not fitted:
-        return None, None
-    (primary_model, master), others = fitted[0], [m for m, _ in fitted[1:]]
+        return None, None, None
+    (primary_model, master, prnu), others = fitted[0], [m for m, _, _ in fitted[1:]]
     if not others:
-        return primary_model, master
+        return primary_model, master, prnu or None
     if primary_model.prnu is None:  # the first fitted was not the primary group: no PRNU map to share
         notes.append("the primary flats could not be fitted: no PRNU map")
     others = [replace(m, prnu=primary_model.prnu) for m in others]
     flat = replace(primary_model, apertures=tuple(sorted(others, key=lambda m: m.optics.f_number or 0.0)))
     notes.append("flats at " + ", ".join(m.optics.label() for m in flat.models()) + ": one vignetting model per "
                  f"f-number; primary (PRNU, dead pixels, the sweep's flat) {primary_model.optics.label()}")
-    return flat, master
+    return flat, master, prnu or None
 
 
 def calibrate_session(
@@ -507,10 +501,8 @@ def calibrate_session(
                          "(apply subtracts the bias only; add dark frames at two exposure times to measure it)")
     if "flat" in stages:
         with run.judging("flat"):
-            flat, master = _fit_flats(run.index, dark, opts, ref_n, record, notes, cb, judges.get("flat"))
+            flat, master, prnu = _fit_flats(run.index, dark, opts, ref_n, record, notes, cb, judges.get("flat"))
         if flat is not None:
-            if master is not None and master.mean_all is not None:
-                prnu = flat_prnu(master, flat, _flat_mask(master, dark))
             dead = dead_pixels(flat)
             if dark is not None:
                 dark = with_dead_pixels(dark, dead, f"flat response below {DEAD_RESPONSE:g} of the model")
