@@ -392,7 +392,7 @@ def _fit_flats(index: SessionIndex, dark, opts: CalibrateOptions, ref_n: float |
             # the PRNU figures of the first model fitted (the primary's, unless it could not be fitted)
             fm = fit_master(mf, dark, prnu_out=None if fitted else prnu, **kwargs)
             if g.f_number is not None and fm.optics.f_number is None:  # the folder's f-number (not in the files)
-                fm = replace(fm, optics=replace(fm.optics, f_number=g.f_number, f_number_source=g.f_number_source))
+                fm = fm.replace(optics=replace(fm.optics, f_number=g.f_number, f_number_source=g.f_number_source))
             return fm, mf, prnu
 
         result = record.attempt(label, fit, left_out=judge is not None)
@@ -407,8 +407,8 @@ def _fit_flats(index: SessionIndex, dark, opts: CalibrateOptions, ref_n: float |
         return primary_model, master, prnu or None
     if primary_model.prnu is None:  # the first fitted was not the primary group: no PRNU map to share
         notes.append("the primary flats could not be fitted: no PRNU map")
-    others = [replace(m, prnu=primary_model.prnu) for m in others]
-    flat = replace(primary_model, apertures=tuple(sorted(others, key=lambda m: m.optics.f_number or 0.0)))
+    others = [m.replace(prnu=primary_model.prnu) for m in others]
+    flat = primary_model.replace(apertures=tuple(sorted(others, key=lambda m: m.optics.f_number or 0.0)))
     notes.append("flats at " + ", ".join(m.optics.label() for m in flat.models()) + ": one vignetting model per "
                  f"f-number; primary (PRNU, dead pixels, the sweep's flat) {primary_model.optics.label()}")
     return flat, master, prnu or None

@@ -225,7 +225,7 @@ def fit_flat_planes(
     with_prnu: bool = True,
     noise_var: np.ndarray | None = None,
     info: dict | None = None,
-    gain_out: list | None = None,
+    smooth_out: list | None = None,
 ) -> FlatModel:
     """Fit the vignetting model (and PRNU) to a master flat held in memory.
 
@@ -247,9 +247,9 @@ def fit_flat_planes(
     noise_var : (C, h, w) variance of ``master`` (same units squared), to remove temporal noise
         from the PRNU RMS estimate.
     info : provenance to store in the model.
-    gain_out : a list to which the evaluated vignetting model g (float32, (C, h, w): ``FlatModel.gain()``) is
-        appended when the PRNU is computed, for the EMVA PRNU of the same fit (:func:`fit_master`) without
-        evaluating the model again.
+    smooth_out : a list to which the smooth model A·g (float64, (C, h, w), the PRNU map's divisor) is appended
+        when the PRNU is computed, for :func:`flat_prnu` of the same fit (:func:`fit_master`) without evaluating
+        the model again.
     """
     master = np.asarray(master)
     if master.ndim != 3 or master.shape[0] != len(channels):
@@ -286,10 +286,10 @@ def fit_flat_planes(
     )
     if not with_prnu:
         return fm
-    gain = fm.gain()
-    if gain_out is not None:
-        gain_out.append(gain)
-    smooth = _smooth_model(fm, gain)
+    fm = fm.with_gain(fm.gain())  # evaluated once: the PRNU here, then the sweep's correction and the profile
+    smooth = _smooth_model(fm)
+    if smooth_out is not None:
+        smooth_out.append(smooth)
     prnu = master / smooth
     prnu_rms = {}
     for i, c in enumerate(channels):
@@ -305,7 +305,7 @@ def fit_flat_planes(
         if noise_var is not None:
             var -= float(np.mean((noise_var[i] / smooth[i] ** 2 / mean**2)[good]))
         prnu_rms[c] = float(np.sqrt(max(var, 0.0)))
-    return dataclasses.replace(fm, prnu=prnu.astype(np.float32), prnu_rms=prnu_rms)
+    return fm.replace(prnu=prnu.astype(np.float32), prnu_rms=prnu_rms)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -688,20 +688,19 @@ def fit_master(
         "exposure_s": list(mf.exposure_s),
         "flat_level_dn": mf.level_dn,
     }
-    gain: list[np.ndarray] = []
+    smooth: list[np.ndarray] = []
     fm = fit_flat_planes(mf.value, channels=mf.channels, cfa_pattern=mf.cfa_pattern, model=model,
                          downsample=downsample, n_terms=n_terms, degree_2d=degree_2d, mask=mask, with_prnu=with_prnu,
-                         noise_var=mf.variance_of_mean, info=info, gain_out=gain)
-    # the master is normalised per plane: report the on-axis level in DN of the frames
-    level_dn = {c: fm.level_dn[c] * mf.level_dn[c] for c in fm.channels}
-    fm = dataclasses.replace(fm, level_dn=level_dn, optics=mf.optics)
+                         noise_var=mf.variance_of_mean, info=info, smooth_out=smooth)
     if (with_prnu or prnu_out is not None) and mf.mean_all is not None:
-        figures = _prnu_figures(mf, fm.channels, _smooth_model(fm, gain[0] if gain else None), mask)
+        figures = _prnu_figures(mf, fm.channels, smooth[0] if smooth else _smooth_model(fm), mask)
         if with_prnu:
-            fm = dataclasses.replace(fm, prnu_rms={c: p.value for c, p in figures.items()})
+            fm = fm.replace(prnu_rms={c: p.value for c, p in figures.items()})
         if prnu_out is not None:
             prnu_out.update(figures)
-    return fm
+    # the master is normalised per plane: report the on-axis level in DN of the frames
+    level_dn = {c: fm.level_dn[c] * mf.level_dn[c] for c in fm.channels}
+    return fm.replace(level_dn=level_dn, optics=mf.optics)
 
 
 def flat_prnu(mf: MasterFlat, fm: FlatModel, mask: np.ndarray | None = None) -> dict[str, Nonuniformity]:
@@ -711,18 +710,16 @@ def flat_prnu(mf: MasterFlat, fm: FlatModel, mask: np.ndarray | None = None) -> 
     falloff: not pixel nonuniformity) and its spatial variance reduced by the temporal variance left in
     the average, ``s²_y = s²_y.measured − σ²_y.stack / L`` (EMVA 1288 release 4.0, eq. 36,
     :func:`camcal.emva.spatial_variance`). The flats are dark-subtracted per pixel with the dark model, so
-    the DSNU is already out (the standard's ``− s²_y.dark``). ``fm`` must be the fit of ``mf`` (the figures are
-    relative: the unit of its levels does not matter). Pixels masked by ``mask``, non-finite or not responding
+    the DSNU is already out (the standard's ``− s²_y.dark``). ``fm`` must be the fit of ``mf`` (level_dn in
+    the master's normalised units). Pixels masked by ``mask``, non-finite or not responding
     (:data:`DEAD_RESPONSE`) are left out.
     """
     return _prnu_figures(mf, fm.channels, _smooth_model(fm), mask)
 
 
-def _smooth_model(fm: FlatModel, gain: np.ndarray | None = None) -> np.ndarray:
-    """A·g per plane (float64, (C, h, w)): the fitted vignetting model at the fitted levels ``fm.level_dn``
-    (``gain``: ``fm.gain()`` when evaluated already)."""
-    g = fm.gain() if gain is None else gain
-    return g.astype(np.float64) * np.array([fm.level_dn[c] for c in fm.channels])[:, None, None]
+def _smooth_model(fm: FlatModel) -> np.ndarray:
+    """A·g per plane (float64, (C, h, w)): the fitted vignetting model at the fitted levels ``fm.level_dn``."""
+    return fm.gain().astype(np.float64) * np.array([fm.level_dn[c] for c in fm.channels])[:, None, None]
 
 
 def _prnu_figures(mf: MasterFlat, channels: tuple[str, ...], smooth: np.ndarray,
