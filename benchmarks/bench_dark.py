@@ -203,6 +203,7 @@ def main() -> None:
         _dng(i).read_bytes()
     for i in range(N_CCDPROC):
         _fits(i).read_bytes()
+    load_start = os.getloadavg()[0]
     dec: dict[int, list[dict]] = {n: [] for n in counts}
     cam: dict[int, list[dict]] = {n: [] for n in counts}
     for _ in range(args.runs):
@@ -232,8 +233,9 @@ def main() -> None:
         lines.append(f"| {n} | {dw:.2f} | {dc:.2f} | {dm:.0f} | {cw:.2f} | {cc:.2f} | {cm:.0f} | **{cw / dw:.2f}** "
                      f"| {cc / dc:.2f} |")
     lines.append("")
-    lines.append(f"- Load average (1 min) at the end of the run: {os.getloadavg()[0]:.1f} (other jobs share the "
-                 "machine; wall times are sensitive to it, CPU times much less).")
+    lines.append(f"- Load average (1 min) at the start and the end of the run: {load_start:.1f}, "
+                 f"{os.getloadavg()[0]:.1f} (other jobs share the machine; wall times are sensitive to it, CPU times "
+                 "much less).")
     lines.append("- camcal runs, wall (s): " + "; ".join(
         f"{n} frames " + ", ".join(f"{r['seconds']:.2f}" for r in cam[n]) for n in counts)
         + "; decode: " + "; ".join(f"{n} frames " + ", ".join(f"{r['seconds']:.2f}" for r in dec[n])

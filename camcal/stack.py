@@ -10,13 +10,15 @@ stage's :class:`camcal.screen.StageJudge` leaves an unusable frame out; by defau
   float64 (the shifted-data algorithm, Chan, Golub & LeVeque 1983), one frame in memory at a time.
 - ``method="median"`` / ``"sigma_clip"``: each decoded frame is spilled to a temporary
   raw file (uint16 when the planes are integer DN, as with the default preprocessing,
-  float32 otherwise); the statistics are then computed over *row bands* read back with
+  float32 otherwise; a Bayer frame with the default planes as its mosaic, split into planes band by band
+  after the statistics, which are per pixel); the statistics are then computed over *row bands* read back with
   explicit ``readinto`` calls (not ``np.memmap``, whose touched pages count against the
   resident set). The band height shrinks as N grows so the working set stays at about
   ``band_mb`` megabytes whatever the number of frames.
 
 Decoding can run in 2 threads (``jobs=2``; LibRaw releases the GIL) that write straight into the spill
-file; the band statistics run in ``jobs`` threads (numpy releases the GIL). Each band is sorted along the
+file (the second frame is decoded while the first, which sets the stack's shape, is decoded in the calling
+thread); the band statistics run in ``jobs`` threads (numpy releases the GIL). Each band is sorted along the
 frame axis once; integer bands (the default planes) stay integer and a clip takes the values a pixel loses
 off the sums of all its values, rank by rank from both ends (:class:`_SortedBand`).
 
@@ -34,7 +36,7 @@ import functools
 import os
 import threading
 from collections.abc import Callable, Sequence
-from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -42,7 +44,7 @@ import numpy as np
 
 from camcal.atomic import scratch_file
 from camcal.errors import CamcalError, TooFewFrames
-from camcal.frame import Exposure, Frame
+from camcal.frame import PLANES, Exposure, Frame, plane_offsets, split_planes
 from camcal.io import folder_files, folder_manifest, load_folder_frame
 from camcal.screen import FrameFacts, StageJudge, StrictJudge
 from camcal.threads import thread_count
@@ -129,6 +131,7 @@ class _Meta:
     white: float
     frame_shape: tuple[int, int]
     planes_shape: tuple[int, ...]
+    layout: str = "bayer"
 
 
 def _check_same(meta: _Meta, first: _Meta, path: Path) -> None:
@@ -161,7 +164,23 @@ class _Decoder:
         self.spill_path: Path | None = None
         self.spill_dtype = np.dtype(np.uint16 if preprocess is None else np.float32)
         self.spill_fd: int | None = None
+        self.mosaic = False
+        """Spill Bayer frames as their mosaic (set for a spilled stack of default planes whose first frame is
+        a Bayer mosaic; the pattern is the same in every frame, :func:`_check_same`)."""
         self.lock = threading.Lock()
+        self.prefetched: dict[int, Future] = {}
+        """Frames whose decode was started ahead (:meth:`prefetch`), by index."""
+
+    def prefetch(self, pool: ThreadPoolExecutor, index: int, path: Path) -> None:
+        """Start decoding frame ``index`` in ``pool`` now (the next frame, while the first is decoded in the
+        calling thread: the second core is not left idle while the first frame sets the stack's shape)."""
+        self.prefetched[index] = pool.submit(self.judge.load, path, self.load)
+
+    def judged_load(self, index: int, path: Path) -> tuple[object | None, FrameFacts]:
+        """The judge's :meth:`camcal.screen.StageJudge.load` of frame ``index``, from :meth:`prefetch` when started."""
+        with self.lock:
+            ahead = self.prefetched.pop(index, None)
+        return ahead.result() if ahead is not None else self.judge.load(path, self.load)
 
     def _manifest_for(self, path: Path) -> dict:
         if self.manifest is not None:
@@ -175,19 +194,33 @@ class _Decoder:
     def load(self, path: Path) -> Frame:
         return load_folder_frame(path, self._manifest_for(path))
 
-    def planes_of(self, index: int, path: Path, frame: Frame) -> tuple[_Meta, np.ndarray]:
-        """The check, the planes (preprocessed) and the :class:`_Meta` of a decoded frame."""
+    def planes_of(self, index: int, path: Path, frame: Frame,
+                  want_planes: bool = True) -> tuple[_Meta, np.ndarray | None, np.ndarray | None]:
+        """The check, the :class:`_Meta`, what to spill and the planes (preprocessed) of a decoded frame.
+
+        What to spill is None without a spill file (``mean``), the Bayer mosaic itself when :attr:`mosaic` is set
+        (no planes are split out of it: the band statistics are per pixel, and each band is split into its
+        planes once its statistics are done), the planes otherwise. The planes are None when not wanted and
+        not spilled."""
         if self.check is not None:
             self.check(frame)
         pre = self.preprocess
-        # default planes keep the file's integer type (uint8/uint16): exact, half the bytes to move and spill
-        planes = frame.planes(dtype=frame.data.dtype) if pre is None else np.asarray(pre(frame), dtype=np.float32)
-        if planes.ndim != 3:
-            raise CamcalError(f"preprocessing gave an array of shape {planes.shape}, expected (C, h, w)", path)
+        if pre is None and self.mosaic and frame.layout == "bayer":
+            spill = frame.data
+            shape: tuple[int, ...] = (len(PLANES), spill.shape[0] // 2, spill.shape[1] // 2)
+            # default planes keep the file's integer type (uint8/uint16): exact, half the bytes to move and spill
+            planes = frame.planes(dtype=frame.data.dtype) if want_planes else None
+        else:
+            planes = (frame.planes(dtype=frame.data.dtype) if pre is None
+                      else np.asarray(pre(frame), dtype=np.float32))
+            if planes.ndim != 3:
+                raise CamcalError(f"preprocessing gave an array of shape {planes.shape}, expected (C, h, w)", path)
+            shape = tuple(planes.shape)
+            spill = planes if self.spill_path is not None else None
         meta = _Meta(index, frame.exposure, frame.kind, frame.cfa_pattern, frame.channel_names,
                      tuple(float(v) for v in frame.black_vector().ravel()), float(frame.white_level_dn), frame.shape,
-                     tuple(planes.shape))
-        return meta, planes
+                     shape, str(frame.layout))
+        return meta, spill, planes
 
     def spill_write(self, index: int, planes: np.ndarray) -> None:
         dtype = self.spill_dtype
@@ -214,14 +247,16 @@ class _Decoder:
         others are spilled (median/clip; their planes returned only when kept) or returned (mean)."""
         assert self.first is not None  # set from the first frame used before any worker runs
         index, path = item[0], Path(item[1])
-        frame, facts = self.judge.load(path, self.load)
+        frame, facts = self.judged_load(index, path)
         if frame is None or facts.check_error is not None or self.judge.majority.mismatch(facts) is not None:
             return index, facts, None, None
-        meta, planes = self.planes_of(index, path, frame)  # type: ignore[arg-type]
+        spilled = self.spill_path is not None
+        meta, spill, planes = self.planes_of(index, path, frame,  # type: ignore[arg-type]
+                                             want_planes=not spilled or index < self.keep_frames)
         del frame
         _check_same(meta, self.first, path)
-        if self.spill_path is not None:
-            self.spill_write(index, planes)
+        if spill is not None:
+            self.spill_write(index, spill)
             return index, facts, meta, planes if index < self.keep_frames else None
         return index, facts, meta, planes
 
@@ -396,7 +431,9 @@ class _SortedBand:
         n = len(self.planes)
         s1 = self.sd.copy()
         s2 = self.sdd.copy()
-        cnt = np.full(s1.shape, n, np.int32)
+        # counts in one byte (n <= NETWORK_MAX_FRAMES): a lost mask is subtracted as bytes, without numpy's
+        # buffered bool-to-int32 cast (several times slower than the subtraction itself)
+        cnt = np.full(s1.shape, n, np.uint8 if n <= 255 else np.int32)
         lost_rank = np.empty(s1.shape, bool)
         lost = np.empty(s1.shape, bool)
         taken = np.empty(s1.shape, np.float32)
@@ -411,11 +448,12 @@ class _SortedBand:
                     lost &= lost_rank  # a rank is lost only if the rank before it is
                 else:
                     lost[...] = lost_rank
-                np.multiply(self.dev[r], lost, out=taken)
+                np.copyto(taken, lost)  # 0 or 1 (a plain cast; multiplying by the bool mask casts it slowly)
+                taken *= self.dev[r]
                 s1 -= taken
                 taken *= taken
                 s2 -= taken
-                cnt -= lost
+                cnt -= lost.view(np.uint8) if cnt.dtype == np.uint8 else lost
             idx = np.flatnonzero(lost)
             for r in ranks[dense:]:  # deeper ranks: only the pixels that lost the one before
                 dev = self.planes[r][idx].astype(np.float32) - self.med[idx]
@@ -657,6 +695,7 @@ def combine_frames(
     n = len(paths)
     judge = judge if judge is not None else StrictJudge(paths)
     dec = _Decoder(manifest, check, preprocess, keep_frames, judge)  # this call's settings, given to the threads
+    dec.mosaic = method != "mean" and preprocess is None
     done = 0
 
     def tick() -> None:
@@ -665,23 +704,40 @@ def combine_frames(
         if progress:
             progress(done, n)
 
+    ahead = ThreadPoolExecutor(1, thread_name_prefix="camcal-decode") if n > 1 and thread_count(jobs, n) > 1 else None
+    try:
+        if ahead is not None:
+            dec.prefetch(ahead, 1, paths[1])
+        return _combine(paths, method, sigma, keep_frames, spill_dir, band_mb, jobs, dec, judge, tick)
+    finally:
+        if ahead is not None:
+            ahead.shutdown(wait=True, cancel_futures=True)
+
+
+def _combine(paths: tuple[Path, ...], method: str, sigma: float, keep_frames: int, spill_dir: str | Path | None,
+             band_mb: float, jobs: int | None, dec: _Decoder, judge: StageJudge,
+             tick: Callable[[], None]) -> StackResult:
+    """:func:`combine_frames` once its arguments are checked and its decoder made."""
+    n = len(paths)
     start = 0
-    first_meta = first_planes = None
+    first_meta = first_spill = first_planes = None
     while start < n:  # the first usable frame, in this thread
         path = paths[start]
-        frame, facts = judge.load(path, dec.load)
+        frame, facts = dec.judged_load(start, path)
         start += 1
         tick()
         if judge.decide(path, facts) is None:
-            first_meta, first_planes = dec.planes_of(start - 1, path, frame)  # type: ignore[arg-type]
+            first_meta, first_spill, first_planes = dec.planes_of(  # type: ignore[arg-type]
+                start - 1, path, frame, want_planes=method == "mean" or keep_frames > 0)
             del frame
             break
-    if first_meta is None or first_planes is None:
+    if first_meta is None:
         raise TooFewFrames(judge.stage, "frames", 1, 0, f"all {n} left out", paths[0].parent)
     first_index = start - 1
     dec.first = first_meta
+    dec.mosaic = dec.mosaic and first_meta.layout == "bayer"
     jobs = thread_count(jobs, n, first_meta.frame_shape[0] * first_meta.frame_shape[1])
-    c, h, w = first_planes.shape
+    c, h, w = first_meta.planes_shape
     index_of = {p: i for i, p in enumerate(paths)}
     used: dict[int, _Meta] = {first_index: first_meta}
     kept: dict[int, np.ndarray] = {first_index: first_planes} if keep_frames > 0 else {}
@@ -692,8 +748,8 @@ def combine_frames(
         try:
             acc = _ShiftedSums(first_planes) if method == "mean" else None
             if acc is None:
-                dec.spill_write(first_index, first_planes)
-            del first_planes
+                dec.spill_write(first_index, first_planes if first_spill is None else first_spill)
+            del first_planes, first_spill
             items = [(i, str(paths[i])) for i in range(start, n)]
             for index, facts, meta, planes in _run(items, jobs, dec.worker):
                 tick()
@@ -722,17 +778,20 @@ def combine_frames(
                 var_all, mean_all = var, mean
             else:
                 _close_up(spill_path, order, c * h * w * dec.spill_dtype.itemsize)
+                pattern = first_meta.cfa_pattern if dec.mosaic else None
                 for pos, i in enumerate(order[:keep_frames]):  # kept planes the threads did not return
                     if i not in kept:
-                        kept[i] = _read_slot(spill_path, pos, (c, h, w), dec.spill_dtype)
+                        kept[i] = _read_slot(spill_path, pos, (c, h, w), dec.spill_dtype, pattern)
                 value, mean, var, count, var_all, mean_all = _bands(spill_path, len(order), (c, h, w),
-                                                                    dec.spill_dtype, method, sigma, jobs, band_mb)
+                                                                    dec.spill_dtype, method, sigma, jobs, band_mb,
+                                                                    pattern)
         finally:
             dec.close_spill()
     n_used = len(order)
     count_dtype = np.int16 if n_used < 2**15 else np.int32
     return StackResult(
-        value=value, mean=mean, variance=var, count=count.astype(count_dtype), n_frames=n_used, method=method,
+        value=value, mean=mean, variance=var, count=count.astype(count_dtype, copy=False), n_frames=n_used,
+        method=method,
         exposures=tuple(used[i].exposure for i in order), paths=tuple(paths[i] for i in order),
         channel_names=first_meta.channel_names, kind=first_meta.kind, cfa_pattern=first_meta.cfa_pattern,
         black_level_dn=first_meta.black, white_level_dn=first_meta.white, frame_shape=first_meta.frame_shape,
@@ -764,9 +823,11 @@ def _close_up(spill: Path, order: list[int], nbytes: int) -> None:
         os.close(fd)
 
 
-def _read_slot(spill: Path, pos: int, shape: tuple[int, int, int], dtype: np.dtype) -> np.ndarray:
-    """The planes spilled at slot ``pos``."""
-    out = np.empty(shape, dtype)
+def _read_slot(spill: Path, pos: int, shape: tuple[int, int, int], dtype: np.dtype,
+               pattern: str | None = None) -> np.ndarray:
+    """The planes spilled at slot ``pos`` (split out of the spilled mosaic when its CFA ``pattern`` is given)."""
+    _, h, w = shape
+    out = np.empty(shape if pattern is None else (2 * h, 2 * w), dtype)
     mv = memoryview(out.reshape(-1)).cast("B")
     fd = os.open(spill, os.O_RDONLY)
     try:
@@ -778,7 +839,7 @@ def _read_slot(spill: Path, pos: int, shape: tuple[int, int, int], dtype: np.dty
             got += r
     finally:
         os.close(fd)
-    return out
+    return out if pattern is None else split_planes(out, pattern, dtype=None)
 
 
 def _run(items: list[tuple[int, str]], jobs: int, worker: Callable[[tuple[int, str]], tuple]):
@@ -862,20 +923,34 @@ class _ShiftedSums:
 
 
 def _bands(spill: Path, n: int, shape: tuple[int, int, int], dtype: np.dtype, method: str, sigma: float,
-           jobs: int, band_mb: float) -> tuple[np.ndarray, ...]:
-    """Band-wise statistics of the spilled (n, C, h, w) stack."""
+           jobs: int, band_mb: float, pattern: str | None = None) -> tuple[np.ndarray, ...]:
+    """Band-wise statistics of the spilled (n, C, h, w) stack, or of the spilled (n, 2h, 2w) Bayer mosaics when
+    their CFA ``pattern`` is given (C = 4): a band of h-rows ``y0:y1`` is then mosaic rows ``2 y0:2 y1`` of
+    each frame, one read per frame, its statistics taken per mosaic pixel and split into the planes after."""
     c, h, w = shape
     rows = max(1, min(h, int(band_mb * 1e6 / (n * c * w * 4))))
     bands = [(y0, min(h, y0 + rows)) for y0 in range(0, h, rows)]
     value = np.empty(shape, np.float32)
     mean = value if method == "sigma_clip" else np.empty(shape, np.float32)  # the clipped mean is the value
     var = np.empty(shape, np.float32)
-    count = np.empty(shape, np.int32)
+    count = np.empty(shape, np.int16 if n < 2**15 else np.int32)
     var_all = np.empty(shape, np.float32) if method == "sigma_clip" else var
     mean_all = np.empty(shape, np.float32) if method == "sigma_clip" else mean
     item = dtype.itemsize
+    # (source rows, source columns) of each output plane in a band's result: the plane itself, or its cells
+    # of the mosaic
+    cells = ([(slice(r, None, 2), slice(q, None, 2)) for r, q in map(plane_offsets(pattern).get, PLANES)]
+             if pattern is not None else None)
     fd = os.open(spill, os.O_RDONLY)
     scratch = threading.local()  # each thread reads and sorts every band in the same two buffers
+
+    def read(mv: memoryview, off: int) -> None:
+        got = 0
+        while got < mv.nbytes:
+            r = os.preadv(fd, [mv[got:]], off + got)
+            if r <= 0:
+                raise CamcalError("temporary stack file ended early (disk full?)", spill)
+            got += r
 
     def one(band: tuple[int, int]) -> None:
         y0, y1 = band
@@ -884,27 +959,26 @@ def _bands(spill: Path, n: int, shape: tuple[int, int, int], dtype: np.dtype, me
             # a float32 band is sorted into this buffer; an integer band is sorted in place (its own type)
             scratch.work = (np.empty(n * c * rows * w, np.float32) if dtype == np.float32 and n <= NETWORK_MAX_FRAMES
                             else None)
-        buf = scratch.raw[:n * c * (y1 - y0) * w].reshape(n, c, y1 - y0, w)
-        for i in range(n):
-            for k in range(c):
-                mv = memoryview(buf[i, k]).cast("B")
-                off = (((i * c + k) * h) + y0) * w * item
-                got = 0
-                while got < mv.nbytes:
-                    r = os.preadv(fd, [mv[got:]], off + got)
-                    if r <= 0:
-                        raise CamcalError("temporary stack file ended early (disk full?)", spill)
-                    got += r
-        v, m, s2, cnt, s2_all, m_all = _band_stats(buf, method, sigma, scratch.work)
+        if cells is None:
+            buf = scratch.raw[:n * c * (y1 - y0) * w].reshape(n, c, y1 - y0, w)
+            for i in range(n):
+                for k in range(c):
+                    read(memoryview(buf[i, k]).cast("B"), (((i * c + k) * h) + y0) * w * item)
+        else:
+            buf = scratch.raw[:n * c * (y1 - y0) * w].reshape(n, 2 * (y1 - y0), 2 * w)
+            for i in range(n):
+                read(memoryview(buf[i]).cast("B"), (i * c * h * w + 4 * y0 * w) * item)  # mosaic row 2 y0
+        results = _band_stats(buf, method, sigma, scratch.work)
         del buf
-        value[:, y0:y1] = v
-        if mean is not value:
-            mean[:, y0:y1] = m
-        var[:, y0:y1] = s2
-        count[:, y0:y1] = cnt
-        if var_all is not var:
-            var_all[:, y0:y1] = s2_all
-            mean_all[:, y0:y1] = m_all
+        outs = (value, mean, var, count, var_all, mean_all)
+        for k, (out, res) in enumerate(zip(outs, results, strict=True)):
+            if any(out is outs[j] for j in range(k)):  # one array for two statistics: written once
+                continue
+            if cells is None:
+                out[:, y0:y1] = res
+            else:
+                for p, (r, q) in enumerate(cells):
+                    out[p, y0:y1] = res[r, q]
 
     try:
         if jobs > 1 and len(bands) > 1:

@@ -8,7 +8,7 @@ import pytest
 from camcal import threads
 from camcal.errors import CamcalError
 from camcal.io import load_frame
-from camcal.stack import combine_folder, combine_frames
+from camcal.stack import _read_slot, combine_folder, combine_frames
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera, frame_rngs
 
 
@@ -52,6 +52,24 @@ def test_mean_and_median_match_numpy(stack_dir, jobs):
     np.testing.assert_array_equal(med.value, np.median(x, 0).astype(np.float32))
     np.testing.assert_allclose(med.mean, x.mean(0), atol=1e-3)
     np.testing.assert_allclose(med.variance, x.var(0, ddof=1), rtol=1e-4, atol=1e-3)
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_a_spilled_stack_keeps_the_planes_of_its_first_frames(stack_dir, jobs):
+    """A Bayer stack is spilled as mosaics, not planes: the planes it keeps for single-frame statistics are
+    still the frames' own planes, in file order, in their integer type, and so are the planes read back from
+    a spilled mosaic's slot (when a kept frame's planes were not returned by its decode thread)."""
+    files, _ = _cube(stack_dir[0])
+    res = combine_frames(files, method="median", jobs=jobs, keep_frames=4, band_mb=0.05)
+    assert len(res.kept_planes) == 4
+    frames = [load_frame(p) for p in files]
+    for frame, kept in zip(frames, res.kept_planes, strict=False):
+        np.testing.assert_array_equal(kept, frame.planes(dtype=frame.data.dtype))
+        assert kept.dtype == np.uint16
+    spill = stack_dir[0].parent / f"spill{jobs}.raw"
+    spill.write_bytes(b"".join(f.data.tobytes() for f in frames[:3]))
+    planes = frames[2].planes(dtype=np.uint16)
+    np.testing.assert_array_equal(_read_slot(spill, 2, planes.shape, np.dtype(np.uint16), "BGGR"), planes)
 
 
 def test_sigma_clip_rejects_the_cosmic_ray(stack_dir):
