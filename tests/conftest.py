@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
+import shutil
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -26,10 +29,35 @@ def camera() -> SyntheticCamera:
     return SyntheticCamera(SensorParams())
 
 
+def shared_once(tmp_path_factory, name: str, build: Callable[[Path], None]) -> Path:
+    """The folder ``name``, made by ``build(folder)`` once per test run and shared by every xdist worker.
+
+    Under xdist each worker has its own session fixtures; an expensive, read-only input (the default session, its
+    profile, the demo's output) is built by the first worker that asks for it, in the run's common temporary
+    folder, under a file lock; the other workers wait for it and read the same files. A build that fails leaves no
+    ``.done`` marker, so the next worker builds it again (and fails the same way, visibly). Without xdist this is
+    an ordinary folder of the session's temporary directory. Tests must not write into it (they never did: each
+    worker's copy used to be shared by all the tests of that worker)."""
+    base = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        base = base.parent  # the run's folder, common to gw0, gw1, ...
+    folder, done = base / f"shared-{name}", base / f"shared-{name}.done"
+    with open(base / f"shared-{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            if not done.exists():
+                shutil.rmtree(folder, ignore_errors=True)  # what a failed build left
+                build(folder)
+                done.touch()
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
+    return folder
+
+
 @pytest.fixture(scope="session")
 def session_dir(tmp_path_factory, camera) -> Path:
-    """A full synthetic session (RGGB, 14-bit, 384x256), written once."""
-    return write_session(tmp_path_factory.mktemp("session") / "S", camera, SessionPlan())
+    """A full synthetic session (RGGB, 14-bit, 384x256), written once per test run (shared by the workers)."""
+    return shared_once(tmp_path_factory, "session", lambda d: write_session(d / "S", camera, SessionPlan())) / "S"
 
 
 @pytest.fixture(scope="session")
@@ -39,11 +67,33 @@ def truth(session_dir) -> dict:
 
 @pytest.fixture(scope="session")
 def profile_path(session_dir, tmp_path_factory) -> Path:
-    """The profile calibrated from ``session_dir`` by the real CLI (written once per test worker)."""
-    out = tmp_path_factory.mktemp("profile") / "cam.camcal"
-    proc = run_cli("calibrate", session_dir, "-o", out)
-    assert proc.returncode == 0, proc.stderr
-    return out
+    """The profile calibrated from ``session_dir`` by the real CLI (written once per test run)."""
+
+    def build(folder: Path) -> None:
+        proc = run_cli("calibrate", session_dir, "-o", folder / "cam.camcal")
+        assert proc.returncode == 0, proc.stderr
+
+    return shared_once(tmp_path_factory, "profile", build) / "cam.camcal"
+
+
+@pytest.fixture(scope="session")
+def demo_run(tmp_path_factory) -> tuple[Path, subprocess.CompletedProcess]:
+    """``camcal demo -o <folder>/camcal-demo`` (the README's first command) run once per test run by the real CLI:
+    the demo's folder and the finished process (its exit code, stdout and stderr). tests/test_demo.py checks the
+    run; tests/test_docs_run.py runs the docs' examples on its files."""
+
+    def build(folder: Path) -> None:
+        folder.mkdir(parents=True)
+        proc = run_cli("demo", "-o", folder / "camcal-demo")
+        (folder / "returncode").write_text(str(proc.returncode))
+        (folder / "stdout").write_text(proc.stdout)
+        (folder / "stderr").write_text(proc.stderr)
+
+    folder = shared_once(tmp_path_factory, "demo", build)
+    proc = subprocess.CompletedProcess(["camcal", "demo", "-o", str(folder / "camcal-demo")],
+                                       int((folder / "returncode").read_text()), (folder / "stdout").read_text(),
+                                       (folder / "stderr").read_text())
+    return folder / "camcal-demo", proc
 
 
 def run_cli(*args: str, cwd: Path | None = None, env: dict[str, str] | None = None) -> subprocess.CompletedProcess:

@@ -2,12 +2,10 @@
 
 from camcal.exr import read_exr
 from camcal.profile import load_profile
-from tests.conftest import run_cli
 
 
-def test_demo_end_to_end(tmp_path):
-    out = tmp_path / "demo"
-    proc = run_cli("demo", "-o", out)
+def test_demo_end_to_end(demo_run):
+    out, proc = demo_run  # `camcal demo -o DIR` by the real CLI, run once for this file and tests/test_docs_run.py
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "all checks within tolerance" in proc.stdout
     assert "✗" not in proc.stdout

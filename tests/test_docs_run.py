@@ -132,13 +132,17 @@ def _parse_only(argv: list[str]) -> None:
 
 
 @pytest.fixture(scope="session")
-def workdir(tmp_path_factory):
-    """The README's own demo command run once; the working folder holds its files under the docs' names."""
+def workdir(tmp_path_factory, demo_run):
+    """The README's own demo command run once; the working folder holds its files under the docs' names.
+
+    The run is the ``demo_run`` fixture's (``camcal demo -o DIR`` by the real CLI, shared with tests/test_demo.py):
+    the README's command must be exactly that one, with only the output folder's name in place of DIR."""
     work = tmp_path_factory.mktemp("docs")
     (demo_cmd,) = [c for p, _, c in all_commands() if p == "README.md" and c.startswith("camcal demo")]
     argv = demo_cmd.split()[1:]
-    assert main([*argv[:-1], str(work / argv[-1])]) == 0, demo_cmd
-    demo = work / argv[-1]
+    demo, proc = demo_run
+    assert argv[:-1] == proc.args[1:-1], (demo_cmd, proc.args)
+    assert proc.returncode == 0, (demo_cmd, proc.stderr)
     (work / "SESSION").symlink_to(demo / "session")
     shutil.copy(demo / "camera.camcal", work / "cam.camcal")
     (work / "survey").symlink_to(demo / "survey")

@@ -75,14 +75,6 @@ def test_errors_are_one_line(tmp_path):
 
 
 @pytest.fixture(scope="module")
-def profile_path(session_dir, tmp_path_factory):
-    out = tmp_path_factory.mktemp("water_profile") / "cam.camcal"
-    proc = run_cli("calibrate", session_dir, "-o", out)
-    assert proc.returncode == 0, proc.stderr
-    return out
-
-
-@pytest.fixture(scope="module")
 def secchi_exrs(camera, tmp_path_factory):
     """Photos (real DNGs) of a Secchi disk by the calibrated camera; EXR channel R = dark-subtracted R-plane DN
     rate, which is the band radiance up to the constant ∫c_R dλ that cancels in the ratio."""
