@@ -44,7 +44,6 @@ STAGES = (
     ("fit_dark_stacks", "dark fit"),
     ("master_flat", "master flat (each frame decoded and judged once)"),
     ("fit_master", "flat fit"),
-    ("flat_prnu", "flat PRNU"),
     ("measure_series", "linearity series (each frame decoded and judged once)"),
     ("fit_series_set", "linearity fit"),
     ("measure_sweep_settings", "sweep (each row decoded and judged once)"),

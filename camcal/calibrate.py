@@ -12,19 +12,18 @@ content and for the provenance.
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, replace
 from datetime import UTC, datetime
 from pathlib import Path
-
-import numpy as np
 
 from camcal import __version__
 from camcal.camera_id import Sensor, match, preferred, sensor_of
 from camcal.colour_matrix import fit_colour_matrix, twin_pairs
 from camcal.dark import DarkOptions, dark_frame_check, fit_dark_stacks, stack_darks
 from camcal.dark_model import with_dead_pixels
-from camcal.emva import build_sheet
+from camcal.emva import Nonuniformity, build_sheet
 from camcal.errors import CamcalError, TooFewFrames
 from camcal.flat import (
     FlatChecks,
@@ -32,7 +31,6 @@ from camcal.flat import (
     MasterFlat,
     check_flat_frame,
     fit_master,
-    flat_prnu,
     master_flat,
 )
 from camcal.flat_model import DEAD_RESPONSE, FlatModel, choose_flat, dead_pixels, same_f_number
@@ -216,14 +214,6 @@ def _reference(index: SessionIndex, opts: CalibrateOptions,
                       "--reference-f-number", session)
 
 
-def _flat_mask(master, dark):
-    """Pixels left out of the flat's PRNU: masked in every frame, and the dark model's defects."""
-    mask = ~np.isfinite(master.value)
-    if dark is not None and dark.defects.shape == mask.shape:
-        mask |= dark.defects != 0
-    return mask
-
-
 def _judged(index: SessionIndex, stage: str, judge: StageJudge, record: _Record) -> SessionIndex:
     """Record the verdicts ``judge`` gave while its stage decoded its frames, and take the frames it left out
     out of ``index``."""
@@ -268,39 +258,50 @@ def _sweep_check(index: SessionIndex) -> StageCheck | None:
 class _Record:
     """What a calibration left out, as it goes (the profile's provenance.left_out and not_calibrated).
 
-    ``left_out`` lists first the verdicts of the frames (:mod:`camcal.screen`: unreadable, copies, another
-    camera, the stage checks), in stage and file order, whether the screening or the stage itself judged them
-    (:meth:`screened`), then what the stages left out from what they measured (a dark alone at its exposure
-    time, a sweep frame saturated or without light).
+    :attr:`left_out` lists first the verdicts of the frames (:mod:`camcal.screen`: unreadable, copies, another
+    camera, the stage checks), in stage and file order (``order``), whether the screening or the stage itself
+    judged them (:meth:`screened`), then what the stages left out from what they measured (:meth:`leave_out`: a
+    dark alone at its exposure time, a sweep frame saturated or without light), in the order they were found.
+    :attr:`not_calibrated` lists first, in stage order, the stages whose every frame was left out, then the
+    others in the order they were skipped. Both are sorted when read (at the end of the calibration).
     """
 
     strict: bool
     root: Path
-    left_out: list[Verdict] = field(default_factory=list)
-    not_calibrated: list[dict] = field(default_factory=list)
-    n_screened: int = 0
-    """How many of ``left_out`` are frame verdicts (they come first)."""
-    order: Callable[[Verdict], tuple] | None = None
+    order: Callable[[Verdict], tuple]
     """Sort key of a frame verdict: (stage, place in the stage's file order)."""
-    n_all_left_out: int = 0
-    """How many of ``not_calibrated`` (the first ones, in stage order) are stages whose every frame was left out."""
+    frame_verdicts: list[Verdict] = field(default_factory=list)
+    measured: list[Verdict] = field(default_factory=list)
+    skipped: list[tuple[bool, dict]] = field(default_factory=list)
+    """(every frame of the stage left out?, the not_calibrated row), in the order the stages were skipped."""
 
-    def leave_out(self, verdicts: list[Verdict]) -> None:
+    @property
+    def left_out(self) -> list[Verdict]:
+        return sorted(self.frame_verdicts, key=self.order) + self.measured
+
+    @property
+    def not_calibrated(self) -> list[dict]:
+        def rank(row: dict) -> int:
+            return STAGES.index(row["stage"]) if row["stage"] in STAGES else len(STAGES)
+
+        return (sorted((row for all_out, row in self.skipped if all_out), key=rank)
+                + [row for all_out, row in self.skipped if not all_out])
+
+    def _refuse(self, verdicts: list[Verdict]) -> None:
         if self.strict and verdicts:
             v = verdicts[0]
             raise CamcalError(f"{v.reason} (--strict: a frame that cannot be used refuses the session; without "
                               "--strict it is left out and listed)", self.root / v.stage / v.file)
-        self.left_out.extend(verdicts)
+
+    def leave_out(self, verdicts: list[Verdict]) -> None:
+        """Add what a stage left out from what it measured (strict: refuse)."""
+        self._refuse(verdicts)
+        self.measured.extend(verdicts)
 
     def screened(self, verdicts: list[Verdict]) -> None:
-        """Add frame verdicts among the others, in stage and file order (a stage judging its own frames)."""
-        self.leave_out(verdicts)
-        del self.left_out[len(self.left_out) - len(verdicts):]
-        block = self.left_out[:self.n_screened] + list(verdicts)
-        if self.order is not None:
-            block.sort(key=self.order)
-        self.left_out[:self.n_screened] = block
-        self.n_screened = len(block)
+        """Add frame verdicts, of the screening or of a stage judging its own frames (strict: refuse)."""
+        self._refuse(verdicts)
+        self.frame_verdicts.extend(verdicts)
 
     def skip(self, stage: str, exc: TooFewFrames, left_out: bool = False) -> None:
         """Record that ``stage`` is not calibrated (too few usable frames); strict: raise. ``left_out``: ``exc``
@@ -308,16 +309,8 @@ class _Record:
         order, whether the screening or the stage itself found its frames unusable."""
         if self.strict:
             raise exc
-        row = {"stage": stage, "reason": exc.message}
-        if not (left_out and exc.remaining == 0 and exc.message.endswith(" left out)")):
-            self.not_calibrated.append(row)
-            return
-        rank = STAGES.index(stage) if stage in STAGES else len(STAGES)
-        head = self.not_calibrated[:self.n_all_left_out]
-        at = next((i for i, r in enumerate(head) if (STAGES.index(r["stage"]) if r["stage"] in STAGES
-                                                      else len(STAGES)) > rank), len(head))
-        self.not_calibrated.insert(at, row)
-        self.n_all_left_out += 1
+        all_out = left_out and exc.remaining == 0 and exc.message.endswith(" left out)")
+        self.skipped.append((all_out, {"stage": stage, "reason": exc.message}))
 
     def attempt(self, stage: str, fit: Callable[[], object], left_out: bool = False):
         """``fit()``; None when the stage has too few usable frames (recorded), unless strict."""
@@ -328,14 +321,50 @@ class _Record:
             return None
 
 
+@dataclass
+class _Judging:
+    """The session index of a calibration as its stages judge their frames (:class:`camcal.screen.StageJudge`).
+
+    ``index`` starts with the frames the screening kept; :meth:`judging` takes out those a stage's judge left
+    out as the stage decoded them, and records their verdicts.
+    """
+
+    index: SessionIndex
+    screening: Screening
+    judges: dict[str, StageJudge]
+    record: _Record
+
+    @contextmanager
+    def judging(self, *stages: str) -> Iterator[None]:
+        """Around a stage's decode: afterwards (also when it raised) the verdicts the judges of ``stages`` gave
+        are recorded and the frames they left out taken out of :attr:`index` (a judge's verdicts are recorded
+        once)."""
+        try:
+            yield
+        finally:
+            for s in stages:
+                judge = self.judges.get(s)
+                if judge is not None and s in self.index.frames:
+                    self.index = _judged(self.index, s, judge, self.record)
+
+    def all_left_out(self, stage: str) -> TooFewFrames:
+        """``stage`` has no usable frame left: every frame left out, by the screening or by its judge."""
+        judge = self.judges.get(stage)
+        n = len(self.screening.left_out(stage)) + (len(judge.left_out()) if judge is not None else 0)
+        return TooFewFrames(stage, "frames", 1, 0, f"all {n} left out", self.index.root / stage)
+
+
 def _fit_flats(index: SessionIndex, dark, opts: CalibrateOptions, ref_n: float | None, record: _Record,
-               notes: list[str], cb, judge: StageJudge | None = None) -> tuple[FlatModel | None, MasterFlat | None]:
+               notes: list[str], cb, judge: StageJudge | None = None
+               ) -> tuple[FlatModel | None, MasterFlat | None, dict[str, Nonuniformity] | None]:
     """The flat stage: one vignetting model per f-number of the flats (:func:`camcal.session.aperture_groups`).
 
     The primary model (the profile's ``flat``: dead pixels, PRNU, the sweep's flat correction) is the one at the
     reference f-number, else the one of most frames (the smaller f-number on a tie); the others are its
     :attr:`~camcal.flat_model.FlatModel.apertures`. Flats of unknown f-number beside known ones are left out.
-    Returns (primary model, its master flat), (None, None) when no group could be fitted.
+    Returns (primary model, its master flat, its EMVA 1288 PRNU per plane or None without unclipped statistics),
+    (None, None, None) when no group could be fitted. The PRNU is the one :func:`camcal.flat.fit_master` reduced
+    the primary's PRNU map to (:func:`camcal.flat.flat_prnu`), not computed again.
 
     ``judge``: the flat stage's :class:`camcal.screen.StageJudge` when its frames (of one f-number) are judged
     as the master flat decodes them.
@@ -351,7 +380,7 @@ def _fit_flats(index: SessionIndex, dark, opts: CalibrateOptions, ref_n: float |
         primary = (next((g for g in groups if same_f_number(g.f_number, ref_n)), None)
                    or max(groups, key=lambda g: (len(g.frames.frames), -(g.f_number or 0.0))))
         groups = [primary] + [g for g in groups if g is not primary]
-    fitted: list[tuple[FlatModel, MasterFlat]] = []
+    fitted: list[tuple[FlatModel, MasterFlat, dict[str, Nonuniformity]]] = []
     for i, g in enumerate(groups):
         label = "flat" if len(groups) == 1 else f"flat f/{g.f_number:g}"
         kwargs = flat_opts.fit_kwargs() | ({} if i == 0 else {"with_prnu": False})
@@ -359,10 +388,12 @@ def _fit_flats(index: SessionIndex, dark, opts: CalibrateOptions, ref_n: float |
         def fit(g=g, label=label, kwargs=kwargs):
             mf = master_flat(g.frames, dark, method=flat_opts.method, sigma=flat_opts.sigma,
                              checks=flat_opts.checks, jobs=opts.jobs, progress=cb(label), judge=judge)
-            fm = fit_master(mf, dark, **kwargs)
+            prnu: dict[str, Nonuniformity] = {}
+            # the PRNU figures of the first model fitted (the primary's, unless it could not be fitted)
+            fm = fit_master(mf, dark, prnu_out=None if fitted else prnu, **kwargs)
             if g.f_number is not None and fm.optics.f_number is None:  # the folder's f-number (not in the files)
-                fm = replace(fm, optics=replace(fm.optics, f_number=g.f_number, f_number_source=g.f_number_source))
-            return fm, mf
+                fm = fm.replace(optics=replace(fm.optics, f_number=g.f_number, f_number_source=g.f_number_source))
+            return fm, mf, prnu
 
         result = record.attempt(label, fit, left_out=judge is not None)
         if result is not None:
@@ -370,17 +401,17 @@ def _fit_flats(index: SessionIndex, dark, opts: CalibrateOptions, ref_n: float |
         elif i == 0 and len(groups) > 1:
             notes.append(f"the flats at f/{g.f_number:g} could not be fitted; the next f-number's model is primary")
     if not fitted:
-        return None, None
-    (primary_model, master), others = fitted[0], [m for m, _ in fitted[1:]]
+        return None, None, None
+    (primary_model, master, prnu), others = fitted[0], [m for m, _, _ in fitted[1:]]
     if not others:
-        return primary_model, master
+        return primary_model, master, prnu or None
     if primary_model.prnu is None:  # the first fitted was not the primary group: no PRNU map to share
         notes.append("the primary flats could not be fitted: no PRNU map")
-    others = [replace(m, prnu=primary_model.prnu) for m in others]
-    flat = replace(primary_model, apertures=tuple(sorted(others, key=lambda m: m.optics.f_number or 0.0)))
+    others = [m.replace(prnu=primary_model.prnu) for m in others]
+    flat = primary_model.replace(apertures=tuple(sorted(others, key=lambda m: m.optics.f_number or 0.0)))
     notes.append("flats at " + ", ".join(m.optics.label() for m in flat.models()) + ": one vignetting model per "
                  f"f-number; primary (PRNU, dead pixels, the sweep's flat) {primary_model.optics.label()}")
-    return flat, master
+    return flat, master, prnu or None
 
 
 def calibrate_session(
@@ -425,53 +456,43 @@ def calibrate_session(
     stage_rank = {s: i for i, s in enumerate(index.stages)}
     file_rank = {s: {p.name: i for p, i in screening.order.get(s, {}).items()} for s in index.stages}
     record = _Record(opts.strict, session, order=lambda v: (stage_rank[v.stage], file_rank[v.stage].get(v.file, 0)))
-    record.leave_out(screening.left_out())
-    record.n_screened = len(record.left_out)
+    record.screened(screening.left_out())
     judges = {s: screening.judge(s, checks.get(s)) for s in screening.deferred}
-    index = replace(index, frames=dict(screening.kept))
-    camera = identity_from_screening(index, screening)
-    stages = [s for s in index.stages if index.frames[s].frames]
-    for s in index.stages:
+    run = _Judging(replace(index, frames=dict(screening.kept)), screening, judges, record)
+    camera = identity_from_screening(run.index, screening)
+    stages = [s for s in run.index.stages if run.index.frames[s].frames]
+    for s in run.index.stages:
         if s not in stages:
-            record.skip(s, TooFewFrames(s, "frames", 1, 0, f"all {len(screening.left_out(s))} left out",
-                                        session / s), left_out=True)
-    ref_iso, ref_n, notes = _reference(index, opts, required=any(s in stages for s in NORMALISING_STAGES))
+            record.skip(s, run.all_left_out(s), left_out=True)
+    ref_iso, ref_n, notes = _reference(run.index, opts, required=any(s in stages for s in NORMALISING_STAGES))
 
     dark = flat = spectral = None
     response = None
     dark_stacks = master = prnu = pairs = series = None
-    bias_frames = index.stage("bias") if "bias" in stages else None
+    bias_frames = run.index.stage("bias") if "bias" in stages else None
     dark_judge, bias_judge = judges.get("dark"), judges.get("bias")
     if "dark" in stages:
         dark_opts = DarkOptions(method=opts.dark_method)
 
         def fit_darks():
-            nonlocal dark_stacks, index
-            try:
-                stacks = stack_darks(index.frames["dark"], bias_frames, dark_opts, jobs=opts.jobs,
+            nonlocal dark_stacks
+            with run.judging("bias", "dark"):
+                stacks = stack_darks(run.index.frames["dark"], bias_frames, dark_opts, jobs=opts.jobs,
                                      progress=cb("dark"), judge=dark_judge, bias_judge=bias_judge)
-            finally:
-                for s, j in (("bias", bias_judge), ("dark", dark_judge)):
-                    if j is not None and s in index.frames:
-                        index = _judged(index, s, j, record)
             record.leave_out([Verdict("dark", name, reason) for name, reason in stacks.left_out])
             dark_stacks = stacks
             return fit_dark_stacks(stacks, dark_opts, jobs=opts.jobs)
 
         dark = record.attempt("dark", fit_darks, left_out=dark_judge is not None)
-        if bias_frames is not None and bias_judge is not None and not index.frames["bias"].frames:
-            record.skip("bias", TooFewFrames("bias", "frames", 1, 0, f"all {len(bias_judge.left_out())} left out",
-                                             session / "bias"), left_out=True)
+        if bias_frames is not None and bias_judge is not None and not run.index.frames["bias"].frames:
+            record.skip("bias", run.all_left_out("bias"), left_out=True)
             bias_frames = None  # every bias frame left out as the dark stage decoded them
     if dark is None and bias_frames is not None:
         def fit_bias():
-            nonlocal dark_stacks, index
-            try:
-                dark_stacks = stack_darks(None, index.stage("bias"), jobs=opts.jobs, progress=cb("bias"),
+            nonlocal dark_stacks
+            with run.judging("bias"):
+                dark_stacks = stack_darks(None, run.index.stage("bias"), jobs=opts.jobs, progress=cb("bias"),
                                           bias_judge=bias_judge)
-            finally:
-                if bias_judge is not None:
-                    index = _judged(index, "bias", bias_judge, record)
             return fit_dark_stacks(dark_stacks, jobs=opts.jobs)
 
         dark = record.attempt("bias", fit_bias, left_out=bias_judge is not None)
@@ -479,15 +500,9 @@ def calibrate_session(
             notes.append("bias/ without dark/: bias, read noise and noisy pixels calibrated; dark current unknown "
                          "(apply subtracts the bias only; add dark frames at two exposure times to measure it)")
     if "flat" in stages:
-        flat_judge = judges.get("flat")
-        try:
-            flat, master = _fit_flats(index, dark, opts, ref_n, record, notes, cb, flat_judge)
-        finally:
-            if flat_judge is not None:
-                index = _judged(index, "flat", flat_judge, record)
+        with run.judging("flat"):
+            flat, master, prnu = _fit_flats(run.index, dark, opts, ref_n, record, notes, cb, judges.get("flat"))
         if flat is not None:
-            if master is not None and master.mean_all is not None:
-                prnu = flat_prnu(master, flat, _flat_mask(master, dark))
             dead = dead_pixels(flat)
             if dark is not None:
                 dark = with_dead_pixels(dark, dead, f"flat response below {DEAD_RESPONSE:g} of the model")
@@ -496,18 +511,14 @@ def calibrate_session(
                              "profile has no defect map")
     if "linearity" in stages:
         def fit_linearity():
-            nonlocal series, pairs, index
+            nonlocal series, pairs
             judge = judges.get("linearity")
-            try:
-                series = measure_series(index.frames["linearity"], dark=dark, reference_iso=ref_iso,
+            with run.judging("linearity"):
+                series = measure_series(run.index.frames["linearity"], dark=dark, reference_iso=ref_iso,
                                         reference_f_number=ref_n, progress=cb("linearity"), jobs=opts.jobs,
                                         judge=judge)
-            finally:
-                if judge is not None:
-                    index = _judged(index, "linearity", judge, record)
-            if judge is not None and not index.frames["linearity"].frames:
-                raise TooFewFrames("linearity", "frames", 1, 0, f"all {len(judge.left_out())} left out",
-                                   session / "linearity")
+            if judge is not None and not run.index.frames["linearity"].frames:
+                raise run.all_left_out("linearity")
             pairs = series["raw"].pairs if "raw" in series else None
             return fit_series_set(series)
 
@@ -515,13 +526,15 @@ def calibrate_session(
     if "sweep" in stages:
         judge = judges.get("sweep")
         if judge is not None and judge.majority.raw_shape is None:
-            # no RAW frame to take the sweep's geometry from: its rows are judged before they are measured
+            # no RAW frame to take the sweep's geometry from: its rows are judged before they are measured (their
+            # verdicts recorded here; the judge gives no more)
             deferred = set(screening.deferred["sweep"])
-            judge.judge_all([r for r in index.frames["sweep"].frames if r.path.name in deferred])
-            index, judge = _judged(index, "sweep", judge, record), None
-        sweep = index.frames["sweep"]
+            with run.judging("sweep"):
+                judge.judge_all([r for r in run.index.frames["sweep"].frames if r.path.name in deferred])
+            judge = None
+        sweep = run.index.frames["sweep"]
         kept_names = {p.name for p in sweep.paths}
-        rows = sweep_rows(sweep.folder, index.sweep_manifest) if index.sweep_manifest is not None else None
+        rows = sweep_rows(sweep.folder, run.index.sweep_manifest) if run.index.sweep_manifest is not None else None
         rows = rows if rows is not None else read_sweep(sweep.folder)
         listed = len({r.wavelength_nm for r in rows})
         rows = [r for r in rows if r.path.name in kept_names]
@@ -538,24 +551,20 @@ def calibrate_session(
                              f"{sweep_flat.optics.label()} vignetting model")
 
         def fit_sweep():
-            nonlocal index
             if not rows:
                 raise TooFewFrames("sweep", "frames listed in sweep.csv", 1, 0)
             try:
-                measured = measure_sweep_settings(sweep.folder, rows, dark=dark, flat=sweep_flat,
-                                                  options=sweep_opts, jobs=opts.jobs, progress=cb("sweep"),
-                                                  judge=judge)
+                with run.judging("sweep"):
+                    measured = measure_sweep_settings(sweep.folder, rows, dark=dark, flat=sweep_flat,
+                                                      options=sweep_opts, jobs=opts.jobs, progress=cb("sweep"),
+                                                      judge=judge)
             except TooFewFrames:
                 if judge is None or any(r is None for r in judge.reasons.values()):
                     raise
                 # every row left out as it was decoded: as when the screening leaves them out
                 if all(r.path in judge.reasons for r in sweep.frames):
-                    n = len(screening.left_out("sweep")) + len(judge.left_out())
-                    raise TooFewFrames("sweep", "frames", 1, 0, f"all {n} left out", session / "sweep") from None
+                    raise run.all_left_out("sweep") from None
                 raise TooFewFrames("sweep", "frames listed in sweep.csv", 1, 0) from None
-            finally:
-                if judge is not None:
-                    index = _judged(index, "sweep", judge, record)
             record.leave_out([Verdict("sweep", name, reason) for name, reason in measured.left_out])
             require_wavelengths(measured, listed=listed)
             return sensitivity_from_settings(measured, sweep_opts)
@@ -564,12 +573,14 @@ def calibrate_session(
         if spectral is not None and flat is None:
             notes.append("sweep without a flat model: c(λ) refers to the region of interest, not the optical axis")
         if response is not None and "processed" in response:
-            if twin_pairs(index.frames["sweep"]):  # the sweep's colours; the series adds a broadband one
-                cm = fit_colour_matrix([index.frames["sweep"], index.frames["linearity"]], response["processed"])
+            if twin_pairs(run.index.frames["sweep"]):  # the sweep's colours; the series adds a broadband one
+                cm = fit_colour_matrix([run.index.frames["sweep"], run.index.frames["linearity"]],
+                                       response["processed"])
                 response = {**response, "processed": replace(response["processed"], colour_matrix=cm)}
             else:
                 notes.append("JPEG response without a colour matrix (the sweep has no JPEG twins): JPEG radiance "
                              "assumes the camera does not mix its channels")
+    index = run.index
     if dark is None and flat is None and not response and spectral is None:
         why = "; ".join(f"{r['reason']}" for r in record.not_calibrated) or "no stage was calibrated"
         gone = "; ".join(f"{v.stage}/{v.file}: {v.reason}" for v in record.left_out[:3])

@@ -501,11 +501,14 @@ def fit_dark_stacks(stacks: DarkStacks, options: DarkOptions = DarkOptions(),  #
     def hot(k: int) -> None:
         med_b, rs_b = _robust(beta[k])
         thresh = med_b + max(hot_sigma * rs_b, (hot_factor - 1.0) * abs(med_b))
-        defects[k] = ((~np.isfinite(beta[k]) | (beta[k] > thresh)) * HOT).astype(np.uint8)
+        hot_k = np.isfinite(beta[k])  # not finite, or above the threshold: HOT (no int64 product of the plane)
+        np.logical_not(hot_k, out=hot_k)
+        hot_k |= beta[k] > thresh
+        np.multiply(hot_k, np.uint8(HOT), out=defects[k])
 
     _run_planes(hot, beta.shape[0], jobs, beta[0].size)
     noise = temporal_noise(rn_stack, var_t, defects, noisy_sigma, jobs)
-    defects |= (noise.noisy * NOISY).astype(np.uint8)
+    np.bitwise_or(defects, np.uint8(NOISY), out=defects, where=noise.noisy)
     read_noise = noise.read_noise_map_dn
     # pixels without a fit (saturated in all but one group): β lower bound from saturation
     no_fit = ~np.isfinite(beta)
@@ -666,7 +669,7 @@ def temporal_noise(stack: StackResult, var_t: np.ndarray, defects: np.ndarray, n
         vhat = float(np.mean(v))
         temporal[k] = math.sqrt(vhat)
         if dof >= 1 and vhat > 0:
-            noisy[k] = var_t[k] > vhat * bound
+            np.greater(var_t[k], vhat * bound, out=noisy[k])
 
     _run_planes(plane, c, jobs, var_t[0].size)
     rn_map = var_t - QUANTISATION_VAR_DN2  # then max(·, 0) and √ in place: one array, not three
@@ -725,7 +728,7 @@ def _fit_bias_stack(st: StackResult, bias_folder: Path | None, options: DarkOpti
     var_t = np.asarray(st.variance, np.float64)
     defects = np.zeros(var_t.shape, np.uint8)
     noise = temporal_noise(st, var_t, defects, noisy_sigma)
-    defects |= (noise.noisy * NOISY).astype(np.uint8)
+    np.bitwise_or(defects, np.uint8(NOISY), out=defects, where=noise.noisy)
     b = np.asarray(st.value, np.float64)
     n = np.maximum(np.asarray(st.count, np.float64), 1.0)
     channels = {}
@@ -809,7 +812,8 @@ def _fit_lines(obs, white: float, *, variance: Callable[[np.ndarray, tuple], np.
 
     ``variance(level_band, index)``, when given, replaces the per-frame variances (a noise model of the band's
     levels; the observations' own variances may then be None). ``with_variance=False`` skips the uncertainties
-    (var(β) and var(b) are returned as None), ``with_fit=False`` the line itself (β and b are None).
+    (var(β) and var(b) are returned as None), ``with_fit=False`` the line itself (β, b and the number of exposure
+    times are None).
 
     The closed-form sums run over row bands of about :data:`FIT_BAND_PIXELS` pixels in ``jobs`` threads, in
     float64 with the operations of the whole-array formulas in the same order: the result does not depend on
@@ -822,7 +826,7 @@ def _fit_lines(obs, white: float, *, variance: Callable[[np.ndarray, tuple], np.
            for t, y, n, v in obs]
     beta = np.empty(shape) if with_fit else None
     b = np.empty(shape) if with_fit else None
-    n_times = np.empty(shape, np.int16)
+    n_times = np.empty(shape, np.int16) if with_fit else None
     beta_var = np.empty(shape) if with_variance else None
     b_var = np.empty(shape) if with_variance else None
 
@@ -863,7 +867,7 @@ def _fit_lines(obs, white: float, *, variance: Callable[[np.ndarray, tuple], np.
                 beta[idx] = bb
                 bi = (sy - bb * st) / s
                 b[idx] = bi if every else np.where(ok, bi, np.nan)
-            n_times[idx] = cnt
+                n_times[idx] = cnt
             if not with_variance:
                 return
             tbar = st / s

@@ -286,6 +286,7 @@ def fit_flat_planes(
     )
     if not with_prnu:
         return fm
+    fm = fm.with_gain(fm.gain())  # evaluated once: the PRNU here, then the sweep's correction and the profile
     smooth = _smooth_model(fm)
     if smooth_out is not None:
         smooth_out.append(smooth)
@@ -304,7 +305,7 @@ def fit_flat_planes(
         if noise_var is not None:
             var -= float(np.mean((noise_var[i] / smooth[i] ** 2 / mean**2)[good]))
         prnu_rms[c] = float(np.sqrt(max(var, 0.0)))
-    return dataclasses.replace(fm, prnu=prnu.astype(np.float32), prnu_rms=prnu_rms)
+    return fm.replace(prnu=prnu.astype(np.float32), prnu_rms=prnu_rms)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -664,8 +665,13 @@ def fit_master(
     n_terms: int = DEFAULT_TERMS,
     degree_2d: int = 4,
     with_prnu: bool = True,
+    prnu_out: dict[str, Nonuniformity] | None = None,
 ) -> FlatModel:
-    """Fit a :class:`MasterFlat` (hot pixels of ``dark_model.defects`` masked); levels reported in DN."""
+    """Fit a :class:`MasterFlat` (hot pixels of ``dark_model.defects`` masked); levels reported in DN.
+
+    ``prnu_out``: a dict filled with the EMVA 1288 PRNU per plane of this fit (:func:`flat_prnu`, about the smooth
+    model the fit evaluated already; also without ``with_prnu``), when the master has unclipped statistics.
+    """
     mask = ~np.isfinite(mf.value)  # masked in every frame: known defects, saturated (camcal.correct)
     if dark_model is not None and getattr(dark_model, "defects", None) is not None:
         defects = np.asarray(dark_model.defects).astype(bool)
@@ -686,12 +692,15 @@ def fit_master(
     fm = fit_flat_planes(mf.value, channels=mf.channels, cfa_pattern=mf.cfa_pattern, model=model,
                          downsample=downsample, n_terms=n_terms, degree_2d=degree_2d, mask=mask, with_prnu=with_prnu,
                          noise_var=mf.variance_of_mean, info=info, smooth_out=smooth)
-    if with_prnu and mf.mean_all is not None:
-        figures = _prnu_figures(mf, fm.channels, smooth[0], mask)
-        fm = dataclasses.replace(fm, prnu_rms={c: p.value for c, p in figures.items()})
+    if (with_prnu or prnu_out is not None) and mf.mean_all is not None:
+        figures = _prnu_figures(mf, fm.channels, smooth[0] if smooth else _smooth_model(fm), mask)
+        if with_prnu:
+            fm = fm.replace(prnu_rms={c: p.value for c, p in figures.items()})
+        if prnu_out is not None:
+            prnu_out.update(figures)
     # the master is normalised per plane: report the on-axis level in DN of the frames
     level_dn = {c: fm.level_dn[c] * mf.level_dn[c] for c in fm.channels}
-    return dataclasses.replace(fm, level_dn=level_dn, optics=mf.optics)
+    return fm.replace(level_dn=level_dn, optics=mf.optics)
 
 
 def flat_prnu(mf: MasterFlat, fm: FlatModel, mask: np.ndarray | None = None) -> dict[str, Nonuniformity]:

@@ -139,6 +139,10 @@ class Optics:
         return n if self.focal_length_mm is None else f"{n}, {self.focal_length_mm:g} mm"
 
 
+_MODEL_FIELDS = frozenset({"channels", "centre_px", "k", "model_2d", "shape", "cfa_pattern"})
+"""The fields of :class:`FlatModel` its gain depends on."""
+
+
 @dataclass(frozen=True)
 class FlatModel:
     """A fitted flat field.
@@ -200,6 +204,32 @@ class FlatModel:
         """The f-numbers of the flats, by value (None: unknown)."""
         return [m.optics.f_number for m in self.models()]
 
+    def replace(self, **changes) -> FlatModel:
+        """:func:`dataclasses.replace`, keeping the gain evaluated already (:meth:`with_gain`) when ``changes``
+        leave the model itself (its planes, centres, coefficients) as it is."""
+        new = dataclasses.replace(self, **changes)
+        gain = self.__dict__.get("_gain")
+        if gain is not None and not changes.keys() & _MODEL_FIELDS:
+            object.__setattr__(new, "_gain", gain)
+        return new
+
+    def with_gain(self, gain: np.ndarray) -> FlatModel:
+        """This model holding ``gain``, its own :meth:`gain` (no PRNU) as evaluated by the caller: :meth:`gain`
+        returns it (read-only) instead of evaluating the model again. A calibration evaluates the model once, in
+        its fit, and passes it on to the sweep's correction and the profile's maps. A model loaded from a file
+        holds no gain: each use evaluates it (no whole-frame map kept beside the caller's)."""
+        gain = np.asarray(gain, np.float32)
+        if gain.shape != (len(self.channels), *self.shape):
+            raise ValueError(f"a gain of shape {gain.shape} for a model of {len(self.channels)} x {self.shape}")
+        gain = gain.view()
+        gain.setflags(write=False)
+        new = dataclasses.replace(self)
+        object.__setattr__(new, "_gain", gain)
+        return new
+
+    def __getstate__(self) -> dict:
+        return {k: v for k, v in self.__dict__.items() if k != "_gain"}  # the gain is evaluated again, not copied
+
     def corner_values(self) -> np.ndarray:
         """(C, 4) gain at the four plane corners of each plane (the model only, no PRNU), without a full map."""
         h, w = self.shape
@@ -230,9 +260,13 @@ class FlatModel:
     def gain(self, with_prnu: bool = False) -> np.ndarray:
         """(C, h, w) relative illumination, 1 at the optical centre (times the PRNU map when asked).
 
-        The 2-D model is used when present, else the DNG radial model.
+        The 2-D model is used when present, else the DNG radial model. A model holding its gain
+        (:meth:`with_gain`) returns it, read-only, without evaluating it again.
         """
-        if self.model_2d:
+        held = self.__dict__.get("_gain")
+        if held is not None:
+            out = held
+        elif self.model_2d:
             h, w = self.shape
             yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
             out = np.empty((len(self.channels), h, w), np.float32)
@@ -247,9 +281,10 @@ class FlatModel:
         return out
 
     def corner_gain(self) -> dict[str, float]:
-        """Smallest gain at the four plane corners, per plane."""
-        g = self.gain()
-        return {c: float(min(g[i, 0, 0], g[i, 0, -1], g[i, -1, 0], g[i, -1, -1])) for i, c in enumerate(self.channels)}
+        """Smallest gain at the four plane corners, per plane (the values of :meth:`gain`'s float32 map, the
+        model evaluated at the corners only)."""
+        g = self.corner_values().astype(np.float32)
+        return {c: float(min(g[i])) for i, c in enumerate(self.channels)}
 
     def centre_full_px(self) -> dict[str, tuple[float, float]]:
         """Optical centre per plane in full-resolution mosaic pixels (x, y)."""

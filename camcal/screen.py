@@ -17,9 +17,10 @@ Where a frame is judged (each frame decoded once for its verdict and its stage):
   their one streaming pass, and leave a frame judged unusable out of what they accumulate. ``--strict`` judges
   every frame in :func:`screen_session` first (all or nothing, refused at the first problem).
 
-Both give the same verdicts, formed in one place (:func:`_reason`), in the same stage and file order. Each file
-is also hashed (SHA-256, :func:`camcal.hashing.sha256_file`) in the thread that decoded it, while its bytes are
-in the page cache; the hash is remembered for the profile's provenance.
+Both decode a frame through :func:`decode_facts` and give the same verdicts, formed in one place
+(:func:`_reason`), in the same stage and file order. Each file is also hashed (SHA-256,
+:func:`camcal.hashing.sha256_file`) in the thread that decoded it, while its bytes are in the page cache; the hash
+is remembered for the profile's provenance.
 
 A stack combined on its own (``camcal dark``, :func:`camcal.stack.combine_frames` without a stage's judge) goes
 through the same code with a :class:`StrictJudge`: no frame is left out, an unreadable frame or a copy is an error.
@@ -164,8 +165,8 @@ class Screening:
                           self.facts)  # type: ignore[arg-type]
 
 
-def _facts_of(frame, check: StageCheck | None) -> FrameFacts:
-    """The :class:`FrameFacts` of a decoded frame (the stage ``check`` run on it)."""
+def _facts_of(path: Path, frame, check: StageCheck | None) -> FrameFacts:
+    """The :class:`FrameFacts` of ``frame`` decoded from ``path`` (the stage ``check`` run on it)."""
     check_error = None
     if check is not None:
         try:
@@ -176,18 +177,40 @@ def _facts_of(frame, check: StageCheck | None) -> FrameFacts:
     # a frame with every value at the white level holds no noise: two separate over-exposed frames have the same
     # pixels without being copies, so it takes no part in the duplicate check
     digest = b"" if int(frame.data.min()) >= frame.white_level_dn else frame_digest(frame.data)
-    return FrameFacts(frame.path, frame.kind, frame.layout, tuple(frame.shape),  # type: ignore[arg-type]
+    return FrameFacts(path, frame.kind, frame.layout, tuple(frame.shape),  # type: ignore[arg-type]
                       frame.cfa_pattern, e.make, e.model, e.serial, digest, None, check_error)
+
+
+def decode_facts(path: Path, loader: Callable[[Path], object], check: StageCheck | None = None, *,
+                 hash_file: bool = True) -> tuple[object | None, FrameFacts]:
+    """Decode ``path`` once: ``(frame, facts)``, the frame ``loader(path)`` decodes (None when it cannot) and what
+    judging needs (the stage ``check`` run on it; ``facts.error`` the reader's message when it cannot be decoded).
+
+    The one place a frame is decoded for its verdict, by the screening and by a stage's :class:`StageJudge`.
+    ``hash_file``: the file is hashed (:func:`camcal.hashing.sha256_file`, remembered for the provenance) right
+    after its decode, while its bytes are in the page cache.
+    """
+    try:
+        frame = loader(path)
+    except CamcalError as exc:
+        frame, facts = None, FrameFacts(path, error=exc.message)
+    else:
+        facts = _facts_of(path, frame, check)
+    if hash_file:
+        with contextlib.suppress(OSError):  # the file is in the page cache now: its provenance hash is cheap
+            sha256_file(path, remember=True)
+    return frame, facts
+
+
+def _loader(overrides: Mapping[str, float | None] | None) -> Callable[[Path], object]:
+    """:func:`camcal.io.load_frame` with a frame's manifest ``overrides``."""
+    return lambda p: load_frame(p, dict(overrides or {}))
 
 
 def frame_facts(path: Path, overrides: Mapping[str, float | None] | None = None,
                 check: StageCheck | None = None) -> FrameFacts:
-    """Decode ``path`` once and return its :class:`FrameFacts` (the stage ``check`` run on it)."""
-    try:
-        frame = load_frame(path, dict(overrides or {}))
-    except CamcalError as exc:
-        return FrameFacts(path, error=exc.message)
-    return dataclasses.replace(_facts_of(frame, check), path=path)
+    """Decode ``path`` once and return its :class:`FrameFacts` (the stage ``check`` run on it; not hashed)."""
+    return decode_facts(path, _loader(overrides), check, hash_file=False)[1]
 
 
 def header_facts(path: Path, overrides: Mapping[str, float | None] | None = None) -> FrameFacts:
@@ -281,11 +304,11 @@ class StageJudge:
     once: no screening decode before the stage).
 
     :meth:`load` runs in the stage's decode threads: it decodes the frame with the stage's own loader, hashes the
-    file beside the decode (its bytes are in the page cache) and runs the stage check. :meth:`decide` runs in
-    the stage's own thread, frame after frame, and gives the verdict (:func:`_reason`: the same reasons as
-    :func:`screen_session`). A copy is told by its pixel digest; the copy first in the stage's file order is
-    kept, whatever order the stage reads them in: when the kept copy comes after a copy already used,
-    :attr:`retracted` names the one used, now a duplicate (the stage leaves it out again).
+    file beside the decode (its bytes are in the page cache) and runs the stage check (:func:`decode_facts`).
+    :meth:`decide` runs in the stage's own thread, frame after frame, and gives the verdict (:func:`_reason`:
+    the same reasons as :func:`screen_session`). A copy is told by its pixel digest; the copy first in the
+    stage's file order is kept, whatever order the stage reads them in: when the kept copy comes after a copy
+    already used, :attr:`retracted` names the one used, now a duplicate (the stage leaves it out again).
     """
 
     def __init__(self, stage: str, majority: Majority, check: StageCheck | None, order: Mapping[Path, int],
@@ -303,16 +326,7 @@ class StageJudge:
 
     def load(self, path: Path, loader: Callable[[Path], object]) -> tuple[object | None, FrameFacts]:
         """``(frame, facts)``: the frame ``loader(path)`` decodes (None when it cannot) and what judging needs."""
-        try:
-            frame = loader(path)
-        except CamcalError as exc:
-            facts = FrameFacts(path, error=exc.message)
-            frame = None
-        else:
-            facts = dataclasses.replace(_facts_of(frame, self.check), path=path)
-        with contextlib.suppress(OSError):  # the file is in the page cache now: its provenance hash is cheap
-            sha256_file(path, remember=True)
-        return frame, facts
+        return decode_facts(path, loader, self.check)
 
     def decide(self, path: Path, facts: FrameFacts) -> str | None:
         """The verdict of ``path`` (None: used); recorded. A path judged already keeps its verdict."""
@@ -342,7 +356,7 @@ class StageJudge:
         returns the ones used."""
         kept = []
         for ref in refs:
-            _frame, facts = self.load(ref.path, lambda p, ref=ref: load_frame(p, dict(ref.overrides or {})))
+            _frame, facts = self.load(ref.path, _loader(ref.overrides))
             if self.decide(ref.path, facts) is None:
                 kept.append(ref)
         return [r for r in kept if self.reasons.get(r.path) is None]
@@ -407,10 +421,7 @@ def screen_session(index: SessionIndex, checks: Mapping[str, StageCheck] | None 
         s, ref = item
         if (s, ref.path) in deferred:
             return header_facts(ref.path, ref.overrides)
-        facts = frame_facts(ref.path, ref.overrides, checks.get(s))
-        with contextlib.suppress(OSError):  # the file is in the page cache now: its provenance hash is cheap
-            sha256_file(ref.path, remember=True)
-        return facts
+        return decode_facts(ref.path, _loader(ref.overrides), checks.get(s))[1]
 
     first_pixels = None
     for _s, ref in items[:1]:  # the thread rule looks at the frame size; a header read is not worth it here

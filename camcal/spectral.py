@@ -225,7 +225,9 @@ def _robust_mask(m: np.ndarray, valid: np.ndarray | None = None, nsigma: float =
     if sample.size == 0:
         return np.zeros(m.shape, bool)
     med = np.median(sample)
-    mad = median_abs_deviation(sample, scale="normal")
+    # the median just taken is the MAD's centre (scipy's default centre is this same np.median of the same
+    # values): given, it is not taken a second time
+    mad = median_abs_deviation(sample, center=lambda x, axis: med, scale="normal")
     if mad <= 0:
         return ok.copy()
     return ok & (np.abs(m - med) <= nsigma * mad)

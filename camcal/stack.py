@@ -7,7 +7,9 @@ stage's :class:`camcal.screen.StageJudge` leaves an unusable frame out; by defau
 :class:`camcal.screen.StrictJudge` makes it an error):
 
 - ``method="mean"``: running sums of the deviations from the first frame and of their squares in
-  float64 (the shifted-data algorithm, Chan, Golub & LeVeque 1983), one frame in memory at a time.
+  float64 (the shifted-data algorithm, Chan, Golub & LeVeque 1983), one frame in memory at a time; a Bayer
+  frame with the default planes is summed as its mosaic (the sums are per pixel) and the result split into
+  its planes once, at the end.
 - ``method="median"`` / ``"sigma_clip"``: each decoded frame is spilled to a temporary
   raw file (uint16 when the planes are integer DN, as with the default preprocessing,
   float32 otherwise; a Bayer frame with the default planes as its mosaic, split into planes band by band
@@ -165,8 +167,8 @@ class _Decoder:
         self.spill_dtype = np.dtype(np.uint16 if preprocess is None else np.float32)
         self.spill_fd: int | None = None
         self.mosaic = False
-        """Spill Bayer frames as their mosaic (set for a spilled stack of default planes whose first frame is
-        a Bayer mosaic; the pattern is the same in every frame, :func:`_check_same`)."""
+        """Spill (median/clip) or sum (mean) Bayer frames as their mosaic (set for a stack of default planes
+        whose first frame is a Bayer mosaic; the pattern is the same in every frame, :func:`_check_same`)."""
         self.lock = threading.Lock()
         self.prefetched: dict[int, Future] = {}
         """Frames whose decode was started ahead (:meth:`prefetch`), by index."""
@@ -198,10 +200,10 @@ class _Decoder:
                   want_planes: bool = True) -> tuple[_Meta, np.ndarray | None, np.ndarray | None]:
         """The check, the :class:`_Meta`, what to spill and the planes (preprocessed) of a decoded frame.
 
-        What to spill is None without a spill file (``mean``), the Bayer mosaic itself when :attr:`mosaic` is set
-        (no planes are split out of it: the band statistics are per pixel, and each band is split into its
-        planes once its statistics are done), the planes otherwise. The planes are None when not wanted and
-        not spilled."""
+        What to spill (or, for ``mean``, to sum) is the Bayer mosaic itself when :attr:`mosaic` is set (no
+        planes are split out of it: the statistics are per pixel, and split into planes once done), else the
+        planes when there is a spill file, else None. The planes are None when not wanted and the mosaic is
+        given."""
         if self.check is not None:
             self.check(frame)
         pre = self.preprocess
@@ -241,24 +243,27 @@ class _Decoder:
         if fd is not None:
             os.close(fd)
 
-    def worker(self, item: tuple[int, str]) -> tuple[int, FrameFacts, _Meta | None, np.ndarray | None]:
+    def worker(self, item: tuple[int, str]) -> tuple[int, FrameFacts, _Meta | None, np.ndarray | None,
+                                                     np.ndarray | None]:
         """Decode one frame in a pool thread and give what its judge needs (:class:`camcal.screen.StageJudge`);
         a frame the judge will leave out (unreadable, another camera, the stage check) goes no further, the
-        others are spilled (median/clip; their planes returned only when kept) or returned (mean)."""
+        others are spilled (median/clip; their planes returned only when kept) or returned (mean: the planes,
+        or the Bayer mosaic with the planes only when kept). Gives (index, facts, meta, planes, mosaic)."""
         assert self.first is not None  # set from the first frame used before any worker runs
         index, path = item[0], Path(item[1])
         frame, facts = self.judged_load(index, path)
         if frame is None or facts.check_error is not None or self.judge.majority.mismatch(facts) is not None:
-            return index, facts, None, None
+            return index, facts, None, None, None
         spilled = self.spill_path is not None
         meta, spill, planes = self.planes_of(index, path, frame,  # type: ignore[arg-type]
-                                             want_planes=not spilled or index < self.keep_frames)
+                                             want_planes=(not spilled and not self.mosaic)
+                                             or index < self.keep_frames)
         del frame
         _check_same(meta, self.first, path)
-        if spill is not None:
+        if spilled and spill is not None:
             self.spill_write(index, spill)
-            return index, facts, meta, planes if index < self.keep_frames else None
-        return index, facts, meta, planes
+            return index, facts, meta, planes if index < self.keep_frames else None, None
+        return index, facts, meta, planes, spill
 
 
 # --------------------------------------------------------------------------------------------
@@ -695,7 +700,7 @@ def combine_frames(
     n = len(paths)
     judge = judge if judge is not None else StrictJudge(paths)
     dec = _Decoder(manifest, check, preprocess, keep_frames, judge)  # this call's settings, given to the threads
-    dec.mosaic = method != "mean" and preprocess is None
+    dec.mosaic = preprocess is None
     done = 0
 
     def tick() -> None:
@@ -728,7 +733,7 @@ def _combine(paths: tuple[Path, ...], method: str, sigma: float, keep_frames: in
         tick()
         if judge.decide(path, facts) is None:
             first_meta, first_spill, first_planes = dec.planes_of(  # type: ignore[arg-type]
-                start - 1, path, frame, want_planes=method == "mean" or keep_frames > 0)
+                start - 1, path, frame, want_planes=(method == "mean" and not dec.mosaic) or keep_frames > 0)
             del frame
             break
     if first_meta is None:
@@ -746,12 +751,13 @@ def _combine(paths: tuple[Path, ...], method: str, sigma: float, keep_frames: in
     with spill as spill_path:
         dec.spill_path = spill_path
         try:
-            acc = _ShiftedSums(first_planes) if method == "mean" else None
+            acc = (_ShiftedSums(first_planes if first_spill is None else first_spill) if method == "mean"
+                   else None)
             if acc is None:
                 dec.spill_write(first_index, first_planes if first_spill is None else first_spill)
             del first_planes, first_spill
             items = [(i, str(paths[i])) for i in range(start, n)]
-            for index, facts, meta, planes in _run(items, jobs, dec.worker):
+            for index, facts, meta, planes, mosaic in _run(items, jobs, dec.worker):
                 tick()
                 retracted = len(judge.retracted)
                 if judge.decide(paths[index], facts) is not None:
@@ -765,16 +771,19 @@ def _combine(paths: tuple[Path, ...], method: str, sigma: float, keep_frames: in
                         kept[index] = kept.pop(j)
                 if copy_of:
                     continue
-                if acc is not None and planes is not None:
-                    acc.add(planes)
-                if planes is not None and keep_frames > 0:
-                    kept[index] = planes
-                    if len(kept) > keep_frames:
-                        del kept[max(kept)]
+                if acc is not None:
+                    acc.add(planes if mosaic is None else mosaic)
+                if keep_frames > 0 and (len(kept) < keep_frames or index < max(kept)):
+                    if planes is None and mosaic is not None:  # a summed mosaic: its planes split here
+                        planes = split_planes(mosaic, first_meta.cfa_pattern, dtype=None)
+                    if planes is not None:
+                        kept[index] = planes
+                        if len(kept) > keep_frames:
+                            del kept[max(kept)]
             dec.close_spill()
             order = sorted(used)
             if acc is not None:
-                value, mean, var, count = acc.result()
+                value, mean, var, count = acc.result(first_meta.cfa_pattern if dec.mosaic else None)
                 var_all, mean_all = var, mean
             else:
                 _close_up(spill_path, order, c * h * w * dec.spill_dtype.itemsize)
@@ -906,19 +915,36 @@ class _ShiftedSums:
             self.s2[i:j] += dd
         self.n += 1
 
-    def result(self) -> tuple[np.ndarray, ...]:
+    def result(self, pattern: str | None = None) -> tuple[np.ndarray, ...]:
+        """Mean (twice: value and mean), variance and count; written straight into the planes of a summed
+        mosaic when its CFA ``pattern`` is given (each value by the same arithmetic, no mosaic-sized copy)."""
         n = self.n
-        mean = np.empty(self.shift.size, np.float32)
-        var = np.empty(self.shift.size, np.float32)
-        for i in range(0, self.shift.size, self.CHUNK):
-            j = min(self.shift.size, i + self.CHUNK)
-            s1 = self.s1[i:j]
-            mean[i:j] = self.shift[i:j] + s1 / n
-            if n > 1:
-                var[i:j] = np.maximum(self.s2[i:j] - s1 * s1 / n, 0.0) / (n - 1)
+        if pattern is None:
+            mean = np.empty(self.shift.size, np.float32)
+            var = np.empty(self.shift.size, np.float32)
+            for i in range(0, self.shift.size, self.CHUNK):
+                j = min(self.shift.size, i + self.CHUNK)
+                s1 = self.s1[i:j]
+                mean[i:j] = self.shift[i:j] + s1 / n
+                if n > 1:
+                    var[i:j] = np.maximum(self.s2[i:j] - s1 * s1 / n, 0.0) / (n - 1)
+            mean, var = mean.reshape(self.shape), var.reshape(self.shape)
+        else:
+            hh, ww = self.shape
+            src = tuple(a.reshape(hh, ww) for a in (self.shift, self.s1, self.s2))
+            mean = np.empty((len(PLANES), hh // 2, ww // 2), np.float32)
+            var = np.empty(mean.shape, np.float32)
+            rows = max(1, self.CHUNK // (ww // 2))
+            for k, (r, q) in enumerate(map(plane_offsets(pattern).get, PLANES)):
+                shift, s1p, s2p = (a[r::2, q::2] for a in src)
+                for i in range(0, hh // 2, rows):
+                    j = min(hh // 2, i + rows)
+                    s1 = s1p[i:j]
+                    mean[k, i:j] = shift[i:j] + s1 / n
+                    if n > 1:
+                        var[k, i:j] = np.maximum(s2p[i:j] - s1 * s1 / n, 0.0) / (n - 1)
         if n <= 1:
             var[:] = np.nan
-        mean, var = mean.reshape(self.shape), var.reshape(self.shape)
         return mean, mean, var, np.full(mean.shape, n, np.int32)
 
 

@@ -55,6 +55,24 @@ def test_mean_and_median_match_numpy(stack_dir, jobs):
 
 
 @pytest.mark.parametrize("jobs", [1, 2])
+def test_a_mean_stack_summed_as_mosaics_keeps_the_planes_of_its_first_frames(stack_dir, jobs):
+    """The mean stack sums Bayer mosaics and splits the result into planes at the end: the planes it keeps
+    are still the frames' own, in file order and integer type (split from the mosaic of a frame whose planes
+    the decode thread did not return), and the value and variance land in the right planes."""
+    files, x = _cube(stack_dir[0])
+    res = combine_frames(files, method="mean", jobs=jobs, keep_frames=4)
+    assert len(res.kept_planes) == 4
+    for p, kept in zip(files, res.kept_planes, strict=False):
+        frame = load_frame(p)
+        np.testing.assert_array_equal(kept, frame.planes(dtype=frame.data.dtype))
+        assert kept.dtype == np.uint16
+    # float32 results of sums that are exact in float64 (integer DN): within a float32 step of numpy's
+    np.testing.assert_allclose(res.value, x.mean(0), rtol=0, atol=1e-3)
+    np.testing.assert_allclose(res.variance, x.var(0, ddof=1), rtol=1e-4, atol=1e-3)
+    assert res.value.shape == res.variance.shape == res.count.shape == x.shape[1:]
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
 def test_a_spilled_stack_keeps_the_planes_of_its_first_frames(stack_dir, jobs):
     """A Bayer stack is spilled as mosaics, not planes: the planes it keeps for single-frame statistics are
     still the frames' own planes, in file order, in their integer type, and so are the planes read back from
