@@ -8,6 +8,7 @@ function under test. They were written to kill mutants that survived the rest of
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import replace
 from pathlib import Path
 
@@ -27,6 +28,7 @@ from camcal.flat_model import FlatModel, PlaneGeometry, dead_pixels, radial_gain
 from camcal.frame import PLANES, Exposure
 from camcal.radiance import (
     RadianceModel,
+    _interp,
     radiance_at,
     radiance_model,
     smooth_error_table,
@@ -34,7 +36,14 @@ from camcal.radiance import (
     smooth_spread_rel,
 )
 from camcal.response import fit_eq12, fit_line, fit_srgb_form, saturation_point
-from camcal.response_model import ChannelResponse, ColourMatrix, ResponseModel, srgb_form_decode, srgb_form_encode
+from camcal.response_model import (
+    ChannelResponse,
+    ColourMatrix,
+    ResponseModel,
+    srgb_form_decode,
+    srgb_form_encode,
+    srgb_form_toe,
+)
 from camcal.spectral import deconvolve_slit, merge_sweeps, slit_matrix
 from camcal.spectral_model import SpectralSensitivity, to_relative
 from camcal.stack import StackResult
@@ -561,6 +570,33 @@ def test_processed_linearise_inverts_the_power_law_and_rescales_other_bit_depths
     assert m.linear_gain_dn_per_s("G") == 2.0
 
 
+def test_srgb_form_with_another_offset_and_exponents_without_a_toe_and_the_value_scale_guards():
+    """The sRGB form with offset a = 0.1, p = 0.5 (not the defaults): encode against the form written out with
+    its toe found numerically, decode back, and the processed linearise with that offset in the profile's tone.
+    For p ≥ 1 the curve has no toe (no line through the origin touches it from below): L_b = 0, s = 1. The value
+    scale is 1 for a white level that is not a positive finite number (0, negative, NaN, ∞, on either side),
+    W_response / W_file otherwise (also for a white of 1 DN or less), and exactly 1 within 1e-9 of equal."""
+    lin = np.array([0.0, 0.01, 0.03, 0.2, 0.7, 1.0])
+    expect = _srgb_encode_numeric(lin, 0.5, a=0.1)
+    np.testing.assert_allclose(srgb_form_encode(lin, 0.5, 0.1), expect, rtol=1e-9, atol=1e-15)
+    np.testing.assert_allclose(srgb_form_decode(expect, 0.5, 0.1), lin, rtol=1e-9, atol=1e-15)
+    for p in (1.0, 1.5):
+        assert srgb_form_toe(p) == (0.0, 1.0)
+    ch = _channel()
+    tone = {"channels": {k: {"use": "srgb", "srgb": {"exponent": 0.5, "offset_a": 0.1}, "linear_gain_dn_per_s": 1.0}
+                         for k in "RGB"}}
+    m = ResponseModel(kind="processed", channels={"R": ch, "G": ch, "B": ch}, reference_iso=100.0,
+                      reference_f_number=4.0, tone=tone, white_level_dn=255.0)
+    np.testing.assert_allclose(m.linearise(255.0 * expect[3:]), 255.0 * lin[3:], rtol=1e-9)
+    for w in (0.0, -5.0, float("nan"), float("inf")):
+        assert m.value_scale(w) == 1.0
+    assert m.value_scale(1.0) == 255.0 and m.value_scale(0.5) == 510.0
+    assert m.value_scale(255.0 * (1 + 1e-10)) == 1.0  # within 1e-9 of equal: exactly 1
+    for w_resp in (0.0, float("nan")):
+        assert replace(m, white_level_dn=w_resp).value_scale(255.0) == 1.0
+    assert replace(m, white_level_dn=1.0).value_scale(2.0) == 0.5
+
+
 def test_saturation_point_of_a_series():
     """The first saturated exposure, the largest value seen when saturated, the fitted range of used points."""
     x = np.array([1.0, 2.0, 4.0, 8.0, 16.0])
@@ -965,6 +1001,31 @@ def test_smooth_error_table_truth_and_estimate_for_a_black_body_and_d65():
     assert rows["ColorChecker dark skin under D65"]["true"] == pytest.approx(expect, rel=1e-6)
     at650 = np.array([r["error_pct"] for r in smooth_error_table(wl, c, 650.0)]) / 100
     assert smooth_spread_rel(wl, c, 650.0) == pytest.approx(np.sqrt(np.mean(at650**2)), rel=1e-12)
+
+
+def test_smooth_error_table_names_its_spectra_and_nan_curves_give_a_nan_spread():
+    """The table's rows, in order: black bodies at 2500, 3200, 5000, 6500, 10000 K, the CIE illuminants D50, D65
+    and A, then the 24 Ohta ColorChecker patches under D65 (their names from colour-science's table); each black
+    body's truth is Planck's law at its own temperature (written out here). Curves that are NaN everywhere give
+    no finite error: the spread is NaN, quietly (no warning from a mean of nothing). A wavelength outside a curve
+    is NaN for the spline reader."""
+    wl = np.arange(400.0, 721.0, 5.0)
+    c = {"R": _gauss(wl, 610, 30, 40.0), "G": _gauss(wl, 540, 35, 55.0), "B": _gauss(wl, 460, 25, 30.0)}
+    rows = smooth_error_table(wl, c, 660.0)  # on a grid node: the truth is the spectrum's own sample
+    patches = list(colour.SDS_COLOURCHECKERS["ColorChecker N Ohta"])
+    assert [r["spectrum"] for r in rows] == (
+        [f"black body {t} K" for t in (2500, 3200, 5000, 6500, 10000)] + ["CIE D50", "CIE D65", "CIE A"]
+        + [f"ColorChecker {p} under D65" for p in patches])
+    for row, t in zip(rows[:5], (2500.0, 3200.0, 5000.0, 6500.0, 10000.0), strict=True):
+        assert row["true"] == pytest.approx(float(_planck_w_m2_sr_nm(t, 660.0)), rel=1e-9)
+    assert rows[5]["true"] == pytest.approx(float(colour.SDS_ILLUMINANTS["D50"][660.0]), rel=1e-12)
+    assert rows[7]["true"] == pytest.approx(float(colour.SDS_ILLUMINANTS["A"][660.0]), rel=1e-12)
+    nan = {k: np.full(wl.size, np.nan) for k in "RGB"}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert np.isnan(smooth_spread_rel(wl, nan, 663.0))
+    assert np.isnan(_interp(wl, wl, 399.0)) and np.isnan(_interp(wl, wl, 720.5))
+    assert _interp(wl, wl, 720.0) == pytest.approx(720.0, rel=1e-12)
 
 
 def test_channel_prediction_colour_matrix_inverse_and_green_uncertainty():
