@@ -296,6 +296,23 @@ def test_flat_corner_gain_is_the_smallest_of_the_four_corners_of_each_plane():
     assert sorted(farthest.values()) == [(0.0, 0.0), (0.0, 29.0), (39.0, 0.0), (39.0, 29.0)]
 
 
+def test_flat_model_returns_the_gain_it_holds_and_its_corner_gains_are_the_float32_maps():
+    """A model holding a gain (``with_gain``, as a calibration's fit passes it on) returns that array, read-only,
+    not the model evaluated again: a held gain of 0.5 everywhere (the DNG polynomial gives 1 at the centre) comes
+    back as 0.5. The corner gains are the float32 values of the map :meth:`gain` evaluates (exactly, not to
+    float32 rounding)."""
+    k = (-0.35, 0.08, -0.05, 0.02, -0.01)
+    centres = {"R": (33.0, 24.0), "G1": (6.0, 25.0), "G2": (34.0, 4.0), "B": (5.0, 5.0)}
+    fm = FlatModel(channels=("R", "G1", "G2", "B"), centre_px=centres, k={c: k for c in centres}, model_2d=None,
+                   prnu=None, residual_rms={}, shape=FLAT_SHAPE, cfa_pattern="RGGB")
+    g = fm.gain()
+    assert g.dtype == np.float32
+    corners = g[:, [0, 0, -1, -1], [0, -1, 0, -1]]
+    assert fm.corner_gain() == {c: float(corners[i].min()) for i, c in enumerate(fm.channels)}
+    held = fm.with_gain(np.full(g.shape, 0.5, np.float32)).gain()
+    assert held.shape == g.shape and np.all(held == 0.5) and not held.flags.writeable
+
+
 def test_radial_gain_with_zero_coefficients_is_the_power_sum():
     """``radial_gain`` skips trailing zero coefficients; the values must stay those of g = 1 + Σ kᵢ r^(2i+2)
     (numpy's polyval, written out): no vignetting at all (every k = 0), a zero before a non-zero coefficient,
