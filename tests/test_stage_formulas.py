@@ -232,6 +232,37 @@ def test_2d_flat_gain_is_the_legendre_series_across_the_full_image():
         np.testing.assert_allclose(g[i], expect, rtol=2e-6, atol=1e-7)
 
 
+def test_2d_flat_corner_values_are_the_legendre_series_at_each_planes_corners():
+    """``corner_values`` evaluates a 2-D model at the four corners of each plane only (no full map): the Legendre
+    series written out at the corner pixel centres (X, Y) of each plane's offset in the 80 x 60 mosaic, with a
+    non-symmetric c (x and y not interchangeable) and a different scale per plane (planes not interchangeable).
+    The corner gain is the smallest of the four, as float32 values."""
+    coef = np.array([[1.0, 0.05, -0.1], [0.08, -0.03, 0.0], [-0.2, 0.0, 0.0]])
+    scale = {"R": 0.9, "G1": 0.95, "G2": 0.85, "B": 0.8}
+    m2 = {"kind": "legendre2d", "degree": 2, "coefficients": {c: coef.tolist() for c in FLAT_OFFSETS},
+          "scale": scale}
+    fm = _flat_model((0.0,) * 5, (20.0, 15.0), model_2d=m2)
+    got = fm.corner_values()
+    assert got.shape == (4, 4)
+    for i, c in enumerate(fm.channels):
+        oy, ox = FLAT_OFFSETS[c]
+        xx, yy = np.array([0.0, 39.0, 0.0, 39.0]), np.array([0.0, 0.0, 29.0, 29.0])  # corners in corner_values' order
+        u, v = 2 * (2 * xx + ox) / 79.0 - 1, 2 * (2 * yy + oy) / 59.0 - 1
+        expect = scale[c] * sum(coef[a, b] * eval_legendre(a, u) * eval_legendre(b, v)
+                                for a in range(3) for b in range(3))
+        np.testing.assert_allclose(got[i], expect, rtol=1e-12)
+        assert fm.corner_gain()[c] == float(np.float32(expect).min())
+
+
+def test_a_held_flat_gain_given_in_float64_is_kept_in_float32():
+    """A calibration may pass ``with_gain`` a float64 map; the model holds and returns float32 (the type of every
+    evaluated gain and of the profile's maps), with the values rounded to float32."""
+    fm = _flat_model((-0.3, 0.0, 0.0, 0.0, 0.0), (20.0, 15.0))
+    g64 = np.full((4, *FLAT_SHAPE), 0.1, np.float64)
+    held = fm.with_gain(g64).gain()
+    assert held.dtype == np.float32 and np.all(held == np.float32(0.1))
+
+
 def test_radial_fit_recovers_an_off_centre_vignetting_from_exact_data():
     """A·g(r) rendered exactly (A = 1800 DN, centre (13.2, 17.7) plane px, k = (−0.4, 0.1, −0.05)) on a 36 x 48
     plane: the variable-projection fit returns A, the centre and k to 1e-5 (exact data; the centre search stops
