@@ -207,12 +207,6 @@ def _loader(overrides: Mapping[str, float | None] | None) -> Callable[[Path], ob
     return lambda p: load_frame(p, dict(overrides or {}))
 
 
-def frame_facts(path: Path, overrides: Mapping[str, float | None] | None = None,
-                check: StageCheck | None = None) -> FrameFacts:
-    """Decode ``path`` once and return its :class:`FrameFacts` (the stage ``check`` run on it; not hashed)."""
-    return decode_facts(path, _loader(overrides), check, hash_file=False)[1]
-
-
 def header_facts(path: Path, overrides: Mapping[str, float | None] | None = None) -> FrameFacts:
     """What the session majority needs of a frame (kind, layout, size, make, model), from its header alone
     (:func:`camcal.io.frame_header`); decoded when the header does not tell its RAW layout. ``error`` is set
@@ -221,8 +215,8 @@ def header_facts(path: Path, overrides: Mapping[str, float | None] | None = None
         h = frame_header(path)
     except CamcalError as exc:
         return FrameFacts(path, error=exc.message)
-    if h.layout is None:
-        return frame_facts(path, overrides)
+    if h.layout is None:  # decoded, not hashed: its stage decodes and hashes it again
+        return decode_facts(path, _loader(overrides), hash_file=False)[1]
     return FrameFacts(path, h.kind, h.layout, h.shape, None, h.make, h.model)
 
 
