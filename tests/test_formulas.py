@@ -15,9 +15,26 @@ from pathlib import Path
 import numpy as np
 import pytest
 from scipy.integrate import quad
+from scipy.special import ndtri
+from scipy.stats import chi2
 
+import camcal.dark
 from camcal.apply import apply
-from camcal.dark import HOT, DarkStacks, _fit_lines, _noise_model, fit_dark_stacks
+from camcal.dark import (
+    DEAD,
+    HOT,
+    NOISY,
+    DarkOptions,
+    DarkStacks,
+    TemporalNoise,
+    _channel_summary,
+    _fit_lines,
+    _max_median_mean,
+    _noise_model,
+    _robust,
+    fit_dark_stacks,
+)
+from camcal.errors import CamcalError, MissingMetadataError
 from camcal.frame import PLANES, Exposure
 from camcal.io import load_frame
 from camcal.profile import load_profile
@@ -276,6 +293,366 @@ def test_dark_line_fit_returns_none_for_the_parts_not_asked_for():
     assert beta is None and b is None
     # var(β) of two points with weights n = 4 and per-frame variance 2: 2 σ²/n / Δt² = 2·0.5/4 = 0.25 (DN/s)²
     assert beta_var[0] == pytest.approx(0.25, rel=1e-12)
+
+
+# ---- dark: the whole fit of combined stacks, its channel figures, its helpers ---------------------------------
+
+#: σ of a normal distribution over its median absolute deviation: 1/Φ⁻¹(3/4) (scipy's ``scale="normal"``).
+NORMAL_PER_MAD = 1.0 / float(ndtri(0.75))
+#: Standard error of a median over that of a mean for normal data, √(π/2) (the summary rounds it to 1.2533).
+MEDIAN_PER_MEAN_SE = float(np.sqrt(np.pi / 2.0))
+
+
+def _dark_group(level, var, t_s, n, *, black=(1000.0,) * 4, white=4095.0, cfa="RGGB", iso=100.0,
+                temps=None, exposure_s="t") -> StackResult:
+    """A combined stack of ``n`` frames at ``t_s`` with exact per-pixel levels and temporal variances (no file).
+
+    ``temps``: the frames' sensor temperatures (one per frame, or None); ``exposure_s=None`` gives frames whose
+    exposure time is not known (as bias frames may be)."""
+    level = np.asarray(level, np.float32)
+    var = np.asarray(var, np.float32)
+    temps = [None] * n if temps is None else list(temps)
+    es = tuple(Exposure(exposure_s=t_s if exposure_s == "t" else exposure_s, iso=iso, temperature_c=tc)
+               for tc in temps)
+    return StackResult(value=level, mean=level, variance=var.copy(), count=np.full(level.shape, n, np.int16),
+                       n_frames=n, method="mean", exposures=es,
+                       paths=tuple(Path(f"d{t_s:g}_{i}.dng") for i in range(n)), channel_names=PLANES,
+                       cfa_pattern=cfa, black_level_dn=tuple(black), white_level_dn=white,
+                       frame_shape=(2 * level.shape[1], 2 * level.shape[2]), variance_all=var)
+
+
+def _line_by_hand(points):
+    """Per pixel, the frame-weighted least-squares line level = b + β t written out with numpy linear algebra.
+
+    ``points``: ``(t, level, n, per_frame_variance)``, arrays broadcastable to one shape; a level at or above
+    white − 1 must be given n = 0. Returns b, β, var(b), var(β) from A = (XᵀWX)⁻¹XᵀW and Cov = A diag(σ²/n) Aᵀ."""
+    shape = np.broadcast_shapes(*(np.shape(a) for p in points for a in p))
+    t, y, n, v = (np.stack([np.broadcast_to(np.asarray(p[i], float), shape) for p in points], -1) for i in range(4))
+    x = np.stack([np.ones_like(t), t], -1)  # (..., m, 2)
+    xtw = np.swapaxes(x, -1, -2) * n[..., None, :]
+    m = xtw @ x
+    line = np.count_nonzero(n > 0, axis=-1) >= 2  # else no line: NaN
+    a = np.linalg.solve(np.where(line[..., None, None], m, np.eye(2)), xtw)  # (..., 2, m)
+    coef = (a @ y[..., None])[..., 0]
+    per = np.where(n > 0, v / np.where(n > 0, n, 1.0), 0.0)
+    cov = (a * per[..., None, :]) @ np.swapaxes(a, -1, -2)
+    out = coef[..., 0], coef[..., 1], cov[..., 0, 0], cov[..., 1, 1]
+    return tuple(np.where(line, o, np.nan) for o in out)
+
+
+def _plane_figures(k, b, b_var, beta, beta_var, defects, read_noise_var, gain, temporal, dsnu_bias2=None) -> dict:
+    """The channel summary of plane k written out with numpy: EMVA 1288-style figures over the good pixels."""
+    good = defects[k] == 0
+    bk, betak = b[k][good], beta[k][good]
+    med = float(np.median(betak))
+    mad = NORMAL_PER_MAD * float(np.median(np.abs(betak - med)))
+    if dsnu_bias2 is None:  # spatial variance of the bias map minus the mean variance of its estimates
+        dsnu_bias2 = float(np.var(bk)) - float(np.mean(b_var[k][good]))
+    dsnu_beta2 = float(np.var(betak)) - float(np.mean(beta_var[k][good]))
+    return {
+        "bias_dn": float(np.mean(bk)),
+        "bias_unc_dn": MEDIAN_PER_MEAN_SE * float(np.std(bk)) / np.sqrt(bk.size),
+        "dark_current_dn_per_s": med,
+        "dark_current_unc_dn_per_s": MEDIAN_PER_MEAN_SE * mad / np.sqrt(betak.size),
+        "dark_current_pixel_unc_dn_per_s": float(np.median(np.sqrt(beta_var[k][good]))),
+        "dark_current_mean_dn_per_s": float(np.mean(betak)),
+        "read_noise_dn": float(np.sqrt(max(read_noise_var, 0.0))),
+        "temporal_noise_dn": float(temporal),
+        "dsnu_bias_dn": float(np.sqrt(max(dsnu_bias2, 0.0))),
+        "dsnu_dark_current_dn_per_s": float(np.sqrt(max(dsnu_beta2, 0.0))),
+        "gain_dn_per_e_from_dark": float(gain),
+        "hot_pixel_count": int(np.sum((defects[k] & HOT) != 0)),
+        "dead_pixel_count": int(np.sum((defects[k] & DEAD) != 0)),
+        "noisy_pixel_count": int(np.sum((defects[k] & NOISY) != 0)),
+    }
+
+
+def _assert_figures(got: dict, expect: dict) -> None:
+    """Every figure of one plane: the same keys; 1e-9 relative (float64 sums in another order), 1e-4 for the two
+    uncertainties that use √(π/2) rounded to 1.2533 (1.1e-5 relative)."""
+    assert set(got) == set(expect)
+    for key, value in expect.items():
+        rel = 1e-4 if key in ("bias_unc_dn", "dark_current_unc_dn_per_s") else 1e-9
+        assert got[key] == pytest.approx(value, rel=rel, abs=1e-12), key
+        assert type(got[key]) is (int if key.endswith("_count") else float), key
+
+
+def test_dark_channel_figures_per_plane_against_numpy():
+    """``_channel_summary`` against the figures written out with numpy (``_plane_figures``) on random maps with
+    hot, dead, noisy and doubly flagged pixels (whose wild values must not enter any figure):
+
+    - read noise: with bias frames the plane mean of the temporal variance minus 1/12 DN²; without, that mean
+      over each dark time extrapolated to t = 0 by a least-squares line written out (three times, two times),
+      or the one time's mean; in a quantised plane (temporal noise below 1 DN) the quantised fit's value, and
+      its DSNU for the bias DSNU (0.4 and 0.3 DN: the square, not twice the value, and not clamped at 1);
+    - DSNU of the bias and of β: spatial variance minus the mean variance of the estimates, clamped at 0 (plane
+      3's bias map is flatter than its estimates are uncertain); the DSNU of β is between 0 and 1 (DN/s)².
+    """
+    rng = np.random.default_rng(11)
+    shape = (4, 5, 6)
+    spread = np.array([3.0, 2.0, 1.5, 0.05])[:, None, None]
+    b = 1000.0 + spread * rng.standard_normal(shape)
+    b_var = rng.uniform(0.01, 0.05, shape)
+    beta = 2.0 + 0.3 * rng.standard_normal(shape)
+    beta_var = rng.uniform(0.001, 0.004, shape)
+    var_t = rng.uniform(3.5, 4.5, shape)
+    defects = np.zeros(shape, np.uint8)
+    for (k, y, x), flag in {(0, 1, 1): HOT, (1, 2, 3): NOISY, (2, 0, 5): DEAD, (3, 4, 0): HOT | NOISY,
+                            (1, 4, 4): HOT | DEAD, (2, 3, 2): HOT}.items():
+        defects[k, y, x] = flag
+        b[k, y, x], beta[k, y, x], var_t[k, y, x] = 5000.0, 900.0, 400.0
+        b_var[k, y, x] = beta_var[k, y, x] = 50.0
+    gain = np.array([0.3, 0.4, 0.5, 0.6])[:, None, None]
+    temporal = np.array([0.6, 2.0, 2.1, 1.9])
+    noise = TemporalNoise(temporal_noise_dn=temporal, read_noise_dn=np.array([0.4, np.nan, np.nan, np.nan]),
+                          dsnu_dn=np.array([0.3, np.nan, np.nan, np.nan]), quantised=temporal < 1.0,
+                          noisy=(defects & NOISY) != 0, read_noise_map_dn=np.sqrt(var_t), method="test")
+    times = (0.5, 2.0, 8.0)
+    stacks = []
+    for t in times:  # plane means of the temporal variance curved in t (a line through them is not exact)
+        v = var_t + 0.5 * t + 0.1 * t * t + rng.uniform(-0.2, 0.2, shape)
+        stacks.append((t, _dark_group(b + beta * t, v, t, 8)))
+
+    def extrapolated(k, sts):
+        good = defects[k] == 0
+        ts = np.array([t for t, _ in sts])
+        vs = np.array([np.mean(np.asarray(s.variance_all[k][good], np.float64)) for _, s in sts])
+        if ts.size == 1:
+            return vs[0]
+        slope = np.sum((ts - ts.mean()) * (vs - vs.mean())) / np.sum((ts - ts.mean()) ** 2)
+        return vs.mean() - slope * ts.mean()
+
+    for have_bias, sts in ((True, stacks), (False, stacks), (False, stacks[:2]), (False, stacks[:1])):
+        got = _channel_summary(b, b_var, beta, beta_var, var_t, defects, sts, have_bias, gain, noise, PLANES)
+        assert list(got) == list(PLANES)
+        for k, name in enumerate(PLANES):
+            if k == 0:
+                rn_var, dsnu2 = 0.4**2, 0.3**2
+            elif have_bias:
+                rn_var, dsnu2 = float(np.mean(var_t[k][defects[k] == 0])) - 1.0 / 12.0, None
+            else:
+                rn_var, dsnu2 = extrapolated(k, sts) - 1.0 / 12.0, None
+            expect = _plane_figures(k, b, b_var, beta, beta_var, defects, rn_var, gain[k, 0, 0], temporal[k], dsnu2)
+            _assert_figures(got[name], expect)
+    # the guards: 0 < DSNU² of β < 1 in every plane, the bias DSNU² of plane 3 negative before its clamp
+    for k in range(4):
+        good = defects[k] == 0
+        assert 0 < float(np.var(beta[k][good]) - np.mean(beta_var[k][good])) < 1
+    assert float(np.var(b[3][defects[3] == 0]) - np.mean(b_var[3][defects[3] == 0])) < 0
+
+
+def _hot_noisy_by_hand(beta, var_t, dof, hot_sigma=6.0, hot_factor=5.0, noisy_sigma=6.0):
+    """The documented defect rules written out: hot if β is not finite or above median + max(hot_sigma robust σ,
+    (hot_factor − 1)|median|) of its plane; noisy if the temporal variance is above the plane's mean over the
+    non-hot pixels times max(χ²_{1e-6}(dof)/dof, 1 + noisy_sigma √(2/dof))."""
+    defects = np.zeros(beta.shape, np.uint8)
+    bound = max(float(chi2.isf(1e-6, dof)) / dof, 1.0 + noisy_sigma * np.sqrt(2.0 / dof))
+    for k in range(beta.shape[0]):
+        fin = beta[k][np.isfinite(beta[k])]
+        med = np.median(fin)
+        rs = NORMAL_PER_MAD * np.median(np.abs(fin - med))
+        hot = ~np.isfinite(beta[k]) | (beta[k] > med + max(hot_sigma * rs, (hot_factor - 1.0) * abs(med)))
+        vhat = np.mean(var_t[k][~hot])
+        defects[k] = np.where(hot, HOT, 0) | np.where(var_t[k] > vhat * bound, NOISY, 0)
+    return defects
+
+
+def test_dark_fit_with_bias_frames_and_one_dark_time_against_numpy(tmp_path):
+    """``fit_dark_stacks`` on bias frames (16, exposure time not recorded: t = 0) and one dark time (4 frames at
+    0.5 s), every output against values written out in the test:
+
+    - b and β: the line through the two exact levels; the pixel saturated at 0.5 s has no line: β is the bound
+      (white − black)/0.5 s, b the black level, its uncertainty infinite, and it is hot;
+    - var(β): the least-squares covariance (``_line_by_hand``) with the per-frame variances of the noise line
+      v0 + g·max(level − b, 0), v0 = 4 DN², g = 0.5 DN/e⁻ (each pixel's temporal variance lies on it; the two
+      noisy pixels are more than 5× the plane and left out of it); the bias level's signal is 0, not 1 DN, and
+      measured from each pixel's own bias, not the black level, also in the plane of the unfitted pixel;
+    - hot pixels at the documented threshold median + max(6 robust σ, 4·median) = 10 DN/s in plane 0 (β = 9 and
+      exactly 10 are not hot, 13 and 40 are); noisy pixels against the χ² bound of the bias frames' 15 degrees
+      of freedom (the 6× pixel of plane 3 is noisy at 15, not at the 3 of the dark frames);
+    - the read-noise map √(var − 1/12), every field of the model and its float32 maps, the channel figures (read
+      noise from the bias frames), the temperature (mean and range of the dark frames'), the provenance;
+    - a bias-only fit of the same bias frames, and frames at two ISO settings refused.
+    """
+    shape = (4, 6, 8)
+    rng = np.random.default_rng(5)
+    black, white, t, v0, g = (1000.0, 1002.0, 998.0, 1001.0), 4095.0, 0.5, 4.0, 0.5
+    blk = np.asarray(black)[:, None, None]
+    bias = blk + rng.integers(-8, 9, shape)
+    beta = 2.0 + 0.25 * rng.integers(-1, 2, shape)
+    beta[0, 0, :4] = (9.0, 10.0, 13.0, 40.0)
+    beta[2, 5, 7] = 8000.0  # saturated at 0.5 s: no line
+    level = np.minimum(bias + beta * t, white)
+    var_dark = np.where(level >= white, 0.0, v0 + g * beta * t)
+    var_bias = np.full(shape, v0)
+    var_bias[1, 3, 3] = 100.0 * v0  # noisy
+    var_bias[3, 2, 6] = 6.0 * v0  # noisy against the bound of 15 degrees of freedom only
+    bias_st = _dark_group(bias, var_bias, 0.0, 16, black=black, exposure_s=None, temps=[30.0] * 16)
+    dark_st = _dark_group(level, var_dark, t, 4, black=black, temps=(21.0, 21.5, 22.0, 23.5))
+    dark_folder, bias_folder = tmp_path / "dark", tmp_path / "bias"
+    stacks = DarkStacks(((t, dark_st),), bias_st, dark_folder, bias_folder, ("d1.dng", "d2.dng"), ("b1.dng",))
+    model = fit_dark_stacks(stacks)
+
+    fitted = np.ones(shape, bool)
+    fitted[2, 5, 7] = False
+    b_fit = np.where(fitted, bias, blk)
+    weights = np.where(level < white - 1.0, 4.0, 0.0)
+    points = [(0.0, bias, 16.0, np.full(shape, v0)),  # the bias level: no dark signal
+              (t, level, weights, v0 + g * np.maximum(level - bias, 0.0))]
+    e_b, e_beta, e_bvar, e_betavar = _line_by_hand(points)
+    e_beta = np.where(fitted, e_beta, (white - blk) / t)
+    e_betavar = np.where(fitted, e_betavar, np.inf)
+    np.testing.assert_allclose(model.bias_dn, b_fit, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(e_beta[fitted], beta[fitted], rtol=1e-12)
+    np.testing.assert_allclose(model.dark_current_dn_per_s, e_beta, rtol=1e-7)
+    np.testing.assert_allclose(model.dark_current_unc_dn_per_s, np.sqrt(e_betavar), rtol=1e-6)  # float32 maps
+    np.testing.assert_allclose(model.read_noise_dn, np.sqrt(var_bias - 1.0 / 12.0), rtol=1e-6)
+    for a in (model.bias_dn, model.dark_current_dn_per_s, model.dark_current_unc_dn_per_s, model.read_noise_dn):
+        assert a.dtype == np.float32
+    e_defects = _hot_noisy_by_hand(np.where(fitted, beta, np.nan), var_bias, 15.0)
+    np.testing.assert_array_equal(model.defects, e_defects)
+    # plane 0's threshold is exactly 10 DN/s: median 2, 6 robust σ = 6 × 0.25 × 1.4826 < 4 × 2
+    assert np.median(beta[0]) == 2.0 and np.median(np.abs(beta[0] - 2.0)) == 0.25
+    assert e_defects[0, 0, :4].tolist() == [0, 0, HOT, HOT] and e_defects[2, 5, 7] & HOT
+    assert e_defects[1, 3, 3] == NOISY and e_defects[3, 2, 6] == NOISY
+    assert not (_hot_noisy_by_hand(np.where(fitted, beta, np.nan), var_bias, 3.0)[3, 2, 6] & NOISY)
+
+    assert model.iso == 100.0 and model.cfa_pattern == "RGGB" and model.exposure_times_s == (0.5,)
+    assert model.black_level_dn == black and model.white_level_dn == white
+    assert model.temperature_c == pytest.approx(22.0, rel=1e-12)
+    for k, name in enumerate(PLANES):
+        good = e_defects[k] == 0
+        rn_var = float(np.mean(var_bias[k][good])) - 1.0 / 12.0
+        expect = _plane_figures(k, b_fit, e_bvar, e_beta, e_betavar, e_defects, rn_var, g,
+                                np.sqrt(np.mean(var_bias[k][(e_defects[k] & HOT) == 0])))
+        _assert_figures(model.channels[name], expect)
+    assert model.provenance == {
+        "dark_folder": str(dark_folder), "bias_folder": str(bias_folder), "dark_files": ["d1.dng", "d2.dng"],
+        "bias_files": ["b1.dng"], "frames_per_exposure": {"0.5": 4}, "temperature_range_c": [21.0, 23.5],
+        "options": {"method": "sigma_clip", "sigma": 3.0, "hot_sigma": 6.0, "hot_factor": 5.0, "noisy_sigma": 6.0,
+                    "saturation_fraction": 0.01, "bias_prior_frames": 1.0},
+        "read_noise_method": "per-pixel temporal variance minus the quantisation variance 1/12 DN² (EMVA 1288 eq. 4)",
+        "bias_source": "bias frames", "read_noise_source": "bias frames"}
+
+    # bias only: the bias frames' own model, with the options and folder given
+    only = fit_dark_stacks(DarkStacks((), bias_st, bias_folder=bias_folder), DarkOptions(hot_sigma=7.0))
+    assert only.dark_current_dn_per_s is None
+    np.testing.assert_array_equal(only.bias_dn, bias)
+    assert only.provenance["bias_folder"] == str(bias_folder) and only.provenance["options"]["hot_sigma"] == 7.0
+    # bias frames at another ISO than the darks: refused, naming the dark folder
+    with pytest.raises(CamcalError, match="mix ISO") as err:
+        fit_dark_stacks(replace(stacks, bias=_dark_group(bias, var_bias, 0.0, 16, black=black, iso=200.0)))
+    assert err.value.path == dark_folder
+    # a frame without an ISO: named in the error
+    nameless = replace(dark_st, exposures=(Exposure(exposure_s=t, iso=None),) + dark_st.exposures[1:])
+    with pytest.raises(MissingMetadataError) as err:
+        fit_dark_stacks(replace(stacks, darks=((t, nameless),)))
+    assert err.value.path == dark_st.paths[0]
+
+
+def test_dark_fit_without_bias_frames_takes_the_black_level_as_a_prior(tmp_path):
+    """``fit_dark_stacks`` on dark frames alone at 0.5, 2 and 8 s (16, 4 and 6 frames), the black level a prior
+    point at t = 0 worth 2 frames, against values written out in the test:
+
+    - b and β: the frame-weighted least squares through the prior and the three levels (``_line_by_hand``); the
+      levels lie on the line b = black level, so the fit returns the truth, and a prior at another time or
+      weight would not; the pixel saturated at every time has the β bound (white − black)/0.5 s;
+    - var(β) with the noise line v0 = 4 DN², g = 0.5 DN/e⁻ through the three dark times;
+    - the read noise extrapolated to t = 0 from the plane means of the shortest darks (v0 − 1/12 by
+      construction), the read-noise map of the shortest darks, noisy pixels against the χ² bound of the shortest
+      darks' 15 degrees of freedom; no CFA pattern; temperature unknown when a frame has none; the provenance.
+    """
+    shape = (4, 6, 8)
+    rng = np.random.default_rng(6)
+    black, white, v0, g = (1000.0, 1002.0, 998.0, 1001.0), 4095.0, 4.0, 0.5
+    blk = np.broadcast_to(np.asarray(black)[:, None, None], shape)
+    beta = 2.0 + 0.25 * rng.integers(-1, 2, shape)
+    beta[0, 1, 2] = 40.0
+    beta[2, 5, 7] = 8000.0  # saturated at every time: no line
+    groups = ((0.5, 16), (2.0, 4), (8.0, 6))
+    darks, points = [], [(0.0, blk, 2.0, v0)]
+    for t, n in groups:
+        level = np.minimum(blk + beta * t, white)
+        var = np.where(level >= white, 0.0, v0 + g * beta * t)
+        if t == 0.5:
+            var[3, 2, 6] *= 8.0  # noisy against 15 degrees of freedom, not against the 3 of the 2 s darks
+            var_t = var.copy()
+        temps = [20.0] * n if t < 8.0 else [None] * n
+        darks.append((t, _dark_group(level, var, t, n, black=black, cfa=None, temps=temps)))
+        points.append((t, level, np.where(level < white - 1.0, n, 0.0), v0 + g * np.maximum(level - blk, 0.0)))
+    model = fit_dark_stacks(DarkStacks(tuple(darks), None, tmp_path / "dark"), DarkOptions(bias_prior_frames=2.0))
+
+    fitted = np.ones(shape, bool)
+    fitted[2, 5, 7] = False
+    e_b, e_beta, e_bvar, e_betavar = _line_by_hand(points)
+    e_b = np.where(fitted, e_b, blk)
+    e_beta = np.where(fitted, e_beta, (white - blk) / 0.5)
+    e_betavar = np.where(fitted, e_betavar, np.inf)
+    np.testing.assert_allclose(e_b[fitted], blk[fitted], rtol=1e-12)
+    np.testing.assert_allclose(e_beta[fitted], beta[fitted], rtol=1e-12)
+    np.testing.assert_allclose(model.bias_dn, e_b, rtol=1e-7)
+    np.testing.assert_allclose(model.dark_current_dn_per_s, e_beta, rtol=1e-7)
+    np.testing.assert_allclose(model.dark_current_unc_dn_per_s, np.sqrt(e_betavar), rtol=1e-6)
+    # the saturated pixel's variance is 0: its read noise is floored at 0, not NaN
+    np.testing.assert_allclose(model.read_noise_dn, np.sqrt(np.maximum(var_t - 1.0 / 12.0, 0.0)), rtol=1e-6)
+    e_defects = _hot_noisy_by_hand(np.where(fitted, beta, np.nan), var_t, 15.0)
+    np.testing.assert_array_equal(model.defects, e_defects)
+    assert e_defects[0, 1, 2] == HOT and e_defects[2, 5, 7] == HOT and e_defects[3, 2, 6] == NOISY
+    assert not (_hot_noisy_by_hand(np.where(fitted, beta, np.nan), var_t, 3.0)[3, 2, 6] & NOISY)
+    assert model.cfa_pattern is None and model.temperature_c is None and model.exposure_times_s == (0.5, 2.0, 8.0)
+    for k, name in enumerate(PLANES):
+        good = e_defects[k] == 0
+        ts = np.array([t for t, _ in groups])
+        vs = np.array([np.mean(np.asarray(st.variance_all[k][good], np.float64)) for _, st in darks])
+        slope = np.sum((ts - ts.mean()) * (vs - vs.mean())) / np.sum((ts - ts.mean()) ** 2)
+        rn_var = vs.mean() - slope * ts.mean() - 1.0 / 12.0
+        assert rn_var == pytest.approx(v0 - 1.0 / 12.0, rel=1e-9)
+        expect = _plane_figures(k, e_b, e_bvar, e_beta, e_betavar, e_defects, rn_var, g,
+                                np.sqrt(np.mean(var_t[k][(e_defects[k] & HOT) == 0])))
+        _assert_figures(model.channels[name], expect)
+    prov = model.provenance
+    assert prov["bias_folder"] is None and prov["temperature_range_c"] is None
+    assert prov["frames_per_exposure"] == {"0.5": 16, "2": 4, "8": 6}
+    assert prov["bias_source"] == "fit of dark frames, black level as prior"
+    assert prov["read_noise_source"] == "shortest dark (0.5 s), per-plane value extrapolated to t = 0"
+
+
+def test_dark_line_fit_over_many_bands_of_every_shape(monkeypatch):
+    """``_fit_lines`` with bands of 4 pixels (instead of 8192), so that every shape it accepts is cut into many
+    bands: a single pixel (0-d), a run (1-D), rows of one plane (2-D), planes with fewer rows than planes (3-D),
+    and 4-D (one band). Every pixel must be fitted exactly once from its own levels: β, b, var(β), var(b) of the
+    line through two levels with σ² = 2 DN² per frame and n = 4 frames at t1 = 1 s, t2 = 3 s:
+    var(β) = 2σ²/(nΔt²), var(b) = σ²(t1² + t2²)/(nΔt²)."""
+    monkeypatch.setattr(camcal.dark, "FIT_BAND_PIXELS", 4)
+    rng = np.random.default_rng(9)
+    for shape in ((), (7,), (5, 3), (4, 3, 5), (2, 4, 3, 2)):
+        b = 1000.0 + rng.integers(-20, 21, shape)
+        beta = 0.5 * rng.integers(1, 40, shape)
+        obs = [(t, b + beta * t, np.full(shape, 4.0), np.full(shape, 2.0)) for t in (1.0, 3.0)]
+        f_beta, f_beta_var, f_b, f_b_var, n_times = _fit_lines(obs, 4095.0)
+        assert np.shape(f_beta) == shape
+        np.testing.assert_allclose(f_beta, beta, rtol=1e-12)
+        np.testing.assert_allclose(f_b, b, rtol=1e-12)
+        np.testing.assert_allclose(f_beta_var, 2 * 2.0 / (4.0 * 2.0**2), rtol=1e-12)
+        np.testing.assert_allclose(f_b_var, 2.0 * (1.0 + 9.0) / (4.0 * 2.0**2), rtol=1e-12)
+        np.testing.assert_array_equal(n_times, np.full(shape, 2))
+
+
+def test_dark_robust_centre_and_spread_and_the_noise_lines_cut_level():
+    """``_robust``: the median and the normal-consistent MAD (MAD / Φ⁻¹(3/4)) of the finite values, (NaN, NaN)
+    when there are none, (x, 0) for one; ``_max_median_mean``: max(median, mean) of skewed samples either way,
+    including one where 3 of 6 values lie at or below the mean while the median is above it (its shortcut needs
+    n//2 + 1 of them), and it leaves its input as it was."""
+    x = np.array([3.0, np.nan, 1.0, 10.0, np.inf, 2.0, -np.inf, 4.0])
+    med, rs = _robust(x.copy())
+    assert med == 3.0 and rs == pytest.approx(NORMAL_PER_MAD * 1.0, rel=1e-12)  # |dev| = 0, 2, 7, 1, 1
+    assert all(np.isnan(_robust(np.array([np.nan, np.inf]))))
+    assert _robust(np.array([2.5])) == (2.5, 0.0)
+    for sample, expect in (([1.0, 1.0, 1.0, 1.0, 10.0], 2.8), ([-10.0, -10.0, -1.0, 5.0, 5.0, 5.0], 2.0),
+                           ([0.0, 10.0, 10.0, 10.0], 10.0), ([1.0, 2.0, 3.0], 2.0)):
+        a = np.array(sample)
+        assert _max_median_mean(a) == pytest.approx(expect, rel=1e-12)
+        np.testing.assert_array_equal(a, sample)
 
 
 def test_seed_appendix_inversions_off_axis_with_an_albedo():
