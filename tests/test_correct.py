@@ -16,7 +16,7 @@ import pytest
 import rawpy
 
 from camcal.calibrate import calibrate_session
-from camcal.correct import Calibration, correct_planes, require_valid
+from camcal.correct import Calibration, Corrected, correct_planes, require_valid
 from camcal.dark import DEAD, HOT, NOISY, fit_dark, quantised_noise_fit
 from camcal.dark_model import DarkModel
 from camcal.errors import CamcalError
@@ -182,6 +182,50 @@ def test_require_valid_says_why(rng):
                                           r"defects"):
         require_valid(out, Path("x.dng"))
     require_valid(out, Path("x.dng"), min_valid_fraction=0.3)
+
+
+def test_require_valid_names_known_defects_the_region_and_passes_at_exactly_the_threshold():
+    """The worst channel decides; its message is checked whole against counts made here: G2 with 70 of 100 pixels
+    known defects (30 % valid) is named before G1 with 60 saturated (40 % valid), with the region it was measured
+    on. A channel at exactly the threshold passes (50 of 100 valid, the default 0.5); equal saturated and defect
+    shares are reported as saturation (the cause the user can change)."""
+    shape = (4, 10, 10)
+    raw = np.full(shape, 1000.0, np.float32)
+    raw[1, :6] = 4095
+    defects = np.zeros(shape, bool)
+    defects[2, :7] = True
+    out = correct_planes(raw, Calibration(defects=defects), exposure_s=1.0, iso=100.0, white_level_dn=4095,
+                         black_level_dn=np.zeros(4))
+    np.testing.assert_allclose(out.valid_fraction(), [1.0, 0.4, 0.3, 1.0], rtol=0, atol=1e-15)  # 1 − k/100
+    np.testing.assert_array_equal(out.saturated_fraction(), [0.0, 0.6, 0.0, 0.0])
+    with pytest.raises(CamcalError) as err:
+        require_valid(out, Path("x.dng"), region="ROI")
+    assert str(err.value) == ("x.dng: frame has only 30 % valid pixels in channel G2 (need 50 %): "
+                              "70 % of the ROI are known defects (masked)")
+    with pytest.raises(CamcalError) as err:
+        require_valid(out, Path("x.dng"), what="flat")
+    assert str(err.value).endswith("flat has only 30 % valid pixels in channel G2 (need 50 %): "
+                                   "70 % are known defects (masked)")
+    half = np.full(shape, 1000.0, np.float32)
+    half[0, :5] = 4095  # exactly 50 % of R saturated
+    tie_defects = np.zeros(shape, bool)
+    tie_defects[3, :2] = True  # B: 20 % known defects and 20 % saturated
+    half[3, 2:4] = 4095
+    out = correct_planes(half, Calibration(defects=tie_defects), exposure_s=1.0, iso=100.0, white_level_dn=4095,
+                         black_level_dn=np.zeros(4))
+    require_valid(out, Path("x.dng"))  # R at exactly 50 % valid passes the default threshold
+    require_valid(correct_planes(np.full(shape, 1000.0, np.float32), Calibration(), exposure_s=1.0, iso=100.0,
+                                 white_level_dn=4095, black_level_dn=np.zeros(4)), Path("x.dng"))
+    with pytest.raises(CamcalError) as err:
+        require_valid(out, Path("x.dng"), min_valid_fraction=0.7)
+    assert str(err.value) == ("x.dng: frame has only 50 % valid pixels in channel R (need 70 %): "
+                              "50 % saturated outside known defects; shorten the exposure")
+    one = Corrected(out.signal_dn[3:], None, out.invalid[3:], out.saturated[3:], out.defective[3:],
+                    out.clipped[3:], ("B",))
+    with pytest.raises(CamcalError) as err:
+        require_valid(one, Path("x.dng"), min_valid_fraction=0.7)
+    assert str(err.value).endswith("only 60 % valid pixels in channel B (need 70 %): "
+                                   "20 % saturated outside known defects; shorten the exposure")
 
 
 def _quantised_pairs(rng, n, sigma, dsnu, mean, offset):

@@ -1150,11 +1150,12 @@ def test_merging_sweeps_the_other_way_round_and_its_guards():
         return SpectralSensitivity(wl, {p: v / f for p in "RGB"}, {p: 0.01 * v / f for p in "RGB"}, "relative",
                                    kw.pop("mode", "relative"), **kw)
 
-    m = merge_sweeps(sweep(hi), sweep(lo, 2.5))
+    m = merge_sweeps(sweep(hi, reference_iso=200.0, reference_f_number=4.0),
+                     sweep(lo, 2.5, reference_iso=200.0, reference_f_number=4.0))
     np.testing.assert_allclose(m.values["R"], _gauss(m.wavelength_nm, 560.0, 80.0) + 0.1, rtol=1e-12)
     assert m.units == "relative" and m.mode == "relative" and m.deconvolved is False and m.bandwidth_nm is None
     assert m.n_frames == {}
-    assert (m.reference_iso, m.reference_f_number) == (sweep(hi).reference_iso, sweep(hi).reference_f_number)
+    assert (m.reference_iso, m.reference_f_number) == (200.0, 4.0)  # the first sweep's setting is kept
     plain = merge_sweeps(sweep(lo), sweep(hi), scale=False)
     only_b = plain.wavelength_nm > 600
     np.testing.assert_allclose(plain.uncertainty["G"][only_b], 0.01 * (_gauss(plain.wavelength_nm[only_b],
