@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +17,7 @@ import pytest
 import rawpy
 
 from camcal.calibrate import calibrate_session
-from camcal.correct import Calibration, correct_planes, require_valid
+from camcal.correct import Calibration, Corrected, correct_planes, require_valid
 from camcal.dark import DEAD, HOT, NOISY, fit_dark, quantised_noise_fit
 from camcal.dark_model import DarkModel
 from camcal.errors import CamcalError
@@ -182,6 +183,50 @@ def test_require_valid_says_why(rng):
                                           r"defects"):
         require_valid(out, Path("x.dng"))
     require_valid(out, Path("x.dng"), min_valid_fraction=0.3)
+
+
+def test_require_valid_names_known_defects_the_region_and_passes_at_exactly_the_threshold():
+    """The worst channel decides; its message is checked whole against counts made here: G2 with 70 of 100 pixels
+    known defects (30 % valid) is named before G1 with 60 saturated (40 % valid), with the region it was measured
+    on. A channel at exactly the threshold passes (50 of 100 valid, the default 0.5); equal saturated and defect
+    shares are reported as saturation (the cause the user can change)."""
+    shape = (4, 10, 10)
+    raw = np.full(shape, 1000.0, np.float32)
+    raw[1, :6] = 4095
+    defects = np.zeros(shape, bool)
+    defects[2, :7] = True
+    out = correct_planes(raw, Calibration(defects=defects), exposure_s=1.0, iso=100.0, white_level_dn=4095,
+                         black_level_dn=np.zeros(4))
+    np.testing.assert_allclose(out.valid_fraction(), [1.0, 0.4, 0.3, 1.0], rtol=0, atol=1e-15)  # 1 − k/100
+    np.testing.assert_array_equal(out.saturated_fraction(), [0.0, 0.6, 0.0, 0.0])
+    with pytest.raises(CamcalError) as err:
+        require_valid(out, Path("x.dng"), region="ROI")
+    assert str(err.value) == ("x.dng: frame has only 30 % valid pixels in channel G2 (need 50 %): "
+                              "70 % of the ROI are known defects (masked)")
+    with pytest.raises(CamcalError) as err:
+        require_valid(out, Path("x.dng"), what="flat")
+    assert str(err.value).endswith("flat has only 30 % valid pixels in channel G2 (need 50 %): "
+                                   "70 % are known defects (masked)")
+    half = np.full(shape, 1000.0, np.float32)
+    half[0, :5] = 4095  # exactly 50 % of R saturated
+    tie_defects = np.zeros(shape, bool)
+    tie_defects[3, :2] = True  # B: 20 % known defects and 20 % saturated
+    half[3, 2:4] = 4095
+    out = correct_planes(half, Calibration(defects=tie_defects), exposure_s=1.0, iso=100.0, white_level_dn=4095,
+                         black_level_dn=np.zeros(4))
+    require_valid(out, Path("x.dng"))  # R at exactly 50 % valid passes the default threshold
+    require_valid(correct_planes(np.full(shape, 1000.0, np.float32), Calibration(), exposure_s=1.0, iso=100.0,
+                                 white_level_dn=4095, black_level_dn=np.zeros(4)), Path("x.dng"))
+    with pytest.raises(CamcalError) as err:
+        require_valid(out, Path("x.dng"), min_valid_fraction=0.7)
+    assert str(err.value) == ("x.dng: frame has only 50 % valid pixels in channel R (need 70 %): "
+                              "50 % saturated outside known defects; shorten the exposure")
+    one = Corrected(out.signal_dn[3:], None, out.invalid[3:], out.saturated[3:], out.defective[3:],
+                    out.clipped[3:], ("B",))
+    with pytest.raises(CamcalError) as err:
+        require_valid(one, Path("x.dng"), min_valid_fraction=0.7)
+    assert str(err.value).endswith("only 60 % valid pixels in channel B (need 70 %): "
+                                   "20 % saturated outside known defects; shorten the exposure")
 
 
 def _quantised_pairs(rng, n, sigma, dsnu, mean, offset):
@@ -398,3 +443,104 @@ def test_remembered_dark_frame_gives_the_same_correction(rng):
     a = correct_planes(raw.copy(), plain, exposure_s=2.0, full_shape=shape, window=window, **kw)
     b = correct_planes(raw.copy(), kept, exposure_s=2.0, full_shape=shape, window=window, **kw)
     assert np.array_equal(a.signal_dn, b.signal_dn) and len(kept.dark_frames) == 2
+
+
+def test_calibration_of_a_dark_and_a_flat_model_holds_each_part(rng):
+    """Calibration.of keeps the flat model's gain without PRNU unless asked (given in float64, held in float32)
+    and its reciprocal in float32; the defect map is every nonzero defect bit (hot 1, dead 2, noisy 4); the
+    noise model's system gain is the dark model's photon-transfer gain per plane, replaced by the EMVA sheet's K
+    scaled by ISO_dark/ISO_sheet where the sheet has a positive finite K. A gain of 0, below 0 or NaN anywhere is
+    refused."""
+    shape = (4, 3, 5)
+    dark = _dark(shape, rng)
+    defects = np.zeros(shape, np.uint8)
+    defects[0, 1, 2], defects[2, 0, 0], defects[3, 2, 4] = HOT, DEAD, NOISY | HOT
+    dark = replace(dark, defects=defects, channels={
+        p: {"hot_pixel_count": 0, "dead_pixel_count": 0, "noisy_pixel_count": 0, "gain_dn_per_e_from_dark": g}
+        for p, g in zip(PLANES, (0.5, 0.6, 0.7, 0.8), strict=True)})
+    plain = rng.uniform(0.6, 1.0, shape)  # float64, as a model may hold it
+    prnu = plain * (1.0 + 0.01 * rng.standard_normal(shape))
+
+    class Flat:
+        def gain(self, with_prnu: bool = False):
+            return prnu if with_prnu else plain
+
+    class Sheet:  # the profile's EMVA 1288 sheet at ISO 200: K known for R only (G1 none, G2 NaN, B 0)
+        iso = 200.0
+
+        def gain_dn_per_e(self, plane):
+            return {"R": 2.0, "G1": None, "G2": float("nan"), "B": 0.0}[plane]
+
+    cal = Calibration.of(dark, Flat())
+    assert cal.flat_gain.dtype == np.float32 and cal.inv_flat_gain.dtype == np.float32
+    np.testing.assert_array_equal(cal.flat_gain, plain.astype(np.float32))
+    np.testing.assert_array_equal(cal.inv_flat_gain, (1.0 / plain.astype(np.float32)).astype(np.float32))
+    np.testing.assert_array_equal(cal.defects, defects > 0)
+    assert cal.defects.dtype == bool and cal.dark is dark
+    np.testing.assert_array_equal(cal.noise_gain_dn_per_e.ravel(), np.float32([0.5, 0.6, 0.7, 0.8]))
+    np.testing.assert_array_equal(Calibration.of(dark, Flat(), with_prnu=True).flat_gain, prnu.astype(np.float32))
+    k = Calibration.of(dark, Flat(), emva=Sheet()).noise_gain_dn_per_e
+    np.testing.assert_array_equal(k.ravel(), np.float32([2.0 * 100.0 / 200.0, 0.6, 0.7, 0.8]))
+    empty = Calibration.of()
+    assert empty.flat_gain is None and empty.inv_flat_gain is None and empty.defects is None
+    assert empty.noise_gain_dn_per_e is None
+    for bad in (0.0, -0.5, np.nan):
+        wrong = plain.copy()
+        wrong[1, 2, 3] = bad
+
+        class Bad:
+            def gain(self, with_prnu: bool = False, g=wrong):
+                return g
+
+        with pytest.raises(CamcalError, match="gain is not positive and finite everywhere"):
+            Calibration.of(dark, Bad())
+
+
+def test_remembered_dark_frames_are_kept_per_iso_read_only_and_in_the_frames_plane_order():
+    """A remembered dark frame is keyed by the ISO too (the dark current scales with ISO/ISO_dark: the frame at
+    ISO 400 is bias + 4·β·t, written out here), is kept read-only and reused as the same array. A third-party
+    model's dark frame given per plane name is stacked in the frame's own plane order, and a mosaic is split by
+    the frame's CFA pattern, both when remembered; its failure names the file."""
+    shape = (4, 6, 8)
+    dark = _dark(shape, np.random.default_rng(11))
+    kept = Calibration.of(dark).remembering_dark_frames()
+    kw = {"white_level_dn": 1e9, "black_level_dn": np.full(4, 512.0)}
+    raw = np.full(shape, 3000.0, np.float32)
+    for iso in (100.0, 400.0, 100.0):
+        out = correct_planes(raw.copy(), kept, exposure_s=2.0, iso=iso, **kw)
+        want = 3000.0 - (dark.bias_dn.astype(np.float64) + dark.dark_current_dn_per_s * 2.0 * iso / 100.0)
+        np.testing.assert_allclose(out.signal_dn, want, rtol=0, atol=5e-4)  # float32 of ~2 500 DN: 2.4e-4 DN
+    assert sorted(k[1] for k in kept.dark_frames) == [100.0, 400.0]
+    first = dict(kept.dark_frames)
+    correct_planes(raw.copy(), kept, exposure_s=2.0, iso=400.0, **kw)
+    assert all(kept.dark_frames[k] is first[k] for k in first)  # reused, not computed again
+    assert not any(f.flags.writeable for f in kept.dark_frames.values())
+    assert all(isinstance(f, np.ndarray) and f.shape == shape for f in kept.dark_frames.values())
+
+    class ByName:  # plane p's dark level is 10 × its index in PLANES (R 0, G1 10, G2 20, B 30) + t
+        def dark_frame_dn(self, exposure_s, iso):
+            return {p: np.full(shape[1:], 10.0 * i + exposure_s) for i, p in enumerate(PLANES)}
+
+    order = ("B", "G2", "G1", "R")
+    out = correct_planes(raw.copy(), Calibration(dark=ByName()).remembering_dark_frames(), exposure_s=1.0,
+                         iso=None, channels=order, **kw)
+    np.testing.assert_array_equal(out.signal_dn[:, 0, 0], [3000.0 - 31.0, 3000.0 - 21.0, 3000.0 - 11.0, 2999.0])
+
+    class Mosaic:  # a whole-sensor dark frame, 2h × 2w, whose value is 1000 × row parity + 100 × column parity
+        def dark_frame_dn(self, exposure_s, iso):
+            rows, cols = np.indices((2 * shape[1], 2 * shape[2]))
+            return 1000.0 * (rows % 2) + 100.0 * (cols % 2)
+
+    out = correct_planes(raw.copy(), Calibration(dark=Mosaic()).remembering_dark_frames(), exposure_s=1.0,
+                         iso=None, cfa_pattern="BGGR", **kw)
+    # BGGR: R at (1, 1), G1 at (0, 1), G2 at (1, 0), B at (0, 0) of each 2 × 2 cell
+    np.testing.assert_array_equal(out.signal_dn[:, 0, 0], [3000.0 - 1100.0, 2900.0, 2000.0, 3000.0])
+
+    class Failing:
+        def dark_frame_dn(self, exposure_s, iso):
+            raise ValueError("no such exposure")
+
+    for cal in (Calibration(dark=Failing()), Calibration(dark=Failing()).remembering_dark_frames()):
+        with pytest.raises(CamcalError) as err:
+            correct_planes(raw.copy(), cal, exposure_s=1.0, iso=None, path=Path("frame.dng"), **kw)
+        assert str(err.value).startswith("frame.dng: the dark model failed for t = 1.0 s")

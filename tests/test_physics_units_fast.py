@@ -999,6 +999,27 @@ def test_deconvolution_on_an_uneven_grid_is_the_tikhonov_estimator_with_gcv():
     np.testing.assert_allclose(uc, np.sqrt(np.diag(r @ np.diag(u**2) @ r.T)), rtol=1e-6)
 
 
+def test_deconvolution_with_little_noise_lets_gcv_choose_a_weak_regularisation():
+    """With noise of 1e-4 on a broad (σ = 25 nm) curve, GCV's minimum over 10⁻¹⁰…10² lies below 10⁻² (at
+    10^-2.75): the search must reach down there, weaker than the trace ratio, not only up from it. The result is
+    the estimator written out at that α, and closer to the truth than the one at 10⁻²."""
+    base = np.arange(400.0, 481.0, 4.0)
+    wl = base + np.random.default_rng(5).uniform(-1.2, 1.2, base.size)
+    a = slit_matrix(wl, 8.0)
+    truth = np.exp(-0.5 * ((wl - 440.0) / 25.0) ** 2)
+    u = 1e-4 * (1.0 + 0.5 * np.cos(wl / 7.0))
+    m = a @ truth + u * np.random.default_rng(1).standard_normal(wl.size)
+    scores = [(_tikhonov_by_definition(wl, a, m, u, 10.0**lg)[2], lg) for lg in np.linspace(-10, 2, 49)]
+    best = min(scores)[1]
+    assert -10 < best < -2
+    c, uc = deconvolve_slit(wl, m, u, 8.0)
+    want, r, _ = _tikhonov_by_definition(wl, a, m, u, 10.0**best)
+    np.testing.assert_allclose(c, want, rtol=1e-6, atol=1e-10)
+    np.testing.assert_allclose(uc, np.sqrt(np.diag(r @ np.diag(u**2) @ r.T)), rtol=1e-6)
+    stiff = _tikhonov_by_definition(wl, a, m, u, 1e-2)[0]
+    assert np.abs(c - truth).max() < np.abs(stiff - truth).max()
+
+
 def test_slit_matrix_on_a_line_is_the_gaussian_mean_of_the_clamped_line():
     """c(λ) = a + bλ is its own natural cubic spline, held at the end values outside the sampled range, so the
     measured value at λ_j through a Gaussian slit (σ = FWHM/(2√(2 ln 2))) is a + b·E[clip(X, λ_0, λ_n)] with

@@ -23,7 +23,7 @@ from camcal.correct import Corrected, dark_frame, system_gain_dn_per_e
 from camcal.dark import _fit_lines, _noise_model, subtract_dark
 from camcal.dark_model import DarkModel
 from camcal.errors import CamcalError
-from camcal.flat import _total_degree_mask, correct_flat, fit_2d_plane, fit_radial_plane
+from camcal.flat import _quadratic_vertex, _total_degree_mask, correct_flat, fit_2d_plane, fit_radial_plane
 from camcal.flat_model import FlatModel, PlaneGeometry, dead_pixels, radial_gain
 from camcal.frame import PLANES, Exposure
 from camcal.radiance import (
@@ -1150,11 +1150,12 @@ def test_merging_sweeps_the_other_way_round_and_its_guards():
         return SpectralSensitivity(wl, {p: v / f for p in "RGB"}, {p: 0.01 * v / f for p in "RGB"}, "relative",
                                    kw.pop("mode", "relative"), **kw)
 
-    m = merge_sweeps(sweep(hi), sweep(lo, 2.5))
+    m = merge_sweeps(sweep(hi, reference_iso=200.0, reference_f_number=4.0),
+                     sweep(lo, 2.5, reference_iso=200.0, reference_f_number=4.0))
     np.testing.assert_allclose(m.values["R"], _gauss(m.wavelength_nm, 560.0, 80.0) + 0.1, rtol=1e-12)
     assert m.units == "relative" and m.mode == "relative" and m.deconvolved is False and m.bandwidth_nm is None
     assert m.n_frames == {}
-    assert (m.reference_iso, m.reference_f_number) == (sweep(hi).reference_iso, sweep(hi).reference_f_number)
+    assert (m.reference_iso, m.reference_f_number) == (200.0, 4.0)  # the first sweep's setting is kept
     plain = merge_sweeps(sweep(lo), sweep(hi), scale=False)
     only_b = plain.wavelength_nm > 600
     np.testing.assert_allclose(plain.uncertainty["G"][only_b], 0.01 * (_gauss(plain.wavelength_nm[only_b],
@@ -1235,3 +1236,40 @@ def test_band_sigma_without_an_illuminant_and_with_negative_noise_samples():
         var += ((up - down) / (2 * dc[k]) * u[k]) ** 2
     assert np.any(c < 0)
     assert float(model.ratio_sigma_from_sensitivity(20.0, 1.0, u)) == pytest.approx(np.sqrt(var), rel=1e-4)
+
+
+def test_flat_centre_start_is_the_vertex_of_the_quadratic_kept_inside_the_central_80_percent():
+    """The radial fit's start for the optical centre: the vertex of a quadratic surface fitted to the blocks. On
+    blocks that lie exactly on d = 5 − 0.002 (x − 36)² − 0.004 (y − 27)² + 0.001 (x − 36)(y − 27) over the box
+    x 10…50, y 20…40 (not square, so the axes' scales matter) it is (36, 27) itself. A vertex outside the central
+    80 % of the box (x0 = 49, y0 = 21: 95 % and 90 % of the half-widths out) is clipped to it on each side
+    (30 + 0.8·20, 30 − 0.8·10); blocks of zeros (no vertex: a singular Hessian) and data with a NaN give the
+    box's centre."""
+    xs, ys = np.meshgrid(np.linspace(10.0, 50.0, 9), np.linspace(20.0, 40.0, 7))
+    x, y = xs.ravel(), ys.ravel()
+    box = (10.0, 50.0, 20.0, 40.0)
+
+    def bowl(x0, y0):
+        return 5.0 - 0.002 * (x - x0) ** 2 - 0.004 * (y - y0) ** 2 + 0.001 * (x - x0) * (y - y0)
+
+    np.testing.assert_allclose(_quadratic_vertex(x, y, bowl(36.0, 27.0), box), (36.0, 27.0), atol=1e-8)
+    np.testing.assert_allclose(_quadratic_vertex(x, y, bowl(49.0, 21.0), box), (46.0, 22.0), atol=1e-8)
+    np.testing.assert_allclose(_quadratic_vertex(x, y, bowl(11.0, 39.5), box), (14.0, 38.0), atol=1e-8)
+    assert _quadratic_vertex(x, y, np.zeros_like(x), box) == (30.0, 30.0)  # c = 0 exactly: Hessian singular
+    with_nan = bowl(36.0, 27.0)
+    with_nan[5] = np.nan
+    assert _quadratic_vertex(x, y, with_nan, box) == (30.0, 30.0)
+
+
+def test_srgb_form_fit_without_degrees_of_freedom_reports_no_reduced_chi2():
+    """With as many exposures as parameters (two: p and x_w) or fewer, χ²/dof is undefined: NaN, never the
+    residual sum divided by 0 or by a negative count (which would read as an infinite or a negative misfit), and
+    the exponent has no uncertainty. The two points lie on V(x/0.02, 1/2.4) exactly, which the fit recovers."""
+    x = np.array([0.004, 0.01])
+    g = 255.0 * srgb_form_encode(x / 0.02, 1 / 2.4)
+    for n in (1, 2):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            fit = fit_srgb_form(x[:n], g[:n], np.full(n, 0.3), 255.0, p0=0.5, x_white0=0.02)
+        assert np.isnan(fit["chi2_red"]) and np.isnan(fit["exponent_unc"])
+    assert fit["exponent"] == pytest.approx(1 / 2.4, rel=1e-6) and fit["x_white_s"] == pytest.approx(0.02, rel=1e-6)
