@@ -1273,3 +1273,349 @@ def test_srgb_form_fit_without_degrees_of_freedom_reports_no_reduced_chi2():
             fit = fit_srgb_form(x[:n], g[:n], np.full(n, 0.3), 255.0, p0=0.5, x_white0=0.02)
         assert np.isnan(fit["chi2_red"]) and np.isnan(fit["exponent_unc"])
     assert fit["exponent"] == pytest.approx(1 / 2.4, rel=1e-6) and fit["x_white_s"] == pytest.approx(0.02, rel=1e-6)
+
+
+# ---- water: the light's spectrum, describe(), the band inverse ----------------------------------------------------
+
+def _planck_shape(t_k, wl_nm):
+    """Planck's law 2hc²/λ⁵ / (exp(hc/λkT) − 1) with the exact SI constants, normalised to its maximum on wl."""
+    h, c, k = 6.62607015e-34, 299792458.0, 1.380649e-23
+    lam = np.asarray(wl_nm, float) * 1e-9
+    b = 2 * h * c**2 / lam**5 / np.expm1(h * c / (lam * k * t_k))
+    return b / np.max(b)
+
+
+def test_illuminant_spectrum_is_planck_the_cie_tables_the_lamp_or_a_measured_csv(tmp_path):
+    """S(λ) normalised to a maximum of 1 on the grid asked for: 'NNNNK' is Planck's law written out here (the
+    temperature read from the name, 500-50000 K inclusive); a CIE name is colour-science's own table (any
+    case), linear between its 5 nm nodes; 'lamp' is the shipped 3200 K black body (tabulated to 6 decimals,
+    380-780 nm, NaN outside); a CSV is interpolated linearly, NaN outside its range, whatever its extension;
+    'flat' and its synonyms are None."""
+    from camcal.water.band import illuminant_spectrum
+
+    wl = np.array([420.0, 555.0, 640.0, 702.5])
+    for name in ("flat", " Flat ", "EQUAL", "e", "None"):
+        assert illuminant_spectrum(name, wl) is None
+    for name, t in (("3000K", 3000.0), ("2856.5k", 2856.5), ("500K", 500.0), ("50000K", 50000.0)):
+        np.testing.assert_allclose(illuminant_spectrum(name, wl), _planck_shape(t, wl), rtol=1e-9)
+    for name in ("499.9K", "50000.5K"):
+        with pytest.raises(CamcalError, match="implausible"):
+            illuminant_spectrum(name, wl)
+    # CIE D65 and A from colour-science's tables: at their 5 nm nodes, and half-way between two nodes
+    nodes = np.arange(400.0, 701.0, 5.0)
+    for name, key in ((" d65 ", "D65"), ("a", "A")):
+        table = colour.SDS_ILLUMINANTS[key]
+        vals = np.array([table[x] for x in nodes])
+        np.testing.assert_allclose(illuminant_spectrum(name, nodes), vals / vals.max(), rtol=1e-12)
+        two = np.array([0.5 * (table[560.0] + table[565.0]), table[460.0]])
+        np.testing.assert_allclose(illuminant_spectrum(name, np.array([562.5, 460.0])), two / two.max(), rtol=1e-12)
+    with pytest.raises(CamcalError, match="unknown illuminant"):
+        illuminant_spectrum("D99", wl)
+    # the shipped lamp: a 3200 K black body, maximum at 780 nm within 380-780 nm
+    lamp_wl = np.array([370.0, 400.0, 550.0, 700.0, 780.0, 790.0])
+    lamp = illuminant_spectrum("lamp", lamp_wl)
+    assert np.isnan(lamp[0]) and np.isnan(lamp[-1])
+    np.testing.assert_allclose(lamp[1:-1], _planck_shape(3200.0, lamp_wl[1:-1]), atol=1e-6)
+    # a measured spectrum: 1, 3, 2 at 500, 600, 700 nm
+    for fname in ("light.csv", "light.txt"):
+        f = tmp_path / fname
+        f.write_text("# a measured light\nwavelength_nm,relative_radiance\n500,1\n600,3\n700,2\n")
+        got = illuminant_spectrum(str(f), np.array([450.0, 550.0, 600.0, 650.0, 750.0]))
+        np.testing.assert_allclose(got, [np.nan, 2 / 3, 1.0, 2.5 / 3, np.nan], rtol=1e-12)
+    with pytest.raises(CamcalError, match="no such file"):
+        illuminant_spectrum(tmp_path / "nowhere.csv", wl)
+
+
+class _BareGeometry:
+    """A geometry given only by its closed form (no name, no ``includes_water``): the seed's R(τ)."""
+
+    def closed_form(self):
+        return SeedModel().closed_form()
+
+
+def test_band_model_describe_and_water_default_follow_the_inputs():
+    """describe(): the geometry's name (its class name when it has none), the chlorophyll spectrum's source,
+    where a_w comes from (Pope & Fry by default for a geometry that includes water, 'given', or none), the
+    effective wavelength ∫ c⁺ S λ dλ / ∫ c⁺ S dλ by the trapezoid rule (c⁺: negative noise samples clipped,
+    c below 1 kept as is; exactly zero at both ends, so the quadratures agree to rounding), and the grid's
+    ends."""
+    wl = np.arange(560.0, 721.0, 4.0)
+    c = 0.4 * np.sin(np.pi * (wl - 560.0) / 160.0) ** 2 - 0.02  # negative tails
+    s = np.linspace(0.6, 1.2, wl.size)
+    cp = np.clip(c, 0.0, None)
+    lam_eff = np.trapezoid(cp * s * wl, wl) / np.trapezoid(cp * s, wl)
+    d = BandModel(wl, c, geometry=RefinedModel(), illuminant=s).describe()
+    assert d == {"geometry": "refined", "chlorophyll": "Bricaud et al. 1998 (a*_ph)",
+                 "water_absorption": "Pope & Fry 1997", "effective_wavelength_nm": pytest.approx(lam_eff, rel=1e-12),
+                 "wavelength_range_nm": [560.0, 720.0]}
+    flat = BandModel(wl, c, geometry=RefinedModel()).describe()
+    assert flat["effective_wavelength_nm"] == pytest.approx(np.trapezoid(cp * wl, wl) / np.trapezoid(cp, wl),
+                                                            rel=1e-12)
+    assert BandModel(wl, c).describe()["water_absorption"] == "none (seed)"
+    # a grid twice as fine above 640 nm: the trapezoid weights follow the spacing
+    uneven = np.concatenate([np.arange(560.0, 640.0, 4.0), np.arange(640.0, 721.0, 2.0)])
+    cu = np.sin(np.pi * (uneven - 560.0) / 160.0) ** 2 * (1.0 + (uneven - 560.0) / 80.0)
+    assert BandModel(uneven, cu).describe()["effective_wavelength_nm"] == pytest.approx(
+        np.trapezoid(cu * uneven, uneven) / np.trapezoid(cu, uneven), rel=1e-12)
+    chl = ChlorophyllAbsorption(np.array([400.0, 800.0]), np.array([0.02, 0.02]), np.array([1.0, 1.0]), "my dye")
+    given = BandModel(wl, c, geometry=RefinedModel(), water_absorption_per_m=0.3, chlorophyll=chl).describe()
+    assert given["water_absorption"] == "given" and given["chlorophyll"] == "my dye"
+    assert BandModel(wl, c, water_absorption_per_m=0.3).describe()["water_absorption"] == "given"
+    bare = BandModel(wl, c, geometry=_BareGeometry())
+    assert bare.describe()["geometry"] == "_BareGeometry"
+    assert bare.describe()["water_absorption"] == "none (seed)"
+    assert not np.any(bare.water_absorption())
+    np.testing.assert_allclose(BandModel(wl, c, geometry=RefinedModel()).water_absorption(),
+                               pure_water_absorption_per_m(wl), rtol=1e-12)
+
+
+def test_band_background_spectrum_and_a_power_law_below_one_microgram():
+    """A background a_bg(λ) given as a spectrum is added per wavelength to a_w (Pope & Fry for the refined
+    geometry, zero for the seed's); a = A C^E and da/dC = A E C^(E−1) hold below 1 µg/L too (C = 0.5), and at
+    C = 0 da/dC is its limit from above; a spectrum resampled on another grid keeps that grid and its
+    source."""
+    wl = np.arange(600.0, 701.0, 10.0)
+    bg = np.linspace(0.3, 0.05, wl.size)  # CDOM falling with wavelength
+    np.testing.assert_allclose(BandModel(wl, np.ones(wl.size), background_absorption_per_m=bg)
+                               .absorption_background(), bg, rtol=1e-12)
+    np.testing.assert_allclose(BandModel(wl, np.ones(wl.size), geometry=RefinedModel(),
+                                         background_absorption_per_m=bg).absorption_background(),
+                               pure_water_absorption_per_m(wl) + bg, rtol=1e-12)
+    chl = ChlorophyllAbsorption(np.array([600.0, 700.0]), np.array([0.02, 0.01]), np.array([0.7, 0.9]), "table")
+    np.testing.assert_allclose(chl.absorption_per_m(0.5), [0.02 * 0.5**0.7, 0.01 * 0.5**0.9], rtol=1e-12)
+    np.testing.assert_allclose(chl.derivative_per_m(0.5), [0.02 * 0.7 * 0.5**-0.3, 0.01 * 0.9 * 0.5**-0.1],
+                               rtol=1e-12)
+    # at C = 0 the slope's limit from above: a linear absorber's A, zero for E > 1 or where A = 0, infinite
+    # for E < 1 (a(h)/h = A h^(E-1) for small h)
+    four = ChlorophyllAbsorption(np.arange(4.0), np.array([0.02, 0.03, 0.04, 0.0]), np.array([0.7, 1.0, 1.3, 0.8]))
+    np.testing.assert_array_equal(four.derivative_per_m(0.0), [np.inf, 0.03, 0.0, 0.0])
+    h = 1e-9
+    assert four.absorption_per_m(h)[1] / h == pytest.approx(0.03, rel=1e-12)
+    assert four.absorption_per_m(h)[2] / h < 1e-2 * 0.04  # A h^0.3: 0.2 % of A at h = 1e-9
+    on = chl.on(wl)
+    np.testing.assert_array_equal(on.wavelengths_nm, wl)
+    assert on.source == "table"
+    np.testing.assert_allclose(on.coefficient_m2_per_mg, 0.02 - 0.01 * (wl - 600.0) / 100.0, rtol=1e-12)
+
+
+def test_band_ratio_of_a_lamp_for_an_image_of_concentrations():
+    """B(C) and dB/dC of the lamp's form (not an E₃ closed form: its own ratio and derivative) for a 2 × 3 array
+    of C: B against ∫ c R_λ(τ_λ) dλ / ∫ c dλ by the trapezoid rule with τ_λ = (a_w + A C^E) d from the Pope &
+    Fry and Bricaud tables and the lamp's per-wavelength R at that depth (rel 1e-6: the quadratures differ only
+    at the grid's ends, where c is 4e-7 of its peak), dB/dC against central differences (h = 1e-3 C)."""
+    geom = LampModel(height_m=0.3, lamp_angle_rad=0.2)
+    model = BandModel(BAND_WL, BAND_C, geometry=geom)
+    c, d = np.array([[0.5, 3.0, 20.0], [60.0, 150.0, 400.0]]), 0.7
+    form = geom.closed_form_at(d)
+    expect = np.empty(c.shape)
+    for idx, cv in np.ndenumerate(c):
+        r = form.ratio((pure_water_absorption_per_m(BAND_WL) + _bricaud_per_m(cv)) * d)
+        expect[idx] = np.trapezoid(BAND_C * r, BAND_WL) / np.trapezoid(BAND_C, BAND_WL)
+    b, db = model.ratio_and_derivative(c, d)
+    assert b.shape == db.shape == (2, 3)
+    np.testing.assert_allclose(b, expect, rtol=1e-6)
+    h = 1e-3 * c
+    np.testing.assert_allclose(db, (model.ratio(c + h, d) - model.ratio(c - h, d)) / (2 * h), rtol=1e-5)
+
+
+def test_band_sigma_for_several_concentrations_with_exact_zeros_in_the_curve():
+    """σ_B for an array of C under a flat illuminant, with a curve cut to exactly zero outside 580-700 nm (as a
+    profile's curve beyond its measured range) and u > 0 there: a zero sample is outside the band, like a
+    clipped one, so its u does not count; linear propagation by central differences of B in each c_k > 0."""
+    c = np.where((BAND_WL > 580) & (BAND_WL < 700), BAND_C, 0.0)
+    u = np.full(BAND_WL.size, 3e-3)
+    cs = np.array([5.0, 20.0])
+    var = np.zeros(2)
+    for k in np.flatnonzero(c > 0):
+        dc = np.zeros_like(c)
+        dc[k] = 1e-3 * c[k]
+        up, down = BandModel(BAND_WL, c + dc).ratio(cs, 1.0), BandModel(BAND_WL, c - dc).ratio(cs, 1.0)
+        var += ((up - down) / (2 * dc[k]) * u[k]) ** 2
+    got = BandModel(BAND_WL, c).ratio_sigma_from_sensitivity(cs, 1.0, u)
+    assert got.shape == (2,)
+    np.testing.assert_allclose(got, np.sqrt(var), rtol=1e-4)
+
+
+INV_WL = np.arange(600.0, 701.0, 2.0)
+INV_C = np.sin(np.pi * (INV_WL - 600.0) / 100.0) ** 2  # exactly zero at both ends: trapezoid = the model's weights
+
+
+def _inv_forward(c_ug_per_L, depth_m=0.5, bg=0.1):
+    """B(C) of the seed's geometry over INV_C, written out: the trapezoid rule over the Bricaud table (A C^E, on
+    the table's own 2 nm grid here) with the seed's per-wavelength closed form R(τ), τ = (a_bg + A C^E) d."""
+    chl = bricaud_1998()
+    a = np.interp(INV_WL, chl.wavelengths_nm, chl.coefficient_m2_per_mg)
+    e = np.interp(INV_WL, chl.wavelengths_nm, chl.exponent)
+    form = SeedModel().closed_form()
+    out = []
+    for cv in np.atleast_1d(np.asarray(c_ug_per_L, float)):
+        r = form.ratio((bg + a * cv**e) * depth_m)
+        out.append(np.trapezoid(INV_C * r, INV_WL) / np.trapezoid(INV_C, INV_WL))
+    return np.array(out)
+
+
+def _inv_ratio_and_slope(c_ug_per_L, depth_m=0.5, bg=0.1):
+    """B(C) as _inv_forward and dB/dC written out: ∫ c R'(τ) d A E C^(E−1) dλ / ∫ c dλ (R' of the seed's form)."""
+    chl = bricaud_1998()
+    a = np.interp(INV_WL, chl.wavelengths_nm, chl.coefficient_m2_per_mg)
+    e = np.interp(INV_WL, chl.wavelengths_nm, chl.exponent)
+    form = SeedModel().closed_form()
+    b, db = [], []
+    for cv in np.asarray(c_ug_per_L, float):
+        tau = (bg + a * cv**e) * depth_m
+        b.append(np.trapezoid(INV_C * form.ratio(tau), INV_WL) / np.trapezoid(INV_C, INV_WL))
+        db.append(np.trapezoid(INV_C * form.ratio_derivative(tau) * depth_m * a * e * cv ** (e - 1), INV_WL)
+                  / np.trapezoid(INV_C, INV_WL))
+    return np.array(b), np.array(db)
+
+
+def _inv_sigma(c, sigma_ln_ratio, depth_m=0.5):
+    """σ_C = σ_ln r / |d ln B/dC|, the derivative by central differences (h = 1e-4 C) of the forward model."""
+    h = 1e-4 * c
+    dln = (np.log(_inv_forward(c + h, depth_m)) - np.log(_inv_forward(c - h, depth_m))) / (2 * h)
+    return sigma_ln_ratio / np.abs(dln)
+
+
+def test_band_inverse_round_trip_through_a_forward_model_written_out():
+    """Ratios rendered by _inv_forward at C from just above the table's first node (1e-4 µg/L) to just below
+    its last (1e5 µg/L) come back as C (rel 1e-7: the table's interpolation, measured ~1e-9), in mol/L through
+    chlorophyll-a's 893.5 g/mol, with σ_C = σ_ln r / |d ln B/dC| (rel 1e-4: the central difference and the
+    table's slope) for a scalar and a per-pixel σ_ln r; the model's inverse is cached per depth and passes
+    its node count on; an image keeps its shape; without σ_ln r, σ_C is NaN; τ is not defined (NaN). Across
+    the table σ_C = σ_ln r · B/|dB/dC| holds to 3e-7 with dB/dC written out."""
+    from camcal.water.band import BandInverse
+
+    model = BandModel(INV_WL, INV_C, background_absorption_per_m=0.1)
+    c = np.array([1.01e-4, 0.3, 7.0, 250.0, 3000.0, 0.998e5])
+    r = _inv_forward(c)
+    inv = model.inverse(0.5)
+    res = inv.concentration(r, sigma_ln_ratio=0.02)
+    assert not np.any(res.reason)
+    np.testing.assert_allclose(res.c_ug_per_L, c, rtol=1e-7)
+    np.testing.assert_allclose(res.c_mol_per_L, c / (893.5 * 1e6), rtol=1e-7)
+    np.testing.assert_allclose(res.sigma_ug_per_L, _inv_sigma(c, 0.02), rtol=1e-4)
+    assert res.tau.dtype == np.float64 and np.all(np.isnan(res.tau))
+    assert res.reason.dtype == np.uint8
+    per_pixel = np.linspace(0.01, 0.06, c.size)
+    np.testing.assert_allclose(inv.concentration(r, sigma_ln_ratio=per_pixel).sigma_ug_per_L,
+                               _inv_sigma(c, per_pixel), rtol=1e-4)
+    img = inv.concentration(r.reshape(2, 3))
+    assert img.c_ug_per_L.shape == img.sigma_ug_per_L.shape == img.reason.shape == (2, 3)
+    np.testing.assert_allclose(img.c_ug_per_L, c.reshape(2, 3), rtol=1e-7)
+    assert np.all(np.isnan(img.sigma_ug_per_L))
+    # σ_C = σ_ln r · B/|dB/dC| across the table (400 C from 1.3e-4 to 9e4 µg/L), dB/dC written out: rel 3e-7
+    # (the slope of the table's cubics, measured within 1e-7 of it)
+    across = np.logspace(-3.9, 4.95, 400)
+    b_across, db_across = _inv_ratio_and_slope(across)
+    np.testing.assert_allclose(inv.concentration(b_across, sigma_ln_ratio=1.0).sigma_ug_per_L,
+                               b_across / np.abs(db_across), rtol=3e-7)
+    # another depth: another table
+    r1 = _inv_forward(c[1:4], 1.2)
+    np.testing.assert_allclose(model.inverse(1.2).concentration(r1).c_ug_per_L, c[1:4], rtol=1e-7)
+    assert model.inverse(1.2) is model.inverse(1.2)
+    coarse = model.inverse(0.5, nodes=4).concentration(_inv_forward(7.0)).c_ug_per_L
+    np.testing.assert_array_equal(coarse, BandInverse(model, 0.5, 4).concentration(_inv_forward(7.0)).c_ug_per_L)
+    # a ratio in single precision: its logarithm is taken in double (B of the result matches it to 1e-10)
+    r32 = _inv_forward(c[1:5]).astype(np.float32)
+    back = _inv_forward(inv.concentration(r32).c_ug_per_L)
+    np.testing.assert_allclose(back, r32.astype(np.float64), rtol=1e-10)
+
+
+def test_band_inverse_below_the_first_node_at_the_table_ends_and_its_reasons():
+    """Below the first node (C < 1e-4 µg/L) C is linear in δ = ln B(0) − ln r: C = 1e-4 δ/δ(1e-4) with
+    σ_C = 1e-4 σ_ln r / δ(1e-4), δ from the forward model written out (rel 1e-8); the ratios of the model
+    itself at C = 0 and at the table's ends (1e-4, 1e5 µg/L) give those C (not a reason), with σ_C =
+    σ_ln r / |d ln B/dC| at the two ends; NaN and ±inf are NOT_FINITE, 0 and negatives NOT_POSITIVE, a
+    ratio above clear water's ABOVE_CLEAR_WATER, one below the table's last node TOO_DARK: C and σ NaN."""
+    from camcal.water.invert import CHUNK, Reason
+
+    model = BandModel(INV_WL, INV_C, background_absorption_per_m=0.1)
+    inv = model.inverse(0.5)
+    b0, b_lo = _inv_forward(0.0)[0], _inv_forward(1e-4)[0]
+    delta_lo = np.log(b0) - np.log(b_lo)
+    r = np.array([b0 * np.exp(-0.3 * delta_lo), b0 * np.exp(-0.8 * delta_lo)])
+    low = inv.concentration(r, sigma_ln_ratio=0.01)
+    np.testing.assert_allclose(low.c_ug_per_L, [0.3e-4, 0.8e-4], rtol=1e-8)
+    np.testing.assert_allclose(low.sigma_ug_per_L, 1e-4 * 0.01 / delta_lo, rtol=1e-8)
+    np.testing.assert_allclose(inv.concentration(r, sigma_ln_ratio=np.array([0.01, 0.04])).sigma_ug_per_L,
+                               1e-4 * np.array([0.01, 0.04]) / delta_lo, rtol=1e-8)
+    ends = inv.concentration(model.ratio(np.array([0.0, 1e-4, 1e5]), 0.5), sigma_ln_ratio=0.01)
+    assert not np.any(ends.reason)
+    np.testing.assert_allclose(ends.c_ug_per_L, [0.0, 1e-4, 1e5], rtol=1e-9, atol=0)
+    np.testing.assert_allclose(ends.sigma_ug_per_L[1:], _inv_sigma(np.array([1e-4, 1e5]), 0.01), rtol=1e-4)
+    bad = inv.concentration(np.array([np.nan, np.inf, -np.inf, 0.0, -0.2, 1.01 * b0, 1e-300]), sigma_ln_ratio=0.01)
+    assert bad.reason.tolist() == [Reason.NOT_FINITE] * 3 + [Reason.NOT_POSITIVE] * 2 + [
+        Reason.ABOVE_CLEAR_WATER, Reason.TOO_DARK]
+    assert np.all(np.isnan(bad.c_ug_per_L)) and np.all(np.isnan(bad.sigma_ug_per_L))
+    # more pixels than one chunk, each with its own σ_ln r: σ_C/σ_ln r is one number
+    many = np.full(CHUNK + 3, _inv_forward(7.0)[0])
+    sig = np.linspace(0.01, 0.02, many.size)
+    out = inv.concentration(many, sigma_ln_ratio=sig)
+    np.testing.assert_allclose(out.sigma_ug_per_L / sig, _inv_sigma(np.array([7.0]), 1.0)[0], rtol=1e-4)
+
+
+def test_band_inverse_of_a_four_node_table_and_its_refusals(tmp_path):
+    """A table of four nodes (1e-4, 0.1, 100, 1e5 µg/L: the fewest accepted) goes through its nodes (rel 1e-8);
+    a depth that is not positive and finite is refused; a spectrum that absorbs nowhere in the band (a dye
+    CSV absorbing at 400-450 nm only, or the default Bricaud table, which ends at 700 nm, under a 720-800 nm
+    channel) is refused, naming the CSV when there is one."""
+    from camcal.water.band import BandInverse, read_chlorophyll_csv
+
+    model = BandModel(INV_WL, INV_C, background_absorption_per_m=0.1)
+    four = BandInverse(model, 0.5, nodes=4)
+    np.testing.assert_allclose(four.concentration(_inv_forward([1e-4, 0.1, 100.0])).c_ug_per_L,
+                               [1e-4, 0.1, 100.0], rtol=1e-8)
+    for depth in (0.0, -1.0, np.nan, np.inf):
+        with pytest.raises(CamcalError, match="depth must be positive"):
+            BandInverse(model, depth)
+    f = tmp_path / "blue_dye.csv"
+    f.write_text("wavelength_nm,A_m2_per_mg\n380,0.05\n450,0.05\n451,0\n800,0\n")
+    with pytest.raises(CamcalError, match="does not respond") as err:
+        BandInverse(BandModel(INV_WL, INV_C, chlorophyll=read_chlorophyll_csv(f)), 0.5)
+    assert err.value.path == f
+    with pytest.raises(CamcalError, match="does not respond") as err:  # a spectrum with no file behind it
+        BandInverse(BandModel(INV_WL, INV_C, chlorophyll=solvent_spectrum(INV_WL, np.zeros(INV_WL.size))), 0.5)
+    assert err.value.path is None
+    far_red = np.arange(720.0, 801.0, 4.0)
+    with pytest.raises(CamcalError, match="does not respond") as err:
+        BandInverse(BandModel(far_red, np.ones(far_red.size)), 0.5)
+    assert err.value.path is None
+
+
+def test_band_inverse_where_the_band_stops_responding_or_underflows():
+    """A red channel reaching past the Bricaud table's 700 nm end: B falls to the floor of the light beyond
+    700 nm that chlorophyll does not absorb; a ratio on that floor (B at 1e5 µg/L, forward model written out)
+    is TOO_DARK, a ratio above it inverts (rel 1e-7). On the way down to the floor (1-1e5 µg/L, 300 ratios)
+    each ratio gives C to 1e-5 (the table's check is 1e-6 in ln C at its nodes) or, from some C on, TOO_DARK;
+    never a wrong C. A dye absorbing so strongly that B underflows: a ratio of 1e-305 (below the 1e-300 the
+    table keeps) is TOO_DARK, a ratio of 1e-150 inverts."""
+    from camcal.water.invert import Reason
+
+    wl = np.arange(640.0, 761.0, 2.0)
+    c = np.sin(np.pi * (wl - 640.0) / 120.0) ** 2
+    chl = bricaud_1998()
+    a = np.interp(wl, chl.wavelengths_nm, chl.coefficient_m2_per_mg, right=0.0)
+    e = np.interp(wl, chl.wavelengths_nm, chl.exponent)
+    form = SeedModel().closed_form()
+
+    def fwd(cv):
+        return np.trapezoid(c * form.ratio((0.1 + a * cv**e) * 0.5), wl) / np.trapezoid(c, wl)
+
+    inv = BandModel(wl, c, background_absorption_per_m=0.1).inverse(0.5)
+    res = inv.concentration(np.array([fwd(1e5), fwd(5.0), fwd(80.0)]))
+    assert res.reason.tolist() == [Reason.TOO_DARK, 0, 0]
+    np.testing.assert_allclose(res.c_ug_per_L[1:], [5.0, 80.0], rtol=1e-7)
+    cs = np.logspace(0.0, 5.0, 300)
+    down = inv.concentration(np.array([fwd(cv) for cv in cs]))
+    ok = down.reason == 0
+    assert np.all(ok[:170]) and not np.any(ok[np.argmin(ok):])  # C up to 700 µg/L; then TOO_DARK throughout
+    assert np.all(down.reason[~ok] == Reason.TOO_DARK)
+    np.testing.assert_allclose(down.c_ug_per_L[ok], cs[ok], rtol=1e-5)
+    dye = solvent_spectrum(INV_WL, np.full(INV_WL.size, 60.0))  # A = 2.303e-4 · 60 m² mg⁻¹, linear
+    dinv = BandModel(INV_WL, INV_C, chlorophyll=dye).inverse(1.0)
+    a_dye = float(dye.coefficient_m2_per_mg[0])
+    c_dark = brentq(lambda cv: np.log(np.trapezoid(INV_C * form.ratio(np.full(INV_WL.size, a_dye * cv)), INV_WL)
+                                      / np.trapezoid(INV_C, INV_WL)) - np.log(1e-150), 1.0, 2e4)
+    dark = dinv.concentration(np.array([1e-150, 1e-305]))
+    assert dark.reason.tolist() == [0, Reason.TOO_DARK]
+    assert dark.c_ug_per_L[0] == pytest.approx(c_dark, rel=1e-7)

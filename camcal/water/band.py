@@ -67,10 +67,13 @@ class ChlorophyllAbsorption:
             return np.where(c > 0, self.coefficient_m2_per_mg * c ** self.exponent, 0.0)
 
     def derivative_per_m(self, c_ug_per_L):
-        """d a_chl / dC, m⁻¹ per (mg m⁻³)."""
+        """d a_chl / dC, m⁻¹ per (mg m⁻³). At C = 0 its limit from above: infinite for E < 1, A for E = 1 (a
+        linear absorber), 0 for E > 1 or where A = 0."""
         c = np.asarray(c_ug_per_L, float)[..., None]
+        a, e = self.coefficient_m2_per_mg, self.exponent
+        at_zero = np.where(a == 0, 0.0, np.where(e < 1, np.inf, np.where(e == 1, a, 0.0)))
         with np.errstate(divide="ignore", invalid="ignore"):
-            return np.where(c > 0, self.coefficient_m2_per_mg * self.exponent * c ** (self.exponent - 1), np.inf)
+            return np.where(c > 0, a * e * c ** (e - 1), at_zero)
 
 
 @functools.lru_cache(maxsize=2)
@@ -480,7 +483,8 @@ class BandInverse:
     dy/dw = δ B / (C (−dB/dC)), interpolated by a cubic Hermite spline, and resampled onto ``table_nodes``
     nodes uniform in w, so a pixel costs two logs, one index and a cubic (chunked, two threads; as
     :class:`camcal.water.invert.TauTable`). Below the first node C is linear in δ; beyond the last the pixel
-    is TOO_DARK. σ_C = C |dy/dw| σ_ln r / δ.
+    is TOO_DARK, and so beyond the node where the table no longer follows its nodes to 1e-6 in ln C (B
+    flattening towards a floor of light the chlorophyll does not absorb). σ_C = C |dy/dw| σ_ln r / δ.
     """
 
     def __init__(self, model: BandModel, depth_m: float, nodes: int = 800, table_nodes: int = 4096) -> None:
@@ -513,7 +517,19 @@ class BandInverse:
         self._coef = np.ascontiguousarray(np.stack([y0, m0, -3 * y0 - 2 * m0 + 3 * y1 - m1,
                                                     2 * y0 + m0 - 2 * y1 + m1]))
         self._w0, self._dw = float(wu[0]), dw
-        self.delta_lo, self.delta_hi = float(delta[0]), float(delta[-1])
+        # Where B flattens towards a floor (light that the chlorophyll spectrum does not absorb, e.g. beyond its
+        # 700 nm end), y(w) turns vertical within the last cells and their cubics cannot follow it (they gave
+        # C = 0 for a ratio a little above the floor): the table ends at the node before the first node it
+        # misses by more than 1e-6 in ln C, and a larger δ is TOO_DARK. Node 0 is the table's first node, met
+        # exactly.
+        tn = (w - wu[0]) / dw
+        jn = np.minimum(tn.astype(np.intp), table_nodes - 2)
+        un = tn - jn
+        k = self._coef
+        yn = ((k[3][jn] * un + k[2][jn]) * un + k[1][jn]) * un + k[0][jn]
+        miss = np.flatnonzero(np.abs(yn - np.log(c)) > 1e-6)
+        last = int(miss[0]) - 1 if miss.size else c.size - 1
+        self.delta_lo, self.delta_hi = float(delta[0]), float(delta[last])
         self.c_lo = float(c[0])
 
     def _into(self, r, c_out, sig_out, reason_out, sigma) -> None:
