@@ -621,12 +621,14 @@ def quantised_noise_fit(first: np.ndarray, second: np.ndarray, eps: float = 1e-4
     m0 = float(k1.mean())
     d = (k2 - k1).astype(np.float64)
     s0 = max(float(np.sqrt(max(d.var() / 2 - 1 / 12, 0.01))), 0.05)
-    sd0 = max(float(np.sqrt(max(np.var(0.5 * (k1 + k2)) - s0**2 / 2 - 1 / 24, 0.0025))), 0.05)
-    # μ = m + dsnu·z on z in [-8, 8]: 16·dsnu/(nodes − 1) <= σ/3 at the start, dsnu from the central 95 % of the
-    # pair means (a few far hot pixels would otherwise ask for thousands of nodes the bulk does not need); the
-    # normal weights are 1e-14 at the ends, so their plain sum is the trapezoid rule
+    # the spread of the pair means from their central 95 % (±1.96 standard deviations): far hot pixels, which the
+    # outlier weight carries, would otherwise start the fit at a dsnu of tens of DN, in the wrong minimum
     q_lo, q_hi = np.quantile(0.5 * (k1 + k2), [0.025, 0.975])
-    nodes = np.linspace(-8.0, 8.0, min(max(49, int(np.ceil(48.0 * float(q_hi - q_lo) / 3.92 / s0)) + 1), 4001))
+    spread = float(q_hi - q_lo) / 3.92
+    sd0 = max(float(np.sqrt(max(spread**2 - s0**2 / 2 - 1 / 24, 0.0025))), 0.05)
+    # μ = m + dsnu·z on z in [-8, 8]: 16·dsnu/(nodes − 1) <= σ/3 at the start; the normal weights are 1e-14 at the
+    # ends, so their plain sum is the trapezoid rule
+    nodes = np.linspace(-8.0, 8.0, min(max(49, int(np.ceil(48.0 * spread / s0)) + 1), 4001))
     weights = np.exp(-0.5 * nodes**2)
     weights /= weights.sum()
 
