@@ -270,6 +270,24 @@ def test_quantised_noise_fit_is_the_maximum_of_the_documented_likelihood(rng, si
     assert got[0] == pytest.approx(sigma, rel=0.05) and got[1] == pytest.approx(dsnu, rel=0.1)
 
 
+def test_quantised_noise_fit_carries_far_hot_pixels_in_its_outlier_weight(rng):
+    """0.5 % hot pixels 150 DN above a plane of σ = 0.4 DN, dsnu = 0.3 DN (16 000 pixel pairs): more than the 0.02 %
+    the level range leaves out, so they are in the histogram. Each costs the outlier weight's log(1e-4/n²) ≈ −19
+    nats; a dsnu wide enough to reach them would cost every other pixel ~log(35/0.3) ≈ 4.8 nats, so the maximum is
+    the bulk's σ and dsnu. Against the simulation's truth: σ to 5 % and dsnu to 10 % (spreads ~1.5 % and ~2 % at
+    this size); a fit started at the moment estimate of dsnu (~10 DN, inflated by the hot pixels) ends in the wide
+    minimum, dsnu ≈ 35 DN."""
+    n = 16_000
+    mu = 60.2 + 0.3 * rng.standard_normal(n)
+    mu[rng.random(n) < 5e-3] += 150.0
+    a = np.rint(mu + 0.4 * rng.standard_normal(n)).astype(np.int64)
+    b = np.rint(mu + 0.4 * rng.standard_normal(n)).astype(np.int64)
+    sigma, dsnu, offset = quantised_noise_fit(a, b)
+    assert sigma == pytest.approx(0.4, rel=0.05)
+    assert dsnu == pytest.approx(0.3, rel=0.1)
+    assert offset == pytest.approx(0.0, abs=0.02)  # 4 standard errors (0.0045 DN) of a mean difference of 16 000 pairs
+
+
 def test_duplicate_frames_refused_by_content(tmp_path, camera):
     d = tmp_path / "bias"
     d.mkdir()
