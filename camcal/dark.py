@@ -593,12 +593,13 @@ def quantised_noise_fit(first: np.ndarray, second: np.ndarray, eps: float = 1e-4
     Each pixel records ``k_f = round(μ + o_f + σ·z_f)`` in frame f: μ its own mean (spread over the plane as a
     normal distribution of standard deviation ``dsnu``), o_f a frame offset (jitter) and z_f standard normal.
     The joint histogram of the pairs (k_1, k_2) is fitted by maximum likelihood of this model (cell
-    probabilities integrated exactly over the rounding with the normal CDF :func:`scipy.special.ndtr`,
-    Gauss–Hermite over μ), with a small uniform outlier weight ``eps``, minimised by the Nelder–Mead simplex
-    (:func:`scipy.optimize.minimize`, ``method="Nelder-Mead"``). This is right where ``var − 1/12`` (Sheppard's
-    correction, EMVA 1288 eq. 4) is not: when σ and the spread of the pixel means are both below ~0.5 DN, so
-    that the fractional parts of μ are not uniform (a 10-bit IMX296 at black level 60: σ ≈ 0.38 DN, while
-    ``var − 1/12`` gives 0.35–0.38 and the raw temporal standard deviation 0.45–0.48).
+    probabilities integrated exactly over the rounding with the normal CDF :func:`scipy.special.ndtr`, and over μ
+    by the trapezoid rule on ±8 dsnu in steps of at most σ/3 at the start values: a fixed Gauss–Hermite rule
+    does not resolve the 1 DN cells once dsnu ≫ σ), with a small uniform outlier weight ``eps``, minimised by the
+    Nelder–Mead simplex (:func:`scipy.optimize.minimize`, ``method="Nelder-Mead"``). This is right where
+    ``var − 1/12`` (Sheppard's correction, EMVA 1288 eq. 4) is not: when σ and the spread of the pixel means are
+    both below ~0.5 DN, so that the fractional parts of μ are not uniform (a 10-bit IMX296 at black level 60:
+    σ ≈ 0.38 DN, while ``var − 1/12`` gives 0.35–0.38 and the raw temporal standard deviation 0.45–0.48).
 
     Parameters
     ----------
@@ -617,12 +618,19 @@ def quantised_noise_fit(first: np.ndarray, second: np.ndarray, eps: float = 1e-4
     n = hi - lo + 1
     hist = np.bincount(k1 * n + k2, minlength=n * n).reshape(n, n).astype(np.float64)
     edges = np.arange(n + 1, dtype=np.float64) - 0.5
-    nodes, weights = np.polynomial.hermite_e.hermegauss(48)
-    weights = weights / weights.sum()
     m0 = float(k1.mean())
     d = (k2 - k1).astype(np.float64)
     s0 = max(float(np.sqrt(max(d.var() / 2 - 1 / 12, 0.01))), 0.05)
-    sd0 = max(float(np.sqrt(max(np.var(0.5 * (k1 + k2)) - s0**2 / 2 - 1 / 24, 0.0025))), 0.05)
+    # the spread of the pair means from their central 95 % (±1.96 standard deviations): far hot pixels, which the
+    # outlier weight carries, would otherwise start the fit at a dsnu of tens of DN, in the wrong minimum
+    q_lo, q_hi = np.quantile(0.5 * (k1 + k2), [0.025, 0.975])
+    spread = float(q_hi - q_lo) / 3.92
+    sd0 = max(float(np.sqrt(max(spread**2 - s0**2 / 2 - 1 / 24, 0.0025))), 0.05)
+    # μ = m + dsnu·z on z in [-8, 8]: 16·dsnu/(nodes − 1) <= σ/3 at the start; the normal weights are 1e-14 at the
+    # ends, so their plain sum is the trapezoid rule
+    nodes = np.linspace(-8.0, 8.0, min(max(49, int(np.ceil(48.0 * spread / s0)) + 1), 4001))
+    weights = np.exp(-0.5 * nodes**2)
+    weights /= weights.sum()
 
     def nll(p: np.ndarray) -> float:
         m, o, lsd, ls = p

@@ -16,12 +16,12 @@ import colour
 import numpy as np
 import pytest
 from scipy.optimize import brentq
-from scipy.special import erf, eval_legendre
+from scipy.special import erf, eval_legendre, gammainccinv
 
 from camcal import units
 from camcal.correct import Corrected, dark_frame, system_gain_dn_per_e
-from camcal.dark import _fit_lines, _noise_model, subtract_dark
-from camcal.dark_model import DarkModel
+from camcal.dark import _fit_lines, _noise_model, subtract_dark, temporal_noise
+from camcal.dark_model import DEAD, HOT, NOISY, DarkModel
 from camcal.errors import CamcalError
 from camcal.flat import _quadratic_vertex, _total_degree_mask, correct_flat, fit_2d_plane, fit_radial_plane
 from camcal.flat_model import FlatModel, PlaneGeometry, dead_pixels, radial_gain
@@ -465,6 +465,205 @@ def test_dark_frame_off_the_reference_iso_scales_beta_not_the_bias():
     np.testing.assert_allclose(subtract_dark(planes, model, 12.0, iso=400.0), 500.0, rtol=1e-6)
     with pytest.raises(CamcalError, match="non-negative"):
         model.dark_frame_dn(-1.0)
+
+
+# ---- dark: the temporal noise of the read-noise stack, its noisy pixels and read noise; the model's summary -----
+
+NOISE_METHOD = "per-pixel temporal variance minus the quantisation variance 1/12 DN² (EMVA 1288 eq. 4)"
+
+
+def _read_noise_stack(var, count, frames=(), n_paths=None):
+    """A read-noise stack of per-pixel temporal variance ``var`` (C, h, w) over ``count`` frames a pixel, keeping
+    ``frames`` (its first frames' planes), written by ``n_paths`` files (``count`` by default; no file is read)."""
+    var = np.asarray(var, np.float32)
+    level = np.full(var.shape, 60.0, np.float32)
+    n = int(count) if n_paths is None else n_paths
+    e = Exposure(exposure_s=1e-4, iso=100.0)
+    return StackResult(value=level, mean=level, variance=var, count=np.full(var.shape, count, np.int16),
+                       n_frames=n, method="mean", exposures=(e,) * n,
+                       paths=tuple(Path(f"b{i}.dng") for i in range(n)), channel_names=PLANES, cfa_pattern="RGGB",
+                       black_level_dn=(60.0,) * 4, white_level_dn=1023.0,
+                       frame_shape=(2 * var.shape[1], 2 * var.shape[2]), variance_all=var,
+                       kept_planes=tuple(np.asarray(f, np.float32) for f in frames))
+
+
+def _noisy_bound(dof, noisy_sigma):
+    """The noisy-pixel bound on var/v̂: the chi-square upper 1e-6 quantile over dof, here from the inverse
+    regularised upper incomplete gamma function (χ²_ν quantile = 2·Q⁻¹(ν/2, p)), or 1 + noisy_sigma·√(2/dof)."""
+    return max(2.0 * gammainccinv(dof / 2.0, 1e-6) / dof, 1.0 + noisy_sigma * np.sqrt(2.0 / dof))
+
+
+def _map_of_variance(var):
+    """√(var − 1/12 DN²), 0 below the quantisation variance, NaN where var is NaN (EMVA 1288 eq. 4)."""
+    return np.sqrt(np.clip(np.asarray(var, np.float64) - 1.0 / 12.0, 0.0, None))
+
+
+def test_temporal_noise_plane_means_chi_square_flags_and_read_noise_map():
+    """Planes above 1 DN of noise (count 8, dof 7, noisy_sigma 3: the chi-square bound 5.79 is the larger),
+    against values set by construction:
+
+    - v̂ is the plain mean over the good, finite pixels, without their top 0.1 % when there are more than 1000:
+      R has 1002 (1001 regular variances of 0, 2 and 3 DN², one of 500 DN² left out; the 0.999 quantile is 3 DN²
+      exactly, so every pixel at 3 DN² stays), G1 has 1001 (the 500 left out), G2 exactly 1000 (the 500 kept),
+      B is 1 DN² everywhere (exactly 1 DN of noise: not below 1 DN, no quantised fit). Defect pixels of
+      10⁴ DN² and NaN variances (without a defect bit) are not in v̂.
+    - a pixel is noisy where var > v̂·bound, for every pixel (defects too): probes at 0.995 and 1.005 of it;
+    - the read-noise map is √(var − 1/12) clipped at 0 (0 DN² gives 0), NaN where var is NaN; no plane
+      has a read noise or DSNU of its own (NaN).
+    """
+    shape = (4, 32, 32)
+    dof, noisy_sigma = 7, 3.0
+    bound = _noisy_bound(dof, noisy_sigma)
+    assert bound == pytest.approx(5.7888, abs=1e-4)  # the chi-square branch; 1 + 3·√(2/7) = 2.60
+    var = np.full((4, 1024), 1e4)
+    defects = np.full((4, 1024), HOT, np.uint8)
+    vhat = np.zeros(4)
+    for k, n_good in enumerate((1002, 1001, 1000)):
+        regular = np.resize([0.0, 2.0, 3.0], n_good - 1)
+        var[k, : n_good - 1], var[k, n_good - 1] = regular, 500.0
+        defects[k, :n_good] = 0
+        vhat[k] = np.mean(regular) if n_good > 1000 else np.mean(np.append(regular, 500.0))
+    var[3, :1000], defects[3, :1000], vhat[3] = 1.0, 0, 1.0
+    var[0, 1002:1004], defects[0, 1002:1004] = np.nan, 0  # no variance: not a pixel of v̂, not a defect
+    var[:, -2] = vhat * bound * 0.995  # defect pixels just under and over the bound
+    var[:, -1] = vhat * bound * 1.005
+    var, defects = var.reshape(shape), defects.reshape(shape)
+    noise = temporal_noise(_read_noise_stack(var, dof + 1), var.copy(), defects, noisy_sigma)
+    np.testing.assert_allclose(noise.temporal_noise_dn, np.sqrt(vhat), rtol=1e-6)
+    expect_noisy = np.greater(var, vhat[:, None, None] * bound, where=np.isfinite(var), out=np.zeros(shape, bool))
+    np.testing.assert_array_equal(noise.noisy, expect_noisy)
+    assert not noise.noisy[:, 31, 30].any() and noise.noisy[:, 31, 31].all()
+    np.testing.assert_allclose(noise.read_noise_map_dn, _map_of_variance(var), rtol=1e-6, atol=0)
+    assert noise.read_noise_map_dn[0, 0, 0] == 0.0  # a pixel of 0 DN² temporal variance
+    assert np.all(np.isnan(noise.read_noise_dn)) and np.all(np.isnan(noise.dsnu_dn))
+    np.testing.assert_array_equal(noise.quantised, False)
+    assert noise.method == NOISE_METHOD
+
+
+def test_temporal_noise_bound_at_a_high_noisy_sigma_and_with_two_frames_or_one():
+    """The other branches of the noisy-pixel bound, on 3 × 4 planes of 1.5, 2, 4 and 1.25 DN² (B: one good
+    pixel, the rest defects), probes (defect pixels) at 0.995 and 1.005 of v̂·bound:
+
+    - count 8 (dof 7), noisy_sigma 12: 1 + 12·√(2/7) = 7.41 is above the chi-square bound 5.79;
+    - count 2 (dof 1): the chi-square bound χ²₁(1e-6) = 23.93 (two frames are a bias-only model's minimum);
+    - count 1 (dof 0): no bound, no pixel is noisy, not even one of 10⁴ DN².
+    """
+    shape = (4, 3, 4)
+    vhat = np.array([1.5, 2.0, 4.0, 1.25])
+    defects = np.zeros(shape, np.uint8)
+    defects[:, 2, 2:] = HOT
+    defects[3] = HOT
+    defects[3, 0, 0] = 0
+    for count, noisy_sigma, bound in ((8, 12.0, 1 + 12 * np.sqrt(2 / 7)), (2, 6.0, 23.9281), (1, 6.0, None)):
+        var = np.where(defects == 0, vhat[:, None, None], 1e4)
+        if bound is not None:
+            assert _noisy_bound(count - 1, noisy_sigma) == pytest.approx(bound, rel=1e-5)
+            var[:, 2, 2] = vhat * bound * 0.995
+            var[:, 2, 3] = vhat * bound * 1.005
+        noise = temporal_noise(_read_noise_stack(var, count), var.copy(), defects, noisy_sigma)
+        np.testing.assert_allclose(noise.temporal_noise_dn, np.sqrt(vhat), rtol=1e-6)
+        expect = np.zeros(shape, bool) if bound is None else var > vhat[:, None, None] * bound
+        np.testing.assert_array_equal(noise.noisy, expect, err_msg=f"count {count}")
+        np.testing.assert_allclose(noise.read_noise_map_dn, _map_of_variance(var), rtol=1e-6)
+        assert noise.method == NOISE_METHOD and not noise.quantised.any()
+
+
+def test_temporal_noise_below_one_dn_fits_consecutive_frame_pairs():
+    """Planes below 1 DN of noise get the quantised-normal read noise and DSNU, the mean over the consecutive pairs
+    (0, 1), (1, 2), (2, 3) of the first four kept frames, against the simulation's truth.
+
+    Five frames of 128 × 128 pixels: R at 1.5 DN (not quantised), G1 σ = 0.4 DN and dsnu 0.3 DN, G2 σ = 0.35 DN
+    and dsnu 0.5 DN, B a plane whose good pixels read one level in every frame (v̂ = 0: quantised, and no pixel
+    is noisy, not even its hot ones). In G1 and G2 frame 3's noise is frame 0's reversed: every consecutive pair is
+    independent, (0, 3) is not (σ would come out ~√2 too high there). Defects: 0.5 % hot pixels 150 DN up and 3 %
+    2 DN up, both with 1 DN of noise (most of the second kind below the noisy bound, and close enough to the other
+    pixels to widen σ by ~7 % if they entered the fit); 0.2 % noisy pixels (4 DN) are found by the chi-square
+    bound (dof 4: 8.34 v̂). Neither may enter the fit, and the noisy ones keep √(var − 1/12) in the read-noise
+    map, the others the plane's read noise.
+    Tolerances: 16 000 pairs give σ to 0.7 % and dsnu to 1 % (standard deviations over 12 seeds): 3 % and 5 %;
+    the pair (0, 3) instead of (2, 3) would move σ by +8 % (G1) and +14 % (G2), dsnu by −33 % and −10 %.
+    Two frames (two files) are enough: one pair, σ = 0.45 DN to 5 % on 10 000 pixels (spread ~1.2 %).
+    """
+    rng = np.random.default_rng(2911)
+    shape = (4, 128, 128)
+    sigma, dsnu = (1.5, 0.4, 0.35, 0.0), (3.0, 0.3, 0.5, 0.5)
+    z = rng.standard_normal((5, *shape))
+    z[3, 1:3] = -z[0, 1:3]
+    frames = np.rint(np.array([200.0, 60.2, 60.2, 60.0])[:, None, None] + np.array(dsnu)[:, None, None]
+                     * rng.standard_normal(shape) + np.array(sigma)[:, None, None] * z)
+    u = rng.random(shape)
+    defects = np.where(u < 0.035, HOT, 0).astype(np.uint8)
+    frames += np.where(u < 5e-3, 150.0, 2.0) * defects + defects * np.rint(rng.standard_normal(frames.shape))
+    noisy_px = (rng.random(shape) < 2e-3) & (defects == 0)
+    noisy_px[[0, 3]] = False  # R is not quantised; in B only the defects change
+    frames += noisy_px * np.rint(4.0 * rng.standard_normal(frames.shape))
+    var = np.var(frames, axis=0, ddof=1)
+    noise = temporal_noise(_read_noise_stack(var, 5, frames), var.astype(np.float64), defects, 6.0)
+
+    bound = _noisy_bound(4, 6.0)
+    assert bound == pytest.approx(8.3442, abs=1e-4)
+    vhat = np.zeros(4)
+    for k in range(4):
+        v = np.sort(var[k][defects[k] == 0])
+        vhat[k] = np.mean(v[v <= np.quantile(v, 0.999)])  # 16 000 good pixels: the top 0.1 % left out
+    assert vhat[3] == 0.0
+    np.testing.assert_allclose(noise.temporal_noise_dn, np.sqrt(vhat), rtol=1e-6)
+    expect_noisy = var > vhat[:, None, None] * bound
+    expect_noisy[3] = False  # v̂ = 0: no bound
+    np.testing.assert_array_equal(noise.noisy, expect_noisy)
+    assert np.count_nonzero(noise.noisy[1:3] & noisy_px[1:3]) > 0.95 * np.count_nonzero(noisy_px)
+    np.testing.assert_array_equal(noise.quantised, [False, True, True, True])
+    assert np.isnan(noise.read_noise_dn[0]) and np.isnan(noise.dsnu_dn[0])
+    np.testing.assert_allclose(noise.read_noise_dn[1:3], sigma[1:3], rtol=0.03)
+    np.testing.assert_allclose(noise.dsnu_dn[1:3], dsnu[1:3], rtol=0.05)
+    assert 0 < noise.read_noise_dn[3] < 0.1  # B never changes: no read noise to speak of
+    expect_map = _map_of_variance(var)
+    for k in (1, 2, 3):
+        expect_map[k] = np.where(expect_noisy[k], expect_map[k], noise.read_noise_dn[k])
+    np.testing.assert_allclose(noise.read_noise_map_dn, expect_map, rtol=1e-6)
+    assert noise.method == ("quantised-normal likelihood of 3 frame pair(s) in planes G1, G2, B (temporal noise "
+                            "below 1 DN); elsewhere " + NOISE_METHOD)
+
+    # two frames, two files: one pair
+    small = frames[:2, :, :100, :100].copy()
+    small[:, 1] = np.rint(60.2 + 0.3 * rng.standard_normal((100, 100)) + 0.45 * rng.standard_normal((2, 100, 100)))
+    small_defects = defects[:, :100, :100]
+    var2 = np.var(small, axis=0, ddof=1)
+    noise = temporal_noise(_read_noise_stack(var2, 2, small), var2.astype(np.float64), small_defects, 6.0)
+    assert noise.read_noise_dn[1] == pytest.approx(0.45, rel=0.05)
+    assert noise.method.startswith("quantised-normal likelihood of 1 frame pair(s) in planes G1, G2, B (")
+
+
+def test_dark_model_summary_reports_its_maps_and_per_plane_figures():
+    """The summary of a dark model against the model written out: its settings, the plane shape, each per-plane
+    figure under its own name (the defect counts as ``*_count_per_plane``), and the totals of the defect map
+    counted bit by bit with numpy (pixels with two bits count once in the fraction)."""
+    shape = (4, 3, 5)
+    defects = np.zeros(shape, np.uint8)
+    for (k, i, j), bits in {(0, 0, 0): HOT, (0, 1, 2): HOT | NOISY, (1, 2, 4): DEAD, (2, 0, 1): NOISY,
+                            (3, 1, 1): HOT | DEAD, (3, 2, 2): NOISY, (3, 2, 3): NOISY}.items():
+        defects[k, i, j] = bits
+    channels = {p: {"read_noise_dn": 0.4 + 0.1 * k, "dsnu_bias_dn": 0.25 * k,
+                    "hot_pixel_count": int(np.sum(defects[k] & HOT > 0)),
+                    "dead_pixel_count": int(np.sum(defects[k] & DEAD > 0)),
+                    "noisy_pixel_count": int(np.sum(defects[k] & NOISY > 0))} for k, p in enumerate(PLANES)}
+    bias = np.full(shape, 60.0, np.float32)
+    model = DarkModel(bias_dn=bias, dark_current_dn_per_s=None, dark_current_unc_dn_per_s=None,
+                      read_noise_dn=bias * 0 + 0.5, defects=defects, iso=200.0, cfa_pattern="BGGR",
+                      temperature_c=31.5, channels=channels, exposure_times_s=(1e-4, 1.0, 8.0))
+    expect = {
+        "iso": 200.0, "cfa_pattern": "BGGR", "layout": "bayer", "temperature_c": 31.5,
+        "exposure_times_s": [1e-4, 1.0, 8.0], "plane_shape": [3, 5],
+        "read_noise_dn": {"R": 0.4, "G1": 0.5, "G2": 0.6000000000000001, "B": 0.7000000000000001},
+        "dsnu_bias_dn": {"R": 0.0, "G1": 0.25, "G2": 0.5, "B": 0.75},
+        "hot_pixel_count_per_plane": {"R": 2, "G1": 0, "G2": 0, "B": 1},
+        "dead_pixel_count_per_plane": {"R": 0, "G1": 1, "G2": 0, "B": 1},
+        "noisy_pixel_count_per_plane": {"R": 1, "G1": 0, "G2": 1, "B": 2},
+        "hot_pixel_count": 3, "dead_pixel_count": 2, "noisy_pixel_count": 4,
+        "defect_fraction": 7 / 60,
+    }
+    assert model.summary() == expect
+    assert expect["defect_fraction"] == np.mean(defects != 0)
 
 
 # ---- response: eq. 12 and its uncertainties, the straight line, the sRGB form, the inverses -------------------
