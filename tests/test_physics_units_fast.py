@@ -1264,3 +1264,779 @@ def test_frame_relative_exposure_off_the_reference_setting():
     reference of ISO 100 at f/4 is (1/60)·4·(4/5.6)² s."""
     e = Exposure(exposure_s=1 / 60, iso=400.0, f_number=5.6)
     assert frame_relative_exposure(e, 100.0, 4.0) == pytest.approx((1 / 60) * 4 * (4 / 5.6) ** 2, rel=1e-14)
+
+
+# ---- readers and records: absorber and lamp CSVs, the band model of a profile, stored stages ------------------
+# Each file is written here with known numbers and units; what is read back is compared with the numbers
+# converted by hand. The stages' records are compared field by field after a round trip through JSON text.
+
+_LN10_PER_CM_TO_PER_M = 100.0 * np.log(10.0)  # decadic per cm -> natural per m
+_UG_PER_L_IN_G_PER_L = 1e-6  # 1 µg/L = 1 mg m⁻³ = 1e-6 g/L
+CHLA_MOLAR_MASS_PUBLISHED = 893.509  # g/mol, chlorophyll-a C55H72MgN4O5 (PubChem)
+
+
+def _csv(path, text):
+    path.write_text(text)
+    return path
+
+
+def _a_star(eps_L_per_g_cm):
+    """a* (m² mg⁻¹) of a decadic ε in L g⁻¹ cm⁻¹: ln 10 ε per cm per (g/L), times 100 cm/m and 1e-6 (g/L)/(µg/L)."""
+    return np.asarray(eps_L_per_g_cm, float) * _LN10_PER_CM_TO_PER_M * _UG_PER_L_IN_G_PER_L
+
+
+def test_absorber_csv_epsilon_columns_are_converted_to_natural_m2_per_mg(tmp_path):
+    """ε per gram and per mole (with the published molar mass of chlorophyll-a) give A = 2.3026e-4 ε, E = 1, on
+    the file's wavelengths; comments, blank lines and spaces around cells are ignored."""
+    from camcal.water.band import read_chlorophyll_csv
+
+    wl = [430.0, 550.0, 662.0]
+    eps_g = [101.5, 7.25, 88.0]
+    p = _csv(tmp_path / "g.csv", "# chlorophyll-a in acetone\n\n   # indented comment\n"
+             " wavelength_nm , epsilon_L_per_g_cm \n"
+             + "".join(f"{w}, {e}\n" for w, e in zip(wl, eps_g, strict=True)) + "# end\n")
+    a = read_chlorophyll_csv(p)
+    np.testing.assert_array_equal(a.wavelengths_nm, wl)
+    np.testing.assert_allclose(a.coefficient_m2_per_mg, _a_star(eps_g), rtol=1e-12)  # rounding only
+    np.testing.assert_array_equal(a.exponent, np.ones(3))
+    assert a.source == f"{p} (ε per gram)"
+
+    eps_mol = [90700.0, 6480.0, 78600.0]  # L mol⁻¹ cm⁻¹
+    for line, name in (("# molar_mass_g_per_mol: 893.509 g/mol", "m1.csv"), ("# Molar mass g per mol = 893.509",
+                                                                              "m2.csv")):
+        p = _csv(tmp_path / name, f"{line}\nwavelength_nm,epsilon_L_per_mol_cm\n"
+                 + "".join(f"{w},{e}\n" for w, e in zip(wl, eps_mol, strict=True)))
+        b = read_chlorophyll_csv(p)
+        np.testing.assert_array_equal(b.wavelengths_nm, wl)
+        np.testing.assert_allclose(b.coefficient_m2_per_mg, _a_star(np.divide(eps_mol, CHLA_MOLAR_MASS_PUBLISHED)),
+                                   rtol=1e-12)
+        np.testing.assert_array_equal(b.exponent, np.ones(3))
+        assert b.source == f"{p} (molar ε, M = 893.509 g/mol)"
+
+
+@pytest.mark.parametrize(("conc", "length", "c_g_per_L", "l_cm", "molar"), [
+    ("10 mg/L", "1 cm", 10e-3, 1.0, False),
+    ("0.01 g/l", "10 mm", 0.01, 1.0, False),
+    ("2500 ug/L", "0.02 m", 2.5e-3, 2.0, False),
+    ("2500 µg/L", "2", 2.5e-3, 2.0, False),
+    ("5e3 mg/m3", ".5 cm", 5e-3, 0.5, False),
+    ("+5000 mg/m^3", "5 MM", 5e-3, 0.5, False),
+    ("11.19 umol/L", "1 cm", 11.19e-6 * CHLA_MOLAR_MASS_PUBLISHED, 1.0, True),
+    ("11.19 µmol/L", "1cm", 11.19e-6 * CHLA_MOLAR_MASS_PUBLISHED, 1.0, True),
+    ("0.01119 mmol/L", "1 cm", 11.19e-6 * CHLA_MOLAR_MASS_PUBLISHED, 1.0, True),
+    ("1.119E-5 mol/L", "1 cm", 11.19e-6 * CHLA_MOLAR_MASS_PUBLISHED, 1.0, True),
+    ("1.119e-5 M", "1 cm", 11.19e-6 * CHLA_MOLAR_MASS_PUBLISHED, 1.0, True),
+])
+def test_absorber_csv_absorbance_is_divided_by_concentration_and_path_in_g_per_L_and_cm(tmp_path, conc, length,
+                                                                                         c_g_per_L, l_cm, molar):
+    """ε = A / (c l) with c converted by hand to g/L (molar ones with M = 893.509 g/mol) and l to cm; an absorbance
+    a little below zero (a blank's noise, > -0.01) counts as zero."""
+    from camcal.water.band import read_chlorophyll_csv
+
+    wl = [440.0, 600.0, 665.0]
+    absorbance = [0.95, -0.01, 0.82]  # -0.01: the lowest absorbance taken as a blank's noise
+    meta = f"# concentration: {conc}\n# path_length: {length}\n"
+    if molar:
+        meta += "# molar_mass_g_per_mol: 893.509\n"
+    p = _csv(tmp_path / "abs.csv", meta + "wavelength_nm,absorbance\n"
+             + "".join(f"{w},{a}\n" for w, a in zip(wl, absorbance, strict=True)))
+    a = read_chlorophyll_csv(p)
+    eps = np.array([0.95, 0.0, 0.82]) / (c_g_per_L * l_cm)
+    np.testing.assert_array_equal(a.wavelengths_nm, wl)
+    np.testing.assert_allclose(a.coefficient_m2_per_mg, _a_star(eps), rtol=1e-12)  # unit factors: rounding only
+    np.testing.assert_array_equal(a.exponent, np.ones(3))
+    number, unit = conc.split()
+    length_number = length.split()[0].rstrip("cmCM")
+    length_unit = length[len(length_number):].strip().lower() or "cm"
+    how = f"absorbance of {float(number):g} {unit.lower()} over {float(length_number):g} {length_unit}"
+    assert a.source == f"{p} ({how})"
+
+
+def test_absorber_csv_power_law_columns_are_read_as_they_are(tmp_path):
+    """A_m2_per_mg and E are taken as written (E = 1 without an E column; E = 2 is allowed); the source is the path."""
+    from camcal.water.band import read_chlorophyll_csv
+
+    p = _csv(tmp_path / "pl.csv", "wavelength_nm,E,A_m2_per_mg\n440,0.65,0.0402\n675,2,0.0\n700,1e-3,0.0125\n")
+    a = read_chlorophyll_csv(p)
+    np.testing.assert_array_equal(a.wavelengths_nm, [440.0, 675.0, 700.0])
+    np.testing.assert_array_equal(a.coefficient_m2_per_mg, [0.0402, 0.0, 0.0125])
+    np.testing.assert_array_equal(a.exponent, [0.65, 2.0, 1e-3])
+    assert a.source == str(p)
+    b = read_chlorophyll_csv(_csv(tmp_path / "pl1.csv", "wavelength_nm,A_m2_per_mg\n1,0.03\n2,0.01\n"))
+    np.testing.assert_array_equal(b.wavelengths_nm, [1.0, 2.0])
+    np.testing.assert_array_equal(b.coefficient_m2_per_mg, [0.03, 0.01])
+    np.testing.assert_array_equal(b.exponent, [1.0, 1.0])
+    assert b.exponent.shape == b.coefficient_m2_per_mg.shape == (2,)
+
+
+_ABSORBER_REFUSALS = [
+    ("# only a comment\n\n", "chlorophyll CSV is empty (no header row)"),
+    ("wavelength_nm,A_m2_per_mg,A_m2_per_mg\n400,1,1\n500,1,1\n",
+     "columns in its header ['wavelength_nm', 'A_m2_per_mg', 'A_m2_per_mg']"),
+    ("lambda,A_m2_per_mg\n400,1\n500,1\n", "needs a wavelength_nm column (header is lambda,A_m2_per_mg)"),
+    ("wavelength_nm,A_m2_per_mg\n400,1\n500\n", "row 3: 1 cells, the header has 2"),
+    ("wavelength_nm,A_m2_per_mg\n400,1\n500,x\n", "row 3: not a number in '500,x'"),
+    ("wavelength_nm,A_m2_per_mg\n400,1\n500," + "x" * 70 + "\n", "not a number in '500," + "x" * 56 + "'"),
+    ("# c\nwavelength_nm,A_m2_per_mg\n400,1\n", "needs at least two rows"),
+    ("wavelength_nm,A_m2_per_mg\n", "needs at least two rows"),
+    ("wavelength_nm,A_m2_per_mg\n400,1\n500,nan\n", "has non-finite values"),
+    ("wavelength_nm,A_m2_per_mg\n400,1\n500,1e400\n", "has non-finite values"),
+    ("wavelength_nm,A_m2_per_mg\n500,1\n500,1\n", "wavelengths must be positive and increasing"),
+    ("wavelength_nm,A_m2_per_mg\n500,1\n400,1\n", "wavelengths must be positive and increasing"),
+    ("wavelength_nm,A_m2_per_mg\n0,1\n400,1\n", "wavelengths must be positive and increasing"),
+    ("wavelength_nm,A_m2_per_mg\n400,1\n500,-0.001\n", "A_m2_per_mg must not be negative"),
+    ("wavelength_nm,A_m2_per_mg,E\n400,1,1\n500,1,0\n", "exponent E must be in (0, 2]"),
+    ("wavelength_nm,A_m2_per_mg,E\n400,1,1\n500,1,2.001\n", "exponent E must be in (0, 2]"),
+    ("wavelength_nm,epsilon_L_per_g_cm\n400,1\n500,-1e-9\n", "epsilon_L_per_g_cm must not be negative"),
+    ("# molar_mass_g_per_mol: 893.5\nwavelength_nm,epsilon_L_per_mol_cm\n400,-1\n500,1\n",
+     "epsilon_L_per_mol_cm must not be negative"),
+    ("wavelength_nm,epsilon_L_per_mol_cm\n400,1\n500,1\n",
+     "needs a '# molar_mass_g_per_mol: 792.85' line"),
+    ("# molar_mass_g_per_mol: 0.8935 kg/mol\nwavelength_nm,epsilon_L_per_mol_cm\n400,1\n500,1\n",
+     "molar mass unit 'kg/mol'; give g/mol"),
+    ("# molar_mass_g_per_mol: 0\nwavelength_nm,epsilon_L_per_mol_cm\n400,1\n500,1\n",
+     "'# molar_mass_g_per_mol: 0' is not a positive number with a unit (e.g. 792.85)"),
+    ("# molar_mass_g_per_mol: -893\nwavelength_nm,epsilon_L_per_mol_cm\n400,1\n500,1\n",
+     "is not a positive number with a unit"),
+    ("# molar_mass_g_per_mol: 1e999 g/mol\nwavelength_nm,epsilon_L_per_mol_cm\n400,1\n500,1\n",
+     "is not a positive number with a unit"),
+    ("# molar_mass_g_per_mol: heavy\nwavelength_nm,epsilon_L_per_mol_cm\n400,1\n500,1\n",
+     "is not a positive number with a unit"),
+    ("# path_length: 1 cm\nwavelength_nm,absorbance\n400,1\n500,1\n", "needs a '# concentration: 10 mg/L' line"),
+    ("# concentration: 10 mg/L\nwavelength_nm,absorbance\n400,1\n500,1\n", "needs a '# path_length: 1 cm' line"),
+    ("# concentration: 10 ppm\n# path_length: 1 cm\nwavelength_nm,absorbance\n400,1\n500,1\n",
+     "concentration unit 'ppm'; use g/L"),
+    ("# concentration: 1 umol/L\n# path_length: 1 cm\nwavelength_nm,absorbance\n400,1\n500,1\n",
+     "needs a '# molar_mass_g_per_mol: 792.85' line"),
+    ("# concentration: 10 mg/L\n# path_length: 1 in\nwavelength_nm,absorbance\n400,1\n500,1\n",
+     "path length unit 'in'; use cm, mm or m"),
+    ("# concentration: 10 mg/L\n# path_length: 1 cm\nwavelength_nm,absorbance\n400,1\n500,-0.0101\n",
+     "absorbance below -0.01"),
+    ("wavelength_nm,transmittance\n400,1\n500,1\n", "needs an epsilon_L_per_g_cm, epsilon_L_per_mol_cm, absorbance"),
+]
+
+
+@pytest.mark.parametrize(("text", "says"), _ABSORBER_REFUSALS)
+def test_absorber_csv_refusals_name_the_file_in_one_line(tmp_path, text, says):
+    """Each malformed file, missing column or metadata line and wrong unit is refused with one line that starts
+    with the file's path and says what is wrong."""
+    from camcal.water.band import read_chlorophyll_csv
+
+    p = _csv(tmp_path / "bad.csv", text)
+    with pytest.raises(CamcalError) as e:
+        read_chlorophyll_csv(p)
+    assert str(e.value).startswith(f"{p}: ") and "\n" not in str(e.value)
+    assert says in str(e.value)
+
+
+def test_absorber_csv_metadata_numbers_take_signs_exponents_and_units_in_any_case(tmp_path):
+    """``# key: value`` numbers: a sign, a leading or trailing point, an exponent, a unit glued to the number or
+    after spaces, in any case; the value read is the number written (checked through M in A = a*(ε/M))."""
+    from camcal.water.band import read_chlorophyll_csv
+
+    for text, m in (("+893.5 G/MOL", 893.5), ("8.935e2g/mol", 893.5), ("893.", 893.0), (".8935E+3  g/mol", 893.5),
+                    ("  900  ", 900.0), ("1E3", 1000.0)):
+        p = _csv(tmp_path / "m.csv", f"#molar_mass_g_per_mol:{text}\nwavelength_nm,epsilon_L_per_mol_cm\n400,1e5\n"
+                 "500,2e5\n")
+        a = read_chlorophyll_csv(p)
+        np.testing.assert_allclose(a.coefficient_m2_per_mg, _a_star([1e5 / m, 2e5 / m]), rtol=1e-12, err_msg=text)
+
+
+def test_spectrum_csv_is_read_as_written(tmp_path):
+    """The two columns of a lamp spectrum, as written (comments, blank lines and spaces ignored)."""
+    from camcal.water.band import read_spectrum_csv
+
+    p = _csv(tmp_path / "lamp.csv", "# tungsten\n  # indented comment\n wavelength_nm , relative_radiance\n\n"
+             "380, 0.0\n 500,0.5e0\n"
+             "# gap\n720.5,1.25\n")
+    wl, v = read_spectrum_csv(p)
+    np.testing.assert_array_equal(wl, [380.0, 500.0, 720.5])
+    np.testing.assert_array_equal(v, [0.0, 0.5, 1.25])
+    wl, v = read_spectrum_csv(_csv(tmp_path / "two.csv", "wavelength_nm,x\n0.5,1\n1,0\n"), "sky CSV")
+    np.testing.assert_array_equal(wl, [0.5, 1.0])
+    np.testing.assert_array_equal(v, [1.0, 0.0])
+
+
+@pytest.mark.parametrize(("text", "says"), [
+    ("wavelength_nm,v\n400,1\n", "needs a header row and at least two rows"),
+    ("# a\nwavelength_nm,v\n\n400,1\n# b\n", "needs a header row and at least two rows"),
+    ("wavelength_nm,v,w\n400,1,1\n500,1,1\n", "needs two columns, wavelength_nm and a value (header is "
+                                             "'wavelength_nm,v,w')"),
+    ("lambda,v\n400,1\n500,1\n", "needs two columns, wavelength_nm and a value"),
+    ("v,wavelength_nm\n400,1\n500,1\n", "needs two columns"),
+    ("wavelength_nm,v\n400,1\n500,one\n", ": a row is not two numbers"),
+    ("wavelength_nm,v\n400,1\n500,1,2\n", ": a row is not two numbers"),
+    ("wavelength_nm,v\n400,1,2\n500,1,2\n", ": every row needs two numbers"),
+    ("wavelength_nm,v\n400\n500\n", ": every row needs two numbers"),
+    ("wavelength_nm,v\n400,1\n500,nan\n", ": values must be finite, >= 0 and not all zero"),
+    ("wavelength_nm,v\n400,1\ninf,1\n", ": values must be finite"),
+    ("wavelength_nm,v\n400,1\n500,-1e-12\n", ": values must be finite"),
+    ("wavelength_nm,v\n400,0\n500,0\n", ": values must be finite"),
+    ("wavelength_nm,v\n400,1\n400,1\n", ": wavelengths must be positive and increasing"),
+    ("wavelength_nm,v\n-1,1\n400,1\n", ": wavelengths must be positive and increasing"),
+    ("wavelength_nm,v\n0,1\n400,1\n", ": wavelengths must be positive and increasing"),
+])
+def test_spectrum_csv_refusals_name_the_file_and_what_it_is(tmp_path, text, says):
+    """Each malformed lamp spectrum is refused with one line: the file's path, what it is, what is wrong."""
+    from camcal.water.band import read_spectrum_csv
+
+    p = _csv(tmp_path / "bad.csv", text)
+    with pytest.raises(CamcalError) as e:
+        read_spectrum_csv(p)
+    assert str(e.value).startswith(f"{p}: lamp spectrum CSV") and says in str(e.value)
+    with pytest.raises(CamcalError, match=r"^.*bad\.csv: sky CSV"):
+        read_spectrum_csv(p, "sky CSV")
+
+
+_BAND_WL = np.arange(400.0, 701.0, 10.0)
+
+
+def _band_profile(zero_blue=False):
+    """A profile holding only c(λ): R rises from exactly 1 % of its peak at 500 nm (0 below, and 0 at 490 nm) to
+    its peak 0.5 at 600 nm; G1, G2 and B are Gaussians; each plane has its own uncertainty."""
+    from camcal.profile import CalibrationProfile, CameraIdentity, Provenance
+
+    wl = _BAND_WL
+    values = {"R": np.interp(wl, [490.0, 500.0, 600.0, 700.0], [0.0, 0.005, 0.5, 0.15]),
+              "G1": _gauss(wl, 540.0, 30.0, 0.9), "G2": _gauss(wl, 550.0, 30.0, 0.8),
+              "B": np.zeros_like(wl) if zero_blue else _gauss(wl, 460.0, 25.0, 0.7)}
+    unc = {p: 0.01 * (k + 1) + 0.03 * v for k, (p, v) in enumerate(values.items())}
+    s = SpectralSensitivity(wl, values, unc, RELATIVE_UNITS, "relative")
+    return CalibrationProfile(CameraIdentity("m", "x", None, "RGGB", 96, 64), 100.0, 4.0, spectral=s,
+                              provenance=Provenance("test", "2026-01-01T00:00:00Z"))
+
+
+def test_band_model_of_a_profile_takes_the_channel_its_uncertainty_and_the_options():
+    """c(λ) of a plane or of G = (G1 + G2)/2, σ_c of that plane or σ_G = ½ √(σ_G1² + σ_G2²), the profile's grid,
+    and the options (geometry, chlorophyll, an illuminant array, water and background absorption) passed on as
+    given."""
+    from camcal.water.band import band_model_from_profile
+    from camcal.water.models import SeedModel
+
+    prof = _band_profile()
+    v, u = prof.spectral.values, prof.spectral.uncertainty
+    seed = SeedModel()
+    chl = ChlorophyllAbsorption(np.array([400.0, 700.0]), np.array([0.02, 0.01]), np.array([0.9, 1.0]), "mine")
+    s = np.linspace(0.2, 1.0, _BAND_WL.size)
+    for ch, c, sig in (("G", 0.5 * (v["G1"] + v["G2"]), 0.5 * np.sqrt(u["G1"] ** 2 + u["G2"] ** 2)),
+                       ("G2", v["G2"], u["G2"]), ("R", v["R"], u["R"]), ("B", v["B"], u["B"])):
+        bm = band_model_from_profile(prof, ch, geometry=seed, chlorophyll=chl, illuminant=s,
+                                     water_absorption_per_m=0.3, background_absorption_per_m=0.05)
+        np.testing.assert_array_equal(bm.wavelengths_nm, _BAND_WL)
+        np.testing.assert_allclose(bm.sensitivity, c, rtol=1e-15, err_msg=ch)
+        np.testing.assert_allclose(bm.sensitivity_sigma, sig, rtol=1e-15, err_msg=ch)
+        assert bm.geometry is seed and bm.chlorophyll is chl and bm.illuminant is s
+        assert bm.water_absorption_per_m == 0.3 and bm.background_absorption_per_m == 0.05
+    bm = band_model_from_profile(prof, "G1", illuminant=None)
+    np.testing.assert_array_equal(bm.sensitivity, v["G1"])
+    np.testing.assert_array_equal(bm.sensitivity_sigma, u["G1"])
+    assert isinstance(bm.geometry, RefinedModel) and bm.geometry == RefinedModel()
+    assert bm.chlorophyll is None and bm.illuminant is None and bm.water_absorption_per_m is None
+    assert bm.background_absorption_per_m == 0.0
+
+
+def test_band_model_of_a_profile_by_default_is_the_red_plane_under_d65_daylight():
+    """Defaults: channel R, the refined geometry, Bricaud chlorophyll (None), Pope & Fry water (None), no
+    background, and D65 (CIE tables: 82.7549 at 400 nm, 117.812 at 460 nm (its largest on this grid), 100 at 560 nm,
+    71.6091 at 700 nm) normalised to its largest value."""
+    from camcal.water.band import band_model_from_profile
+
+    prof = _band_profile()
+    bm = band_model_from_profile(prof)
+    np.testing.assert_array_equal(bm.sensitivity, prof.spectral.values["R"])
+    np.testing.assert_array_equal(bm.sensitivity_sigma, prof.spectral.uncertainty["R"])
+    assert isinstance(bm.geometry, RefinedModel) and bm.chlorophyll is None and bm.water_absorption_per_m is None
+    assert bm.background_absorption_per_m == 0.0
+    at = {w: bm.illuminant[int(np.argmin(abs(_BAND_WL - w)))] for w in (400.0, 460.0, 560.0, 700.0)}
+    np.testing.assert_allclose([at[400.0], at[460.0], at[560.0], at[700.0]],
+                               np.array([82.7549, 117.812, 100.0, 71.6091]) / 117.812, rtol=1e-9)
+
+
+def test_band_model_of_a_profile_needs_a_lamp_spectrum_over_the_band_at_one_percent(tmp_path):
+    """A measured lamp CSV shorter than the profile's grid is accepted when it covers every wavelength where
+    |c(λ)| ≥ 1 % of its peak (R: 500-700 nm; exactly 1 % at 500 nm), with S = 0 outside it and S linear between
+    its rows (normalised to its largest value); a CSV starting at 510 nm is refused, naming the CSV."""
+    from camcal.water.band import band_model_from_profile
+
+    prof = _band_profile()
+    lamp = _csv(tmp_path / "lamp.csv", "wavelength_nm,relative_radiance\n500,1\n600,3\n700,4\n")
+    expected = np.where(_BAND_WL < 500, 0.0, np.where(_BAND_WL <= 600, 1 + (_BAND_WL - 500) / 50,
+                                                      3 + (_BAND_WL - 600) / 100)) / 4.0
+    for given in (lamp, str(lamp)):
+        bm = band_model_from_profile(prof, "R", illuminant=given)
+        np.testing.assert_allclose(bm.illuminant, expected, rtol=1e-12, atol=0)  # interpolation: rounding only
+    short = _csv(tmp_path / "short.csv", "wavelength_nm,relative_radiance\n510,1\n700,4\n")
+    with pytest.raises(CamcalError) as e:
+        band_model_from_profile(prof, "R", illuminant=short)
+    assert str(e.value).startswith(f"{short}: the light's spectrum {str(short)!r} does not cover channel R's band "
+                                   "(500-700 nm")
+    # a light given as an array with no value (NaN) inside the band: refused, naming no file (a profile in memory)
+    gappy = np.where(_BAND_WL == 550.0, np.nan, 1.0)
+    with pytest.raises(CamcalError, match=r"^the light's spectrum .* does not cover channel R's band"):
+        band_model_from_profile(prof, "R", illuminant=gappy)
+    # a negative c(λ) (noise) of 2 % of the peak at 420 nm is in the band all the same
+    neg = _band_profile()
+    neg.spectral.values["R"][2] = -0.01
+    with pytest.raises(CamcalError, match="channel R's band .420-700 nm"):
+        band_model_from_profile(neg, "R", illuminant=lamp)
+    # the B plane's band lies below 500 nm: the lamp CSV does not cover it
+    with pytest.raises(CamcalError, match="channel B's band"):
+        band_model_from_profile(prof, "B", illuminant=lamp)
+
+
+def test_band_model_of_a_profile_needs_a_chlorophyll_spectrum_over_the_weighted_band(tmp_path):
+    """A chlorophyll spectrum must span the band where |c| S ≥ 1 % of its peak (R, flat light: 500-700 nm; with a
+    light dark below 550 nm: 550-700 nm; a channel of zero sensitivity: the whole grid); a refusal names the
+    chlorophyll file when it came from one, else the profile (none for a profile in memory)."""
+    from camcal.water.band import band_model_from_profile, read_chlorophyll_csv
+
+    prof = _band_profile(zero_blue=True)
+
+    def chl(lo, hi, name=None):
+        mid = 0.5 * (lo + hi)
+        text = f"wavelength_nm,A_m2_per_mg\n{lo},0.02\n{mid},0.03\n{hi},0.01\n"
+        return read_chlorophyll_csv(_csv(tmp_path / name, text)) if name else ChlorophyllAbsorption(
+            np.array([lo, mid, hi]), np.array([0.02, 0.03, 0.01]), np.array([1.0, 1.0, 1.0]), "table")
+
+    exact = chl(500.0, 700.0)
+    assert band_model_from_profile(prof, "R", chlorophyll=exact, illuminant=None).chlorophyll is exact
+    for lo, hi in ((510.0, 700.0), (500.0, 690.0)):
+        bad = chl(lo, hi, "chl.csv")
+        with pytest.raises(CamcalError) as e:
+            band_model_from_profile(prof, "R", chlorophyll=bad, illuminant=None)
+        assert str(e.value) == (f"{tmp_path / 'chl.csv'}: the chlorophyll spectrum covers {lo:g}–{hi:g} nm; channel "
+                                "R's band (c(λ)·illuminant ≥ 1 % of its peak) spans 500–700 nm")
+    with pytest.raises(CamcalError, match=r"^the chlorophyll spectrum covers 510–700 nm; .* spans 500–700 nm$"):
+        band_model_from_profile(prof, "R", chlorophyll=chl(510.0, 700.0), illuminant=None)
+    dark_blue = np.where(_BAND_WL < 550, 0.0, 1.0)
+    late = chl(550.0, 700.0)
+    assert band_model_from_profile(prof, "R", chlorophyll=late, illuminant=dark_blue).chlorophyll is late
+    with pytest.raises(CamcalError, match="spans 550–700 nm"):
+        band_model_from_profile(prof, "R", chlorophyll=chl(560.0, 700.0), illuminant=dark_blue)
+    with pytest.raises(CamcalError, match="spans 400–700 nm"):
+        band_model_from_profile(prof, "B", chlorophyll=exact, illuminant=None)
+    assert band_model_from_profile(prof, "B", chlorophyll=chl(400.0, 700.0), illuminant=None).chlorophyll is not None
+
+
+def test_band_model_of_a_profile_file_and_its_refusals(tmp_path):
+    """A profile given by its path gives the same model as the profile in memory; a profile without c(λ) or
+    without the channel is refused in one line naming the file (no file for a profile in memory)."""
+    from camcal.profile import save_profile
+    from camcal.water.band import band_model_from_profile
+
+    prof = _band_profile()
+    path = tmp_path / "p.camcal"
+    save_profile(prof, path)
+    bm = band_model_from_profile(path, "G1", illuminant=None)
+    np.testing.assert_array_equal(bm.wavelengths_nm, _BAND_WL)
+    np.testing.assert_array_equal(bm.sensitivity, prof.spectral.values["G1"])
+    np.testing.assert_array_equal(bm.sensitivity_sigma, prof.spectral.uncertainty["G1"])
+    np.testing.assert_array_equal(band_model_from_profile(str(path), "B", illuminant=None).sensitivity,
+                                  prof.spectral.values["B"])
+    with pytest.raises(CamcalError) as e:
+        band_model_from_profile(path, "IR")
+    assert str(e.value) == f"{path}: profile has no channel 'IR'; use one of B, G, G1, G2, R"
+    with pytest.raises(CamcalError) as e:
+        band_model_from_profile(prof, "IR")
+    assert str(e.value) == "profile has no channel 'IR'; use one of B, G, G1, G2, R"
+    bare = replace(prof, spectral=None)
+    save_profile(bare, tmp_path / "bare.camcal")
+    with pytest.raises(CamcalError) as e:
+        band_model_from_profile(tmp_path / "bare.camcal")
+    assert str(e.value) == f"{tmp_path / 'bare.camcal'}: profile has no spectral sensitivity stage (calibrate with " \
+                           "a sweep)"
+    with pytest.raises(CamcalError, match="^profile has no spectral sensitivity stage"):
+        band_model_from_profile(bare)
+
+
+def _json_round_trip(obj):
+    import json
+
+    return json.loads(json.dumps(obj))
+
+
+def test_spectral_record_round_trip_keeps_every_field():
+    """spectral_to_dict -> JSON text -> spectral_from_dict gives back every field of a Bayer and of a linear-RAW
+    curve set, as float arrays; fields left out of a record take their documented defaults."""
+    from camcal.spectral_model import spectral_from_dict, spectral_to_dict
+
+    wl = np.array([450.0, 500.5, 550.0, 600.0, 650.0])
+    bayer = {"R": [0.1, 0.2, 0.4, 1.5, 0.9], "G1": [0.3, 1.2, 1.4, 0.5, 0.1], "G2": [0.31, 1.1, 1.3, 0.6, 0.2],
+             "B": [1.0, 0.8, 0.2, 0.05, 0.01]}
+    s = SpectralSensitivity(wl, {p: np.array(v) for p, v in bayer.items()},
+                            {p: 0.01 + 0.02 * np.array(v) for p, v in bayer.items()}, "DN s⁻¹ per W", "absolute",
+                            reference_iso=200.0, reference_f_number=5.6, bandwidth_nm=4.5, deconvolved=True,
+                            n_frames={"450": 3, "500.5": 2}, notes=("skipped one frame", "hot lamp"),
+                            source={"kind": "imported", "file": "c.csv", "sha256": "ab"})
+    back = spectral_from_dict(_json_round_trip(spectral_to_dict(s)))
+    np.testing.assert_array_equal(back.wavelength_nm, wl)
+    assert back.wavelength_nm.dtype == np.float64
+    assert list(back.values) == ["R", "G1", "G2", "B"] and list(back.uncertainty) == ["R", "G1", "G2", "B"]
+    for p, v in bayer.items():
+        np.testing.assert_array_equal(back.values[p], v)
+        np.testing.assert_array_equal(back.uncertainty[p], 0.01 + 0.02 * np.array(v))
+        assert back.values[p].dtype == np.float64 and back.uncertainty[p].dtype == np.float64
+    assert (back.units, back.mode, back.reference_iso, back.reference_f_number, back.bandwidth_nm) == (
+        "DN s⁻¹ per W", "absolute", 200.0, 5.6, 4.5)
+    assert back.deconvolved is True and back.n_frames == {"450": 3, "500.5": 2}
+    assert back.notes == ("skipped one frame", "hot lamp")
+    assert back.source == {"kind": "imported", "file": "c.csv", "sha256": "ab"}
+
+    rgb = {"R": [0.5, 1.0], "G": [1.0, 0.5], "B": [0.25, 0.0]}
+    d = {"wavelength_nm": ["500", 600], "values": rgb, "uncertainty": {p: [0.0, 0.125] for p in rgb},
+         "units": "relative", "mode": "whatever", "reference_iso": "400", "reference_f_number": None,
+         "n_frames": None, "notes": None, "source": "not a dict", "deconvolved": 1}
+    lin = spectral_from_dict(d)
+    np.testing.assert_array_equal(lin.wavelength_nm, [500.0, 600.0])
+    assert list(lin.values) == ["R", "G", "B"] and list(lin.uncertainty) == ["R", "G", "B"]
+    for p, v in rgb.items():
+        np.testing.assert_array_equal(lin.values[p], v)
+        np.testing.assert_array_equal(lin.uncertainty[p], [0.0, 0.125])
+    assert (lin.mode, lin.reference_iso, lin.reference_f_number, lin.bandwidth_nm) == ("relative", 400.0, None, None)
+    assert lin.deconvolved is True and lin.n_frames == {} and lin.notes == () and lin.source is None
+    minimal = spectral_from_dict({k: d[k] for k in ("wavelength_nm", "values", "uncertainty", "units", "mode")})
+    assert (minimal.reference_iso, minimal.reference_f_number, minimal.bandwidth_nm) == (None, None, None)
+    assert minimal.deconvolved is False and minimal.n_frames == {} and minimal.notes == () and minimal.source is None
+    assert spectral_from_dict({**d, "bandwidth_nm": "2.5", "notes": [1, "b"]}).bandwidth_nm == 2.5
+    assert spectral_from_dict({**d, "notes": [1, "b"]}).notes == ("1", "b")
+
+
+@pytest.mark.parametrize(("drop", "change", "says"), [
+    ("units", {}, "(KeyError: 'units')"),
+    ("mode", {}, "(KeyError: 'mode')"),
+    ("wavelength_nm", {}, "(KeyError: 'wavelength_nm')"),
+    ("uncertainty", {}, "(KeyError: 'uncertainty')"),
+    (None, {"values": {"R": [1, 2], "G": [1, 2]}}, "(KeyError: 'B')"),
+    (None, {"reference_iso": "ISO 100"}, "(ValueError: could not convert string to float: 'ISO 100')"),
+    (None, {"bandwidth_nm": [1, 2]}, "(TypeError: "),
+    (None, {"n_frames": 3}, "(TypeError: "),
+])
+def test_spectral_record_refusals_say_what_is_wrong(drop, change, says):
+    """A record with a missing key or a value of the wrong type is one CamcalError naming the exception."""
+    from camcal.spectral_model import spectral_from_dict
+
+    d = {"wavelength_nm": [500, 600], "values": {p: [1, 2] for p in "RGB"},
+         "uncertainty": {p: [0, 0] for p in "RGB"}, "units": "relative", "mode": "relative", **change}
+    d.pop(drop, None)
+    with pytest.raises(CamcalError) as e:
+        spectral_from_dict(d)
+    assert str(e.value).startswith("malformed spectral sensitivity (") and says in str(e.value)
+
+
+def _dark_model(planes=("R", "G1", "G2", "B"), known=True):
+    """A small dark model with distinct values in every pixel, one unknown β uncertainty (inf) and defects."""
+    n = len(planes)
+    shape = (n, 2, 3)
+    ramp = np.arange(np.prod(shape), dtype=np.float32).reshape(shape)
+    unc = 0.01 * ramp + 0.5
+    unc[1, 0, 2] = np.inf
+    defects = np.zeros(shape, np.uint8)
+    defects[0, 1, 1], defects[n - 1, 0, 0], defects[1, 1, 2] = 1, 2 | 4, 4
+    channels = {p: {"bias_median_dn": 512.0 + k, "hot_pixel_count": int(np.count_nonzero(defects[k] & 1)),
+                    "dead_pixel_count": int(np.count_nonzero(defects[k] & 2)),
+                    "noisy_pixel_count": int(np.count_nonzero(defects[k] & 4))} for k, p in enumerate(planes)}
+    return DarkModel(bias_dn=512.0 + ramp, dark_current_dn_per_s=(0.25 * ramp - 1.0) if known else None,
+                     dark_current_unc_dn_per_s=unc if known else None, read_noise_dn=1.5 + 0.125 * ramp,
+                     defects=defects, iso=800.0, cfa_pattern="RGGB" if n == 4 else None, temperature_c=21.5,
+                     channels=channels, exposure_times_s=(0.001, 1.0, 30.0), black_level_dn=(512.0,) * n,
+                     white_level_dn=15000.0, provenance={"files": ["a.dng"], "options": {"sigma": 5}})
+
+
+@pytest.mark.parametrize("planes", [("R", "G1", "G2", "B"), ("R", "G", "B")])
+@pytest.mark.parametrize("known", [True, False])
+def test_dark_record_round_trip_keeps_every_field(planes, known):
+    """dark_to_parts -> JSON text for the record (maps as arrays) -> dark_from_parts gives back every map (float32,
+    an unknown β uncertainty inf again, defects uint8) and every field; the record names the maps' units and
+    counts the defects (hot 1, dead 1, noisy 2, here counted by hand)."""
+    from camcal.dark_model import dark_from_parts, dark_to_parts
+
+    m = _dark_model(planes, known)
+    data, maps = dark_to_parts(m)
+    names = ("bias", "dark_current", "dark_current_unc", "read_noise", "defects") if known else (
+        "bias", "read_noise", "defects")
+    assert sorted(maps) == sorted(f"{n}.{p}" for n in names for p in planes)
+    if known:
+        assert maps["dark_current_unc.G1" if len(planes) == 4 else "dark_current_unc.G"][0, 2] == np.float32(3e38)
+        np.testing.assert_array_equal(maps[f"dark_current.{planes[2]}"], 0.25 * np.arange(12, 18).reshape(2, 3) - 1)
+    np.testing.assert_array_equal(maps[f"bias.{planes[1]}"], 512.0 + np.arange(6, 12).reshape(2, 3))
+    np.testing.assert_array_equal(maps[f"defects.{planes[0]}"], [[0, 0, 0], [0, 1, 0]])
+    assert maps[f"defects.{planes[0]}"].dtype == np.float32
+    assert data["iso"] == 800.0 and data["cfa_pattern"] == (None if len(planes) == 3 else "RGGB")
+    assert data["layout"] == ("bayer" if len(planes) == 4 else "linear") and data["temperature_c"] == 21.5
+    assert data["exposure_times_s"] == [0.001, 1.0, 30.0] and data["black_level_dn"] == [512.0] * len(planes)
+    assert data["white_level_dn"] == 15000.0 and data["channels"] == m.channels
+    assert data["dark_current_known"] is known and data["provenance"] == m.provenance
+    assert data["units"] == {"bias": "DN", "dark_current": "DN s⁻¹ at iso", "dark_current_unc": "DN s⁻¹",
+                             "read_noise": "DN", "defects": "bits: 1 hot, 2 dead, 4 noisy"}
+    summ = data["summary"]
+    assert (summ["hot_pixel_count"], summ["dead_pixel_count"], summ["noisy_pixel_count"]) == (1, 1, 2)
+    assert summ["plane_shape"] == [2, 3] and summ["iso"] == 800.0
+
+    back = dark_from_parts(_json_round_trip(data), {k: np.array(v) for k, v in maps.items()}, "d.json")
+    for got, want in ((back.bias_dn, m.bias_dn), (back.read_noise_dn, m.read_noise_dn),
+                      (back.dark_current_dn_per_s, m.dark_current_dn_per_s),
+                      (back.dark_current_unc_dn_per_s, m.dark_current_unc_dn_per_s)):
+        if want is None:
+            assert got is None
+            continue
+        assert got.dtype == np.float32 and got.shape == (len(planes), 2, 3)
+        np.testing.assert_array_equal(got, want)
+    if known:
+        assert back.dark_current_unc_dn_per_s[1, 0, 2] == np.inf
+    assert back.defects.dtype == np.uint8
+    np.testing.assert_array_equal(back.defects, m.defects)
+    assert back.plane_names == planes
+    assert (back.iso, back.cfa_pattern, back.temperature_c) == (m.iso, m.cfa_pattern, m.temperature_c)
+    assert back.channels == m.channels and back.provenance == m.provenance
+    assert back.exposure_times_s == (0.001, 1.0, 30.0) and back.black_level_dn == (512.0,) * len(planes)
+    assert back.white_level_dn == 15000.0
+
+
+def test_dark_record_optional_fields_and_defects_read_from_floats():
+    """Missing optional fields take their defaults (no CFA, no temperature, no times or levels, white level NaN);
+    numbers given as text are read as numbers; defect bits stored as floats are rounded to the nearest integer."""
+    from camcal.dark_model import dark_from_parts
+
+    maps = {f"{m}.{p}": np.full((1, 2), 2.0, np.float32) for m in ("bias", "read_noise") for p in "RGB"}
+    maps.update({f"defects.{p}": np.array([[0.9999, 4.0001]], np.float32) for p in "RGB"})
+    data = {"iso": "200", "layout": "linear", "dark_current_known": False, "cfa_pattern": None,
+            "exposure_times_s": ["0.5", 2], "black_level_dn": [64, "64", 64.5], "temperature_c": "19"}
+    m = dark_from_parts(data, maps)
+    assert m.iso == 200.0 and m.cfa_pattern is None and m.temperature_c == 19.0
+    assert m.exposure_times_s == (0.5, 2.0) and m.black_level_dn == (64.0, 64.0, 64.5)
+    assert m.dark_current_dn_per_s is None and m.dark_current_unc_dn_per_s is None
+    np.testing.assert_array_equal(m.defects, np.tile(np.array([[1, 4]], np.uint8), (3, 1, 1)))
+    m = dark_from_parts({"iso": 100, "layout": "linear", "dark_current_known": False}, maps)
+    assert m.cfa_pattern is None and m.temperature_c is None and m.channels == {} and m.provenance == {}
+    assert m.exposure_times_s == () and m.black_level_dn == () and np.isnan(m.white_level_dn)
+    assert m.bias_dn.dtype == np.float32 and m.bias_dn.shape == (3, 1, 2)
+    m = dark_from_parts({"iso": 100, "layout": "linear", "dark_current_known": False, "white_level_dn": 0,
+                         "cfa_pattern": "GRBG"}, maps)
+    assert np.isnan(m.white_level_dn) and m.cfa_pattern == "GRBG"  # 0 is no white level
+
+
+@pytest.mark.parametrize(("data", "drop", "says"), [
+    ({"iso": 100}, "bias.G2", "dark model lacks maps bias.G2"),
+    ({"iso": 100}, "dark_current.R", "dark model lacks maps dark_current.R"),
+    ({"iso": 100, "dark_current_known": None}, "dark_current_unc.B", "dark model lacks maps dark_current_unc.B"),
+    ({"iso": 100, "layout": "linear"}, None,
+     "dark model lacks maps bias.G, dark_current.G, dark_current_unc.G, read_noise.G"),
+    ({"cfa_pattern": "RGGB"}, None, "malformed dark model ('iso')"),
+    ({"iso": "high"}, None, "malformed dark model (could not convert string to float: 'high')"),
+    ({"iso": 100, "channels": 5}, None, "malformed dark model ("),
+    (["iso", 100], None, "malformed dark model (list indices must be integers"),
+])
+def test_dark_record_refusals_name_the_file(data, drop, says):
+    """A record lacking a map (the first four named) or with a malformed field: one line naming the file."""
+    from camcal.dark_model import dark_from_parts
+
+    maps = {f"{m}.{p}": np.ones((1, 2), np.float32) for m in ("bias", "dark_current", "dark_current_unc",
+                                                               "read_noise", "defects") for p in PLANES4}
+    maps.pop(drop, None)
+    with pytest.raises(CamcalError) as e:
+        dark_from_parts(data, maps, "cam/dark.json")
+    assert str(e.value).startswith(f"cam/dark.json: {says}") and "\n" not in str(e.value)
+    if "lacks maps" in says:  # the first four missing maps, no more
+        assert str(e.value).split("lacks maps ")[1] == says.split("lacks maps ")[1]
+
+
+PLANES4 = ("R", "G1", "G2", "B")
+
+
+def _flat_models():
+    """A radial Bayer model at f/5.6 with a PRNU map and a model of the same planes at f/11; a 2-D linear one."""
+    from camcal.flat_model import Optics
+
+    ch = ("R", "G1", "G2", "B")
+    prnu = (1.0 + 0.001 * np.arange(4 * 3 * 5).reshape(4, 3, 5)).astype(np.float32)
+    kw = {"channels": ch, "model_2d": None, "shape": (3, 5), "cfa_pattern": "RGGB"}
+    f11 = FlatModel(centre_px={c: (2.0 + 0.1 * i, 1.0 - 0.05 * i) for i, c in enumerate(ch)},
+                    k={c: (-0.2 - 0.01 * i, 0.01, 0.0, 0.0, 0.0) for i, c in enumerate(ch)}, prnu=None,
+                    residual_rms={c: 0.002 for c in ch}, level_dn={c: 900.0 for c in ch}, info={"n_terms": 2},
+                    optics=Optics(11.0, "folder flat/f11/", 35.0, "tag"), **kw)
+    radial = FlatModel(centre_px={c: (2.25 - 0.125 * i, 1.5 + 0.25 * i) for i, c in enumerate(ch)},
+                       k={c: (-0.4 + 0.02 * i, 0.05, -0.01, 0.002, 0.0) for i, c in enumerate(ch)}, prnu=prnu,
+                       residual_rms={c: 0.001 * (i + 1) for i, c in enumerate(ch)},
+                       level_dn={c: 1000.0 + i for i, c in enumerate(ch)},
+                       prnu_rms={c: 0.004 + 0.001 * i for i, c in enumerate(ch)},
+                       info={"n_terms": 2, "frames": ["a.dng", "b.dng"]}, optics=Optics(5.6, "tag", 35.0, "libraw"),
+                       apertures=(f11,), **kw)
+    coef = {c: [[1.0, 0.0, -0.1], [0.02 * i, 0.0, 0.0], [-0.08, 0.0, 0.0]] for i, c in enumerate("RGB")}
+    two_d = FlatModel(channels=("R", "G", "B"), centre_px={c: (1.5, 1.0) for c in "RGB"},
+                      k={c: (0.0,) * 5 for c in "RGB"},
+                      model_2d={"kind": "legendre2d", "degree": 2, "coefficients": coef,
+                                "scale": {c: 1.0 + 0.01 * i for i, c in enumerate("RGB")}},
+                      prnu=None, residual_rms={c: 0.003 for c in "RGB"}, shape=(3, 4), cfa_pattern=None)
+    return radial, f11, two_d
+
+
+def _same_flat(a, b, prnu=True):
+    assert (a.channels, a.shape, a.cfa_pattern, a.model_2d, a.optics) == (b.channels, b.shape, b.cfa_pattern,
+                                                                        b.model_2d, b.optics)
+    assert (a.centre_px, a.k, a.residual_rms, a.level_dn, a.prnu_rms, a.info) == (
+        b.centre_px, b.k, b.residual_rms, b.level_dn, b.prnu_rms, b.info)
+    if prnu:
+        assert (a.prnu is None) == (b.prnu is None)
+        if a.prnu is not None:
+            assert a.prnu.dtype == np.float32
+            np.testing.assert_array_equal(a.prnu, b.prnu)
+
+
+def test_flat_record_round_trip_keeps_every_field_and_the_other_apertures():
+    """flat_to_parts -> JSON text for the record -> flat_from_parts gives back every field of a radial model with
+    a PRNU map and a model at another f-number (which shares the PRNU map), and of a 2-D Legendre model; the gain
+    of the model read back is the DNG radial sum 1 + k0 r² + k1 r⁴ + ... written out here."""
+    from camcal.flat_model import flat_from_parts, flat_to_parts
+
+    radial, f11, two_d = _flat_models()
+    data, maps = flat_to_parts(radial)
+    back = flat_from_parts(_json_round_trip(data), {n: np.asarray(m, float) for n, m in maps.items()}, "f.json")
+    _same_flat(back, radial)
+    assert len(back.apertures) == 1
+    _same_flat(back.apertures[0], f11, prnu=False)
+    np.testing.assert_array_equal(back.apertures[0].prnu, radial.prnu)
+    assert back.apertures[0].apertures == ()
+    # the gain of the R plane (offset (0, 0), 2 mosaic px per plane px) from the radial sum written out
+    cx, cy = radial.centre_px["R"]
+    yy, xx = np.mgrid[0:3, 0:5].astype(float)
+    fx, fy = 2 * cx, 2 * cy
+    rmax = max(np.hypot(x - fx, y - fy) for x in (0.0, 9.0) for y in (0.0, 5.0))
+    r2 = ((2 * xx - fx) ** 2 + (2 * yy - fy) ** 2) / rmax**2
+    g = 1 + sum(kk * r2 ** (i + 1) for i, kk in enumerate(radial.k["R"]))
+    np.testing.assert_allclose(back.gain()[0], g, rtol=1e-6)  # float32 map
+
+    # a record whose other model says it has a PRNU map: that model takes this model's all the same
+    data2 = _json_round_trip(data)
+    data2["apertures"][0]["has_prnu"] = True
+    np.testing.assert_array_equal(flat_from_parts(data2, dict(maps)).apertures[0].prnu, radial.prnu)
+
+    data, maps = flat_to_parts(two_d)
+    back = flat_from_parts(_json_round_trip(data), dict(maps))
+    _same_flat(back, two_d)
+    assert back.apertures == () and back.prnu is None
+    u = 2.0 * np.arange(4) / 3.0 - 1.0
+    v = 2.0 * np.arange(3) / 2.0 - 1.0
+    p2 = lambda t: 1.5 * t * t - 0.5  # noqa: E731 - Legendre P2
+    gb = 1.01 * (1.0 - 0.1 * p2(v)[:, None] + 0.02 * u[None, :] - 0.08 * p2(u)[None, :])
+    np.testing.assert_allclose(back.gain()[1], gb, rtol=1e-6)  # float32 map
+
+
+def test_flat_record_optional_fields_take_their_defaults():
+    """A record with only the required fields: no CFA, no levels, PRNU RMS, info or optics, radial."""
+    from camcal.flat_model import Optics, flat_from_parts
+
+    m = flat_from_parts({"channels": ["R", "G", "B"], "shape": ["2", 3.0], "centre_px": {c: ["1", 0.5] for c in "RGB"},
+                         "k": {c: ["-0.1", 0] for c in "RGB"}, "residual_rms": {c: "0.01" for c in "RGB"},
+                         "level_dn": None, "has_prnu": False}, {})
+    assert m.channels == ("R", "G", "B") and m.shape == (2, 3) and m.cfa_pattern is None and m.model_2d is None
+    assert m.centre_px == {c: (1.0, 0.5) for c in "RGB"} and m.k == {c: (-0.1, 0.0) for c in "RGB"}
+    assert m.residual_rms == {c: 0.01 for c in "RGB"} and m.prnu is None and m.apertures == ()
+    assert m.level_dn == {} and m.prnu_rms == {} and m.info == {} and m.optics == Optics()
+
+
+def _legendre_2x2(a, b, big=0.5e308):
+    """A 2-D model (linear planes R, G, B on 3 x 4) g = big (1 + a u)(1 + b v): it overflows to inf at the corner
+    (u, v) = (a, b) only (2e308 there; 0 or big elsewhere on the corners)."""
+    return {"kind": "legendre2d", "degree": 1, "coefficients": {c: [[big, b * big], [a * big, a * b * big]]
+                                                               for c in "RGB"}, "scale": {c: 1.0 for c in "RGB"}}
+
+
+def _flat_record(model_2d=None, k=(-0.3, 0.0), centre=(1.5, 1.0)):
+    return {"channels": ["R", "G", "B"], "shape": [3, 4], "centre_px": {c: list(centre) for c in "RGB"},
+            "k": {c: list(k) for c in "RGB"}, "residual_rms": {c: 0.01 for c in "RGB"}, "model_2d": model_2d}
+
+
+@pytest.mark.filterwarnings("ignore:overflow encountered:RuntimeWarning")  # the overflow the probe must see
+@pytest.mark.parametrize(("a", "b"), [(-1, -1), (1, -1), (-1, 1), (1, 1)])
+def test_flat_record_is_probed_at_each_of_the_four_plane_corners(a, b):
+    """A model that is not finite at one plane corner is refused, whichever corner; a model finite at the four
+    corners (g = 1.7e308 u, or v, which would overflow beyond them) is accepted."""
+    from camcal.flat_model import flat_from_parts
+
+    with pytest.raises(CamcalError) as e:
+        flat_from_parts(_flat_record(_legendre_2x2(a, b)), {}, "f.json")
+    assert str(e.value) == ("f.json: not a valid camcal flat file (ValueError: the vignetting model of R is not "
+                            "finite at the corners)")
+    edge = {"kind": "legendre2d", "degree": 1, "scale": {c: 1.0 for c in "RGB"},
+            "coefficients": {c: [[0.0, 0.0], [1.7e308, 0.0]] if a > 0 else [[0.0, 1.7e308], [0.0, 0.0]]
+                             for c in "RGB"}}
+    assert flat_from_parts(_flat_record(edge), {}).kind == "2d"
+    # radial: centre on the (a, b) corner's opposite, huge k: r² = 1 (overflow) only at the (a, b) corner
+    centre = (0.0 if a > 0 else 3.0, 0.0 if b > 0 else 2.0)
+    with pytest.raises(CamcalError, match="the vignetting model of R is not finite at the corners"):
+        flat_from_parts(_flat_record(k=(1e308, 1e308), centre=centre), {})
+
+
+@pytest.mark.parametrize(("change", "maps", "says"), [
+    ({"has_prnu": True}, {f"prnu.{c}": np.ones((3, 3)) for c in "RGB"},
+     "(ValueError: PRNU maps do not match the recorded shape)"),
+    ({"has_prnu": True}, {f"prnu.{c}": np.ones((2, 4)) for c in "RGB"},
+     "(ValueError: PRNU maps do not match the recorded shape)"),
+    ({"has_prnu": True}, {"prnu.R": np.ones((3, 4))}, "(KeyError: 'prnu.G')"),
+    ({"apertures": [{**_flat_record(), "shape": [3, 5]}]}, {},
+     "(ValueError: a model of another f-number has other planes or another shape)"),
+    ({"apertures": [{**_flat_record(), "shape": [4, 4]}]}, {},
+     "(ValueError: a model of another f-number has other planes or another shape)"),
+    ({"apertures": [{**_flat_record(), "channels": ["R", "G", "X"], "centre_px": {c: [1, 1] for c in "RGX"},
+                     "k": {c: [0] for c in "RGX"}, "residual_rms": {c: 0 for c in "RGX"}}]}, {},
+     "(ValueError: a model of another f-number has other planes or another shape)"),
+    ({"channels": ["R", "G", "X"]}, {}, "(KeyError: 'X')"),
+    ({"shape": [3]}, {}, "(IndexError: "),
+    ({"k": {c: [float("nan")] for c in "RGB"}}, {}, "(ValueError: the vignetting model of R is not finite"),
+    ({"model_2d": {"kind": "legendre2d", "coefficients": {c: [[1.0]] for c in "RGB"}}}, {}, "(KeyError: 'scale')"),
+    ({"centre_px": None}, {}, "(TypeError: "),
+])
+def test_flat_record_refusals_name_the_file_and_the_fault(change, maps, says):
+    """A record whose PRNU maps, other f-number models or fields do not fit: one line naming the file and the
+    exception."""
+    from camcal.flat_model import flat_from_parts
+
+    with pytest.raises(CamcalError) as e:
+        flat_from_parts({**_flat_record(), **change}, maps, "cam/flat.json")
+    assert str(e.value).startswith(f"cam/flat.json: not a valid camcal flat file {says}")
+
+
+def test_band_model_of_a_profile_reads_a_spectral_stage_of_rgb_curves_only():
+    """A spectral stage that gives only R, G, B curves (``rgb()``, no planes and no uncertainty) gives the band
+    model of those curves without σ_c; an object with no spectral stage at all is refused."""
+    from types import SimpleNamespace
+
+    from camcal.water.band import band_model_from_profile
+
+    wl = np.array([500.0, 550.0, 600.0])
+    rgb = {"R": np.array([0.1, 0.5, 1.0]), "G": np.array([0.5, 1.0, 0.4]), "B": np.array([0.2, 0.1, 0.0])}
+    prof = SimpleNamespace(spectral=SimpleNamespace(wavelength_nm=wl, rgb=lambda: rgb))
+    for ch in "RGB":
+        bm = band_model_from_profile(prof, ch, illuminant=None)
+        np.testing.assert_array_equal(bm.wavelengths_nm, wl)
+        np.testing.assert_array_equal(bm.sensitivity, rgb[ch])
+        assert bm.sensitivity_sigma is None
+    with pytest.raises(CamcalError, match="^profile has no channel 'G1'; use one of B, G, R$"):
+        band_model_from_profile(prof, "G1")
+    with pytest.raises(CamcalError, match="^profile has no spectral sensitivity stage"):
+        band_model_from_profile(SimpleNamespace(dark=None))
+
+
+def test_readers_name_what_they_were_asked_to_read_when_it_is_not_a_file(tmp_path):
+    """A folder given for an absorber or lamp CSV: one line naming the folder and what was expected there."""
+    from camcal.water.band import read_chlorophyll_csv, read_spectrum_csv
+
+    with pytest.raises(CamcalError) as e:
+        read_chlorophyll_csv(tmp_path)
+    assert str(e.value) == f"{tmp_path}: absorber (chlorophyll/dye) CSV is not a regular file"
+    with pytest.raises(CamcalError) as e:
+        read_spectrum_csv(tmp_path)
+    assert str(e.value) == f"{tmp_path}: lamp spectrum CSV is not a regular file"
+    with pytest.raises(CamcalError) as e:
+        read_spectrum_csv(tmp_path, "sky CSV")
+    assert str(e.value) == f"{tmp_path}: sky CSV is not a regular file"
+
+
+def test_flat_record_with_a_malformed_model_of_another_f_number_names_the_file():
+    """A record whose model of another f-number lacks a field is refused naming the file, like the record itself."""
+    from camcal.flat_model import flat_from_parts
+
+    other = {k: v for k, v in _flat_record().items() if k != "k"}
+    with pytest.raises(CamcalError) as e:
+        flat_from_parts({**_flat_record(), "apertures": [other]}, {}, "cam/flat.json")
+    assert str(e.value) == "cam/flat.json: not a valid camcal flat file (KeyError: 'k')"
