@@ -1694,6 +1694,7 @@ def test_spectral_record_round_trip_keeps_every_field():
         np.testing.assert_array_equal(lin.uncertainty[p], [0.0, 0.125])
     assert (lin.mode, lin.reference_iso, lin.reference_f_number, lin.bandwidth_nm) == ("relative", 400.0, None, None)
     assert lin.deconvolved is True and lin.n_frames == {} and lin.notes == () and lin.source is None
+    assert "source" not in spectral_to_dict(lin)  # a measured sweep has no source: its record has no such key
     minimal = spectral_from_dict({k: d[k] for k in ("wavelength_nm", "values", "uncertainty", "units", "mode")})
     assert (minimal.reference_iso, minimal.reference_f_number, minimal.bandwidth_nm) == (None, None, None)
     assert minimal.deconvolved is False and minimal.n_frames == {} and minimal.notes == () and minimal.source is None
@@ -1919,6 +1920,38 @@ def test_flat_record_round_trip_keeps_every_field_and_the_other_apertures():
     p2 = lambda t: 1.5 * t * t - 0.5  # noqa: E731 - Legendre P2
     gb = 1.01 * (1.0 - 0.1 * p2(v)[:, None] + 0.02 * u[None, :] - 0.08 * p2(u)[None, :])
     np.testing.assert_allclose(back.gain()[1], gb, rtol=1e-6)  # float32 map
+
+    # a 2-D model with a 2-D model at another f-number: the other model's own coefficients come back
+    from camcal.flat_model import Optics
+
+    coef = {c: [[1.0, 0.0, -0.2], [0.01, 0.0, 0.0], [-0.05, 0.0, 0.0]] for c in "RGB"}
+    other = replace(two_d, model_2d={**two_d.model_2d, "coefficients": coef}, optics=Optics(8.0, "tag", 35.0, "tag"))
+    with_other = replace(two_d, optics=Optics(4.0, "tag", 35.0, "tag"), apertures=(other,))
+    data, maps = flat_to_parts(with_other)
+    back = flat_from_parts(_json_round_trip(data), dict(maps))
+    assert back.apertures[0].model_2d == other.model_2d and back.apertures[0].optics == other.optics
+    assert back.apertures[0].prnu is None
+
+
+def test_flat_model_summary_names_its_kind_normalisation_full_frame_centres_and_corner_gains():
+    """The summary a profile and a report show: the kind of model, the normalisation in words, each plane's
+    optical centre in mosaic pixels (RGGB: plane pixel (x, y) of R is mosaic (2x, 2y), of G1 (2x + 1, 2y), of G2
+    (2x, 2y + 1), of B (2x + 1, 2y + 1)) and the smallest gain at the plane's four corners, from the radial sum
+    1 + Σ k_i r^(2i+2) written out at the corners of the R plane."""
+    radial, _, two_d = _flat_models()
+    s = radial.summary()
+    assert s["model"] == "radial" and two_d.summary()["model"] == "2d"
+    assert s["normalisation"] == "gain = 1 at the optical centre (radiance refers to on-axis sensitivity)"
+    offsets = {"R": (0, 0), "G1": (1, 0), "G2": (0, 1), "B": (1, 1)}
+    for c, (ox, oy) in offsets.items():
+        cx, cy = radial.centre_px[c]
+        assert s["centre_full_px"][c] == [pytest.approx(2 * cx + ox), pytest.approx(2 * cy + oy)]
+    cx, cy = radial.centre_px["R"]
+    fx, fy = 2 * cx, 2 * cy
+    rmax = max(np.hypot(x - fx, y - fy) for x in (0.0, 9.0) for y in (0.0, 5.0))
+    corners = [((2 * x - fx) ** 2 + (2 * y - fy) ** 2) / rmax**2 for x in (0.0, 4.0) for y in (0.0, 2.0)]
+    g = [1 + sum(kk * r2 ** (i + 1) for i, kk in enumerate(radial.k["R"])) for r2 in corners]
+    assert s["corner_gain"]["R"] == pytest.approx(min(g), rel=1e-6)  # float32 map values
 
 
 def test_flat_record_optional_fields_take_their_defaults():

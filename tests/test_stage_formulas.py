@@ -20,7 +20,15 @@ from scipy.special import erf, eval_legendre, gammainccinv
 
 from camcal import units
 from camcal.correct import Corrected, dark_frame, system_gain_dn_per_e
-from camcal.dark import _fit_lines, _noise_model, subtract_dark, temporal_noise
+from camcal.dark import (
+    DarkOptions,
+    DarkStacks,
+    _fit_lines,
+    _noise_model,
+    fit_dark_stacks,
+    subtract_dark,
+    temporal_noise,
+)
 from camcal.dark_model import DEAD, HOT, NOISY, DarkModel
 from camcal.errors import CamcalError
 from camcal.flat import _quadratic_vertex, _total_degree_mask, correct_flat, fit_2d_plane, fit_radial_plane
@@ -1818,3 +1826,90 @@ def test_band_inverse_where_the_band_stops_responding_or_underflows():
     dark = dinv.concentration(np.array([1e-150, 1e-305]))
     assert dark.reason.tolist() == [0, Reason.TOO_DARK]
     assert dark.c_ug_per_L[0] == pytest.approx(c_dark, rel=1e-7)
+
+
+def test_bias_only_model_every_field_from_bias_frames_with_planes_below_one_dn(tmp_path):
+    """``fit_dark_stacks`` on bias frames alone (the bias-only model), every output against values written out here.
+
+    Five frames of 128 × 128 pixels a plane, kept for the quantised fit: R σ = 1.5 DN and B σ = 2 DN (above 1 DN:
+    read noise √(mean var − 1/12) over the good pixels, EMVA 1288 eq. 4, and DSNU √(var(bias) − mean(var/n))), G1
+    σ = 0.4 DN and G2 σ = 0.35 DN (below 1 DN: the quantised-normal fit, against the simulation's truth to 3 % and
+    5 % as in ``test_temporal_noise_below_one_dn_fits_consecutive_frame_pairs``); 0.2 % of R's and B's pixels
+    noisy (20 DN more noise), flagged NOISY by the χ² bound of 4 degrees of freedom and left out of the figures.
+    No dark current (None everywhere), no hot or dead pixels, no system gain from the dark, the file's levels, the
+    frames' exposure time and ISO, no temperature; the provenance in full. Frames at two ISO settings are refused,
+    naming the bias folder."""
+    rng = np.random.default_rng(77)
+    shape = (4, 128, 128)
+    sigma, dsnu = np.array([1.5, 0.4, 0.35, 2.0]), np.array([3.0, 0.3, 0.5, 2.5])
+    mu = np.array([200.0, 60.2, 60.2, 150.0])[:, None, None] + dsnu[:, None, None] * rng.standard_normal(shape)
+    frames = np.rint(mu + sigma[:, None, None] * rng.standard_normal((5, *shape)))
+    noisy_px = rng.random(shape) < 2e-3
+    noisy_px[1:3] = False
+    frames += noisy_px * np.rint(20.0 * rng.standard_normal(frames.shape))
+    var = np.var(frames, axis=0, ddof=1)
+    value = frames.mean(axis=0)
+    exposure = Exposure(exposure_s=1e-4, iso=100.0)
+    st = StackResult(value=value.astype(np.float32), mean=value.astype(np.float32), variance=var.astype(np.float32),
+                     count=np.full(shape, 5, np.int16), n_frames=5, method="mean", exposures=(exposure,) * 5,
+                     paths=tuple(Path(f"b{i}.dng") for i in range(5)), channel_names=PLANES, cfa_pattern="RGGB",
+                     black_level_dn=(60.0,) * 4, white_level_dn=1023.0, frame_shape=(256, 256),
+                     variance_all=var.astype(np.float32), kept_planes=tuple(np.asarray(f, np.float32) for f in frames))
+    folder = tmp_path / "bias"
+    options = DarkOptions(hot_sigma=7.0, noisy_sigma=6.0, saturation_fraction=0.02)
+    model = fit_dark_stacks(DarkStacks((), st, bias_folder=folder), options)
+
+    var32 = var.astype(np.float32).astype(np.float64)
+    bound = _noisy_bound(4, 6.0)
+    vhat = np.zeros(4)
+    for k in range(4):  # the plane's temporal variance: the mean with its top 0.1 % left out
+        v = np.sort(var32[k].ravel())
+        vhat[k] = np.mean(v[v <= np.quantile(v, 0.999)])
+    noisy = var32 > vhat[:, None, None] * bound
+    assert np.count_nonzero(noisy[[0, 3]] & noisy_px[[0, 3]]) > 0.9 * np.count_nonzero(noisy_px)
+    np.testing.assert_array_equal(model.defects, np.where(noisy, NOISY, 0).astype(np.uint8))
+    assert model.dark_current_dn_per_s is None and model.dark_current_unc_dn_per_s is None
+    np.testing.assert_array_equal(model.bias_dn, value.astype(np.float32))
+    assert model.bias_dn.dtype == np.float32 and model.read_noise_dn.dtype == np.float32
+    expect_map = _map_of_variance(var32)
+    for k in (1, 2):
+        expect_map[k] = np.where(noisy[k], expect_map[k], model.channels[PLANES[k]]["read_noise_dn"])
+    np.testing.assert_allclose(model.read_noise_dn, expect_map, rtol=1e-6)
+    b32 = value.astype(np.float32).astype(np.float64)
+    for k, name in enumerate(PLANES):
+        got, good = model.channels[name], ~noisy[k]
+        bk = b32[k][good]
+        assert got["bias_dn"] == pytest.approx(float(np.mean(bk)), rel=1e-12)
+        assert got["bias_unc_dn"] == pytest.approx(float(np.sqrt(np.pi / 2) * np.std(bk) / np.sqrt(bk.size)),
+                                                   rel=2e-5)  # the code's 1.2533 for √(π/2): 1.1e-5
+        assert got["temporal_noise_dn"] == pytest.approx(float(np.sqrt(vhat[k])), rel=1e-6)
+        if k in (0, 3):
+            assert got["read_noise_dn"] == pytest.approx(float(np.sqrt(np.mean(var32[k][good]) - 1.0 / 12.0)),
+                                                         rel=1e-9)
+            assert got["dsnu_bias_dn"] == pytest.approx(
+                float(np.sqrt(np.var(bk) - np.mean(var32[k][good] / 5.0))), rel=1e-9)
+            assert got["dsnu_bias_dn"] == pytest.approx(dsnu[k], rel=0.05)  # 16 000 pixels: ~1 %
+        else:
+            assert got["read_noise_dn"] == pytest.approx(sigma[k], rel=0.03)
+            assert got["dsnu_bias_dn"] == pytest.approx(dsnu[k], rel=0.05)
+        assert {key: got[key] for key in got if key not in (
+            "bias_dn", "bias_unc_dn", "temporal_noise_dn", "read_noise_dn", "dsnu_bias_dn")} == {
+            "dark_current_dn_per_s": None, "dark_current_unc_dn_per_s": None,
+            "dark_current_pixel_unc_dn_per_s": None, "dark_current_mean_dn_per_s": None,
+            "dsnu_dark_current_dn_per_s": None, "gain_dn_per_e_from_dark": 0.0, "hot_pixel_count": 0,
+            "dead_pixel_count": 0, "noisy_pixel_count": int(np.count_nonzero(noisy[k]))}
+    assert (model.iso, model.cfa_pattern, model.temperature_c, model.exposure_times_s) == (100.0, "RGGB", None,
+                                                                                            (1e-4,))
+    assert model.black_level_dn == (60.0,) * 4 and model.white_level_dn == 1023.0
+    assert model.provenance == {
+        "dark_folder": None, "bias_folder": str(folder), "dark_files": [],
+        "bias_files": [f"b{i}.dng" for i in range(5)], "frames_per_exposure": {},
+        "options": {"hot_sigma": 7.0, "noisy_sigma": 6.0, "saturation_fraction": 0.02},
+        "bias_source": "bias frames", "read_noise_source": "bias frames",
+        "read_noise_method": "quantised-normal likelihood of 3 frame pair(s) in planes G1, G2 (temporal noise "
+                             "below 1 DN); elsewhere " + NOISE_METHOD,
+        "dark_current": "unknown: no dark frames (bias-only calibration); apply subtracts the bias only"}
+    mixed = replace(st, exposures=(exposure,) * 4 + (Exposure(exposure_s=1e-4, iso=200.0),))
+    with pytest.raises(CamcalError, match="mix ISO settings") as err:
+        fit_dark_stacks(DarkStacks((), mixed, bias_folder=folder), options)
+    assert err.value.path == folder
