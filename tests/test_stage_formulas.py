@@ -1831,8 +1831,10 @@ def test_band_inverse_where_the_band_stops_responding_or_underflows():
 def test_bias_only_model_every_field_from_bias_frames_with_planes_below_one_dn(tmp_path):
     """``fit_dark_stacks`` on bias frames alone (the bias-only model), every output against values written out here.
 
-    Five frames of 128 × 128 pixels a plane, kept for the quantised fit: R σ = 1.5 DN and B σ = 2 DN (above 1 DN:
-    read noise √(mean var − 1/12) over the good pixels, EMVA 1288 eq. 4, and DSNU √(var(bias) − mean(var/n))), G1
+    Five frames of 128 × 128 pixels a plane, kept for the quantised fit: R σ = 1.5 DN and B σ = 0.97 DN (temporal
+    noise above 1 DN: read noise √(mean var − 1/12) over the good pixels, EMVA 1288 eq. 4, and DSNU
+    √(var(bias) − mean(var/n)); B's read noise² (0.94 DN²) and DSNU² (0.25 DN²) are below 1, so the clamps at 0
+    show), G1
     σ = 0.4 DN and G2 σ = 0.35 DN (below 1 DN: the quantised-normal fit, against the simulation's truth to 3 % and
     5 % as in ``test_temporal_noise_below_one_dn_fits_consecutive_frame_pairs``); 0.2 % of R's and B's pixels
     noisy (20 DN more noise), flagged NOISY by the χ² bound of 4 degrees of freedom and left out of the figures.
@@ -1841,7 +1843,7 @@ def test_bias_only_model_every_field_from_bias_frames_with_planes_below_one_dn(t
     naming the bias folder."""
     rng = np.random.default_rng(77)
     shape = (4, 128, 128)
-    sigma, dsnu = np.array([1.5, 0.4, 0.35, 2.0]), np.array([3.0, 0.3, 0.5, 2.5])
+    sigma, dsnu = np.array([1.5, 0.4, 0.35, 0.97]), np.array([3.0, 0.3, 0.5, 0.5])
     mu = np.array([200.0, 60.2, 60.2, 150.0])[:, None, None] + dsnu[:, None, None] * rng.standard_normal(shape)
     frames = np.rint(mu + sigma[:, None, None] * rng.standard_normal((5, *shape)))
     noisy_px = rng.random(shape) < 2e-3
@@ -1909,6 +1911,8 @@ def test_bias_only_model_every_field_from_bias_frames_with_planes_below_one_dn(t
         "read_noise_method": "quantised-normal likelihood of 3 frame pair(s) in planes G1, G2 (temporal noise "
                              "below 1 DN); elsewhere " + NOISE_METHOD,
         "dark_current": "unknown: no dark frames (bias-only calibration); apply subtracts the bias only"}
+    assert fit_dark_stacks(DarkStacks((), replace(st, cfa_pattern=None), bias_folder=folder),
+                           options).cfa_pattern is None
     mixed = replace(st, exposures=(exposure,) * 4 + (Exposure(exposure_s=1e-4, iso=200.0),))
     with pytest.raises(CamcalError, match="mix ISO settings") as err:
         fit_dark_stacks(DarkStacks((), mixed, bias_folder=folder), options)
