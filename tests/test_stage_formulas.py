@@ -1917,3 +1917,619 @@ def test_bias_only_model_every_field_from_bias_frames_with_planes_below_one_dn(t
     with pytest.raises(CamcalError, match="mix ISO settings") as err:
         fit_dark_stacks(DarkStacks((), mixed, bias_folder=folder), options)
     assert err.value.path == folder
+
+
+# -- response_model: the model's and the colour matrix's records, read back field by field ------------------------
+
+
+def _response_record_model():
+    """A RAW response with distinct numbers in every field, a colour matrix, a tone record and points."""
+    from camcal.response_model import ChannelResponse, ColourMatrix, ResponseModel
+
+    chans = {}
+    for k, name in enumerate(("R", "G1", "G2", "B")):
+        chans[name] = ChannelResponse(
+            alpha=1000.0 + k, alpha_unc=2.0 + k, gamma=0.99 + 0.001 * k, gamma_unc=0.003 + k, beta=60.0 + k,
+            beta_unc=0.5 + k, linear_range_dn=(70.0 + k, 3900.0 + k), saturation_dn=4095.0 - k,
+            linearity_error_pct=0.25 + k, pearson_r=0.9799 if name == "B" else 0.98 + 0.001 * k,
+            rate_dn_per_s=1005.0 + k, rate_dn_per_s_unc=1.5 + k, offset_dn=61.0 + k,
+            saturation_exposure_s=4.0 + k, fitted_exposure_s=(0.01 + k, 3.5 + k))
+    cm = ColourMatrix(matrix=np.array([[1.5, -0.3, 0.1], [-0.2, 1.4, -0.1], [0.05, -0.4, 1.6]]),
+                      matrix_unc=np.array([[0.01, 0.02, 0.03], [0.04, 0.05, 0.06], [0.07, 0.08, 0.09]]),
+                      n_frames=(7, 8, 9), residual_rms_rel=(0.011, 0.012, 0.013),
+                      sources=("/data/sweep/one", "relative/two"))
+    points = {"R": {"x_s": [1.0, 2.0, 4.0], "files": ["c.dng", "a.dng", "b.dng"], "saturated": [True, False, True]},
+              "G1": {"files": ["a.dng", "c.dng", "d.dng"], "saturated": [True, True, False]},
+              "G2": None, "B": {"files": ["z.dng", "y.dng"], "saturated": [True]}}  # lengths differ: pairs only
+    tone = {"channels": {"R": {"linear_gain_dn_per_s": 12.5}}, "note": "tone"}
+    return ResponseModel(kind="raw", channels=chans, reference_iso=200.0, reference_f_number=2.8, tone=tone,
+                         white_level_dn=4095.0, dark_subtracted=True, roi=(0.1, 0.9, 0.2, 0.8), points=points,
+                         colour_matrix=cm)
+
+
+def test_response_model_record_reads_back_every_field_through_json():
+    """to_dict -> JSON text -> from_dict keeps every field, compared with the numbers written in the test; the
+    summary carries the equation, the r >= 0.98 flag (0.98 itself passes, 0.9799 does not) and the colour matrix
+    record (source folders reduced to their names); saturated files are the union over channels, sorted, once each."""
+    import json
+
+    from camcal.response_model import ResponseModel
+
+    m = _response_record_model()
+    d = m.to_dict()
+    assert d["roi"] == [0.1, 0.9, 0.2, 0.8] and d["points"] is m.points
+    assert d["kind"] == "raw" and d["reference_iso"] == 200.0 and d["reference_f_number"] == 2.8
+    assert d["white_level_dn"] == 4095.0 and d["dark_subtracted"] is True and d["tone"] == m.tone
+    assert d["equation"] == ("g = alpha * x**gamma + beta (seed eq. 12), x = ISO*t/N^2 relative to the reference, s")
+    assert [d["channels"][n]["linear_pearson_r_ok"] for n in ("R", "G1", "G2", "B")] == [True, True, True, False]
+    assert d["channels"]["G2"]["linear_range_dn"] == [72.0, 3902.0]
+    assert d["channels"]["G2"]["fitted_exposure_s"] == [2.01, 5.5]
+    assert set(d) == {"kind", "equation", "reference_iso", "reference_f_number", "white_level_dn", "dark_subtracted",
+                      "channels", "tone", "colour_matrix", "roi", "points"}
+    cmd = d["colour_matrix"]
+    assert cmd["sources"] == ["one", "two"] and cmd["n_frames"] == [7, 8, 9]
+    assert cmd["residual_rms_rel"] == [0.011, 0.012, 0.013]
+    assert cmd["matrix"] == [[1.5, -0.3, 0.1], [-0.2, 1.4, -0.1], [0.05, -0.4, 1.6]]
+    assert cmd["matrix_unc"] == [[0.01, 0.02, 0.03], [0.04, 0.05, 0.06], [0.07, 0.08, 0.09]]
+    assert cmd["equation"] == ("linearised processed (R,G,B) = matrix @ RAW (R, (G1+G2)/2, B) DN above the "
+                               "black level")
+    assert set(cmd) == {"matrix", "matrix_unc", "n_frames", "residual_rms_rel", "sources", "equation"}
+    s = m.summary()
+    assert "roi" not in s and "points" not in s and s["channels"] == d["channels"]
+    assert m.saturated_files() == ["a.dng", "b.dng", "c.dng", "z.dng"]  # after G2's missing points too
+
+    back = ResponseModel.from_dict(json.loads(json.dumps(d)))
+    assert back.kind == "raw" and back.reference_iso == 200.0 and back.reference_f_number == 2.8
+    assert back.white_level_dn == 4095.0 and back.dark_subtracted is True
+    assert back.roi == (0.1, 0.9, 0.2, 0.8) and back.tone == m.tone and back.points == m.points
+    assert list(back.channels) == ["R", "G1", "G2", "B"]
+    for k, name in enumerate(("R", "G1", "G2", "B")):
+        c = back.channels[name]
+        assert (c.alpha, c.alpha_unc, c.gamma, c.gamma_unc, c.beta, c.beta_unc) == (
+            1000.0 + k, 2.0 + k, 0.99 + 0.001 * k, 0.003 + k, 60.0 + k, 0.5 + k)
+        assert c.linear_range_dn == (70.0 + k, 3900.0 + k) and c.saturation_dn == 4095.0 - k
+        assert c.linearity_error_pct == 0.25 + k
+        assert c.pearson_r == (0.9799 if name == "B" else 0.98 + 0.001 * k)
+        assert (c.rate_dn_per_s, c.rate_dn_per_s_unc, c.offset_dn) == (1005.0 + k, 1.5 + k, 61.0 + k)
+        assert c.saturation_exposure_s == 4.0 + k and c.fitted_exposure_s == (0.01 + k, 3.5 + k)
+    cm = back.colour_matrix
+    np.testing.assert_array_equal(cm.matrix, [[1.5, -0.3, 0.1], [-0.2, 1.4, -0.1], [0.05, -0.4, 1.6]])
+    np.testing.assert_array_equal(cm.matrix_unc, [[0.01, 0.02, 0.03], [0.04, 0.05, 0.06], [0.07, 0.08, 0.09]])
+    assert cm.n_frames == (7, 8, 9) and cm.residual_rms_rel == (0.011, 0.012, 0.013)
+    assert cm.sources == ("one", "two")
+
+
+def test_response_model_record_defaults_and_refusals():
+    """A minimal record reads back with the documented defaults (NaN for absent or null numbers, no dark
+    subtraction, the whole frame, no points, no colour matrix); linear RAW (R, G, B) is accepted; every malformed
+    record is refused with one line naming the exception and the problem."""
+    import copy
+    import math
+
+    from camcal.response_model import ResponseModel
+
+    rec = {"alpha": 1.0, "alpha_unc": 0.1, "gamma": 1.0, "gamma_unc": None, "beta": 2.0, "beta_unc": 0.2,
+           "linear_range_dn": [3.0, None], "saturation_dn": 255.0, "linearity_error_pct": 0.5, "pearson_r": 0.99,
+           "offset_dn": None}
+    d = {"kind": "processed", "reference_iso": 100, "reference_f_number": None,
+         "channels": {n: dict(rec) for n in ("R", "G", "B")}}
+    m = ResponseModel.from_dict(copy.deepcopy(d))
+    assert m.kind == "processed" and m.reference_iso == 100.0 and math.isnan(m.reference_f_number)
+    assert m.tone is None and math.isnan(m.white_level_dn) and m.dark_subtracted is False
+    assert m.roi == (0.0, 1.0, 0.0, 1.0) and m.points == {} and m.colour_matrix is None
+    c = m.channels["G"]
+    assert (c.alpha, c.alpha_unc, c.gamma, c.beta, c.beta_unc, c.saturation_dn) == (1.0, 0.1, 1.0, 2.0, 0.2, 255.0)
+    assert (c.linearity_error_pct, c.pearson_r, c.linear_range_dn[0]) == (0.5, 0.99, 3.0)
+    for v in (c.gamma_unc, c.linear_range_dn[1], c.rate_dn_per_s, c.rate_dn_per_s_unc, c.offset_dn,
+              c.saturation_exposure_s, *c.fitted_exposure_s):
+        assert math.isnan(v)
+    assert len(c.fitted_exposure_s) == 2
+    assert ResponseModel.from_dict({**copy.deepcopy(d), "points": None, "colour_matrix": None}).points == {}
+    assert ResponseModel(kind="raw", channels={}, reference_iso=1.0, reference_f_number=1.0).saturated_files() == []
+    lin = ResponseModel.from_dict({**copy.deepcopy(d), "kind": "raw", "dark_subtracted": 1})
+    assert lin.kind == "raw" and list(lin.channels) == ["R", "G", "B"] and lin.dark_subtracted is True
+
+    def refused(bad: dict) -> str:
+        with pytest.raises(CamcalError) as info:
+            ResponseModel.from_dict(bad)
+        return str(info.value)
+
+    expect = ("malformed response model (ValueError: kind {!r} with channels {}; expected raw R, G1, G2, B (or R, G, "
+              "B for linear RAW) or processed R, G, B)")
+    assert refused({**d, "kind": "jpeg"}) == expect.format("jpeg", "['B', 'G', 'R']")
+    four = {n: dict(rec) for n in ("R", "G1", "G2", "B")}
+    assert refused({**d, "channels": four}) == expect.format("processed", "['B', 'G1', 'G2', 'R']")
+    assert refused({**d, "kind": "raw", "channels": {n: dict(rec) for n in ("R", "G1", "B")}}) == expect.format(
+        "raw", "['B', 'G1', 'R']")
+    assert refused({k: v for k, v in d.items() if k != "reference_iso"}) == "malformed response model (KeyError: " \
+        "'reference_iso')"
+    assert refused({k: v for k, v in d.items() if k != "channels"}) == "malformed response model (KeyError: " \
+        "'channels')"
+    assert refused({**d, "channels": {"R": {**rec, "linear_range_dn": [1.0]}}}) == (
+        "malformed response model (IndexError: list index out of range)")
+    assert refused({**d, "reference_iso": "fast"}) == ("malformed response model (ValueError: could not convert "
+                                                       "string to float: 'fast')")
+    assert refused({**d, "channels": {"R": {**rec, "alpha": [1]}}}).startswith("malformed response model (TypeError: ")
+    assert refused({**d, "colour_matrix": {"matrix": np.zeros((3, 3)).tolist()}}) == (
+        "malformed colour matrix (the colour matrix is singular)")
+
+
+def test_colour_matrix_record_defaults_and_refusals():
+    """ColourMatrix.from_dict: absent uncertainties are zeros, frame counts 0, residuals NaN, no sources; a
+    non-3x3 or non-finite matrix, a singular one (|det| below 1e-12 max|m|^3) and per-channel lists of the wrong
+    length are refused with one line each."""
+    import math
+
+    from camcal.response_model import ColourMatrix
+
+    m = [[2.0, 0.0, 0.0], [0.0, 3.0, 0.0], [0.0, 0.0, 4.0]]
+    cm = ColourMatrix.from_dict({"matrix": [[2, 0, 0], [0, 3, 0], [0, 0, 4]], "matrix_unc": [[1, 0, 0]] * 3})
+    assert cm.matrix.dtype == np.float64 and cm.matrix_unc.dtype == np.float64  # integers in the file: floats
+    np.testing.assert_array_equal(cm.matrix_unc, [[1.0, 0.0, 0.0]] * 3)
+    cm = ColourMatrix.from_dict({"matrix": m})
+    np.testing.assert_array_equal(cm.matrix, m)
+    np.testing.assert_array_equal(cm.matrix_unc, np.zeros((3, 3)))
+    assert cm.n_frames == (0, 0, 0) and cm.sources == ()
+    assert len(cm.residual_rms_rel) == 3 and all(math.isnan(v) for v in cm.residual_rms_rel)
+    cm = ColourMatrix.from_dict({"matrix": m, "n_frames": ["4", 5.0, 6], "residual_rms_rel": ["0.5", 1, 2],
+                                 "sources": [1, "b"]})
+    assert cm.n_frames == (4, 5, 6) and all(type(v) is int for v in cm.n_frames)
+    assert cm.residual_rms_rel == (0.5, 1.0, 2.0) and all(type(v) is float for v in cm.residual_rms_rel)
+    assert cm.sources == ("1", "b")
+    # the singularity threshold is 1e-12 · max(1, max|m|)^3: it scales with large entries and has a floor of 1
+    ok_big = np.diag([1e3, 1e3, 1e3 * 1e-11])  # det 1e-2 >= 1e-12 · 1e9 = 1e-3: kept
+    assert ColourMatrix.from_dict({"matrix": ok_big.tolist()}).matrix[2, 2] == 1e-8
+    edge = np.diag([1.0, 1.0, 1e-12])  # det 1e-12 (LU: 1.000000000000001e-12), at the threshold: kept
+    assert ColourMatrix.from_dict({"matrix": edge.tolist()}).matrix[2, 2] == 1e-12
+    ok_small = np.diag([0.5, 0.5, 1e-11])  # det 2.5e-12 >= 1e-12 (scale floor 1): kept
+    assert ColourMatrix.from_dict({"matrix": ok_small.tolist()}).matrix[2, 2] == 1e-11
+
+    def refused(bad: dict) -> str:
+        with pytest.raises(CamcalError) as info:
+            ColourMatrix.from_dict(bad)
+        return str(info.value)
+
+    shape = "malformed colour matrix (matrix and matrix_unc must be finite 3x3 arrays)"
+    sing = "malformed colour matrix (the colour matrix is singular)"
+    three = "malformed colour matrix (n_frames and residual_rms_rel need 3 values)"
+    assert refused({"matrix": [[1.0, 0.0], [0.0, 1.0]]}) == shape
+    assert refused({"matrix": m, "matrix_unc": [[0.0] * 3] * 2}) == shape
+    assert refused({"matrix": [[np.nan, 0, 0], [0, 1, 0], [0, 0, 1]]}) == shape
+    assert refused({"matrix": m, "matrix_unc": [[np.inf, 0, 0], [0, 0, 0], [0, 0, 0]]}) == shape
+    assert refused({"matrix": np.diag([1e3, 1e3, 1e3 * 1e-13]).tolist()}) == sing  # det 1e-4 < 1e-3
+    assert refused({"matrix": np.diag([0.5, 0.5, 1e-12]).tolist()}) == sing  # det 2.5e-13 < 1e-12
+    assert refused({"matrix": np.diag([-0.5, 0.5, 1e-12]).tolist()}) == sing  # |det| counts, not det
+    assert ColourMatrix.from_dict({"matrix": np.diag([-1.0, 1.0, 1.0]).tolist()}).matrix[0, 0] == -1.0
+    assert refused({"matrix": m, "n_frames": [1, 2]}) == three
+    assert refused({"matrix": m, "residual_rms_rel": [1, 2, 3, 4]}) == three
+    assert refused({}) == "malformed colour matrix ('matrix')"
+    assert refused({"matrix": m, "n_frames": 3}) == "malformed colour matrix ('int' object is not iterable)"
+    assert refused({"matrix": m, "n_frames": ["x", 1, 2]}) == (
+        "malformed colour matrix (invalid literal for int() with base 10: 'x')")
+
+
+# -- response: the series checks and small helpers -----------------------------------------------------------------
+
+
+def _exposure_series_record(x_s, mean_dn, sem_dn, files, clipped=None, kind="raw", channels=("R", "G1")):
+    """An ExposureSeries with the given per-frame arrays (other fields fixed, unused by the functions tested)."""
+    from camcal.response import ExposureSeries
+
+    x = np.asarray(x_s, float)
+    n, c = np.asarray(mean_dn).shape
+    return ExposureSeries(
+        kind=kind, channels=tuple(channels), files=tuple(files), x_s=x, exposure_s=x.copy(), iso=np.full(n, 100.0),
+        f_number=np.full(n, 2.8), mean_dn=np.asarray(mean_dn, float), sem_dn=np.asarray(sem_dn, float),
+        clipped_fraction=np.zeros((n, c)) if clipped is None else np.asarray(clipped, float),
+        max_dn=np.full((n, c), 100.0), white_level_dn=4095.0, black_level_dn=np.zeros(c), reference_iso=100.0,
+        reference_f_number=2.8, folder="/data/series")
+
+
+def test_check_monotone_tolerance_is_five_sigma_of_grouped_means():
+    """Frames of one exposure are grouped: mean of their means, standard error sqrt(sum sem^2)/k. A drop between
+    consecutive groups is refused above 5·hypot(σ_prev, σ_next) + 1e-6·|mean_prev|. Here the frames at x = 2 s
+    (means 100, 104; sem 3, 4) give 102 ± 2.5, so with an exact next point the limit is 12.5 + 1.02e-4 DN."""
+    from camcal.response import _check_monotone
+
+    files = ("a.dng", "b1.dng", "b2.dng", "c.dng", "d.dng")
+    x = [1.0, 2.0, 2.0, 4.0, 8.0]
+    sem = [[0.0, 0.0], [3.0, 3.0], [4.0, 4.0], [0.0, 0.0], [0.0, 0.0]]
+    ok = np.ones(5, bool)
+
+    def series(next_mean, ch1=(50.0, 60.0, 60.0, 70.0, 80.0), last=200.0):
+        m = np.column_stack([[90.0, 100.0, 104.0, next_mean, last], ch1])
+        return _exposure_series_record(x, m, sem, files)
+
+    assert _check_monotone(series(89.6), 0, ok) is None  # drop 12.4 DN < 12.5001
+    with pytest.raises(CamcalError) as info:
+        _check_monotone(series(89.4), 0, ok)  # drop 12.6 DN
+    assert str(info.value) == ("/data/series: raw channel R is not monotone in exposure: c.dng (x = 4 s) has mean "
+                               "89.40 DN, below b1.dng (x = 2 s, 102.00 DN); check the exposure values in frames.csv")
+    assert _check_monotone(series(89.4), 1, ok) is None  # the other channel rises
+    # the frame that falls is left out by the mask: the remaining groups rise
+    assert _check_monotone(series(89.4), 0, np.array([True, True, True, False, True])) is None
+    # a drop at the first pair of groups (x = 1 -> 2 s) is checked too: 90 -> 60 ± 2.5 in channel G1
+    with pytest.raises(CamcalError) as info:
+        _check_monotone(series(200.0, ch1=(90.0, 58.0, 62.0, 70.0, 80.0)), 1, ok)
+    assert str(info.value) == ("/data/series: raw channel G1 is not monotone in exposure: b1.dng (x = 2 s) has mean "
+                               "60.00 DN, below a.dng (x = 1 s, 90.00 DN); check the exposure values in frames.csv")
+    # and the last pair (x = 4 -> 8 s)
+    with pytest.raises(CamcalError, match=r"d\.dng \(x = 8 s\) has mean 80\.00 DN, below c\.dng"):
+        _check_monotone(series(200.0, last=80.0), 0, ok)
+    # with exact means the relative term 1e-6·|mean| is the whole tolerance: 1 DN at 1e6 DN
+    exact = [[0.0, 0.0]] * 5
+    big = np.column_stack([[1e3, 1e6 + 10, 1e6 + 10, 1e6 + 9.1, 2e6], [1.0, 2.0, 2.0, 3.0, 4.0]])
+    assert _check_monotone(_exposure_series_record(x, big, exact, files), 0, ok) is None  # drop 0.9 < 1.00001
+    big[3, 0] = 1e6 + 8.9  # drop 1.1 > 1.00001
+    with pytest.raises(CamcalError, match="not monotone"):
+        _check_monotone(_exposure_series_record(x, big, exact, files), 0, ok)
+    # exactly at the limit is not a drop: 0 -> -12.5 DN with σ 2.5 and 0 (means at 0 DN after dark subtraction)
+    edge = np.column_stack([[0.0, -12.5, 1.0, 2.0, 3.0], [1.0, 2.0, 3.0, 4.0, 5.0]])
+    edge_sem = [[2.5, 0.0], [0.0, 0.0], [0.0, 0.0], [0.0, 0.0], [0.0, 0.0]]
+    five = ("a", "b", "c", "d", "e")
+    assert _check_monotone(_exposure_series_record([1, 2, 3, 4, 5], edge, edge_sem, five), 0, ok) is None
+    edge[1, 0] = -12.6
+    with pytest.raises(CamcalError, match="not monotone"):
+        _check_monotone(_exposure_series_record([1, 2, 3, 4, 5], edge, edge_sem, five), 0, ok)
+    # both standard errors count: σ 3 and 4 -> 5σ = 25 DN; a 24 DN drop passes
+    edge[1, 0] = -24.0
+    edge_sem[1] = [4.0, 0.0]
+    edge_sem[0] = [3.0, 0.0]
+    assert _check_monotone(_exposure_series_record([1, 2, 3, 4, 5], edge, edge_sem, five), 0, ok) is None
+    # -1e6 DN means: the tolerance uses |mean|, 1 DN again
+    neg = np.column_stack([[-1e6 - 20, -1e6, -1e6, -1e6 - 0.9, 0.0], [1.0, 2.0, 2.0, 3.0, 4.0]])
+    assert _check_monotone(_exposure_series_record(x, neg, exact, files), 0, ok) is None
+
+
+def test_roi_slices_and_window_by_hand():
+    """roi_slices rounds each fraction times the side to the nearest pixel (at least one pixel, clipped to the
+    plane); roi_window turns None, a central fraction f or four fractions into (y0, y1, x0, x1) and refuses the
+    rest with one line each."""
+    from camcal.response import roi_slices, roi_window
+
+    assert roi_slices((10, 20), (0.26, 0.74, 0.1, 0.56)) == (slice(3, 7), slice(2, 11))  # 2.6, 7.4; 2.0, 11.2
+    assert roi_slices((10, 20), (0.0, 1.0, 0.0, 1.0)) == (slice(0, 10), slice(0, 20))
+    assert roi_slices((10, 20), (0.5, 0.52, 0.5, 0.51)) == (slice(5, 6), slice(10, 11))  # one pixel at least
+    assert roi_slices((10, 20), (0.96, 1.2, 0.98, 1.3)) == (slice(10, 10), slice(20, 20))  # clipped to the plane
+    assert roi_slices((7, 9), (0.3, 0.6, 0.4, 0.9)) == (slice(2, 4), slice(4, 8))  # 2.1, 4.2; 3.6, 8.1
+    a = np.arange(200).reshape(10, 20)
+    ys, xs = roi_slices(a.shape, (0.26, 0.74, 0.1, 0.56))
+    assert a[ys, xs].shape == (4, 9)
+
+    s = np.sqrt(0.10)  # SERIES_ROI_FRACTION: the central window holding 10 % of the plane
+    np.testing.assert_allclose(roi_window(None), (0.5 - s / 2, 0.5 + s / 2, 0.5 - s / 2, 0.5 + s / 2), rtol=1e-15)
+    assert roi_window(0.5) == (0.25, 0.75, 0.25, 0.75)
+    assert roi_window(1) == (0.0, 1.0, 0.0, 1.0)
+    assert roi_window((0, "0.5", 0.25, 1)) == (0.0, 0.5, 0.25, 1.0)
+    assert all(type(v) is float for v in roi_window((0, 1, 0, 1)))
+    assert roi_window([0.1, 0.2, 0.3, 0.4]) == (0.1, 0.2, 0.3, 0.4)
+
+    def refused(roi) -> str:
+        with pytest.raises(CamcalError) as info:
+            roi_window(roi)
+        return str(info.value)
+
+    for f in (0, 0.0, -0.2, 1.0000001, 2):
+        assert refused(f) == f"ROI fraction (a central fraction of each side) must be in (0, 1], got {float(f)}"
+    for bad in ((0.1, 0.2, 0.3), (0.1, 0.2, 0.3, 0.4, 0.5), ("a", 0.2, 0.3, 0.4), (None, 0.2, 0.3, 0.4), "abcd",
+                object()):
+        assert refused(bad) == f"ROI must be a fraction or (y0, y1, x0, x1) fractions, got {bad!r}"
+    for bad in ((-0.1, 0.5, 0.0, 1.0), (0.5, 0.5, 0.0, 1.0), (0.6, 0.5, 0.0, 1.0), (0.0, 1.01, 0.0, 1.0),
+                (0.0, 1.0, -0.01, 0.5), (0.0, 1.0, 0.5, 0.5), (0.0, 1.0, 0.7, 0.5), (0.0, 1.0, 0.0, 1.5)):
+        assert refused(bad) == (f"ROI (y0, y1, x0, x1) = {bad!r} must satisfy 0 <= y0 < y1 <= 1 and "
+                                "0 <= x0 < x1 <= 1")
+
+
+def test_mask_raw_clipped_marks_twins_of_clipping_raw_frames():
+    """A processed frame becomes saturated in every channel (clipped fraction 1) when a RAW frame at the same
+    relative exposure (rtol 1e-6) has more than 1e-3 of its ROI clipped in any plane; other frames are kept."""
+    from camcal.response import mask_raw_clipped
+
+    pc = np.array([[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.0, 0.2, 0.0], [0.0, 0.0, 0.3], [0.0, 0.0, 0.0]])
+    proc = _exposure_series_record([1.0, 2.0, 3.0, 4.0, 6.0], np.ones((5, 3)), np.zeros((5, 3)), "abcde", pc,
+                                   kind="processed", channels=("R", "G", "B"))
+    raw_clip = np.zeros((6, 4))
+    raw_clip[1, 3] = 0.0011  # x = 2 (within 1e-6): clips in B -> frame b saturated
+    raw_clip[2, 0] = 0.001  # x = 3: exactly 1e-3 is not "more than"
+    raw_clip[3, 2] = 0.5  # x = 4 (1 + 5e-6): not the same exposure (5e-6 relative > 1e-6)
+    raw_clip[4, 1] = 0.5  # x = 5: no processed twin
+    raw_clip[5, 0] = 0.002  # x = 6 (6e-7 relative) -> frame e saturated
+    raw_x = [1.0, 2.0 * (1 + 9e-7), 3.0, 4.0 * (1 + 5e-6), 5.0, 6.0 * (1 - 6e-7)]
+    raw = _exposure_series_record(raw_x, np.ones((6, 4)), np.zeros((6, 4)), "uvwxyz", raw_clip, channels=PLANES)
+    out = mask_raw_clipped(proc, raw)
+    expect = pc.copy()
+    expect[1] = 1.0
+    expect[4] = 1.0
+    np.testing.assert_array_equal(out.clipped_fraction, expect)
+    np.testing.assert_array_equal(proc.clipped_fraction, pc)  # the input is not changed
+    assert out.files == proc.files and out.mean_dn is proc.mean_dn
+    raw_clip[1, 3] = raw_clip[5, 0] = 0.0
+    assert mask_raw_clipped(proc, replace(raw, clipped_fraction=raw_clip)) is proc  # nothing to mark
+
+
+def test_pearson_mode_and_pair_planes_small_cases():
+    """_pearson is the textbook correlation (NaN for fewer than 2 points or a constant series); _mode the most
+    frequent value, the smaller on a tie; _pair_planes subtracts the bias frame, else the black level, in float32,
+    leaving the input untouched."""
+    from camcal.response import _mode, _pair_planes, _pearson
+
+    x = np.array([1.0, 2.0, 3.0, 5.0])
+    y = np.array([2.0, 1.0, 4.0, 3.0])
+    dx, dy = x - x.mean(), y - y.mean()
+    r = float(np.sum(dx * dy) / np.sqrt(np.sum(dx**2) * np.sum(dy**2)))  # 3.5/sqrt(8.75·5) = 0.52915
+    assert _pearson(x, y) == pytest.approx(r, rel=1e-12) and abs(r - 0.52915) < 1e-5
+    assert _pearson(x, -2 * x) == pytest.approx(-1.0, rel=1e-12)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a constant series is answered NaN before numpy divides by zero
+        for a, b in ((x[:1], y[:1]), (np.full(4, 2.0), y), (x, np.full(4, 7.0)), (x[:0], y[:0])):
+            assert np.isnan(_pearson(a, b))
+    assert _pearson(x[:2], y[:2]) == pytest.approx(-1.0, rel=1e-12)  # two points: perfectly anti-correlated
+
+    assert _mode([3.0, 1.0, 3.0, 2.0, 2.0]) == 2.0  # 2 and 3 twice each: the smaller
+    assert _mode([5.0, 5.0, 1.0, 9.0]) == 5.0
+    assert _mode([7]) == 7.0 and type(_mode([7])) is float
+
+    planes = np.array([[[100, 120], [140, 160]], [[10, 20], [30, 40]]], np.uint16)
+    before = planes.copy()
+    black = np.array([[[64]], [[8]]], np.int32)
+    out = _pair_planes(planes, None, black)
+    assert out.dtype == np.float32
+    np.testing.assert_array_equal(out, [[[36, 56], [76, 96]], [[2, 12], [22, 32]]])
+    bias = np.array([[[99.5, 119.5], [139.5, 170.0]], [[0.0, 0.0], [0.0, 50.0]]], np.float32)
+    out = _pair_planes(planes, bias, black)
+    assert out.dtype == np.float32
+    np.testing.assert_array_equal(out, [[[0.5, 0.5], [0.5, -10.0]], [[10, 20], [30, -10]]])
+    np.testing.assert_array_equal(planes, before)
+
+
+# -- spectral: the sweep's small pure functions --------------------------------------------------------------------
+
+
+def test_robust_mask_median_and_normal_scaled_mad_by_hand():
+    """_robust_mask keeps valid pixels within nsigma·MAD/Φ⁻¹(0.75) of the median of the valid pixels (a pixel at
+    exactly 5σ is kept), sampling every other row and column only above 40 000 pixels; no valid pixel -> none
+    kept; a zero MAD keeps every valid pixel."""
+    from scipy.stats import norm
+
+    from camcal.spectral import _robust_mask
+
+    base = np.array([[-3, -2, -1, 0, 1, 2, 3], [0, 1, -1, 2, -2, 0, 0], [1, 0, 0, -1, 0, 2, -2],
+                     [0, 0, 1, -1, 0, 0, 1], [-1, 0, 2, 0, 1, -1, 0], [0, 3, 0, -3, 0, 1, 0],
+                     [50.0, -60.0, 70.0, -80.0, 0, 0, 0]])
+    valid = np.ones(base.shape, bool)
+    valid[0, 0] = valid[3, 3] = False
+    sample = base[valid]
+    med = float(np.median(sample))
+    mad = float(np.median(np.abs(sample - med))) / norm.ppf(0.75)  # the normal-scaled MAD
+    assert med == 0.0 and mad > 0
+    m = base.copy()
+    m[6, 0] = 5.0 * mad  # an outlier moved to exactly 5σ: kept (median and MAD unchanged: still above both)
+    m[6, 1] = -5.0 * mad * (1 + 1e-9)  # just beyond -5σ: left out
+    m[3, 3] = 0.0  # invalid pixel at the median: stays out
+    expect = valid & (np.abs(m - med) <= 5.0 * mad)
+    out = _robust_mask(m, valid)
+    np.testing.assert_array_equal(out, expect)
+    assert out[6, 0] and not out[6, 1] and not out[6, 2] and not out[3, 3] and out.sum() == 47 - 3
+    # nsigma: at 1σ the ±2 and ±3 pixels go too (1.4826 < 2)
+    np.testing.assert_array_equal(_robust_mask(m, valid, nsigma=1.0), valid & (np.abs(m - med) <= mad))
+    # no mask: every pixel is a sample (the corner -3 now counts) and may be kept
+    s_all = m.ravel()
+    med_all = float(np.median(s_all))
+    mad_all = float(np.median(np.abs(s_all - med_all))) / norm.ppf(0.75)
+    np.testing.assert_array_equal(_robust_mask(m), np.abs(m - med_all) <= 5.0 * mad_all)
+    assert not _robust_mask(m, np.zeros(m.shape, bool)).any()
+    flat = np.full((4, 4), 7.0)
+    flat[0, 0] = 1000.0  # MAD 0: nothing to judge by, every valid pixel kept
+    v = np.ones((4, 4), bool)
+    v[1, 1] = False
+    kept = _robust_mask(flat, v)
+    np.testing.assert_array_equal(kept, v)
+    assert kept is not v
+
+    # above 40 000 pixels the statistics come from the (even, even) pixels: here 0 ± 1 there, 100 ± 1 elsewhere
+    rng = np.random.default_rng(3)
+    big = 100.0 + rng.uniform(-1, 1, (202, 202))
+    big[::2, ::2] = rng.uniform(-1, 1, (101, 101))
+    got = _robust_mask(big)
+    sub = big[::2, ::2].ravel()
+    med_s = float(np.median(sub))
+    mad_s = float(np.median(np.abs(sub - med_s))) / norm.ppf(0.75)
+    np.testing.assert_array_equal(got, np.abs(big - med_s) <= 5.0 * mad_s)
+    assert got.sum() == 101 * 101  # only the (even, even) pixels are near that median
+    # exactly 40 000 pixels: all of them are the sample, the median is 100-ish, the (even, even) pixels go
+    exact = big[:200, :200]
+    s40 = exact.ravel()
+    med40 = float(np.median(s40))
+    mad40 = float(np.median(np.abs(s40 - med40))) / norm.ppf(0.75)
+    got40 = _robust_mask(exact)
+    np.testing.assert_array_equal(got40, np.abs(exact - med40) <= 5.0 * mad40)
+    assert got40.sum() == 40_000 - 100 * 100
+    # 40 001 pixels (13 x 3077): sampled again
+    odd_shape = 100.0 + rng.uniform(-1, 1, (13, 3077))
+    odd_shape[::2, ::2] = rng.uniform(-1, 1, (7, 1539))
+    assert _robust_mask(odd_shape).sum() == 7 * 1539
+    # a mask that leaves no (even, even) pixel valid leaves no sample: nothing kept
+    odd = np.zeros(big.shape, bool)
+    odd[1::2, 1::2] = True
+    none = _robust_mask(big, odd)
+    assert none.dtype == bool and none.shape == big.shape and not none.any()
+    # one valid pixel: it is its own median, MAD 0, kept
+    one = np.zeros((4, 4), bool)
+    one[2, 3] = True
+    np.testing.assert_array_equal(_robust_mask(flat, one), one)
+
+
+def _sweep_frame_record(planes, invalid=None, x=1.0, radiance=2.0, wl=550.0):
+    from camcal.spectral import SweepRow, _FrameResult
+
+    p = np.asarray(planes, np.float32)
+    row = SweepRow(path=Path(f"f{wl:g}.dng"), wavelength_nm=wl, radiance_w_m2_sr=radiance, radiance_unc_w_m2_sr=None,
+                   bandwidth_nm=None, overrides={})
+    return _FrameResult(row=row, planes=p, invalid=np.zeros(p.shape, bool) if invalid is None else invalid,
+                        relative_exposure_s=x, saturated_fraction=0.0, defect_saturated=0)
+
+
+def test_frame_signal_is_brightest_plane_mean_and_its_standard_error():
+    """The signal is the mean of the valid pixels of the plane with the highest such mean; its standard error is
+    their sample standard deviation (ddof 1) over √n. Planes with fewer than 2 valid pixels are skipped; none
+    left -> (0, 0)."""
+    from camcal.spectral import frame_signal
+
+    planes = np.array([[[10, 12], [14, 16]], [[20, 30], [25, 1000]], [[500, 0], [0, 0]], [[19, 21], [23, 25]]])
+    invalid = np.zeros(planes.shape, bool)
+    invalid[1, 1, 1] = True  # the 1000 DN pixel of plane 1 is a defect
+    invalid[2] = [[False, True], [True, True]]  # plane 2: one valid pixel only
+    s, sem = frame_signal(_sweep_frame_record(planes, invalid))
+    v = np.array([20.0, 30.0, 25.0])  # plane 1's valid pixels: mean 25, sd 5
+    assert s == 25.0 and sem == pytest.approx(5.0 / np.sqrt(3), rel=1e-12)
+    assert sem == pytest.approx(np.sqrt(np.sum((v - 25.0) ** 2) / 2) / np.sqrt(3), rel=1e-12)
+    # a later plane with the same mean does not replace the first (its spread differs)
+    tie = planes.copy()
+    tie[3] = [[22, 28], [25, 25]]  # mean 25, sd sqrt(18/3)
+    invalid_tie = invalid.copy()
+    s, sem = frame_signal(_sweep_frame_record(tie, invalid_tie))
+    assert s == 25.0 and sem == pytest.approx(5.0 / np.sqrt(3), rel=1e-12)
+    # two valid pixels are enough: plane 2 with 500 and 0 valid (mean 250, sd 353.55, sem 250)
+    invalid2 = invalid.copy()
+    invalid2[2, 0, 1] = False
+    s, sem = frame_signal(_sweep_frame_record(planes, invalid2))
+    assert s == 250.0 and sem == pytest.approx(250.0, rel=1e-6)  # float32 pixels, float64 sums
+    # every plane below zero: the least negative one, not 0
+    s, sem = frame_signal(_sweep_frame_record(-np.abs(planes[:2]) - 1, np.zeros((2, 2, 2), bool)))
+    assert s == -14.0 and sem == pytest.approx(np.std([-11, -13, -15, -17], ddof=1) / 2, rel=1e-12)
+    # planes skipped before the brightest usable one: plane 1 wholly invalid, plane 2 with one pixel -> plane 3
+    invalid3 = invalid.copy()
+    invalid3[1] = True
+    s, sem = frame_signal(_sweep_frame_record(planes, invalid3))
+    assert s == 22.0 and sem == pytest.approx(np.std([19, 21, 23, 25], ddof=1) / 2, rel=1e-12)
+    # the mean is accumulated in float64: (2^24 + 3) / 4 = 4194304.75, which float32 sums round to 4194304
+    wide = np.array([[[2.0**24, 1.0], [1.0, 1.0]]], np.float32)
+    assert frame_signal(_sweep_frame_record(wide, np.zeros(wide.shape, bool)))[0] == 4194304.75
+    assert frame_signal(_sweep_frame_record(planes, np.ones(planes.shape, bool))) == (0.0, 0.0)
+    lone = np.ones(planes.shape, bool)
+    lone[:, 0, 0] = False  # one valid pixel per plane
+    assert frame_signal(_sweep_frame_record(planes, lone)) == (0.0, 0.0)
+
+
+def test_no_light_compares_signal_per_exposure_and_radiance_with_repeats():
+    """A frame is left out when s/(x·L) is below 0.05 of the median of its repeats' s/(x·L) (strictly), with the
+    one-line reason giving its signal, the wavelength, the expected signal ref·x·L and the reference reading."""
+    from camcal.spectral import no_light
+
+    def frame(signal, x, radiance):
+        return _sweep_frame_record(np.full((1, 2, 2), signal), x=x, radiance=radiance, wl=612.5)
+
+    # s/(xL): 100/(1·2) = 50, 420/(2·4) = 52.5, 3/(0.5·3) = 2 < 0.05 · median(50, 52.5) = 2.5625
+    a, b, c = frame(100.0, 1.0, 2.0), frame(420.0, 2.0, 4.0), frame(3.0, 0.5, 3.0)
+    out = no_light([a, b, c])
+    assert len(out) == 1 and out[0][0] is c
+    expected = 51.25 * 0.5 * 3.0  # the repeats' median rate times this frame's x·L
+    assert out[0][1] == (f"no light recorded (shutter closed or trigger missed): 3 DN above dark at 612.5 nm, where "
+                         f"its repeats recorded {expected:.3g} DN for the same exposure and the reference detector "
+                         "read 3 W m⁻² sr⁻¹")
+    assert expected == 76.875
+    # exactly 0.05 of the median is kept: 2.5625 · 1.5 = 3.84375 DN
+    assert no_light([a, b, frame(3.84375, 0.5, 3.0)]) == []
+    assert [r for r, _ in no_light([a, b, frame(3.843, 0.5, 3.0)])] != []
+    # the median of the others, not their mean: a rate of 5 is above 0.05 · median(50, 52.5, 1000) = 2.625 but
+    # below 0.05 · their mean (18.4)
+    big = frame(2000.0, 1.0, 2.0)  # rate 1000
+    d = frame(7.5, 0.5, 3.0)  # rate 5: above 0.05 · median(50, 52.5, 1000) = 2.625, below 0.05 · mean = 18.4
+    assert [r for r, _ in no_light([a, b, big, d])] == []
+    assert no_light([c]) == [] and no_light([]) == []
+    # a frame whose repeats saw nothing (median 0) is not judged; the dark repeat is
+    e, f = frame(0.0, 1.0, 2.0), frame(40.0, 1.0, 2.0)
+    assert [r for r, _ in no_light([e, f])] == [e]
+    # repeats at exactly 0 DN judge nothing either, even a frame below zero
+    assert no_light([frame(0.0, 1.0, 1.0), frame(0.0, 1.0, 1.0), frame(-5.0, 1.0, 1.0)]) == []
+    # the rates are in arbitrary units: below 1 they are judged the same way (0.01 < 0.05 · 0.5)
+    low = frame(0.01, 1.0, 1.0)
+    assert [r for r, _ in no_light([frame(0.5, 1.0, 1.0), frame(0.5, 1.0, 1.0), low])] == [low]
+    # a negative reference (dark-subtracted noise) judges nothing
+    assert no_light([frame(-5.0, 1.0, 1.0), frame(-4.0, 1.0, 1.0), frame(-6.0, 1.0, 1.0)]) == []
+
+
+def test_require_wavelengths_roi_check_and_sweep_mode():
+    """require_wavelengths counts the wavelengths with a usable frame against the spline's need and says how many
+    sweep.csv listed and which wavelengths were dropped; _check_roi accepts a ROI inside the half-resolution planes
+    (integers) and refuses any other; SweepOptions.check accepts the two modes only."""
+    from camcal.errors import TooFewFrames
+    from camcal.spectral import SweepMeasurement, SweepOptions, _check_roi, require_wavelengths
+
+    notes = ("dropped 400 nm: saturated", "3 defects saturate", "dropped 410 nm: no light")
+    meas = SweepMeasurement(settings=(object(),) * 3, channels=PLANES, notes=notes, csv_path=Path("/s/sweep.csv"),
+                            n_listed=7)
+    with pytest.raises(TooFewFrames) as info:
+        require_wavelengths(meas)
+    assert str(info.value) == ("/s/sweep.csv: the sweep stage needs at least 4 usable wavelengths, 3 remain (7 in "
+                               "sweep.csv, 4 without a usable frame; c(λ) is read with a not-a-knot cubic spline, "
+                               "which needs 4; dropped 400 nm: saturated; dropped 410 nm: no light)")
+    assert (info.value.needed, info.value.remaining, info.value.stage) == (4, 3, "sweep")
+    with pytest.raises(TooFewFrames) as info:
+        require_wavelengths(meas, needed=5, listed=9)
+    assert "needs at least 5 usable wavelengths, 3 remain (9 in sweep.csv, 6 without" in str(info.value)
+    assert "which needs 5;" in str(info.value)
+    assert require_wavelengths(meas, needed=3) is None  # exactly enough
+    four = replace(meas, settings=(object(),) * 4, notes=())
+    assert require_wavelengths(four) is None
+
+    where = Path("/s/sweep")
+    assert _check_roi((0, 0, 8, 6), (6, 8), where) == (0, 0, 8, 6)  # the whole 8x6 plane
+    got = _check_roi((1.0, 2.0, "5", 4), (6, 8), where)
+    assert got == (1, 2, 5, 4) and all(type(v) is int for v in got)
+    for bad in ((-1, 0, 4, 4), (4, 0, 4, 4), (5, 0, 4, 4), (0, 0, 9, 4), (0, -1, 4, 4), (0, 3, 4, 3), (0, 4, 4, 3),
+                (0, 0, 4, 7)):
+        with pytest.raises(CamcalError) as info:
+            _check_roi(bad, (6, 8), where)
+        assert str(info.value) == (f"/s/sweep: ROI {bad} (x0,y0,x1,y1 in half-resolution plane pixels) is outside "
+                                   "the 8x6 planes")
+
+    assert SweepOptions(mode="relative").check() is None and SweepOptions().check() is None
+    with pytest.raises(CamcalError) as info:
+        SweepOptions(mode="Absolute").check()  # type: ignore[arg-type]
+    assert str(info.value) == "mode must be 'relative' or 'absolute', got 'Absolute'"
+
+
+def test_spectral_origin_record_and_its_description():
+    """origin() returns the curve's source when it has one, else the sweep's own record (absolute: the reference
+    detector set the scale; relative: none); describe_origin turns each kind of record into its two lines, with
+    the plural of 'target' only for a count other than one and a 12-character hash prefix."""
+    from camcal.spectral_model import describe_origin
+
+    wl = np.array([500.0, 600.0])
+    ones = {p: np.ones(2) for p in PLANES}
+    absolute = SpectralSensitivity(wl, ones, ones, units="DN", mode="absolute")
+    relative = SpectralSensitivity(wl, ones, ones, units="relative", mode="relative")
+    assert absolute.origin() == {"kind": "sweep", "file": None, "sha256": None, "absolute_scale": {
+        "method": "sweep", "description": "monochromator sweep with a reference detector (camcal sweep)"}}
+    assert relative.origin() == {"kind": "sweep", "file": None, "sha256": None, "absolute_scale": {
+        "method": "none", "description": "relative: no absolute scale"}}
+    src = {"kind": "imported", "file": "c.csv", "sha256": "0123456789abcdef", "format": "csv"}
+    assert replace(relative, source=src).origin() is src
+    assert replace(absolute, source={}).origin()["absolute_scale"]["method"] == "sweep"  # an empty record: none
+
+    assert describe_origin(absolute.origin()) == ("monochromator sweep (camcal sweep / calibrate)",
+                                                  "monochromator sweep with a reference detector (camcal sweep)")
+    assert describe_origin(relative.origin()) == ("monochromator sweep (camcal sweep / calibrate)",
+                                                  "relative: no absolute scale")
+    lib = {"name": "Nikon D700", "file": "nikon.csv", "collection": "CSS", "creator": "Jiang et al.",
+           "license": "CC-BY", "matched": "EXIF model"}
+    rt = {"method": "reference_targets", "targets": ["grey", "white", "black"], "verdict": "consistent"}
+    assert describe_origin({"kind": "library", "library": lib, "absolute_scale": rt}) == (
+        "curve library: Nikon D700 (nikon.csv, CSS; measured by Jiang et al., CC-BY), matched from EXIF model",
+        "reference targets (3 targets): consistent")
+    assert describe_origin({"kind": "library", "absolute_scale": {"method": "reference_targets",
+                                                                   "targets": ["grey"]}}) == (
+        "curve library: None (None, None; measured by unknown, None), matched from None",
+        "reference targets (1 target): ")
+    assert describe_origin({"kind": "library", "library": None, "absolute_scale": {
+        "method": "reference_targets", "targets": None, "verdict": "none used"}})[1] == (
+        "reference targets (0 targets): none used")
+    assert describe_origin({"kind": "library", "library": {**lib, "creator": ""}})[0] == (
+        "curve library: Nikon D700 (nikon.csv, CSS; measured by unknown, CC-BY), matched from EXIF model")
+    assert describe_origin({**src, "absolute_scale": {"method": "none"}}) == (
+        "imported from c.csv (csv format, SHA-256 0123456789ab…)", "none")
+    assert describe_origin({}) == ("imported from None (None format, SHA-256 None…)", "None")
+    assert describe_origin({"kind": "imported", "absolute_scale": None, "sha256": "f" * 64})[0].endswith(
+        "SHA-256 ffffffffffff…)")
+    assert describe_origin({"absolute_scale": {"method": "m", "description": ""}})[1] == "m"
