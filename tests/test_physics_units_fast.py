@@ -2073,3 +2073,560 @@ def test_flat_record_with_a_malformed_model_of_another_f_number_names_the_file()
     with pytest.raises(CamcalError) as e:
         flat_from_parts({**_flat_record(), "apertures": [other]}, {}, "cam/flat.json")
     assert str(e.value) == "cam/flat.json: not a valid camcal flat file (KeyError: 'k')"
+
+
+def _vignetting(k, centre, shape):
+    """The DNG radial gain 1 + k0 r² + k1 r⁴ of one plane without a mosaic, r normalised to the farthest corner."""
+    h, w = shape
+    yy, xx = np.mgrid[0:h, 0:w].astype(float)
+    cx, cy = centre
+    rmax2 = max((x - cx) ** 2 + (y - cy) ** 2 for x in (0.0, w - 1.0) for y in (0.0, h - 1.0))
+    r2 = ((xx - cx) ** 2 + (yy - cy) ** 2) / rmax2
+    return 1.0 + k[0] * r2 + k[1] * r2**2
+
+
+def _aperture_series():
+    """Radial models (planes R, G on 3 x 4, no mosaic) at f/2.8, f/5.6 and f/11 (35 mm), their hand-computed gains
+    and one shared PRNU map; the f/5.6 model is the primary one, holding the others (given out of order)."""
+    from camcal.flat_model import Optics
+
+    ks = {2.8: {"R": (-0.5, 0.1), "G": (-0.42, 0.07)}, 5.6: {"R": (-0.3, 0.05), "G": (-0.26, 0.03)},
+          11.0: {"R": (-0.12, 0.02), "G": (-0.1, 0.01)}}
+    centre = {"R": (1.0, 1.0), "G": (2.0, 0.5)}
+    prnu = (1.0 + 0.01 * np.arange(24).reshape(2, 3, 4)).astype(np.float32)
+
+    def model(n, **kw):
+        return FlatModel(channels=("R", "G"), centre_px=centre, k={c: (*ks[n][c], 0.0, 0.0, 0.0) for c in "RG"},
+                         model_2d=None, prnu=prnu, residual_rms={c: 0.001 for c in "RG"}, shape=(3, 4),
+                         info={"n_terms": 2}, optics=Optics(n, "tag", 35.0, "tag"), **kw)
+
+    m28, m11 = model(2.8), model(11.0)
+    primary = model(5.6, apertures=(m11, m28))
+    gains = {n: np.stack([_vignetting(ks[n][c], centre[c], (3, 4)) for c in "RG"]) for n in ks}
+    return primary, m28, m11, gains, prnu
+
+
+def _corners(g):
+    return np.stack([g[:, 0, 0], g[:, 0, -1], g[:, -1, 0], g[:, -1, -1]], axis=1)
+
+
+def test_flat_choice_interpolates_ln_gain_in_inverse_f_number_squared_between_the_nearest_models():
+    """A photo at f/4 between flats at f/2.8 and f/5.6 (and f/11): weights of ln g from 1/N² written out, the gain
+    exp(w ln g_2.8 + (1 - w) ln g_5.6) pixel by pixel (times the shared PRNU when asked), the corner uncertainty
+    as the largest |ratio - 1| at the corners against interpolating in ln N instead, the warning, description and
+    record; float32 maps, so rtol 1e-6."""
+    from camcal.flat_model import choose_flat
+
+    primary, m28, m11, gains, prnu = _aperture_series()
+    assert primary.models() == (m28, primary, m11) and primary.f_numbers() == [2.8, 5.6, 11.0]
+    c = choose_flat(primary, 4.0, 35.0)
+    w = (1 / 16 - 1 / 5.6**2) / (1 / 2.8**2 - 1 / 5.6**2)
+    assert c.how == "interpolated" and c.mismatch is True
+    assert [m for m, _ in c.parts] == [m28, primary]
+    assert [x for _, x in c.parts] == [pytest.approx(w, rel=1e-12), pytest.approx(1 - w, rel=1e-12)]
+    assert c.photo_f_number == 4.0 and c.photo_focal_length_mm == 35.0
+    g = np.exp(w * np.log(gains[2.8]) + (1 - w) * np.log(gains[5.6]))
+    assert c.gain().dtype == np.float32 and c.gain(with_prnu=True).dtype == np.float32
+    np.testing.assert_allclose(c.gain(), g, rtol=1e-6)
+    np.testing.assert_allclose(c.gain(with_prnu=True), g * prnu, rtol=1e-6)
+    wl = np.log(5.6 / 4.0) / np.log(5.6 / 2.8)
+    la, lb = np.log(_corners(gains[2.8])), np.log(_corners(gains[5.6]))
+    diff = np.max(np.abs(np.exp(w * la + (1 - w) * lb) / np.exp(wl * la + (1 - wl) * lb) - 1))
+    assert c.corner_difference_rel == pytest.approx(diff, rel=1e-9)
+    assert c.warning == ("f/4 photo between the flats' f/2.8, 35 mm and f/5.6, 35 mm: vignetting interpolated (ln g "
+                         f"linear in 1/N²); corners uncertain by up to ±{100 * diff:.2g} % (the difference from "
+                         "interpolating in ln N)")
+    assert c.describe() == "f/2.8, 35 mm and f/5.6, 35 mm (ln g interpolated linearly in 1/N²)"
+    assert c.key == ((2.8, round(w, 9)), (5.6, round(1 - w, 9)))
+    assert c.record(primary) == {
+        "photo_f_number": 4.0, "photo_focal_length_mm": 35.0, "flat_f_numbers": [2.8, 5.6, 11.0],
+        "flat_focal_length_mm": [35.0, 35.0, 35.0], "vignetting_model": c.describe(), "how": "interpolated",
+        "weights": [[2.8, c.parts[0][1]], [5.6, c.parts[1][1]]], "corner_difference_rel": c.corner_difference_rel,
+        "warning": c.warning, "mismatch": True,
+        "rule": "ln g linear in 1/N² between measured f-numbers of models of the same form; outside: the nearest "
+                "(docs/flat.md)"}
+    # between f/5.6 and f/11 the pair is (5.6, 11), not the outermost models
+    c8 = choose_flat(primary, 8.0, None)
+    w8 = (1 / 64 - 1 / 121) / (1 / 5.6**2 - 1 / 121)
+    assert [m for m, _ in c8.parts] == [primary, m11] and c8.parts[0][1] == pytest.approx(w8, rel=1e-12)
+    np.testing.assert_allclose(c8.gain(), np.exp(w8 * np.log(gains[5.6]) + (1 - w8) * np.log(gains[11.0])),
+                               rtol=1e-6)
+    # the warning at f/10, between f/5.6 and f/11 (its percentage rounded to two digits: 1.2 %)
+    w10, wl10 = (1 / 100 - 1 / 121) / (1 / 5.6**2 - 1 / 121), np.log(11 / 10) / np.log(11 / 5.6)
+    la, lb = np.log(_corners(gains[5.6])), np.log(_corners(gains[11.0]))
+    d10 = np.max(np.abs(np.exp((w10 - wl10) * (la - lb)) - 1))
+    assert choose_flat(primary, 10.0, None).warning == (
+        "f/10 photo between the flats' f/5.6, 35 mm and f/11, 35 mm: vignetting interpolated (ln g linear in "
+        f"1/N²); corners uncertain by up to ±{100 * d10:.2g} % (the difference from interpolating in ln N)")
+    assert f"{100 * d10:.2g}" == "1.2"
+    # without a PRNU map an interpolated gain with PRNU is refused
+    bare = [replace(m, prnu=None) for m in (m28, primary)]
+    c0 = replace(c, parts=((bare[0], w), (bare[1], 1 - w)))
+    np.testing.assert_allclose(c0.gain(), g, rtol=1e-6)
+    with pytest.raises(CamcalError) as e:
+        c0.gain(with_prnu=True)
+    assert str(e.value) == "this flat model has no PRNU map (fitted without it)"
+
+
+def test_flat_choice_at_a_measured_f_number_and_outside_the_measured_range():
+    """At a measured f-number (within 3 %: 2.83 is f/2.8) the model as it is, no warning; beyond the range the
+    nearest model in 1/N², its corners' change extrapolated linearly in 1/N² from the next model written out."""
+    from camcal.flat_model import choose_flat
+
+    primary, m28, m11, gains, prnu = _aperture_series()
+    for n, m in ((2.83, m28), (5.6, primary), (10.8, m11)):
+        c = choose_flat(primary, n, 35.0)
+        assert (c.how, c.parts, c.corner_difference_rel, c.mismatch, c.warning) == (
+            "measured", ((m, 1.0),), None, False, None)
+        np.testing.assert_allclose(c.gain(), gains[m.optics.f_number], rtol=1e-6)
+        np.testing.assert_allclose(c.gain(with_prnu=True), gains[m.optics.f_number] * prnu, rtol=1e-6)
+        assert c.describe() == f"{m.optics.label()} (measured at the photo's f-number)"
+    for n, near, other in ((16.0, 11.0, 5.6), (2.0, 2.8, 5.6)):
+        c = choose_flat(primary, n, 35.0)
+        assert c.how == "nearest" and c.mismatch is True and c.parts[0][0].optics.f_number == near
+        assert c.parts[0][1] == 1.0 and c.describe() == f"f/{near:g}, 35 mm (the nearest measured f-number)"
+        ln, lo = np.log(_corners(gains[near])), np.log(_corners(gains[other]))
+        ext = ln + (ln - lo) / (1 / near**2 - 1 / other**2) * (1 / n**2 - 1 / near**2)
+        diff = np.max(np.abs(np.exp(ext - ln) - 1))
+        assert c.corner_difference_rel == pytest.approx(diff, rel=1e-9)
+        assert c.warning == (f"f/{n:g} photo, outside the flats' f/2.8, 35 mm – f/11, 35 mm: the f/{near:g}, 35 mm "
+                             f"vignetting model is used; the corners may differ by about {100 * diff:.2g} %, "
+                             f"extrapolating the change from f/{other:g}, 35 mm to f/{near:g}, 35 mm")
+
+
+def test_flat_choice_with_one_model_of_its_form_bounds_stopping_down_only():
+    """Flats of one f-number: stopping down over-corrects the corners by at most 1/g_corner - 1; opening up has
+    no bound. A pair of models of different forms is not interpolated: the nearest in 1/N² is used alone."""
+    from camcal.flat_model import Optics, choose_flat
+
+    primary, m28, m11, gains, _ = _aperture_series()
+    only = replace(primary, apertures=())
+    g_corner = float(np.min(_corners(gains[5.6])))
+    c = choose_flat(only, 8.0, 35.0)
+    assert (c.how, c.parts, c.mismatch) == ("nearest", ((only, 1.0),), True)
+    assert c.corner_difference_rel == pytest.approx(1 / g_corner - 1, rel=1e-9)
+    assert c.warning == (f"f/8 photo, flats at f/5.6, 35 mm only: the f/5.6, 35 mm vignetting model is used; the "
+                         f"corners may differ by up to +{100 * (1 / g_corner - 1):.3g} % (stopping down reduces the "
+                         f"flats' corner falloff of {100 * (1 - g_corner):.2g} %, so the corners are over-corrected "
+                         "by at most 1/g - 1)")
+    c = choose_flat(only, 4.0, 35.0)
+    assert (c.how, c.parts, c.corner_difference_rel, c.mismatch) == ("nearest", ((only, 1.0),), None, True)
+    assert c.warning == (f"f/4 photo, flats at f/5.6, 35 mm only: the f/5.6, 35 mm vignetting model is used; the "
+                         f"corners may differ by an amount one flat cannot bound (a wider aperture vignettes more "
+                         f"than the flats' {100 * (1 - g_corner):.2g} % corner falloff: the corners are "
+                         "under-corrected, by tens of percent between f/2.8 and f/8 on real lenses)")
+    # a model whose smallest corner gain is 1 - 0.3 + 0.056 = 0.756 (r² = 1 at the farthest corner): its
+    # falloff, 24.4 %, in each message that gives it
+    odd = replace(only, k={c: (-0.3, 0.056, 0.0, 0.0, 0.0) for c in "RG"})
+    assert choose_flat(odd, 8.0, 35.0).warning.endswith(
+        f"up to +{100 / 0.756 - 100:.3g} % (stopping down reduces the flats' corner falloff of 24 %, so the corners "
+        "are over-corrected by at most 1/g - 1)")
+    assert "more than the flats' 24 % corner falloff:" in choose_flat(odd, 4.0, 35.0).warning
+    c = choose_flat(replace(odd, optics=Optics(5.6, "tag", 100.0, "tag")), 5.6, 99.0)
+    assert c.corner_difference_rel == pytest.approx(0.244, rel=1e-6)  # float32 corner values
+    assert c.warning.endswith("the corners may differ by as much as the flats' corner falloff, 24 %")
+    # f/8 between f/5.6 and an f/11 model of three radial terms: not interpolated; f/11 is nearer in 1/N²
+    three = replace(m11, info={"n_terms": 3})
+    pair = replace(primary, apertures=(three,))
+    g11 = float(np.min(_corners(gains[11.0])))
+    c = choose_flat(pair, 8.0, 35.0)
+    assert (c.how, c.parts, c.corner_difference_rel, c.mismatch) == ("nearest", ((three, 1.0),), None, True)
+    assert c.warning.startswith("f/8 photo, outside the flats' f/5.6, 35 mm – f/11, 35 mm: the f/11, 35 mm "
+                                f"vignetting model is used; the corners may differ by an amount one flat cannot "
+                                f"bound (a wider aperture vignettes more than the flats' {100 * (1 - g11):.2g} %")
+    # f/7 is nearer f/5.6 in 1/N² (1/49 - 1/121 > 1/31.36 - 1/49): f/5.6, stopped down
+    c = choose_flat(pair, 7.0, 35.0)
+    assert c.parts == ((pair, 1.0),) and c.corner_difference_rel == pytest.approx(1 / g_corner - 1, rel=1e-9)
+
+
+def test_flat_choice_unknown_f_numbers_and_another_focal_length():
+    """An unknown f-number (the photo's or the flats') leaves the primary model unchecked, with a warning naming
+    what to record; a focal length off by more than 1 % warns that the corners may differ by the flats' corner
+    falloff 1 - min g (or the interpolation's uncertainty, if larger)."""
+    from camcal.flat_model import Optics, choose_flat
+
+    primary, m28, m11, gains, _ = _aperture_series()
+    c = choose_flat(primary, None, 35.0)
+    assert (c.how, c.parts, c.corner_difference_rel, c.mismatch) == ("unchecked", ((primary, 1.0),), None, True)
+    assert c.warning == ("the photo's f-number is unknown: the vignetting model (flats at f/2.8, 35 mm, f/5.6, 35 mm, "
+                         "f/11, 35 mm) is not checked")
+    assert c.describe() == "f/5.6, 35 mm (f-number not checked)"
+    unknown = replace(primary, optics=Optics(None, None, 35.0, "tag"), apertures=())
+    for n, txt in ((8.0, "f/8"), (None, "f/?")):
+        c = choose_flat(unknown, n, 35.0)
+        assert (c.how, c.parts, c.corner_difference_rel, c.mismatch) == ("unchecked", ((unknown, 1.0),), None, True)
+        assert c.warning == (f"the flats' f-number is unknown: the vignetting of this {txt} photo is not checked "
+                             "(record f_number in the flats' frames.csv or session.toml)")
+    assert unknown.optics.label() == "f/?, 35 mm" and Optics(8.0).label() == "f/8"
+    # a model of unknown f-number among the apertures sorts last and is never chosen
+    anon = replace(m11, optics=Optics(None, None, 35.0, "tag"))
+    mixed = replace(primary, apertures=(anon, m28))
+    assert mixed.models() == (m28, mixed, anon) and mixed.f_numbers() == [2.8, 5.6, None]
+    assert choose_flat(mixed, 16.0, 35.0).parts[0][0] is mixed
+    # focal length: 100 mm flats, a photo at 101 mm is the same setting (1 % of the shorter), 99 mm is not
+    g_corner = float(np.min(_corners(gains[5.6])))
+    at100 = replace(primary, optics=Optics(5.6, "tag", 100.0, "tag"), apertures=())
+    assert choose_flat(at100, 5.6, 101.0).warning is None and choose_flat(at100, 5.6, 101.0).mismatch is False
+    assert choose_flat(at100, 5.6, None).warning is None
+    c = choose_flat(at100, 5.6, 99.0)
+    assert c.mismatch is True and c.corner_difference_rel == pytest.approx(1 - g_corner, rel=1e-6)
+    assert c.warning == ("focal length 99 mm, the flats' 100 mm: vignetting changes with the focal length, the "
+                         f"corners may differ by as much as the flats' corner falloff, {100 * (1 - g_corner):.2g} %")
+    # interpolated at another focal length: the larger of the interpolation's uncertainty and the falloff of
+    # either model; the two notes joined by "; "
+    c = choose_flat(primary, 4.0, 50.0)
+    falloff = 1 - float(np.min(_corners(gains[2.8])))
+    assert c.corner_difference_rel == pytest.approx(falloff, rel=1e-6)
+    first = choose_flat(primary, 4.0, 35.0).warning
+    assert c.warning == (f"{first}; focal length 50 mm, the flats' 35 mm: vignetting changes with the focal "
+                         "length, the corners may differ by as much as the flats' corner falloff, "
+                         f"{100 * falloff:.2g} %")
+    # a model without a focal length is not checked against the photo's
+    nofocal = replace(at100, optics=Optics(5.6, "tag", None, None))
+    assert choose_flat(nofocal, 5.6, 50.0).warning is None
+
+
+def test_same_f_number_within_three_percent_of_the_smaller_and_same_form():
+    """f-numbers within 3 % of the smaller are one (103 vs 100: exactly 3 %; 97 vs 100: 3.09 %); None is never
+    the same. Models of the same kind, planes, shape, CFA and number of terms (radial) or degree (2-D) may be
+    interpolated; any difference refuses."""
+    from camcal.flat_model import same_f_number, same_form
+
+    assert same_f_number(100.0, 103.0) and same_f_number(103.0, 100.0)
+    assert not same_f_number(100.0, 97.0) and not same_f_number(97.0, 100.0)
+    assert not same_f_number(None, 8.0) and not same_f_number(8.0, None) and not same_f_number(None, None)
+    primary, m28, *_ = _aperture_series()
+    _, _, two_d = _flat_models()
+    assert same_form(primary, m28)
+    assert not same_form(primary, replace(m28, info={"n_terms": 3}))
+    assert not same_form(primary, replace(m28, info={}))
+    assert not same_form(primary, replace(m28, channels=("G", "R")))
+    assert not same_form(primary, replace(m28, shape=(3, 5)))
+    assert not same_form(primary, replace(m28, cfa_pattern="RGGB"))
+    assert not same_form(primary, replace(m28, model_2d=two_d.model_2d))
+    assert same_form(two_d, replace(two_d, info={"n_terms": 7}))
+    assert not same_form(two_d, replace(two_d, model_2d={**two_d.model_2d, "degree": 3}))
+    assert not same_form(two_d, replace(two_d, model_2d={k: v for k, v in two_d.model_2d.items() if k != "degree"}))
+
+
+def test_flat_model_replace_keeps_the_evaluated_gain_only_while_the_model_is_unchanged():
+    """A model holding its gain keeps it through a change of provenance or optics; a change of coefficients,
+    centres, planes or shape evaluates the new model (the DNG sum written out)."""
+    from camcal.flat_model import Optics
+
+    primary, _, _, gains, _ = _aperture_series()
+    held = np.full((2, 3, 4), 0.5, np.float32)
+    m = primary.with_gain(held)
+    kept = m.replace(info={"n_terms": 2, "note": "x"}, optics=Optics(8.0))
+    np.testing.assert_array_equal(kept.gain(), held)
+    assert kept.info["note"] == "x" and kept.optics.f_number == 8.0
+    np.testing.assert_allclose(primary.replace(info={}).gain(), gains[5.6], rtol=1e-6)
+    k = {"R": (-0.2, 0.0, 0.0, 0.0, 0.0), "G": (-0.1, 0.0, 0.0, 0.0, 0.0)}
+    changed = m.replace(k=k, info={})
+    np.testing.assert_allclose(changed.gain(), np.stack([_vignetting(k[c][:2], primary.centre_px[c], (3, 4))
+                                                         for c in "RG"]), rtol=1e-6)
+
+
+def _emva_prnu_by_hand(rel, var_rel, n_frames):
+    """√(s²_measured − mean(σ²)/L) / μ and its standard uncertainty (EMVA 1288 4.0 eq. 36), written out."""
+    n = rel.size
+    mu, measured = rel.mean(), rel.var(ddof=1)
+    floor = var_rel.mean() / n_frames
+    value = np.sqrt(max(measured - floor, 0.0)) / mu
+    unc_s2 = np.sqrt(2 / (n - 1) * measured**2 + 2 / (n * (n_frames - 1)) * floor**2) / mu**2
+    return value, unc_s2 / (2 * value), mu, measured, floor * n_frames, n
+
+
+def _master_for_prnu(mean_all, variance_all, n_frames=4):
+    from camcal.flat import MasterFlat
+
+    return MasterFlat(value=mean_all, variance_of_mean=None, level_dn={"R": 1.0, "G": 1.0}, n_frames=n_frames,
+                      paths=(), channels=("R", "G"), cfa_pattern=None, method="mean", exposure_s=(None,) * n_frames,
+                      mean_all=mean_all, variance_all=variance_all)
+
+
+def test_prnu_figures_are_the_emva_spatial_variance_of_good_pixels_about_the_smooth_model():
+    """PRNU per plane of the unclipped mean over the smooth model A·g: pixels masked, non-finite (mean or
+    variance), under a non-positive model, below half or above 1.5 times the median response left out (the
+    bounds themselves kept), then the EMVA formula written out with numpy; the refusal without statistics."""
+    from camcal.flat import _prnu_figures, flat_prnu
+
+    rng = np.random.default_rng(5)
+    smooth = np.full((2, 4, 5), 2.0)
+    rel = np.round(1.0 + 0.02 * rng.standard_normal((2, 4, 5)), 4)
+    var_rel = 1e-4 * (1.0 + rng.random((2, 4, 5)))
+    # plane R: the median of the 20 responses is 1 exactly (ten at or below it, ten above), then 2
+    spread = np.round(0.001 + 0.02 * np.abs(rng.standard_normal(9)), 4)
+    rel[0].flat[:] = np.concatenate([1.0 - spread, [1.0, 1.0], 1.0 + spread])
+    rel[0, 0, 0], rel[0, 0, 1] = 0.5, 0.4999  # on the lower bound (kept), just below (out)
+    rel[0, 3, 4], rel[0, 3, 3] = 1.5, 1.5001  # on the upper bound (kept), just above (out)
+    rel *= 2.0  # responses about 2 (exact in binary): the bounds are 1 and 3, not 0.5 and 1.5
+    mask = np.zeros((2, 4, 5), bool)
+    mask[1, 1, 1] = True
+    mean = rel * smooth
+    var = var_rel * smooth**2
+    mean[1, 0, 0] = np.nan
+    var[1, 0, 1] = np.inf
+    smooth[1, 2, 2], mean[1, 2, 2] = -2.0, -2.0  # a response of 1 under a negative model
+    mf = _master_for_prnu(mean, var)
+    out = _prnu_figures(mf, ("R", "G"), smooth, mask)
+    assert list(out) == ["R", "G"]
+    keep_r = np.ones((4, 5), bool)
+    keep_r[0, 1] = keep_r[3, 3] = False
+    keep_g = np.ones((4, 5), bool)
+    keep_g[1, 1] = keep_g[0, 0] = keep_g[0, 1] = keep_g[2, 2] = False
+    for i, keep in enumerate((keep_r, keep_g)):
+        value, unc, mu, measured, stack, n = _emva_prnu_by_hand(rel[i][keep], var_rel[i][keep], 4)
+        p = out["RG"[i]]
+        assert p.value == pytest.approx(value, rel=1e-9) and p.uncertainty == pytest.approx(unc, rel=1e-9)
+        assert p.spatial.n_pixels == n and p.spatial.n_frames == 4
+        assert p.spatial.mean_dn == pytest.approx(mu, rel=1e-12)
+        assert p.spatial.measured_dn2 == pytest.approx(measured, rel=1e-9)
+        assert p.spatial.stack_dn2 == pytest.approx(stack, rel=1e-9)
+    # a mask of defect bits (4: noisy) masks the same pixels as the bool mask
+    bits = _prnu_figures(mf, ("R", "G"), smooth, mask.astype(np.uint8) * 4)
+    assert [bits[c].value for c in "RG"] == [out[c].value for c in "RG"]
+    # without a mask every finite pixel of G under a positive model counts; the median is that of those
+    out = _prnu_figures(mf, ("R", "G"), smooth, None)
+    keep_g[1, 1] = True
+    assert out["G"].value == pytest.approx(_emva_prnu_by_hand(rel[1][keep_g], var_rel[1][keep_g], 4)[0], rel=1e-9)
+    # flat_prnu divides by the fitted model A·g: a flat model of gain g and levels A written out
+    primary, _, _, gains, _ = _aperture_series()
+    fm = primary.replace(level_dn={"R": 2.0, "G": 0.5})
+    a_g = gains[5.6] * np.array([2.0, 0.5])[:, None, None]
+    resp = 1.0 + 0.03 * rng.standard_normal((2, 3, 4))
+    v = 2e-4 * (1.0 + rng.random((2, 3, 4)))
+    fmask = np.zeros((2, 3, 4), bool)
+    fmask[0, 1, 2] = fmask[1, 0, 0] = True
+    got = flat_prnu(_master_for_prnu(resp * a_g, v * a_g**2, 3), fm, fmask)
+    for i, c in enumerate("RG"):
+        value, unc, mu, *_ = _emva_prnu_by_hand(resp[i][~fmask[i]], v[i][~fmask[i]], 3)
+        assert got[c].value == pytest.approx(value, rel=1e-6)  # float32 gain map
+        assert got[c].uncertainty == pytest.approx(unc, rel=1e-5)
+        assert got[c].spatial.mean_dn == pytest.approx(mu, rel=1e-6)  # the response about A·g, mean ≈ 1
+        assert got[c].spatial.n_pixels == 11
+    for missing in ({"mean_all": None}, {"variance_all": None}):
+        with pytest.raises(CamcalError) as e:
+            _prnu_figures(replace(mf, **missing), ("R", "G"), smooth, None)
+        assert str(e.value) == "the master flat has no unclipped statistics (a single frame?)"
+
+
+@pytest.mark.filterwarnings("ignore:Mean of empty slice:RuntimeWarning")  # the median of an empty plane is NaN
+@pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")
+def test_medians_above_black_equal_numpy_medians_for_every_dtype_and_histograms_count_in_bands():
+    """The per-plane median of planes − black is np.median of the float64 differences (sorted and written out for
+    odd and even counts) for unsigned and signed integers, negative values, floats and empty planes; the banded
+    histogram is np.bincount whichever band holds the largest value."""
+    from camcal.flat import HISTOGRAM_ROWS, _histogram, _medians_above
+
+    def by_hand(planes, black):
+        out = []
+        for p, b in zip(planes, black.reshape(-1), strict=True):
+            s = np.sort(p.astype(np.float64).ravel() - b)
+            out.append((s[(s.size - 1) // 2] + s[s.size // 2]) / 2)
+        return np.array(out)
+
+    rng = np.random.default_rng(3)
+    black = np.array([100.5, 3.0, 7.25]).reshape(3, 1, 1)
+    for shape in ((3, 3, 5), (3, 4, 5), (3, 1, 1), (3, 1, 2)):
+        for dtype in (np.uint16, np.uint8, np.int32):
+            planes = rng.integers(0, 200, shape).astype(dtype)
+            np.testing.assert_array_equal(_medians_above(planes, black), by_hand(planes, black))
+        planes = rng.integers(-50, 200, shape).astype(np.int32)
+        planes.flat[0] = -1
+        np.testing.assert_array_equal(_medians_above(planes, black), by_hand(planes, black))
+        planes = rng.random(shape).astype(np.float32) * 300
+        np.testing.assert_allclose(_medians_above(planes, black), by_hand(planes, black), rtol=1e-12)
+    # all pixels but a few at one value, the rest above: the middle order statistics straddle a step
+    planes = np.full((3, 2, 3), 10, np.uint16)
+    planes[:, 1, :] = 12
+    planes[1, 1, :] = 10
+    np.testing.assert_array_equal(_medians_above(planes, black), by_hand(planes, black))
+    one = rng.integers(0, 200, (1, 3, 4)).astype(np.uint16)  # a single plane
+    np.testing.assert_array_equal(_medians_above(one, black[:1]), by_hand(one, black[:1]))
+    empty = np.zeros((3, 0, 4), np.uint16)
+    assert _medians_above(empty, black).shape == (3,) and np.all(np.isnan(_medians_above(empty, black)))
+    for top_last in (False, True):
+        plane = rng.integers(0, 50, (2 * HISTOGRAM_ROWS + 7, 3)).astype(np.uint16)
+        plane[-1 if top_last else 0, 0] = 900
+        np.testing.assert_array_equal(_histogram(plane), np.bincount(plane.ravel()))
+    np.testing.assert_array_equal(_histogram(np.array([[3, 1]], np.uint16)), [0, 1, 0, 1])
+    assert _histogram(np.zeros((0, 3), np.uint16)).size == np.bincount(np.zeros(0, np.uint16)).size == 0
+
+
+def test_flat_fit_options_and_their_refusals():
+    """The fit keywords of the flat stage's options; an unknown model or a number of radial terms outside 1..5
+    refused with its one-line message."""
+    from camcal.flat import FlatOptions, _check_options
+
+    o = FlatOptions(model="2d", downsample=8, n_terms=3, degree_2d=2, with_prnu=False, method="mean")
+    assert o.fit_kwargs() == {"model": "2d", "downsample": 8, "n_terms": 3, "degree_2d": 2, "with_prnu": False}
+    for model, n in (("radial", 1), ("2d", 5)):
+        _check_options(model, n)
+    with pytest.raises(CamcalError) as e:
+        _check_options("poly", 3)
+    assert str(e.value) == "unknown flat model 'poly'; choose 'radial' or '2d'"
+    for n in (0, 6):
+        with pytest.raises(CamcalError) as e:
+            _check_options("radial", n)
+        assert str(e.value) == f"n_terms must be 1..5, got {n}"
+
+
+def test_dead_pixels_join_the_dark_defect_map_with_their_counts_and_source():
+    """Dead pixels (bit 2) are OR-ed into the defect map, other bits kept; each plane's dead count is the number
+    of its pixels with bit 2 set, counted here with a loop; the source joins the provenance; a map of another
+    shape is refused."""
+    from camcal.dark_model import DEAD, with_dead_pixels
+
+    m = _dark_model(("R", "G", "B"), True)
+    dead = np.zeros(m.defects.shape, bool)
+    dead[0, 1, 1] = dead[0, 0, 0] = dead[2, 1, 2] = True  # R: a hot pixel and a clean one; B: a noisy one
+    out = with_dead_pixels(m, dead.astype(int) * 5, "flat.json")  # any non-zero value marks a dead pixel
+    expect = m.defects.copy()
+    for idx in zip(*np.nonzero(dead), strict=True):
+        expect[idx] |= DEAD
+    assert out.defects.dtype == np.uint8 and DEAD == 2
+    np.testing.assert_array_equal(out.defects, expect)
+    for k, p in enumerate(("R", "G", "B")):
+        count = sum(1 for v in expect[k].ravel() if v & 2)
+        assert out.channels[p] == {**m.channels[p], "dead_pixel_count": count}
+    assert [out.channels[p]["dead_pixel_count"] for p in "RGB"] == [2, 0, 2]  # B had one dead pixel already
+    assert out.provenance == {**m.provenance, "dead_pixels": "flat.json"}
+    np.testing.assert_array_equal(out.bias_dn, m.bias_dn)
+    assert m.provenance.get("dead_pixels") is None  # the model given is left as it was
+    with pytest.raises(CamcalError) as e:
+        with_dead_pixels(m, np.zeros((3, 2, 2), bool), "flat.json")
+    assert str(e.value) == "dead-pixel map (3, 2, 2) does not match the dark model's (3, 2, 3)"
+
+
+def test_exposure_time_rules_leave_out_lone_frames_and_need_two_times_without_bias():
+    """A frame alone at its exposure time is left out (warned, named with its reason) while another time has two
+    frames; all times lone keeps them all; without bias frames one exposure time (or none) is too few, with the
+    counts and the time in the message."""
+    import warnings as _warnings
+    from pathlib import Path
+
+    from camcal.dark import _exposure_time_rules
+    from camcal.errors import FrameLeftOut, TooFewFrames
+
+    a, b, c, d = (Path(f"/d/{n}.dng") for n in "abcd")
+    why = "the dark model measures the temporal noise of each exposure time from two or more frames"
+    with pytest.warns(FrameLeftOut) as rec:
+        groups, left = _exposure_time_rules({0.5: [a, b], 2.0: [c], 0.25: [d]}, True, Path("/d"))
+    assert groups == {0.5: [a, b]}
+    assert left == (("c.dng", f"alone at its exposure time (2 s): {why}"),
+                    ("d.dng", f"alone at its exposure time (0.25 s): {why}"))
+    assert [str(w.message) for w in rec] == [f"left out: {n}: {r}" for n, r in left]
+    with _warnings.catch_warnings():
+        _warnings.simplefilter("error")
+        assert _exposure_time_rules({1.0: [a], 2.0: [b]}, False, Path("/d")) == ({1.0: [a], 2.0: [b]}, ())
+        assert _exposure_time_rules({1.0: [a, b]}, True, Path("/d")) == ({1.0: [a, b]}, ())
+        assert _exposure_time_rules({1.0: [a, b], 3.0: [c, d]}, False, Path("/d")) == (
+            {1.0: [a, b], 3.0: [c, d]}, ())
+        assert _exposure_time_rules({}, True, Path("/d")) == ({}, ())
+        with pytest.raises(TooFewFrames) as e:
+            _exposure_time_rules({1.5: [a, b, c]}, False, Path("/d"))
+        assert str(e.value) == ("/d: the dark stage needs at least 2 usable exposure times (or bias frames), 1 "
+                                "remain (all 3 dark frames have one exposure time (1.5 s); the dark-current fit "
+                                "needs two or more exposure times, or bias frames (--bias))")
+        assert e.value.path == Path("/d") and (e.value.needed, e.value.remaining) == (2, 1)
+        with pytest.raises(TooFewFrames) as e:
+            _exposure_time_rules({1.0: [a]}, False, Path("/d"))
+        assert "all 1 dark frames have one exposure time (1 s)" in str(e.value)
+        with pytest.raises(TooFewFrames) as e:
+            _exposure_time_rules({}, False, Path("/d"))
+        assert str(e.value) == "/d: the dark stage needs at least 1 usable frames, 0 remain"
+        assert e.value.path == Path("/d")
+    with pytest.warns(FrameLeftOut), pytest.raises(TooFewFrames) as e:
+        _exposure_time_rules({1.0: [a, b], 2.0: [c]}, False, Path("/d"))
+    assert "all 2 dark frames have one exposure time (1 s)" in str(e.value)
+
+
+def test_dark_frame_check_refuses_processed_and_saturated_frames():
+    """RAW frames only; more than the given fraction of pixels at or above the white level (counted here) is a
+    saturated dark frame, the fraction and level in its message."""
+    from pathlib import Path
+
+    from camcal.dark import dark_frame_check
+    from camcal.frame import Frame
+
+    data = np.full((10, 10), 100, np.uint16)
+    data.flat[:2] = 4095  # 2 % at the white level
+    data.flat[2] = 5000  # above it
+    raw = Frame(data=data, kind="raw", cfa_pattern="RGGB", black_level_dn={}, white_level_dn=4095.0,
+                path=Path("/d/a.dng"))
+    dark_frame_check(0.03)(raw)  # 3 % at or above the white level: not more than 3 %
+    with pytest.raises(CamcalError) as e:
+        dark_frame_check(0.029)(raw)
+    assert str(e.value) == ("/d/a.dng: dark frame is saturated: 3.0 % of pixels at the white level 4095 DN "
+                            "(light leak, or not a dark frame?)")
+    big = np.zeros((100, 100), np.uint16)
+    big.flat[:996] = 4095  # 9.96 %, printed 10.0 %
+    with pytest.raises(CamcalError) as e:
+        dark_frame_check(0.05)(replace(raw, data=big))
+    assert "saturated: 10.0 % of pixels" in str(e.value)
+    data.flat[:3] = 100
+    dark_frame_check()(raw)  # none saturated
+    data.flat[:2] = 4095
+    with pytest.raises(CamcalError) as e:
+        dark_frame_check()(raw)  # 2 % > the default 1 %
+    assert "2.0 % of pixels at the white level 4095 DN" in str(e.value)
+    with pytest.raises(CamcalError) as e:
+        dark_frame_check()(Frame(data=np.zeros((2, 2, 3), np.uint8), kind="processed", cfa_pattern=None,
+                                 black_level_dn={}, white_level_dn=255.0, path=Path("/d/a.dng")))
+    assert str(e.value) == "/d/a.dng: bias and dark frames must be RAW files (the dark model works on CFA planes)"
+
+
+def test_dark_exposure_times_take_the_index_then_the_manifest_then_the_file_tag(tmp_path):
+    """Each frame's exposure time: the session index's value first, then the frames.csv row, then the file's
+    EXIF ExposureTime (a JPEG tagged 1/4 s here); none of them: the missing-metadata error naming the file."""
+    from PIL import Image
+    from PIL.TiffImagePlugin import IFDRational
+
+    from camcal.dark import _exposure_times
+    from camcal.errors import MissingMetadataError
+    from camcal.session import FrameRef, StageFrames
+
+    a, b, c, d = (tmp_path / f"{n}.jpg" for n in "abcd")
+    exif = Image.Exif()
+    exif[0x829A] = IFDRational(1, 4)
+    for p in (a, b, c):
+        Image.new("RGB", (2, 2)).save(p, exif=exif.tobytes())
+    d.write_bytes(b"not an image")
+    manifest = {"a.jpg": {"exposure_s": 9.0}, "b.jpg": {"exposure_s": 2}, "c.jpg": {"exposure_s": None}}
+    frames = StageFrames("dark", tmp_path, (FrameRef(a, exposure_s=0.5), FrameRef(b), FrameRef(c)), manifest)
+    times = _exposure_times(frames, [a, b, c], manifest)
+    assert times == [0.5, 2.0, 0.25] and all(type(t) is float for t in times)
+    assert _exposure_times(tmp_path, [a, b, c], manifest) == [9.0, 2.0, 0.25]
+    assert _exposure_times(tmp_path, [c], {}) == [0.25]
+    with pytest.raises(MissingMetadataError) as e:
+        _exposure_times(tmp_path, [b, d], manifest)
+    assert e.value.field == "exposure_s" and e.value.path == d
+    assert str(e.value).startswith(f"{d}: missing exposure_s: not in the file's metadata; add a 'exposure_s' column")
+
+
+def test_dark_stacks_must_share_frame_size_pattern_and_iso():
+    """Stacks of one frame size, CFA pattern and ISO give that ISO; another size or pattern is refused naming the
+    odd stack's first file and both sizes; mixed ISO settings are refused naming the folder."""
+    from pathlib import Path
+    from types import SimpleNamespace
+
+    from camcal.dark import _check_stacks
+
+    def stack(name, shape=(4, 6), cfa="RGGB", iso=400.0):
+        return SimpleNamespace(frame_shape=shape, cfa_pattern=cfa, paths=(Path(f"/d/{name}1.dng"),
+                                                                          Path(f"/d/{name}2.dng")),
+                               exposures=(Exposure(iso=iso), Exposure(iso=iso)))
+
+    assert _check_stacks([stack("a"), stack("b")], Path("/d")) == 400.0
+    for odd, says in ((stack("b", shape=(4, 8)), "frame size 8x4 (RGGB) differs from the first dark frame's 6x4 "
+                                                  "(RGGB)"),
+                      (stack("b", cfa="BGGR"), "frame size 6x4 (BGGR) differs from the first dark frame's 6x4 "
+                                               "(RGGB)")):
+        with pytest.raises(CamcalError) as e:
+            _check_stacks([stack("a"), odd, stack("c")], Path("/d"))
+        assert str(e.value) == f"{Path('/d/b1.dng')}: {says}"
+    with pytest.raises(CamcalError) as e:
+        _check_stacks([stack("a"), stack("b", iso=800.0)], Path("/d"))
+    assert str(e.value) == (f"{Path('/d')}: frames mix ISO settings [400.0, 800.0]; take bias and dark frames at "
+                            "one ISO")
