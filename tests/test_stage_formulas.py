@@ -480,11 +480,12 @@ def test_dark_frame_off_the_reference_iso_scales_beta_not_the_bias():
 NOISE_METHOD = "per-pixel temporal variance minus the quantisation variance 1/12 DN² (EMVA 1288 eq. 4)"
 
 
-def _read_noise_stack(var, count, frames=(), n_paths=None):
+def _read_noise_stack(var, count, frames=(), n_paths=None, level=60.0):
     """A read-noise stack of per-pixel temporal variance ``var`` (C, h, w) over ``count`` frames a pixel, keeping
-    ``frames`` (its first frames' planes), written by ``n_paths`` files (``count`` by default; no file is read)."""
+    ``frames`` (its first frames' planes), written by ``n_paths`` files (``count`` by default; no file is read), at
+    ``level`` DN (a number or a (C, h, w) map: the stack's value)."""
     var = np.asarray(var, np.float32)
-    level = np.full(var.shape, 60.0, np.float32)
+    level = np.broadcast_to(np.asarray(level, np.float32), var.shape).copy()
     n = int(count) if n_paths is None else n_paths
     e = Exposure(exposure_s=1e-4, iso=100.0)
     return StackResult(value=level, mean=level, variance=var, count=np.full(var.shape, count, np.int16),
@@ -1851,12 +1852,8 @@ def test_bias_only_model_every_field_from_bias_frames_with_planes_below_one_dn(t
     frames += noisy_px * np.rint(20.0 * rng.standard_normal(frames.shape))
     var = np.var(frames, axis=0, ddof=1)
     value = frames.mean(axis=0)
-    exposure = Exposure(exposure_s=1e-4, iso=100.0)
-    st = StackResult(value=value.astype(np.float32), mean=value.astype(np.float32), variance=var.astype(np.float32),
-                     count=np.full(shape, 5, np.int16), n_frames=5, method="mean", exposures=(exposure,) * 5,
-                     paths=tuple(Path(f"b{i}.dng") for i in range(5)), channel_names=PLANES, cfa_pattern="RGGB",
-                     black_level_dn=(60.0,) * 4, white_level_dn=1023.0, frame_shape=(256, 256),
-                     variance_all=var.astype(np.float32), kept_planes=tuple(np.asarray(f, np.float32) for f in frames))
+    st = _read_noise_stack(var, 5, frames, level=value)
+    exposure = st.exposures[0]  # 1e-4 s at ISO 100
     folder = tmp_path / "bias"
     options = DarkOptions(hot_sigma=7.0, noisy_sigma=6.0, saturation_fraction=0.02)
     model = fit_dark_stacks(DarkStacks((), st, bias_folder=folder), options)
