@@ -11,7 +11,8 @@ stage's :class:`camcal.screen.StageJudge` leaves an unusable frame out; by defau
   frame with the default planes is summed as its mosaic (the sums are per pixel) and the result split into
   its planes once, at the end.
 - ``method="median"`` / ``"sigma_clip"``: each decoded frame is spilled to a temporary
-  raw file (uint16 when the planes are integer DN, as with the default preprocessing,
+  raw file (:func:`camcal.atomic.scratch_fd`: in memory while the stack fits in a quarter of the available
+  memory, else on disk; uint16 when the planes are integer DN, as with the default preprocessing,
   float32 otherwise; a Bayer frame with the default planes as its mosaic, split into planes band by band
   after the statistics, which are per pixel); the statistics are then computed over *row bands* read back with
   explicit ``readinto`` calls (not ``np.memmap``, whose touched pages count against the
@@ -44,7 +45,7 @@ from pathlib import Path
 
 import numpy as np
 
-from camcal.atomic import scratch_file
+from camcal.atomic import scratch_fd
 from camcal.errors import CamcalError, TooFewFrames
 from camcal.frame import PLANES, Exposure, Frame, plane_offsets, split_planes
 from camcal.io import folder_files, folder_manifest, load_folder_frame
@@ -163,9 +164,9 @@ class _Decoder:
         self.preprocess = preprocess
         self.manifests: dict[Path, dict] = {}  # per-folder frames.csv when no manifest is given
         self.first: _Meta | None = None
-        self.spill_path: Path | None = None
-        self.spill_dtype = np.dtype(np.uint16 if preprocess is None else np.float32)
         self.spill_fd: int | None = None
+        """The spill file's read-write descriptor (median/clip), None when nothing is spilled (mean)."""
+        self.spill_dtype = np.dtype(np.uint16 if preprocess is None else np.float32)
         self.mosaic = False
         """Spill (median/clip) or sum (mean) Bayer frames as their mosaic (set for a stack of default planes
         whose first frame is a Bayer mosaic; the pattern is the same in every frame, :func:`_check_same`)."""
@@ -218,7 +219,7 @@ class _Decoder:
             if planes.ndim != 3:
                 raise CamcalError(f"preprocessing gave an array of shape {planes.shape}, expected (C, h, w)", path)
             shape = tuple(planes.shape)
-            spill = planes if self.spill_path is not None else None
+            spill = planes if self.spill_fd is not None else None
         meta = _Meta(index, frame.exposure, frame.kind, frame.cfa_pattern, frame.channel_names,
                      tuple(float(v) for v in frame.black_vector().ravel()), float(frame.white_level_dn), frame.shape,
                      shape, str(frame.layout))
@@ -229,19 +230,10 @@ class _Decoder:
         data = planes.astype(dtype, copy=False) if planes.dtype != dtype else planes
         buf = np.ascontiguousarray(data).view(np.uint8).reshape(-1)
         offset = index * buf.nbytes
-        with self.lock:
-            if self.spill_fd is None:
-                self.spill_fd = os.open(self.spill_path, os.O_WRONLY)
-            fd = self.spill_fd
+        assert self.spill_fd is not None
         done = 0
         while done < buf.nbytes:
-            done += os.pwrite(fd, buf[done:], offset + done)
-
-    def close_spill(self) -> None:
-        with self.lock:
-            fd, self.spill_fd = self.spill_fd, None
-        if fd is not None:
-            os.close(fd)
+            done += os.pwrite(self.spill_fd, buf[done:], offset + done)
 
     def worker(self, item: tuple[int, str]) -> tuple[int, FrameFacts, _Meta | None, np.ndarray | None,
                                                      np.ndarray | None]:
@@ -254,7 +246,7 @@ class _Decoder:
         frame, facts = self.judged_load(index, path)
         if frame is None or facts.check_error is not None or self.judge.majority.mismatch(facts) is not None:
             return index, facts, None, None, None
-        spilled = self.spill_path is not None
+        spilled = self.spill_fd is not None
         meta, spill, planes = self.planes_of(index, path, frame,  # type: ignore[arg-type]
                                              want_planes=(not spilled and not self.mosaic)
                                              or index < self.keep_frames)
@@ -746,10 +738,12 @@ def _combine(paths: tuple[Path, ...], method: str, sigma: float, keep_frames: in
     index_of = {p: i for i, p in enumerate(paths)}
     used: dict[int, _Meta] = {first_index: first_meta}
     kept: dict[int, np.ndarray] = {first_index: first_planes} if keep_frames > 0 else {}
-    # median / sigma_clip spill every frame to a private file, removed however the block ends
-    spill = scratch_file("camcal-stack-", ".raw", spill_dir) if method != "mean" else contextlib.nullcontext()
-    with spill as spill_path:
-        dec.spill_path = spill_path
+    # median / sigma_clip spill every frame to a private file (in memory when it fits), gone however the block ends
+    spill_bytes = n * c * h * w * dec.spill_dtype.itemsize
+    spill = (scratch_fd("camcal-stack-", spill_bytes, spill_dir) if method != "mean"
+             else contextlib.nullcontext((None, "")))
+    with spill as (spill_fd, spill_name):
+        dec.spill_fd = spill_fd
         try:
             acc = (_ShiftedSums(first_planes if first_spill is None else first_spill) if method == "mean"
                    else None)
@@ -780,22 +774,21 @@ def _combine(paths: tuple[Path, ...], method: str, sigma: float, keep_frames: in
                         kept[index] = planes
                         if len(kept) > keep_frames:
                             del kept[max(kept)]
-            dec.close_spill()
             order = sorted(used)
             if acc is not None:
                 value, mean, var, count = acc.result(first_meta.cfa_pattern if dec.mosaic else None)
                 var_all, mean_all = var, mean
             else:
-                _close_up(spill_path, order, c * h * w * dec.spill_dtype.itemsize)
+                _close_up(spill_fd, spill_name, order, c * h * w * dec.spill_dtype.itemsize)
                 pattern = first_meta.cfa_pattern if dec.mosaic else None
                 for pos, i in enumerate(order[:keep_frames]):  # kept planes the threads did not return
                     if i not in kept:
-                        kept[i] = _read_slot(spill_path, pos, (c, h, w), dec.spill_dtype, pattern)
-                value, mean, var, count, var_all, mean_all = _bands(spill_path, len(order), (c, h, w),
+                        kept[i] = _read_slot(spill_fd, spill_name, pos, (c, h, w), dec.spill_dtype, pattern)
+                value, mean, var, count, var_all, mean_all = _bands(spill_fd, spill_name, len(order), (c, h, w),
                                                                     dec.spill_dtype, method, sigma, jobs, band_mb,
                                                                     pattern)
         finally:
-            dec.close_spill()
+            dec.spill_fd = None
     n_used = len(order)
     count_dtype = np.int16 if n_used < 2**15 else np.int32
     return StackResult(
@@ -809,45 +802,42 @@ def _combine(paths: tuple[Path, ...], method: str, sigma: float, keep_frames: in
     )
 
 
-def _close_up(spill: Path, order: list[int], nbytes: int) -> None:
-    """Move the spilled slots ``order`` (ascending) down to slots 0, 1, ... (the slots between are left out)."""
+def _read_exactly(fd: int, name: str, mv: memoryview, offset: int) -> None:
+    """Fill ``mv`` from the spill file ``fd`` (named ``name`` in messages) at byte ``offset``."""
+    got = 0
+    while got < mv.nbytes:
+        r = os.preadv(fd, [mv[got:]], offset + got)
+        if r <= 0:
+            raise CamcalError(f"{name} ended early (disk or memory full?)")
+        got += r
+
+
+def _close_up(fd: int, name: str, order: list[int], nbytes: int) -> None:
+    """Move the spilled slots ``order`` (ascending) of the spill file ``fd`` down to slots 0, 1, ... (the slots
+    between are left out)."""
     if order == list(range(len(order))):
         return
-    fd = os.open(spill, os.O_RDWR)
-    try:
-        buf = bytearray(min(nbytes, 1 << 24))
-        mv = memoryview(buf)
-        for pos, i in enumerate(order):
-            if i == pos:
-                continue
-            for off in range(0, nbytes, len(buf)):
-                size = min(len(buf), nbytes - off)
-                got = os.preadv(fd, [mv[:size]], i * nbytes + off)
-                if got != size:
-                    raise CamcalError("temporary stack file ended early (disk full?)", spill)
-                put = 0
-                while put < size:
-                    put += os.pwrite(fd, mv[put:size], pos * nbytes + off + put)
-    finally:
-        os.close(fd)
+    buf = bytearray(min(nbytes, 1 << 24))
+    mv = memoryview(buf)
+    for pos, i in enumerate(order):
+        if i == pos:
+            continue
+        for off in range(0, nbytes, len(buf)):
+            size = min(len(buf), nbytes - off)
+            _read_exactly(fd, name, mv[:size], i * nbytes + off)
+            put = 0
+            while put < size:
+                put += os.pwrite(fd, mv[put:size], pos * nbytes + off + put)
 
 
-def _read_slot(spill: Path, pos: int, shape: tuple[int, int, int], dtype: np.dtype,
+def _read_slot(fd: int, name: str, pos: int, shape: tuple[int, int, int], dtype: np.dtype,
                pattern: str | None = None) -> np.ndarray:
-    """The planes spilled at slot ``pos`` (split out of the spilled mosaic when its CFA ``pattern`` is given)."""
+    """The planes spilled at slot ``pos`` of the spill file ``fd`` (split out of the spilled mosaic when its CFA
+    ``pattern`` is given)."""
     _, h, w = shape
     out = np.empty(shape if pattern is None else (2 * h, 2 * w), dtype)
     mv = memoryview(out.reshape(-1)).cast("B")
-    fd = os.open(spill, os.O_RDONLY)
-    try:
-        got = 0
-        while got < mv.nbytes:
-            r = os.preadv(fd, [mv[got:]], pos * mv.nbytes + got)
-            if r <= 0:
-                raise CamcalError("temporary stack file ended early (disk full?)", spill)
-            got += r
-    finally:
-        os.close(fd)
+    _read_exactly(fd, name, mv, pos * mv.nbytes)
     return out if pattern is None else split_planes(out, pattern, dtype=None)
 
 
@@ -948,11 +938,12 @@ class _ShiftedSums:
         return mean, mean, var, np.full(mean.shape, n, np.int32)
 
 
-def _bands(spill: Path, n: int, shape: tuple[int, int, int], dtype: np.dtype, method: str, sigma: float,
+def _bands(fd: int, name: str, n: int, shape: tuple[int, int, int], dtype: np.dtype, method: str, sigma: float,
            jobs: int, band_mb: float, pattern: str | None = None) -> tuple[np.ndarray, ...]:
-    """Band-wise statistics of the spilled (n, C, h, w) stack, or of the spilled (n, 2h, 2w) Bayer mosaics when
-    their CFA ``pattern`` is given (C = 4): a band of h-rows ``y0:y1`` is then mosaic rows ``2 y0:2 y1`` of
-    each frame, one read per frame, its statistics taken per mosaic pixel and split into the planes after."""
+    """Band-wise statistics of the (n, C, h, w) stack spilled to the file ``fd`` (``name`` in messages), or of the
+    spilled (n, 2h, 2w) Bayer mosaics when their CFA ``pattern`` is given (C = 4): a band of h-rows ``y0:y1`` is
+    then mosaic rows ``2 y0:2 y1`` of each frame, one read per frame, its statistics taken per mosaic pixel and
+    split into the planes after."""
     c, h, w = shape
     rows = max(1, min(h, int(band_mb * 1e6 / (n * c * w * 4))))
     bands = [(y0, min(h, y0 + rows)) for y0 in range(0, h, rows)]
@@ -967,16 +958,7 @@ def _bands(spill: Path, n: int, shape: tuple[int, int, int], dtype: np.dtype, me
     # of the mosaic
     cells = ([(slice(r, None, 2), slice(q, None, 2)) for r, q in map(plane_offsets(pattern).get, PLANES)]
              if pattern is not None else None)
-    fd = os.open(spill, os.O_RDONLY)
     scratch = threading.local()  # each thread reads and sorts every band in the same two buffers
-
-    def read(mv: memoryview, off: int) -> None:
-        got = 0
-        while got < mv.nbytes:
-            r = os.preadv(fd, [mv[got:]], off + got)
-            if r <= 0:
-                raise CamcalError("temporary stack file ended early (disk full?)", spill)
-            got += r
 
     def one(band: tuple[int, int]) -> None:
         y0, y1 = band
@@ -989,11 +971,12 @@ def _bands(spill: Path, n: int, shape: tuple[int, int, int], dtype: np.dtype, me
             buf = scratch.raw[:n * c * (y1 - y0) * w].reshape(n, c, y1 - y0, w)
             for i in range(n):
                 for k in range(c):
-                    read(memoryview(buf[i, k]).cast("B"), (((i * c + k) * h) + y0) * w * item)
+                    _read_exactly(fd, name, memoryview(buf[i, k]).cast("B"), (((i * c + k) * h) + y0) * w * item)
         else:
             buf = scratch.raw[:n * c * (y1 - y0) * w].reshape(n, 2 * (y1 - y0), 2 * w)
             for i in range(n):
-                read(memoryview(buf[i]).cast("B"), (i * c * h * w + 4 * y0 * w) * item)  # mosaic row 2 y0
+                # mosaic row 2 y0 of frame i
+                _read_exactly(fd, name, memoryview(buf[i]).cast("B"), (i * c * h * w + 4 * y0 * w) * item)
         results = _band_stats(buf, method, sigma, scratch.work)
         del buf
         outs = (value, mean, var, count, var_all, mean_all)
@@ -1006,15 +989,12 @@ def _bands(spill: Path, n: int, shape: tuple[int, int, int], dtype: np.dtype, me
                 for p, (r, q) in enumerate(cells):
                     out[p, y0:y1] = res[r, q]
 
-    try:
-        if jobs > 1 and len(bands) > 1:
-            with ThreadPoolExecutor(jobs) as ex:
-                list(ex.map(one, bands))
-        else:
-            for b in bands:
-                one(b)
-    finally:
-        os.close(fd)
+    if jobs > 1 and len(bands) > 1:
+        with ThreadPoolExecutor(jobs) as ex:
+            list(ex.map(one, bands))
+    else:
+        for b in bands:
+            one(b)
     return value, mean, var, count, var_all, mean_all
 
 

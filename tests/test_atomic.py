@@ -13,13 +13,15 @@ import os
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from camcal.atomic import remove_pending, scratch_file
+from camcal import atomic
+from camcal.atomic import available_memory_bytes, remove_pending, scratch_fd, scratch_file, spill_memory_limit_bytes
 from camcal.errors import CamcalError
 from camcal.exr import read_exr, write_exr
 from camcal.io import load_frame
@@ -114,7 +116,9 @@ def test_sigint_during_calibrate_then_rerun(small_session, tmp_path):
     spill = tmp_path / "tmp"
     spill.mkdir()
     # mid-way: the dark stage is stacking frames (its spill file exists in the private TMPDIR)
-    proc = _start("calibrate", str(small_session), "-o", str(out), "-j", "1", env={"TMPDIR": str(spill)})
+    # (on disk: CAMCAL_SPILL_MEMORY_MB=0; a spill held in memory has no file to leave behind)
+    proc = _start("calibrate", str(small_session), "-o", str(out), "-j", "1",
+                  env={"TMPDIR": str(spill), "CAMCAL_SPILL_MEMORY_MB": "0"})
     # the spill file lives while a dark group is stacked (12 frames, a few ms each): poll often to catch it
     code, err = _interrupt_when(proc, lambda: any(spill.glob("camcal-stack-*")), poll_s=0.002)
     if code == 0:
@@ -181,6 +185,47 @@ def test_scratch_file_is_removed_however_the_block_ends(tmp_path):
     with pytest.raises(KeyboardInterrupt), scratch_file("camcal-stack-", ".raw", tmp_path) as q:
         raise KeyboardInterrupt
     assert not q.exists() and not list(tmp_path.iterdir())
+
+
+@pytest.mark.skipif(not hasattr(os, "memfd_create"), reason="anonymous memory files are Linux-only")
+def test_a_scratch_descriptor_is_held_in_memory_when_it_fits(tmp_path, monkeypatch):
+    """Within the memory limit the spill is an anonymous memory file: nothing in the temporary folder, and the
+    descriptor reads back what was written; above the limit (or with a folder given) a private file on disk,
+    removed when the block ends. CAMCAL_SPILL_MEMORY_MB sets the limit, 0 keeps every spill on disk."""
+    monkeypatch.setenv("TMPDIR", str(tmp_path))
+    monkeypatch.setattr(tempfile, "tempdir", None)  # gettempdir() reads TMPDIR again
+    monkeypatch.setenv("CAMCAL_SPILL_MEMORY_MB", "1")
+    assert spill_memory_limit_bytes() == 1_000_000
+    with scratch_fd("camcal-stack-", 1_000_000) as (fd, name):
+        os.pwrite(fd, b"abc", 10)
+        assert os.pread(fd, 3, 10) == b"abc" and "memory" in name
+        assert not list(tmp_path.iterdir())
+    with pytest.raises(OSError):
+        os.fstat(fd)  # closed: its memory is the system's again
+    for nbytes, folder in ((1_000_001, None), (10, tmp_path / "given")):
+        (tmp_path / "given").mkdir(exist_ok=True)
+        with scratch_fd("camcal-stack-", nbytes, folder) as (fd, name):
+            os.pwrite(fd, b"abc", 10)
+            assert [p.name for p in Path(name).parent.iterdir() if p.name.startswith("camcal-stack-")]
+            assert Path(name).read_bytes()[10:] == b"abc"
+        assert not Path(name).exists()
+    monkeypatch.setenv("CAMCAL_SPILL_MEMORY_MB", "0")
+    with scratch_fd("camcal-stack-", 1) as (fd, name):
+        assert Path(name).parent == tmp_path
+    monkeypatch.setenv("CAMCAL_SPILL_MEMORY_MB", "lots")
+    with pytest.raises(CamcalError, match="CAMCAL_SPILL_MEMORY_MB"):
+        spill_memory_limit_bytes()
+
+
+def test_the_default_memory_limit_is_a_quarter_of_what_is_available(monkeypatch):
+    monkeypatch.delenv("CAMCAL_SPILL_MEMORY_MB", raising=False)
+    monkeypatch.setattr(atomic, "available_memory_bytes", lambda: 8_000_000_000)
+    assert spill_memory_limit_bytes() == 2_000_000_000
+    monkeypatch.setattr(atomic, "available_memory_bytes", lambda: None)  # unknown: on disk
+    assert spill_memory_limit_bytes() == 0
+    avail = available_memory_bytes()
+    if Path("/proc/meminfo").exists():
+        assert avail is not None and 0 < avail <= os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
 
 
 def test_scratch_file_is_registered_before_the_block(tmp_path):

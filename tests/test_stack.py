@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+import os
+import shutil
+
 import numpy as np
 import pytest
 
 from camcal import threads
 from camcal.errors import CamcalError
 from camcal.io import load_frame
+from camcal.screen import Majority, StageJudge
 from camcal.stack import _read_slot, combine_folder, combine_frames
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera, frame_rngs
 
@@ -87,7 +91,14 @@ def test_a_spilled_stack_keeps_the_planes_of_its_first_frames(stack_dir, jobs):
     spill = stack_dir[0].parent / f"spill{jobs}.raw"
     spill.write_bytes(b"".join(f.data.tobytes() for f in frames[:3]))
     planes = frames[2].planes(dtype=np.uint16)
-    np.testing.assert_array_equal(_read_slot(spill, 2, planes.shape, np.dtype(np.uint16), "BGGR"), planes)
+    fd = os.open(spill, os.O_RDONLY)
+    try:
+        np.testing.assert_array_equal(_read_slot(fd, str(spill), 2, planes.shape, np.dtype(np.uint16), "BGGR"),
+                                      planes)
+        with pytest.raises(CamcalError, match="ended early"):  # a slot past the end: a short file
+            _read_slot(fd, str(spill), 3, planes.shape, np.dtype(np.uint16), "BGGR")
+    finally:
+        os.close(fd)
 
 
 def test_sigma_clip_rejects_the_cosmic_ray(stack_dir):
@@ -191,3 +202,23 @@ def test_automatic_threads_give_the_same_stack(stack_dir):
     two = combine_frames(files, method="sigma_clip", jobs=2, band_mb=0.1)
     np.testing.assert_array_equal(auto.value, two.value)
     np.testing.assert_array_equal(auto.count, two.count)
+
+
+def test_a_stack_spilled_to_disk_equals_one_held_in_memory(stack_dir, monkeypatch, tmp_path):
+    """Where the spill lives (an anonymous memory file within CAMCAL_SPILL_MEMORY_MB, else the temporary folder)
+    changes nothing in the result, with a frame left out (its slot closed up) and kept planes read back."""
+    files, _ = _cube(stack_dir[0])
+    copy = tmp_path / "copy.dng"
+    shutil.copyfile(files[1], copy)
+    files = [*files[:2], copy, *files[2:]]  # a copy of the frame before: left out by the stage's judge
+    runs = {}
+    for limit in ("0", "1000"):
+        monkeypatch.setenv("CAMCAL_SPILL_MEMORY_MB", limit)
+        judge = StageJudge("dark", Majority(), None, {p: i for i, p in enumerate(files)})
+        runs[limit] = combine_frames(files, method="sigma_clip", jobs=2, band_mb=0.05, keep_frames=3, judge=judge)
+        assert judge.reasons[copy] is not None
+    disk, memory = runs["0"], runs["1000"]
+    assert disk.n_frames == memory.n_frames == len(files) - 1
+    for a, b in ((disk.value, memory.value), (disk.variance, memory.variance), (disk.count, memory.count),
+                 *zip(disk.kept_planes, memory.kept_planes, strict=True)):
+        np.testing.assert_array_equal(a, b)
