@@ -11,6 +11,8 @@ RAW only: 129 DNG files.
 Each measurement is a fresh process (medians of the alternating runs):
 
 - baseline: ``camcal.io.load_frame`` + ``Frame.planes`` of every file once, in 2 threads (camcal's own decode);
+- the same plus each file's SHA-256 (``camcal.hashing.sha256_file``, the hash every input gets in the profile's
+  provenance): the floor of a calibration that records what it was made from;
 - ``camcal calibrate SESSION -o P.camcal``: the whole command, wall and CPU time (children included);
 - where the time goes: ``calibrate_session`` + ``save_profile`` in one process with each stage's entry point
   timed (wall and CPU of the process, all its threads): screening (every frame's header read: each stage judges
@@ -94,13 +96,17 @@ def _cpu_s() -> float:
     return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
 
 
-def run_decode(session: Path) -> dict:
+def run_decode(session: Path, hashed: bool = False) -> dict:
+    """Decode every file once in 2 threads (and, ``hashed``, take its SHA-256 right after, as calibrate does)."""
     from concurrent.futures import ThreadPoolExecutor
 
+    from camcal.hashing import sha256_file
     from camcal.io import load_frame
 
     def one(path: Path) -> int:
         frame = load_frame(path)
+        if hashed:
+            sha256_file(path)
         return int(frame.planes(dtype=frame.data.dtype)[0, 0, 0])
 
     paths = files(session)
@@ -167,13 +173,14 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=3, help="alternating runs of decode and calibrate (medians)")
     ap.add_argument("--quick", action="store_true", help="smoke run: 600x400, one run")
     ap.add_argument("--prepare", action="store_true", help="only write the session (once; it is kept)")
-    ap.add_argument("--one", choices=["decode", "cli", "stages"], help=argparse.SUPPRESS)
+    ap.add_argument("--one", choices=["decode", "hashed", "cli", "stages"], help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.quick:
         args.width, args.height, args.runs = 600, 400, 1
     session = session_dir(args.width, args.height)
     if args.one:
-        run = {"decode": run_decode, "cli": run_cli, "stages": run_stages}[args.one]
+        run = {"decode": run_decode, "hashed": lambda s: run_decode(s, hashed=True), "cli": run_cli,
+               "stages": run_stages}[args.one]
         print(json.dumps(run(session)))
         return
     prepare(args.width, args.height)
@@ -182,16 +189,17 @@ def main() -> None:
     for p in files(session):
         p.read_bytes()  # page cache warm for every run
     size = ("--width", str(args.width), "--height", str(args.height))
-    dec, cli = [], []
+    dec, hashed, cli = [], [], []
     for _ in range(args.runs):
         dec.append(_sub(*size, "--one", "decode"))
+        hashed.append(_sub(*size, "--one", "hashed"))
         cli.append(_sub(*size, "--one", "cli"))
     stages = _sub(*size, "--one", "stages")
 
     def med(runs: list[dict], key: str) -> float:
         return statistics.median(r[key] for r in runs)
 
-    d, c = med(dec, "seconds"), med(cli, "seconds")
+    d, h, c = med(dec, "seconds"), med(hashed, "seconds"), med(cli, "seconds")
     n = dec[0]["files"]
     lines = [
         "## calibrate",
@@ -208,8 +216,10 @@ def main() -> None:
         "|---|---:|---:|---:|",
         f"| baseline: decode each file once (load_frame + planes, 2 threads) | {d:.2f} | {med(dec, 'cpu_s'):.2f} "
         "| 1.00 |",
+        f"| the same, and each file's SHA-256 (as the profile's provenance records it) | {h:.2f} | "
+        f"{med(hashed, 'cpu_s'):.2f} | {h / d:.2f} |",
         f"| `camcal calibrate SESSION -o P.camcal` (whole process) | {c:.2f} | {med(cli, 'cpu_s'):.2f} "
-        f"| **{c / d:.2f}** |",
+        f"| **{c / d:.2f}** ({c / h:.2f} to the decode and hash) |",
         "",
         "Where the time goes (one more run: `calibrate_session` + `save_profile` in one process, imports "
         "excluded; CPU counts every thread):",
@@ -228,7 +238,8 @@ def main() -> None:
     lines.append(f"| **total** | {total_wall:.2f} | {total_cpu:.2f} | 100% |")
     lines.append("")
     lines.append("Runs, wall (s): calibrate " + ", ".join(f"{r['seconds']:.1f}" for r in cli) + "; decode "
-                 + ", ".join(f"{r['seconds']:.1f}" for r in dec) + ".")
+                 + ", ".join(f"{r['seconds']:.1f}" for r in dec) + "; decode and hash "
+                 + ", ".join(f"{r['seconds']:.1f}" for r in hashed) + ".")
     print("\n".join(lines))
 
 
