@@ -522,15 +522,23 @@ class BandInverse:
         # C = 0 for a ratio a little above the floor): the table ends at the node before the first node it
         # misses by more than 1e-6 in ln C, and a larger δ is TOO_DARK. Node 0 is the table's first node, met
         # exactly.
-        tn = (w - wu[0]) / dw
-        jn = np.minimum(tn.astype(np.intp), table_nodes - 2)
-        un = tn - jn
-        k = self._coef
-        yn = ((k[3][jn] * un + k[2][jn]) * un + k[1][jn]) * un + k[0][jn]
+        yn, _ = self._ln_c(*self._cell(w))
         miss = np.flatnonzero(np.abs(yn - np.log(c)) > 1e-6)
         last = int(miss[0]) - 1 if miss.size else c.size - 1
         self.delta_lo, self.delta_hi = float(delta[0]), float(delta[last])
         self.c_lo = float(c[0])
+
+    def _cell(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The table cell of each w = ln δ and the position in it (0…1; past the last cell, its cubic goes on)."""
+        t = (w - self._w0) / self._dw
+        j = np.minimum(t.astype(np.intp), self._coef.shape[1] - 1)
+        return j, t - j
+
+    def _ln_c(self, j: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """ln C (C in µg/L) at position ``u`` of cell ``j`` (the cell's cubic, Horner), and dy/du there."""
+        k = self._coef
+        c3, c2, c1 = k[3].take(j), k[2].take(j), k[1].take(j)
+        return ((c3 * u + c2) * u + c1) * u + k[0].take(j), (3 * c3 * u + 2 * c2) * u + c1
 
     def _into(self, r, c_out, sig_out, reason_out, sigma) -> None:
         """One chunk: fill C (µg/L), σ_C (or NaN) and the reason code in place."""
@@ -545,13 +553,7 @@ class BandInverse:
             ok = reason_out == 0
             main = ok & (delta >= self.delta_lo)
             d = np.where(main, delta, self.delta_lo)
-            t = (np.log(d) - self._w0) / self._dw
-        j = np.minimum(t.astype(np.intp), self._coef.shape[1] - 1)
-        u = t - j
-        k = self._coef
-        c3 = k[3].take(j)
-        c2 = k[2].take(j)
-        y = ((c3 * u + c2) * u + k[1].take(j)) * u + k[0].take(j)
+            y, dydu = self._ln_c(*self._cell(np.log(d)))
         cc = np.exp(y)
         low = ok & ~main  # between C = 0 and the first node: linear in δ
         cc[low] = self.c_lo * delta[low] / self.delta_lo
@@ -560,9 +562,8 @@ class BandInverse:
         if sigma is None:
             sig_out[...] = np.nan
             return
-        dydw = ((3 * c3 * u + 2 * c2) * u + k[1].take(j)) / self._dw
         with np.errstate(divide="ignore", invalid="ignore"):
-            sg = cc * np.abs(dydw) / d * sigma
+            sg = cc * np.abs(dydu / self._dw) / d * sigma
         sg[low] = (self.c_lo / self.delta_lo * sigma if np.ndim(sigma) == 0 else
                    self.c_lo / self.delta_lo * sigma[low])
         sg[~ok] = np.nan
