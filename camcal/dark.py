@@ -103,7 +103,8 @@ def dark_frame_check(saturation_fraction: float = 0.01) -> Callable[[Frame], Non
             raise CamcalError("bias and dark frames must be RAW files (the dark model works on CFA planes)",
                               frame.path)
         white = frame.white_level_dn
-        frac = float(np.count_nonzero(frame.data >= white)) / frame.data.size
+        # no value at the white level (the reader's maximum below it): nothing to count
+        frac = 0.0 if frame.data_range()[1] < white else float(np.count_nonzero(frame.data >= white)) / frame.data.size
         if frac > saturation_fraction:
             raise CamcalError(f"dark frame is saturated: {100 * frac:.1f} % of pixels at the white level "
                               f"{white:.0f} DN (light leak, or not a dark frame?)", frame.path)

@@ -164,6 +164,11 @@ class Frame:
     icc_profile : str or None
         Processed images: the description of the embedded ICC profile (e.g. ``Display P3`` for an
         iPhone's HEIC), noted, not applied; None when the file embeds none (or it is not read).
+    value_range_dn : (int, int) or None
+        The smallest and the largest value of ``data`` (DN) when the reader measured them as it checked the
+        pixels (RAW files, :meth:`with_value_range`), so that no later check goes over the frame again for them;
+        None when not measured (:meth:`data_range` then measures them). Not an argument of the constructor:
+        a frame made from another with :func:`dataclasses.replace` (other data, perhaps) measures it again.
     """
 
     data: np.ndarray
@@ -175,6 +180,7 @@ class Frame:
     path: Path | None = None
     layout: Literal["bayer", "linear", "processed"] | None = None
     icc_profile: str | None = None
+    value_range_dn: tuple[int, int] | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if self.layout is None:
@@ -188,6 +194,17 @@ class Frame:
     def shape(self) -> tuple[int, int]:
         """Full-resolution (height, width) in pixels."""
         return int(self.data.shape[0]), int(self.data.shape[1])
+
+    def with_value_range(self, lo: int, hi: int) -> Frame:
+        """This frame, with the (smallest, largest) value of its data that its reader measured (DN)."""
+        object.__setattr__(self, "value_range_dn", (int(lo), int(hi)))
+        return self
+
+    def data_range(self) -> tuple[int, int]:
+        """(smallest, largest) value of :attr:`data` in DN: :attr:`value_range_dn`, or measured now."""
+        if self.value_range_dn is not None:
+            return self.value_range_dn
+        return int(self.data.min()), int(self.data.max())
 
     @property
     def channel_names(self) -> tuple[str, ...]:

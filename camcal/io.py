@@ -450,8 +450,9 @@ def _check_size_for_pixels(path: Path, width: int, height: int) -> None:
                           "(the image data were stripped, or the file is truncated)", path)
 
 
-def check_has_data(path: Path, data: np.ndarray, black_dn: float, white_dn: float) -> None:
-    """Refuse a RAW frame that holds no image data (stripped or blank).
+def check_has_data(path: Path, data: np.ndarray, black_dn: float, white_dn: float) -> tuple[int, int]:
+    """Refuse a RAW frame that holds no image data (stripped or blank); give the (smallest, largest) value of
+    ``data`` (DN) otherwise, measured for the check (:attr:`camcal.frame.Frame.value_range_dn`).
 
     Refused: every pixel 0; every pixel the same value below the white level; 99 % or more of the
     pixels below the black level (a sensor cannot read below its bias: the image data is missing, as in
@@ -468,7 +469,7 @@ def check_has_data(path: Path, data: np.ndarray, black_dn: float, white_dn: floa
         raise CamcalError("holds no image data: every pixel is 0 (the image data may have been stripped); "
                           "a frame of zeros is not a dark frame", path)
     if lo >= white_dn:  # fully saturated: an over-exposed image, not a file without data
-        return
+        return lo, hi
     if lo == hi:
         raise CamcalError(f"holds no image data: every pixel has the same value ({lo} DN)", path)
     if black_dn > 0 and lo < black_dn:
@@ -476,6 +477,7 @@ def check_has_data(path: Path, data: np.ndarray, black_dn: float, white_dn: floa
         if below >= 0.99:
             raise CamcalError(f"holds no image data: {100 * below:.1f} % of the pixels are below the black level "
                               f"({black_dn:g} DN; the image data may have been stripped)", path)
+    return lo, hi
 
 
 def saturated_fraction(data: np.ndarray, white_dn: float) -> float:
@@ -535,7 +537,7 @@ def _load_raw(path: Path) -> Frame:
             data = data[: data.shape[0] // 2 * 2, : data.shape[1] // 2 * 2]
         off = plane_offsets(pattern)
         black = {name: float(per_color[int(rp[off[name]])]) for name in PLANES}
-    check_has_data(path, data, min(black.values()), white)
+    lo, hi = check_has_data(path, data, min(black.values()), white)
     tags = _exif_tags(path)
     exp = reconcile_libraw(exposure_from_exif(path, tags), tags, libraw)
     return Frame(
@@ -547,7 +549,7 @@ def _load_raw(path: Path) -> Frame:
         exposure=exp,
         path=path,
         layout=layout,
-    )
+    ).with_value_range(lo, hi)
 
 
 @contextlib.contextmanager

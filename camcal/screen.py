@@ -176,7 +176,7 @@ def _facts_of(path: Path, frame, check: StageCheck | None) -> FrameFacts:
     e = frame.exposure
     # a frame with every value at the white level holds no noise: two separate over-exposed frames have the same
     # pixels without being copies, so it takes no part in the duplicate check
-    digest = b"" if int(frame.data.min()) >= frame.white_level_dn else frame_digest(frame.data)
+    digest = b"" if frame.data_range()[0] >= frame.white_level_dn else frame_digest(frame.data)
     return FrameFacts(path, frame.kind, frame.layout, tuple(frame.shape),  # type: ignore[arg-type]
                       frame.cfa_pattern, e.make, e.model, e.serial, digest, None, check_error)
 

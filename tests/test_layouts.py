@@ -258,3 +258,33 @@ def test_synth_cli_layout_and_fixed_aperture(tmp_path):
     info = json.loads(run_cli("inspect", "--json", tmp_path / "S" / "bias" / "bias_000.dng").stdout)[0]
     assert info["layout"] == "linear" and info["f_number"] == 4.0 and info["sources"]["f_number"] == "session"
     assert_one_line_error(run_cli("synth", "session", tmp_path / "T", "--layout", "xtrans"), "unknown layout")
+
+
+def test_the_reader_keeps_the_value_range_it_measured(tmp_path):
+    """load_frame of a RAW file keeps the (smallest, largest) value its data check measured; the checks after it
+    use that range instead of going over the frame again: a dark frame with 2 % of its pixels at the white
+    level is still refused, one whose maximum is below it passes. A frame made with dataclasses.replace (other
+    data) measures its range again; a processed frame measures it when asked."""
+    import dataclasses
+
+    from camcal.dark import dark_frame_check
+
+    mosaic = np.full((64, 64), 70, np.uint16)
+    mosaic[0, :7] = 60
+    mosaic.flat[100:182] = 4095  # 2 % at the white level
+    p = write_dng(tmp_path / "d.dng", mosaic, cfa_pattern="RGGB", black_level_dn=64, white_level_dn=4095,
+                  exposure_s=1.0, f_number=None, iso=100)
+    frame = load_frame(p)
+    assert frame.value_range_dn == frame.data_range() == (60, 4095)
+    with pytest.raises(CamcalError, match="dark frame is saturated: 2.0 %"):
+        dark_frame_check()(frame)
+    mosaic.flat[100:182] = 4094
+    q = write_dng(tmp_path / "e.dng", mosaic, cfa_pattern="RGGB", black_level_dn=64, white_level_dn=4095,
+                  exposure_s=1.0, f_number=None, iso=100)
+    ok = load_frame(q)
+    assert ok.value_range_dn == (60, 4094)
+    dark_frame_check()(ok)
+    other = dataclasses.replace(ok, data=np.full((4, 4), 9, np.uint16))
+    assert other.value_range_dn is None and other.data_range() == (9, 9)
+    rgb = Frame(np.arange(12, dtype=np.uint8).reshape(2, 2, 3), "processed", None, {}, 255.0)
+    assert rgb.value_range_dn is None and rgb.data_range() == (0, 11)
