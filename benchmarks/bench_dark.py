@@ -9,12 +9,15 @@ adds the ccdproc row (about a minute at 12 MP).
    decoded mosaics as float32 FITS files for ccdproc (ccdproc reads FITS, not DNG; the conversion is *not*
    charged to ccdproc, so the comparison favours it).
 2. Each measurement runs in its own subprocess; peak memory is ``ru_maxrss`` of that process plus
-   its children, read with :mod:`resource`. The runs alternate (decode, camcal, decode, camcal, ...) and the
-   medians are reported.
+   its children, read with :mod:`resource`. All runs go in one shuffled order (a fixed seed) and the medians
+   are reported.
 
    - baseline: ``camcal.io.load_frame`` + ``Frame.planes`` (uint16) of every file in 2 threads: the decode
      the stack itself does, nothing else.
-   - camcal: ``combine_frames(paths, method="sigma_clip", jobs=2)`` on the DNG files (decode included).
+   - camcal: ``combine_frames(paths, method="sigma_clip", jobs=2)`` on the DNG files (decode included); its spill
+     is held in memory when it fits (``camcal.atomic.scratch_fd``);
+   - camcal with the spill on disk (``CAMCAL_SPILL_MEMORY_MB=0``, the system temporary folder), at the largest
+     frame count: what the memory spill saves.
    - ccdproc: ``ccdproc.combine(fits_files, method="median", sigma_clip=True, 3, 3,
      mem_limit=1.5e9)``: sigma clipping about the mean (ccdproc's default) then the median.
 """
@@ -25,6 +28,7 @@ import argparse
 import json
 import os
 import platform
+import random
 import resource
 import statistics
 import subprocess
@@ -159,9 +163,10 @@ def run_ccdproc(n: int) -> dict:
     return {"seconds": dt, "cpu_s": _cpu_s() - c0, "peak_mb": _peak_mb(), "median_value": float(np.median(out.data))}
 
 
-def _sub(*args: str) -> dict:
+def _sub(*args: str, env: dict[str, str] | None = None) -> dict:
     size = ("--width", str(WIDTH), "--height", str(HEIGHT))
-    proc = subprocess.run([sys.executable, __file__, *size, *args], capture_output=True, text=True)
+    proc = subprocess.run([sys.executable, __file__, *size, *args], capture_output=True, text=True,
+                          env={**os.environ, **(env or {})})
     if proc.returncode:
         raise SystemExit(f"benchmark subprocess {args} failed:\n{proc.stderr}")
     return json.loads(proc.stdout.strip().splitlines()[-1])
@@ -179,7 +184,7 @@ def main() -> None:
     ap.add_argument("--width", type=int, default=4000)
     ap.add_argument("--height", type=int, default=3000)
     ap.add_argument("--frames", default="8,16,32", help="frame counts, comma-separated")
-    ap.add_argument("--runs", type=int, default=3, help="alternating runs of each measurement (medians)")
+    ap.add_argument("--runs", type=int, default=3, help="runs of each measurement, in a shuffled order (medians)")
     ap.add_argument("--ccdproc", action="store_true", help="add ccdproc at 32 frames (slow)")
     ap.add_argument("--quick", action="store_true", help="smoke run: 1000x750, 4 and 8 frames, 1 run")
     args = ap.parse_args()
@@ -206,10 +211,21 @@ def main() -> None:
     load_start = os.getloadavg()[0]
     dec: dict[int, list[dict]] = {n: [] for n in counts}
     cam: dict[int, list[dict]] = {n: [] for n in counts}
-    for _ in range(args.runs):
-        for n in counts:
+    disk: list[dict] = []
+    # every run in a shuffled order (fixed seed): on a virtual machine a run is slower or faster by up to a quarter
+    # depending on what the run before it did with memory (measured: the same code 1.53-1.94 s in fixed orders),
+    # so a fixed alternation can favour one side
+    plan = [(kind, n) for _ in range(args.runs) for n in counts for kind in ("decode", "camcal")]
+    plan += [("disk", max(counts))] * args.runs
+    random.Random(0).shuffle(plan)
+    for kind, n in plan:
+        if kind == "decode":
             dec[n].append(_sub("--one", "decode", "--n", str(n), "--jobs", str(args.jobs)))
+        elif kind == "camcal":
             cam[n].append(_sub("--one", "camcal", "--n", str(n), "--jobs", str(args.jobs)))
+        else:
+            disk.append(_sub("--one", "camcal", "--n", str(n), "--jobs", str(args.jobs),
+                             env={"CAMCAL_SPILL_MEMORY_MB": "0"}))
     ccd = _sub("--one", "ccdproc", "--n", str(N_CCDPROC)) if args.ccdproc else None
 
     mp = WIDTH * HEIGHT / 1e6
@@ -220,8 +236,8 @@ def main() -> None:
         f"synthetic camera, against decoding the same files in {args.jobs} threads. Machine: {os.cpu_count()} "
         f"cores, {platform.machine()}, Python {platform.python_version()}, {date.today().isoformat()}. "
         f"`python benchmarks/bench_dark.py --width {WIDTH} --height {HEIGHT} --frames {args.frames} --runs "
-        f"{args.runs}{' --ccdproc' if args.ccdproc else ''}`; each run a separate subprocess, decode and camcal "
-        "alternating, medians; peak memory = ru_maxrss of the process plus its children.",
+        f"{args.runs}{' --ccdproc' if args.ccdproc else ''}`; each run a separate subprocess, all runs in a "
+        "shuffled order, medians; peak memory = ru_maxrss of the process plus its children.",
         "",
         f"| frames | decode, {args.jobs} threads: wall (s) | CPU (s) | peak (MB) | camcal combine_frames "
         f"(sigma_clip, jobs={args.jobs}): wall (s) | CPU (s) | peak (MB) | ratio wall | ratio CPU |",
@@ -240,6 +256,12 @@ def main() -> None:
         f"{n} frames " + ", ".join(f"{r['seconds']:.2f}" for r in cam[n]) for n in counts)
         + "; decode: " + "; ".join(f"{n} frames " + ", ".join(f"{r['seconds']:.2f}" for r in dec[n])
                                     for n in counts) + ".")
+    nmax = max(counts)
+    dw = _median(dec[nmax], "seconds")
+    lines.append(f"- The spill on disk instead (`CAMCAL_SPILL_MEMORY_MB=0`, {nmax} frames): "
+                 f"{_median(disk, 'seconds'):.2f} s wall, {_median(disk, 'cpu_s'):.2f} s CPU, "
+                 f"{_median(disk, 'peak_mb'):.0f} MB, **{_median(disk, 'seconds') / dw:.2f}x** the decode (runs: "
+                 + ", ".join(f"{r['seconds']:.2f}" for r in disk) + ").")
     lines.append("- camcal peak memory at " + " / ".join(str(n) for n in counts) + " frames: "
                  + " / ".join(f"{_median(cam[n], 'peak_mb'):.0f}" for n in counts)
                  + " MB (row bands shrink as frames grow, so the peak does not grow).")

@@ -154,8 +154,9 @@ def scratch_fd(prefix: str, nbytes: int, folder: str | Path | None = None) -> It
     to the system when the block ends or the process dies, even killed outright. Otherwise a
     :func:`scratch_file` in ``folder`` (default: the system temporary folder). A spill in memory is not
     counted in the process's resident set, but it is memory all the same, as the dirty page cache of a disk
-    file is until written back; writing it is what costs less: 768 MB in 0.35 s, against 1.2-1.8 s into the
-    page cache of a file on this project's 2-core test machine's disk (benchmarks/RESULTS.md, "dark").
+    file is until written back. Writing it costs less: 768 MB in 0.35 s on its own, against 1.2-1.8 s into the
+    page cache of a file on this project's 2-core test machine's disk. In a whole stack, where the writes are
+    spread between decodes, the runs are steadier rather than faster (benchmarks/RESULTS.md, "dark").
     """
     if folder is None and hasattr(os, "memfd_create") and 0 < nbytes <= spill_memory_limit_bytes():
         try:
