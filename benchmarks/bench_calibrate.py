@@ -1,14 +1,14 @@
 """Benchmark: a whole ``camcal calibrate`` of a realistic 24 MP session against decoding each of its files once.
 
 Run ``python benchmarks/bench_calibrate.py`` (prints a Markdown section for ``benchmarks/RESULTS.md``);
-``--quick`` for a smoke run (600x400); ``--width/--height`` for another sensor size; ``--runs`` alternating runs;
+``--quick`` for a smoke run (600x400); ``--width/--height`` for another sensor size; ``--runs`` runs of each;
 ``--prepare`` only writes the session (the synthetic camera takes several minutes at 24 MP: write it beforehand).
 
 The session (written once by the synthetic camera into ``benchmarks/_work/calib{W}x{H}/``, git-ignored): 16 bias,
 3 x 8 dark (8, 16, 32 s), 8 flat, 20 linearity steps and 61 sweep wavelengths (400-700 nm, one frame each),
 RAW only: 129 DNG files.
 
-Each measurement is a fresh process (medians of the alternating runs):
+Each measurement is a fresh process (medians; all runs in one shuffled order):
 
 - baseline: ``camcal.io.load_frame`` + ``Frame.planes`` of every file once, in 2 threads (camcal's own decode);
 - the same plus each file's SHA-256 (``camcal.hashing.sha256_file``, the hash every input gets in the profile's
@@ -26,6 +26,7 @@ import argparse
 import json
 import os
 import platform
+import random
 import resource
 import statistics
 import subprocess
@@ -170,7 +171,7 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--width", type=int, default=6000)
     ap.add_argument("--height", type=int, default=4000)
-    ap.add_argument("--runs", type=int, default=3, help="alternating runs of decode and calibrate (medians)")
+    ap.add_argument("--runs", type=int, default=3, help="runs of each measurement, in one shuffled order (medians)")
     ap.add_argument("--quick", action="store_true", help="smoke run: 600x400, one run")
     ap.add_argument("--prepare", action="store_true", help="only write the session (once; it is kept)")
     ap.add_argument("--one", choices=["decode", "hashed", "cli", "stages"], help=argparse.SUPPRESS)
@@ -189,11 +190,12 @@ def main() -> None:
     for p in files(session):
         p.read_bytes()  # page cache warm for every run
     size = ("--width", str(args.width), "--height", str(args.height))
-    dec, hashed, cli = [], [], []
-    for _ in range(args.runs):
-        dec.append(_sub(*size, "--one", "decode"))
-        hashed.append(_sub(*size, "--one", "hashed"))
-        cli.append(_sub(*size, "--one", "cli"))
+    runs: dict[str, list[dict]] = {"decode": [], "hashed": [], "cli": []}
+    plan = [kind for _ in range(args.runs) for kind in runs]
+    random.Random(0).shuffle(plan)  # one shuffled order: a run's time depends on the run before it (bench_dark.py)
+    for kind in plan:
+        runs[kind].append(_sub(*size, "--one", kind))
+    dec, hashed, cli = runs["decode"], runs["hashed"], runs["cli"]
     stages = _sub(*size, "--one", "stages")
 
     def med(runs: list[dict], key: str) -> float:
@@ -209,8 +211,8 @@ def main() -> None:
         "",
         f"`python benchmarks/bench_calibrate.py --width {args.width} --height {args.height} --runs {args.runs}`: "
         f"a {args.width}x{args.height} ({args.width * args.height / 1e6:.0f} MP) synthetic session of {n} DNGs "
-        "(16 bias, 3 x 8 dark, 8 flat, 20 linearity, 61 sweep), each measurement a fresh process, decode and "
-        "calibrate alternating, medians.",
+        "(16 bias, 3 x 8 dark, 8 flat, 20 linearity, 61 sweep), each measurement a fresh process, all runs in one "
+        "shuffled order, medians.",
         "",
         "| what | wall (s) | CPU (s) | ratio to the decode (wall) |",
         "|---|---:|---:|---:|",
