@@ -16,7 +16,7 @@ import pytest
 
 import camcal.io as camcal_io
 from camcal.calibrate import calibrate_session, stage_checks
-from camcal.errors import CamcalError
+from camcal.errors import CamcalError, FrameLeftOut
 from camcal.profile import load_profile
 from camcal.response import MIN_EXPOSURES, fit_series, measure_series, saturation_point
 from camcal.screen import screen_session
@@ -112,7 +112,8 @@ def test_sweep_frame_with_shutter_closed_is_left_out(tiny, tiny_camera):
     exposure_s = float(row.split(",")[5])
     tiny_camera.write_dng(tiny / "sweep" / "sweep_550.0nm_01.dng", Scene.dark(), exposure_s=exposure_s, iso=100,
                           f_number=4.0, rng=np.random.default_rng(3))
-    profile, _ = calibrate_session(tiny)
+    with pytest.warns(FrameLeftOut, match=r"left out: sweep_550.0nm_01.dng: no light recorded"):
+        profile, _ = calibrate_session(tiny)
     left = {r["file"]: r["reason"] for r in profile.provenance.left_out}
     assert list(left) == ["sweep/sweep_550.0nm_01.dng"]
     assert left["sweep/sweep_550.0nm_01.dng"].startswith("no light recorded (shutter closed or trigger missed)")
@@ -123,7 +124,8 @@ def test_dark_frame_alone_at_its_exposure_time_is_left_out(tiny):
     """Two darks at 2 s, one of them unreadable: the other has no temporal noise to measure alone, so it is left out
     too, and the dark current is fitted from 16 s and the bias frames."""
     (tiny / "dark" / "dark_002.000s_01.dng").write_bytes(b"II*\x00 truncated")
-    profile, _ = calibrate_session(tiny)
+    with pytest.warns(FrameLeftOut, match=r"left out: dark_002.000s_00.dng: alone at its exposure time"):
+        profile, _ = calibrate_session(tiny)
     left = {r["file"]: r["reason"] for r in profile.provenance.left_out}
     assert left["dark/dark_002.000s_01.dng"].startswith("unreadable: ")
     assert left["dark/dark_002.000s_00.dng"].startswith("alone at its exposure time (2 s)")
