@@ -166,6 +166,8 @@ class _Decoder:
         self.first: _Meta | None = None
         self.spill_fd: int | None = None
         """The spill file's read-write descriptor (median/clip), None when nothing is spilled (mean)."""
+        self.spill_name = ""
+        """The spill file's name in messages."""
         self.spill_dtype = np.dtype(np.uint16 if preprocess is None else np.float32)
         self.mosaic = False
         """Spill (median/clip) or sum (mean) Bayer frames as their mosaic (set for a stack of default planes
@@ -232,8 +234,13 @@ class _Decoder:
         offset = index * buf.nbytes
         assert self.spill_fd is not None
         done = 0
-        while done < buf.nbytes:
-            done += os.pwrite(self.spill_fd, buf[done:], offset + done)
+        try:
+            while done < buf.nbytes:
+                done += os.pwrite(self.spill_fd, buf[done:], offset + done)
+        except OSError as exc:  # no space left, a quota: one line naming the spill and what to change
+            raise CamcalError(f"cannot write the temporary stack file {self.spill_name}: "
+                              f"{exc.strerror or exc}; point TMPDIR to a folder with room for the stack "
+                              f"(or let it stay in memory: CAMCAL_SPILL_MEMORY_MB)") from None
 
     def worker(self, item: tuple[int, str]) -> tuple[int, FrameFacts, _Meta | None, np.ndarray | None,
                                                      np.ndarray | None]:
@@ -743,7 +750,7 @@ def _combine(paths: tuple[Path, ...], method: str, sigma: float, keep_frames: in
     spill = (scratch_fd("camcal-stack-", spill_bytes, spill_dir) if method != "mean"
              else contextlib.nullcontext((None, "")))
     with spill as (spill_fd, spill_name):
-        dec.spill_fd = spill_fd
+        dec.spill_fd, dec.spill_name = spill_fd, spill_name
         try:
             acc = (_ShiftedSums(first_planes if first_spill is None else first_spill) if method == "mean"
                    else None)

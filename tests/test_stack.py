@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import tempfile
 
 import numpy as np
 import pytest
@@ -222,3 +223,25 @@ def test_a_stack_spilled_to_disk_equals_one_held_in_memory(stack_dir, monkeypatc
     for a, b in ((disk.value, memory.value), (disk.variance, memory.variance), (disk.count, memory.count),
                  *zip(disk.kept_planes, memory.kept_planes, strict=True)):
         np.testing.assert_array_equal(a, b)
+
+
+def test_a_spill_that_cannot_be_written_is_one_line_naming_it(stack_dir, monkeypatch, tmp_path):
+    """A full disk while frames are spilled (the write fails with ENOSPC): a CamcalError naming the spill file and
+    what to change, not an OSError without a file name; the spill file is removed."""
+    import errno
+
+    import camcal.stack as stack_module
+
+    files, _ = _cube(stack_dir[0])
+    monkeypatch.setenv("CAMCAL_SPILL_MEMORY_MB", "0")
+    monkeypatch.setenv("TMPDIR", str(tmp_path))
+    monkeypatch.setattr(tempfile, "tempdir", None)
+
+    def full(fd, data, offset):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(stack_module.os, "pwrite", full)
+    with pytest.raises(CamcalError, match=r"cannot write the temporary stack file .*camcal-stack-.*: No space left "
+                                          r"on device; point TMPDIR"):
+        combine_frames(files, method="sigma_clip", jobs=1)
+    assert not list(tmp_path.glob("camcal-stack-*"))
