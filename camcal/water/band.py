@@ -36,7 +36,7 @@ from camcal.errors import CamcalError
 from camcal.manifest import read_text_file
 from camcal.profile import load_profile
 from camcal.reference_spectra import planck_radiance
-from camcal.water.invert import CHUNK, Inversion, Reason, _run_chunks
+from camcal.water.invert import CHUNK, HermiteTable, Inversion, Reason, _run_chunks
 from camcal.water.models import ClosedForm, RefinedModel, SeedModel, form_at
 from camcal.water.purewater import pure_water_absorption_per_m
 from camcal.water.units import specific_absorption_m2_per_mg, ug_per_L_to_mol_per_L
@@ -481,10 +481,11 @@ class BandInverse:
     With δ = ln B(0) − ln B (≥ 0, increasing in C), y = ln C is a smooth, nearly linear function of w = ln δ
     (a power law at low C). It is tabulated on nodes log-spaced in C (1e-4…1e5 µg/L) with the analytic slope
     dy/dw = δ B / (C (−dB/dC)), interpolated by a cubic Hermite spline, and resampled onto ``table_nodes``
-    nodes uniform in w, so a pixel costs two logs, one index and a cubic (chunked, two threads; as
-    :class:`camcal.water.invert.TauTable`). Below the first node C is linear in δ; beyond the last the pixel
-    is TOO_DARK, and so beyond the node where the table no longer follows its nodes to 1e-6 in ln C (B
-    flattening towards a floor of light the chlorophyll does not absorb). σ_C = C |dy/dw| σ_ln r / δ.
+    nodes uniform in w (a :class:`camcal.water.invert.HermiteTable`, as :class:`camcal.water.invert.TauTable`'s),
+    so a pixel costs two logs, one index and a cubic (chunked, two threads). Below the first node C is linear in
+    δ; beyond the last the pixel is TOO_DARK, and so beyond the node where the table no longer follows its nodes
+    to 1e-6 in ln C (B flattening towards a floor of light the chlorophyll does not absorb).
+    σ_C = C |dy/dw| σ_ln r / δ.
     """
 
     def __init__(self, model: BandModel, depth_m: float, nodes: int = 800, table_nodes: int = 4096) -> None:
@@ -510,35 +511,17 @@ class BandInverse:
         c, b, db, delta, w = c[mono], b[mono], db[mono], delta[mono], w[mono]
         spline = CubicHermiteSpline(w, np.log(c), delta * b / (c * -db))
         wu = np.linspace(w[0], w[-1], table_nodes)
-        dw = float(wu[1] - wu[0])
-        y = spline(wu)
-        m = spline.derivative()(wu) * dw  # dy/du on a unit cell
-        y0, y1, m0, m1 = y[:-1], y[1:], m[:-1], m[1:]
-        self._coef = np.ascontiguousarray(np.stack([y0, m0, -3 * y0 - 2 * m0 + 3 * y1 - m1,
-                                                    2 * y0 + m0 - 2 * y1 + m1]))
-        self._w0, self._dw = float(wu[0]), dw
+        self._table = HermiteTable.from_nodes(wu, spline(wu), spline.derivative()(wu))
         # Where B flattens towards a floor (light that the chlorophyll spectrum does not absorb, e.g. beyond its
         # 700 nm end), y(w) turns vertical within the last cells and their cubics cannot follow it (they gave
         # C = 0 for a ratio a little above the floor): the table ends at the node before the first node it
         # misses by more than 1e-6 in ln C, and a larger δ is TOO_DARK. Node 0 is the table's first node, met
         # exactly.
-        yn, _ = self._ln_c(*self._cell(w))
+        yn, _ = self._table.evaluate(w.copy())
         miss = np.flatnonzero(np.abs(yn - np.log(c)) > 1e-6)
         last = int(miss[0]) - 1 if miss.size else c.size - 1
         self.delta_lo, self.delta_hi = float(delta[0]), float(delta[last])
         self.c_lo = float(c[0])
-
-    def _cell(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The table cell of each w = ln δ and the position in it (0…1; past the last cell, its cubic goes on)."""
-        t = (w - self._w0) / self._dw
-        j = np.minimum(t.astype(np.intp), self._coef.shape[1] - 1)
-        return j, t - j
-
-    def _ln_c(self, j: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """ln C (C in µg/L) at position ``u`` of cell ``j`` (the cell's cubic, Horner), and dy/du there."""
-        k = self._coef
-        c3, c2, c1 = k[3].take(j), k[2].take(j), k[1].take(j)
-        return ((c3 * u + c2) * u + c1) * u + k[0].take(j), (3 * c3 * u + 2 * c2) * u + c1
 
     def _into(self, r, c_out, sig_out, reason_out, sigma) -> None:
         """One chunk: fill C (µg/L), σ_C (or NaN) and the reason code in place."""
@@ -553,7 +536,7 @@ class BandInverse:
             ok = reason_out == 0
             main = ok & (delta >= self.delta_lo)
             d = np.where(main, delta, self.delta_lo)
-            y, dydu = self._ln_c(*self._cell(np.log(d)))
+            y, dydw = self._table.evaluate(np.log(d), with_slope=sigma is not None)
         cc = np.exp(y)
         low = ok & ~main  # between C = 0 and the first node: linear in δ
         cc[low] = self.c_lo * delta[low] / self.delta_lo
@@ -563,7 +546,7 @@ class BandInverse:
             sig_out[...] = np.nan
             return
         with np.errstate(divide="ignore", invalid="ignore"):
-            sg = cc * np.abs(dydu / self._dw) / d * sigma
+            sg = cc * np.abs(dydw) / d * sigma
         sg[low] = (self.c_lo / self.delta_lo * sigma if np.ndim(sigma) == 0 else
                    self.c_lo / self.delta_lo * sigma[low])
         sg[~ok] = np.nan

@@ -105,13 +105,55 @@ def tau_newton(ratio, cf: ClosedForm, *, max_iter: int = 200, rtol: float = 1e-1
 
 
 @dataclass(frozen=True)
-class _Nodes:
+class HermiteTable:
+    """y(w) tabulated as a cubic Hermite spline on nodes uniform in w, for whole images: a value costs one index
+    and one Horner cubic (:class:`TauTable` and :class:`camcal.water.band.BandInverse` each hold one).
+
+    Cell j spans w0 + j·dw … w0 + (j + 1)·dw; on it y = c0 + u (c1 + u (c2 + u c3)), u ∈ [0, 1), the cubic
+    Hermite interpolant of the values and slopes at its two nodes (de Boor 2001, *A Practical Guide to
+    Splines*, ch. IV). Beyond the last cell, its cubic goes on.
+    """
+
     w0: float
-    inv_dw: float
+    inv_dw: float  # 1/dw
     dw: float
-    coef: np.ndarray  # (4, cells): τ = c0 + u (c1 + u (c2 + u c3)) on each cell, u ∈ [0, 1)
-    delta_max: float
-    slope0: float  # −d ln R/dτ at τ = 0
+    coef: np.ndarray  # (4, cells): c0 … c3 of each cell
+
+    @classmethod
+    def from_nodes(cls, w: np.ndarray, y: np.ndarray, dydw: np.ndarray) -> HermiteTable:
+        """The table through the values ``y`` with slopes ``dydw`` at the uniform nodes ``w``."""
+        dw = float(w[1] - w[0])
+        m = dydw * dw  # dy/du on a unit cell
+        y0, y1, m0, m1 = y[:-1], y[1:], m[:-1], m[1:]
+        coef = np.stack([y0, m0, -3 * y0 - 2 * m0 + 3 * y1 - m1, 2 * y0 + m0 - 2 * y1 + m1])
+        return cls(float(w[0]), 1.0 / dw, dw, np.ascontiguousarray(coef))
+
+    def evaluate(self, w: np.ndarray, with_slope: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
+        """y at each ``w`` (float64 array, overwritten: it holds the position in the cell after), and dy/dw when
+        ``with_slope`` (else None)."""
+        t = w
+        t -= self.w0
+        t *= self.inv_dw
+        j = t.astype(np.intp)
+        np.minimum(j, self.coef.shape[1] - 1, out=j)
+        t -= j  # u
+        c = self.coef
+        c3 = c[3].take(j)
+        res = c[2].take(j)
+        res += c3 * t
+        der = None
+        if with_slope:
+            # dy/du = c1 + 2 c2 u + 3 c3 u²
+            der = c[2].take(j) * 2.0
+            der += 3.0 * c3 * t
+            der *= t
+            der += c[1].take(j)
+            der *= self.inv_dw
+        res *= t
+        res += c[1].take(j)
+        res *= t
+        res += c[0].take(j)
+        return res, der
 
 
 #: Pixels per work unit of the image inversion (bounded memory; :func:`camcal.threads.thread_count` threads share them).
@@ -135,11 +177,9 @@ class TauTable:
         delta[-1] = delta_max
         tau, _ = tau_newton(r0 * np.exp(-delta), cf)
         tau[-1] = tau_max
-        dw = float(w[1] - w[0])
-        m = delta / (-cf.dlog_ratio_dtau(tau)) * dw  # dτ/dw scaled to a unit cell
-        y0, y1, m0, m1 = tau[:-1], tau[1:], m[:-1], m[1:]
-        coef = np.stack([y0, m0, -3 * y0 - 2 * m0 + 3 * y1 - m1, 2 * y0 + m0 - 2 * y1 + m1])
-        self._n = _Nodes(float(w[0]), 1.0 / dw, dw, np.ascontiguousarray(coef), delta_max, cf.slope_at_zero)
+        self._table = HermiteTable.from_nodes(w, tau, delta / (-cf.dlog_ratio_dtau(tau)))  # dτ/dw
+        self.delta_max = delta_max
+        self.slope0 = float(cf.slope_at_zero)  # −d ln R/dτ at τ = 0
         self.ln_r0 = float(np.log(r0))
 
     def tau(self, ratio, *, with_slope: bool = False):
@@ -163,46 +203,25 @@ class TauTable:
 
     def tau_into(self, r: np.ndarray, tau: np.ndarray, reason: np.ndarray, slope: np.ndarray | None) -> None:
         """Fill ``tau``, ``reason`` (and ``slope`` = dτ/d(−ln r)) for one chunk of ratios, in place."""
-        n = self._n
         with np.errstate(divide="ignore", invalid="ignore"):
             delta = np.log(r, dtype=np.float64)
             np.subtract(self.ln_r0, delta, out=delta)
-            inside = (delta >= DELTA_MIN) & (delta <= n.delta_max)
+            inside = (delta >= DELTA_MIN) & (delta <= self.delta_max)
         all_inside = bool(inside.all())
         d = delta if all_inside else np.where(inside, delta, 1.0)
-        t = np.log(d)
-        t -= n.w0
-        t *= n.inv_dw
-        j = t.astype(np.intp)
-        np.minimum(j, n.coef.shape[1] - 1, out=j)
-        t -= j  # u
-        c = n.coef
-        c3 = c[3].take(j)
-        res = c[2].take(j)
-        res += c3 * t
-        if slope is not None:
-            # dτ/du = c1 + 2 c2 u + 3 c3 u²
-            der = c[2].take(j) * 2.0
-            der += 3.0 * c3 * t
-            der *= t
-            der += c[1].take(j)
-            der *= 1.0 / n.dw
-            der /= d
-        res *= t
-        res += c[1].take(j)
-        res *= t
-        res += c[0].take(j)
+        res, der = self._table.evaluate(np.log(d), with_slope=slope is not None)
         tau[...] = res
         reason[...] = 0
         if slope is not None:
+            der /= d  # dτ/d(−ln r) = (dτ/dw) / δ
             slope[...] = der
         if all_inside:
             return
         out = ~inside
         small = out & (delta >= 0) & (delta < DELTA_MIN)
-        tau[small] = delta[small] / n.slope0
+        tau[small] = delta[small] / self.slope0
         if slope is not None:
-            slope[small] = 1.0 / n.slope0
+            slope[small] = 1.0 / self.slope0
         out &= ~small
         rr = r[out]
         why = np.full(rr.shape, Reason.TOO_DARK, dtype=np.uint8)
