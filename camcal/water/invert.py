@@ -115,8 +115,7 @@ class HermiteTable:
     """
 
     w0: float
-    inv_dw: float  # 1/dw
-    dw: float
+    inv_dw: float  # 1/dw, dw the nodes' spacing
     coef: np.ndarray  # (4, cells): c0 … c3 of each cell
 
     @classmethod
@@ -126,7 +125,7 @@ class HermiteTable:
         m = dydw * dw  # dy/du on a unit cell
         y0, y1, m0, m1 = y[:-1], y[1:], m[:-1], m[1:]
         coef = np.stack([y0, m0, -3 * y0 - 2 * m0 + 3 * y1 - m1, 2 * y0 + m0 - 2 * y1 + m1])
-        return cls(float(w[0]), 1.0 / dw, dw, np.ascontiguousarray(coef))
+        return cls(float(w[0]), 1.0 / dw, np.ascontiguousarray(coef))
 
     def evaluate(self, w: np.ndarray, with_slope: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
         """y at each ``w`` (float64 array, overwritten: it holds the position in the cell after), and dy/dw when
