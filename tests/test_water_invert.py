@@ -618,3 +618,27 @@ def test_invert_images_with_a_band_model_at_one_depth():
     h = 1e-3 * c
     dlnb_dlnc = (np.log(band.ratio(c + h, d)) - np.log(band.ratio(c - h, d))) / (2 * h) * c
     np.testing.assert_allclose(inv.sigma_ug_per_L, np.hypot(0.01, 0.01) * c / np.abs(dlnb_dlnc), rtol=1e-5)
+
+
+def test_the_uniform_hermite_table_is_exact_for_a_cubic():
+    """Cubic Hermite interpolation reproduces a cubic exactly: the table through y = 2 − w + 0.5 w² − 0.25 w³ and
+    its slope on 7 uniform nodes gives y and dy/dw at any w (between nodes, on a node, and past the last node,
+    where the last cell's cubic goes on) to rounding; the argument is overwritten (documented), and no slope is
+    computed unless asked for."""
+    from camcal.water.invert import HermiteTable
+
+    def y(w):
+        return 2 - w + 0.5 * w**2 - 0.25 * w**3
+
+    def dy(w):
+        return -1 + w - 0.75 * w**2
+
+    nodes = np.linspace(-1.0, 2.0, 7)
+    table = HermiteTable.from_nodes(nodes, y(nodes), dy(nodes))
+    w = np.array([-1.0, -0.83, 0.0, 0.5, 1.37, 2.0, 2.3])
+    got, slope = table.evaluate(w.copy(), with_slope=True)
+    np.testing.assert_allclose(got, y(w), rtol=0, atol=1e-13)
+    np.testing.assert_allclose(slope, dy(w), rtol=0, atol=1e-12)
+    arg = w.copy()
+    value, none = table.evaluate(arg)
+    assert none is None and np.array_equal(value, got) and not np.array_equal(arg, w)
