@@ -8,7 +8,7 @@ Batch (``--batch``): ``run_batch(profile, photos[:n], out, BatchOptions(), jobs=
 output, ``BatchOptions``' precision and compression) in a fresh subprocess per run, against the floor of the
 same photos: a 2-process (spawn) pool whose workers do the floor's rawpy decode + OpenImageIO write per photo.
 Photos/s of each, their ratio, and the peak RSS of the largest worker (``RUSAGE_CHILDREN``, fresh per run), at
-each count: flat in the count. Runs alternate floor / camcal; medians.
+each count: flat in the count. All runs in one shuffled order; medians.
 
 Floor (the unavoidable work, measured in the same run): ``rawpy`` decode of the DNG (mosaic copied
 out) plus an OpenImageIO write of an EXR of the same size as camcal's output (8 float32 channels at
@@ -29,8 +29,11 @@ import datetime
 import json
 import os
 import platform
+import random
 import resource
 import shutil
+import statistics
+import subprocess
 import sys
 import tempfile
 import time
@@ -206,10 +209,6 @@ def batch_once(kind: str, n: int, jobs: int) -> dict:
 
 
 def batch_section(counts: list[int], jobs: int, runs: int) -> None:
-    import json
-    import statistics
-    import subprocess
-
     from camcal.batch import BatchOptions
 
     build(WORK)
@@ -224,10 +223,10 @@ def batch_section(counts: list[int], jobs: int, runs: int) -> None:
         return json.loads(proc.stdout.strip().splitlines()[-1])
 
     res: dict[tuple[str, int], list[dict]] = {(k, n): [] for k in ("floor", "camcal") for n in counts}
-    for _ in range(runs):
-        for n in counts:
-            for kind in ("floor", "camcal"):
-                res[kind, n].append(sub(kind, n))
+    plan = [key for _ in range(runs) for key in res]
+    random.Random(0).shuffle(plan)  # one shuffled order: a run's time depends on the run before it (bench_dark.py)
+    for kind, n in plan:
+        res[kind, n].append(sub(kind, n))
 
     def med(kind: str, n: int, key: str) -> float:
         return statistics.median(r[key] for r in res[kind, n])
@@ -241,7 +240,7 @@ def batch_section(counts: list[int], jobs: int, runs: int) -> None:
           f"DNGs → EXR (R, G, B, L663 and their 1σ channels, {opts.precision} {opts.compression}: the default "
           f"output), `run_batch(jobs={jobs})` in a "
           f"fresh process per run against the floor (rawpy decode + OpenImageIO write of the same size, a {jobs}-"
-          f"process spawn pool, start-up included in both); medians of {runs} alternating runs.\n")
+          f"process spawn pool, start-up included in both); medians of {runs} runs each, all in one shuffled order.\n")
     print("| photos | floor (photos/s) | floor worker peak (MB) | camcal (photos/s) | camcal worker peak (MB) "
           "| camcal / floor (throughput) |")
     print("|---:|---:|---:|---:|---:|---:|")
@@ -265,7 +264,7 @@ def main() -> None:
     ap.add_argument("--batch", action="store_true", help="only the batch throughput, at --counts photos")
     ap.add_argument("--counts", default="8,16,32", help="batch sizes, comma-separated")
     ap.add_argument("--jobs", type=int, default=2)
-    ap.add_argument("--runs", type=int, default=2, help="alternating runs per batch size (medians)")
+    ap.add_argument("--runs", type=int, default=2, help="runs per batch size, in one shuffled order (medians)")
     ap.add_argument("--quick", action="store_true", help="smoke run: 1200x800, batches of 2 and 4, one run")
     ap.add_argument("--one", choices=["camcal", "floor"], help=argparse.SUPPRESS)
     ap.add_argument("--n", type=int, default=8, help=argparse.SUPPRESS)
