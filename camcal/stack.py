@@ -2,7 +2,9 @@
 
 Every calibration stage (bias, dark, flat, sweep, profile) averages N frames of one
 setting per pixel and per channel plane. :func:`combine_frames` does it with each
-file decoded exactly once and memory that does not grow with N. Each frame is judged as it is decoded (the
+file decoded exactly once and a working set that does not grow with N (the frames themselves wait in the
+median/clip spill file: in memory only while they fit in a quarter of what is available). Each frame is judged
+as it is decoded (the
 stage's :class:`camcal.screen.StageJudge` leaves an unusable frame out; by default a
 :class:`camcal.screen.StrictJudge` makes it an error):
 
