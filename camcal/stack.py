@@ -4,8 +4,7 @@ Every calibration stage (bias, dark, flat, sweep, profile) averages N frames of 
 setting per pixel and per channel plane. :func:`combine_frames` does it with each
 file decoded exactly once and a working set that does not grow with N (the frames themselves wait in the
 median/clip spill file: in memory only while they fit in a quarter of what is available). Each frame is judged
-as it is decoded (the
-stage's :class:`camcal.screen.StageJudge` leaves an unusable frame out; by default a
+as it is decoded (the stage's :class:`camcal.screen.StageJudge` leaves an unusable frame out; by default a
 :class:`camcal.screen.StrictJudge` makes it an error):
 
 - ``method="mean"``: running sums of the deviations from the first frame and of their squares in
