@@ -17,7 +17,8 @@ Each measurement is a fresh process (medians; all runs in one shuffled order):
 - where the time goes: ``calibrate_session`` + ``save_profile`` in one process with each stage's entry point
   timed (wall and CPU of the process, all its threads): screening (every frame's header read: each stage judges
   its frames as it decodes them), dark stacks and fit, flat, linearity, sweep,
-  EMVA sheet, input hashes, writing the profile. Their shares are of that run's total, imports excluded.
+  EMVA sheet, input hashes, writing the profile; ``--runs`` such runs among the others, each stage's median and
+  its share of the median total, imports excluded.
 """
 
 from __future__ import annotations
@@ -190,13 +191,17 @@ def main() -> None:
     for p in files(session):
         p.read_bytes()  # page cache warm for every run
     size = ("--width", str(args.width), "--height", str(args.height))
-    runs: dict[str, list[dict]] = {"decode": [], "hashed": [], "cli": []}
+    runs: dict[str, list[dict]] = {"decode": [], "hashed": [], "cli": [], "stages": []}
     plan = [kind for _ in range(args.runs) for kind in runs]
     random.Random(0).shuffle(plan)  # one shuffled order: a run's time depends on the run before it (bench_dark.py)
     for kind in plan:
         runs[kind].append(_sub(*size, "--one", kind))
     dec, hashed, cli = runs["decode"], runs["hashed"], runs["cli"]
-    stages = _sub(*size, "--one", "stages")
+    # each stage's median over the runs (a stage moves by up to 2 s between runs of the same code)
+    names = {name for r in runs["stages"] for name in r["spent"]}
+    spent = {name: [statistics.median(r["spent"].get(name, [0.0, 0.0])[k] for r in runs["stages"]) for k in (0, 1)]
+             for name in names}
+    total_wall, total_cpu = (statistics.median(r["total"][k] for r in runs["stages"]) for k in (0, 1))
 
     def med(runs: list[dict], key: str) -> float:
         return statistics.median(r[key] for r in runs)
@@ -223,21 +228,21 @@ def main() -> None:
         f"| `camcal calibrate SESSION -o P.camcal` (whole process) | {c:.2f} | {med(cli, 'cpu_s'):.2f} "
         f"| **{c / d:.2f}** ({c / h:.2f} to the decode and hash) |",
         "",
-        "Where the time goes (one more run: `calibrate_session` + `save_profile` in one process, imports "
-        "excluded; CPU counts every thread):",
+        f"Where the time goes ({args.runs} more runs in the same shuffled order: `calibrate_session` + "
+        "`save_profile` in one process, each stage's median; imports excluded; CPU counts every thread):",
         "",
         "| stage | wall (s) | CPU (s) | share of the wall time |",
         "|---|---:|---:|---:|",
     ]
-    total_wall, total_cpu = stages["total"]
     labels = dict(STAGES, save_profile="writing the profile (maps EXR, hashes, schema validation)")
     accounted = 0.0
-    for name, (wall, cpu) in sorted(stages["spent"].items(), key=lambda kv: -kv[1][0]):
+    for name, (wall, cpu) in sorted(spent.items(), key=lambda kv: -kv[1][0]):
         accounted += wall
         lines.append(f"| {labels.get(name, name)} | {wall:.2f} | {cpu:.2f} | {wall / total_wall:.0%} |")
     lines.append(f"| the rest (verdicts, notes, identity, provenance) | {total_wall - accounted:.2f} | | "
                  f"{(total_wall - accounted) / total_wall:.0%} |")
-    lines.append(f"| **total** | {total_wall:.2f} | {total_cpu:.2f} | 100% |")
+    lines.append(f"| **total** (the median of the runs' totals, not the sum of the medians) | {total_wall:.2f} | "
+                 f"{total_cpu:.2f} | 100% |")
     lines.append("")
     lines.append("Runs, wall (s): calibrate " + ", ".join(f"{r['seconds']:.1f}" for r in cli) + "; decode "
                  + ", ".join(f"{r['seconds']:.1f}" for r in dec) + "; decode and hash "
