@@ -161,9 +161,9 @@ def scratch_fd(prefix: str, nbytes: int, folder: str | Path | None = None) -> It
     if folder is None and hasattr(os, "memfd_create") and 0 < nbytes <= spill_memory_limit_bytes():
         try:
             fd = os.memfd_create(prefix, getattr(os, "MFD_CLOEXEC", 0))
-        except OSError:
-            fd = -1
-        if fd >= 0:
+        except OSError:  # no memory files here (an old kernel, a sandbox): the file goes on disk
+            pass
+        else:
             try:
                 yield fd, f"temporary {prefix.strip('-')} file in memory"
             finally:

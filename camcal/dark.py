@@ -62,7 +62,7 @@ from camcal.dark_model import (  # noqa: F401 (re-exported)
 from camcal.errors import CamcalError, FrameLeftOut, MissingMetadataError, TooFewFrames
 from camcal.frame import Frame
 from camcal.hashing import sha256_file
-from camcal.io import exposure_from_exif
+from camcal.io import exposure_from_exif, saturated_fraction
 from camcal.screen import StageJudge
 from camcal.session import StageFrames, folder_of, stage_files
 from camcal.stack import METHODS, StackResult, combine_frames
@@ -103,8 +103,7 @@ def dark_frame_check(saturation_fraction: float = 0.01) -> Callable[[Frame], Non
             raise CamcalError("bias and dark frames must be RAW files (the dark model works on CFA planes)",
                               frame.path)
         white = frame.white_level_dn
-        # no value at the white level (the reader's maximum below it): nothing to count
-        frac = 0.0 if frame.data_range()[1] < white else float(np.count_nonzero(frame.data >= white)) / frame.data.size
+        frac = saturated_fraction(frame)
         if frac > saturation_fraction:
             raise CamcalError(f"dark frame is saturated: {100 * frac:.1f} % of pixels at the white level "
                               f"{white:.0f} DN (light leak, or not a dark frame?)", frame.path)

@@ -54,7 +54,7 @@ def describe(path: str | Path, sun: SunPosition | None = None) -> dict[str, obje
     f = load_frame(path, overrides)
     e = f.exposure
     h, w = f.shape
-    sat = 100.0 * saturated_fraction(f.data, f.white_level_dn)
+    sat = 100.0 * saturated_fraction(f)
     ev = e.iso * e.exposure_s / e.f_number**2 if (e.iso and e.exposure_s and e.f_number) else None
     when = photo_time_utc(e)
     bits = int(f.white_level_dn).bit_length() if f.kind == "processed" else None

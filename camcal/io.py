@@ -480,9 +480,13 @@ def check_has_data(path: Path, data: np.ndarray, black_dn: float, white_dn: floa
     return lo, hi
 
 
-def saturated_fraction(data: np.ndarray, white_dn: float) -> float:
-    """Fraction of the values of ``data`` at or above the white level ``white_dn`` (0…1)."""
-    return float(np.count_nonzero(data >= white_dn)) / max(int(data.size), 1)
+def saturated_fraction(frame: Frame) -> float:
+    """Fraction of a frame's values at or above its white level (0…1); 0 without going over the pixels when the
+    largest value its reader measured (:attr:`camcal.frame.Frame.value_range_dn`) is below the white level."""
+    white = frame.white_level_dn
+    if frame.value_range_dn is not None and frame.value_range_dn[1] < white:
+        return 0.0
+    return float(np.count_nonzero(frame.data >= white)) / max(int(frame.data.size), 1)
 
 
 def _load_raw(path: Path) -> Frame:
