@@ -11,14 +11,17 @@ RAW only: 129 DNG files.
 Each measurement is a fresh process (medians; all runs in one shuffled order):
 
 - baseline: ``camcal.io.load_frame`` + ``Frame.planes`` of every file once, in 2 threads (camcal's own decode);
+- the same under camcal's allocator policy (``camcal.allocator.use_frame_allocator``, which the command line
+  sets): the decode's own speed-up from it, so that the ratio is not flattered by it;
 - the same plus each file's SHA-256 (``camcal.hashing.sha256_file``, the hash every input gets in the profile's
   provenance): the floor of a calibration that records what it was made from;
-- ``camcal calibrate SESSION -o P.camcal``: the whole command, wall and CPU time (children included);
+- ``camcal calibrate SESSION -o P.camcal``: the whole command, wall and CPU time (children included), and the
+  same with glibc's own allocator policy (``CAMCAL_MALLOC=default``);
 - where the time goes: ``calibrate_session`` + ``save_profile`` in one process with each stage's entry point
   timed (wall and CPU of the process, all its threads): screening (every frame's header read: each stage judges
   its frames as it decodes them), dark stacks and fit, flat, linearity, sweep,
   EMVA sheet, input hashes, writing the profile; ``--runs`` such runs among the others, each stage's median and
-  its share of the median total, imports excluded.
+  its share of the median total, imports excluded, under the command line's allocator policy.
 """
 
 from __future__ import annotations
@@ -98,12 +101,17 @@ def _cpu_s() -> float:
     return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
 
 
-def run_decode(session: Path, hashed: bool = False) -> dict:
-    """Decode every file once in 2 threads (and, ``hashed``, take its SHA-256 right after, as calibrate does)."""
+def run_decode(session: Path, hashed: bool = False, policy: bool = False) -> dict:
+    """Decode every file once in 2 threads (and, ``hashed``, take its SHA-256 right after, as calibrate does;
+    ``policy``: under camcal's allocator policy)."""
     from concurrent.futures import ThreadPoolExecutor
 
+    from camcal.allocator import use_frame_allocator
     from camcal.hashing import sha256_file
     from camcal.io import load_frame
+
+    if policy and not use_frame_allocator():
+        raise SystemExit("the allocator policy does not apply here (not glibc, or set in the environment)")
 
     def one(path: Path) -> int:
         frame = load_frame(path)
@@ -118,12 +126,13 @@ def run_decode(session: Path, hashed: bool = False) -> dict:
     return {"seconds": time.perf_counter() - t0, "cpu_s": _cpu_s() - c0, "files": len(paths)}
 
 
-def run_cli(session: Path) -> dict:
+def run_cli(session: Path, glibc_policy: bool = False) -> dict:
+    env = {**os.environ, "CAMCAL_MALLOC": "default"} if glibc_policy else None
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "p.camcal"
         c0, t0 = _cpu_s(), time.perf_counter()
         proc = subprocess.run([sys.executable, "-m", "camcal", "calibrate", str(session), "-o", str(out)],
-                              capture_output=True, text=True)
+                              capture_output=True, text=True, env=env)
         dt = time.perf_counter() - t0
         if proc.returncode:
             raise SystemExit(f"camcal calibrate failed:\n{proc.stderr}")
@@ -133,8 +142,10 @@ def run_cli(session: Path) -> dict:
 def run_stages(session: Path) -> dict:
     """calibrate_session + save_profile in this process, each stage's entry point timed (wall, CPU)."""
     import camcal.calibrate as cal
+    from camcal.allocator import use_frame_allocator
     from camcal.profile import save_profile
 
+    use_frame_allocator()  # as the command line does
     spent: dict[str, list[float]] = {}
 
     def timed(name, fn):
@@ -175,14 +186,16 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=3, help="runs of each measurement, in one shuffled order (medians)")
     ap.add_argument("--quick", action="store_true", help="smoke run: 600x400, one run")
     ap.add_argument("--prepare", action="store_true", help="only write the session (once; it is kept)")
-    ap.add_argument("--one", choices=["decode", "hashed", "cli", "stages"], help=argparse.SUPPRESS)
+    ap.add_argument("--one", choices=["decode", "decode_policy", "hashed", "cli", "cli_glibc", "stages"],
+                    help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.quick:
         args.width, args.height, args.runs = 600, 400, 1
     session = session_dir(args.width, args.height)
     if args.one:
-        run = {"decode": run_decode, "hashed": lambda s: run_decode(s, hashed=True), "cli": run_cli,
-               "stages": run_stages}[args.one]
+        run = {"decode": run_decode, "decode_policy": lambda s: run_decode(s, policy=True),
+               "hashed": lambda s: run_decode(s, hashed=True), "cli": run_cli,
+               "cli_glibc": lambda s: run_cli(s, glibc_policy=True), "stages": run_stages}[args.one]
         print(json.dumps(run(session)))
         return
     prepare(args.width, args.height)
@@ -191,12 +204,14 @@ def main() -> None:
     for p in files(session):
         p.read_bytes()  # page cache warm for every run
     size = ("--width", str(args.width), "--height", str(args.height))
-    runs: dict[str, list[dict]] = {"decode": [], "hashed": [], "cli": [], "stages": []}
+    runs: dict[str, list[dict]] = {"decode": [], "decode_policy": [], "hashed": [], "cli": [], "cli_glibc": [],
+                                   "stages": []}
     plan = [kind for _ in range(args.runs) for kind in runs]
     random.Random(0).shuffle(plan)  # one shuffled order: a run's time depends on the run before it (bench_dark.py)
     for kind in plan:
         runs[kind].append(_sub(*size, "--one", kind))
     dec, hashed, cli = runs["decode"], runs["hashed"], runs["cli"]
+    dec_p, cli_g = runs["decode_policy"], runs["cli_glibc"]
     # each stage's median over the runs (a stage moves by up to 2 s between runs of the same code)
     names = {name for r in runs["stages"] for name in r["spent"]}
     spent = {name: [statistics.median(r["spent"].get(name, [0.0, 0.0])[k] for r in runs["stages"]) for k in (0, 1)]
@@ -207,6 +222,7 @@ def main() -> None:
         return statistics.median(r[key] for r in runs)
 
     d, h, c = med(dec, "seconds"), med(hashed, "seconds"), med(cli, "seconds")
+    dp, cg = med(dec_p, "seconds"), med(cli_g, "seconds")
     n = dec[0]["files"]
     lines = [
         "## calibrate",
@@ -223,10 +239,15 @@ def main() -> None:
         "|---|---:|---:|---:|",
         f"| baseline: decode each file once (load_frame + planes, 2 threads) | {d:.2f} | {med(dec, 'cpu_s'):.2f} "
         "| 1.00 |",
+        f"| the same under camcal's allocator policy (`camcal.allocator`) | {dp:.2f} | {med(dec_p, 'cpu_s'):.2f} "
+        f"| {dp / d:.2f} |",
         f"| the same, and each file's SHA-256 (as the profile's provenance records it) | {h:.2f} | "
         f"{med(hashed, 'cpu_s'):.2f} | {h / d:.2f} |",
         f"| `camcal calibrate SESSION -o P.camcal` (whole process) | {c:.2f} | {med(cli, 'cpu_s'):.2f} "
-        f"| **{c / d:.2f}** ({c / h:.2f} to the decode and hash) |",
+        f"| **{c / d:.2f}** ({c / h:.2f} to the decode and hash, {c / dp:.2f} to the decode under the same "
+        "allocator policy) |",
+        f"| the same with glibc's own allocator policy (`CAMCAL_MALLOC=default`) | {cg:.2f} | "
+        f"{med(cli_g, 'cpu_s'):.2f} | {cg / d:.2f} |",
         "",
         f"Where the time goes ({args.runs} more runs in the same shuffled order: `calibrate_session` + "
         "`save_profile` in one process, each stage's median; imports excluded; CPU counts every thread):",
@@ -246,7 +267,9 @@ def main() -> None:
     lines.append("")
     lines.append("Runs, wall (s): calibrate " + ", ".join(f"{r['seconds']:.1f}" for r in cli) + "; decode "
                  + ", ".join(f"{r['seconds']:.1f}" for r in dec) + "; decode and hash "
-                 + ", ".join(f"{r['seconds']:.1f}" for r in hashed) + ".")
+                 + ", ".join(f"{r['seconds']:.1f}" for r in hashed) + "; decode under the policy "
+                 + ", ".join(f"{r['seconds']:.1f}" for r in dec_p) + "; calibrate under glibc's policy "
+                 + ", ".join(f"{r['seconds']:.1f}" for r in cli_g) + ".")
     print("\n".join(lines))
 
 

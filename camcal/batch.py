@@ -44,6 +44,7 @@ from concurrent.futures.process import BrokenProcessPool
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
+from camcal.allocator import use_frame_allocator
 from camcal.apply import (
     LINEAR_RESOLUTION_NOTE,
     apply_prepared,
@@ -208,6 +209,7 @@ def _worker_init(parent_pid: int, profile_path: str, options: BatchOptions) -> N
     A profile that fails to load here is left to fail per photo (one clear line each), not to break the pool.
     """
     die_with_parent(parent_pid)
+    use_frame_allocator()
     try:
         _plan(profile_path, options)
     except Exception:  # noqa: BLE001 - reported by process_photo for every photo

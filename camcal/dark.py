@@ -42,7 +42,7 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import minimize
 from scipy.special import ndtr
-from scipy.stats import chi2, median_abs_deviation
+from scipy.stats import chi2
 
 from camcal.correct import Calibration, correct_planes
 from camcal.dark_model import (  # noqa: F401 (re-exported)
@@ -63,6 +63,7 @@ from camcal.errors import CamcalError, FrameLeftOut, MissingMetadataError, TooFe
 from camcal.frame import Frame
 from camcal.hashing import sha256_file
 from camcal.io import exposure_from_exif, saturated_fraction
+from camcal.robust import median, median_and_mad
 from camcal.screen import StageJudge
 from camcal.session import StageFrames, folder_of, stage_files
 from camcal.stack import METHODS, StackResult, combine_frames
@@ -122,10 +123,7 @@ def _robust(x: np.ndarray) -> tuple[float, float]:
     x = x[np.isfinite(x)]
     if x.size == 0:
         return float("nan"), float("nan")
-    # x is a copy (the finite values): the selections may reorder it, and a median does not depend on the order
-    med = float(np.median(x, overwrite_input=True))
-    # the median found once: scipy's MAD takes it as its centre instead of finding it again
-    return med, float(median_abs_deviation(x, center=lambda _x, axis: np.float64(med), scale="normal"))
+    return median_and_mad(x)  # np.median and scipy's normal-scaled MAD, by sampled selection
 
 
 @dataclass(frozen=True)
@@ -950,7 +948,7 @@ def _max_median_mean(x: np.ndarray) -> float:
     mean = float(np.mean(x))
     if np.count_nonzero(x <= mean) >= x.size // 2 + 1:
         return mean
-    return max(float(np.median(x)), mean)
+    return max(float(median(x)), mean)
 
 
 def _run_planes(one: Callable[[int], object], c: int, jobs: int | None, plane_pixels: int) -> list:
@@ -987,8 +985,7 @@ def _channel_summary(b, b_var, beta, beta_var, var_t, defects, stacks, have_bias
             "bias_unc_dn": float(1.2533 * np.sqrt(var_bk) / np.sqrt(bk.size)),
             "dark_current_dn_per_s": med_beta,
             "dark_current_unc_dn_per_s": float(1.2533 * rs_beta / np.sqrt(betak.size)),
-            "dark_current_pixel_unc_dn_per_s": float(np.median(np.sqrt(beta_var_k, out=beta_var_k),
-                                                               overwrite_input=True)),
+            "dark_current_pixel_unc_dn_per_s": float(median(np.sqrt(beta_var_k, out=beta_var_k))),
             "dark_current_mean_dn_per_s": float(np.mean(betak)),
             "read_noise_dn": float(np.sqrt(max(rn_var, 0.0))),
             "temporal_noise_dn": float(noise.temporal_noise_dn[k]),

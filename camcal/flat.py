@@ -76,6 +76,7 @@ from camcal.flat_model import (  # noqa: F401 (re-exported)
 )
 from camcal.frame import PLANES, Exposure, Frame
 from camcal.io import list_frames
+from camcal.robust import median
 from camcal.screen import StageJudge
 from camcal.session import StageFrames, aperture_folders, folder_of, stage_files
 from camcal.stack import combine_frames
@@ -576,8 +577,7 @@ def master_flat(
         corr = correct_frame(frame, cal)
         require_valid(corr, frame.path, what="flat")
         # the valid values are a copy already: the median may reorder it
-        med = np.array([np.median(corr.signal_dn[k][~corr.invalid[k]], overwrite_input=True)
-                        for k in range(corr.signal_dn.shape[0])])
+        med = np.array([median(corr.signal_dn[k][~corr.invalid[k]]) for k in range(corr.signal_dn.shape[0])])
         signal = corr.signal_dn  # this frame's own array (its planes, corrected in place): masked in place
         signal[corr.invalid] = np.nan
         return signal, med
@@ -733,7 +733,7 @@ def _prnu_figures(mf: MasterFlat, channels: tuple[str, ...], smooth: np.ndarray,
         good = np.isfinite(rel) & (smooth[i] > 0) & np.isfinite(mf.variance_all[i])
         if mask is not None:
             good &= ~np.asarray(mask[i], bool)
-        med = float(np.median(rel[good], overwrite_input=True))  # the selection is a copy
+        med = float(median(rel[good]))
         good &= (rel >= DEAD_RESPONSE * med) & (rel <= (2.0 - DEAD_RESPONSE) * med)
         sv = spatial_variance(rel, mf.variance_all[i] / smooth[i] ** 2, mf.n_frames, good)
         out[c] = prnu(sv)

@@ -200,6 +200,14 @@ class Frame:
         object.__setattr__(self, "value_range_dn", (int(lo), int(hi)))
         return self
 
+    def with_exposure(self, exposure: Exposure) -> Frame:
+        """A new frame with the same data and ``exposure``: the value range its reader measured is kept, since the
+        data are the same (:func:`dataclasses.replace` would leave it unmeasured)."""
+        new = dataclasses.replace(self, exposure=exposure)
+        if self.value_range_dn is not None:
+            new.with_value_range(*self.value_range_dn)
+        return new
+
     def data_range(self) -> tuple[int, int]:
         """(smallest, largest) value of :attr:`data` in DN: :attr:`value_range_dn`, or measured now."""
         if self.value_range_dn is not None:

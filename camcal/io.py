@@ -472,12 +472,29 @@ def check_has_data(path: Path, data: np.ndarray, black_dn: float, white_dn: floa
         return lo, hi
     if lo == hi:
         raise CamcalError(f"holds no image data: every pixel has the same value ({lo} DN)", path)
-    if black_dn > 0 and lo < black_dn:
+    if black_dn > 0 and lo < black_dn and _mostly_below(data, black_dn):
         below = np.count_nonzero(data < black_dn) / data.size
         if below >= 0.99:
             raise CamcalError(f"holds no image data: {100 * below:.1f} % of the pixels are below the black level "
                               f"({black_dn:g} DN; the image data may have been stripped)", path)
     return lo, hi
+
+
+def _mostly_below(data: np.ndarray, level_dn: float, chunk: int = 1 << 20) -> bool:
+    """Whether 99 % or more of ``data`` may lie below ``level_dn``: False as soon as more than 1 % of the values
+    are found at or above it, which in an image with data is found within the first rows (about ``chunk``
+    values), instead of counting over the whole frame. True means the whole count decides.
+
+    Row blocks of ``data`` (views: a decoded RAW image is often a strided view of a larger buffer, which
+    ``reshape(-1)`` would copy whole)."""
+    allowed = data.size - 0.99 * data.size  # at or above: more than this many, and fewer than 99 % are below
+    rows = max(1, chunk // max(1, data[0].size)) if data.ndim > 1 else data.shape[0]
+    above = 0
+    for y in range(0, data.shape[0], rows):
+        above += int(np.count_nonzero(data[y:y + rows] >= level_dn))
+        if above > allowed:
+            return False
+    return True
 
 
 def saturated_fraction(frame: Frame) -> float:
@@ -730,7 +747,7 @@ def load_frame(
         exp = exp.filled("session", **defaults)
     if overrides:
         exp = exp.merged("frames.csv", **overrides)
-    return frame if exp is frame.exposure else dataclasses.replace(frame, exposure=exp)
+    return frame if exp is frame.exposure else frame.with_exposure(exp)
 
 
 @dataclasses.dataclass(frozen=True)

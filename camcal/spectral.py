@@ -55,7 +55,6 @@ from typing import Literal
 
 import numpy as np
 from scipy.interpolate import CubicSpline
-from scipy.stats import median_abs_deviation
 
 from camcal.correct import Calibration, correct_planes
 from camcal.dark_model import DarkModel, as_dark_model
@@ -66,6 +65,7 @@ from camcal.frame import PLANES, RGB, Frame, split_planes
 from camcal.io import load_frame
 from camcal.manifest import exposure_overrides, read_manifest, safe_member
 from camcal.region import DEFAULT_ROI_FRACTION, Region, central_roi
+from camcal.robust import median_and_mad
 from camcal.screen import FrameFacts, StageJudge
 from camcal.session import SWEEP_CSV, SWEEP_REQUIRED
 from camcal.spectral_model import (  # noqa: F401 (re-exported)
@@ -213,7 +213,8 @@ def _process_frame(row: SweepRow, cal: Calibration, roi: tuple[int, int, int, in
 def _robust_mask(m: np.ndarray, valid: np.ndarray | None = None, nsigma: float = 5.0) -> np.ndarray:
     """Valid pixels within ``nsigma`` robust sigmas of the plane median; (hr, wr) bool.
 
-    The robust sigma is the MAD scaled to a normal law (``scipy.stats.median_abs_deviation``, ``scale="normal"``).
+    The robust sigma is the MAD scaled to a normal law (:func:`camcal.robust.median_and_mad`, equal to
+    ``scipy.stats.median_abs_deviation`` with ``scale="normal"``).
 
     Median and MAD come from the ``valid`` pixels (all when None), every other row and column when the
     plane has more than 40 000 pixels (their relative sampling error, ~1/√(n/4) < 1 %, moves the 5σ
@@ -224,10 +225,7 @@ def _robust_mask(m: np.ndarray, valid: np.ndarray | None = None, nsigma: float =
     sample = sub[0][sub[1]]
     if sample.size == 0:
         return np.zeros(m.shape, bool)
-    med = np.median(sample)
-    # the median just taken is the MAD's centre (scipy's default centre is this same np.median of the same
-    # values): given, it is not taken a second time
-    mad = median_abs_deviation(sample, center=lambda x, axis: med, scale="normal")
+    med, mad = median_and_mad(sample)
     if mad <= 0:
         return ok.copy()
     return ok & (np.abs(m - med) <= nsigma * mad)

@@ -16,7 +16,7 @@ import pytest
 from camcal.calibrate import calibrate_session
 from camcal.errors import CamcalError
 from camcal.frame import Exposure, Frame
-from camcal.io import _layout_name, load_frame
+from camcal.io import _layout_name, _mostly_below, check_has_data, load_frame
 from camcal.manifest import read_session_defaults
 from camcal.synth.camera import LINEAR_FROM_PLANES, Scene, SensorParams, SyntheticCamera
 from camcal.synth.dng import encode_dng, write_dng, write_linear_dng
@@ -130,6 +130,26 @@ def test_raw_without_data_is_refused(tmp_path, what, mosaic, message):
         load_frame(p)
     assert p.name in str(err.value)
     assert_one_line_error(run_cli("inspect", p), p.name, "no ")
+
+
+@pytest.mark.parametrize("above, refused", [(100, True), (101, False), (5000, False)])
+@pytest.mark.parametrize("where", ["first", "last"])
+def test_the_below_black_test_stops_counting_only_when_it_cannot_refuse(above, refused, where):
+    """check_has_data refuses a frame with 99 % or more of its values below the black level; it stops counting
+    once more than 1 % are at or above it, wherever in the frame they are (the first chunk or the last one):
+    10 000 values with exactly 100 at the black level are refused, with 101 they are not."""
+    data = np.full(10_000, 3, np.uint16)
+    data[:above] = 64
+    if where == "last":
+        data = data[::-1].copy()
+    data = data.reshape(100, 100)
+    if refused:
+        with pytest.raises(CamcalError, match=r"99.0 % of the pixels are below the black level"):
+            check_has_data(Path("x.dng"), data, 64, 4095)
+    else:
+        assert check_has_data(Path("x.dng"), data, 64, 4095) == (3, 64)
+    assert _mostly_below(data, 64, chunk=256) is refused
+    assert _mostly_below(data.reshape(-1), 64, chunk=256) is refused  # 1-D: one block
 
 
 def test_fully_saturated_raw_is_an_image_reported_as_saturated(tmp_path):
@@ -288,3 +308,7 @@ def test_the_reader_keeps_the_value_range_it_measured(tmp_path):
     assert other.value_range_dn is None and other.data_range() == (9, 9)
     rgb = Frame(np.arange(12, dtype=np.uint8).reshape(2, 2, 3), "processed", None, {}, 255.0)
     assert rgb.value_range_dn is None and rgb.data_range() == (0, 11)
+    # a manifest row or session defaults change the exposure, not the data: the range is kept with them
+    over = load_frame(q, overrides={"exposure_s": 2.0}, defaults={"f_number": 2.8})
+    assert over.exposure.exposure_s == 2.0 and over.exposure.f_number == 2.8
+    assert over.value_range_dn == (60, 4094)

@@ -23,6 +23,7 @@ except ImportError:  # pragma: no cover - depends on the installed typer
     from click.exceptions import ClickException
 
 from camcal import __version__
+from camcal.allocator import use_frame_allocator
 from camcal.atomic import remove_pending
 from camcal.cli.aliases import rewrite
 from camcal.errors import CamcalError
@@ -105,6 +106,7 @@ def _main(argv: list[str] | None) -> int:
     # floating-point warnings (an empty slice, 0/0 in a masked pixel) are handled where they arise (NaN with a
     # reason, a refused frame); the user sees results and one-line errors, never numpy's warnings
     warnings.filterwarnings("ignore", category=RuntimeWarning)
+    use_frame_allocator()  # frame-sized buffers reused, not faulted in again for every frame
     try:
         args = rewrite(sys.argv[1:] if argv is None else [str(a) for a in argv])
         register_commands(commands_for(args))

@@ -1,0 +1,72 @@
+"""camcal.robust: the sampled median equals numpy's bit for bit, and the MAD scipy's, whatever the data."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.stats import median_abs_deviation
+
+import camcal.robust as robust
+from camcal.robust import SAMPLED_MEDIAN_MIN, median, median_and_mad
+
+N = SAMPLED_MEDIAN_MIN + 12_345
+
+
+def _cases():
+    rng = np.random.default_rng(7)
+    yield "normal float32", rng.normal(500, 20, N).astype(np.float32)
+    yield "normal float64, odd size", rng.normal(0.01, 0.002, N + 1)
+    yield "sorted", np.sort(rng.normal(0, 1, N))
+    yield "reverse sorted", np.sort(rng.normal(0, 1, N))[::-1]
+    yield "constant", np.full(N, 3.25, np.float32)
+    yield "two values", np.where(rng.random(N) < 0.5, 1.0, 2.0)
+    yield "heavy ties", rng.integers(0, 4, N).astype(np.float32)
+    yield "outliers and infinities", np.concatenate([rng.normal(0, 1, N), [np.inf] * 1000, [-np.inf] * 10,
+                                                     [1e30] * 5000])
+    # a periodic pattern whose period is the sample's stride: the sample sees one value only
+    step = max(1, int(N ** (1 / 3)))
+    periodic = np.tile(np.arange(step, dtype=np.float64), N // step + 1)[:N]
+    yield "periodic at the stride", periodic
+    yield "2-D plane", rng.normal(10, 1, (600, 700)).astype(np.float32)
+    yield "small", rng.normal(0, 1, 101)
+    yield "integers", rng.integers(60, 70, N).astype(np.uint16)
+
+
+@pytest.mark.parametrize("name, x", list(_cases()), ids=[c[0] for c in _cases()])
+def test_median_is_numpys(name, x):
+    before = x.copy()
+    got, want = median(x), np.median(x)
+    assert got.dtype == want.dtype
+    assert got == want or (np.isnan(got) and np.isnan(want))
+    np.testing.assert_array_equal(x, before)  # not modified
+
+
+def test_a_nan_gives_nan_as_numpy():
+    x = np.random.default_rng(1).normal(0, 1, N)
+    x[N // 3] = np.nan
+    assert np.isnan(median(x)) and np.isnan(np.median(x))
+
+
+def test_a_bracket_that_misses_falls_back_to_numpy(monkeypatch):
+    """With no margin at all the bracket around the sample's median misses the true median of most samples; the
+    result is still numpy's (the whole array is selected)."""
+    monkeypatch.setattr(robust, "BRACKET_SIGMAS", 0.0)
+    rng = np.random.default_rng(3)
+    calls = []
+    real = np.median
+    monkeypatch.setattr(robust.np, "median", lambda a, *k, **kw: calls.append(np.size(a)) or real(a, *k, **kw))
+    for seed in range(5):
+        x = rng.normal(seed, 1, N)
+        assert median(x) == real(x)
+    assert any(size == N for size in calls)  # at least one miss selected the whole array
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64, np.uint16])
+def test_mad_is_scipys(dtype):
+    rng = np.random.default_rng(5)
+    x = rng.normal(400, 15, N)
+    x[::997] += 5000
+    x = x.astype(dtype)
+    med, mad = median_and_mad(x)
+    assert med == float(np.median(x))
+    assert mad == float(median_abs_deviation(x, scale="normal"))
