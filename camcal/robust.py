@@ -66,8 +66,10 @@ def median(x: np.ndarray) -> np.floating:
     out = np.less(flat, lo)
     n_below = int(np.count_nonzero(out))
     out |= np.greater(flat, hi)
-    mid = flat[np.logical_not(out, out=out)]  # lo <= value <= hi, and any NaN (neither below nor above)
-    if np.isnan(mid).any() or np.isnan(lo) or np.isnan(hi):  # a NaN: numpy's median is NaN
+    # lo <= value <= hi, and any NaN (neither below nor above; a NaN bound, from a NaN in the sample, compares
+    # false with everything, so every value is "between")
+    mid = flat[np.logical_not(out, out=out)]
+    if np.isnan(mid).any():  # a NaN: numpy's median is NaN
         return np.median(flat)
     if not (n_below <= k_lo and k_hi < n_below + mid.size):  # the bracket missed the middle: rare
         return np.median(flat)

@@ -28,6 +28,7 @@ def _cases():
     periodic = np.tile(np.arange(step, dtype=np.float64), N // step + 1)[:N]
     yield "periodic at the stride", periodic
     yield "2-D plane", rng.normal(10, 1, (600, 700)).astype(np.float32)
+    yield "at the threshold", rng.normal(3, 1, SAMPLED_MEDIAN_MIN)
     yield "small", rng.normal(0, 1, 101)
     yield "integers", rng.integers(60, 70, N).astype(np.uint16)
 
@@ -59,6 +60,33 @@ def test_a_bracket_that_misses_falls_back_to_numpy(monkeypatch):
         x = rng.normal(seed, 1, N)
         assert median(x) == real(x)
     assert any(size == N for size in calls)  # at least one miss selected the whole array
+
+
+@pytest.mark.parametrize("name, x", [c for c in _cases() if c[0] in ("normal float32", "normal float64, odd size",
+                                                                     "sorted", "outliers and infinities",
+                                                                     "2-D plane", "at the threshold")])
+def test_the_median_is_selected_from_the_sample_bracket(monkeypatch, name, x):
+    """On data with a median, the sampled path does the work: numpy's median only averages the middle value(s),
+    never the whole array, and the selection runs over a few per cent of the values (the bracket of
+    BRACKET_SIGMAS standard errors of the sample's median rank: about 6 % at this size)."""
+    seen: dict[str, list[int]] = {"median": [], "partition": []}
+    real_median, real_partition = np.median, np.partition
+    monkeypatch.setattr(robust.np, "median", lambda a, *k, **kw: seen["median"].append(np.size(a))
+                        or real_median(a, *k, **kw))
+    monkeypatch.setattr(robust.np, "partition", lambda a, *k, **kw: seen["partition"].append(np.size(a))
+                        or real_partition(a, *k, **kw))
+    assert median(x) == real_median(x)
+    assert seen["median"] in ([1], [2])
+    assert len(seen["partition"]) == 1 and 0 < seen["partition"][0] < 0.1 * x.size
+
+
+@pytest.mark.parametrize("name, x", [c for c in _cases() if c[0] in ("integers", "small")])
+def test_integers_and_small_arrays_go_to_numpy(monkeypatch, name, x):
+    seen: list[int] = []
+    real = np.median
+    monkeypatch.setattr(robust.np, "median", lambda a, *k, **kw: seen.append(np.size(a)) or real(a, *k, **kw))
+    assert median(x) == real(x)
+    assert seen == [x.size]
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64, np.uint16])
