@@ -56,26 +56,36 @@ def median(x: np.ndarray) -> np.floating:
     n = flat.size
     if n < SAMPLED_MEDIAN_MIN or flat.dtype.kind != "f":  # integers: numpy's selection is quick on their ties
         return np.median(flat)
-    k_lo, k_hi = (n - 1) // 2, n // 2
+    k_lo = (n - 1) // 2
     step = max(1, int(n ** (1.0 / 3.0)))  # a sample of about n^(2/3) values, every step-th one
     sample = np.sort(flat[::step])
     m = sample.size
     centre = (m - 1) * (k_lo + 0.5) / n
     half = BRACKET_SIGMAS * 0.5 * np.sqrt(m)
     lo, hi = sample[max(0, int(centre - half))], sample[min(m - 1, int(np.ceil(centre + half)))]
+    found = _median_between(flat, lo, hi)
+    return np.median(flat) if found is None else found  # the bracket missed the middle (rare), or a NaN
+
+
+def _median_between(flat: np.ndarray, lo: np.floating, hi: np.floating) -> np.floating | None:
+    """numpy's median of the 1-D float array ``flat`` when its middle value(s) lie between ``lo`` and ``hi``
+    (inclusive), found by selection among the values between them; None when they do not, or when ``flat`` holds
+    a NaN (numpy's median is then NaN)."""
+    n = flat.size
+    k_lo, k_hi = (n - 1) // 2, n // 2
     out = np.less(flat, lo)
     n_below = int(np.count_nonzero(out))
     out |= np.greater(flat, hi)
     # lo <= value <= hi, and any NaN (neither below nor above; a NaN bound, from a NaN in the sample, compares
     # false with everything, so every value is "between")
     mid = flat[np.logical_not(out, out=out)]
-    if np.isnan(mid).any():  # a NaN: numpy's median is NaN
-        return np.median(flat)
-    if not (n_below <= k_lo and k_hi < n_below + mid.size):  # the bracket missed the middle: rare
-        return np.median(flat)
+    if np.isnan(mid).any() or not (n_below <= k_lo and k_hi < n_below + mid.size):
+        return None
     part = np.partition(mid, (k_lo - n_below, k_hi - n_below))
+    # numpy's own mean of the middle value(s), in its type: one value for an odd size (the mean of a value with
+    # itself would overflow for a value above half the type's largest)
     middle = part[[k_lo - n_below, k_hi - n_below]] if k_hi > k_lo else part[[k_lo - n_below]]
-    return np.median(middle)  # numpy's own mean of the middle value(s), in its type
+    return np.median(middle)
 
 
 def median_and_mad(x: np.ndarray) -> tuple[float, float]:

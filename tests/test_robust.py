@@ -7,7 +7,7 @@ import pytest
 from scipy.stats import median_abs_deviation
 
 import camcal.robust as robust
-from camcal.robust import SAMPLED_MEDIAN_MIN, median, median_and_mad
+from camcal.robust import SAMPLED_MEDIAN_MIN, _median_between, median, median_and_mad
 
 N = SAMPLED_MEDIAN_MIN + 12_345
 
@@ -98,3 +98,29 @@ def test_mad_is_scipys(dtype):
     med, mad = median_and_mad(x)
     assert med == float(np.median(x))
     assert mad == float(median_abs_deviation(x, scale="normal"))
+
+
+@pytest.mark.parametrize("n", [10, 11])
+def test_bounds_at_the_middle_values_themselves(n):
+    """The bracket is inclusive: bounds equal to the middle value(s) select them (no fallback); a lower bound
+    one step above the lower middle value, or an upper bound one step below the upper one, misses (None),
+    rather than selecting a wrong rank or failing."""
+    x = np.arange(n, dtype=np.float64)[::-1].copy()
+    k_lo, k_hi = (n - 1) // 2, n // 2
+    want = np.median(x)
+    assert _median_between(x, np.float64(k_lo), np.float64(k_hi)) == want
+    assert _median_between(x, np.float64(k_lo), np.float64(k_hi + 0.5)) == want
+    assert _median_between(x, np.float64(k_lo + 0.5), np.float64(n)) is None
+    assert _median_between(x, np.float64(-1), np.float64(k_hi - 0.5)) is None
+    x[3] = np.nan
+    assert _median_between(x, np.float64(-1), np.float64(n)) is None
+
+
+def test_an_odd_sized_median_near_the_types_largest_value_is_that_value():
+    """The middle value of an odd number of float32 values is returned as it is: 3e38 stays 3e38 (a mean of
+    the value with itself would overflow float32 to infinity)."""
+    x = np.full(SAMPLED_MEDIAN_MIN + 1, 3e38, np.float32)
+    x[:1000] = 1.0
+    assert median(x) == np.median(x) == np.float32(3e38)
+    assert _median_between(np.array([1, 3e38, 3e38], np.float32), np.float32(1e38), np.float32(3.2e38)) \
+        == np.float32(3e38)
