@@ -5,9 +5,9 @@ buffers (6-24 MB), allocated and freed once per frame. glibc's ``malloc`` serves
 threshold* with a fresh ``mmap`` and returns it to the system when freed, so the next frame's buffer is new
 memory again, whose every page the kernel must fault in and zero. The threshold starts at 128 KiB and rises
 only when a mapped block of at most 32 MiB is freed, so whether a 24 MB buffer is reused depended on which
-temporaries happened to be freed before it: removing one whole-frame temporary from the dark-frame check made
-the dark stacks of a 24 MP session 40 % slower (5.3 s to 7.4 s, twice the system time), as every later buffer
-was mapped afresh.
+temporaries happened to be freed before it: removing two whole-frame temporaries from the frame checks made the
+dark stacks of a 24 MP session 40 % slower (5.3 s to 7.4 s, twice the system time), as every later buffer was
+mapped afresh.
 
 :func:`use_frame_allocator` sets the policy once, explicitly: ``M_MMAP_THRESHOLD`` 32 MiB (glibc's largest)
 and ``M_TRIM_THRESHOLD`` 64 MiB (free memory above that at the top of a heap goes back to the system), so
