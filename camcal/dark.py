@@ -120,7 +120,8 @@ def _same_iso(stacks: list[StackResult], where: Path) -> float:
 
 
 def _robust(x: np.ndarray) -> tuple[float, float]:
-    x = x[np.isfinite(x)]
+    finite = np.isfinite(x)
+    x = x if finite.all() else x[finite]  # not modified below: no copy when every value is finite
     if x.size == 0:
         return float("nan"), float("nan")
     return median_and_mad(x)  # np.median and scipy's normal-scaled MAD, by sampled selection
@@ -926,8 +927,10 @@ def _noise_model(stats: list[tuple[float, StackResult]], b: np.ndarray,
             if not ok.any():
                 raise CamcalError(f"the dark frames at {_t:g} s show no temporal noise at all",
                                   st.paths[0].parent if st.paths else None)
-            xs.append(float(np.mean(np.asarray(st.value[k][ok], np.float64) - b[k][ok])))
-            ys.append(float(np.mean(v[below])))  # the values of var[ok], in the same order
+            # plane means over the kept pixels as masked float64 sums: no whole-plane float64 copy (48 MB at 24 MP)
+            xs.append(float((np.sum(st.value[k], where=ok, dtype=np.float64) - np.sum(b[k], where=ok))
+                            / np.count_nonzero(ok)))
+            ys.append(float(np.mean(v, where=below)))  # the values of var[ok] below the cut
         if len(xs) >= 2 and np.ptp(xs) > 0:
             slope, icpt = np.polyfit(xs, ys, 1)
             g[k], v0[k] = max(slope, 0.0), max(icpt, 1e-6)
