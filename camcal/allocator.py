@@ -64,7 +64,7 @@ def use_frame_allocator() -> bool:
             and not any(os.environ.get(v) for v in GLIBC_VARIABLES)):
         try:
             mallopt = ctypes.CDLL(None).mallopt
-        except (AttributeError, OSError):  # not glibc: musl, macOS, Windows
+        except (AttributeError, OSError, TypeError):  # no mallopt (macOS), no C library by name (Windows)
             mallopt = None
         if mallopt is not None:
             mallopt.argtypes = (ctypes.c_int, ctypes.c_int)

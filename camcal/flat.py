@@ -40,7 +40,7 @@ master / (A·g), normalised to mean 1.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -404,16 +404,20 @@ def _histogram(plane: np.ndarray) -> np.ndarray:
     return total
 
 
-def _medians_above(planes: np.ndarray, black: np.ndarray) -> np.ndarray:
+def _medians_above(planes: np.ndarray | Sequence[np.ndarray], black: np.ndarray) -> np.ndarray:
     """Per-plane median of ``planes − black`` (C, h, w) − (C, 1, 1), as :func:`numpy.median` gives it.
 
-    Integer planes (DN) take the two middle order statistics from a histogram (:func:`numpy.bincount`, one pass
-    instead of a selection over a float64 copy) and average them minus the black level in float64, the very
-    operations of ``np.median(planes - black)``; other planes go to :func:`numpy.median`.
+    ``planes``: one (C, h, w) array or C planes of one shape and type (views of a frame's mosaic,
+    :meth:`camcal.frame.Frame.plane_views`). Integer planes (DN) take the two middle order statistics from a
+    histogram (:func:`numpy.bincount`, one pass instead of a selection over a float64 copy) and average them minus
+    the black level in float64, the very operations of ``np.median(planes - black)``; other planes go to
+    :func:`numpy.median`.
     """
-    c = planes.shape[0]
-    if planes.dtype.kind not in "ui" or planes[0].size == 0 or (planes.dtype.kind == "i" and planes.min() < 0):
-        return np.median((planes - black).reshape(c, -1), axis=1)
+    c = len(planes)
+    kind = planes[0].dtype.kind
+    if kind not in "ui" or planes[0].size == 0 or (kind == "i" and min(int(p.min()) for p in planes) < 0):
+        bk = np.asarray(black).reshape(c)
+        return np.array([np.median(np.subtract(p, bk[k])) for k, p in enumerate(planes)])
     n = planes[0].size
     out = np.empty(c)
     for k in range(c):
@@ -442,11 +446,15 @@ def check_flat_frame(frame: Frame, checks: FlatChecks = FlatChecks(),  # noqa: B
         raise CamcalError(f"is {frame.shape[1]}x{frame.shape[0]} pixels but the flats{ref} are "
                           f"{shape[1]}x{shape[0]}: mismatched sizes (one camera, one mode)", path)
     white = float(frame.white_level_dn)
-    planes = frame.planes(dtype=frame.data.dtype)  # the file's own type: integer DN stay integer (exact)
-    at_white = planes >= white
-    if defects is not None and defects.shape == at_white.shape:
-        at_white &= ~defects
-    clipped = np.count_nonzero(at_white) / at_white.size  # the fraction np.mean gives, without a float pass
+    planes = frame.plane_views()  # views in the file's own type: integer DN stay integer (exact), no copy
+    n_white = 0
+    if frame.value_range_dn is None or frame.value_range_dn[1] >= white:  # the reader's maximum: none at white
+        for k, plane in enumerate(planes):
+            at_white = plane >= white
+            if defects is not None and defects.shape == (len(planes), *plane.shape):
+                at_white &= ~defects[k]
+            n_white += int(np.count_nonzero(at_white))
+    clipped = n_white / (len(planes) * planes[0].size)  # the fraction np.mean gives, without a float pass
     if clipped > checks.max_clipped_fraction:
         raise CamcalError(f"flat is saturated: {100 * clipped:.3g} % of pixels at the white level ({white:g} DN) "
                           f"outside known defects; shorten the exposure or dim the source", path)

@@ -228,6 +228,17 @@ class Frame:
             return split_planes(self.data, self.cfa_pattern, dtype=dtype)
         return np.moveaxis(self.data, -1, 0).astype(dtype or self.data.dtype, copy=True)
 
+    def plane_views(self) -> tuple[np.ndarray, ...]:
+        """The channel planes of :meth:`planes` as views of :attr:`data` in its own type (no copy), in
+        :attr:`channel_names` order: strided views of the mosaic for ``bayer`` frames, slices of the last axis
+        otherwise. For checks that only read the planes."""
+        if self.layout == "bayer":
+            if self.data.ndim != 2 or self.data.shape[0] % 2 or self.data.shape[1] % 2:
+                raise CamcalError(f"a CFA mosaic must be 2-D with even sides, got shape {self.data.shape}")
+            off = plane_offsets(self.cfa_pattern)
+            return tuple(self.data[r::2, c::2] for r, c in map(off.get, PLANES))
+        return tuple(self.data[..., i] for i in range(self.data.shape[-1]))
+
     def black_vector(self) -> np.ndarray:
         """Black level per channel in :attr:`channel_names` order, shape (C, 1, 1)."""
         return np.array([self.black_level_dn.get(c, 0.0) for c in self.channel_names], float)[:, None, None]

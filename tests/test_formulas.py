@@ -9,6 +9,7 @@ of the suite; docs/testing.md lists them and how to rerun the mutation campaign.
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 from pathlib import Path
 
@@ -210,6 +211,27 @@ def test_dark_noise_line_reads_the_unclipped_variance_and_its_guards():
                           (2.0, _noise_stack(24.0, 2.0, 18.0, 36.0, bias))], bias)
     assert np.all(g == 0)
     np.testing.assert_allclose(v0.ravel(), 30.0, rtol=1e-9)
+
+
+def test_dark_noise_line_plane_means_are_float64_sums():
+    """The plane means of ``_noise_model`` are exact to float64 rounding on a large plane: a million float32 levels
+    near 1020 DN with fractional noise, whose float32 sum would be off by about 1e-4 DN in the mean (2e-4 of the
+    slope here). The expected line goes through the exact means (``math.fsum`` of the float64 differences)."""
+    rng = np.random.default_rng(11)
+    shape = (4, 1000, 1000)
+    bias = np.full(shape, 1000.0) + rng.uniform(-0.25, 0.25, shape)
+    xs, ys, stats = [], [], []
+    for t, signal, var in ((1.0, 20.0, 10.5), (2.0, 20.5, 10.75)):
+        st = _noise_stack(signal, t, var, var, bias)
+        st.value[...] = (bias + signal + rng.normal(0.0, 0.7, shape)).astype(np.float32)
+        stats.append((t, st))
+        xs.append([math.fsum((st.value[k].astype(np.float64) - bias[k]).ravel()) / bias[k].size for k in range(4)])
+        ys.append(var)
+    v0, g = _noise_model(stats, bias)
+    for k in range(4):
+        slope = (ys[1] - ys[0]) / (xs[1][k] - xs[0][k])
+        assert g.ravel()[k] == pytest.approx(slope, rel=1e-9)
+        assert v0.ravel()[k] == pytest.approx(ys[0] - slope * xs[0][k], rel=1e-9)
 
 
 def test_dark_noise_line_leaves_out_pixels_noisier_than_five_times_the_plane():

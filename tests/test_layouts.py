@@ -312,3 +312,22 @@ def test_the_reader_keeps_the_value_range_it_measured(tmp_path):
     over = load_frame(q, overrides={"exposure_s": 2.0}, defaults={"f_number": 2.8})
     assert over.exposure.exposure_s == 2.0 and over.exposure.f_number == 2.8
     assert over.value_range_dn == (60, 4094)
+
+
+@pytest.mark.parametrize("pattern", ["RGGB", "BGGR", "GRBG", "GBRG"])
+def test_plane_views_are_the_planes_without_a_copy(pattern):
+    """Frame.plane_views gives the planes of Frame.planes (in the frame's own type) as views of its data, for a
+    mosaic of every CFA pattern and for a linear RAW frame; a mosaic with an odd side is refused."""
+    rng = np.random.default_rng(0)
+    mosaic = rng.integers(0, 4096, (6, 8)).astype(np.uint16)
+    frame = Frame(mosaic, "raw", pattern, {}, 4095.0)
+    views = frame.plane_views()
+    assert len(views) == 4
+    np.testing.assert_array_equal(np.stack(views), frame.planes(dtype=None))
+    assert all(np.shares_memory(v, mosaic) for v in views)
+    linear = Frame(rng.integers(0, 4096, (4, 5, 3)).astype(np.uint16), "raw", None, {}, 4095.0, layout="linear")
+    lviews = linear.plane_views()
+    np.testing.assert_array_equal(np.stack(lviews), linear.planes(dtype=None))
+    assert all(np.shares_memory(v, linear.data) for v in lviews)
+    with pytest.raises(CamcalError, match="even sides"):
+        Frame(mosaic[:5], "raw", pattern, {}, 4095.0).plane_views()
