@@ -584,7 +584,6 @@ def master_flat(
     def corrected(frame: Frame) -> tuple[np.ndarray, np.ndarray]:
         corr = correct_frame(frame, cal)
         require_valid(corr, frame.path, what="flat")
-        # the valid values are a copy already: the median may reorder it
         med = np.array([median(corr.signal_dn[k][~corr.invalid[k]]) for k in range(corr.signal_dn.shape[0])])
         signal = corr.signal_dn  # this frame's own array (its planes, corrected in place): masked in place
         signal[corr.invalid] = np.nan

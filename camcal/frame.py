@@ -233,8 +233,7 @@ class Frame:
         :attr:`channel_names` order: strided views of the mosaic for ``bayer`` frames, slices of the last axis
         otherwise. For checks that only read the planes."""
         if self.layout == "bayer":
-            if self.data.ndim != 2 or self.data.shape[0] % 2 or self.data.shape[1] % 2:
-                raise CamcalError(f"a CFA mosaic must be 2-D with even sides, got shape {self.data.shape}")
+            _check_mosaic(self.data)
             off = plane_offsets(self.cfa_pattern)
             return tuple(self.data[r::2, c::2] for r, c in map(off.get, PLANES))
         return tuple(self.data[..., i] for i in range(self.data.shape[-1]))
@@ -263,6 +262,12 @@ def plane_offsets(pattern: str) -> dict[str, tuple[int, int]]:
     return pos
 
 
+def _check_mosaic(mosaic: np.ndarray) -> None:
+    """Refuse an array that cannot be a CFA mosaic of 2x2 cells."""
+    if mosaic.ndim != 2 or mosaic.shape[0] % 2 or mosaic.shape[1] % 2:
+        raise CamcalError(f"a CFA mosaic must be 2-D with even sides, got shape {mosaic.shape}")
+
+
 def split_planes(mosaic: np.ndarray, pattern: str, dtype=np.float32) -> np.ndarray:
     """Split a CFA mosaic into its four half-resolution planes.
 
@@ -278,8 +283,7 @@ def split_planes(mosaic: np.ndarray, pattern: str, dtype=np.float32) -> np.ndarr
     -------
     ndarray, shape (4, H/2, W/2), planes in :data:`PLANES` order.
     """
-    if mosaic.ndim != 2 or mosaic.shape[0] % 2 or mosaic.shape[1] % 2:
-        raise CamcalError(f"a CFA mosaic must be 2-D with even sides, got shape {mosaic.shape}")
+    _check_mosaic(mosaic)
     off = plane_offsets(pattern)
     out = np.empty((4, mosaic.shape[0] // 2, mosaic.shape[1] // 2), dtype=dtype or mosaic.dtype)
     for k, name in enumerate(PLANES):

@@ -232,16 +232,8 @@ class _Decoder:
         dtype = self.spill_dtype
         data = planes.astype(dtype, copy=False) if planes.dtype != dtype else planes
         buf = np.ascontiguousarray(data).view(np.uint8).reshape(-1)
-        offset = index * buf.nbytes
         assert self.spill_fd is not None
-        done = 0
-        try:
-            while done < buf.nbytes:
-                done += os.pwrite(self.spill_fd, buf[done:], offset + done)
-        except OSError as exc:  # no space left, a quota: one line naming the spill and what to change
-            raise CamcalError(f"cannot write the temporary stack file {self.spill_name}: "
-                              f"{exc.strerror or exc}; point TMPDIR to a folder with room for the stack "
-                              f"(or let it stay in memory: CAMCAL_SPILL_MEMORY_MB)") from None
+        _write_exactly(self.spill_fd, self.spill_name, memoryview(buf), index * buf.nbytes)
 
     def worker(self, item: tuple[int, str]) -> tuple[int, FrameFacts, _Meta | None, np.ndarray | None,
                                                      np.ndarray | None]:
@@ -820,6 +812,19 @@ def _read_exactly(fd: int, name: str, mv: memoryview, offset: int) -> None:
         got += r
 
 
+def _write_exactly(fd: int, name: str, mv: memoryview, offset: int) -> None:
+    """Write all of ``mv`` to the spill file ``fd`` (named ``name`` in messages) at byte ``offset``; a failed
+    write (no space left, a quota) is one line naming the spill and what to change."""
+    done = 0
+    try:
+        while done < mv.nbytes:
+            done += os.pwrite(fd, mv[done:], offset + done)
+    except OSError as exc:
+        raise CamcalError(f"cannot write the temporary stack file {name}: {exc.strerror or exc}; point TMPDIR to "
+                          f"a folder with room for the stack (or let it stay in memory: CAMCAL_SPILL_MEMORY_MB)"
+                          ) from None
+
+
 def _close_up(fd: int, name: str, order: list[int], nbytes: int) -> None:
     """Move the spilled slots ``order`` (ascending) of the spill file ``fd`` down to slots 0, 1, ... (the slots
     between are left out)."""
@@ -833,9 +838,7 @@ def _close_up(fd: int, name: str, order: list[int], nbytes: int) -> None:
         for off in range(0, nbytes, len(buf)):
             size = min(len(buf), nbytes - off)
             _read_exactly(fd, name, mv[:size], i * nbytes + off)
-            put = 0
-            while put < size:
-                put += os.pwrite(fd, mv[put:size], pos * nbytes + off + put)
+            _write_exactly(fd, name, mv[:size], pos * nbytes + off)
 
 
 def _read_slot(fd: int, name: str, pos: int, shape: tuple[int, int, int], dtype: np.dtype,
