@@ -18,8 +18,8 @@ Each measurement is a fresh process (medians; all runs in one shuffled order):
 - ``camcal calibrate SESSION -o P.camcal``: the whole command, wall and CPU time (children included), and the
   same with glibc's own allocator policy (``CAMCAL_MALLOC=default``);
 - where the time goes: ``calibrate_session`` + ``save_profile`` in one process with each stage's entry point
-  timed (wall and CPU of the process, all its threads): screening (every frame's header read: each stage judges
-  its frames as it decodes them), dark stacks and fit, flat, linearity, sweep,
+  timed (wall, CPU, system CPU and minor page faults of the process, all its threads): screening (every frame's
+  header read: each stage judges its frames as it decodes them), dark stacks and fit, flat, linearity, sweep,
   EMVA sheet, input hashes, writing the profile; ``--runs`` such runs among the others, each stage's median and
   its share of the median total, imports excluded, under the command line's allocator policy.
 """
@@ -140,7 +140,8 @@ def run_cli(session: Path, glibc_policy: bool = False) -> dict:
 
 
 def run_stages(session: Path) -> dict:
-    """calibrate_session + save_profile in this process, each stage's entry point timed (wall, CPU)."""
+    """calibrate_session + save_profile in this process, each stage's entry point timed (wall, CPU, system CPU,
+    minor page faults)."""
     import camcal.calibrate as cal
     from camcal.allocator import use_frame_allocator
     from camcal.profile import save_profile
@@ -148,27 +149,35 @@ def run_stages(session: Path) -> dict:
     use_frame_allocator()  # as the command line does
     spent: dict[str, list[float]] = {}
 
+    def usage() -> list[float]:
+        """Wall, CPU, system CPU (s) and minor page faults of this process so far (all its threads)."""
+        r = resource.getrusage(resource.RUSAGE_SELF)
+        return [time.perf_counter(), time.process_time(), r.ru_stime, float(r.ru_minflt)]
+
+    def add(name: str, start: list[float]) -> None:
+        acc = spent.setdefault(name, [0.0, 0.0, 0.0, 0.0])
+        for k, (a, b) in enumerate(zip(usage(), start, strict=True)):
+            acc[k] += a - b
+
     def timed(name, fn):
         def wrapper(*args, **kwargs):
-            c0, t0 = time.process_time(), time.perf_counter()
+            start = usage()
             try:
                 return fn(*args, **kwargs)
             finally:
-                acc = spent.setdefault(name, [0.0, 0.0])
-                acc[0] += time.perf_counter() - t0
-                acc[1] += time.process_time() - c0
+                add(name, start)
         return wrapper
 
     for name, _ in STAGES:
         if hasattr(cal, name):
             setattr(cal, name, timed(name, getattr(cal, name)))
     with tempfile.TemporaryDirectory() as tmp:
-        c0, t0 = time.process_time(), time.perf_counter()
+        start = usage()
         profile, _ = cal.calibrate_session(session)
-        c1, t1 = time.process_time(), time.perf_counter()
+        saving = usage()
         save_profile(profile, Path(tmp) / "p.camcal")
-        spent["save_profile"] = [time.perf_counter() - t1, time.process_time() - c1]
-        total = [time.perf_counter() - t0, time.process_time() - c0]
+        add("save_profile", saving)
+        total = [a - b for a, b in zip(usage(), start, strict=True)]
     return {"total": total, "spent": spent}
 
 
@@ -214,9 +223,10 @@ def main() -> None:
     dec_p, cli_g = runs["decode_policy"], runs["cli_glibc"]
     # each stage's median over the runs (a stage moves by up to 2 s between runs of the same code)
     names = {name for r in runs["stages"] for name in r["spent"]}
-    spent = {name: [statistics.median(r["spent"].get(name, [0.0, 0.0])[k] for r in runs["stages"]) for k in (0, 1)]
+    spent = {name: [statistics.median(r["spent"].get(name, [0.0] * 4)[k] for r in runs["stages"]) for k in range(4)]
              for name in names}
-    total_wall, total_cpu = (statistics.median(r["total"][k] for r in runs["stages"]) for k in (0, 1))
+    total_wall, total_cpu, total_sys, total_faults = (statistics.median(r["total"][k] for r in runs["stages"])
+                                                      for k in range(4))
 
     def med(runs: list[dict], key: str) -> float:
         return statistics.median(r[key] for r in runs)
@@ -250,20 +260,23 @@ def main() -> None:
         f"{med(cli_g, 'cpu_s'):.2f} | {cg / d:.2f} |",
         "",
         f"Where the time goes ({args.runs} more runs in the same shuffled order: `calibrate_session` + "
-        "`save_profile` in one process, each stage's median; imports excluded; CPU counts every thread):",
+        "`save_profile` in one process, each stage's median; imports excluded; CPU counts every thread; system: "
+        "the kernel's share of that CPU time (page faults: zeroing fresh memory, reads, the spill file); page "
+        "faults: minor faults, each a 4 KiB or a 2 MiB page):",
         "",
-        "| stage | wall (s) | CPU (s) | share of the wall time |",
-        "|---|---:|---:|---:|",
+        "| stage | wall (s) | CPU (s) | of which system (s) | page faults (thousands) | share of the wall time |",
+        "|---|---:|---:|---:|---:|---:|",
     ]
     labels = dict(STAGES, save_profile="writing the profile (maps EXR, hashes, schema validation)")
     accounted = 0.0
-    for name, (wall, cpu) in sorted(spent.items(), key=lambda kv: -kv[1][0]):
+    for name, (wall, cpu, sys_s, faults) in sorted(spent.items(), key=lambda kv: -kv[1][0]):
         accounted += wall
-        lines.append(f"| {labels.get(name, name)} | {wall:.2f} | {cpu:.2f} | {wall / total_wall:.0%} |")
-    lines.append(f"| the rest (verdicts, notes, identity, provenance) | {total_wall - accounted:.2f} | | "
+        lines.append(f"| {labels.get(name, name)} | {wall:.2f} | {cpu:.2f} | {sys_s:.2f} | {faults / 1e3:.0f} | "
+                     f"{wall / total_wall:.0%} |")
+    lines.append(f"| the rest (verdicts, notes, identity, provenance) | {total_wall - accounted:.2f} | | | | "
                  f"{(total_wall - accounted) / total_wall:.0%} |")
     lines.append(f"| **total** (the median of the runs' totals, not the sum of the medians) | {total_wall:.2f} | "
-                 f"{total_cpu:.2f} | 100% |")
+                 f"{total_cpu:.2f} | {total_sys:.2f} | {total_faults / 1e3:.0f} | 100% |")
     lines.append("")
     lines.append("Runs, wall (s): calibrate " + ", ".join(f"{r['seconds']:.1f}" for r in cli) + "; decode "
                  + ", ".join(f"{r['seconds']:.1f}" for r in dec) + "; decode and hash "

@@ -1,29 +1,42 @@
 """The C allocator's policy in a camcal process: frame-sized buffers reused, not handed back and faulted in again.
 
-camcal's arrays are large and short-lived: a 24 MP frame's mosaic (48 MB), its planes, masks and band
-buffers (6-24 MB), allocated and freed once per frame. glibc's ``malloc`` serves a request above its *mmap
-threshold* with a fresh ``mmap`` and returns it to the system when freed, so the next frame's buffer is new
-memory again, whose every page the kernel must fault in and zero. The threshold starts at 128 KiB and rises
-only when a mapped block of at most 32 MiB is freed, so whether a 24 MB buffer is reused depended on which
-temporaries happened to be freed before it: removing two whole-frame temporaries from the frame checks made the
-dark stacks of a 24 MP session 40 % slower (5.3 s to 7.4 s, twice the system time), as every later buffer was
-mapped afresh.
+camcal's arrays are large and short-lived: a 24 MP frame's mosaic (48 MB), its planes (96 MB as float32), a
+plane's float64 temporaries (48 MB), the fits' float64 maps (192 MB), allocated and freed once per frame or per
+plane. glibc's ``malloc`` serves a request above its *mmap threshold* with a fresh ``mmap`` and returns it to
+the system when freed, so the next buffer of that size is new memory again, whose every page the kernel must
+fault in and zero. So does a request made in a thread that has its own *arena*: a thread arena's heaps are at
+most 64 MiB, and a heap left wholly free is unmapped, whatever the thresholds. On this project's 2-core test
+machine zeroing fresh pages (the kernel's ``clear_page``) was a quarter of a whole 24 MP calibration's CPU time,
+and its system time 40 % of it (benchmarks/RESULTS.md, "calibrate").
 
-:func:`use_frame_allocator` sets the policy once, explicitly: ``M_MMAP_THRESHOLD`` 32 MiB (glibc's largest)
-and ``M_TRIM_THRESHOLD`` 64 MiB (free memory above that at the top of a heap goes back to the system), so
-buffers up to 32 MiB are reused from the heap. Buffers above 32 MiB (a 24 MP mosaic) are still mapped and
-unmapped each time. The command line sets it at start and batch workers when they start; a library user may
-call it. A value set through glibc's own environment variables (``MALLOC_MMAP_THRESHOLD_``,
-``MALLOC_TRIM_THRESHOLD_``, as a Dask nanny sets the latter) is left alone, and ``CAMCAL_MALLOC=default`` keeps
-glibc's dynamic policy. Other C libraries (musl, macOS) are left as they are.
+:func:`use_frame_allocator` sets the policy once, explicitly:
 
-Measured on a 2-core machine (benchmarks/RESULTS.md, "calibrate"): a whole 24 MP calibration 30.0 s against
-33.4 s under glibc's policy (medians of 3), its dark stacks 5.2 s against 7.4-9.7 s, at a 3 % higher peak
-memory (3.64 GB against 3.53 GB); a batch worker's peak is unchanged (1.30 GB).
+- ``M_MMAP_THRESHOLD`` 256 MiB (:data:`MMAP_THRESHOLD_BYTES`): buffers up to a 24 MP float64 (C, h, w) map come
+  from the heap and are reused (glibc 2.36 takes it). A glibc that refuses it (older ones refused more than
+  ``HEAP_MAX_SIZE / 2``, 32 MiB on 64-bit systems) is given 32 MiB (:data:`FALLBACK_MMAP_THRESHOLD_BYTES`);
+- ``M_TRIM_THRESHOLD`` twice that (:data:`TRIM_FACTOR`, glibc's own ratio): free memory above it at the
+  top of the heap goes back to the system;
+- ``M_ARENA_MAX`` 1 (:data:`ARENA_MAX`): every thread allocates from the main heap, so a buffer freed by one
+  decode or plane thread is reused by the next, in any thread. camcal's threads allocate a few large buffers
+  each, not many small ones (Python's own small objects have their own allocator), so they rarely wait on the
+  one arena's lock.
+
+The command line sets it at start and batch workers when they start (before any other thread); a library user
+may call it, best before starting threads. A value set through glibc's own environment variables
+(:data:`GLIBC_VARIABLES`; a Dask nanny sets ``MALLOC_TRIM_THRESHOLD_``) leaves the whole policy alone, and
+``CAMCAL_MALLOC=default`` keeps glibc's dynamic policy. Other C libraries (musl, macOS) are left as they are.
+
+Measured on a 2-core machine (benchmarks/RESULTS.md, "calibrate", 17:35 UTC): a whole 24 MP calibration 22.2 s
+against 28.2 s under glibc's policy; its stages in one process: 0.12 million page faults and 8.5 s of system
+time instead of 3.95 million and 22.2 s, at the same peak memory (3.16 GB against 3.19 GB). The decode of the
+session's files alone: 4.8 s against 6.7 s. A batch worker's peak is higher (1.42 GB against 1.30 GB: freed
+buffers stay in the heap for the next photo) and still flat in the number of photos, and the batch faster
+(1.97 photos/s against 1.81).
 
 References
 ----------
-``mallopt(3)``, Linux man-pages: ``M_MMAP_THRESHOLD``, ``M_TRIM_THRESHOLD`` and the dynamic mmap threshold.
+``mallopt(3)``, Linux man-pages: ``M_MMAP_THRESHOLD``, ``M_TRIM_THRESHOLD``, ``M_ARENA_MAX`` and the dynamic mmap
+threshold; glibc ``malloc/arena.c`` (``heap_trim``: a wholly free thread heap is unmapped).
 """
 
 from __future__ import annotations
@@ -37,16 +50,26 @@ M_TRIM_THRESHOLD = -1
 M_MMAP_THRESHOLD = -3
 """``mallopt`` parameter number of the mmap threshold (glibc ``malloc.h``)."""
 
-MMAP_THRESHOLD_BYTES = 32 * 1024 * 1024
-"""Requests above this size are mapped afresh; glibc refuses a larger threshold on 64-bit systems
-(``HEAP_MAX_SIZE / 2``)."""
+M_ARENA_MAX = -8
+"""``mallopt`` parameter number of the largest number of arenas (glibc ``malloc.h``)."""
 
-TRIM_THRESHOLD_BYTES = 64 * 1024 * 1024
-"""Free memory at the top of a heap kept for reuse, at most (glibc's dynamic policy uses twice the mmap
-threshold, as here)."""
+MMAP_THRESHOLD_BYTES = 256 * 1024 * 1024
+"""Requests above this size are mapped afresh (each time); below it they come from the heap."""
 
-GLIBC_VARIABLES = ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_")
-"""glibc's environment variables for the same settings: when one is set, the user's (or Dask's) choice stands."""
+FALLBACK_MMAP_THRESHOLD_BYTES = 32 * 1024 * 1024
+"""The mmap threshold where glibc refuses :data:`MMAP_THRESHOLD_BYTES` (the largest older versions take on
+64-bit systems: ``HEAP_MAX_SIZE / 2``)."""
+
+TRIM_FACTOR = 2
+"""The trim threshold in mmap thresholds: free memory at the top of the heap kept for reuse, at most (twice the
+mmap threshold in effect, as glibc's dynamic policy keeps it)."""
+
+ARENA_MAX = 1
+"""Arenas: one, the main heap, shared by every thread (see the module docstring)."""
+
+GLIBC_VARIABLES = ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_", "MALLOC_ARENA_MAX")
+"""glibc's environment variables for the same settings: when one is set, the user's (or Dask's) choice stands,
+and camcal changes none of them."""
 
 _applied: list[bool] = []  # the policy is set once per process
 
@@ -70,7 +93,9 @@ def use_frame_allocator() -> bool:
             mallopt.argtypes = (ctypes.c_int, ctypes.c_int)
             mallopt.restype = ctypes.c_int
             # mallopt returns 1 on success, 0 when it refuses the value
-            ok = bool(mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES)) and bool(
-                mallopt(M_TRIM_THRESHOLD, TRIM_THRESHOLD_BYTES))
+            mmap_bytes = next((b for b in (MMAP_THRESHOLD_BYTES, FALLBACK_MMAP_THRESHOLD_BYTES)
+                               if mallopt(M_MMAP_THRESHOLD, b)), 0)
+            ok = (mmap_bytes > 0 and bool(mallopt(M_TRIM_THRESHOLD, TRIM_FACTOR * mmap_bytes))
+                  and bool(mallopt(M_ARENA_MAX, ARENA_MAX)))
     _applied.append(ok)
     return ok

@@ -9,7 +9,7 @@ import tempfile
 import numpy as np
 import pytest
 
-from camcal import threads
+from camcal import stack, threads
 from camcal.errors import CamcalError
 from camcal.io import load_frame
 from camcal.screen import Majority, StageJudge
@@ -245,3 +245,42 @@ def test_a_spill_that_cannot_be_written_is_one_line_naming_it(stack_dir, monkeyp
                                           r"on device; point TMPDIR"):
         combine_frames(files, method="sigma_clip", jobs=1)
     assert not list(tmp_path.glob("camcal-stack-*"))
+
+
+@pytest.mark.parametrize(("method", "statistics"), [("sigma_clip", ("variance_all", "mean_all")),
+                                                    ("sigma_clip", ()), ("median", ("mean",)),
+                                                    ("median", ("variance_all",)), ("mean", ("variance",))])
+def test_a_stage_gets_only_the_statistics_it_asks_for(stack_dir, method, statistics, monkeypatch):
+    """``statistics`` leaves out the optional statistics a stage does not use (None in the result, and never
+    allocated by the band statistics); what it does ask for, and the value and count, are those of the full
+    stack, bit for bit. The median's mean and variance are those of all values (mean_all, variance_all): asking
+    for either name gives the one array."""
+    files, _ = _cube(stack_dir[0])
+    full = combine_frames(files, method=method, jobs=2, band_mb=0.05)
+    made = []
+    bands = stack._bands
+
+    def recording(*args, **kwargs):
+        out = bands(*args, **kwargs)
+        made.append({id(a) for a in out if a is not None})
+        return out
+
+    monkeypatch.setattr(stack, "_bands", recording)
+    part = combine_frames(files, method=method, jobs=2, band_mb=0.05, statistics=statistics)
+    if method != "mean":  # the band statistics made the value, the count and what was asked for, no more
+        asked = {id(part.value), id(part.count)} | {id(getattr(part, n)) for n in statistics}
+        assert made == [asked]
+    np.testing.assert_array_equal(part.value, full.value)
+    np.testing.assert_array_equal(part.count, full.count)
+    for name in ("mean", "variance", "variance_all", "mean_all"):
+        got = getattr(part, name)
+        if name in statistics:
+            np.testing.assert_array_equal(got, getattr(full, name))
+        else:
+            assert got is None, name
+
+
+def test_an_unknown_statistic_is_refused(stack_dir):
+    files, _ = _cube(stack_dir[0])
+    with pytest.raises(CamcalError, match="unknown statistics.*'stdev'"):
+        combine_frames(files, method="sigma_clip", statistics=("variance", "stdev"))
