@@ -520,11 +520,13 @@ def fit_dark_stacks(stacks: DarkStacks, options: DarkOptions = DarkOptions(),  #
     read_noise = noise.read_noise_map_dn
     # pixels without a fit (saturated in all but one group): β lower bound from saturation
     no_fit = ~np.isfinite(beta)
-    if np.any(no_fit):
+    if np.any(no_fit):  # in place, on those pixels only (no whole-map float64 copies)
         t_min = min(t for t, _ in stack_list)
-        beta = np.where(no_fit, (white - np.where(np.isfinite(b), b, black)) / t_min, beta)
-        b = np.where(np.isfinite(b), b, np.broadcast_to(black, b.shape))
-        beta_var = np.where(no_fit, np.inf, beta_var)
+        b_nf = b[no_fit]
+        beta[no_fit] = (white - np.where(np.isfinite(b_nf), b_nf, black_full[no_fit])) / t_min
+        no_b = ~np.isfinite(b)
+        b[no_b] = black_full[no_b]
+        beta_var[no_fit] = np.inf
 
     channels = _channel_summary(b, b_var, beta, beta_var, var_t, defects, stack_list, bias_stack is not None,
                                 noise_gain, noise, ref.channel_names, jobs)
