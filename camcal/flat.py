@@ -448,7 +448,7 @@ def check_flat_frame(frame: Frame, checks: FlatChecks = FlatChecks(),  # noqa: B
     white = float(frame.white_level_dn)
     planes = frame.plane_views()  # views in the file's own type: integer DN stay integer (exact), no copy
     n_white = 0
-    if frame.value_range_dn is None or frame.value_range_dn[1] >= white:  # the reader's maximum: none at white
+    if frame.may_reach(white):  # else the reader's maximum is below white: nothing to count
         for k, plane in enumerate(planes):
             at_white = plane >= white
             if defects is not None and defects.shape == (len(planes), *plane.shape):

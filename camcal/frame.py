@@ -208,6 +208,11 @@ class Frame:
             new.with_value_range(*self.value_range_dn)
         return new
 
+    def may_reach(self, level_dn: float) -> bool:
+        """Whether any value may be at or above ``level_dn``: False only when the largest value the reader measured
+        (:attr:`value_range_dn`) is below it, so a count at that level can be skipped; True when unmeasured."""
+        return self.value_range_dn is None or self.value_range_dn[1] >= level_dn
+
     def data_range(self) -> tuple[int, int]:
         """(smallest, largest) value of :attr:`data` in DN: :attr:`value_range_dn`, or measured now."""
         if self.value_range_dn is not None:

@@ -499,9 +499,9 @@ def _mostly_below(data: np.ndarray, level_dn: float, chunk: int = 1 << 20) -> bo
 
 def saturated_fraction(frame: Frame) -> float:
     """Fraction of a frame's values at or above its white level (0…1); 0 without going over the pixels when the
-    largest value its reader measured (:attr:`camcal.frame.Frame.value_range_dn`) is below the white level."""
+    largest value its reader measured is below the white level (:meth:`camcal.frame.Frame.may_reach`)."""
     white = frame.white_level_dn
-    if frame.value_range_dn is not None and frame.value_range_dn[1] < white:
+    if not frame.may_reach(white):
         return 0.0
     return float(np.count_nonzero(frame.data >= white)) / max(int(frame.data.size), 1)
 

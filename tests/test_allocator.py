@@ -7,6 +7,7 @@ import json
 import os
 import subprocess
 import sys
+import types
 
 import pytest
 
@@ -80,11 +81,7 @@ def test_an_older_glibc_gets_the_largest_threshold_it_takes(monkeypatch):
         calls.append((param, value))
         return 0 if param == allocator.M_MMAP_THRESHOLD and value > 32 * 1024 * 1024 else 1
 
-    class Libc:
-        pass
-
-    libc = Libc()
-    libc.mallopt = mallopt
+    libc = types.SimpleNamespace(mallopt=mallopt)  # the C library as ctypes.CDLL gives it: its mallopt
     monkeypatch.setattr(allocator.ctypes, "CDLL", lambda name: libc)
     monkeypatch.setattr(allocator, "_applied", [])
     for v in ("CAMCAL_MALLOC", *allocator.GLIBC_VARIABLES):
