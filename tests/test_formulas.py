@@ -363,14 +363,19 @@ def _line_by_hand(points):
 
 
 def _plane_figures(k, b, b_var, beta, beta_var, defects, read_noise_var, gain, temporal, dsnu_bias2=None) -> dict:
-    """The channel summary of plane k written out with numpy: EMVA 1288-style figures over the good pixels."""
+    """The channel summary of plane k written out with numpy: EMVA 1288-style figures over the good pixels.
+
+    The maps as the model holds them (float32 from :func:`fit_dark_stacks`, any float type here): the means and
+    variances of their values in float64; the median of the β uncertainties as the model takes it, of the
+    square roots in the maps' own type."""
     good = defects[k] == 0
-    bk, betak = b[k][good], beta[k][good]
+    bk, betak = (np.asarray(a[k][good], np.float64) for a in (b, beta))
+    b_var64, beta_var64 = (np.asarray(a[k][good], np.float64) for a in (b_var, beta_var))
     med = float(np.median(betak))
     mad = NORMAL_PER_MAD * float(np.median(np.abs(betak - med)))
     if dsnu_bias2 is None:  # spatial variance of the bias map minus the mean variance of its estimates
-        dsnu_bias2 = float(np.var(bk)) - float(np.mean(b_var[k][good]))
-    dsnu_beta2 = float(np.var(betak)) - float(np.mean(beta_var[k][good]))
+        dsnu_bias2 = float(np.var(bk)) - float(np.mean(b_var64))
+    dsnu_beta2 = float(np.var(betak)) - float(np.mean(beta_var64))
     return {
         "bias_dn": float(np.mean(bk)),
         "bias_unc_dn": MEDIAN_PER_MEAN_SE * float(np.std(bk)) / np.sqrt(bk.size),
@@ -545,7 +550,9 @@ def test_dark_fit_with_bias_frames_and_one_dark_time_against_numpy(tmp_path):
     for k, name in enumerate(PLANES):
         good = e_defects[k] == 0
         rn_var = float(np.mean(var_bias[k][good])) - 1.0 / 12.0
-        expect = _plane_figures(k, b_fit, e_bvar, e_beta, e_betavar, e_defects, rn_var, g,
+        # of the maps as the model stores them (float32)
+        expect = _plane_figures(k, *(a.astype(np.float32) for a in (b_fit, e_bvar, e_beta, e_betavar)), e_defects,
+                                rn_var, g,
                                 np.sqrt(np.mean(var_bias[k][(e_defects[k] & HOT) == 0])))
         _assert_figures(model.channels[name], expect)
     assert model.provenance == {
@@ -631,7 +638,8 @@ def test_dark_fit_without_bias_frames_takes_the_black_level_as_a_prior(tmp_path)
         slope = np.sum((ts - ts.mean()) * (vs - vs.mean())) / np.sum((ts - ts.mean()) ** 2)
         rn_var = vs.mean() - slope * ts.mean() - 1.0 / 12.0
         assert rn_var == pytest.approx(v0 - 1.0 / 12.0, rel=1e-9)
-        expect = _plane_figures(k, e_b, e_bvar, e_beta, e_betavar, e_defects, rn_var, g,
+        expect = _plane_figures(k, *(a.astype(np.float32) for a in (e_b, e_bvar, e_beta, e_betavar)), e_defects,
+                                rn_var, g,
                                 np.sqrt(np.mean(var_t[k][(e_defects[k] & HOT) == 0])))
         _assert_figures(model.channels[name], expect)
     prov = model.provenance
