@@ -141,13 +141,15 @@ def run_cli(session: Path, glibc_policy: bool = False) -> dict:
 
 def run_stages(session: Path) -> dict:
     """calibrate_session + save_profile in this process, each stage's entry point timed (wall, CPU, system CPU,
-    minor page faults)."""
+    minor page faults) and the process's peak resident memory when it ended (MB: the stage that raises it is the
+    one that sets the calibration's peak)."""
     import camcal.calibrate as cal
     from camcal.allocator import use_frame_allocator
     from camcal.profile import save_profile
 
     use_frame_allocator()  # as the command line does
     spent: dict[str, list[float]] = {}
+    peak: dict[str, float] = {}
 
     def usage() -> list[float]:
         """Wall, CPU, system CPU (s) and minor page faults of this process so far (all its threads)."""
@@ -158,6 +160,7 @@ def run_stages(session: Path) -> dict:
         acc = spent.setdefault(name, [0.0, 0.0, 0.0, 0.0])
         for k, (a, b) in enumerate(zip(usage(), start, strict=True)):
             acc[k] += a - b
+        peak[name] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
     def timed(name, fn):
         def wrapper(*args, **kwargs):
@@ -178,7 +181,7 @@ def run_stages(session: Path) -> dict:
         save_profile(profile, Path(tmp) / "p.camcal")
         add("save_profile", saving)
         total = [a - b for a, b in zip(usage(), start, strict=True)]
-    return {"total": total, "spent": spent}
+    return {"total": total, "spent": spent, "peak_mb": peak}
 
 
 def _sub(*args: str) -> dict:
@@ -225,6 +228,8 @@ def main() -> None:
     names = {name for r in runs["stages"] for name in r["spent"]}
     spent = {name: [statistics.median(r["spent"].get(name, [0.0] * 4)[k] for r in runs["stages"]) for k in range(4)]
              for name in names}
+    peaks = {name: statistics.median(r["peak_mb"][name] for r in runs["stages"] if name in r["peak_mb"])
+             for name in names}
     total_wall, total_cpu, total_sys, total_faults = (statistics.median(r["total"][k] for r in runs["stages"])
                                                       for k in range(4))
 
@@ -264,19 +269,21 @@ def main() -> None:
         "the kernel's share of that CPU time (page faults: zeroing fresh memory, reads, the spill file); page "
         "faults: minor faults, each a 4 KiB or a 2 MiB page):",
         "",
-        "| stage | wall (s) | CPU (s) | of which system (s) | page faults (thousands) | share of the wall time |",
-        "|---|---:|---:|---:|---:|---:|",
+        "| stage | wall (s) | CPU (s) | of which system (s) | page faults (thousands) | process peak at its end (GB) "
+        "| share of the wall time |",
+        "|---|---:|---:|---:|---:|---:|---:|",
     ]
     labels = dict(STAGES, save_profile="writing the profile (maps EXR, hashes, schema validation)")
     accounted = 0.0
     for name, (wall, cpu, sys_s, faults) in sorted(spent.items(), key=lambda kv: -kv[1][0]):
         accounted += wall
         lines.append(f"| {labels.get(name, name)} | {wall:.2f} | {cpu:.2f} | {sys_s:.2f} | {faults / 1e3:.0f} | "
-                     f"{wall / total_wall:.0%} |")
-    lines.append(f"| the rest (verdicts, notes, identity, provenance) | {total_wall - accounted:.2f} | | | | "
+                     f"{peaks.get(name, float('nan')) / 1e3:.2f} | {wall / total_wall:.0%} |")
+    lines.append(f"| the rest (verdicts, notes, identity, provenance) | {total_wall - accounted:.2f} | | | | | "
                  f"{(total_wall - accounted) / total_wall:.0%} |")
     lines.append(f"| **total** (the median of the runs' totals, not the sum of the medians) | {total_wall:.2f} | "
-                 f"{total_cpu:.2f} | {total_sys:.2f} | {total_faults / 1e3:.0f} | 100% |")
+                 f"{total_cpu:.2f} | {total_sys:.2f} | {total_faults / 1e3:.0f} | {max(peaks.values()) / 1e3:.2f} "
+                 "| 100% |")
     lines.append("")
     lines.append("Runs, wall (s): calibrate " + ", ".join(f"{r['seconds']:.1f}" for r in cli) + "; decode "
                  + ", ".join(f"{r['seconds']:.1f}" for r in dec) + "; decode and hash "

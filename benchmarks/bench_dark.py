@@ -16,6 +16,9 @@ adds the ccdproc row (about a minute at 12 MP).
      the stack itself does, nothing else.
    - camcal: ``combine_frames(paths, method="sigma_clip", jobs=2)`` on the DNG files (decode included); its spill
      is held in memory when it fits (``camcal.atomic.scratch_fd``);
+   - the decode and the spill alone, at the largest frame count: the baseline plus each mosaic written to its
+     slot of one memory file, as the stack holds its frames (the memory every median or clipped stack fills,
+     and on a virtual machine the kernel's zeroing of it), before any statistics;
    - camcal with the spill on disk (``CAMCAL_SPILL_MEMORY_MB=0``, the system temporary folder), at the largest
      frame count: what the memory spill saves.
    - ccdproc: ``ccdproc.combine(fits_files, method="median", sigma_clip=True, 3, 3,
@@ -25,6 +28,7 @@ adds the ccdproc row (about a minute at 12 MP).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import platform
@@ -126,23 +130,37 @@ def run_camcal(n: int, jobs: int) -> dict:
     return {"seconds": dt, "cpu_s": _cpu_s() - c0, "peak_mb": _peak_mb(), "median_value": float(np.median(res.value))}
 
 
-def run_decode(n: int, jobs: int) -> dict:
-    """The baseline: decode the same files into uint16 planes in ``jobs`` threads, nothing kept."""
+def run_decode(n: int, jobs: int, spill: bool = False) -> dict:
+    """The baseline: decode the same files into uint16 planes in ``jobs`` threads, nothing kept.
+
+    ``spill``: each frame's mosaic is also written to its slot of one memory file
+    (:func:`camcal.atomic.scratch_fd`), as the stack holds its frames: the decode plus the memory every
+    median or clipped stack must fill, before any statistics."""
     from concurrent.futures import ThreadPoolExecutor
 
     import numpy as np
 
+    from camcal.atomic import scratch_fd
     from camcal.io import load_frame
-
-    def one(path: Path) -> int:
-        frame = load_frame(path, defaults={})
-        return int(frame.planes(dtype=frame.data.dtype)[0, 0, 0])
 
     paths = [_dng(i) for i in range(n)]
     c0 = _cpu_s()
     t0 = time.perf_counter()
-    with ThreadPoolExecutor(jobs) as pool:
-        list(pool.map(one, paths))
+    with (scratch_fd("bench-spill-", n * 2 * WIDTH * HEIGHT) if spill else contextlib.nullcontext((None, ""))
+          ) as (fd, _name):
+
+        def one(i: int) -> int:
+            frame = load_frame(paths[i], defaults={})
+            if spill:
+                data = np.ascontiguousarray(frame.data)
+                mv = memoryview(data.reshape(-1)).cast("B")
+                done = 0
+                while done < mv.nbytes:
+                    done += os.pwrite(fd, mv[done:], i * mv.nbytes + done)
+            return int(frame.planes(dtype=frame.data.dtype)[0, 0, 0])
+
+        with ThreadPoolExecutor(jobs) as pool:
+            list(pool.map(one, range(n)))
     dt = time.perf_counter() - t0
     return {"seconds": dt, "cpu_s": _cpu_s() - c0, "peak_mb": _peak_mb(), "median_value": float(np.nan)}
 
@@ -178,7 +196,7 @@ def _median(runs: list[dict], key: str) -> float:
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--one", choices=["camcal", "ccdproc", "decode"])
+    ap.add_argument("--one", choices=["camcal", "ccdproc", "decode", "decode_spill"])
     ap.add_argument("--n", type=int, default=32)
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--width", type=int, default=4000)
@@ -195,8 +213,8 @@ def main() -> None:
     if args.one == "camcal":
         print(json.dumps(run_camcal(args.n, args.jobs)))
         return
-    if args.one == "decode":
-        print(json.dumps(run_decode(args.n, args.jobs)))
+    if args.one in ("decode", "decode_spill"):
+        print(json.dumps(run_decode(args.n, args.jobs, spill=args.one == "decode_spill")))
         return
     if args.one == "ccdproc":
         print(json.dumps(run_ccdproc(args.n)))
@@ -212,17 +230,20 @@ def main() -> None:
     dec: dict[int, list[dict]] = {n: [] for n in counts}
     cam: dict[int, list[dict]] = {n: [] for n in counts}
     disk: list[dict] = []
+    floor: list[dict] = []
     # every run in a shuffled order (fixed seed): on a virtual machine a run is slower or faster by up to a quarter
     # depending on what the run before it did with memory (measured: the same code 1.53-1.94 s in fixed orders),
     # so a fixed alternation can favour one side
     plan = [(kind, n) for _ in range(args.runs) for n in counts for kind in ("decode", "camcal")]
-    plan += [("disk", max(counts))] * args.runs
+    plan += [("disk", max(counts))] * args.runs + [("decode_spill", max(counts))] * args.runs
     random.Random(0).shuffle(plan)
     for kind, n in plan:
         if kind == "decode":
             dec[n].append(_sub("--one", "decode", "--n", str(n), "--jobs", str(args.jobs)))
         elif kind == "camcal":
             cam[n].append(_sub("--one", "camcal", "--n", str(n), "--jobs", str(args.jobs)))
+        elif kind == "decode_spill":
+            floor.append(_sub("--one", "decode_spill", "--n", str(n), "--jobs", str(args.jobs)))
         else:
             disk.append(_sub("--one", "camcal", "--n", str(n), "--jobs", str(args.jobs),
                              env={"CAMCAL_SPILL_MEMORY_MB": "0"}))
@@ -262,6 +283,13 @@ def main() -> None:
                  f"{_median(disk, 'seconds'):.2f} s wall, {_median(disk, 'cpu_s'):.2f} s CPU, "
                  f"{_median(disk, 'peak_mb'):.0f} MB, **{_median(disk, 'seconds') / dw:.2f}x** the decode (runs: "
                  + ", ".join(f"{r['seconds']:.2f}" for r in disk) + ").")
+    fw = _median(floor, "seconds")
+    cw = _median(cam[nmax], "seconds")
+    lines.append(f"- The decode and the spill alone ({nmax} frames decoded in {args.jobs} threads, each mosaic "
+                 "written to its slot of one memory file as the stack holds it, no statistics): "
+                 f"{fw:.2f} s wall, {_median(floor, 'cpu_s'):.2f} s CPU, {fw / dw:.2f}x the decode (runs: "
+                 + ", ".join(f"{r['seconds']:.2f}" for r in floor) + f"). camcal is **{cw / fw:.2f}x** that: the "
+                 f"band statistics and the result maps take {cw - fw:.2f} s.")
     lines.append("- camcal peak memory at " + " / ".join(str(n) for n in counts) + " frames: "
                  + " / ".join(f"{_median(cam[n], 'peak_mb'):.0f}" for n in counts)
                  + " MB (row bands shrink as frames grow, so the peak does not grow).")

@@ -443,21 +443,62 @@ def dark_spatial_stack(darks: tuple, bias) -> tuple[float, object] | None:
     return max(groups, key=lambda g: (g[1].n_frames, -g[0]))
 
 
-def build_sheet(*, channels: tuple[str, ...], iso: float, dark_stacks=None, dark=None, master_flat=None,
-                flat_prnu: dict[str, Nonuniformity] | None = None, pairs=None, spectral=None,
-                pixel_pitch_um: float | None = None) -> EmvaSheet:
+@dataclass(frozen=True)
+class DarkNoiseStacks:
+    """What :func:`build_sheet` reads of the dark stage's combined frames, and nothing more (:func:`dark_noise_stacks`).
+
+    A calibration keeps this, not the stacks, until the sheet is built after the other stages: at 24 MP the
+    stacks' combined values, counts and other means are about 0.8 GB that the flat, linearity and sweep stages
+    would otherwise run beside.
+
+    Attributes
+    ----------
+    groups : ``(exposure_s, n_frames, variance)`` of every group of two frames or more (the dark groups in their
+        order, then the bias frames at their median exposure time): ``variance`` (C, h, w), DN², the temporal
+        variance (ddof=1) of all of a pixel's values, as stacked (float32).
+    spatial : ``(exposure_s, n_frames, mean, variance)`` of the stack the DSNU comes from
+        (:func:`dark_spatial_stack`), ``mean`` (C, h, w) in DN, or None without a group of two frames.
+    """
+
+    groups: tuple[tuple[float, int, np.ndarray], ...]
+    spatial: tuple[float, int, np.ndarray, np.ndarray] | None
+
+
+def dark_noise_stacks(darks: tuple, bias) -> DarkNoiseStacks:
+    """The :class:`DarkNoiseStacks` of the dark stage's ``(t, StackResult)`` groups ``darks`` and its bias stack
+    ``bias`` (or None): the arrays are the stacks' own, not copies."""
+    groups = list(darks)
+    if bias is not None:
+        tb = float(np.median([e.exposure_s or 0.0 for e in bias.exposures]))
+        groups.append((tb, bias))
+
+    def variance(st) -> np.ndarray:
+        return st.variance_all if st.variance_all is not None else st.variance
+
+    chosen = dark_spatial_stack(darks, bias)
+    spatial = None
+    if chosen is not None:
+        t_sp, st = chosen
+        spatial = (float(t_sp), int(st.n_frames), st.mean_all if st.mean_all is not None else st.mean, variance(st))
+    return DarkNoiseStacks(tuple((float(t), int(st.n_frames), variance(st)) for t, st in groups if st.n_frames >= 2),
+                           spatial)
+
+
+def build_sheet(*, channels: tuple[str, ...], iso: float, dark_noise: DarkNoiseStacks | None = None, dark=None,
+                prnu_frames: int | None = None, flat_prnu: dict[str, Nonuniformity] | None = None, pairs=None,
+                spectral=None, pixel_pitch_um: float | None = None) -> EmvaSheet:
     """The EMVA 1288 sheet from what the stages measured (every input optional; no file is read).
 
     Parameters
     ----------
     channels : plane names.
     iso : ISO of the dark model (the figures' ISO).
-    dark_stacks : the dark stage's combined frames (``darks`` ``(t, stack)`` groups and ``bias``): temporal dark
-        noise against t (σ²_y.dark at zero exposure) and the DSNU of the largest stack (eq. 36).
+    dark_noise : what the sheet reads of the dark stage's combined frames (:func:`dark_noise_stacks`): temporal
+        dark noise against t (σ²_y.dark at zero exposure) and the DSNU of the largest stack (eq. 36).
     dark : the dark model: bias level (the zero-exposure level of the pairs), dark current β, defects, and its
         quantised-noise read noise below 1 DN and its dark-current gain (the fallback K).
-    master_flat, flat_prnu : the flat stage's master (per-frame temporal variance, frame count) and PRNU per plane
-        (:func:`camcal.flat.flat_prnu`).
+    prnu_frames, flat_prnu : the number of frames of the flat stage's master flat and its PRNU per plane
+        (:func:`camcal.flat.flat_prnu`, which holds the per-frame temporal variance).
     pairs : the linearity stage's :class:`camcal.response.PairStatistics` (photon transfer).
     spectral : absolute c(λ) (:class:`camcal.spectral.SpectralSensitivity`) for the quantum efficiency, with
         ``pixel_pitch_um`` (µm).
@@ -469,20 +510,15 @@ def build_sheet(*, channels: tuple[str, ...], iso: float, dark_stacks=None, dark
     defects = None if dark is None else np.asarray(dark.defects) != 0
     summary = {} if dark is None else dark.channels
     # temporal dark noise σ_y.dark at zero exposure and DSNU
-    if dark_stacks is not None:
-        groups = list(dark_stacks.darks)
-        if dark_stacks.bias is not None:
-            tb = float(np.median([e.exposure_s or 0.0 for e in dark_stacks.bias.exposures]))
-            groups.append((tb, dark_stacks.bias))
-        groups = [(t, s) for t, s in groups if s.n_frames >= 2]
+    if dark_noise is not None:
+        groups = dark_noise.groups
         if not groups:
             notes.append("no dark exposure with two or more frames: temporal dark noise and DSNU unknown")
         for k, c in enumerate(channels if groups else ()):
-            good = np.ones(groups[0][1].value.shape[1:], bool) if defects is None else ~defects[k]
-            ts = [t for t, _ in groups]
+            good = np.ones(groups[0][2].shape[1:], bool) if defects is None else ~defects[k]
+            ts = [t for t, _, _ in groups]
             # plane k only, converted to float64 after the selection (the same values in the same order)
-            vs = [float(np.mean(np.asarray((s.variance_all if s.variance_all is not None else s.variance)[k][good],
-                                           np.float64))) for _, s in groups]
+            vs = [float(np.mean(np.asarray(var[k][good], np.float64))) for _, _, var in groups]
             dt = dark_temporal(np.array(ts), np.array(vs))
             v0 = dt.dark_variance_dn2
             info = summary.get(c) or {}
@@ -492,15 +528,12 @@ def build_sheet(*, channels: tuple[str, ...], iso: float, dark_stacks=None, dark
             dark_var0[c] = v0
             out[c]["dark_noise_dn"] = _num(math.sqrt(max(v0, 0.0)))
             out[c]["read_noise_dn"] = _num(math.sqrt(max(v0 - QUANTISATION_VAR_DN2, 0.0)))
-        chosen = dark_spatial_stack(dark_stacks.darks, dark_stacks.bias)
-        if chosen is not None:
-            t_sp, st = chosen
-            mean = st.mean_all if st.mean_all is not None else st.mean
-            var = st.variance_all if st.variance_all is not None else st.variance
-            spatial.update({"dsnu_exposure_s": float(t_sp), "dsnu_frames": int(st.n_frames)})
+        if dark_noise.spatial is not None:
+            t_sp, n_sp, mean, var = dark_noise.spatial
+            spatial.update({"dsnu_exposure_s": float(t_sp), "dsnu_frames": int(n_sp)})
             for k, c in enumerate(channels):
                 good = None if defects is None else ~defects[k]
-                d = dsnu(spatial_variance(mean[k], var[k], st.n_frames, good))
+                d = dsnu(spatial_variance(mean[k], var[k], n_sp, good))
                 out[c]["dsnu_dn"], out[c]["dsnu_unc_dn"] = _num(d.value), _num(d.uncertainty)
                 out[c]["dsnu_temporal_floor_dn"] = _num(math.sqrt(max(d.spatial.temporal_floor_dn2, 0.0)))
     else:
@@ -590,8 +623,8 @@ def build_sheet(*, channels: tuple[str, ...], iso: float, dark_stacks=None, dark
             })
     # PRNU and the noise left in the flat map
     if flat_prnu:
-        if master_flat is not None:
-            spatial["prnu_frames"] = int(master_flat.n_frames)
+        if prnu_frames is not None:
+            spatial["prnu_frames"] = int(prnu_frames)
         for c in channels:
             p = flat_prnu.get(c)
             if p is None:

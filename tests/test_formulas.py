@@ -35,6 +35,7 @@ from camcal.dark import (
     _robust,
     fit_dark_stacks,
 )
+from camcal.emva import dark_noise_stacks
 from camcal.errors import CamcalError, MissingMetadataError
 from camcal.frame import PLANES, Exposure
 from camcal.io import load_frame
@@ -482,6 +483,39 @@ def _hot_noisy_by_hand(beta, var_t, dof, hot_sigma=6.0, hot_factor=5.0, noisy_si
         vhat = np.mean(var_t[k][~hot])
         defects[k] = np.where(hot, HOT, 0) | np.where(var_t[k] > vhat * bound, NOISY, 0)
     return defects
+
+
+def test_dark_noise_stacks_keep_what_the_emva_sheet_reads_and_nothing_more():
+    """``dark_noise_stacks``: the groups of two frames or more, the dark groups in their order and then the bias
+    frames at their median exposure time (unknown: 0 s); each group's unclipped variance where stacked, else its
+    variance; the DSNU stack is the one of most frames (ties: the shorter exposure), its unclipped mean and
+    variance. The arrays are the stacks' own (no copy), and the combined values and counts are not kept."""
+    shape = (4, 2, 3)
+    rng = np.random.default_rng(3)
+
+    def group(t, n, clipped=False, exposure_s="t"):
+        st = _dark_group(1000.0 + rng.uniform(0, 5, shape), rng.uniform(3, 5, shape), t, n, exposure_s=exposure_s)
+        if clipped:  # a sigma-clipped stack: its unclipped variance and mean are arrays of their own
+            st = replace(st, variance=np.zeros(shape, np.float32), mean_all=st.value + np.float32(0.25))
+        return st
+
+    lone, short, long_, bias = group(0.1, 1), group(0.5, 8, clipped=True), group(2.0, 8), group(0.0, 16,
+                                                                                                 exposure_s=None)
+    noise = dark_noise_stacks(((0.1, lone), (0.5, short), (2.0, long_)), bias)
+    assert [(t, n) for t, n, _ in noise.groups] == [(0.5, 8), (2.0, 8), (0.0, 16)]
+    assert noise.groups[0][2] is short.variance_all and noise.groups[1][2] is long_.variance_all
+    assert noise.groups[2][2] is bias.variance_all
+    t_sp, n_sp, mean, var = noise.spatial
+    assert (t_sp, n_sp) == (0.0, 16) and mean is bias.value and var is bias.variance_all  # the mean stack's mean
+    # without bias frames: of the two 8-frame groups the shorter exposure, its unclipped mean
+    t_sp, n_sp, mean, var = dark_noise_stacks(((2.0, long_), (0.5, short)), None).spatial
+    assert (t_sp, n_sp) == (0.5, 8) and mean is short.mean_all and var is short.variance_all
+    no_var_all = replace(long_, variance_all=None)
+    assert dark_noise_stacks(((2.0, no_var_all),), None).groups[0][2] is no_var_all.variance
+    empty = dark_noise_stacks(((0.1, lone),), None)
+    assert empty.groups == () and empty.spatial is None
+    kept = {id(a) for g in noise.groups for a in g[2:]} | {id(a) for a in noise.spatial[2:]}
+    assert not kept & {id(st.count) for st in (short, long_, bias)} and id(short.value) not in kept
 
 
 def test_dark_fit_with_bias_frames_and_one_dark_time_against_numpy(tmp_path):
