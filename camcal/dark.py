@@ -988,7 +988,8 @@ def _channel_summary(b, b_var, beta, beta_var, var_t, defects, stacks, have_bias
 
     def plane(k: int) -> dict:
         good = defects[k] == 0
-        bk, betak = b[k][good], beta[k][good]  # float32 maps: every mean and variance below in float64
+        # float32 maps: every mean and variance below in float64, and β's median and MAD of its values in float64
+        bk, betak = b[k][good], np.asarray(beta[k][good], np.float64)
         med_beta, rs_beta = _robust(betak)
         if noise.quantised[k]:
             rn_var = float(noise.read_noise_dn[k]) ** 2
@@ -1005,14 +1006,14 @@ def _channel_summary(b, b_var, beta, beta_var, var_t, defects, stacks, have_bias
         if noise.quantised[k]:
             dsnu_bias2 = float(noise.dsnu_dn[k]) ** 2
         beta_var_k = beta_var[k][good]  # a copy: its square roots are taken in place for their median
-        dsnu_beta2 = float(np.var(betak, dtype=np.float64)) - float(np.mean(beta_var_k, dtype=np.float64))
+        dsnu_beta2 = float(np.var(betak)) - float(np.mean(beta_var_k, dtype=np.float64))
         return {
             "bias_dn": float(np.mean(bk, dtype=np.float64)),  # the mean: a median of quantised levels sticks to half DN
             "bias_unc_dn": float(1.2533 * np.sqrt(var_bk) / np.sqrt(bk.size)),
             "dark_current_dn_per_s": med_beta,
             "dark_current_unc_dn_per_s": float(1.2533 * rs_beta / np.sqrt(betak.size)),
             "dark_current_pixel_unc_dn_per_s": float(median(np.sqrt(beta_var_k, out=beta_var_k))),
-            "dark_current_mean_dn_per_s": float(np.mean(betak, dtype=np.float64)),
+            "dark_current_mean_dn_per_s": float(np.mean(betak)),
             "read_noise_dn": float(np.sqrt(max(rn_var, 0.0))),
             "temporal_noise_dn": float(noise.temporal_noise_dn[k]),
             "dsnu_bias_dn": float(np.sqrt(max(dsnu_bias2, 0.0))),

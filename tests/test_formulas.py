@@ -220,13 +220,14 @@ def test_dark_noise_line_plane_means_are_float64_sums():
     slope here). The expected line goes through the exact means (``math.fsum`` of the float64 differences)."""
     rng = np.random.default_rng(11)
     shape = (4, 1000, 1000)
-    bias = np.full(shape, 1000.0) + rng.uniform(-0.25, 0.25, shape)
+    bias = (np.full(shape, 1000.0) + rng.uniform(-0.25, 0.25, shape)).astype(np.float32)  # as the dark fit stores it
     xs, ys, stats = [], [], []
     for t, signal, var in ((1.0, 20.0, 10.5), (2.0, 20.5, 10.75)):
         st = _noise_stack(signal, t, var, var, bias)
         st.value[...] = (bias + signal + rng.normal(0.0, 0.7, shape)).astype(np.float32)
         stats.append((t, st))
-        xs.append([math.fsum((st.value[k].astype(np.float64) - bias[k]).ravel()) / bias[k].size for k in range(4)])
+        xs.append([math.fsum((st.value[k].astype(np.float64) - bias[k].astype(np.float64)).ravel()) / bias[k].size
+                   for k in range(4)])
         ys.append(var)
     v0, g = _noise_model(stats, bias)
     for k in range(4):
@@ -312,10 +313,32 @@ def test_dark_line_fit_returns_none_for_the_parts_not_asked_for():
     beta, beta_var, b, b_var, n_times = _fit_lines(obs, 4095.0, with_variance=False)
     assert beta_var is None and b_var is None and n_times.tolist() == [2]
     assert beta[0] == pytest.approx(15.0, rel=1e-12) and b[0] == pytest.approx(1085.0, rel=1e-12)
-    beta, beta_var, b, b_var, _ = _fit_lines(obs, 4095.0, with_fit=False)
-    assert beta is None and b is None
+    beta, beta_var, b, b_var, n_times = _fit_lines(obs, 4095.0, with_fit=False)
+    assert beta is None and b is None and n_times is None
     # var(β) of two points with weights n = 4 and per-frame variance 2: 2 σ²/n / Δt² = 2·0.5/4 = 0.25 (DN/s)²
     assert beta_var[0] == pytest.approx(0.25, rel=1e-12)
+    beta, _, b, _, n_times = _fit_lines(obs, 4095.0, with_variance=False, with_count=False)
+    assert n_times is None and beta[0] == pytest.approx(15.0, rel=1e-12)
+
+
+def test_dark_line_fit_in_float32_rounds_the_float64_result_once():
+    """``_fit_lines(dtype=np.float32)`` (the dark fit's maps, half the memory): β, b, var(β) and var(b) in float32,
+    each the float64 result rounded once, on random levels whose values are not exact in float32; the count of
+    usable times stays int16."""
+    rng = np.random.default_rng(8)
+    shape = (4, 9, 11)
+    bias = 1000.0 + rng.uniform(0, 7, shape)
+    beta = rng.uniform(0.5, 3.0, shape)
+    obs = [(t, (bias + beta * t).astype(np.float32), np.full(shape, n), rng.uniform(3.0, 5.0, shape))
+           for t, n in ((0.0, 16.0), (0.37, 8.0), (2.9, 6.0))]
+    wide = _fit_lines(obs, 4095.0)
+    narrow = _fit_lines(obs, 4095.0, dtype=np.float32)
+    for a64, a32 in zip(wide[:4], narrow[:4], strict=True):
+        assert a32.dtype == np.float32 and a64.dtype == np.float64
+        np.testing.assert_array_equal(a32, a64.astype(np.float32))
+        assert not np.array_equal(a32.astype(np.float64), a64)  # the float64 values are not float32 ones
+    assert narrow[4].dtype == wide[4].dtype == np.int16
+    np.testing.assert_array_equal(narrow[4], 3)
 
 
 # ---- dark: the whole fit of combined stacks, its channel figures, its helpers ---------------------------------
@@ -450,8 +473,10 @@ def test_dark_channel_figures_per_plane_against_numpy():
         slope = np.sum((ts - ts.mean()) * (vs - vs.mean())) / np.sum((ts - ts.mean()) ** 2)
         return vs.mean() - slope * ts.mean()
 
+    maps32 = tuple(a.astype(np.float32) for a in (b, b_var, beta, beta_var))  # the dark fit's maps are float32
     for have_bias, sts in ((True, stacks), (False, stacks), (False, stacks[:2]), (False, stacks[:1])):
         got = _channel_summary(b, b_var, beta, beta_var, var_t, defects, sts, have_bias, gain, noise, PLANES)
+        got32 = _channel_summary(*maps32[:2], *maps32[2:], var_t, defects, sts, have_bias, gain, noise, PLANES)
         assert list(got) == list(PLANES)
         for k, name in enumerate(PLANES):
             if k == 0:
@@ -462,6 +487,10 @@ def test_dark_channel_figures_per_plane_against_numpy():
                 rn_var, dsnu2 = extrapolated(k, sts) - 1.0 / 12.0, None
             expect = _plane_figures(k, b, b_var, beta, beta_var, defects, rn_var, gain[k, 0, 0], temporal[k], dsnu2)
             _assert_figures(got[name], expect)
+            # float32 maps: their means and variances taken in float64 all the same (float32 sums of ~1000 DN
+            # values differ by about 1e-7 relative)
+            expect = _plane_figures(k, *maps32[:2], *maps32[2:], defects, rn_var, gain[k, 0, 0], temporal[k], dsnu2)
+            _assert_figures(got32[name], expect)
     # the guards: 0 < DSNU² of β < 1 in every plane, the bias DSNU² of plane 3 negative before its clamp
     for k in range(4):
         good = defects[k] == 0
