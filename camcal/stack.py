@@ -962,7 +962,8 @@ class _ShiftedSums:
                         var[k, i:j] = np.maximum(s2p[i:j] - s1 * s1 / n, 0.0) / (n - 1)
         if n <= 1:
             var[:] = np.nan
-        return mean, mean, var, np.full(mean.shape, n, np.int32)
+        # the count in the type the stack keeps (int16 below 2¹⁵ frames): no int32 map to convert (96 MB at 24 MP)
+        return mean, mean, var, np.full(mean.shape, n, np.int16 if n < 2**15 else np.int32)
 
 
 def _bands(fd: int, name: str, n: int, shape: tuple[int, int, int], dtype: np.dtype, method: str, sigma: float,
