@@ -7,7 +7,10 @@ the system when freed, so the next buffer of that size is new memory again, whos
 fault in and zero. So does a request made in a thread that has its own *arena*: a thread arena's heaps are at
 most 64 MiB, and a heap left wholly free is unmapped, whatever the thresholds. On this project's 2-core test
 machine zeroing fresh pages (the kernel's ``clear_page``) was a quarter of a whole 24 MP calibration's CPU time,
-and its system time 40 % of it (benchmarks/RESULTS.md, "calibrate").
+and its system time 40 % of it (benchmarks/RESULTS.md, "calibrate"). That machine is a virtual one whose balloon
+device reports free pages to the host: memory left free for a few seconds goes back to the host, and touching it
+again costs a host fault as well as the zeroing, 0.9-1.2 s per GB against 0.06-0.4 s for pages just freed
+(benchmarks/RESULTS.md, "dark", 18:35 UTC). A buffer the process keeps and reuses costs neither.
 
 :func:`use_frame_allocator` sets the policy once, explicitly:
 
