@@ -429,15 +429,22 @@ def _num(x: float | None) -> float | None:
     return None if x is None or not np.isfinite(x) else float(x)
 
 
-def dark_spatial_stack(darks: tuple, bias) -> tuple[float, object] | None:
-    """The (exposure_s, stack) of the dark stack with the most frames (ties: the shortest exposure): the dark
-    average of the spatial figures. ``darks`` are the dark stage's ``(t, StackResult)`` groups, ``bias`` its
-    bias stack or None."""
+def _dark_groups(darks: tuple, bias) -> list[tuple[float, object]]:
+    """The ``(exposure_s, stack)`` groups of two frames or more: the dark stage's ``(t, StackResult)`` groups
+    ``darks`` in their order, then its bias stack ``bias`` (or None) at its frames' median exposure time (0 s where
+    unknown)."""
     groups = list(darks)
     if bias is not None:
         tb = float(np.median([e.exposure_s or 0.0 for e in bias.exposures]))
         groups.append((tb, bias))
-    groups = [(t, s) for t, s in groups if s.n_frames >= 2]
+    return [(t, s) for t, s in groups if s.n_frames >= 2]
+
+
+def dark_spatial_stack(darks: tuple, bias) -> tuple[float, object] | None:
+    """The (exposure_s, stack) of the dark stack with the most frames (ties: the shortest exposure): the dark
+    average of the spatial figures. ``darks`` are the dark stage's ``(t, StackResult)`` groups, ``bias`` its
+    bias stack or None."""
+    groups = _dark_groups(darks, bias)
     if not groups:
         return None
     return max(groups, key=lambda g: (g[1].n_frames, -g[0]))
@@ -467,11 +474,6 @@ class DarkNoiseStacks:
 def dark_noise_stacks(darks: tuple, bias) -> DarkNoiseStacks:
     """The :class:`DarkNoiseStacks` of the dark stage's ``(t, StackResult)`` groups ``darks`` and its bias stack
     ``bias`` (or None): the arrays are the stacks' own, not copies."""
-    groups = list(darks)
-    if bias is not None:
-        tb = float(np.median([e.exposure_s or 0.0 for e in bias.exposures]))
-        groups.append((tb, bias))
-
     def variance(st) -> np.ndarray:
         return st.variance_all if st.variance_all is not None else st.variance
 
@@ -480,7 +482,7 @@ def dark_noise_stacks(darks: tuple, bias) -> DarkNoiseStacks:
     if chosen is not None:
         t_sp, st = chosen
         spatial = (float(t_sp), int(st.n_frames), st.mean_all if st.mean_all is not None else st.mean, variance(st))
-    return DarkNoiseStacks(tuple((float(t), int(st.n_frames), variance(st)) for t, st in groups if st.n_frames >= 2),
+    return DarkNoiseStacks(tuple((float(t), int(st.n_frames), variance(st)) for t, st in _dark_groups(darks, bias)),
                            spatial)
 
 

@@ -63,6 +63,11 @@ OPTIONAL_STATISTICS = ("mean", "variance", "variance_all", "mean_all")
 ``count`` always come."""
 
 
+def _count_dtype(n: int) -> type[np.signedinteger]:
+    """The integer type of a stack's per-pixel frame count for ``n`` frames: int16 below 2¹⁵, else int32."""
+    return np.int16 if n < 2**15 else np.int32
+
+
 @dataclass(frozen=True)
 class StackResult:
     """Per-pixel statistics of a stack of N frames (channel first, (C, h, w)).
@@ -804,7 +809,7 @@ def _combine(paths: tuple[Path, ...], method: str, sigma: float, keep_frames: in
         finally:
             dec.spill_fd = None
     n_used = len(order)
-    count_dtype = np.int16 if n_used < 2**15 else np.int32
+    count_dtype = _count_dtype(n_used)
     mean, var, var_all, mean_all = (a if name in wanted else None for name, a in
                                     zip(OPTIONAL_STATISTICS, (mean, var, var_all, mean_all), strict=True))
     return StackResult(
@@ -963,7 +968,7 @@ class _ShiftedSums:
         if n <= 1:
             var[:] = np.nan
         # the count in the type the stack keeps (int16 below 2¹⁵ frames): no int32 map to convert (96 MB at 24 MP)
-        return mean, mean, var, np.full(mean.shape, n, np.int16 if n < 2**15 else np.int32)
+        return mean, mean, var, np.full(mean.shape, n, _count_dtype(n))
 
 
 def _bands(fd: int, name: str, n: int, shape: tuple[int, int, int], dtype: np.dtype, method: str, sigma: float,
@@ -982,7 +987,7 @@ def _bands(fd: int, name: str, n: int, shape: tuple[int, int, int], dtype: np.dt
         return np.empty(shape, np.float32) if any(v in wanted for v in names) else None
 
     value = np.empty(shape, np.float32)
-    count = np.empty(shape, np.int16 if n < 2**15 else np.int32)
+    count = np.empty(shape, _count_dtype(n))
     if method == "sigma_clip":  # the clipped mean is the value; the unclipped statistics are their own arrays
         mean, var, var_all, mean_all = value, new("variance"), new("variance_all"), new("mean_all")
     else:  # median: the mean and the variance are those of all values
