@@ -14,8 +14,12 @@ adds the ccdproc row (about a minute at 12 MP).
 
    - baseline: ``camcal.io.load_frame`` + ``Frame.planes`` (uint16) of every file in 2 threads: the decode
      the stack itself does, nothing else.
-   - camcal: ``combine_frames(paths, method="sigma_clip", jobs=2)`` on the DNG files (decode included); its spill
-     is held in memory when it fits (``camcal.atomic.scratch_fd``);
+   - camcal: ``combine_frames(paths, method="sigma_clip", jobs=2, statistics=camcal.dark.DARK_STATISTICS)`` on
+     the DNG files (decode included): the master dark as the dark stage makes it, with the statistics that stage
+     asks for (the clipped value and count, the variance and the mean of all values); its spill is held in memory
+     when it fits (``camcal.atomic.scratch_fd``);
+   - camcal with every statistic (the clipped values' variance as well, one more result map), at the largest
+     frame count: what the entries before 3 December 2026 measured;
    - the decode and the spill alone, at the largest frame count: the baseline plus each mosaic written to its
      slot of one memory file, as the stack holds its frames (the memory every median or clipped stack fills,
      and on a virtual machine the kernel's zeroing of it), before any statistics;
@@ -117,13 +121,16 @@ def _cpu_s() -> float:
     return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
 
 
-def run_camcal(n: int, jobs: int) -> dict:
+def run_camcal(n: int, jobs: int, every_statistic: bool = False) -> dict:
+    """The master dark of the first ``n`` frames as the dark stage makes it (its statistics), or with every
+    statistic (``every_statistic``)."""
+    from camcal.dark import DARK_STATISTICS
     from camcal.stack import combine_frames
 
     paths = [_dng(i) for i in range(n)]
     c0 = _cpu_s()
     t0 = time.perf_counter()
-    res = combine_frames(paths, method="sigma_clip", jobs=jobs)
+    res = combine_frames(paths, method="sigma_clip", jobs=jobs, statistics=None if every_statistic else DARK_STATISTICS)
     dt = time.perf_counter() - t0
     import numpy as np
 
@@ -196,7 +203,7 @@ def _median(runs: list[dict], key: str) -> float:
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--one", choices=["camcal", "ccdproc", "decode", "decode_spill"])
+    ap.add_argument("--one", choices=["camcal", "camcal_all", "ccdproc", "decode", "decode_spill"])
     ap.add_argument("--n", type=int, default=32)
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--width", type=int, default=4000)
@@ -210,8 +217,8 @@ def main() -> None:
         args.width, args.height, args.frames, args.runs = 1000, 750, "4,8", 1
     counts = [int(v) for v in args.frames.split(",")]
     _set_size(args.width, args.height, max(counts), N_CCDPROC if args.ccdproc else 0)
-    if args.one == "camcal":
-        print(json.dumps(run_camcal(args.n, args.jobs)))
+    if args.one in ("camcal", "camcal_all"):
+        print(json.dumps(run_camcal(args.n, args.jobs, every_statistic=args.one == "camcal_all")))
         return
     if args.one in ("decode", "decode_spill"):
         print(json.dumps(run_decode(args.n, args.jobs, spill=args.one == "decode_spill")))
@@ -231,11 +238,12 @@ def main() -> None:
     cam: dict[int, list[dict]] = {n: [] for n in counts}
     disk: list[dict] = []
     floor: list[dict] = []
+    every: list[dict] = []
     # every run in a shuffled order (fixed seed): on a virtual machine a run is slower or faster by up to a quarter
     # depending on what the run before it did with memory (measured: the same code 1.53-1.94 s in fixed orders),
     # so a fixed alternation can favour one side
     plan = [(kind, n) for _ in range(args.runs) for n in counts for kind in ("decode", "camcal")]
-    plan += [("disk", max(counts))] * args.runs + [("decode_spill", max(counts))] * args.runs
+    plan += [(kind, max(counts)) for kind in ("disk", "decode_spill", "camcal_all") for _ in range(args.runs)]
     random.Random(0).shuffle(plan)
     for kind, n in plan:
         if kind == "decode":
@@ -244,6 +252,8 @@ def main() -> None:
             cam[n].append(_sub("--one", "camcal", "--n", str(n), "--jobs", str(args.jobs)))
         elif kind == "decode_spill":
             floor.append(_sub("--one", "decode_spill", "--n", str(n), "--jobs", str(args.jobs)))
+        elif kind == "camcal_all":
+            every.append(_sub("--one", "camcal_all", "--n", str(n), "--jobs", str(args.jobs)))
         else:
             disk.append(_sub("--one", "camcal", "--n", str(n), "--jobs", str(args.jobs),
                              env={"CAMCAL_SPILL_MEMORY_MB": "0"}))
@@ -261,7 +271,8 @@ def main() -> None:
         "shuffled order, medians; peak memory = ru_maxrss of the process plus its children.",
         "",
         f"| frames | decode, {args.jobs} threads: wall (s) | CPU (s) | peak (MB) | camcal combine_frames "
-        f"(sigma_clip, jobs={args.jobs}): wall (s) | CPU (s) | peak (MB) | ratio wall | ratio CPU |",
+        f"(sigma_clip, jobs={args.jobs}, the dark stage's statistics): wall (s) | CPU (s) | peak (MB) | ratio wall "
+        "| ratio CPU |",
         "|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for n in counts:
@@ -290,6 +301,11 @@ def main() -> None:
                  f"{fw:.2f} s wall, {_median(floor, 'cpu_s'):.2f} s CPU, {fw / dw:.2f}x the decode (runs: "
                  + ", ".join(f"{r['seconds']:.2f}" for r in floor) + f"). camcal is **{cw / fw:.2f}x** that: the "
                  f"band statistics and the result maps take {cw - fw:.2f} s.")
+    ew = _median(every, "seconds")
+    lines.append(f"- Every statistic instead ({nmax} frames; the clipped values' variance too, one more result map, "
+                 f"as the entries before 3 December measured): {ew:.2f} s wall, {_median(every, 'cpu_s'):.2f} s CPU, "
+                 f"{_median(every, 'peak_mb'):.0f} MB, **{ew / dw:.2f}x** the decode (runs: "
+                 + ", ".join(f"{r['seconds']:.2f}" for r in every) + ").")
     lines.append("- camcal peak memory at " + " / ".join(str(n) for n in counts) + " frames: "
                  + " / ".join(f"{_median(cam[n], 'peak_mb'):.0f}" for n in counts)
                  + " MB (row bands shrink as frames grow, so the peak does not grow).")

@@ -634,6 +634,22 @@ def _sorted_quantile(s: np.ndarray | Sequence[np.ndarray], q: float) -> np.ndarr
 # --------------------------------------------------------------------------------------------
 
 
+BAND_MB = 16.0
+"""Default working-set budget of one row band of a median or sigma-clipped stack, MB (4 bytes a value).
+
+Each band costs a few hundred numpy calls (a 32-frame band: 382 for its sorting network, about 200 more for
+its sums and clips), and each call hands the GIL from one band thread to the other. Measured on a 2-core
+machine (32, 16 and 8 frames of 12 MP, six and five interleaved runs, the band statistics alone; 2026-12-03):
+at 32 frames 8 MB bands (62 000 pixels a frame) take 0.61-0.69 s, with 11 400 voluntary context switches, and
+16 MB bands 0.52-0.58 s with 4 800; 24 MB 0.53-0.57 s, 32 MB 0.55-0.70 s and 48 MB 0.62-0.75 s, where a band
+no longer stays in the cache. At 16 frames 8 and 16 MB are equal (0.37 s); at 8 frames a 16 MB band of
+500 000 pixels a frame is slower than an 8 MB one (0.34 s against 0.27 s): hence :data:`MAX_BAND_PIXELS`."""
+
+MAX_BAND_PIXELS = 1 << 18
+"""The most pixels of each frame in one band (all C planes together): with few frames the budget
+:data:`BAND_MB` would give bands whose planes no longer fit in a core's cache (see there)."""
+
+
 def combine_frames(
     paths: Sequence[str | Path],
     *,
@@ -644,7 +660,7 @@ def combine_frames(
     check: Callable[[Frame], None] | None = None,
     jobs: int | None = 1,
     progress: Callable[[int, int], None] | None = None,
-    band_mb: float = 8.0,
+    band_mb: float = BAND_MB,
     spill_dir: str | Path | None = None,
     keep_frames: int = 0,
     judge: StageJudge | None = None,
@@ -666,7 +682,8 @@ def combine_frames(
     jobs : threads to decode and to compute band statistics in; None: automatic, from the first frame's size
         (:func:`camcal.threads.thread_count`).
     progress : ``progress(done, total)`` after each decoded frame.
-    band_mb : working-set budget of one row band, MB (median / sigma_clip).
+    band_mb : working-set budget of one row band, MB (median / sigma_clip); a band holds at most
+        :data:`MAX_BAND_PIXELS` pixels of each frame whatever the budget.
     spill_dir : folder for the temporary spill file (default: the system temp folder).
     keep_frames : keep the planes of the first ``keep_frames`` frames (``StackResult.kept_planes``), so
         statistics of single frames need no second decode.
@@ -971,6 +988,13 @@ class _ShiftedSums:
         return mean, mean, var, np.full(mean.shape, n, _count_dtype(n))
 
 
+def _band_rows(n: int, shape: tuple[int, int, int], band_mb: float) -> int:
+    """Rows of a band of ``n`` frames of (C, h, w) planes: within ``band_mb`` MB at 4 bytes a value (so the
+    working set does not grow with ``n``) and :data:`MAX_BAND_PIXELS` pixels a frame, at least one row."""
+    c, h, w = shape
+    return max(1, min(h, int(band_mb * 1e6 / (n * c * w * 4)), MAX_BAND_PIXELS // (c * w)))
+
+
 def _bands(fd: int, name: str, n: int, shape: tuple[int, int, int], dtype: np.dtype, method: str, sigma: float,
            jobs: int, band_mb: float, pattern: str | None = None,
            wanted: Collection[str] = OPTIONAL_STATISTICS) -> tuple[np.ndarray | None, ...]:
@@ -980,7 +1004,7 @@ def _bands(fd: int, name: str, n: int, shape: tuple[int, int, int], dtype: np.dt
     split into the planes after. Gives value, mean, variance, count, variance_all and mean_all; of the optional
     ones (:data:`OPTIONAL_STATISTICS`) only those ``wanted`` are allocated and written, the others are None."""
     c, h, w = shape
-    rows = max(1, min(h, int(band_mb * 1e6 / (n * c * w * 4))))
+    rows = _band_rows(n, shape, band_mb)
     bands = [(y0, min(h, y0 + rows)) for y0 in range(0, h, rows)]
 
     def new(*names: str) -> np.ndarray | None:

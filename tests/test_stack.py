@@ -284,3 +284,22 @@ def test_an_unknown_statistic_is_refused(stack_dir):
     files, _ = _cube(stack_dir[0])
     with pytest.raises(CamcalError, match="unknown statistics.*'stdev'"):
         combine_frames(files, method="sigma_clip", statistics=("variance", "stdev"))
+
+
+def test_a_band_stays_within_its_budget_and_its_pixel_cap_whatever_the_frames():
+    """The band rule of a median or clipped stack: the working set (4 bytes a value) within the budget at any
+    number of frames, so memory does not grow with them; at most MAX_BAND_PIXELS pixels of a frame however large
+    the budget; at least one row."""
+    shape = (4, 1500, 2000)  # a 12 MP mosaic's planes
+    c, h, w = shape
+    for n in (2, 8, 16, 32, 64, 128):
+        rows = stack._band_rows(n, shape, stack.BAND_MB)
+        assert 1 <= rows <= h
+        assert n * c * rows * w * 4 <= stack.BAND_MB * 1e6
+        assert c * rows * w <= stack.MAX_BAND_PIXELS
+        # the largest band within both: one more row breaks one of them
+        assert (n * c * (rows + 1) * w * 4 > stack.BAND_MB * 1e6 or c * (rows + 1) * w > stack.MAX_BAND_PIXELS)
+    assert stack._band_rows(32, shape, 16.0) == 15  # 16e6 / (32 · 4 · 2000 · 4) = 15.6 rows
+    assert stack._band_rows(8, shape, 16.0) == 32  # the cap: 2^18 / 8000 = 32.8 rows (the budget allows 62)
+    assert stack._band_rows(32, shape, 1e-6) == 1  # a tiny budget: one row
+    assert stack._band_rows(2, (1, 3, 2000), 1e3) == 3  # never more rows than the planes have
