@@ -580,6 +580,12 @@ def _clipped_moments(d2: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np
     largest (and its NaN): rows ``i0 <= i < i1``, where no pixel loses a value, are summed as they are (one
     pass, no mask); only the rows below ``i0`` and from ``i1`` up are masked, row by row (about 13 of 32 in a
     12 MP dark band, where some pixel of the band always clips deep). Same results as masking every row.
+
+    A masked row adds its kept values as ``keep · value`` (the mask cast to 0 or 1, then multiplied: a quarter of
+    the time of copying the values where kept), and its mask to the count as bytes (without numpy's buffered
+    bool-to-int32 cast). The product is exact: the value where kept, a zero where lost. A lost value that is not
+    a number (NaN: a masked pixel; ±inf) would give NaN: the few pixels with one (at an end of their sorted
+    values) have their masked rows summed again, with the values copied where kept, in the same order.
     """
     n = d2.shape[0]
     i0 = 0
@@ -591,19 +597,36 @@ def _clipped_moments(d2: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np
     mid = d2[i0:i1]
     s1 = mid.sum(axis=0, dtype=np.float32)
     s2 = np.einsum("ij,ij->j", mid, mid)
-    cnt = np.full(s1.shape, i1 - i0, np.int32)
+    cnt = np.full(s1.shape, i1 - i0, np.uint8 if n <= 255 else np.int32)
+    masked = (*range(i0), *range(i1, n))
+    if not masked:
+        return _moments(s1, s2, cnt)
+    odd = np.flatnonzero(~(np.isfinite(d2[0]) & np.isfinite(d2[n - 1])))  # sorted: ±inf and NaN at the ends
+    odd_sums = (s1[odd], s2[odd], cnt[odd])  # copies: the sums of the rows in the middle
     keep = np.empty(s1.shape, bool)
     inside = np.empty(s1.shape, bool)
     row = np.empty_like(s1)
-    for i in (*range(i0), *range(i1, n)):
+    for i in masked:
         np.greater_equal(d2[i], lo, out=keep)
         keep &= np.less_equal(d2[i], hi, out=inside)
-        row.fill(0)
-        np.copyto(row, d2[i], where=keep)  # not d·keep: a lost NaN (a masked value) would make the sum NaN
+        np.copyto(row, keep)  # 0 or 1
+        with np.errstate(invalid="ignore"):  # 0 · ±inf (a lost infinity): NaN, summed again below
+            row *= d2[i]
         s1 += row
         row *= row
         s2 += row
-        cnt += keep
+        cnt += keep.view(np.uint8) if cnt.dtype == np.uint8 else keep
+    if odd.size:
+        sub, lo_odd, hi_odd = d2[:, odd], lo[odd], hi[odd]
+        o1, o2, oc = odd_sums
+        for i in masked:
+            kept = (sub[i] >= lo_odd) & (sub[i] <= hi_odd)
+            r = np.where(kept, sub[i], np.float32(0))  # not sub·kept: a lost NaN would make the sum NaN
+            o1 += r
+            r *= r
+            o2 += r
+            oc += kept.astype(oc.dtype)
+        s1[odd], s2[odd], cnt[odd] = o1, o2, oc
     return _moments(s1, s2, cnt)
 
 

@@ -90,3 +90,30 @@ def test_integer_band_matches_the_masked_float_path(n, seed):
         np.testing.assert_array_equal(a[~loud], b[~loud])
         np.testing.assert_allclose(a[loud], b[loud], rtol=1e-5)
     np.testing.assert_array_equal(med[0], np.median(v, axis=0).astype(np.float32))
+
+
+def test_float_band_clip_skips_lost_values_that_are_not_numbers():
+    """A float32 band (preprocessed frames): an infinity that a clip loses is left out of the sums, not carried
+    into them as NaN (the masked rows add keep · value, which is NaN for 0 · inf; those pixels are summed again,
+    the values copied where kept). Checked against numpy in float64 on the finite values of each pixel. (A pixel
+    masked, NaN, in a few frames: ``test_stack.py``, combined from the others.)"""
+    rng = np.random.default_rng(7)
+    n, w = 12, 300
+    x = (1 + 0.02 * rng.standard_normal((n, 1, 1, w))).astype(np.float32)
+    x[0, 0, 0, 0:20] = np.inf  # one value at +inf: lost at the top
+    x[1, 0, 0, 20:40] = -np.inf  # and at -inf: lost at the bottom
+    x[2, 0, 0, 40:60] = 5.0  # an outlier, finite: lost, as before
+    x[3, 0, 0, 60:70] = np.nan  # one masked value: sorted last, lost at the top
+    value, _mean, var, cnt, _var_all, _mean_all = _band_stats(x.copy(), "sigma_clip", 3.0)
+    assert np.isfinite(value).all() and np.isfinite(var).all()
+    assert (cnt[0, 0, :70] <= n - 1).all()  # the infinities, the outlier and the masked value went
+    for j in range(w):  # the finite values of each pixel, clipped as the module docstring says, with numpy
+        v = x[:, 0, 0, j].astype(np.float64)
+        v = v[np.isfinite(v)]
+        ref_mean, ref_var, ref_cnt, *_ = _numpy_sigma_clip(v[:, None], 3.0)
+        if j < 40 or 60 <= j < 70:  # the infinity or NaN was one of the n values for the median and quartiles
+            assert cnt[0, 0, j] <= ref_cnt[0] + 1
+            continue
+        assert cnt[0, 0, j] == ref_cnt[0], j
+        np.testing.assert_allclose(value[0, 0, j], ref_mean[0], rtol=1e-6)
+        np.testing.assert_allclose(var[0, 0, j], ref_var[0], rtol=1e-5)
