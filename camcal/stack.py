@@ -63,6 +63,13 @@ OPTIONAL_STATISTICS = ("mean", "variance", "variance_all", "mean_all")
 ``count`` always come."""
 
 
+def _working_count_dtype(n: int) -> type[np.integer]:
+    """The integer type of a band's running per-pixel count of ``n`` values: one byte up to 255, so a mask is
+    added or taken off as bytes (``mask.view(np.uint8)``) without numpy's buffered bool-to-int32 cast, several
+    times slower than the arithmetic itself; int32 above."""
+    return np.uint8 if n <= 255 else np.int32
+
+
 def _count_dtype(n: int) -> type[np.signedinteger]:
     """The integer type of a stack's per-pixel frame count for ``n`` frames: int16 below 2¹⁵, else int32."""
     return np.int16 if n < 2**15 else np.int32
@@ -439,11 +446,10 @@ class _SortedBand:
         n = len(self.planes)
         s1 = self.sd.copy()
         s2 = self.sdd.copy()
-        # counts in one byte (n <= NETWORK_MAX_FRAMES): a lost mask is subtracted as bytes, without numpy's
-        # buffered bool-to-int32 cast (several times slower than the subtraction itself)
-        cnt = np.full(s1.shape, n, np.uint8 if n <= 255 else np.int32)
+        cnt = np.full(s1.shape, n, _working_count_dtype(n))  # one byte (n <= NETWORK_MAX_FRAMES)
         lost_rank = np.empty(s1.shape, bool)
         lost = np.empty(s1.shape, bool)
+        lost_count = lost.view(np.uint8) if cnt.dtype == np.uint8 else lost  # what a lost mask takes off the count
         taken = np.empty(s1.shape, np.float32)
         dense = min(n, DENSE_RANKS)
         for ranks, bound, lost_of in ((range(n), lo, np.less), (range(n - 1, -1, -1), hi, np.greater)):
@@ -461,7 +467,7 @@ class _SortedBand:
                 s1 -= taken
                 taken *= taken
                 s2 -= taken
-                cnt -= lost.view(np.uint8) if cnt.dtype == np.uint8 else lost
+                cnt -= lost_count
             idx = np.flatnonzero(lost)
             for r in ranks[dense:]:  # deeper ranks: only the pixels that lost the one before
                 dev = self.planes[r][idx].astype(np.float32) - self.med[idx]
@@ -597,13 +603,14 @@ def _clipped_moments(d2: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np
     mid = d2[i0:i1]
     s1 = mid.sum(axis=0, dtype=np.float32)
     s2 = np.einsum("ij,ij->j", mid, mid)
-    cnt = np.full(s1.shape, i1 - i0, np.uint8 if n <= 255 else np.int32)
+    cnt = np.full(s1.shape, i1 - i0, _working_count_dtype(n))
     masked = (*range(i0), *range(i1, n))
     if not masked:
         return _moments(s1, s2, cnt)
     odd = np.flatnonzero(~(np.isfinite(d2[0]) & np.isfinite(d2[n - 1])))  # sorted: ±inf and NaN at the ends
     odd_sums = (s1[odd], s2[odd], cnt[odd])  # copies: the sums of the rows in the middle
     keep = np.empty(s1.shape, bool)
+    keep_count = keep.view(np.uint8) if cnt.dtype == np.uint8 else keep  # what a keep mask adds to the count
     inside = np.empty(s1.shape, bool)
     row = np.empty_like(s1)
     for i in masked:
@@ -615,7 +622,7 @@ def _clipped_moments(d2: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np
         s1 += row
         row *= row
         s2 += row
-        cnt += keep.view(np.uint8) if cnt.dtype == np.uint8 else keep
+        cnt += keep_count
     if odd.size:
         sub, lo_odd, hi_odd = d2[:, odd], lo[odd], hi[odd]
         o1, o2, oc = odd_sums
