@@ -1,5 +1,8 @@
 """Real files through real decoders: DNG via LibRaw (rawpy), JPEG via OpenImageIO/exifread."""
 
+import subprocess
+import sys
+import textwrap
 from datetime import datetime
 from pathlib import Path
 
@@ -236,3 +239,40 @@ def test_frame_header_of_synthetic_bayer_and_linear_dngs(tmp_path):
     with pytest.raises(CamcalError):
         (tmp_path / "cut.dng").write_bytes((tmp_path / "cfa.dng").read_bytes()[:200])
         frame_header(tmp_path / "cut.dng")
+
+
+QUIET_SCRIPT = textwrap.dedent("""
+    import os, sys, threading
+    from camcal.io import quiet_stderr
+    from camcal.terminal import err_console
+    inside, leave = threading.Event(), threading.Event()
+    def decode():  # a decode thread, with LibRaw silenced
+        with quiet_stderr():
+            inside.set()
+            leave.wait()
+    t = threading.Thread(target=decode)
+    t.start()
+    inside.wait()
+    print("camcal: interrupted", file=sys.stderr)
+    err_console.print("camcal: failed: one photo")
+    os.write(2, b"LibRaw: data corrupted\\n")
+    with quiet_stderr():  # nested in this thread too
+        print("camcal: warning: nested", file=sys.stderr)
+        os.write(2, b"libpng: nested\\n")
+    leave.set()
+    t.join()
+    print("camcal: after", file=sys.stderr)
+    os.write(2, b"C after\\n")
+""")
+
+
+def test_quiet_stderr_silences_c_libraries_not_the_lines_python_writes_meanwhile():
+    """While a decode thread silences fd 2 for LibRaw, a line the main thread prints (the command line's
+    "interrupted", a failed photo) still reaches standard error; what C code writes to fd 2 does not, until the
+    last block ends. (Before, those lines went to the null device: an interrupted calibrate exited 130 in
+    silence.)"""
+    proc = subprocess.run([sys.executable, "-c", QUIET_SCRIPT], capture_output=True, text=True, timeout=60,
+                          cwd=Path(__file__).resolve().parents[1])
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stderr.splitlines() == ["camcal: interrupted", "camcal: failed: one photo", "camcal: warning: nested",
+                                        "camcal: after", "C after"]
