@@ -223,6 +223,22 @@ def test_profile_mutated_json_rehashed(valid_profile, tmp_path, data):
     load_bytes(tmp_path / "p.camcal", rezip(new, maps))
 
 
+@pytest.mark.parametrize("field,value", [("saturated", True), ("files", "a.dng"), ("used", [1, 0]),
+                                         ("mean_dn", ["x"])])
+def test_profile_response_points_of_the_wrong_type_are_refused(valid_profile, tmp_path, field, value):
+    """The response's points are read back (the report's saturated files, the plots): a field of the wrong type
+    under a valid hash is refused by the schema in one line, not an internal error (the mutation above found
+    ``"saturated": true`` in CI, 2026-12-03)."""
+    _, doc, maps = valid_profile
+    new = json.loads(json.dumps(doc))
+    points = next(m["points"] for m in new["response"].values() if m and m.get("points"))
+    points[next(iter(points))][field] = value
+    path = tmp_path / "p.camcal"
+    path.write_bytes(rezip(new, maps))
+    with pytest.raises(CamcalError, match="points"):
+        load_profile(path)
+
+
 def test_profile_unmutated_loads(valid_profile, tmp_path):
     """The control: the valid profile (and its re-zipped copy) load, so the mutations above test the damage."""
     data, doc, maps = valid_profile
