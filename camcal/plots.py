@@ -306,7 +306,7 @@ def response_figure(model: ResponseModel, title: str | None = None) -> Figure:
         x = np.asarray(pts.get("x_s", []), float)
         g = np.asarray(pts.get("mean_dn", []), float)
         used = np.asarray(pts.get("used", [True] * len(x)), bool)
-        if not len(x):
+        if not len(x) or len(g) != len(x) or len(used) != len(x):  # none, or not one series (an edited profile)
             continue
         any_points = True
         ok = x > 0

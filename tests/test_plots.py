@@ -200,6 +200,17 @@ def test_flat_figure_master_overlay_is_scaled_to_the_model():
 # ---------------------------------------------------------------------------------------------
 # response
 # ---------------------------------------------------------------------------------------------
+def test_response_figure_skips_a_channel_whose_points_are_not_one_series():
+    """Points of an edited profile whose lists differ in length (the schema types them, not their lengths) are left
+    out of the figure for that channel, not an IndexError; the other channels are drawn."""
+    model, _ = make_response()
+    model.points["R"]["mean_dn"] = model.points["R"]["mean_dn"][:-2]
+    fig = response_figure(model)
+    ax1 = fig.axes[0]
+    assert not [ln for ln in ax1.get_lines() if same_color(ln.get_color(), COLOURS["R"]) and ln.get_marker() == "o"]
+    assert [ln for ln in ax1.get_lines() if same_color(ln.get_color(), COLOURS["B"]) and ln.get_marker() == "o"]
+
+
 def test_response_figure_points_fit_and_residuals():
     model, deviation = make_response()
     fig = response_figure(model, title="camera X")
