@@ -5,12 +5,10 @@ plane's float64 temporaries (48 MB), the fits' float64 maps (192 MB), allocated 
 plane. glibc's ``malloc`` serves a request above its *mmap threshold* with a fresh ``mmap`` and returns it to
 the system when freed, so the next buffer of that size is new memory again, whose every page the kernel must
 fault in and zero. So does a request made in a thread that has its own *arena*: a thread arena's heaps are at
-most 64 MiB, and a heap left wholly free is unmapped, whatever the thresholds. On this project's 2-core test
-machine zeroing fresh pages (the kernel's ``clear_page``) was a quarter of a whole 24 MP calibration's CPU time,
-and its system time 40 % of it (benchmarks/RESULTS.md, "calibrate"). That machine is a virtual one whose balloon
-device reports free pages to the host: memory left free for a few seconds goes back to the host, and touching it
-again costs a host fault as well as the zeroing, 0.9-1.2 s per GB against 0.06-0.4 s for pages just freed
-(benchmarks/RESULTS.md, "dark", 18:35 UTC). A buffer the process keeps and reuses costs neither.
+most 64 MiB, and a heap left wholly free is unmapped, whatever the thresholds. Zeroing fresh pages is a large
+part of a calibration's CPU time, more so on a virtual machine that hands free pages back to its host
+(benchmarks/RESULTS.md, "calibrate" and "dark", has the figures). A buffer the process keeps and reuses costs
+neither.
 
 :func:`use_frame_allocator` sets the policy once, explicitly:
 
@@ -29,12 +27,9 @@ may call it, best before starting threads. A value set through glibc's own envir
 (:data:`GLIBC_VARIABLES`; a Dask nanny sets ``MALLOC_TRIM_THRESHOLD_``) leaves the whole policy alone, and
 ``CAMCAL_MALLOC=default`` keeps glibc's dynamic policy. Other C libraries (musl, macOS) are left as they are.
 
-Measured on a 2-core machine (benchmarks/RESULTS.md, "calibrate", 17:35 UTC): a whole 24 MP calibration 22.2 s
-against 28.2 s under glibc's policy; its stages in one process: 0.12 million page faults and 8.5 s of system
-time instead of 3.95 million and 22.2 s, at the same peak memory (3.16 GB against 3.19 GB). The decode of the
-session's files alone: 4.8 s against 6.7 s. A batch worker's peak is higher (1.42 GB against 1.30 GB: freed
-buffers stay in the heap for the next photo) and still flat in the number of photos, and the batch faster
-(1.97 photos/s against 1.81).
+Why: with the policy a calibration takes far fewer page faults and much less system time at the same peak
+memory; a batch worker's peak is a little higher (freed buffers stay in the heap for the next photo) and still
+flat in the number of photos (benchmarks/RESULTS.md, "calibrate" and "apply").
 
 References
 ----------

@@ -1,7 +1,7 @@
 """The one correction path: raw planes → signal above dark, its variance and a per-pixel invalid mask.
 
 Every stage that reads light frames (flat, linearity, sweep, colour) and ``apply`` corrects a frame
-here and nowhere else (issue 15). For planes ``d`` in DN of a frame taken with exposure time t at
+here and nowhere else (one correction path). For planes ``d`` in DN of a frame taken with exposure time t at
 ISO S, with the calibration known so far:
 
 1. **dark**: ``s = d − (bias + β·t·S/S_dark)`` — the dark model's expected dark frame (seed eq. 12,

@@ -9,8 +9,8 @@ line ``# Wavelength, R, G, B, G2, R_err, G_err, B_err, G2_err`` and then numbers
 with ``np.loadtxt(path, delimiter=",").T`` (``spectacle.spectral.load_spectral_response``): row 0 the
 wavelengths in nm, rows 1–4 R, G, B, G2, rows 5–8 their uncertainties. :func:`write_spectacle_csv`
 makes exactly that file (camcal's own metadata goes to ``<stem>.meta.json`` beside it, which SPECTACLE
-never opens) and :func:`read_spectacle_csv` reads it (and camcal CSVs of schema before issue 18, whose
-first line was a header row without ``#``).
+never opens) and :func:`read_spectacle_csv` reads it (and camcal's older CSVs, whose first line
+was a header row without ``#``).
 
 :func:`read_curve_table` reads the plain layouts: a CSV with a header
 ``wavelength_nm,R,G,B[,R_unc,G_unc,B_unc]`` (``G1,G2`` instead of ``G`` allowed), or whitespace-separated
@@ -254,7 +254,7 @@ def read_spectacle_csv(path: str | Path) -> SpectralSensitivity:
     """Read a SPECTACLE spectral-response CSV (and camcal's ``<stem>.meta.json`` when present).
 
     Accepts what ``np.loadtxt(path, delimiter=",")`` accepts for a (n, 9) table in SPECTACLE's column
-    order (``#`` lines ignored), and the named header row of camcal CSVs written before issue 18. Without
+    order (``#`` lines ignored), and the named header row of camcal's older CSVs. Without
     the metadata file the result is ``relative`` with unknown bandwidth.
     """
     path = Path(path)

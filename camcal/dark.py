@@ -801,12 +801,9 @@ def _fit_bias_stack(st: StackResult, bias_folder: Path | None, options: DarkOpti
 FIT_BAND_PIXELS = 1 << 16
 """Pixels per band of the per-pixel line fit (its float64 temporaries are 512 kB each).
 
-A band takes about 60 numpy calls, and each one releases and takes back the GIL. With smaller bands, two threads
-spend their time handing the GIL to each other. Measured on the 24 MP benchmark session (2 cores, one process,
-sizes in a shuffled order, benchmarks/RESULTS.md "calibrate", 19:30 UTC): 2¹⁶ pixels fit in 1.50-1.63 s on two
-threads. 2¹³ pixels take 3.32-4.32 s: about 100 000 voluntary context switches, and half of the CPU time is the
-kernel's. On one thread, 2¹⁶ pixels take 2.28-2.70 s against 2.79-3.86 s. 2¹⁷ and 2¹⁸ are no faster. (An
-earlier "2¹³ is faster" held while each band's temporaries were mapped afresh, before :mod:`camcal.allocator`.)"""
+A band takes about 60 numpy calls, and each one releases and takes back the GIL: with smaller bands two threads
+spend their time handing the GIL to each other, and larger ones are no faster (benchmarks/RESULTS.md,
+"calibrate")."""
 
 
 def _band_index(shape: tuple[int, ...]) -> list[tuple]:

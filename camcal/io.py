@@ -431,7 +431,6 @@ def quiet_stderr():
     points fd 2 at the null device, the last to leave points it back. Meanwhile ``sys.stderr`` is a stream on a
     duplicate of the real standard error (:func:`_real_stderr`), so what Python writes, in any thread, still
     reaches it: a stage's warning, a failed photo, the command line's "interrupted" while another thread decodes.
-    (Before, such lines went to the null device with the C libraries' while a decode thread was in its block.)
 
     The steps are ordered so that an interrupt (KeyboardInterrupt, which Python raises between any two of them)
     leaves ``sys.stderr`` writing to the real standard error, and a later block finishes what it left: the stream

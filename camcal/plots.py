@@ -26,7 +26,7 @@ Colours: :data:`COLOURS` is the one table for the planes (R, G1, G2, B) and the 
 (R, G, B); :data:`LINESTYLES` tells G2 from G1 where both are drawn.
 
 matplotlib is imported when a figure is built, not when this module is imported: ``camcal``'s
-start-up must not pay for it (issue 17, item 7) and most commands never draw.
+start-up must not pay for it and most commands never draw.
 """
 
 from __future__ import annotations

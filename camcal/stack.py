@@ -668,12 +668,9 @@ BAND_MB = 16.0
 """Default working-set budget of one row band of a median or sigma-clipped stack, MB (4 bytes a value).
 
 Each band costs a few hundred numpy calls (a 32-frame band: 382 for its sorting network, about 200 more for
-its sums and clips), and each call hands the GIL from one band thread to the other. Measured on a 2-core
-machine (32, 16 and 8 frames of 12 MP, six and five interleaved runs, the band statistics alone; 2026-12-03):
-at 32 frames 8 MB bands (62 000 pixels a frame) take 0.61-0.69 s, with 11 400 voluntary context switches, and
-16 MB bands 0.52-0.58 s with 4 800; 24 MB 0.53-0.57 s, 32 MB 0.55-0.70 s and 48 MB 0.62-0.75 s, where a band
-no longer stays in the cache. At 16 frames 8 and 16 MB are equal (0.37 s); at 8 frames a 16 MB band of
-500 000 pixels a frame is slower than an 8 MB one (0.34 s against 0.27 s): hence :data:`MAX_BAND_PIXELS`."""
+its sums and clips), and each call hands the GIL from one band thread to the other: smaller bands hand it over
+more often, larger ones no longer stay in a core's cache. With few frames the budget alone would give bands too
+large for the cache: hence :data:`MAX_BAND_PIXELS` (benchmarks/RESULTS.md, "dark", has the measurements)."""
 
 MAX_BAND_PIXELS = 1 << 18
 """The most pixels of each frame in one band (all C planes together): with few frames the budget

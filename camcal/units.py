@@ -2,7 +2,7 @@
 
 CLI help and summaries, reports, ``camcal profile show``, EXR headers and the ``units`` fields of stage and
 profile files take their unit text from here, so that one quantity is written one way everywhere
-(issue 30 item 8; docs/conventions.md#units shows the same table). ``tests/test_units.py`` fails when
+(docs/conventions.md#units shows the same table). ``tests/test_units.py`` fails when
 camcal/ spells one of these units another way (``W m^-2``, ``DN/s``, ``e-``, ``ug/L`` ...), or writes one of
 them as a literal outside this module.
 

@@ -13,7 +13,7 @@ import typer
 from camcal.cli import app, register_commands
 from camcal.cli.aliases import DEPRECATED, REMOVED_IN
 
-#: The CLI vocabulary (issue 30), as the test enforces it.
+#: The CLI vocabulary, as the test enforces it.
 RULES = (
     "every output path is `-o/--output` (and `-o` is never anything else)",
     "`--jobs` (`-j`) is the number of CPU cores to use, whatever the worker kind; its help starts with "
