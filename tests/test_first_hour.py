@@ -7,26 +7,16 @@ import shutil
 
 import numpy as np
 
-from camcal.cli.aliases import rewrite
 from camcal.exr import read_exr, write_exr
 from tests.conftest import assert_one_line_error, run_cli
 
 
-def test_old_spellings_are_rewritten_with_one_deprecation_line():
-    lines: list[str] = []
-    argv = rewrite(["water", "invert", "--model", "seed", "--out=x.exr", "--ratio", "0.3"], lines.append)
-    assert argv == ["water", "invert", "--water-model", "seed", "--output=x.exr", "--ratio", "0.3"]
-    assert len(lines) == 2 and all(line.startswith("camcal: deprecated:") for line in lines)
-    assert rewrite(["sweep", "S/sweep", "--mode", "relative"], lines.append)[2] == "--sweep-mode"
-    assert rewrite(["apply", "p.camcal", "--model", "x"], lines.append)[2] == "--model"  # not apply's option
-
-
-def test_old_water_spelling_still_works_through_the_cli():
+def test_old_spellings_are_gone():
+    """The old option names of an unreleased version are refused as unknown options, not rewritten."""
     new = run_cli("water", "forward", "--concentration", "89ug/L", "--depth", "20cm", "--water-model", "seed")
     old = run_cli("water", "forward", "--concentration", "89ug/L", "--depth", "20cm", "--model", "seed")
-    assert new.returncode == old.returncode == 0, old.stderr
-    assert json.loads(new.stdout)["ratio"] == json.loads(old.stdout)["ratio"]
-    assert "deprecated: --model is now --water-model" in old.stderr and not new.stderr.strip()
+    assert new.returncode == 0, new.stderr
+    assert old.returncode == 2 and "--model" in old.stderr and "Traceback" not in old.stderr
     # the default is the refined model: water, surface and all
     default = run_cli("water", "forward", "--concentration", "89ug/L", "--depth", "20cm")
     assert json.loads(default.stdout)["model"] == "refined"

@@ -57,7 +57,7 @@ def test_open_sweep_through_the_cli_and_into_a_profile(tmp_path):
     assert meta["source"]["kind"] == "sweep_means" and "TSL235_2020.dat" in " ".join(meta["source"]["notes"])
     assert curves.values["G1"].max() == pytest.approx(1.0) and np.all(curves.uncertainty["R"] > 0)
     prof = tmp_path / "p.camcal"
-    imp = run_cli("profile", "import-spectral", out, "--make", "Canon", "--model", "Canon EOS 5D Mark III",
+    imp = run_cli("profile", "import-spectral", out, "--make", "Canon", "--camera-model", "Canon EOS 5D Mark III",
                   "--size", "5760x3840", "-o", prof)
     assert imp.returncode == 0, imp.stderr
     assert load_profile(prof).spectral.wavelength_nm.size == 176

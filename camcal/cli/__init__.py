@@ -25,7 +25,6 @@ except ImportError:  # pragma: no cover - depends on the installed typer
 from camcal import __version__
 from camcal.allocator import use_frame_allocator
 from camcal.atomic import remove_pending
-from camcal.cli.aliases import rewrite
 from camcal.errors import CamcalError
 
 app = typer.Typer(
@@ -108,7 +107,7 @@ def _main(argv: list[str] | None) -> int:
     warnings.filterwarnings("ignore", category=RuntimeWarning)
     use_frame_allocator()  # frame-sized buffers reused, not faulted in again for every frame
     try:
-        args = rewrite(sys.argv[1:] if argv is None else [str(a) for a in argv])
+        args = sys.argv[1:] if argv is None else [str(a) for a in argv]
         register_commands(commands_for(args))
         result = app(args=args, prog_name="camcal", standalone_mode=False)
     except typer.Exit as exc:

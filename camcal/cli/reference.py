@@ -11,7 +11,6 @@ import sys
 import typer
 
 from camcal.cli import app, register_commands
-from camcal.cli.aliases import DEPRECATED, REMOVED_IN
 
 #: The CLI vocabulary, as the test enforces it.
 RULES = (
@@ -72,11 +71,6 @@ def render() -> str:
              "`tests/test_cli_reference.py` keeps it current. Do not edit by hand.", "",
              "## Naming rules", ""]
     lines += [f"- {r}" for r in RULES]
-    lines += ["", f"Old spellings keep working until camcal {REMOVED_IN}, with one deprecation line each:", "",
-              "| command | old | new |", "|---|---|---|"]
-    for path, table in DEPRECATED.items():
-        for old, new in table.items():
-            lines.append(f"| `camcal {' '.join(path)}` | `{old}` | `{new}` |")
     lines.append("")
     for name, cmd in commands():
         lines += [f"## `camcal {name}`", "", _cell(" ".join((cmd.help or "").split("\n\n")[0].split())), "",
