@@ -65,8 +65,8 @@ def _small_profile(work: Path):
 
 def build(work: Path):
     """The 24 MP camera, profile and photos (written once)."""
-    from camcal.dark import DarkModel
-    from camcal.flat import FlatModel
+    from camcal.dark_model import DarkModel
+    from camcal.flat_model import FlatModel
     from camcal.frame import PLANES
     from camcal.profile import CameraIdentity, load_profile, save_profile
     from camcal.reference_spectra import gaussian_line

@@ -20,7 +20,8 @@ import time
 import numpy as np
 from scipy.optimize import least_squares
 
-from camcal.flat import PlaneGeometry, fit_flat_planes, radial_gain
+from camcal.flat import fit_flat_planes
+from camcal.flat_model import PlaneGeometry, radial_gain
 
 SIZES = ((600, 800), (3000, 4000))
 """Full-resolution sensors (H, W): the baseline runs on the first only (minutes on the second)."""

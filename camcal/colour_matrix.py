@@ -31,7 +31,7 @@ from camcal.correct import Calibration, correct_frame
 from camcal.errors import CamcalError
 from camcal.io import is_raw_path, list_frames, load_frame
 from camcal.region import DEFAULT_ROI_FRACTION, central_roi
-from camcal.response_model import ColourMatrix  # noqa: F401 (re-exported)
+from camcal.response_model import ColourMatrix
 from camcal.session import StageFrames, folder_of
 
 #: A JPEG channel of a sweep frame is used when fewer than this fraction of its ROI pixels are clipped
@@ -67,7 +67,7 @@ def fit_colour_matrix(folders: Sequence[str | Path | StageFrames], processed, *,
         the linearity series (one broadband chromaticity with every channel well exposed, which pins
         the combination a daylight scene needs). Exposures are not needed: A relates the two files of
         one exposure.
-    processed : the processed :class:`camcal.response.ResponseModel` (its ``linearise``).
+    processed : the processed :class:`camcal.response_model.ResponseModel` (its ``linearise``).
     roi_fraction : central box, fraction of each side.
     min_frames : usable frames each processed channel needs.
 

@@ -61,7 +61,7 @@ class Calibration:
 
     Attributes
     ----------
-    dark : a :class:`camcal.dark.DarkModel` (or any :class:`DarkFrameModel`), or None: subtract the
+    dark : a :class:`camcal.dark_model.DarkModel` (or any :class:`DarkFrameModel`), or None: subtract the
         file's black level only.
     flat_gain : (C, h, w) float32 flat-field gain (1 at the optical centre), or None.
     defects : (C, h, w) bool, True for known defective pixels, or None.
@@ -87,7 +87,7 @@ class Calibration:
 
     @staticmethod
     def of(dark: Any = None, flat: Any = None, *, with_prnu: bool = False, emva: Any = None) -> Calibration:
-        """Build from a dark model and a :class:`camcal.flat.FlatModel` (either may be None); the system gain
+        """Build from a dark model and a :class:`camcal.flat_model.FlatModel` (either may be None); the system gain
         of the noise model is :func:`system_gain_dn_per_e` (``emva``: the profile's EMVA 1288 sheet)."""
         gain = None
         if flat is not None:
@@ -311,7 +311,7 @@ def system_gain_dn_per_e(dark: Any, emva: Any = None) -> np.ndarray | None:
     """(C, 1, 1) float32 system gain K of the noise model at the dark model's ISO, DN/e⁻, or None without a
     dark model.
 
-    Per plane: K from photon transfer (the profile's EMVA 1288 sheet, :class:`camcal.emva.EmvaSheet`, scaled
+    Per plane: K from photon transfer (the profile's EMVA 1288 sheet, :class:`camcal.emva_model.EmvaSheet`, scaled
     from its ISO to the dark model's) where known, else the dark model's photon-transfer line of the dark
     signal (``gain_dn_per_e_from_dark``, weak when the dark current is small), else 0 (no shot-noise term).
     """

@@ -25,7 +25,7 @@ times), following EMVA 1288 (release 4.0, §4.3 "dark current", §4.5 "DSNU"):
   ``hot_sigma`` robust standard deviations and ``(hot_factor - 1)`` medians), 4 noisy
   (temporal variance above the plane's model variance beyond a chi-square bound,
   :func:`temporal_noise`). 2 dead is defined by the response, not by the darks (a pixel that
-  reads one value in every dark frame is normal below 1 DN of noise): :func:`camcal.flat.dead_pixels`.
+  reads one value in every dark frame is normal below 1 DN of noise): :func:`camcal.flat_model.dead_pixels`.
 - **duplicates**: two frames with identical pixels are refused by content (:mod:`camcal.stack`).
 - **bias only** (:func:`fit_bias`): bias, read noise, DSNU, noisy pixels; dark current unknown.
 """
@@ -45,20 +45,7 @@ from scipy.special import ndtr
 from scipy.stats import chi2
 
 from camcal.correct import Calibration, correct_planes
-from camcal.dark_model import (  # noqa: F401 (re-exported)
-    _MAPS,
-    DEAD,
-    HOT,
-    KIND,
-    NOISY,
-    DarkModel,
-    as_dark_model,
-    dark_from_parts,
-    dark_to_parts,
-    load_dark,
-    save_dark,
-    with_dead_pixels,
-)
+from camcal.dark_model import DEAD, HOT, NOISY, DarkModel
 from camcal.errors import CamcalError, FrameLeftOut, MissingMetadataError, TooFewFrames
 from camcal.frame import Frame
 from camcal.hashing import sha256_file
@@ -141,7 +128,7 @@ class DarkOptions:
         ``noisy_sigma`` standard errors of a variance and by more than the chi-square bound a
         normal pixel exceeds with probability 1e-6 for the number of frames. Dead pixels are not
         found here (a zero temporal variance is normal below 1 DN of noise): the flat stage finds
-        them by their response (:func:`camcal.flat.dead_pixels`).
+        them by their response (:func:`camcal.flat_model.dead_pixels`).
     saturation_fraction : a frame with more than this fraction of pixels at the white level is refused.
     bias_prior_frames : weight, in frames, of the black-level prior at t = 0 (no bias frames only).
     """

@@ -45,7 +45,7 @@ class DarkModel:
         :func:`camcal.dark.temporal_noise`).
     defects : (4, h, w) uint8
         Bit mask: 1 hot (dark current), 2 dead (no response in the flats, set by ``camcal calibrate``
-        from :func:`camcal.flat.dead_pixels`), 4 noisy (temporal variance far above the model).
+        from :func:`camcal.flat_model.dead_pixels`), 4 noisy (temporal variance far above the model).
     iso : float
         ISO of the frames.
     cfa_pattern : str or None
@@ -164,7 +164,7 @@ class DarkModel:
 def with_dead_pixels(model: DarkModel, dead: np.ndarray, source: str) -> DarkModel:
     """A new model whose defect map also marks ``dead`` (C, h, w) pixels as DEAD, counts updated.
 
-    Dead pixels are found by their response (:func:`camcal.flat.dead_pixels`); ``source`` says where.
+    Dead pixels are found by their response (:func:`camcal.flat_model.dead_pixels`); ``source`` says where.
     """
     dead = np.asarray(dead, bool)
     if dead.shape != model.defects.shape:

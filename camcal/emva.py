@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
-from camcal.emva_model import SHEET_KEYS, STANDARD, EmvaSheet, sheet_rows  # noqa: F401 (re-exported)
+from camcal.emva_model import SHEET_KEYS, EmvaSheet
 
 QUANTISATION_VAR_DN2 = 1.0 / 12.0
 """σ²_q of integer data, DN² (EMVA 1288 linear model, eq. 4)."""
@@ -502,7 +502,7 @@ def build_sheet(*, channels: tuple[str, ...], iso: float, dark_noise: DarkNoiseS
     prnu_frames, flat_prnu : the number of frames of the flat stage's master flat and its PRNU per plane
         (:func:`camcal.flat.flat_prnu`, which holds the per-frame temporal variance).
     pairs : the linearity stage's :class:`camcal.response.PairStatistics` (photon transfer).
-    spectral : absolute c(λ) (:class:`camcal.spectral.SpectralSensitivity`) for the quantum efficiency, with
+    spectral : absolute c(λ) (:class:`camcal.spectral_model.SpectralSensitivity`) for the quantum efficiency, with
         ``pixel_pitch_um`` (µm).
     """
     notes: list[str] = []

@@ -49,29 +49,20 @@ import numpy as np
 from numpy.polynomial import legendre
 from scipy.optimize import least_squares
 
-from camcal.blocks import DEFAULT_BLOCKS, auto_downsample, block_mean  # noqa: F401 (re-exported)
+from camcal.blocks import auto_downsample, block_mean
 from camcal.correct import Calibration, correct_frame, correct_planes, require_valid
 from camcal.dark_model import DarkModel, as_dark_model
 from camcal.emva import Nonuniformity, prnu, spatial_variance
 from camcal.errors import CamcalError
-from camcal.flat_model import (  # noqa: F401 (re-exported)
+from camcal.flat_model import (
     DEAD_RESPONSE,
     F_NUMBER_TOLERANCE,
     FOCAL_TOLERANCE,
     N_RADIAL,
-    FlatChoice,
     FlatModel,
     Optics,
     PlaneGeometry,
-    _eval_2d,
     _legendre_uv,
-    as_flat_model,
-    choose_flat,
-    dead_pixels,
-    flat_from_parts,
-    flat_to_parts,
-    load_flat,
-    radial_gain,
     save_flat,
 )
 from camcal.frame import PLANES, Exposure, Frame
@@ -639,7 +630,7 @@ def fit_flat(
     Parameters
     ----------
     flat_folder : folder of RAW flat frames (+ optional ``frames.csv``).
-    dark : a ``camcal.dark.DarkModel``, a path to a dark model JSON, or None (subtract the
+    dark : a ``camcal.dark_model.DarkModel``, a path to a dark model JSON, or None (subtract the
         files' black level only).
     model, downsample, n_terms, degree_2d, with_prnu : see :func:`fit_flat_planes`.
     method, sigma : combine method (``mean``, ``median``, ``sigma_clip``) and clip threshold.

@@ -59,7 +59,7 @@ from PIL import ImageCms
 
 from camcal.errors import CamcalError
 from camcal.frame import PLANES, RGB, TRACKED, Exposure, Frame, pattern_from_rawpy, plane_offsets
-from camcal.limits import DEFAULT_MAX_PIXELS, check_expansion, declared_image_bytes, max_pixels  # noqa: F401
+from camcal.limits import check_expansion, declared_image_bytes, max_pixels
 from camcal.manifest import FRAMES_CSV, exposure_overrides, parse_utc_offset, read_manifest, session_defaults_for
 
 T = TypeVar("T")

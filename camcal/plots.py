@@ -135,7 +135,7 @@ def dark_figure(dark: DarkModel) -> Figure:
 
     Parameters
     ----------
-    dark : camcal.dark.DarkModel
+    dark : camcal.dark_model.DarkModel
         β = ``dark_current_dn_per_s`` (4, h, w) in DN s⁻¹ at ``dark.iso`` (seed eq. 12, β term);
         hot pixels are bit 1 of ``defects``. A bias-only model (β None) shows the bias in DN instead.
 
@@ -208,7 +208,7 @@ def flat_figure(flat: FlatModel, master: np.ndarray | None = None) -> Figure:
 
     Parameters
     ----------
-    flat : camcal.flat.FlatModel
+    flat : camcal.flat_model.FlatModel
         The radial model g(r) = 1 + Σ k_i r^(2i+2) (r normalised to the farthest corner, DNG
         ``FixVignetteRadial``) is drawn as a curve; with a 2-D model the binned median of the active
         gain map over the radius is drawn instead.
@@ -284,7 +284,7 @@ def response_figure(model: ResponseModel, title: str | None = None) -> Figure:
 
     Parameters
     ----------
-    model : camcal.response.ResponseModel
+    model : camcal.response_model.ResponseModel
         ``points[ch]`` holds ``x_s`` (relative exposure, s at the reference setting), ``mean_dn`` and
         ``used``; the fit is ``g = α x^γ + β`` (seed eq. 12).
     title : optional figure title (e.g. the camera); the axes keep their own titles.
@@ -357,7 +357,7 @@ def spectral_figure(spec: SpectralSensitivity, truth: dict[str, np.ndarray] | No
 
     Parameters
     ----------
-    spec : camcal.spectral.SpectralSensitivity
+    spec : camcal.spectral_model.SpectralSensitivity
         Values and standard uncertainties per plane (seed §3.1); G is the mean of G1 and G2 and
         u(G) = ½·√(u(G1)² + u(G2)²).
     truth : optional known curves, same units as ``spec``: keys R, G, B are drawn over the left panel,

@@ -88,12 +88,12 @@ class CalibrationProfile:
     reference_iso, reference_f_number : float or None
         The reference setting every DN rate is normalised to (seed §2.1); None when unknown and no stage
         normalised exposure (a bias/dark/flat-only profile: apply then refuses it).
-    dark : camcal.dark.DarkModel or None
-    flat : camcal.flat.FlatModel or None
-    response : dict of camcal.response.ResponseModel, keyed ``raw`` / ``processed``, or None
-    spectral : camcal.spectral.SpectralSensitivity or None
+    dark : camcal.dark_model.DarkModel or None
+    flat : camcal.flat_model.FlatModel or None
+    response : dict of camcal.response_model.ResponseModel, keyed ``raw`` / ``processed``, or None
+    spectral : camcal.spectral_model.SpectralSensitivity or None
         Absolute c(λ) in DN s⁻¹ per (W m⁻² sr⁻¹ nm⁻¹) per nm at the reference setting, on axis.
-    emva : camcal.emva.EmvaSheet or None
+    emva : camcal.emva_model.EmvaSheet or None
         The EMVA 1288 summary (system gain K from photon transfer, DSNU, PRNU, saturation, SNR_max, dynamic
         range, linearity error); the noise model uses its K (:meth:`camcal.correct.Calibration.of`).
     provenance : Provenance

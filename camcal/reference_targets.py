@@ -109,7 +109,7 @@ def region_rate(frame: Frame, box: Region | tuple[int, int, int, int] | None, *,
     box : a :class:`camcal.region.Region` in photo pixels (rounded outward to whole plane pixels), or
         (x0, y0, x1, y1), half-open, in half-resolution plane pixels; None: the central
         :data:`camcal.region.DEFAULT_ROI_FRACTION` of each side.
-    dark, flat : camcal.dark.DarkModel, camcal.flat.FlatModel or None.
+    dark, flat : camcal.dark_model.DarkModel, camcal.flat_model.FlatModel or None.
     """
     path = frame.path
     if frame.kind != "raw":

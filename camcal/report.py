@@ -17,7 +17,7 @@ Sections, in pipeline order:
 * **Spectral sensitivity** c(λ) (seed §3.1): R, G (mean of G1 and G2), B with ±1 standard
   uncertainty bands, and G1 against G2.
 * **EMVA 1288 summary** (release 4.0): the standard's data-sheet figures per plane, in its order
-  (:func:`camcal.emva.sheet_rows`): system gain K from photon transfer, temporal dark noise, absolute
+  (:func:`camcal.emva_model.sheet_rows`): system gain K from photon transfer, temporal dark noise, absolute
   sensitivity threshold, saturation capacity, SNR_max, dynamic range, linearity error, dark current,
   DSNU and PRNU with their uncertainties, the noise left in the flat map.
 * Tables of the numbers of the JSON contract (:func:`camcal.profile.contract`), the contract itself,

@@ -57,16 +57,11 @@ from camcal.errors import CamcalError, TooFewFrames
 from camcal.exposure import relative_exposure
 from camcal.io import load_folder_frame, read_ahead
 from camcal.region import Region
-from camcal.response_model import (  # noqa: F401 (re-exported)
-    RESPONSE_KIND,
+from camcal.response_model import (
     SRGB_OFFSET_A,
     ChannelResponse,
-    ColourMatrix,
     ResponseModel,
     _detone,
-    load_response,
-    save_response,
-    srgb_form_decode,
     srgb_form_encode,
     srgb_form_toe,
 )

@@ -68,17 +68,11 @@ from camcal.region import DEFAULT_ROI_FRACTION, Region, central_roi
 from camcal.robust import median_and_mad
 from camcal.screen import FrameFacts, StageJudge
 from camcal.session import SWEEP_CSV, SWEEP_REQUIRED
-from camcal.spectral_model import (  # noqa: F401 (re-exported)
+from camcal.spectral_model import (
     ABSOLUTE_UNITS,
     DEFAULT_REFERENCE_F_NUMBER,
     DEFAULT_REFERENCE_ISO,
-    RELATIVE_UNITS,
     SpectralSensitivity,
-    _planes_of,
-    _replace,
-    describe_origin,
-    spectral_from_dict,
-    spectral_to_dict,
     to_relative,
 )
 from camcal.threads import thread_count

@@ -387,7 +387,7 @@ def test_relative_profile_gives_relative_radiance_for_ratios(photos, profile):
     from dataclasses import replace
 
     from camcal.apply import RELATIVE_UNITS
-    from camcal.spectral import to_relative
+    from camcal.spectral_model import to_relative
 
     rel = replace(profile, spectral=to_relative(profile.spectral))
     a_line = apply(load_frame(photos[("line", "raw", 100, 4.0)]), profile)

@@ -21,11 +21,12 @@ import pytest
 
 from camcal.apply import apply
 from camcal.calibrate import calibrate_session
-from camcal.colour_matrix import ColourMatrix, fit_colour_matrix, twin_pairs
+from camcal.colour_matrix import fit_colour_matrix, twin_pairs
 from camcal.errors import CamcalError
 from camcal.io import load_frame
 from camcal.profile import load_profile, save_profile
 from camcal.reference_spectra import WAVELENGTHS_NM, planck_radiance
+from camcal.response_model import ColourMatrix
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
 from camcal.synth.session import SessionPlan, exposure_for_level, write_session
 

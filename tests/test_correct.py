@@ -21,8 +21,8 @@ from scipy.special import erfc
 
 from camcal.calibrate import calibrate_session
 from camcal.correct import Calibration, Corrected, correct_planes, require_valid
-from camcal.dark import DEAD, HOT, NOISY, fit_dark, quantised_noise_fit
-from camcal.dark_model import DarkModel
+from camcal.dark import fit_dark, quantised_noise_fit
+from camcal.dark_model import DEAD, HOT, NOISY, DarkModel
 from camcal.errors import CamcalError
 from camcal.frame import PLANES
 from camcal.profile import contract

@@ -32,7 +32,7 @@ from camcal.limits import MAX_CURVE_JSON_BYTES
 from camcal.profile import CalibrationProfile, CameraIdentity, Provenance, contract, load_profile, save_profile
 from camcal.reference_spectra import WAVELENGTHS_NM, planck_radiance
 from camcal.reference_targets import CURVE_CORRELATION, fit_scale, import_spectral, observe_targets
-from camcal.spectral import RELATIVE_UNITS, SpectralSensitivity
+from camcal.spectral_model import RELATIVE_UNITS, SpectralSensitivity
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
 from camcal.synth.session import SessionPlan, exposure_for_level, write_session
 from camcal.synth.targets import smooth_target_spectra, write_target_photos

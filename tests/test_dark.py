@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from camcal.correct import dark_frame
-from camcal.dark import HOT, fit_dark, load_dark, save_dark, subtract_dark
-from camcal.dark_model import DarkModel
+from camcal.dark import fit_dark, subtract_dark
+from camcal.dark_model import HOT, DarkModel, load_dark, save_dark
 from camcal.errors import CamcalError
 from camcal.stack import combine_frames
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera

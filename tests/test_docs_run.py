@@ -115,9 +115,9 @@ def _argv(cmd: str) -> list[str]:
 def _parse_only(argv: list[str]) -> None:
     """Parse ``argv`` with the app's own parser (options, types, choices) without running the command."""
     import typer
+    from camcal.cli.aliases import rewrite
 
     from camcal.cli import app, register_commands
-    from camcal.cli.aliases import rewrite
 
     register_commands()
     cmd = typer.main.get_command(app)

@@ -18,15 +18,8 @@ import numpy as np
 import pytest
 
 from camcal.errors import CamcalError
-from camcal.flat import (
-    FlatChecks,
-    correct_flat,
-    fit_flat,
-    fit_flat_planes,
-    load_flat,
-    radial_gain,
-    save_flat,
-)
+from camcal.flat import FlatChecks, correct_flat, fit_flat, fit_flat_planes
+from camcal.flat_model import load_flat, radial_gain, save_flat
 from camcal.frame import split_planes
 from camcal.io import load_frame
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
@@ -293,7 +286,8 @@ def test_bad_options_and_empty_folders(tmp_path, session_dir):
 
 @pytest.fixture(scope="module")
 def dark_json(session_dir, tmp_path_factory):
-    from camcal.dark import fit_dark, save_dark
+    from camcal.dark import fit_dark
+    from camcal.dark_model import save_dark
 
     return save_dark(fit_dark(session_dir / "dark", session_dir / "bias"), tmp_path_factory.mktemp("dark") / "d.json")
 

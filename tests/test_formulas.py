@@ -22,9 +22,6 @@ from scipy.stats import chi2
 import camcal.dark
 from camcal.apply import apply
 from camcal.dark import (
-    DEAD,
-    HOT,
-    NOISY,
     DarkOptions,
     DarkStacks,
     TemporalNoise,
@@ -35,6 +32,7 @@ from camcal.dark import (
     _robust,
     fit_dark_stacks,
 )
+from camcal.dark_model import DEAD, HOT, NOISY
 from camcal.emva import dark_noise_stacks
 from camcal.errors import CamcalError, MissingMetadataError
 from camcal.frame import PLANES, Exposure

@@ -21,8 +21,8 @@ from matplotlib.colors import same_color
 from matplotlib.figure import Figure
 from PIL import Image
 
-from camcal.dark import HOT, DarkModel
-from camcal.flat import FlatModel, radial_gain
+from camcal.dark_model import HOT, DarkModel
+from camcal.flat_model import FlatModel, radial_gain
 from camcal.frame import PLANES
 from camcal.plots import (
     COLOURS,
@@ -37,8 +37,8 @@ from camcal.plots import (
     spectral_figure,
     write_png,
 )
-from camcal.response import ChannelResponse, ResponseModel
-from camcal.spectral import SpectralSensitivity
+from camcal.response_model import ChannelResponse, ResponseModel
+from camcal.spectral_model import SpectralSensitivity
 from camcal.water.simulate import seed_section5_tables
 
 ROOT = Path(__file__).resolve().parents[1]

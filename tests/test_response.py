@@ -13,13 +13,10 @@ from camcal.errors import CamcalError
 from camcal.exposure import relative_exposure
 from camcal.frame import PLANES
 from camcal.io import iter_folder
-from camcal.response import (
+from camcal.response import emva_linearity_error, fit_response, roi_slices, roi_window
+from camcal.response_model import (
     ResponseModel,
-    emva_linearity_error,
-    fit_response,
     load_response,
-    roi_slices,
-    roi_window,
     save_response,
     srgb_form_decode,
     srgb_form_encode,
@@ -244,7 +241,7 @@ def test_iso_and_aperture_series_give_the_reference_rate(tmp_path, small_camera)
 
 
 class _TruthDark:
-    """A dark model from the camera's own maps (the protocol camcal.dark.DarkModel implements)."""
+    """A dark model from the camera's own maps (the protocol camcal.dark_model.DarkModel implements)."""
 
     def __init__(self, camera: SyntheticCamera) -> None:
         self.camera = camera

@@ -14,7 +14,8 @@ import pytest
 
 import camcal.manifest
 from camcal.calibrate import calibrate_session
-from camcal.dark import DarkOptions, dark_to_parts, fit_dark, fit_dark_stacks, stack_darks
+from camcal.dark import DarkOptions, fit_dark, fit_dark_stacks, stack_darks
+from camcal.dark_model import dark_to_parts
 from camcal.errors import CamcalError
 from camcal.session import StageFrames, index_session
 from camcal.spectral import SweepOptions, measure_sweep, measure_sweep_settings, read_sweep, sensitivity_from_settings

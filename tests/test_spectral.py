@@ -24,14 +24,8 @@ from camcal.curve_files import SPECTACLE_HEADER, read_spectacle_csv, write_spect
 from camcal.errors import CamcalError, TooFewFrames
 from camcal.frame import PLANES
 from camcal.reference_spectra import WAVELENGTHS_NM, gaussian_line
-from camcal.spectral import (
-    LeftOutWarning,
-    SpectralSensitivity,
-    SweepWarning,
-    deconvolve_slit,
-    measure_sweep,
-    merge_sweeps,
-)
+from camcal.spectral import LeftOutWarning, SweepWarning, deconvolve_slit, measure_sweep, merge_sweeps
+from camcal.spectral_model import SpectralSensitivity
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
 from camcal.synth.session import SessionPlan, write_session
 from camcal.units import SPECTRAL_SENSITIVITY

@@ -36,7 +36,7 @@ from camcal.io import load_frame
 from camcal.profile import contract, load_profile, save_profile
 from camcal.reference_spectra import WAVELENGTHS_NM, camera_sensitivities, planck_radiance
 from camcal.reference_targets import import_spectral, predicted_rate, radiance_target, region_rate
-from camcal.spectral import RELATIVE_UNITS, SpectralSensitivity
+from camcal.spectral_model import RELATIVE_UNITS, SpectralSensitivity
 from camcal.synth.camera import Scene
 from camcal.synth.session import exposure_for_level
 from camcal.synth.targets import grey_card_reflectance, smooth_target_spectra, write_target_photos

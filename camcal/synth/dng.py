@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from camcal.atomic import atomic_write_bytes
-from camcal.synth.exif import (  # noqa: F401  (encode_exif_app1: the JPEG writer's, re-exported)
+from camcal.synth.exif import (
     _ASCII,
     _BYTE,
     _IFD,
@@ -34,7 +34,6 @@ from camcal.synth.exif import (  # noqa: F401  (encode_exif_app1: the JPEG write
     TAG_GPS_IFD,
     PlaceTime,
     add_time_tags,
-    encode_exif_app1,
     gps_ifd,
     pack_tiff,
 )
