@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
+import io
 import json
 import os
 import shutil
 import subprocess
 import sys
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 
@@ -15,6 +18,7 @@ import numpy as np
 import pytest
 from hypothesis import settings
 
+from camcal.cli import main
 from camcal.synth.camera import SensorParams, SyntheticCamera
 from camcal.synth.session import SessionPlan, write_session
 
@@ -97,7 +101,28 @@ def demo_run(tmp_path_factory) -> tuple[Path, subprocess.CompletedProcess]:
 
 
 def run_cli(*args: str, cwd: Path | None = None, env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
-    """Run the real CLI in a subprocess (what a user sees, exit code and all); ``env`` adds variables."""
+    """Run the real CLI in this process (:func:`camcal.cli.main`, exit code, stdout and stderr as a user sees them).
+
+    ``env`` adds variables; a run with ``env`` goes to a subprocess (:func:`run_cli_subprocess`), since camcal
+    reads some variables once per process. ``cwd`` is the working directory of the run."""
+    if env is not None:
+        return run_cli_subprocess(*args, cwd=cwd, env=env)
+    argv = [str(a) for a in args]
+    out, err = io.StringIO(), io.StringIO()
+    here = os.getcwd()
+    try:
+        if cwd is not None:
+            os.chdir(cwd)
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err), warnings.catch_warnings():
+            code = main(argv)
+    finally:
+        os.chdir(here)
+    return subprocess.CompletedProcess(["camcal", *argv], code, out.getvalue(), err.getvalue())
+
+
+def run_cli_subprocess(*args: str, cwd: Path | None = None,
+                       env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
+    """Run the real CLI in a subprocess (a fresh interpreter: start-up, exit codes, signals); ``env`` adds variables."""
     return subprocess.run([sys.executable, "-m", "camcal", *map(str, args)], capture_output=True, text=True, cwd=cwd,
                           timeout=600, env=None if env is None else {**os.environ, **env})
 

@@ -115,13 +115,12 @@ def _argv(cmd: str) -> list[str]:
 def _parse_only(argv: list[str]) -> None:
     """Parse ``argv`` with the app's own parser (options, types, choices) without running the command."""
     import typer
-    from camcal.cli.aliases import rewrite
 
     from camcal.cli import app, register_commands
 
     register_commands()
     cmd = typer.main.get_command(app)
-    args = rewrite(argv, lambda _line: None)
+    args = list(argv)
     name = "camcal"
     while hasattr(cmd, "get_command"):  # a group: descend to the command the words name
         name, args = args[0], args[1:]
