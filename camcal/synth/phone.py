@@ -762,6 +762,13 @@ def write_phone_photos(
     bad = [f for f in formats if f not in ("dng", "heic", "jpg")]
     if bad or not formats:
         raise CamcalError(f"unknown photo format(s) {bad}; use dng, heic or jpg")
+    if not (np.isfinite(c_ug_per_L) and c_ug_per_L >= 0) or not depths_m or \
+            not all(np.isfinite(d) and 0 < d <= 20 for d in depths_m):
+        raise CamcalError(f"Secchi photos need chlorophyll-a >= 0 and depths in (0, 20] m (got {c_ug_per_L!r}, "
+                          f"{list(depths_m)!r})")
+    if n_flats < 0 or not chart_evs:
+        raise CamcalError("n_flats must be >= 0 and chart_evs hold at least one exposure offset")
+    chart = chart_scene(cam, sky, reflectance=chart_reflectance, pose=chart_pose)  # refuses a bad chart first
     for sub in ("chart", "grey", "flat", "secchi"):
         (out / sub).mkdir(parents=True, exist_ok=True)
     total = (len(chart_evs) + 1 + n_flats) * len(formats) + (1 + len(depths_m)) * len(formats)
@@ -781,7 +788,6 @@ def write_phone_photos(
                 progress(done, total)
         return files
 
-    chart = chart_scene(cam, sky, reflectance=chart_reflectance, pose=chart_pose)
     white_index = chart.truth["patches"][18]
     t0 = phone_exposure_s(cam, chart.patch_radiance[18], 0.7)
     charts = []
