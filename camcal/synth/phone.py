@@ -13,7 +13,7 @@ end values (not measured there), so that the product falls smoothly to zero outs
 :class:`camcal.synth.camera.SyntheticCamera` (photon noise, read noise, dark current, PRNU, quantisation) with a
 phone's numbers: 1.12 µm pixels, a full well of 4500 e⁻, 2 e⁻ read noise, 10-bit RAW, base ISO 50, a fixed f/1.8
 lens, and the natural falloff of a wide lens, cos⁴θ with tan θ = (r / r_corner) tan θ_corner (θ_corner = 37.4°:
-0.40 at the corners), represented exactly enough (< 0.3 % of the gain) by the DNG radial polynomial the camera
+0.40 at the corners), represented within 1e-4 of the gain by the DNG radial polynomial the camera
 uses (least squares in r², r⁴ … r¹⁰). The pinhole focal length follows from the same corner field angle, so the
 chart's perspective and the falloff share one lens. The RAW is a Bayer DNG (``synth.dng``); the processed photo
 is an 8-bit HEIC (``synth.heic``) made as a phone's pipeline does (:meth:`PhoneCamera.process`): black removed and
