@@ -249,16 +249,27 @@ def append_survey(path: str | Path, row: dict) -> Path:
 
 
 def _photo_figure(st: Station):
-    from matplotlib.patches import Rectangle  # lazy: matplotlib only when a page is drawn
+    from matplotlib import colormaps  # lazy: matplotlib only when a page is drawn
+    from matplotlib.patches import Rectangle
+
+    def matplotlib_cmap(name):
+        return colormaps[name].copy()
 
     photos = st.water + st.sky + st.card
-    fig = new_figure(2.2 * len(photos), 2.2)
-    axes = fig.subplots(1, len(photos), squeeze=False)[0]
-    for ax, p in zip(axes, photos, strict=True):
+    cols = min(len(photos), 5)
+    rows = -(-len(photos) // cols)
+    fig = new_figure(2.4 * cols, 1.9 * rows)
+    axes = fig.subplots(rows, cols, squeeze=False).ravel()
+    for ax in axes[len(photos):]:
+        ax.set_axis_off()
+    for ax, p in zip(axes, photos, strict=False):
         g = st.images[p.name]
         finite = g[np.isfinite(g)]
-        vmax = float(np.percentile(finite, 99.5)) if finite.size else 1.0
-        ax.imshow(g, cmap="gray", vmin=0, vmax=vmax, interpolation="nearest")
+        lo, hi = (np.percentile(finite, [1, 99]) if finite.size else (0.0, 1.0))
+        cmap = matplotlib_cmap("gray")
+        cmap.set_bad("magenta")  # saturated or defective pixels
+        ax.imshow(g, cmap=cmap, vmin=float(lo), vmax=float(hi) if hi > lo else float(lo) + 1e-12,
+                  interpolation="nearest")
         y0, y1, x0, x1 = p.region
         colour = "tab:red" if p.rejected else "tab:green"
         ax.add_patch(Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, color=colour, lw=1.2))

@@ -137,6 +137,7 @@ def write_station(outdir: str | Path, camera: SyntheticCamera, *, water: str | W
     if glint_photo is not None and not 1 <= glint_photo <= n_water:
         raise CamcalError(f"--glint-photo must be 1-{n_water}")
     rng = rng or np.random.default_rng(camera.params.seed + 4049)
+    glint_rng = np.random.default_rng(int(rng.integers(2 ** 62)))  # drawn always: glint leaves the rest unchanged
     out = Path(outdir)
     out.mkdir(parents=True, exist_ok=True)
     zen, az = station_sun(place)
@@ -174,8 +175,8 @@ def write_station(outdir: str | Path, camera: SyntheticCamera, *, water: str | W
         extra = {"rho_eff": rho_i, "sky_drift": drift, "glint": i == glint_photo}
         if i == glint_photo:
             p = camera.params
-            spots = rng.random((p.height, p.width)) < 0.02
-            weight = np.where(spots, rng.uniform(1e-3, 5e-2, (p.height, p.width)), 0.0)
+            spots = glint_rng.random((p.height, p.width)) < 0.02
+            weight = np.where(spots, glint_rng.uniform(1e-3, 5e-2, (p.height, p.width)), 0.0)
             l_glint = float(_fresnel_r(np.cos(np.radians(zen)), 1.0, N_LAKE)) * dni / SUN_SOLID_ANGLE_SR
             comps.append((weight, l_glint))
         else:

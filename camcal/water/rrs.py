@@ -15,7 +15,7 @@ left out, and named with its reason, when (1) more than ``SATURATED_MAX`` of its
 than ``BRIGHT_MAX`` of its region's pixels lie above the region's median by more than ``PIXEL_K`` robust standard
 deviations (1.4826 MAD) — the sparkle of glitter —, or (3) with three photos or more, its mean lies above the
 median of the photos' means by more than ``PHOTO_K`` robust deviations of those means (floored by the photos'
-own standard errors), in any band.
+own standard errors and by ``PHOTO_FLOOR_REL`` of the median, the waves' own spread), in any band.
 
 **Uncertainty** (:func:`estimate_rrs`), 1-σ per band from the partial derivatives of the equation:
 
@@ -56,6 +56,8 @@ SATURATED_MAX = 0.002
 BRIGHT_MAX = 0.005
 PIXEL_K = 6.0
 PHOTO_K = 4.0
+#: Floor of the between-photo scale, relative to the median: waves move a photo's reflected sky by a few %.
+PHOTO_FLOOR_REL = 0.015
 #: Relative 1-σ of the sky between photos when only one sky photo is given.
 SKY_VARIABILITY_REL = 0.03
 #: Central fraction of each photo's side used as its region.
@@ -133,7 +135,7 @@ def screen_water(photos: list[PhotoStats]) -> list[PhotoStats]:
             m = np.array([p.mean[b] for p in kept])
             med = float(np.median(m))
             scale = max(1.4826 * float(np.median(np.abs(m - med))), 3.0 * float(np.median([p.se[b] for p in kept])),
-                        1e-3 * abs(med))
+                        PHOTO_FLOOR_REL * abs(med))
             for p, v in zip(kept, m, strict=True):
                 z = (v - med) / scale
                 if p.rejected is None and z > PHOTO_K:
