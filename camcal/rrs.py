@@ -224,7 +224,8 @@ def station_row(st: Station, name: str) -> dict:
                 "red_effective_wavelength_nm": st.effective_wavelength_nm["R"],
                 "water_photos_kept": sum(p.rejected is None for p in st.water),
                 "water_photos_rejected": " ".join(p.name for p in st.water if p.rejected)})
-    return {k: ("" if v is None else (f"{v:.6g}" if isinstance(v, float) else v)) for k, v in row.items()}
+    return {k: ("" if row[k] is None else (f"{row[k]:.6g}" if isinstance(row[k], float) else row[k]))
+            for k in CSV_COLUMNS}
 
 
 def _csv_text(rows: list[dict]) -> str:

@@ -27,7 +27,7 @@ def register(app: typer.Typer) -> None:
         out: Path = typer.Option(None, "-o", "--output", help="Folder for the page (index.html, PNGs, rrs.json, "
                                  "station.csv)."),
         as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
-        wind: float = typer.Option(5.0, "--wind", help="Wind speed, m/s (0: a flat surface)."),
+        wind: float = typer.Option(5.0, "--wind", help="Wind speed, m/s (0: Cox & Munk's calm sea)."),
         wind_unc: float = typer.Option(2.0, "--wind-unc", help="1-σ of the wind speed, m/s."),
         view_deg: float = typer.Option(40.0, "--view-deg", help="The water photo's angle from nadir, degrees."),
         azimuth_deg: float = typer.Option(135.0, "--azimuth-deg", help="The water photo's azimuth from the sun, "

@@ -22,7 +22,9 @@ estimator** (:mod:`camcal.water.rrs`, :mod:`camcal.water.skyglint`): nothing of 
   multiplies by ρ. Each water photo sees its own waves: ρ_eff times (1 + ``WAVE_SCATTER`` N(0, 1)); each photo's
   sky brightness drifts by ``SKY_DRIFT`` N(0, 1).
 - **Glint** (optional, in one water photo): sun glitter, facets that mirror the sun: sparse pixels (2 % of the
-  frame) carrying R(θs) DNI/Ω_sun times a random facet fraction (10⁻³–5·10⁻²): they saturate.
+  frame) carrying R(θs) DNI/Ω_sun times a facet fraction, log-uniform in 10⁻⁶–5·10⁻²: most saturate, the rest
+  are bright specks; and a haze of sub-pixel glitter over the whole photo, ``GLITTER_HAZE`` times the same
+  radiance (a few % to tens of % of the water photo: what a wave field tilted towards the sun adds).
 - **Card**: Lambertian, R_card(λ) (18 % flat by default) under E_d: L = R_card E_d/π.
 
 Truth: Rrs per band of the camera's true c(λ), ∫ c_b L_w dλ / ∫ c_b E_d dλ (what a band measures), the spectrum,
@@ -61,6 +63,7 @@ WAVE_SCATTER = 0.02
 SKY_DRIFT = 0.01
 VIEW_DEG = 40.0
 RELATIVE_AZIMUTH_DEG = 135.0
+GLITTER_HAZE = 2e-6
 
 
 @dataclass(frozen=True)
@@ -176,9 +179,10 @@ def write_station(outdir: str | Path, camera: SyntheticCamera, *, water: str | W
         if i == glint_photo:
             p = camera.params
             spots = glint_rng.random((p.height, p.width)) < 0.02
-            weight = np.where(spots, glint_rng.uniform(1e-3, 5e-2, (p.height, p.width)), 0.0)
+            fraction = 10.0 ** glint_rng.uniform(-6.0, np.log10(5e-2), (p.height, p.width))  # log-uniform
+            weight = np.where(spots, fraction, 0.0)
             l_glint = float(_fresnel_r(np.cos(np.radians(zen)), 1.0, N_LAKE)) * dni / SUN_SOLID_ANGLE_SR
-            comps.append((weight, l_glint))
+            comps += [(weight, l_glint), (None, GLITTER_HAZE * l_glint)]
         else:
             reflected_sum += rho_i * drift * l_sky_view
             kept += 1

@@ -66,12 +66,10 @@ def rho_flat(view_deg: float, n: float = N_WATER) -> float:
 def rho_rough(view_deg: float, wind_m_s: float, n: float = N_WATER, nodes: int = HERMITE_NODES) -> float:
     """ρ of a uniform sky over a Cox-Munk surface (module docstring), view angle from nadir in degrees.
 
-    W = 0 is the flat surface's Fresnel reflectance.
+    W = 0 is Cox & Munk's calm sea (σ² = 0.003), 0.5 % above the flat surface's Fresnel reflectance at 40°.
     """
     if not 0 <= view_deg < 85:
         raise CamcalError(f"view angle {view_deg:g} deg from nadir: give 0-85 deg")
-    if wind_m_s == 0:
-        return rho_flat(view_deg, n)
     s = np.sqrt(cox_munk_mss(wind_m_s) / 2.0)  # per axis (isotropic)
     x, w = np.polynomial.hermite_e.hermegauss(nodes)  # probabilists' Hermite: weight e^(−x²/2)
     zx, zy = np.meshgrid(s * x, s * x, indexing="ij")
