@@ -28,7 +28,7 @@ def register(app: typer.Typer) -> None:
                                  "station.csv)."),
         as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
         wind: float = typer.Option(5.0, "--wind", help="Wind speed, m/s (0: Cox & Munk's calm sea)."),
-        wind_unc: float = typer.Option(2.0, "--wind-unc", help="1-σ of the wind speed, m/s."),
+        wind_unc: float = typer.Option(2.0, "--wind-sigma", help="1-σ of the wind speed, m/s."),
         view_deg: float = typer.Option(40.0, "--view-deg", help="The water photo's angle from nadir, degrees."),
         azimuth_deg: float = typer.Option(135.0, "--azimuth-deg", help="The water photo's azimuth from the sun, "
                                           "degrees (recorded; the protocol's 135 keeps glitter out)."),
@@ -45,7 +45,7 @@ def register(app: typer.Typer) -> None:
         """Remote-sensing reflectance Rrs per band (sr⁻¹) from photos of the water, the sky and a grey card, with
         its σ and dominant term; turbidity (FNU) and SPM (g m⁻³) from the red band; band ratios."""
         if not (0 <= wind <= 30 and 0 <= wind_unc <= 30 and 0 <= view_deg < 85):
-            raise CamcalError("--wind and --wind-unc must be 0-30 m/s, --view-deg 0-85")
+            raise CamcalError("--wind and --wind-sigma must be 0-30 m/s, --view-deg 0-85")
         note = None
         if sun.strip().lower() == "auto":
             try:
