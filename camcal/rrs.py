@@ -88,9 +88,14 @@ def read_card_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray 
 
 
 def _radiance(path: Path, plan) -> tuple[dict, dict]:
-    """(channels R, G, B, metadata) of a photo through the profile, or of an EXR of ``camcal apply``."""
+    """(channels R, G, B, metadata) of a photo through the profile, or of an EXR of ``camcal apply`` made with the
+    same profile (another profile's band radiance has another scale)."""
     if path.suffix.lower() == ".exr":
         ch, meta = read_exr(path, ["R", "G", "B"])
+        made_with = meta.get("profile_sha256")
+        if made_with is not None and made_with != plan.profile.content_sha256:
+            raise CamcalError("this radiance EXR was made with another profile than --profile; apply the photos with "
+                              "this profile or give that one", path)
         if meta.get("radiance_scale") == "relative":
             raise CamcalError("relative radiance (the profile had no absolute c(λ)): Rrs needs absolute band "
                               "radiance, or at least one profile for all photos; use the photos themselves", path)

@@ -110,6 +110,19 @@ def test_without_screening_the_glint_would_show(stations, profile_path, monkeypa
     assert glinted.rrs["R"] > plain.rrs["R"] + 2 * plain.sigma["R"]
 
 
+def test_apply_exrs_give_the_same_rrs(stations, profile_path, results, tmp_path):
+    d = stations[("turbid", False)]
+    code, _, err = run_main(["apply", profile_path, d, "-o", tmp_path / "radiance"])
+    assert code == 0, err
+    exr = {p.name.removesuffix(".dng.exr"): p for p in (tmp_path / "radiance").glob("*.exr")}
+    st = run_rrs(profile_path, [exr[f"water_{i}"] for i in range(1, 6)], [exr[f"sky_{i}"] for i in range(1, 4)],
+                 [exr["card"]], sun=photo_sun(d / "card.dng"))
+    plain, _ = results[("turbid", False)]
+    for b in "RGB":
+        assert st.result.rrs[b] == pytest.approx(plain.result.rrs[b], rel=1e-4)
+    assert st.meta["latitude_deg"] == pytest.approx(52.0)
+
+
 def test_measured_card_spectrum(stations, profile_path, tmp_path):
     card = tmp_path / "card.csv"
     card.write_text("# a card measured flat at 18 %\nwavelength_nm,reflectance,sigma\n380,0.18,0.002\n780,0.18,0.002\n")
