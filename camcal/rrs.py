@@ -258,8 +258,6 @@ def _photo_figure(st: Station):
     from matplotlib import colormaps  # lazy: matplotlib only when a page is drawn
     from matplotlib.patches import Rectangle
 
-    def matplotlib_cmap(name):
-        return colormaps[name].copy()
 
     photos = st.water + st.sky + st.card
     cols = min(len(photos), 5)
@@ -271,10 +269,9 @@ def _photo_figure(st: Station):
     for ax, p in zip(axes, photos, strict=False):
         g = st.images[p.name]
         finite = g[np.isfinite(g)]
-        lo, hi = (np.percentile(finite, [1, 99]) if finite.size else (0.0, 1.0))
-        cmap = matplotlib_cmap("gray")
-        cmap.set_bad("magenta")  # saturated or defective pixels
-        ax.imshow(g, cmap=cmap, vmin=float(lo), vmax=float(hi) if hi > lo else float(lo) + 1e-12,
+        top = 2.0 * float(np.median(finite)) if finite.size and np.median(finite) > 0 else 1.0
+        cmap = colormaps["gray"].with_extremes(bad="magenta")  # saturated or defective pixels
+        ax.imshow(g, cmap=cmap, vmin=0.0, vmax=top,  # 0 to twice the median: uniform water is mid-grey
                   interpolation="nearest")
         y0, y1, x0, x1 = p.region
         colour = "tab:red" if p.rejected else "tab:green"
