@@ -144,7 +144,7 @@ def run_rrs(profile_path, water: list, sky: list, card: list, *, sun: SunPositio
             p = Path(p)
             ch, meta = _radiance(p, plan)
             s = region_stats(ch, p.name, kind)
-            s.meta = _meta(meta)
+            s.meta = {"path": str(p), **_meta(meta)}
             stats[kind].append(s)
             images[p.name] = np.asarray(ch["G"], np.float32)
             if progress:
@@ -152,10 +152,11 @@ def run_rrs(profile_path, water: list, sky: list, card: list, *, sun: SunPositio
     for kind in ("sky", "card"):
         for s in stats[kind]:
             if not all(np.isfinite(s.mean[b]) and s.mean[b] > 0 for b in BANDS):
-                raise CamcalError(f"the {kind} photo's region has no positive radiance in every band", Path(s.name))
+                raise CamcalError(f"the {kind} photo's region has no positive radiance in every band",
+                                  Path(s.meta["path"]))
             if s.saturated_fraction > 0.01:
                 raise CamcalError(f"the {kind} photo is saturated over {100 * s.saturated_fraction:.1f} % of its "
-                                  "region: shoot it again with a shorter exposure", Path(s.name))
+                                  "region: shoot it again with a shorter exposure", Path(s.meta["path"]))
     kept = screen_water(stats["water"])
     if not kept:
         raise CamcalError("every water photo was rejected: " + "; ".join(f"{s.name}: {s.rejected}"
