@@ -9,6 +9,7 @@ import typer
 
 from camcal.cli.common import console, one_output, progress
 from camcal.cli.synth_phone import register_phone
+from camcal.cli.synth_station import register_station
 from camcal.errors import CamcalError
 from camcal.reference_spectra import WAVELENGTHS_NM, gaussian_line, planck_radiance
 from camcal.synth.camera import Scene, SyntheticCamera, preset
@@ -42,6 +43,7 @@ def register(app: typer.Typer) -> None:
     synth = typer.Typer(help="Synthetic camera: real DNG/JPEG files from known parameters.", no_args_is_help=True)
     app.add_typer(synth, name="synth")
     register_phone(synth)
+    register_station(synth)  # ``synth station``: camcal.cli.synth_station
 
     @synth.command("session")
     def session_cmd(
