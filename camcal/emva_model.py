@@ -23,7 +23,7 @@ class EmvaSheet:
 
     Attributes
     ----------
-    iso : ISO of the figures (that of the dark frames).
+    iso : ISO of the figures (that of the dark frames); None when unknown (a descriptor's measurement).
     channels : per plane, the figures (:data:`SHEET_KEYS` and more: uncertainties, electrons, sources), numbers or
         None when the session lacks the frames to measure them.
     photon_transfer : per ISO of the linearity series, per plane: K, its uncertainty and the fit range.
@@ -32,7 +32,7 @@ class EmvaSheet:
     notes : what is missing and why, which fallback was used.
     """
 
-    iso: float
+    iso: float | None
     channels: dict[str, dict]
     photon_transfer: tuple[dict, ...] = ()
     spatial: dict = field(default_factory=dict)
@@ -44,13 +44,15 @@ class EmvaSheet:
         return (self.channels.get(channel) or {}).get("K_dn_per_e")
 
     def to_dict(self) -> dict:
-        return {"standard": STANDARD, "iso": float(self.iso), "channels": self.channels,
+        return {"standard": STANDARD, "iso": None if self.iso is None else float(self.iso), "channels": self.channels,
                 "photon_transfer": list(self.photon_transfer), "spatial": self.spatial,
                 "quantum_efficiency": self.quantum_efficiency, "notes": list(self.notes)}
 
     @staticmethod
     def from_dict(d: dict) -> EmvaSheet:
-        return EmvaSheet(iso=float(d["iso"]), channels={c: dict(v) for c, v in d["channels"].items()},
+        iso = d.get("iso")
+        return EmvaSheet(iso=None if iso is None else float(iso),
+                         channels={c: dict(v) for c, v in d["channels"].items()},
                          photon_transfer=tuple(d.get("photon_transfer") or ()), spatial=dict(d.get("spatial") or {}),
                          quantum_efficiency=d.get("quantum_efficiency"), notes=tuple(d.get("notes") or ()))
 

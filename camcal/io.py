@@ -700,6 +700,21 @@ def _load_processed(path: Path) -> Frame:
     return _processed_frame(path, data, bits, exp, icc_name)
 
 
+def read_monochrome(path: str | Path) -> np.ndarray:
+    """The one channel of a monochrome 8- or 16-bit PNG or TIFF (a machine-vision camera's frame), (H, W) uint8
+    or uint16, values as stored (no scaling); checked against the limits before decoding. A file with more than
+    one channel is refused: its channels are not one sensor's samples."""
+    path = Path(path)
+    _check_file(path)
+    with open_image(path, ("tiff", "png"), "a PNG or TIFF image") as (inp, spec):
+        if spec.nchannels != 1:
+            raise CamcalError(f"has {spec.nchannels} channels; a monochrome frame has one", path)
+        if str(spec.format) in ("half", "float", "double"):
+            raise CamcalError(f"holds {spec.format} samples; a monochrome frame holds integer DN", path)
+        fmt = oiio.UINT16 if spec.format.size() > 1 else oiio.UINT8
+        return read_pixels(inp, spec, path, 1, fmt)[..., 0]
+
+
 def _processed_frame(path: Path, rgb: np.ndarray, bits: int, exposure: Exposure, icc_profile: str | None) -> Frame:
     """A processed (JPEG, TIFF, PNG, HEIC) frame: (H, W, 3) ``rgb`` of ``bits`` bits, black level 0, white
     level 2^bits − 1 (the encoded range; the tone curve is not undone here)."""

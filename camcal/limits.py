@@ -64,6 +64,12 @@ MAX_TEXT_LINE_BYTES = 64 * 1024
 #: Most columns of a manifest (real ones: 4 to 8).
 MAX_CSV_COLUMNS = 64
 
+# ---- EMVA 1288 descriptor files ----------------------------------------------------------------------------------
+#: Image lines (``i path``) one EMVA 1288 descriptor may list (the standard's reference sets: 300 to 700).
+MAX_EMVA_IMAGES = 20_000
+#: Illumination steps (``b``/``d`` lines) one descriptor may list (the standard asks for about 50 per series).
+MAX_EMVA_STEPS = 5_000
+
 # ---- the profile container (ZIP) ------------------------------------------------------------------------------
 #: Members a profile may have (profile.json and maps.exr); counted from the end record, before the
 #: central directory is parsed.
