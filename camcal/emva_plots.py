@@ -43,7 +43,7 @@ def _xlabel(figures: dict) -> str:
 
 def photon_transfer_figure(curves: dict, figures: dict) -> Figure:
     """Photon transfer: the temporal variance against the mean, both with the dark values removed."""
-    fig = new_figure(6.4, 4.2)
+    fig = new_figure(5.4, 3.8)
     ax = fig.add_subplot()
     x, v, fit = curves["signal_dn"], curves["variance_dn2"], curves["fit_mask"]
     ax.plot(x[fit], v[fit], "o", color=POINT, ms=4, label="fitted")
@@ -64,7 +64,7 @@ def photon_transfer_figure(curves: dict, figures: dict) -> Figure:
 
 def snr_figure(curves: dict, figures: dict) -> Figure:
     """SNR against the irradiance, measured and from the linear camera model (release 3.0 eq. 15)."""
-    fig = new_figure(6.4, 4.2)
+    fig = new_figure(5.4, 3.8)
     ax = fig.add_subplot()
     x = curves["x"]
     sig = curves["signal_dn"]
@@ -96,7 +96,7 @@ def snr_figure(curves: dict, figures: dict) -> Figure:
 
 def linearity_figure(curves: dict, figures: dict) -> Figure:
     """The signal against the irradiance and its relative deviation from the linearity fit."""
-    fig = new_figure(10.0, 3.8)
+    fig = new_figure(10.0, 3.2)
     ax, bx = fig.subplots(1, 2)
     x, y, dev = curves["x"], curves["signal_dn"], curves["linearity_deviation_pct"]
     ax.plot(x, y, "o", color=POINT, ms=4)
@@ -122,7 +122,7 @@ def linearity_figure(curves: dict, figures: dict) -> Figure:
 
 def dark_current_figure(curves: dict, figures: dict) -> Figure:
     """Mean and temporal variance of the dark pairs against exposure time."""
-    fig = new_figure(10.0, 3.6)
+    fig = new_figure(10.0, 3.2)
     ax, bx = fig.subplots(1, 2)
     t, m, v = curves["dark_exposure_s"], curves["dark_mean_dn"], curves["dark_variance_dn2"]
     for axis, y, lab in ((ax, m, f"μ_y.dark ({DN})"), (bx, v, f"σ²_y.dark ({DN}²)")):
@@ -141,7 +141,7 @@ def dark_current_figure(curves: dict, figures: dict) -> Figure:
 
 def spectrogram_figure(curves: dict, figures: dict, kind: str) -> Figure:
     """Horizontal and vertical spectrograms of the ``kind`` ("dsnu": DN, "prnu": %) image."""
-    fig = new_figure(10.0, 3.6)
+    fig = new_figure(10.0, 3.2)
     axes = fig.subplots(1, 2)
     unit = DN if kind == "dsnu" else "%"
     floor = figures.get(f"{kind}_temporal_floor_{'dn' if kind == 'dsnu' else 'pct'}")
@@ -163,7 +163,7 @@ def spectrogram_figure(curves: dict, figures: dict, kind: str) -> Figure:
 
 def histogram_figure(curves: dict, figures: dict) -> Figure:
     """Log-count histograms of the DSNU image (DN about its mean) and the high-pass-filtered PRNU image (%)."""
-    fig = new_figure(10.0, 3.6)
+    fig = new_figure(10.0, 3.2)
     axes = fig.subplots(1, 2)
     for axis, key, unit, title in ((axes[0], "dsnu_image_dn", DN, "DSNU histogram"),
                                    (axes[1], "prnu_highpass_pct", "%", "PRNU histogram (5×5 high-pass)")):

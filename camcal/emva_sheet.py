@@ -30,10 +30,10 @@ body{font-family:-apple-system,"Segoe UI",Helvetica,Arial,sans-serif;margin:0;ba
 main{max-width:1120px;margin:0 auto;padding:16px 24px 48px;background:#fff}
 h1{font-size:1.6em;margin:.4em 0 .1em}h2{font-size:1.25em;border-bottom:2px solid #dde1e6;padding-bottom:4px;
 margin-top:1.6em}.sub{color:#5a6270;margin:0 0 1em}
-table{border-collapse:collapse;margin:.5em 0 1em;font-size:.9em}
-th,td{border:1px solid #d6dae0;padding:3px 9px;text-align:right;vertical-align:top}
+table{border-collapse:collapse;margin:.5em 0 1em;font-size:.85em}
+th,td{border:1px solid #d6dae0;padding:2px 8px;text-align:right;vertical-align:top}
 th{background:#eef1f5}td.l,th.l{text-align:left}td.sec{background:#f7f8fa;font-weight:600;text-align:left}
-.grid{display:grid;grid-template-columns:1fr 1fr;gap:8px}
+.grid{display:grid;grid-template-columns:1fr 1fr;gap:8px}.wide{grid-column:1 / span 2}
 figure{margin:.6em 0 1.2em}figure img{max-width:100%;height:auto;border:1px solid #e3e6ea}
 figcaption{font-size:.85em;color:#4a5260;margin-top:4px}
 """
@@ -137,7 +137,6 @@ def render_sheet(sheet: EmvaSheet, result: StandardFigures, title: str,
         ("linearity", lambda: ep.linearity_figure(c, f),
          "Mean signal against irradiation and its relative deviation from the linearity fit (5–95 % of "
          "saturation)."),
-        ("dark current", lambda: ep.dark_current_figure(c, f), "Dark pairs' mean and variance against exposure."),
     ]
     if "dsnu_spectrogram_h" in c:
         plots.append(("DSNU spectrogram", lambda: ep.spectrogram_figure(c, f, "dsnu"),
@@ -148,11 +147,14 @@ def render_sheet(sheet: EmvaSheet, result: StandardFigures, title: str,
     if "dsnu_image_dn" in c:
         plots.append(("histograms", lambda: ep.histogram_figure(c, f),
                       "Histograms of the averaged dark image (DN) and of the 5×5 high-pass-filtered PRNU image (%)."))
+    plots.append(("dark current", lambda: ep.dark_current_figure(c, f),
+                  "Dark pairs' mean and variance against exposure time, with their lines (dark current)."))
     figs = []
     for i, (name, make, caption) in enumerate(plots):
         if progress is not None:
             progress("plots", i, len(plots))
-        figs.append(_img(png_bytes(make()), name, caption))
+        cls = "" if i < 2 else ' class="wide"'
+        figs.append(f"<div{cls}>{_img(png_bytes(make()), name, caption)}</div>")
     point = "".join(f'<tr><td class="l">{_esc(k)}</td><td class="l">{_fmt(v, 6)}</td></tr>'
                     for k, v in sheet.spatial.items())
     notes = "".join(f"<li>{_esc(n)}</li>" for n in sheet.notes)
@@ -163,6 +165,6 @@ def render_sheet(sheet: EmvaSheet, result: StandardFigures, title: str,
             '<section id="summary"><h2>Summary</h2><div class="grid"><div>'
             f"<table><thead><tr><th class=\"l\">operating point</th><th class=\"l\">value</th></tr></thead>"
             f"<tbody>{point}</tbody></table></div><div>{summary_table(f)}</div></div></section>"
-            f'<section id="plots"><h2>Plots</h2>{"".join(figs)}</section>'
+            f'<section id="plots"><h2>Plots</h2><div class="grid">{"".join(figs)}</div></section>'
             + (f'<section id="notes"><h2>Notes</h2><ul>{notes}</ul></section>' if notes else "")
             + "</main></body></html>\n")
