@@ -25,7 +25,8 @@ Definitions follow EMVA Standard 1288, release 4.0 (2021), "Linear" module, and 
   ``PRNU = √(s²_y − s²_y.dark) / (μ_y − μ_y.dark)`` (:func:`spatial_variance`, :func:`prnu`).
 - **Quantum efficiency**: η = R/K with R the responsivity in DN per photon (:func:`quantum_efficiency`).
 
-Uncertainties are one standard deviation: the least-squares standard error of K, and for a spatial variance of
+Uncertainties are one standard deviation: K's from the scatter of the photon-transfer points (the larger of the
+least-squares standard error and a bootstrap of the points, :func:`gain_bootstrap`), and for a spatial variance of
 N pixels the normal-theory ``var(s²) = 2 s⁴ / (N − 1)`` plus the uncertainty of the subtracted temporal term.
 """
 
@@ -47,6 +48,9 @@ SENSITIVITY_FRACTION = 0.7
 
 LINEARITY_RANGE = (0.05, 0.95)
 """The linearity error is computed between these fractions of the saturation signal."""
+
+BOOTSTRAP_SAMPLES = 400
+"""Resamples of the photon-transfer points for u(K) (:func:`gain_bootstrap`)."""
 
 PLANCK_J_S = 6.62607015e-34
 LIGHT_M_PER_S = 299792458.0
@@ -89,6 +93,31 @@ def saturation_index(variance_dn2: np.ndarray) -> int:
         elif v[i] < best and prev < best:
             break
     return int(best_i)
+
+
+def gain_bootstrap(signal_dn: np.ndarray, variance_dn2: np.ndarray, samples: int = BOOTSTRAP_SAMPLES,
+                   seed: int = 1288) -> float:
+    """Standard deviation of the photon-transfer slope K over resamples of the points (pairs bootstrap).
+
+    Resampling the (μ, σ²) points, not the residuals, keeps the variance noise that grows with the signal
+    (var(σ²_y) ≈ 2σ⁴/N per pair): the scatter of the slope is then that of the points actually measured. The
+    result is never below the least-squares standard error. Fixed seed: the same points give the same u(K).
+    """
+    x = np.asarray(signal_dn, float)
+    y = np.asarray(variance_dn2, float)
+    n = x.size
+    sxx0 = float(np.sum(x * x))
+    k0 = float(np.sum(x * y) / sxx0)
+    se = float(math.sqrt(np.sum((y - k0 * x) ** 2) / max(n - 1, 1) / sxx0))
+    if n < 3:
+        return se
+    rng = np.random.default_rng(seed)
+    idx = rng.integers(0, n, size=(samples, n))
+    xs, ys = x[idx], y[idx]
+    sxx = np.sum(xs * xs, axis=1)
+    ok = sxx > 0
+    k = np.sum(xs * ys, axis=1)[ok] / sxx[ok]
+    return float(max(np.std(k, ddof=1), se))
 
 
 @dataclass(frozen=True)
@@ -174,6 +203,7 @@ def photon_transfer(exposure_s: np.ndarray, signal_dn: np.ndarray, variance_dn2:
         k = float(np.sum(ys * dv) / np.sum(ys * ys))
         dof = max(xs.size - 1, 1)
         k_unc = float(np.sqrt(np.sum((dv - k * ys) ** 2) / dof / np.sum(ys * ys)))
+        k_unc = max(k_unc, gain_bootstrap(ys, dv))  # the residual scatter alone is optimistic on few points
         v0, fitted = float(dark_variance_dn2), False
     else:
         if sel.sum() < 3:

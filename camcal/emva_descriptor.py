@@ -204,17 +204,17 @@ def load_measurement(d: Descriptor, progress: Callable[[int, int], None] | None 
         if progress is not None:
             progress(done, total)
 
-    darks: dict[float, tuple[float, float]] = {}
-    bright: list[tuple[float, float, float, float]] = []
+    darks: dict[float, tuple[float, float, float]] = {}
+    bright: list[tuple[float, float, float, float, float]] = []
     for s in d.temporal:
-        m, v = pair_moments(_frame(s.images[0], d), _frame(s.images[1], d))
+        m, v, u = pair_moments(_frame(s.images[0], d), _frame(s.images[1], d))
         tick(2)
         if s.dark:
             if s.exposure_s in darks:
                 raise CamcalError(f"line {s.line}: a second dark pair at {s.exposure_s * NS_PER_S:g} ns", d.path)
-            darks[s.exposure_s] = (m, v)
+            darks[s.exposure_s] = (m, v, u)
         else:
-            bright.append((s.exposure_s, s.photons, m, v))
+            bright.append((s.exposure_s, s.photons, m, v, u))
     missing = sorted({t for t, *_ in bright if t not in darks})
     if missing:
         raise CamcalError(f"no dark pair at exposure time {missing[0] * NS_PER_S:g} ns (the standard needs one "
@@ -229,6 +229,8 @@ def load_measurement(d: Descriptor, progress: Callable[[int, int], None] | None 
         dark_variance_dn2=np.array([darks[b[0]][1] for b in bright]),
         dark_exposure_s=td, dark_series_mean_dn=np.array([darks[t][0] for t in td]),
         dark_series_variance_dn2=np.array([darks[t][1] for t in td]),
+        variance_unc_dn2=np.array([b[4] for b in bright]),
+        dark_variance_unc_dn2=np.array([darks[b[0]][2] for b in bright]),
     )
     notes: list[str] = []
     stacks: dict[bool, SpatialStack] = {}

@@ -37,9 +37,12 @@ numbers are those of release 3.0 as the reference implementation ``emva1288`` la
   M × N image ``s²_col = (MN − M)/(MN − M − N) s²_cav − N/(MN − M − N)(s²_y − s²_rav)``, the row part likewise,
   ``s²_pixel = MN/(MN − M − N)(s²_y − s²_cav − s²_rav)``.
 
-Uncertainties (one standard deviation) are camcal's, not the standard's (it states none): u(K) by resampling the
-photon-transfer points (:func:`gain_bootstrap`), spatial variances by normal theory
-(:func:`camcal.emva.spatial_variance`), the rest propagated to first order.
+Uncertainties (one standard deviation) are camcal's, not the standard's (it states none). u(K) is the larger of
+two estimates of the scatter of the unweighted slope: the points' own uncertainties propagated through it,
+``u(K)² = Σ x_i² u²(σ²_i) / (Σ x_i²)²`` with u(σ²_i) measured on each pair's pixels (:func:`pair_moments`), and a
+bootstrap of the points (:func:`camcal.emva.gain_bootstrap`); the residual-scatter standard error alone is
+optimistic when a few bright points carry the fit (a log-spaced series). Spatial variances by normal theory, the
+rest propagated to first order.
 """
 
 from __future__ import annotations
@@ -50,13 +53,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import ndimage
 
-from camcal.emva import QUANTISATION_VAR_DN2, SENSITIVITY_FRACTION, saturation_index
+from camcal.emva import QUANTISATION_VAR_DN2, SENSITIVITY_FRACTION, gain_bootstrap, saturation_index
 
 DARK_VARIANCE_FLOOR_DN2 = 0.24
 """Lowest σ²_y.dark the standard reports, DN² (below it the temporal dark noise is quantisation)."""
-
-BOOTSTRAP_SAMPLES = 400
-"""Resamples of the photon-transfer points for u(K)."""
 
 HIGH_PASS_SIZE = 5
 """Box size of the standard's high-pass filter for the PRNU histogram, pixels."""
@@ -78,6 +78,8 @@ class TemporalSeries:
     dark_mean_dn, dark_variance_dn2 : (n,) μ_y.dark and σ²_y.dark of the dark pair at the same exposure time.
     dark_exposure_s, dark_series_mean_dn, dark_series_variance_dn2 : the dark pairs, one per exposure time
         (σ_y.dark at zero exposure and the dark current come from these).
+    variance_unc_dn2, dark_variance_unc_dn2 : (n,) standard uncertainty of each σ²_y and σ²_y.dark from its own
+        pixels (:func:`pair_moments`), or None when unknown.
     """
 
     exposure_s: np.ndarray
@@ -89,6 +91,8 @@ class TemporalSeries:
     dark_exposure_s: np.ndarray
     dark_series_mean_dn: np.ndarray
     dark_series_variance_dn2: np.ndarray
+    variance_unc_dn2: np.ndarray | None = None
+    dark_variance_unc_dn2: np.ndarray | None = None
 
     @property
     def has_photons(self) -> bool:
@@ -121,12 +125,20 @@ class SpatialStack:
     photons: float = float("nan")
 
 
-def pair_moments(first: np.ndarray, second: np.ndarray) -> tuple[float, float]:
-    """μ_y (DN) and σ²_y (DN²) of a pair: the means' average and half the population variance of the
-    difference (release 3.0 eqs. 28-29; the difference cancels every fixed pattern)."""
+def pair_moments(first: np.ndarray, second: np.ndarray) -> tuple[float, float, float]:
+    """μ_y (DN), σ²_y (DN²) and the standard uncertainty of σ²_y (DN²) of a pair.
+
+    μ_y and σ²_y are the means' average and half the population variance of the difference (release 3.0
+    eqs. 28-29; the difference cancels every fixed pattern). σ²_y is the mean of ``½(d − d̄)²`` over N pixels, so
+    its uncertainty is the standard error of that mean, ``std(½(d − d̄)²)/√N``: measured on the pixels
+    themselves, it holds whatever the distribution (shot noise that differs from pixel to pixel under
+    vignetting, quantisation).
+    """
     a = np.asarray(first, np.float64).ravel()
     b = np.asarray(second, np.float64).ravel()
-    return float(0.5 * (a.mean() + b.mean())), float(0.5 * np.var(a - b))
+    d = a - b
+    q = 0.5 * (d - d.mean()) ** 2
+    return float(0.5 * (a.mean() + b.mean())), float(q.mean()), float(q.std(ddof=1) / math.sqrt(q.size))
 
 
 class StackAccumulator:
@@ -178,29 +190,6 @@ def line(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
     """Least-squares (slope, intercept) of y = a x + b."""
     a, b = np.polyfit(np.asarray(x, float), np.asarray(y, float), 1)
     return float(a), float(b)
-
-
-def gain_bootstrap(signal_dn: np.ndarray, variance_dn2: np.ndarray, samples: int = BOOTSTRAP_SAMPLES,
-                   seed: int = 1288) -> float:
-    """Standard deviation of the photon-transfer slope K over resamples of the points (pairs bootstrap).
-
-    Resampling the (μ, σ²) points, not the residuals, keeps the variance noise that grows with the signal
-    (var(σ²_y) ≈ 2σ⁴/N per pair): the scatter of the slope is then that of the points actually measured. The
-    result is never below the least-squares standard error. Fixed seed: the same points give the same u(K).
-    """
-    x = np.asarray(signal_dn, float)
-    y = np.asarray(variance_dn2, float)
-    n = x.size
-    _, se = slope_through_origin(x, y)
-    if n < 3:
-        return se
-    rng = np.random.default_rng(seed)
-    idx = rng.integers(0, n, size=(samples, n))
-    xs, ys = x[idx], y[idx]
-    sxx = np.sum(xs * xs, axis=1)
-    ok = sxx > 0
-    k = np.sum(xs * ys, axis=1)[ok] / sxx[ok]
-    return float(max(np.std(k, ddof=1), se))
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -327,11 +316,19 @@ def evaluate(series: TemporalSeries, bright: SpatialStack | None = None,
         raise ValueError("fewer than two steps below 70 % of the saturation signal")
     fit = slice(0, int(below.max()) + 1)
     k, k_se = slope_through_origin(signal[fit], photo_var[fit])
-    k_unc = gain_bootstrap(signal[fit], photo_var[fit])
+    k_boot = gain_bootstrap(signal[fit], photo_var[fit])
+    k_prop = None
+    if series.variance_unc_dn2 is not None and series.dark_variance_unc_dn2 is not None:
+        u_pt = np.hypot(np.asarray(series.variance_unc_dn2, float)[order],
+                        np.asarray(series.dark_variance_unc_dn2, float)[order])[fit]
+        xs_ = signal[fit]
+        k_prop = float(math.sqrt(np.sum(xs_**2 * u_pt**2)) / np.sum(xs_**2))
+    k_unc = max(k_boot, k_prop or 0.0)
     r, r_se = slope_through_origin(x[fit], signal[fit])
     photons = series.has_photons
     f: dict[str, float | None] = {
-        "K_dn_per_e": k, "K_unc_dn_per_e": k_unc, "K_unc_ls_dn_per_e": k_se, "inverse_K_e_per_dn": 1.0 / k,
+        "K_dn_per_e": k, "K_unc_dn_per_e": k_unc, "K_unc_ls_dn_per_e": k_se, "K_unc_bootstrap_dn_per_e": k_boot,
+        "K_unc_propagated_dn_per_e": k_prop, "inverse_K_e_per_dn": 1.0 / k,
         "ptc_points": float(t.size), "ptc_fit_points": float(fit.stop),
         "ptc_fit_max_dn": float(signal[fit.stop - 1]), "saturation_index": float(isat),
     }
