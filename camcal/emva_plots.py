@@ -24,7 +24,7 @@ import numpy as np
 
 from camcal.emva import QUANTISATION_VAR_DN2
 from camcal.plots import new_figure
-from camcal.units import DN
+from camcal.units import DN, DN_PER_ELECTRON, ELECTRONS_PER_S
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -51,7 +51,7 @@ def photon_transfer_figure(curves: dict, figures: dict) -> Figure:
     k = figures["K_dn_per_e"]
     top = figures.get("ptc_fit_max_dn") or float(np.nanmax(x))
     xx = np.array([0.0, top])
-    ax.plot(xx, k * xx, "-", color=FIT, label=f"K = {k:.4g} ± {figures['K_unc_dn_per_e']:.2g} {DN}/e⁻")
+    ax.plot(xx, k * xx, "-", color=FIT, label=f"K = {k:.4g} ± {figures['K_unc_dn_per_e']:.2g} {DN_PER_ELECTRON}")
     i = int(figures["saturation_index"])
     ax.plot([x[i]], [v[i]], "s", mfc="none", mec="k", ms=9, label="saturation")
     ax.set_xlabel(f"μ_y − μ_y.dark ({DN})")
@@ -134,7 +134,7 @@ def dark_current_figure(curves: dict, figures: dict) -> Figure:
         axis.set_ylabel(lab)
         axis.grid(alpha=0.3)
     dc = figures.get("dark_current_e_per_s")
-    ax.set_title("dark signal" + ("" if dc is None else f": {dc:.3g} e⁻/s"))
+    ax.set_title("dark signal" + ("" if dc is None else f": {dc:.3g} {ELECTRONS_PER_S}"))
     bx.set_title("dark temporal variance")
     return fig
 

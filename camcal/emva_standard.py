@@ -48,15 +48,19 @@ rest propagated to first order.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import ndimage
 
-from camcal.emva import QUANTISATION_VAR_DN2, SENSITIVITY_FRACTION, gain_bootstrap, saturation_index
-
-DARK_VARIANCE_FLOOR_DN2 = 0.24
-"""Lowest σ²_y.dark the standard reports, DN² (below it the temporal dark noise is quantisation)."""
+from camcal.emva import (
+    DARK_VARIANCE_FLOOR_DN2,
+    QUANTISATION_VAR_DN2,
+    SENSITIVITY_FRACTION,
+    gain_bootstrap,
+    saturation_index,
+)
 
 HIGH_PASS_SIZE = 5
 """Box size of the standard's high-pass filter for the PRNU histogram, pixels."""
@@ -431,3 +435,45 @@ def evaluate(series: TemporalSeries, bright: SpatialStack | None = None,
     elif bright is not None:
         notes.append("a bright spatial stack without a dark one: PRNU₁₂₈₈ unknown")
     return StandardFigures({key: _num(v) for key, v in f.items()}, curves, tuple(notes))
+
+
+def prnu_1288_planes(mean: np.ndarray, variance: np.ndarray, n_frames: int, channels: Sequence[str],
+                     mask: np.ndarray | None = None) -> dict[str, dict[str, float | None]]:
+    """PRNU₁₂₈₈ per plane of an averaged, per-pixel dark-subtracted flat: the total non-uniformity and its release
+    4.0 row, column and pixel parts, in % (keys ``prnu_pct``, ``prnu_unc_pct``, ``prnu_row_pct``,
+    ``prnu_col_pct``, ``prnu_pixel_pct``).
+
+    ``mean`` (C, h, w) is the plain average of the L flats (any scale: PRNU is relative), ``variance`` the per-pixel
+    temporal variance (ddof 1) in the same units squared. The flats are dark-subtracted pixel by pixel, so the
+    standard's ``− s²_y.dark`` is already done. Nothing smooth is divided out: vignetting and lamp falloff are part
+    of PRNU₁₂₈₈ (camcal's vignetting-free PRNU is :func:`camcal.flat.flat_prnu`). Pixels of ``mask`` (known
+    defects) and non-finite ones are replaced by the plane mean of the others, so the row and column means keep
+    their grid. ``mask`` is any (C, h, w) array, non-zero at a defect (a dark model's flags); another shape is
+    ignored.
+    """
+    out: dict[str, dict[str, float | None]] = {}
+    if mask is not None:
+        mask = np.asarray(mask) != 0
+        if mask.shape != np.shape(mean):
+            mask = None
+    for i, c in enumerate(channels):
+        m = np.asarray(mean[i], np.float64)
+        v = np.asarray(variance[i], np.float64)
+        good = np.isfinite(m) & np.isfinite(v)
+        if mask is not None:
+            good &= ~mask[i]
+        if good.sum() < 4:
+            out[c] = {k: None for k in ("prnu_pct", "prnu_unc_pct", "prnu_row_pct", "prnu_col_pct", "prnu_pixel_pct")}
+            continue
+        m = np.where(good, m, float(np.mean(m[good])))
+        v = np.where(good, v, float(np.mean(v[good])))
+        p = spatial_parts(SpatialStack(m, v, int(n_frames)))
+        value = _root(p.total_dn2) / p.mean_dn
+        out[c] = {
+            "prnu_pct": _num(100 * value),
+            "prnu_unc_pct": _num(100 * p.total_unc_dn2 / (2 * value * p.mean_dn**2)) if value > 0 else None,
+            "prnu_row_pct": _num(100 * _root(p.row_dn2) / p.mean_dn),
+            "prnu_col_pct": _num(100 * _root(p.column_dn2) / p.mean_dn),
+            "prnu_pixel_pct": _num(100 * _root(p.pixel_dn2) / p.mean_dn),
+        }
+    return out

@@ -38,6 +38,7 @@ from camcal.emva import (
     saturation_index,
     spatial_variance,
 )
+from camcal.emva_model import sheet_rows
 from camcal.io import load_frame
 from camcal.profile import save_profile
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
@@ -324,3 +325,35 @@ def test_quantum_efficiency_with_the_pixel_pitch(pair_session):
     for plane, peak in (("R", cam.params.qe_peak[0]), ("G1", cam.params.qe_peak[1]), ("B", cam.params.qe_peak[2])):
         got = max(v for v in qe["values"][plane] if v is not None)
         assert got == pytest.approx(cam.params.lens_transmittance * peak, rel=0.05), plane
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# the standard's PRNU₁₂₈₈ and camcal's own PRNU, each under its own name
+# ---------------------------------------------------------------------------------------------------------------
+def test_prnu_1288_is_the_total_and_camcals_prnu_the_pixel_part(tmp_path):
+    """A synthetic sensor with known vignetting (corner gain 0.62) and 1 % pixel PRNU: the profile's PRNU₁₂₈₈ is the
+    total non-uniformity of the flat (vignetting × PRNU), camcal's PRNU about the vignetting model the pixel part,
+    each within 3 of its stated standard uncertainties; the release 4.0 parts add up to the total."""
+    cam = SyntheticCamera(SensorParams(width=192, height=128, prnu_sigma=0.01))
+    root = tmp_path / "S"
+    write_session(root, cam, SessionPlan(stages=("bias", "dark", "flat"), n_flat=16, dark_exposures_s=(2.0, 8.0)))
+    profile, _ = calibrate_session(root)
+    response = cam.vignetting_map_at(cam.params.reference_f_number) * cam.prnu_map
+    for i, p in enumerate(PLANES):
+        row = profile.emva.channels[p]
+        total = 100 * np.std(response[i], ddof=1) / np.mean(response[i])
+        pixel = 100 * np.std(cam.prnu_map[i], ddof=1) / np.mean(cam.prnu_map[i])
+        assert total > 8 * pixel  # the vignetting dominates: the two figures are far apart
+        assert abs(row["prnu_pct"] - total) < 3 * row["prnu_unc_pct"], (p, row["prnu_pct"], total)
+        assert abs(row["prnu_devignetted_pct"] - pixel) < 3 * row["prnu_devignetted_unc_pct"], (p, row, pixel)
+        parts = row["prnu_row_pct"] ** 2 + row["prnu_col_pct"] ** 2 + row["prnu_pixel_pct"] ** 2
+        assert parts == pytest.approx(row["prnu_pct"] ** 2, rel=0.03)
+    names = [q for _, q, _, _ in sheet_rows(profile.emva)]
+    assert "PRNU_1288 (total)" in names and "camcal: PRNU about the vignetting model (not EMVA 1288)" in names
+
+
+def test_synth_session_shoots_linearity_pairs(tmp_path):
+    out = tmp_path / "S"
+    assert main(["synth", "session", str(out), "--stages", "linearity", "--width", "64", "--height", "64"]) == 0
+    names = sorted(p.name for p in (out / "linearity").glob("*.dng"))
+    assert "lin_000.dng" in names and "lin_000_1.dng" in names and len(names) % 2 == 0

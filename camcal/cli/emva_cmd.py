@@ -13,6 +13,7 @@ from camcal.emva_descriptor import NS_PER_S, load_measurement, read_descriptor
 from camcal.emva_sheet import render_sheet, sheet_from_figures
 from camcal.emva_standard import evaluate
 from camcal.errors import CamcalError
+from camcal.units import DN_PER_ELECTRON, ELECTRONS
 
 
 def register(app: typer.Typer) -> None:
@@ -59,9 +60,10 @@ def register(app: typer.Typer) -> None:
         f = sheet.channels["Y"]
         console.print(f"EMVA 1288 ({d.release} measurement, {t.size} pairs, "
                       f"{t.min() * NS_PER_S / 1e3:g}–{t.max() * NS_PER_S / 1e3:g} µs): "
-                      f"K {f['K_dn_per_e']:.4g} ± {f['K_unc_dn_per_e']:.2g} DN/e⁻, σ_d {f['read_noise_e']:.4g} e⁻, "
-                      f"μ_e.sat {f['saturation_e']:.5g} e⁻, SNR_max {f['snr_max']:.4g}, "
-                      f"DSNU₁₂₈₈ {_g(f.get('dsnu_e'))} e⁻, PRNU₁₂₈₈ {_g(f.get('prnu_pct'))} %")
+                      f"K {f['K_dn_per_e']:.4g} ± {f['K_unc_dn_per_e']:.2g} {DN_PER_ELECTRON}, "
+                      f"σ_d {f['read_noise_e']:.4g} {ELECTRONS}, μ_e.sat {f['saturation_e']:.5g} {ELECTRONS}, "
+                      f"SNR_max {f['snr_max']:.4g}, DSNU₁₂₈₈ {_g(f.get('dsnu_e'))} {ELECTRONS}, "
+                      f"PRNU₁₂₈₈ {_g(f.get('prnu_pct'))} %")
         console.print(f"wrote {html_path} and {json_path}")
 
 
