@@ -60,7 +60,14 @@ from PIL import ImageCms
 from camcal.errors import CamcalError
 from camcal.frame import PLANES, RGB, TRACKED, Exposure, Frame, pattern_from_rawpy, plane_offsets
 from camcal.limits import DEFAULT_MAX_PIXELS, check_expansion, declared_image_bytes, max_pixels  # noqa: F401
-from camcal.manifest import FRAMES_CSV, exposure_overrides, parse_utc_offset, read_manifest, session_defaults_for
+from camcal.manifest import (
+    FRAMES_CSV,
+    exposure_overrides,
+    parse_utc_offset,
+    read_manifest,
+    session_camera_facts,
+    session_defaults_for,
+)
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -578,6 +585,14 @@ def _load_raw(path: Path) -> Frame:
                 per_color = list(raw.black_level_per_channel)  # after unpacking: LibRaw may measure it then
                 layout, pattern = "linear", None
                 black = {c: float(per_color[i]) for c, i in zip(RGB, idx, strict=True)}
+            elif raw.num_colors == 1 or (raw.raw_pattern is None and np.ndim(raw.raw_image_visible) == 2):
+                # a monochrome sensor (a one-sample LinearRaw DNG): one plane Y, no colour filter array
+                data = np.array(raw.raw_image_visible, dtype=np.uint16, copy=True)
+                if data.ndim != 2:
+                    raise CamcalError(f"has a monochrome RAW image of unexpected shape {data.shape}", path)
+                per_color = list(raw.black_level_per_channel)
+                layout, pattern = "mono", None
+                black = {"Y": float(per_color[0])}
             else:
                 if raw.num_colors != 3 or raw.raw_pattern is None or raw.raw_pattern.shape != (2, 2):
                     raise CamcalError(f"has {_layout_name(raw)}, which camcal does not read; camcal reads 2x2 "
@@ -661,6 +676,8 @@ def read_pixels(inp, spec, path: Path, nchannels: int, fmt) -> np.ndarray:
 
 def _load_processed(path: Path) -> Frame:
     with open_image(path, ("jpeg", "tiff", "png"), "a JPEG, TIFF or PNG image") as (inp, spec):
+        if spec.nchannels == 1 and spec.format.size() > 1 and inp.format_name() in ("png", "tiff"):
+            return _load_monochrome(path)
         if spec.nchannels < 3:
             raise CamcalError(f"has {spec.nchannels} channel(s); camcal needs an RGB image", path)
         fmt = oiio.UINT16 if spec.format.size() > 1 else oiio.UINT8
@@ -713,6 +730,31 @@ def read_monochrome(path: str | Path) -> np.ndarray:
             raise CamcalError(f"holds {spec.format} samples; a monochrome frame holds integer DN", path)
         fmt = oiio.UINT16 if spec.format.size() > 1 else oiio.UINT8
         return read_pixels(inp, spec, path, 1, fmt)[..., 0]
+
+
+def _load_monochrome(path: Path) -> Frame:
+    """A one-channel 16-bit PNG or TIFF (a machine-vision camera's frame) as a monochrome RAW frame.
+
+    The values are the sensor's DN as stored (not tone-mapped). Such a file states no black level: 0 is the
+    encoded range's floor (the dark frames measure the real offset). The white level is 2^bits − 1 with the bits
+    of ``bits_per_sample`` in the ``session.toml`` that applies (a 12-bit camera writing 16-bit files), else the
+    file's own (``oiio:BitsPerSample``, else its sample size); a value above it is refused.
+    """
+    data = read_monochrome(path)
+    with open_image(path, ("tiff", "png"), "a PNG or TIFF image") as (_inp, spec):
+        bits = int(spec.getattribute("oiio:BitsPerSample") or 8 * spec.format.size())
+    stated = session_camera_facts(path.parent).get("bits_per_sample")
+    if stated is not None:
+        bits = int(stated)
+        if int(data.max()) >= 2**bits:
+            raise CamcalError(f"holds {int(data.max())}, above the {bits}-bit range of session.toml's "
+                              "bits_per_sample", path)
+    tags = _exif_tags(path)
+    exp = exposure_from_exif(path, tags)
+    lo, hi = int(data.min()), int(data.max())
+    return Frame(data=np.ascontiguousarray(data, np.uint16), kind="raw", cfa_pattern=None,
+                 black_level_dn={"Y": 0.0}, white_level_dn=float(2**bits - 1), exposure=exp, path=path,
+                 layout="mono").with_value_range(lo, hi)
 
 
 def _processed_frame(path: Path, rgb: np.ndarray, bits: int, exposure: Exposure, icc_profile: str | None) -> Frame:

@@ -218,7 +218,7 @@ def maps_size_bound(doc: dict) -> tuple[int, str]:
             and w * h <= max(max_pixels(), DEFAULT_MAX_PIXELS)):  # a lowered pixel limit applies to images
         return 0, "no valid camera width and height"
     n = sum(len(v) for v in listed.values() if isinstance(v, list)) if isinstance(listed, dict) else 0
-    linear = isinstance(cam, dict) and cam.get("layout") == "linear"  # linear RAW: full-resolution planes
+    linear = isinstance(cam, dict) and cam.get("layout") in ("linear", "mono")  # full-resolution planes
     raw = n * (w * h if linear else ((w + 1) // 2) * ((h + 1) // 2)) * 4
     if n == 0:
         return 0, "no maps listed"
