@@ -909,6 +909,9 @@ def frame_header(path: str | Path) -> FrameHeader:
         with open_image(path, ("jpeg", "tiff", "png"), "a JPEG, TIFF or PNG image") as (_inp, spec):
             make, model = spec.getattribute("Make"), spec.getattribute("Model")
             shape = (int(spec.height), int(spec.width))
+            mono = spec.nchannels == 1 and spec.format.size() > 1 and _inp.format_name() in ("png", "tiff")
+        if mono:  # a machine-vision camera's one-channel 16-bit frame (:func:`_load_monochrome`)
+            return FrameHeader("raw", "mono", shape, make or exif.make, model or exif.model)
         return FrameHeader("processed", "processed", shape, make or exif.make, model or exif.model)
     try:
         with quiet_stderr(), rawpy.imread(str(path)) as raw:  # open only: sizes and colours need no unpacking
@@ -922,7 +925,8 @@ def frame_header(path: str | Path) -> FrameHeader:
     if photometric == _CFA_PHOTOMETRIC or (tags and "Image CFARepeatPatternDim" in tags):
         layout: str | None = "bayer"
     elif photometric == _LINEAR_PHOTOMETRIC:
-        layout = "linear"
+        samples = str(tags.get("Image SamplesPerPixel", "")) if tags else ""
+        layout = "mono" if samples == "1" else "linear"  # one sample: a monochrome sensor
     elif path.suffix.lower() == ".dng":
         layout = None  # the image is in a sub-IFD: CFA or linear is known after decoding
     else:

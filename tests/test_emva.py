@@ -357,3 +357,46 @@ def test_synth_session_shoots_linearity_pairs(tmp_path):
     assert main(["synth", "session", str(out), "--stages", "linearity", "--width", "64", "--height", "64"]) == 0
     names = sorted(p.name for p in (out / "linearity").glob("*.dng"))
     assert "lin_000.dng" in names and "lin_000_1.dng" in names and len(names) % 2 == 0
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# a monochrome sensor end to end: one-sample LinearRaw DNGs through calibrate
+# ---------------------------------------------------------------------------------------------------------------
+def test_monochrome_dng_session_through_calibrate(tmp_path):
+    """One plane of the synthetic camera written as one-sample LinearRaw DNGs (a monochrome camera): dark, flat and
+    linearity pairs calibrate to a one-channel profile (Y) whose K, read noise and PRNU₁₂₈₈ match the truth."""
+    from camcal.synth.dng import encode_mono_dng
+
+    cam = SyntheticCamera(SensorParams(width=256, height=192, prnu_sigma=0.01, hot_pixel_fraction=0.0))
+    p = cam.params
+    rng = np.random.default_rng(7)
+    spec = _white_spectrum(5000.0)
+    black = p.black_level_dn[1]
+
+    def shoot(folder: str, name: str, t: float, lit: bool) -> None:
+        d = tmp_path / "S" / folder
+        d.mkdir(parents=True, exist_ok=True)
+        planes = cam.expose_planes(Scene.uniform(spec) if lit else Scene.dark(), exposure_s=t, rng=rng)
+        (d / name).write_bytes(encode_mono_dng(planes[1], black_level_dn=black, white_level_dn=p.white_dn,
+                                               exposure_s=t, f_number=4.0, iso=100))
+
+    for t in (1 / 4000, 2.0, 8.0):
+        for i in range(4):
+            shoot("dark", f"d_{t:g}_{i}.dng", t, False)
+    t_flat = exposure_for_level(cam, spec, 0.45, 100, 4.0)
+    for i in range(8):
+        shoot("flat", f"f_{i}.dng", t_flat, True)
+    t0 = exposure_for_level(cam, spec, 0.02, 100, 4.0)
+    for k in range(12):
+        for r in range(2):
+            shoot("linearity", f"lin_{k:03d}_{r}.dng", t0 * 1.4**k, True)
+    profile, _ = calibrate_session(tmp_path / "S")
+    assert profile.camera.layout == "mono" and list(profile.emva.channels) == ["Y"]
+    y = profile.emva.channels["Y"]
+    truth_k = 1 / p.gain_e_per_dn
+    assert abs(y["K_dn_per_e"] - truth_k) < 3 * y["K_unc_dn_per_e"], (y["K_dn_per_e"], y["K_unc_dn_per_e"])
+    assert y["read_noise_e"] == pytest.approx(p.read_noise_e, rel=0.1)
+    response = (cam.vignetting_map_at(4.0) * cam.prnu_map)[1]
+    total = 100 * np.std(response, ddof=1) / np.mean(response)
+    assert abs(y["prnu_pct"] - total) < 3 * y["prnu_unc_pct"], (y["prnu_pct"], total)
+    assert profile.flat is not None and profile.flat.channels == ("Y",)
