@@ -80,7 +80,9 @@ HEIF_EXTENSIONS = {".heic", ".heif", ".hif"}
 PROCESSED_EXTENSIONS = {".jpg", ".jpeg", ".tif", ".tiff", ".png"} | HEIF_EXTENSIONS
 HEIF_BRANDS = {b"heic", b"heix", b"hevc", b"hevx", b"heim", b"heis", b"hevm", b"hevs", b"mif1", b"msf1", b"mif2"}
 """ISO/IEC 23008-12 major brands of HEVC-coded HEIF files (the ``ftyp`` box, bytes 8–12)."""
-IMAGE_EXTENSIONS = RAW_EXTENSIONS | PROCESSED_EXTENSIONS
+FITS_EXTENSIONS = {".fits", ".fit", ".fts"}
+"""FITS images (astronomy cameras): monochrome frames read with astropy (:func:`_load_fits`)."""
+IMAGE_EXTENSIONS = RAW_EXTENSIONS | PROCESSED_EXTENSIONS | FITS_EXTENSIONS
 
 
 def _check_pixels(path: Path, width: int, height: int, stored_bytes: float | None = None) -> None:
@@ -816,10 +818,85 @@ def _load_heif(path: Path) -> Frame:
     return _processed_frame(path, data, bits, exp, icc_description(heif.info.get("icc_profile")))
 
 
+def is_fits(path: Path) -> bool:
+    """True when the file is a FITS image (its first card ``SIMPLE  =``)."""
+    return _magic(path).startswith(b"SIMPLE  =")
+
+
+#: BITPIX of the FITS images camcal reads (integer data; 16 with BZERO 32768 is unsigned 16-bit).
+FITS_BITPIX = (8, 16, 32)
+
+
+def _fits_header(path: Path):
+    """The primary header of a FITS file (astropy; nothing but the header is read), checked: a 2-D integer image
+    within the pixel limit, and a file large enough for the data it declares."""
+    from astropy.io import fits  # ~0.7 s to import: paid only by a session of FITS frames
+
+    try:
+        with quiet_stderr(), fits.open(path, memmap=False, lazy_load_hdus=True) as hdul:
+            header = hdul[0].header.copy()
+    except (OSError, ValueError, TypeError) as exc:
+        raise CamcalError(f"cannot read the FITS header: {str(exc)[:120]}", path) from None
+    naxis = int(header.get("NAXIS", 0))
+    bitpix = int(header.get("BITPIX", 0))
+    if naxis != 2:
+        raise CamcalError(f"is a FITS file of {naxis} axes; camcal reads 2-D monochrome FITS images", path)
+    if bitpix not in FITS_BITPIX:
+        raise CamcalError(f"holds FITS BITPIX {bitpix} samples; camcal reads integer images (BITPIX 8, 16, 32)",
+                          path)
+    w, h = int(header.get("NAXIS1", 0)), int(header.get("NAXIS2", 0))
+    _check_pixels(path, w, h, float(w) * h * abs(bitpix) / 8.0)
+    if path.stat().st_size < w * h * abs(bitpix) // 8:
+        raise CamcalError(f"is truncated: its header declares {w}x{h} pixels of {abs(bitpix)} bits", path)
+    return header
+
+
+def _load_fits(path: Path) -> Frame:
+    """A FITS image (an astronomy camera's frame) as a monochrome RAW frame.
+
+    Exposure time from ``EXPTIME`` (or ``EXPOSURE``), s; ``DATE-OBS`` as the capture time (UTC); make/model from
+    ``INSTRUME``; the black level from ``PEDESTAL`` when present (else 0, the dark frames measure the offset); the
+    white level ``2^bits − 1`` with ``bits_per_sample`` of session.toml, else the BITPIX of the file. ISO and
+    f-number are not FITS keys: frames.csv or session.toml give them.
+    """
+    from astropy.io import fits
+
+    header = _fits_header(path)
+    try:
+        with quiet_stderr(), fits.open(path, memmap=False) as hdul:
+            data = np.asarray(hdul[0].data)
+    except (OSError, ValueError, TypeError) as exc:
+        raise CamcalError(f"cannot decode FITS data (damaged or truncated?): {str(exc)[:120]}", path) from None
+    if data.ndim != 2 or not np.issubdtype(data.dtype, np.integer) and not np.all(np.mod(data, 1) == 0):
+        raise CamcalError(f"decodes to {data.dtype} data of shape {data.shape}; camcal reads integer 2-D images",
+                          path)
+    if data.size and (data.min() < 0 or data.max() > 65535):
+        raise CamcalError(f"holds values {data.min():g}..{data.max():g}, outside 0..65535 DN", path)
+    bits = int(abs(int(header["BITPIX"])))
+    stated = session_camera_facts(path.parent).get("bits_per_sample")
+    bits = min(int(stated), 16) if stated is not None else min(bits, 16)
+    if data.size and int(data.max()) >= 2**bits:
+        raise CamcalError(f"holds {int(data.max())}, above the {bits}-bit range", path)
+    t = _clean(header.get("EXPTIME", header.get("EXPOSURE")))
+    when = header.get("DATE-OBS")
+    when = when.strip()[:19] if isinstance(when, str) and when.strip() else None
+    model = header.get("INSTRUME")
+    sources = [("exposure_s", "tag")] if t is not None else []
+    if when is not None:  # FITS times are UTC (FITS standard 4.0 §9.1)
+        sources += [("capture_time", "tag"), ("utc_offset", "tag")]
+    exp = Exposure(exposure_s=t, capture_time=when, utc_offset=None if when is None else "+00:00",
+                   model=None if model is None else str(model).strip(), sources=tuple(sorted(sources)))
+    pedestal = _clean(header.get("PEDESTAL")) or 0.0
+    out = np.ascontiguousarray(data, np.uint16)
+    return Frame(data=out, kind="raw", cfa_pattern=None, black_level_dn={"Y": float(pedestal)},
+                 white_level_dn=float(2**bits - 1), exposure=exp, path=path,
+                 layout="mono").with_value_range(int(out.min()), int(out.max()))
+
+
 def is_raw_path(path: Path) -> bool:
-    """True when the file looks like a RAW file (not JPEG/PNG/HEIF, not a plain .tif)."""
+    """True when the file looks like a RAW file (not JPEG/PNG/HEIF/FITS, not a plain .tif)."""
     head = _magic(path)
-    if head.startswith(b"\xff\xd8\xff") or head.startswith(b"\x89PNG") or is_heif(path):
+    if head.startswith(b"\xff\xd8\xff") or head.startswith(b"\x89PNG") or is_heif(path) or is_fits(path):
         return False
     return path.suffix.lower() not in {".tif", ".tiff", ".jpg", ".jpeg", ".png"} | HEIF_EXTENSIONS
 
@@ -849,7 +926,8 @@ def load_frame(
     """
     path = Path(path)
     _check_file(path)
-    frame = _load_heif(path) if is_heif(path) else _load_raw(path) if is_raw_path(path) else _load_processed(path)
+    frame = (_load_heif(path) if is_heif(path) else _load_fits(path) if is_fits(path)
+             else _load_raw(path) if is_raw_path(path) else _load_processed(path))
     if defaults is None:
         defaults = session_defaults_for(path.parent)
     exp = frame.exposure
@@ -903,6 +981,11 @@ def frame_header(path: str | Path) -> FrameHeader:
         w, h = heif.size
         exif = exposure_from_exif(path, _exif_from_block(heif.info.get("exif")))
         return FrameHeader("processed", "processed", (int(h), int(w)), exif.make, exif.model)
+    if is_fits(path):
+        hdr = _fits_header(path)
+        model = hdr.get("INSTRUME")
+        return FrameHeader("raw", "mono", (int(hdr["NAXIS2"]), int(hdr["NAXIS1"])), None,
+                           None if model is None else str(model).strip())
     tags = _exif_tags(path)
     exif = exposure_from_exif(path, tags)
     if not is_raw_path(path):
