@@ -678,7 +678,7 @@ def read_pixels(inp, spec, path: Path, nchannels: int, fmt) -> np.ndarray:
 
 def _load_processed(path: Path) -> Frame:
     with open_image(path, ("jpeg", "tiff", "png"), "a JPEG, TIFF or PNG image") as (inp, spec):
-        if spec.nchannels == 1 and spec.format.size() > 1 and inp.format_name() in ("png", "tiff"):
+        if _is_monochrome_image(inp, spec):
             return _load_monochrome(path)
         if spec.nchannels < 3:
             raise CamcalError(f"has {spec.nchannels} channel(s); camcal needs an RGB image", path)
@@ -732,6 +732,17 @@ def read_monochrome(path: str | Path) -> np.ndarray:
             raise CamcalError(f"holds {spec.format} samples; a monochrome frame holds integer DN", path)
         fmt = oiio.UINT16 if spec.format.size() > 1 else oiio.UINT8
         return read_pixels(inp, spec, path, 1, fmt)[..., 0]
+
+
+#: TIFF PhotometricInterpretation of RAW data (a CFA mosaic, LinearRaw): a DNG named .tif is not a monochrome frame.
+_RAW_TIFF_PHOTOMETRIC = (32803, 34892)
+
+
+def _is_monochrome_image(inp, spec) -> bool:
+    """A one-channel 16-bit PNG or TIFF of sensor values (not a RAW file's TIFF structure under another name)."""
+    if spec.nchannels != 1 or spec.format.size() < 2 or inp.format_name() not in ("png", "tiff"):
+        return False
+    return spec.getattribute("tiff:PhotometricInterpretation") not in _RAW_TIFF_PHOTOMETRIC
 
 
 def _load_monochrome(path: Path) -> Frame:
@@ -992,7 +1003,7 @@ def frame_header(path: str | Path) -> FrameHeader:
         with open_image(path, ("jpeg", "tiff", "png"), "a JPEG, TIFF or PNG image") as (_inp, spec):
             make, model = spec.getattribute("Make"), spec.getattribute("Model")
             shape = (int(spec.height), int(spec.width))
-            mono = spec.nchannels == 1 and spec.format.size() > 1 and _inp.format_name() in ("png", "tiff")
+            mono = _is_monochrome_image(_inp, spec)
         if mono:  # a machine-vision camera's one-channel 16-bit frame (:func:`_load_monochrome`)
             return FrameHeader("raw", "mono", shape, make or exif.make, model or exif.model)
         return FrameHeader("processed", "processed", shape, make or exif.make, model or exif.model)
