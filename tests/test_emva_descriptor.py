@@ -173,16 +173,20 @@ def test_emva_cli_bad_descriptor_exit_code(tmp_path):
 
 
 def _session_of(descriptor: Path, root: Path) -> Path:
-    """The descriptor's frames as a camcal session of monochrome frames: dark pairs and the dark stack in dark/,
+    """The descriptor's frames as a camcal session of monochrome frames: the shortest dark pair in bias/, the other
+    dark pairs and the dark stack in dark/,
     the bright stack in flat/, the bright pairs in linearity/, each with a frames.csv (exposure time; the camera's
     one gain setting written as ISO 100; no lens); ``bits_per_sample = 12`` in session.toml."""
     import csv
     import shutil
 
     d = read_descriptor(descriptor)
-    rows: dict[str, list[dict]] = {"dark": [], "flat": [], "linearity": []}
+    rows: dict[str, list[dict]] = {"bias": [], "dark": [], "flat": [], "linearity": []}
+    t_min = min(s.exposure_s for s in d.steps)
     for s in d.steps:
         stage = ("dark" if s.dark else "flat") if len(s.images) > 2 else ("dark" if s.dark else "linearity")
+        if stage == "dark" and s.exposure_s == t_min:
+            stage = "bias"  # the shortest dark pair: a PNG states no black level, the bias frames measure it
         (root / stage).mkdir(parents=True, exist_ok=True)
         for img in s.images:
             shutil.copyfile(img, root / stage / img.name)
@@ -210,5 +214,7 @@ def test_basler_as_a_session_of_monochrome_frames_through_calibrate(basler, tmp_
     for key, name in (("K_dn_per_e", "K"), ("read_noise_dn", "sigma_d·K"), ("dsnu_dn", "DSNU1288_DN"),
                       ("prnu_pct", "PRNU1288"), ("saturation_e", "u_e_sat"), ("snr_max", "SNR_max")):
         assert y[key] == pytest.approx(ref[name], rel=0.01), (key, y[key], ref[name])
+    # the dark current: camcal's per-pixel fit against the standard's line of the dark means
+    assert y["dark_current_e_per_s"] == pytest.approx(ref["u_I_mean"], rel=0.05)
     # camcal's own PRNU (about its vignetting model) is a different, smaller figure under its own name
     assert y["prnu_devignetted_pct"] < 0.8 * y["prnu_pct"]
