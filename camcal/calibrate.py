@@ -24,6 +24,7 @@ from camcal.colour_matrix import fit_colour_matrix, twin_pairs
 from camcal.dark import DarkOptions, dark_frame_check, fit_dark_stacks, stack_darks
 from camcal.dark_model import with_dead_pixels
 from camcal.emva import Nonuniformity, build_sheet, dark_noise_stacks
+from camcal.emva_standard import prnu_1288_planes
 from camcal.errors import CamcalError, TooFewFrames
 from camcal.flat import (
     FlatChecks,
@@ -354,6 +355,15 @@ class _Judging:
         return TooFewFrames(stage, "frames", 1, 0, f"all {n} left out", self.index.root / stage)
 
 
+def _prnu_1288(master, dark) -> dict[str, dict] | None:
+    """PRNU₁₂₈₈ per plane of the master flat's plain average (total, with its row, column and pixel parts), the
+    dark model's defects left out; None without unclipped statistics of two frames or more."""
+    if master is None or master.mean_all is None or master.variance_all is None or master.n_frames < 2:
+        return None
+    return prnu_1288_planes(master.mean_all, master.variance_all, master.n_frames, master.channels,
+                            None if dark is None else dark.defects)
+
+
 def _fit_flats(index: SessionIndex, dark, opts: CalibrateOptions, ref_n: float | None, record: _Record,
                notes: list[str], cb, judge: StageJudge | None = None
                ) -> tuple[FlatModel | None, MasterFlat | None, dict[str, Nonuniformity] | None]:
@@ -470,7 +480,7 @@ def calibrate_session(
     response = None
     # what the EMVA 1288 sheet reads of the dark stacks and the master flat, kept (not the stacks and the master
     # themselves, 1.2 GB at 24 MP) until it is built after the other stages
-    dark_noise = prnu_frames = prnu = pairs = series = None
+    dark_noise = prnu_frames = prnu = prnu_1288 = pairs = series = None
     bias_frames = run.index.stage("bias") if "bias" in stages else None
     dark_judge, bias_judge = judges.get("dark"), judges.get("bias")
     if "dark" in stages:
@@ -509,6 +519,7 @@ def calibrate_session(
         with run.judging("flat"):
             flat, master, prnu = _fit_flats(run.index, dark, opts, ref_n, record, notes, cb, judges.get("flat"))
         prnu_frames = None if master is None else master.n_frames
+        prnu_1288 = _prnu_1288(master, dark)
         del master  # its maps (0.4 GB at 24 MP) are in the flat model as far as the profile needs them
         if flat is not None:
             dead = dead_pixels(flat)
@@ -599,6 +610,7 @@ def calibrate_session(
                                                               tuple(series["raw"].channels))  # type: ignore[index]
         emva = build_sheet(channels=tuple(channels), iso=dark.iso if dark is not None else ref_iso,
                            dark_noise=dark_noise, dark=dark, prnu_frames=prnu_frames, flat_prnu=prnu, pairs=pairs,
+                           prnu_1288=prnu_1288,
                            spectral=spectral, pixel_pitch_um=session_camera_facts(session / stages[0]).get(
                                "pixel_pitch_um"))
     if judges:  # the identity from the frames used, as decoded (a stage's frames were known by their header)

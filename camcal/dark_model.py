@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from camcal.errors import CamcalError
-from camcal.frame import PLANES, RGB
+from camcal.frame import MONO, PLANES, RGB
 from camcal.store import load_stage, save_stage
 from camcal.units import DN, DN_PER_S
 
@@ -132,13 +132,14 @@ class DarkModel:
 
     @property
     def plane_names(self) -> tuple[str, ...]:
-        """:data:`camcal.frame.PLANES` for Bayer frames, :data:`camcal.frame.RGB` for linear RAW."""
-        return PLANES if self.bias_dn.shape[0] == 4 else RGB
+        """:data:`camcal.frame.PLANES` for Bayer frames, :data:`camcal.frame.RGB` for linear RAW,
+        :data:`camcal.frame.MONO` for a monochrome sensor."""
+        return {4: PLANES, 1: MONO}.get(self.bias_dn.shape[0], RGB)
 
     @property
     def layout(self) -> str:
-        """``"bayer"`` or ``"linear"`` (the frames the model was measured on)."""
-        return "bayer" if self.bias_dn.shape[0] == 4 else "linear"
+        """``"bayer"``, ``"linear"`` or ``"mono"`` (the frames the model was measured on)."""
+        return {4: "bayer", 1: "mono"}.get(self.bias_dn.shape[0], "linear")
 
     def summary(self) -> dict:
         """JSON-ready summary: per-plane numbers and defect counts."""
@@ -207,7 +208,8 @@ def dark_from_parts(data: dict, maps: dict[str, np.ndarray], where: str | Path |
     """Inverse of :func:`dark_to_parts`; ``where`` names the file in errors."""
     known = not (isinstance(data, dict) and data.get("dark_current_known") is False)
     names = _MAPS if known else tuple(m for m in _MAPS if not m.startswith("dark_current"))
-    planes = RGB if isinstance(data, dict) and data.get("layout") == "linear" else PLANES
+    layout = data.get("layout") if isinstance(data, dict) else None
+    planes = RGB if layout == "linear" else MONO if layout == "mono" else PLANES
     missing = [f"{m}.{p}" for m in names for p in planes if f"{m}.{p}" not in maps]
     if missing:
         raise CamcalError(f"dark model lacks maps {', '.join(missing[:4])}", where)

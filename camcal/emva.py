@@ -25,7 +25,8 @@ Definitions follow EMVA Standard 1288, release 4.0 (2021), "Linear" module, and 
   ``PRNU = √(s²_y − s²_y.dark) / (μ_y − μ_y.dark)`` (:func:`spatial_variance`, :func:`prnu`).
 - **Quantum efficiency**: η = R/K with R the responsivity in DN per photon (:func:`quantum_efficiency`).
 
-Uncertainties are one standard deviation: the least-squares standard error of K, and for a spatial variance of
+Uncertainties are one standard deviation: K's from the scatter of the photon-transfer points (the larger of the
+least-squares standard error and a bootstrap of the points, :func:`gain_bootstrap`), and for a spatial variance of
 N pixels the normal-theory ``var(s²) = 2 s⁴ / (N − 1)`` plus the uncertainty of the subtracted temporal term.
 """
 
@@ -42,11 +43,17 @@ from camcal.emva_model import SHEET_KEYS, EmvaSheet
 QUANTISATION_VAR_DN2 = 1.0 / 12.0
 """σ²_q of integer data, DN² (EMVA 1288 linear model, eq. 4)."""
 
+DARK_VARIANCE_FLOOR_DN2 = 0.24
+"""Lowest σ²_y.dark the standard reports, DN² (below it the temporal dark noise is quantisation)."""
+
 SENSITIVITY_FRACTION = 0.7
 """K and the responsivity are fitted from the darkest point up to this fraction of the saturation signal."""
 
 LINEARITY_RANGE = (0.05, 0.95)
 """The linearity error is computed between these fractions of the saturation signal."""
+
+BOOTSTRAP_SAMPLES = 400
+"""Resamples of the photon-transfer points for u(K) (:func:`gain_bootstrap`)."""
 
 PLANCK_J_S = 6.62607015e-34
 LIGHT_M_PER_S = 299792458.0
@@ -89,6 +96,31 @@ def saturation_index(variance_dn2: np.ndarray) -> int:
         elif v[i] < best and prev < best:
             break
     return int(best_i)
+
+
+def gain_bootstrap(signal_dn: np.ndarray, variance_dn2: np.ndarray, samples: int = BOOTSTRAP_SAMPLES,
+                   seed: int = 1288) -> float:
+    """Standard deviation of the photon-transfer slope K over resamples of the points (pairs bootstrap).
+
+    Resampling the (μ, σ²) points, not the residuals, keeps the variance noise that grows with the signal
+    (var(σ²_y) ≈ 2σ⁴/N per pair): the scatter of the slope is then that of the points actually measured. The
+    result is never below the least-squares standard error. Fixed seed: the same points give the same u(K).
+    """
+    x = np.asarray(signal_dn, float)
+    y = np.asarray(variance_dn2, float)
+    n = x.size
+    sxx0 = float(np.sum(x * x))
+    k0 = float(np.sum(x * y) / sxx0)
+    se = float(math.sqrt(np.sum((y - k0 * x) ** 2) / max(n - 1, 1) / sxx0))
+    if n < 3:
+        return se
+    rng = np.random.default_rng(seed)
+    idx = rng.integers(0, n, size=(samples, n))
+    xs, ys = x[idx], y[idx]
+    sxx = np.sum(xs * xs, axis=1)
+    ok = sxx > 0
+    k = np.sum(xs * ys, axis=1)[ok] / sxx[ok]
+    return float(max(np.std(k, ddof=1), se))
 
 
 @dataclass(frozen=True)
@@ -174,6 +206,7 @@ def photon_transfer(exposure_s: np.ndarray, signal_dn: np.ndarray, variance_dn2:
         k = float(np.sum(ys * dv) / np.sum(ys * ys))
         dof = max(xs.size - 1, 1)
         k_unc = float(np.sqrt(np.sum((dv - k * ys) ** 2) / dof / np.sum(ys * ys)))
+        k_unc = max(k_unc, gain_bootstrap(ys, dv))  # the residual scatter alone is optimistic on few points
         v0, fitted = float(dark_variance_dn2), False
     else:
         if sel.sum() < 3:
@@ -488,7 +521,8 @@ def dark_noise_stacks(darks: tuple, bias) -> DarkNoiseStacks:
 
 def build_sheet(*, channels: tuple[str, ...], iso: float, dark_noise: DarkNoiseStacks | None = None, dark=None,
                 prnu_frames: int | None = None, flat_prnu: dict[str, Nonuniformity] | None = None, pairs=None,
-                spectral=None, pixel_pitch_um: float | None = None) -> EmvaSheet:
+                spectral=None, pixel_pitch_um: float | None = None,
+                prnu_1288: dict[str, dict] | None = None) -> EmvaSheet:
     """The EMVA 1288 sheet from what the stages measured (every input optional; no file is read).
 
     Parameters
@@ -499,8 +533,12 @@ def build_sheet(*, channels: tuple[str, ...], iso: float, dark_noise: DarkNoiseS
         dark noise against t (σ²_y.dark at zero exposure) and the DSNU of the largest stack (eq. 36).
     dark : the dark model: bias level (the zero-exposure level of the pairs), dark current β, defects, and its
         quantised-noise read noise below 1 DN and its dark-current gain (the fallback K).
-    prnu_frames, flat_prnu : the number of frames of the flat stage's master flat and its PRNU per plane
-        (:func:`camcal.flat.flat_prnu`, which holds the per-frame temporal variance).
+    prnu_frames, flat_prnu : the number of frames of the flat stage's master flat and camcal's PRNU per plane
+        about the vignetting model (:func:`camcal.flat.flat_prnu`, which holds the per-frame temporal variance):
+        ``prnu_devignetted_pct``, not the standard's PRNU₁₂₈₈.
+    prnu_1288 : per plane, PRNU₁₂₈₈ as the standard defines it, the total non-uniformity of the averaged flat with
+        its row, column and pixel parts (:func:`camcal.emva_standard.prnu_1288_planes`): ``prnu_pct`` and the
+        ``prnu_*_pct`` parts.
     pairs : the linearity stage's :class:`camcal.response.PairStatistics` (photon transfer).
     spectral : absolute c(λ) (:class:`camcal.spectral_model.SpectralSensitivity`) for the quantum efficiency, with
         ``pixel_pitch_um`` (µm).
@@ -522,14 +560,18 @@ def build_sheet(*, channels: tuple[str, ...], iso: float, dark_noise: DarkNoiseS
             # plane k only, converted to float64 after the selection (the same values in the same order)
             vs = [float(np.mean(np.asarray(var[k][good], np.float64))) for _, _, var in groups]
             dt = dark_temporal(np.array(ts), np.array(vs))
+            v_std = max(dt.dark_variance_dn2, DARK_VARIANCE_FLOOR_DN2)  # the standard's σ²_y.dark and its floor
             v0 = dt.dark_variance_dn2
             info = summary.get(c) or {}
             tn = info.get("temporal_noise_dn")
             if tn is not None and tn < 1.0 and info.get("read_noise_dn") is not None:
-                v0 = float(info["read_noise_dn"]) ** 2 + QUANTISATION_VAR_DN2  # quantised-normal fit below 1 DN
+                # camcal's quantised-normal fit below 1 DN: the photon transfer's intercept, under its own name
+                v0 = float(info["read_noise_dn"]) ** 2 + QUANTISATION_VAR_DN2
+                out[c]["read_noise_quantised_dn"] = _num(float(info["read_noise_dn"]))
             dark_var0[c] = v0
-            out[c]["dark_noise_dn"] = _num(math.sqrt(max(v0, 0.0)))
-            out[c]["read_noise_dn"] = _num(math.sqrt(max(v0 - QUANTISATION_VAR_DN2, 0.0)))
+            # EMVA 1288: σ_y.dark and σ_d·K = √(σ²_y.dark − 1/12), whatever camcal's own estimate
+            out[c]["dark_noise_dn"] = _num(math.sqrt(v_std))
+            out[c]["read_noise_dn"] = _num(math.sqrt(max(v_std - QUANTISATION_VAR_DN2, 0.0)))
         if dark_noise.spatial is not None:
             t_sp, n_sp, mean, var = dark_noise.spatial
             spatial.update({"dsnu_exposure_s": float(t_sp), "dsnu_frames": int(n_sp)})
@@ -623,7 +665,12 @@ def build_sheet(*, channels: tuple[str, ...], iso: float, dark_noise: DarkNoiseS
                 "linearity_error_max_pct": _num(lin.max_pct),
                 "ptc_fit_range_dn": [pt.fit_range_dn[0], pt.fit_range_dn[1]],
             })
-    # PRNU and the noise left in the flat map
+    # PRNU₁₂₈₈ (the total), camcal's PRNU about the vignetting model and the noise left in the flat map
+    if prnu_1288:
+        for c in channels:
+            out[c].update({k: _num(v) for k, v in (prnu_1288.get(c) or {}).items()})
+    elif flat_prnu:
+        notes.append("PRNU_1288 (total non-uniformity) not computed: only camcal's PRNU about the vignetting model")
     if flat_prnu:
         if prnu_frames is not None:
             spatial["prnu_frames"] = int(prnu_frames)
@@ -632,7 +679,8 @@ def build_sheet(*, channels: tuple[str, ...], iso: float, dark_noise: DarkNoiseS
             if p is None:
                 continue
             row = out[c]
-            row["prnu_pct"], row["prnu_unc_pct"] = _num(100 * p.value), _num(100 * p.uncertainty)
+            row["prnu_devignetted_pct"] = _num(100 * p.value)
+            row["prnu_devignetted_unc_pct"] = _num(100 * p.uncertainty)
             sv = p.spatial
             rel_frame = sv.stack_dn2 / sv.mean_dn**2  # per-frame temporal variance, relative
             row["flat_map_noise_pct"] = _num(100 * math.sqrt(rel_frame / sv.n_frames))

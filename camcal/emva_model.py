@@ -23,7 +23,7 @@ class EmvaSheet:
 
     Attributes
     ----------
-    iso : ISO of the figures (that of the dark frames).
+    iso : ISO of the figures (that of the dark frames); None when unknown (a descriptor's measurement).
     channels : per plane, the figures (:data:`SHEET_KEYS` and more: uncertainties, electrons, sources), numbers or
         None when the session lacks the frames to measure them.
     photon_transfer : per ISO of the linearity series, per plane: K, its uncertainty and the fit range.
@@ -32,7 +32,7 @@ class EmvaSheet:
     notes : what is missing and why, which fallback was used.
     """
 
-    iso: float
+    iso: float | None
     channels: dict[str, dict]
     photon_transfer: tuple[dict, ...] = ()
     spatial: dict = field(default_factory=dict)
@@ -44,13 +44,15 @@ class EmvaSheet:
         return (self.channels.get(channel) or {}).get("K_dn_per_e")
 
     def to_dict(self) -> dict:
-        return {"standard": STANDARD, "iso": float(self.iso), "channels": self.channels,
+        return {"standard": STANDARD, "iso": None if self.iso is None else float(self.iso), "channels": self.channels,
                 "photon_transfer": list(self.photon_transfer), "spatial": self.spatial,
                 "quantum_efficiency": self.quantum_efficiency, "notes": list(self.notes)}
 
     @staticmethod
     def from_dict(d: dict) -> EmvaSheet:
-        return EmvaSheet(iso=float(d["iso"]), channels={c: dict(v) for c, v in d["channels"].items()},
+        iso = d.get("iso")
+        return EmvaSheet(iso=None if iso is None else float(iso),
+                         channels={c: dict(v) for c, v in d["channels"].items()},
                          photon_transfer=tuple(d.get("photon_transfer") or ()), spatial=dict(d.get("spatial") or {}),
                          quantum_efficiency=d.get("quantum_efficiency"), notes=tuple(d.get("notes") or ()))
 
@@ -75,6 +77,7 @@ def sheet_rows(sheet: EmvaSheet) -> list[tuple[str, str, str, dict[str, float | 
         ("sensitivity", "temporal dark noise σ_y.dark", DN, col("dark_noise_dn")),
         ("sensitivity", "read noise σ_d·K (quantisation removed)", DN, col("read_noise_dn")),
         ("sensitivity", "read noise σ_d", ELECTRONS, col("read_noise_e")),
+        ("sensitivity", "camcal: read noise, quantised-normal fit (not EMVA 1288)", DN, col("read_noise_quantised_dn")),
         ("sensitivity", "absolute sensitivity threshold μ_e.min", ELECTRONS, col("threshold_e")),
         ("sensitivity", "saturation capacity μ_y.sat", DN, col("saturation_dn")),
         ("sensitivity", "saturation capacity μ_e.sat", ELECTRONS, col("saturation_e")),
@@ -89,8 +92,13 @@ def sheet_rows(sheet: EmvaSheet) -> list[tuple[str, str, str, dict[str, float | 
         ("nonuniformity", "DSNU_1288", DN, col("dsnu_dn")),
         ("nonuniformity", "uncertainty of DSNU", DN, col("dsnu_unc_dn")),
         ("nonuniformity", "DSNU_1288", ELECTRONS, col("dsnu_e")),
-        ("nonuniformity", "PRNU_1288", "%", col("prnu_pct")),
-        ("nonuniformity", "uncertainty of PRNU", "%", col("prnu_unc_pct")),
+        ("nonuniformity", "PRNU_1288 (total)", "%", col("prnu_pct")),
+        ("nonuniformity", "uncertainty of PRNU_1288", "%", col("prnu_unc_pct")),
+        ("nonuniformity", "PRNU_1288, row part", "%", col("prnu_row_pct")),
+        ("nonuniformity", "PRNU_1288, column part", "%", col("prnu_col_pct")),
+        ("nonuniformity", "PRNU_1288, pixel part", "%", col("prnu_pixel_pct")),
+        ("nonuniformity", "camcal: PRNU about the vignetting model (not EMVA 1288)", "%", col("prnu_devignetted_pct")),
+        ("nonuniformity", "uncertainty of camcal's PRNU", "%", col("prnu_devignetted_unc_pct")),
         ("nonuniformity", "noise left in the flat map", "%", col("flat_map_noise_pct")),
         ("nonuniformity", "flats for map noise < PRNU", "frames", col("flats_for_noise_below_prnu")),
     ]

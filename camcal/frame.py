@@ -8,6 +8,9 @@ A :class:`Frame` holds one of three kinds of image, told apart by its :attr:`Fra
 - ``"linear"``: a linear multi-channel RAW (``kind == "raw"``, shape (H, W, 3), values
   in DN): a DNG LinearRaw (PhotometricInterpretation 34892) or any file LibRaw reads as
   a 3-colour stack (``RawType.Stack``). Planes R, G, B at full resolution, no G2.
+- ``"mono"``: a monochrome sensor (``kind == "raw"``, shape (H, W), values in DN, no colour filter):
+  a one-sample LinearRaw DNG (as Leica's Monochrom writes), a one-channel 16-bit PNG or TIFF of a
+  machine-vision camera. One plane ``Y`` at full resolution.
 - ``"processed"``: a processed 3-channel image (JPEG/TIFF/PNG, ``kind == "processed"``,
   shape (H, W, 3), R, G, B, values in DN of the file's bit depth, e.g. 0..255 for an 8-bit JPEG).
 
@@ -32,8 +35,11 @@ PLANES: tuple[str, str, str, str] = ("R", "G1", "G2", "B")
 RGB: tuple[str, str, str] = ("R", "G", "B")
 """Channel order of linear RAW and processed frames, (3, h, w) arrays."""
 
-LAYOUTS: tuple[str, ...] = ("bayer", "linear", "processed")
-"""Frame layouts: 2x2 CFA mosaic, linear multi-channel RAW, processed RGB image."""
+MONO: tuple[str] = ("Y",)
+"""The one channel of a monochrome sensor, (1, h, w) arrays."""
+
+LAYOUTS: tuple[str, ...] = ("bayer", "linear", "processed", "mono")
+"""Frame layouts: 2x2 CFA mosaic, linear multi-channel RAW, processed RGB image, monochrome sensor."""
 
 TRACKED: tuple[str, ...] = ("exposure_s", "f_number", "iso", "capture_time", "focal_length_mm")
 """Exposure fields whose source is recorded."""
@@ -178,7 +184,7 @@ class Frame:
     white_level_dn: float
     exposure: Exposure = field(default_factory=Exposure)
     path: Path | None = None
-    layout: Literal["bayer", "linear", "processed"] | None = None
+    layout: Literal["bayer", "linear", "processed", "mono"] | None = None
     icc_profile: str | None = None
     value_range_dn: tuple[int, int] | None = field(default=None, init=False, repr=False, compare=False)
 
@@ -221,16 +227,20 @@ class Frame:
 
     @property
     def channel_names(self) -> tuple[str, ...]:
-        """:data:`PLANES` for Bayer frames, :data:`RGB` for linear RAW and processed ones."""
-        return PLANES if self.layout == "bayer" else RGB
+        """:data:`PLANES` for Bayer frames, :data:`MONO` for monochrome ones, :data:`RGB` for linear RAW and
+        processed ones."""
+        return PLANES if self.layout == "bayer" else MONO if self.layout == "mono" else RGB
 
     def planes(self, dtype=np.float32) -> np.ndarray:
         """Channel planes as one array, channel first.
 
-        ``bayer``: (4, H/2, W/2) in :data:`PLANES` order. ``linear`` and ``processed``: (3, H, W).
+        ``bayer``: (4, H/2, W/2) in :data:`PLANES` order. ``linear`` and ``processed``: (3, H, W). ``mono``:
+        (1, H, W).
         """
         if self.layout == "bayer":
             return split_planes(self.data, self.cfa_pattern, dtype=dtype)
+        if self.layout == "mono":
+            return self.data[None].astype(dtype or self.data.dtype, copy=True)
         return np.moveaxis(self.data, -1, 0).astype(dtype or self.data.dtype, copy=True)
 
     def plane_views(self) -> tuple[np.ndarray, ...]:
@@ -241,6 +251,8 @@ class Frame:
             _check_mosaic(self.data)
             off = plane_offsets(self.cfa_pattern)
             return tuple(self.data[r::2, c::2] for r, c in map(off.get, PLANES))
+        if self.layout == "mono":
+            return (self.data,)
         return tuple(self.data[..., i] for i in range(self.data.shape[-1]))
 
     def black_vector(self) -> np.ndarray:

@@ -60,7 +60,14 @@ from PIL import ImageCms
 from camcal.errors import CamcalError
 from camcal.frame import PLANES, RGB, TRACKED, Exposure, Frame, pattern_from_rawpy, plane_offsets
 from camcal.limits import check_expansion, declared_image_bytes, max_pixels
-from camcal.manifest import FRAMES_CSV, exposure_overrides, parse_utc_offset, read_manifest, session_defaults_for
+from camcal.manifest import (
+    FRAMES_CSV,
+    exposure_overrides,
+    parse_utc_offset,
+    read_manifest,
+    session_camera_facts,
+    session_defaults_for,
+)
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -73,7 +80,9 @@ HEIF_EXTENSIONS = {".heic", ".heif", ".hif"}
 PROCESSED_EXTENSIONS = {".jpg", ".jpeg", ".tif", ".tiff", ".png"} | HEIF_EXTENSIONS
 HEIF_BRANDS = {b"heic", b"heix", b"hevc", b"hevx", b"heim", b"heis", b"hevm", b"hevs", b"mif1", b"msf1", b"mif2"}
 """ISO/IEC 23008-12 major brands of HEVC-coded HEIF files (the ``ftyp`` box, bytes 8–12)."""
-IMAGE_EXTENSIONS = RAW_EXTENSIONS | PROCESSED_EXTENSIONS
+FITS_EXTENSIONS = {".fits", ".fit", ".fts"}
+"""FITS images (astronomy cameras): monochrome frames read with astropy (:func:`_load_fits`)."""
+IMAGE_EXTENSIONS = RAW_EXTENSIONS | PROCESSED_EXTENSIONS | FITS_EXTENSIONS
 
 
 def _check_pixels(path: Path, width: int, height: int, stored_bytes: float | None = None) -> None:
@@ -577,6 +586,14 @@ def _load_raw(path: Path) -> Frame:
                 per_color = list(raw.black_level_per_channel)  # after unpacking: LibRaw may measure it then
                 layout, pattern = "linear", None
                 black = {c: float(per_color[i]) for c, i in zip(RGB, idx, strict=True)}
+            elif raw.num_colors == 1 or (raw.raw_pattern is None and np.ndim(raw.raw_image_visible) == 2):
+                # a monochrome sensor (a one-sample LinearRaw DNG): one plane Y, no colour filter array
+                data = np.array(raw.raw_image_visible, dtype=np.uint16, copy=True)
+                if data.ndim != 2:
+                    raise CamcalError(f"has a monochrome RAW image of unexpected shape {data.shape}", path)
+                per_color = list(raw.black_level_per_channel)
+                layout, pattern = "mono", None
+                black = {"Y": float(per_color[0])}
             else:
                 if raw.num_colors != 3 or raw.raw_pattern is None or raw.raw_pattern.shape != (2, 2):
                     raise CamcalError(f"has {_layout_name(raw)}, which camcal does not read; camcal reads 2x2 "
@@ -660,6 +677,8 @@ def read_pixels(inp, spec, path: Path, nchannels: int, fmt) -> np.ndarray:
 
 def _load_processed(path: Path) -> Frame:
     with open_image(path, ("jpeg", "tiff", "png"), "a JPEG, TIFF or PNG image") as (inp, spec):
+        if _is_monochrome_image(inp, spec):
+            return _load_monochrome(path)
         if spec.nchannels < 3:
             raise CamcalError(f"has {spec.nchannels} channel(s); camcal needs an RGB image", path)
         fmt = oiio.UINT16 if spec.format.size() > 1 else oiio.UINT8
@@ -697,6 +716,57 @@ def _load_processed(path: Path) -> Frame:
     exp = _fill(exif_exp, oiio_exp)
     exp = dataclasses.replace(exp, make=oiio_exp.make or exif_exp.make, model=oiio_exp.model or exif_exp.model)
     return _processed_frame(path, data, bits, exp, icc_name)
+
+
+def read_monochrome(path: str | Path) -> np.ndarray:
+    """The one channel of a monochrome 8- or 16-bit PNG or TIFF (a machine-vision camera's frame), (H, W) uint8
+    or uint16, values as stored (no scaling); checked against the limits before decoding. A file with more than
+    one channel is refused: its channels are not one sensor's samples."""
+    path = Path(path)
+    _check_file(path)
+    with open_image(path, ("tiff", "png"), "a PNG or TIFF image") as (inp, spec):
+        if spec.nchannels != 1:
+            raise CamcalError(f"has {spec.nchannels} channels; a monochrome frame has one", path)
+        if str(spec.format) in ("half", "float", "double"):
+            raise CamcalError(f"holds {spec.format} samples; a monochrome frame holds integer DN", path)
+        fmt = oiio.UINT16 if spec.format.size() > 1 else oiio.UINT8
+        return read_pixels(inp, spec, path, 1, fmt)[..., 0]
+
+
+#: TIFF PhotometricInterpretation of RAW data (a CFA mosaic, LinearRaw): a DNG named .tif is not a monochrome frame.
+_RAW_TIFF_PHOTOMETRIC = (32803, 34892)
+
+
+def _is_monochrome_image(inp, spec) -> bool:
+    """A one-channel 16-bit PNG or TIFF of sensor values (not a RAW file's TIFF structure under another name)."""
+    if spec.nchannels != 1 or spec.format.size() < 2 or inp.format_name() not in ("png", "tiff"):
+        return False
+    return spec.getattribute("tiff:PhotometricInterpretation") not in _RAW_TIFF_PHOTOMETRIC
+
+
+def _load_monochrome(path: Path) -> Frame:
+    """A one-channel 16-bit PNG or TIFF (a machine-vision camera's frame) as a monochrome RAW frame.
+
+    The values are the sensor's DN as stored (not tone-mapped). Such a file states no black level: 0 is the
+    encoded range's floor (the dark frames measure the real offset). The white level is 2^bits − 1 with the bits
+    of ``bits_per_sample`` in the ``session.toml`` that applies (a 12-bit camera writing 16-bit files), else the
+    file's own (``oiio:BitsPerSample``, else its sample size); a value above it is refused.
+    """
+    data = read_monochrome(path)
+    with open_image(path, ("tiff", "png"), "a PNG or TIFF image") as (_inp, spec):
+        bits = int(spec.getattribute("oiio:BitsPerSample") or 8 * spec.format.size())
+    stated = session_camera_facts(path.parent).get("bits_per_sample")
+    if stated is not None:
+        bits = int(stated)
+        if int(data.max()) >= 2**bits:
+            raise CamcalError(f"holds {int(data.max())}, above the {bits}-bit range of session.toml's "
+                              "bits_per_sample", path)
+    tags = _exif_tags(path)
+    exp = exposure_from_exif(path, tags)
+    lo, hi = int(data.min()), int(data.max())
+    return Frame(data=np.ascontiguousarray(data, np.uint16), kind="raw", cfa_pattern=None,
+                 black_level_dn={"Y": 0.0}, white_level_dn=float(2**bits - 1), exposure=exp, path=path,
+                 layout="mono").with_value_range(lo, hi)
 
 
 def _processed_frame(path: Path, rgb: np.ndarray, bits: int, exposure: Exposure, icc_profile: str | None) -> Frame:
@@ -758,10 +828,85 @@ def _load_heif(path: Path) -> Frame:
     return _processed_frame(path, data, bits, exp, icc_description(heif.info.get("icc_profile")))
 
 
+def is_fits(path: Path) -> bool:
+    """True when the file is a FITS image (its first card ``SIMPLE  =``)."""
+    return _magic(path).startswith(b"SIMPLE  =")
+
+
+#: BITPIX of the FITS images camcal reads (integer data; 16 with BZERO 32768 is unsigned 16-bit).
+FITS_BITPIX = (8, 16, 32)
+
+
+def _fits_header(path: Path):
+    """The primary header of a FITS file (astropy; nothing but the header is read), checked: a 2-D integer image
+    within the pixel limit, and a file large enough for the data it declares."""
+    from astropy.io import fits  # ~0.7 s to import: paid only by a session of FITS frames
+
+    try:
+        with quiet_stderr(), fits.open(path, memmap=False, lazy_load_hdus=True) as hdul:
+            header = hdul[0].header.copy()
+    except (OSError, ValueError, TypeError) as exc:
+        raise CamcalError(f"cannot read the FITS header: {str(exc)[:120]}", path) from None
+    naxis = int(header.get("NAXIS", 0))
+    bitpix = int(header.get("BITPIX", 0))
+    if naxis != 2:
+        raise CamcalError(f"is a FITS file of {naxis} axes; camcal reads 2-D monochrome FITS images", path)
+    if bitpix not in FITS_BITPIX:
+        raise CamcalError(f"holds FITS BITPIX {bitpix} samples; camcal reads integer images (BITPIX 8, 16, 32)",
+                          path)
+    w, h = int(header.get("NAXIS1", 0)), int(header.get("NAXIS2", 0))
+    _check_pixels(path, w, h, float(w) * h * abs(bitpix) / 8.0)
+    if path.stat().st_size < w * h * abs(bitpix) // 8:
+        raise CamcalError(f"is truncated: its header declares {w}x{h} pixels of {abs(bitpix)} bits", path)
+    return header
+
+
+def _load_fits(path: Path) -> Frame:
+    """A FITS image (an astronomy camera's frame) as a monochrome RAW frame.
+
+    Exposure time from ``EXPTIME`` (or ``EXPOSURE``), s; ``DATE-OBS`` as the capture time (UTC); make/model from
+    ``INSTRUME``; the black level from ``PEDESTAL`` when present (else 0, the dark frames measure the offset); the
+    white level ``2^bits − 1`` with ``bits_per_sample`` of session.toml, else the BITPIX of the file. ISO and
+    f-number are not FITS keys: frames.csv or session.toml give them.
+    """
+    from astropy.io import fits
+
+    header = _fits_header(path)
+    try:
+        with quiet_stderr(), fits.open(path, memmap=False) as hdul:
+            data = np.asarray(hdul[0].data)
+    except (OSError, ValueError, TypeError) as exc:
+        raise CamcalError(f"cannot decode FITS data (damaged or truncated?): {str(exc)[:120]}", path) from None
+    if data.ndim != 2 or not np.issubdtype(data.dtype, np.integer) and not np.all(np.mod(data, 1) == 0):
+        raise CamcalError(f"decodes to {data.dtype} data of shape {data.shape}; camcal reads integer 2-D images",
+                          path)
+    if data.size and (data.min() < 0 or data.max() > 65535):
+        raise CamcalError(f"holds values {data.min():g}..{data.max():g}, outside 0..65535 DN", path)
+    bits = int(abs(int(header["BITPIX"])))
+    stated = session_camera_facts(path.parent).get("bits_per_sample")
+    bits = min(int(stated), 16) if stated is not None else min(bits, 16)
+    if data.size and int(data.max()) >= 2**bits:
+        raise CamcalError(f"holds {int(data.max())}, above the {bits}-bit range", path)
+    t = _clean(header.get("EXPTIME", header.get("EXPOSURE")))
+    when = header.get("DATE-OBS")
+    when = when.strip()[:19] if isinstance(when, str) and when.strip() else None
+    model = header.get("INSTRUME")
+    sources = [("exposure_s", "tag")] if t is not None else []
+    if when is not None:  # FITS times are UTC (FITS standard 4.0 §9.1)
+        sources += [("capture_time", "tag"), ("utc_offset", "tag")]
+    exp = Exposure(exposure_s=t, capture_time=when, utc_offset=None if when is None else "+00:00",
+                   model=None if model is None else str(model).strip(), sources=tuple(sorted(sources)))
+    pedestal = _clean(header.get("PEDESTAL")) or 0.0
+    out = np.ascontiguousarray(data, np.uint16)
+    return Frame(data=out, kind="raw", cfa_pattern=None, black_level_dn={"Y": float(pedestal)},
+                 white_level_dn=float(2**bits - 1), exposure=exp, path=path,
+                 layout="mono").with_value_range(int(out.min()), int(out.max()))
+
+
 def is_raw_path(path: Path) -> bool:
-    """True when the file looks like a RAW file (not JPEG/PNG/HEIF, not a plain .tif)."""
+    """True when the file looks like a RAW file (not JPEG/PNG/HEIF/FITS, not a plain .tif)."""
     head = _magic(path)
-    if head.startswith(b"\xff\xd8\xff") or head.startswith(b"\x89PNG") or is_heif(path):
+    if head.startswith(b"\xff\xd8\xff") or head.startswith(b"\x89PNG") or is_heif(path) or is_fits(path):
         return False
     return path.suffix.lower() not in {".tif", ".tiff", ".jpg", ".jpeg", ".png"} | HEIF_EXTENSIONS
 
@@ -791,7 +936,8 @@ def load_frame(
     """
     path = Path(path)
     _check_file(path)
-    frame = _load_heif(path) if is_heif(path) else _load_raw(path) if is_raw_path(path) else _load_processed(path)
+    frame = (_load_heif(path) if is_heif(path) else _load_fits(path) if is_fits(path)
+             else _load_raw(path) if is_raw_path(path) else _load_processed(path))
     if defaults is None:
         defaults = session_defaults_for(path.parent)
     exp = frame.exposure
@@ -845,12 +991,20 @@ def frame_header(path: str | Path) -> FrameHeader:
         w, h = heif.size
         exif = exposure_from_exif(path, _exif_from_block(heif.info.get("exif")))
         return FrameHeader("processed", "processed", (int(h), int(w)), exif.make, exif.model)
+    if is_fits(path):
+        hdr = _fits_header(path)
+        model = hdr.get("INSTRUME")
+        return FrameHeader("raw", "mono", (int(hdr["NAXIS2"]), int(hdr["NAXIS1"])), None,
+                           None if model is None else str(model).strip())
     tags = _exif_tags(path)
     exif = exposure_from_exif(path, tags)
     if not is_raw_path(path):
         with open_image(path, ("jpeg", "tiff", "png"), "a JPEG, TIFF or PNG image") as (_inp, spec):
             make, model = spec.getattribute("Make"), spec.getattribute("Model")
             shape = (int(spec.height), int(spec.width))
+            mono = _is_monochrome_image(_inp, spec)
+        if mono:  # a machine-vision camera's one-channel 16-bit frame (:func:`_load_monochrome`)
+            return FrameHeader("raw", "mono", shape, make or exif.make, model or exif.model)
         return FrameHeader("processed", "processed", shape, make or exif.make, model or exif.model)
     try:
         with quiet_stderr(), rawpy.imread(str(path)) as raw:  # open only: sizes and colours need no unpacking
@@ -864,7 +1018,8 @@ def frame_header(path: str | Path) -> FrameHeader:
     if photometric == _CFA_PHOTOMETRIC or (tags and "Image CFARepeatPatternDim" in tags):
         layout: str | None = "bayer"
     elif photometric == _LINEAR_PHOTOMETRIC:
-        layout = "linear"
+        samples = str(tags.get("Image SamplesPerPixel", "")) if tags else ""
+        layout = "mono" if samples == "1" else "linear"  # one sample: a monochrome sensor
     elif path.suffix.lower() == ".dng":
         layout = None  # the image is in a sub-IFD: CFA or linear is known after decoding
     else:

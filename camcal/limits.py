@@ -64,6 +64,12 @@ MAX_TEXT_LINE_BYTES = 64 * 1024
 #: Most columns of a manifest (real ones: 4 to 8).
 MAX_CSV_COLUMNS = 64
 
+# ---- EMVA 1288 descriptor files ----------------------------------------------------------------------------------
+#: Image lines (``i path``) one EMVA 1288 descriptor may list (the standard's reference sets: 300 to 700).
+MAX_EMVA_IMAGES = 20_000
+#: Illumination steps (``b``/``d`` lines) one descriptor may list (the standard asks for about 50 per series).
+MAX_EMVA_STEPS = 5_000
+
 # ---- the profile container (ZIP) ------------------------------------------------------------------------------
 #: Members a profile may have (profile.json and maps.exr); counted from the end record, before the
 #: central directory is parsed.
@@ -212,7 +218,7 @@ def maps_size_bound(doc: dict) -> tuple[int, str]:
             and w * h <= max(max_pixels(), DEFAULT_MAX_PIXELS)):  # a lowered pixel limit applies to images
         return 0, "no valid camera width and height"
     n = sum(len(v) for v in listed.values() if isinstance(v, list)) if isinstance(listed, dict) else 0
-    linear = isinstance(cam, dict) and cam.get("layout") == "linear"  # linear RAW: full-resolution planes
+    linear = isinstance(cam, dict) and cam.get("layout") in ("linear", "mono")  # full-resolution planes
     raw = n * (w * h if linear else ((w + 1) // 2) * ((h + 1) // 2)) * 4
     if n == 0:
         return 0, "no maps listed"

@@ -48,6 +48,7 @@ PLAUSIBLE_RANGE: dict[str, tuple[float, float]] = {
     "focal_length_mm": (0.1, 10000.0),
     "temperature_C": (-273.15, 500.0),
     "pixel_pitch_um": (0.1, 100.0),
+    "bits_per_sample": (8.0, 16.0),
     "wavelength_nm": (100.0, 3000.0),
     "bandwidth_nm": (1e-3, 1000.0),
     "radiance_W_m2_sr": (0.0, 1e30),
@@ -215,8 +216,10 @@ SESSION_TEXT_KEYS: dict[str, str] = {"utc_offset": "utc_offset"}
 OffsetTimeOriginal (see docs/conventions.md, "Time and the sun")."""
 
 #: Keys of ``session.toml`` that state facts of the camera rather than of each frame (not Exposure fields):
-#: ``pixel_pitch_um``, the pixel pitch in µm (the quantum efficiency of :mod:`camcal.emva` needs the pixel area).
-CAMERA_KEYS: tuple[str, ...] = ("pixel_pitch_um",)
+#: ``pixel_pitch_um``, the pixel pitch in µm (the quantum efficiency of :mod:`camcal.emva` needs the pixel area);
+#: ``bits_per_sample``, the bit depth of a monochrome camera whose 16-bit PNG/TIFF frames hold fewer bits (a 12-bit
+#: machine-vision camera: its white level is 2^bits − 1).
+CAMERA_KEYS: tuple[str, ...] = ("pixel_pitch_um", "bits_per_sample")
 
 MAX_SESSION_DEFAULTS_BYTES = 64 * 1024
 

@@ -325,9 +325,11 @@ def load_profile(path: str | Path, *, with_maps: bool = True) -> CalibrationProf
 
 # ---- the JSON contract -------------------------------------------------------------------------------------
 def _rgb(per_plane: dict | None) -> dict | None:
-    """{R, G1, G2, B} -> {R, G, B, G1, G2} with G the mean of G1 and G2."""
+    """{R, G1, G2, B} -> {R, G, B, G1, G2} with G the mean of G1 and G2 ({Y} of a monochrome sensor as it is)."""
     if not per_plane:
         return None
+    if set(per_plane) == {"Y"}:  # a monochrome sensor: its one channel
+        return {"Y": per_plane["Y"]}
     if "G1" not in per_plane:  # linear RAW: R, G, B planes
         return {"R": per_plane.get("R"), "G": per_plane.get("G"), "B": per_plane.get("B"), "G1": None, "G2": None}
     out = {"R": per_plane.get("R"), "B": per_plane.get("B"), "G1": per_plane.get("G1"), "G2": per_plane.get("G2")}
@@ -402,7 +404,7 @@ def contract(profile: CalibrationProfile) -> dict:
             ch = model.channels
             if "G1" in ch:
                 return _rgb({p: _finite(getattr(ch[p], attr)) for p in PLANES})
-            return {c: _finite(getattr(ch[c], attr)) for c in ("R", "G", "B")}
+            return {c: _finite(getattr(ch[c], attr)) for c in (("Y",) if "Y" in ch else ("R", "G", "B"))}
 
         out["response"] = {"kind": primary.kind, "gamma": per(primary, "gamma"), "alpha": per(primary, "alpha"),
                            "beta": per(primary, "beta"),

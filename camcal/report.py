@@ -294,8 +294,8 @@ def _emva_section(profile) -> str:
         point.append(["DSNU", f"average of {sp['dsnu_frames']} dark frames at {sp['dsnu_exposure_s']:g} s, "
                       "temporal noise / L removed (eq. 36)"])
     if sp.get("prnu_frames"):
-        point.append(["PRNU", f"average of {sp['prnu_frames']} flats about the vignetting model, temporal noise / L "
-                      "removed (eq. 36)"])
+        point.append(["PRNU", f"PRNU_1288: the plain average of {sp['prnu_frames']} flats, vignetting included, "
+                      "temporal noise / L removed (eq. 36); camcal's PRNU about the vignetting model apart"])
     rows = [[name if i == 0 or name != prev else "", q, unit, *(vals.get(p) for p in planes)]
             for i, ((name, q, unit, vals), prev) in enumerate(zip(sheet_rows(sheet),
                                                                   [None, *(r[0] for r in sheet_rows(sheet))],

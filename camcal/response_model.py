@@ -293,10 +293,11 @@ class ResponseModel:
                     saturation_exposure_s=num(rec.get("saturation_exposure_s")),
                     fitted_exposure_s=tuple(num(v) for v in rec.get("fitted_exposure_s") or (None, None)),
                 )
-            expected = {"raw": (set(PLANES), {"R", "G", "B"}), "processed": ({"R", "G", "B"},)}.get(str(d["kind"]))
+            expected = {"raw": (set(PLANES), {"R", "G", "B"}, {"Y"}),
+                        "processed": ({"R", "G", "B"},)}.get(str(d["kind"]))
             if expected is None or set(channels) not in expected:
                 raise ValueError(f"kind {d['kind']!r} with channels {sorted(channels)}; expected raw R, G1, G2, B "
-                                 "(or R, G, B for linear RAW) or processed R, G, B")
+                                 "(or R, G, B for linear RAW, Y for a monochrome sensor) or processed R, G, B")
             return ResponseModel(
                 kind=str(d["kind"]), channels=channels, reference_iso=num(d["reference_iso"]),
                 reference_f_number=num(d["reference_f_number"]), tone=d.get("tone"),

@@ -38,6 +38,7 @@ from camcal.emva import (
     saturation_index,
     spatial_variance,
 )
+from camcal.emva_model import sheet_rows
 from camcal.io import load_frame
 from camcal.profile import save_profile
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
@@ -324,3 +325,78 @@ def test_quantum_efficiency_with_the_pixel_pitch(pair_session):
     for plane, peak in (("R", cam.params.qe_peak[0]), ("G1", cam.params.qe_peak[1]), ("B", cam.params.qe_peak[2])):
         got = max(v for v in qe["values"][plane] if v is not None)
         assert got == pytest.approx(cam.params.lens_transmittance * peak, rel=0.05), plane
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# the standard's PRNU₁₂₈₈ and camcal's own PRNU, each under its own name
+# ---------------------------------------------------------------------------------------------------------------
+def test_prnu_1288_is_the_total_and_camcals_prnu_the_pixel_part(tmp_path):
+    """A synthetic sensor with known vignetting (corner gain 0.62) and 1 % pixel PRNU: the profile's PRNU₁₂₈₈ is the
+    total non-uniformity of the flat (vignetting × PRNU), camcal's PRNU about the vignetting model the pixel part,
+    each within 3 of its stated standard uncertainties; the release 4.0 parts add up to the total."""
+    cam = SyntheticCamera(SensorParams(width=192, height=128, prnu_sigma=0.01))
+    root = tmp_path / "S"
+    write_session(root, cam, SessionPlan(stages=("bias", "dark", "flat"), n_flat=16, dark_exposures_s=(2.0, 8.0)))
+    profile, _ = calibrate_session(root)
+    response = cam.vignetting_map_at(cam.params.reference_f_number) * cam.prnu_map
+    for i, p in enumerate(PLANES):
+        row = profile.emva.channels[p]
+        total = 100 * np.std(response[i], ddof=1) / np.mean(response[i])
+        pixel = 100 * np.std(cam.prnu_map[i], ddof=1) / np.mean(cam.prnu_map[i])
+        assert total > 8 * pixel  # the vignetting dominates: the two figures are far apart
+        assert abs(row["prnu_pct"] - total) < 3 * row["prnu_unc_pct"], (p, row["prnu_pct"], total)
+        assert abs(row["prnu_devignetted_pct"] - pixel) < 3 * row["prnu_devignetted_unc_pct"], (p, row, pixel)
+        parts = row["prnu_row_pct"] ** 2 + row["prnu_col_pct"] ** 2 + row["prnu_pixel_pct"] ** 2
+        assert parts == pytest.approx(row["prnu_pct"] ** 2, rel=0.03)
+    names = [q for _, q, _, _ in sheet_rows(profile.emva)]
+    assert "PRNU_1288 (total)" in names and "camcal: PRNU about the vignetting model (not EMVA 1288)" in names
+
+
+def test_synth_session_shoots_linearity_pairs(tmp_path):
+    out = tmp_path / "S"
+    assert main(["synth", "session", str(out), "--stages", "linearity", "--width", "64", "--height", "64"]) == 0
+    names = sorted(p.name for p in (out / "linearity").glob("*.dng"))
+    assert "lin_000.dng" in names and "lin_000_1.dng" in names and len(names) % 2 == 0
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# a monochrome sensor end to end: one-sample LinearRaw DNGs through calibrate
+# ---------------------------------------------------------------------------------------------------------------
+def test_monochrome_dng_session_through_calibrate(tmp_path):
+    """One plane of the synthetic camera written as one-sample LinearRaw DNGs (a monochrome camera): dark, flat and
+    linearity pairs calibrate to a one-channel profile (Y) whose K, read noise and PRNU₁₂₈₈ match the truth."""
+    from camcal.synth.dng import encode_mono_dng
+
+    cam = SyntheticCamera(SensorParams(width=256, height=192, prnu_sigma=0.01, hot_pixel_fraction=0.0))
+    p = cam.params
+    rng = np.random.default_rng(7)
+    spec = _white_spectrum(5000.0)
+    black = p.black_level_dn[1]
+
+    def shoot(folder: str, name: str, t: float, lit: bool) -> None:
+        d = tmp_path / "S" / folder
+        d.mkdir(parents=True, exist_ok=True)
+        planes = cam.expose_planes(Scene.uniform(spec) if lit else Scene.dark(), exposure_s=t, rng=rng)
+        (d / name).write_bytes(encode_mono_dng(planes[1], black_level_dn=black, white_level_dn=p.white_dn,
+                                               exposure_s=t, f_number=4.0, iso=100))
+
+    for t in (1 / 4000, 2.0, 8.0):
+        for i in range(4):
+            shoot("dark", f"d_{t:g}_{i}.dng", t, False)
+    t_flat = exposure_for_level(cam, spec, 0.45, 100, 4.0)
+    for i in range(8):
+        shoot("flat", f"f_{i}.dng", t_flat, True)
+    t0 = exposure_for_level(cam, spec, 0.02, 100, 4.0)
+    for k in range(12):
+        for r in range(2):
+            shoot("linearity", f"lin_{k:03d}_{r}.dng", t0 * 1.4**k, True)
+    profile, _ = calibrate_session(tmp_path / "S")
+    assert profile.camera.layout == "mono" and list(profile.emva.channels) == ["Y"]
+    y = profile.emva.channels["Y"]
+    truth_k = 1 / p.gain_e_per_dn
+    assert abs(y["K_dn_per_e"] - truth_k) < 3 * y["K_unc_dn_per_e"], (y["K_dn_per_e"], y["K_unc_dn_per_e"])
+    assert y["read_noise_e"] == pytest.approx(p.read_noise_e, rel=0.1)
+    response = (cam.vignetting_map_at(4.0) * cam.prnu_map)[1]
+    total = 100 * np.std(response, ddof=1) / np.mean(response)
+    assert abs(y["prnu_pct"] - total) < 3 * y["prnu_unc_pct"], (y["prnu_pct"], total)
+    assert profile.flat is not None and profile.flat.channels == ("Y",)

@@ -276,3 +276,66 @@ def test_quiet_stderr_silences_c_libraries_not_the_lines_python_writes_meanwhile
     assert proc.returncode == 0, proc.stderr
     assert proc.stderr.splitlines() == ["camcal: interrupted", "camcal: failed: one photo", "camcal: warning: nested",
                                         "camcal: after", "C after"]
+
+
+# ---- monochrome sensors: one-sample DNG, one-channel 16-bit PNG/TIFF, FITS ------------------------------------
+def _mono(shape=(48, 64), seed=0):
+    return (100 + np.random.default_rng(seed).poisson(500, shape)).astype(np.uint16)
+
+
+def test_monochrome_dng_reads_as_one_channel_y(tmp_path):
+    from camcal.synth.dng import encode_mono_dng
+
+    a = _mono()
+    p = tmp_path / "m.dng"
+    p.write_bytes(encode_mono_dng(a, black_level_dn=100, white_level_dn=4095, exposure_s=0.01, f_number=2.0,
+                                  iso=200))
+    f = load_frame(p, defaults={})
+    assert (f.layout, f.kind, f.channel_names, f.cfa_pattern) == ("mono", "raw", ("Y",), None)
+    assert np.array_equal(f.data, a) and f.black_level_dn == {"Y": 100.0} and f.white_level_dn == 4095
+    assert f.planes().shape == (1, 48, 64) and f.exposure.iso == 200
+    assert frame_header(p).layout == "mono"
+
+
+def test_monochrome_png_with_the_sessions_bit_depth(tmp_path):
+    import OpenImageIO as oiio
+
+    a = _mono()
+    p = tmp_path / "m.png"
+    out = oiio.ImageOutput.create(str(p))
+    out.open(str(p), oiio.ImageSpec(64, 48, 1, oiio.UINT16))
+    out.write_image(a[..., None])
+    out.close()
+    f = load_frame(p, defaults={})
+    assert f.layout == "mono" and np.array_equal(f.data, a) and f.white_level_dn == 65535
+    assert frame_header(p).layout == "mono"
+    (tmp_path / "session.toml").write_text("bits_per_sample = 12\n")
+    assert load_frame(p).white_level_dn == 4095
+    (tmp_path / "session.toml").write_text("bits_per_sample = 8\n")
+    with pytest.raises(CamcalError, match="8-bit range"):
+        load_frame(p)
+
+
+def test_fits_frames(tmp_path):
+    from astropy.io import fits
+
+    a = _mono()
+    hdr = fits.Header()
+    hdr["EXPTIME"] = 2.5
+    hdr["DATE-OBS"] = "2026-01-02T03:04:05"
+    fits.PrimaryHDU(a, header=hdr).writeto(tmp_path / "m.fits")
+    f = load_frame(tmp_path / "m.fits", defaults={})
+    assert f.layout == "mono" and np.array_equal(f.data, a)
+    assert f.exposure.exposure_s == 2.5 and f.exposure.source("exposure_s") == "tag"
+    assert f.exposure.iso is None  # not a FITS key: unknown, not a default
+    assert f.exposure.capture_time == "2026-01-02T03:04:05" and f.exposure.utc_offset == "+00:00"
+    fits.PrimaryHDU(np.zeros((3, 8, 8), np.uint16)).writeto(tmp_path / "cube.fits")
+    with pytest.raises(CamcalError, match="3 axes"):
+        load_frame(tmp_path / "cube.fits", defaults={})
+    fits.PrimaryHDU(np.zeros((8, 8), np.float32)).writeto(tmp_path / "float.fits")
+    with pytest.raises(CamcalError, match="BITPIX -32"):
+        load_frame(tmp_path / "float.fits", defaults={})
+    raw = (tmp_path / "m.fits").read_bytes()
+    (tmp_path / "cut.fits").write_bytes(raw[:2880 + 100])
+    with pytest.raises(CamcalError, match="truncated"):
+        load_frame(tmp_path / "cut.fits", defaults={})

@@ -76,6 +76,9 @@ def register(app: typer.Typer) -> None:
         photo_f_numbers: str | None = typer.Option(None, "--photo-f-numbers", metavar="N,N,...",
                                                    help="Also write photos/ with one photo of a uniform scene at each "
                                                         "f-number (preset apertures: 2.8,4,8)."),
+        linearity_pairs: bool = typer.Option(True, "--linearity-pairs/--no-linearity-pairs",
+                                             help="Shoot every linearity exposure twice (the frame pairs of EMVA "
+                                                  "1288 photon transfer: K, saturation, SNR_max)."),
     ) -> None:
         """Write a whole calibration session (bias, dark, flat, linearity, sweep) with truth.json."""
         outdir = one_output(outdir_arg, outdir_opt, "the session folder")
@@ -105,7 +108,8 @@ def register(app: typer.Typer) -> None:
                 optics["flat_f_numbers"] = _f_numbers(flat_f_numbers, "--flat-f-numbers")
             if photo_f_numbers is not None:
                 optics["photo_f_numbers"] = _f_numbers(photo_f_numbers, "--photo-f-numbers")
-            plan = SessionPlan(stages=chosen, layout=layout, fixed_aperture=fixed_aperture, **optics)
+            plan = SessionPlan(stages=chosen, layout=layout, fixed_aperture=fixed_aperture,
+                               linearity_repeats=2 if linearity_pairs else 1, **optics)
             out = write_session(outdir, cam, plan, progress=tick)
         if messy:
             planted = plant_problems(out, cam)

@@ -133,6 +133,32 @@ def encode_linear_dng(
     )
 
 
+def encode_mono_dng(
+    image: np.ndarray,
+    *,
+    black_level_dn: float,
+    white_level_dn: int,
+    exposure_s: float,
+    f_number: float | None,
+    iso: float,
+    make: str = "camcal",
+    model: str = "Synthetic Monochrom",
+    serial: str = "0000",
+    capture_time: datetime | None = None,
+) -> bytes:
+    """Encode a monochrome image as the bytes of an uncompressed one-sample LinearRaw DNG (as a monochrome camera,
+    e.g. Leica's Monochrom, writes): PhotometricInterpretation 34892, SamplesPerPixel 1, 16 bits; LibRaw decodes it
+    as a one-colour image."""
+    image = np.ascontiguousarray(image, dtype="<u2")
+    if image.ndim != 2:
+        raise ValueError("a monochrome image must have shape (H, W)")
+    return _encode_image(
+        image, [1], 34892, None, [float(black_level_dn)], [int(white_level_dn)], exposure_s=exposure_s,
+        f_number=f_number, iso=iso, make=make, model=model, serial=serial, capture_time=capture_time,
+        temperature_c=None,
+    )
+
+
 def _encode_image(
     image: np.ndarray,
     samples: list[int],
@@ -192,7 +218,9 @@ def _encode_image(
         ifd0.add(50713, _SHORT, [1, 1])
     ifd0.add(50714, _RATIONAL, black)
     ifd0.add(50717, _LONG, white)
-    ifd0.add(50721, _SRATIONAL, [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0])
+    # ColorMatrix1: ColorPlanes x 3 (a monochrome image: one row, the XYZ of the white point D50)
+    ifd0.add(50721, _SRATIONAL, [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0] if spp == 3 or cfa_pattern else
+             [0.9642, 1.0, 0.8249])
     ifd0.add(50735, _ASCII, serial)
     ifd0.add(50778, _SHORT, [21])
 
