@@ -38,10 +38,12 @@ def test_basis_is_pca_jiang2013_of_the_library(basis):
 
 
 def test_prior_and_truncation(basis):
-    mu, cov_b, cov_t = basis.prior(0, 8)
+    mu, cov_b, cov_t, cov_lab = basis.prior(0, 8)
     assert mu.shape == GRID_NM.shape and 0.8 < mu.max() < 1.05
     np.testing.assert_allclose(np.diag(cov_t), basis.truncation_variance(8)[0])
-    assert np.all(np.linalg.eigvalsh(cov_b) > -1e-12)
+    assert np.all(np.linalg.eigvalsh(cov_b) > -1e-12) and np.all(np.linalg.eigvalsh(cov_lab) > -1e-12)
+    # the between-lab term is the borrowed-curve table: 7 % of peak at 620 nm in R (docs/spectral.md)
+    assert np.sqrt(cov_lab[GRID_NM == 620, GRID_NM == 620][0]) == pytest.approx(0.07, abs=0.005)
 
 
 def test_exclude(basis):

@@ -29,9 +29,11 @@ from typing import Any
 
 import numpy as np
 
+from camcal.borrowed_uncertainty import shipped_borrowed_uncertainty
 from camcal.chart.targets import GRID_NM
 from camcal.curve_library import COLLECTION, library_folder, list_cameras, read_curve_json
 from camcal.errors import CamcalError
+from camcal.reference_targets import CURVE_CORRELATION
 
 CHANNELS = ("R", "G", "B")
 #: Components kept when not stated (a 24-patch chart constrains few more per channel).
@@ -101,14 +103,26 @@ class CameraBasis:
         (normalised to peak 1) on ``k`` components, variance."""
         return np.mean(self.residuals(k) ** 2, axis=0)
 
-    def prior(self, channel: int, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(μ (n,), Σ_basis (n, n), Σ_trunc (n, n)) of a new camera's normalised curve (module docstring)."""
+    def prior(self, channel: int, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(μ (n,), Σ_basis, Σ_trunc, Σ_lab (n, n)) of a new camera's normalised curve (module docstring)."""
         p = self.phi(channel, k)
         w = self.curves[:, channel] @ p
         mu = p @ w.mean(axis=0)
         cov_w = np.atleast_2d(np.cov(w, rowvar=False))
         r = self.residuals(k)[:, channel]
-        return mu, p @ cov_w @ p.T, r.T @ r / r.shape[0]
+        return mu, p @ cov_w @ p.T, r.T @ r / r.shape[0], lab_covariance(self.wavelength_nm, CHANNELS[channel])
+
+
+def lab_covariance(wavelength_nm, channel: str) -> np.ndarray:
+    """(n, n) Σ_lab = f(λ) f(λ') ρ(λ − λ'): how far a measured curve lies from the camera's true curve, as a
+    fraction of the peak (f: the borrowed-curve table of :mod:`camcal.borrowed_uncertainty`, independent
+    measurements of one model by different labs; ρ: their correlation over wavelength,
+    :data:`camcal.reference_targets.CURVE_CORRELATION`)."""
+    wl = np.asarray(wavelength_nm, float)
+    f = shipped_borrowed_uncertainty().at(wl)[channel]
+    d = wl[:, None] - wl[None, :]
+    rho = sum(w * np.exp(-d ** 2 / (2 * ell ** 2)) for w, ell in CURVE_CORRELATION)
+    return f[:, None] * f[None, :] * rho
 
 
 def _uncentred_components(curves: np.ndarray, k: int) -> np.ndarray:

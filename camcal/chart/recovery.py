@@ -56,7 +56,7 @@ from camcal.errors import CamcalError
 from camcal.spectral_model import ABSOLUTE_UNITS, RELATIVE_UNITS, SpectralSensitivity
 
 #: Uncertainty terms of a recovered curve, in the order they are reported.
-TERMS = ("noise", "chart", "illuminant", "basis", "truncation")
+TERMS = ("noise", "chart", "illuminant", "basis", "truncation", "library")
 #: Channel of the basis each plane is recovered in.
 PLANE_CHANNEL = {"R": 0, "G": 1, "G1": 1, "G2": 1, "B": 2}
 #: Scale iterations (the prior's scale s is the recovered peak).
@@ -213,9 +213,9 @@ def _context(chart: ChartReflectance, light: Irradiance, basis: CameraBasis, k: 
 def _solve_plane(y: np.ndarray, s_cov: np.ndarray, ctx: _Context, channel: int, reg: float,
                  nonnegative: bool) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray, float, float]:
     """(ĉ, term covariances, total covariance, χ², dof) for one plane."""
-    mu, cov_b, cov_t = ctx.prior[channel]
+    mu, cov_b, cov_t, cov_l = ctx.prior[channel]
     n = mu.size
-    cov_prior = cov_b + cov_t
+    cov_prior = cov_b + cov_t + cov_l
     cov_prior = cov_prior + PRIOR_JITTER * np.trace(cov_prior) / n * np.eye(n)
     m = ctx.m
     pred = m @ mu
@@ -249,7 +249,8 @@ def _solve_plane(y: np.ndarray, s_cov: np.ndarray, ctx: _Context, channel: int, 
     g = post @ m.T @ n_inv
     i_gm = np.eye(n) - g @ m
     terms = {"noise": g @ s_cov @ g.T, "chart": g @ cov_r @ g.T, "illuminant": g @ cov_e @ g.T,
-             "basis": i_gm @ (s ** 2 / reg * cov_b) @ i_gm.T, "truncation": i_gm @ (s ** 2 / reg * cov_t) @ i_gm.T}
+             "basis": i_gm @ (s ** 2 / reg * cov_b) @ i_gm.T, "truncation": i_gm @ (s ** 2 / reg * cov_t) @ i_gm.T,
+             "library": i_gm @ (s ** 2 / reg * cov_l) @ i_gm.T}
     total = sum(terms.values())
     r = wn @ (y - m @ c)
     dof = float(y.size - np.trace(m @ g))
@@ -343,11 +344,11 @@ def _evidence(signal, signal_cov, chart, light, basis, k, reg) -> float:
     total = 0.0
     for plane, y in signal.items():
         y = np.asarray(y, float)
-        mu, cb, ct = ctx.prior[PLANE_CHANNEL[plane]]
+        mu, cb, ct, cl = ctx.prior[PLANE_CHANNEL[plane]]
         pred = ctx.m @ mu
         s = max(float(y @ pred / (pred @ pred)), 1e-300)
         cov = (_as_cov(signal_cov[plane], y.size, plane) + np.diag((ctx.m_u @ (s * mu)) ** 2)
-               + s ** 2 / reg * ctx.m @ (cb + ct) @ ctx.m.T)
+               + s ** 2 / reg * ctx.m @ (cb + ct + cl) @ ctx.m.T)
         r = y - s * pred
         sign, logdet = np.linalg.slogdet(cov)
         total += float(r @ np.linalg.solve(cov, r) + logdet)
