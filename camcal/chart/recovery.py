@@ -55,7 +55,7 @@ from typing import Any, Literal
 import numpy as np
 from scipy.optimize import lsq_linear, minimize_scalar
 
-from camcal.chart.basis import DEFAULT_COMPONENTS, CameraBasis
+from camcal.chart.basis import DEFAULT_COMPONENTS, CameraBasis, basis_from_curves
 from camcal.chart.light import Irradiance, blackbody, daylight
 from camcal.chart.targets import ChartReflectance
 from camcal.errors import CamcalError
@@ -476,7 +476,5 @@ def leave_one_out_recovery(basis: CameraBasis, chart_true: ChartReflectance, cha
 
 
 def _sub_basis(basis: CameraBasis, keep: list[int]) -> CameraBasis:
-    from camcal.chart.basis import basis_from_curves
-
     return basis_from_curves(basis.curves[keep], tuple(basis.cameras[i] for i in keep), basis.wavelength_nm,
                              {**basis.source, "subset_of": basis.source.get("n_cameras")})
