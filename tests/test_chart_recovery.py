@@ -20,6 +20,7 @@ channel. The absolute scale is part of the error (c in DN s⁻¹ per W m⁻² sr
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
@@ -29,10 +30,10 @@ import pytest
 
 from camcal.chart.basis import camera_basis, projection_floor
 from camcal.chart.light import blackbody, clear_sky_irradiance, daylight
-from camcal.chart.recovery import TERMS, estimate_illuminant, recover_sensitivity
+from camcal.chart.recovery import TERMS, estimate_illuminant, leave_one_out_recovery, recover_sensitivity
 from camcal.chart.targets import GRID_NM, NEUTRAL_PATCHES, published_chart
 from camcal.errors import CamcalError
-from camcal.spectral_model import ABSOLUTE_UNITS, RELATIVE_UNITS
+from camcal.spectral_model import ABSOLUTE_UNITS, RELATIVE_UNITS, spectral_from_dict, spectral_to_dict
 
 REAL = Path(__file__).resolve().parents[1].parent / "shared" / "realdata" / "spectral"
 FINE_NM = np.arange(380.0, 780.5, 1.0)
@@ -176,6 +177,11 @@ def test_bayer_planes_and_terms_kept_apart(library_basis, nominal_chart):
         assert np.all(rec.values[p] >= 0)
     s = rec.to_spectral_sensitivity()
     assert s.plane_names == planes
+    text = json.dumps(spectral_to_dict(s), allow_nan=False)  # a profile can store it
+    back = spectral_from_dict(json.loads(text))
+    np.testing.assert_allclose(back.values["G1"], s.values["G1"])
+    assert back.source["kind"] == "chart" and set(back.source["uncertainty_terms_rms_pct_of_peak"]["R"]) == {
+        *TERMS, "total"}
     # the noise term shrinks with the noise; the basis term does not
     sig2, cov2 = render(truth, sunlight_fine(), np.random.default_rng(1), planes=planes, nonuniformity=0.0005)
     rec2 = recover_sensitivity(sig2, cov2, nominal_chart, clear_sky_irradiance(SUN_ZENITH_DEG), library_basis)
@@ -226,3 +232,14 @@ def test_bad_inputs_are_refused_in_one_line(library_basis, nominal_chart):
                             regularisation=0.0)
     with pytest.raises(CamcalError, match="family"):
         estimate_illuminant(good, {p: np.ones(24) for p in good}, nominal_chart, library_basis, family="led")
+
+
+def test_leave_one_make_out_recovery_leaves_the_make_out():
+    basis = camera_basis()
+    rows = leave_one_out_recovery(basis, published_chart("ColorChecker N Ohta"), published_chart(),
+                                  clear_sky_irradiance(SUN_ZENITH_DEG), group="make",
+                                  cameras=("Canon EOS 600D", "Panasonic DC-GX9"))
+    assert [(r["camera"], r["channel"]) for r in rows] == [(c, p) for c in ("Canon EOS 600D", "Panasonic DC-GX9")
+                                                         for p in "RGB"]
+    for r in rows:  # the figures of docs/spectral.md's calibration: a few % error, u covering
+        assert 0 < r["rms_pct_of_peak"] < 10 and r["covered_2u"] >= 0.85 and r["u_rms_pct_of_peak"] > 2
