@@ -243,3 +243,22 @@ def test_leave_one_make_out_recovery_leaves_the_make_out():
                                                          for p in "RGB"]
     for r in rows:  # the figures of docs/spectral.md's calibration: a few % error, u covering
         assert 0 < r["rms_pct_of_peak"] < 10 and r["covered_2u"] >= 0.85 and r["u_rms_pct_of_peak"] > 2
+
+
+def test_a_chart_drawn_within_the_spread(nominal_chart):
+    """The photographed chart is the nominal one plus a smooth deviation of the stated size (a Gaussian process
+    of 40 nm correlation length scaled by u(R), independent between patches), rendered on the 1 nm grid."""
+    rng = np.random.default_rng(11)
+    d = FINE_NM[:, None] - FINE_NM[None, :]
+    chol = np.linalg.cholesky(np.exp(-d ** 2 / (2 * 40.0 ** 2)) + 1e-9 * np.eye(FINE_NM.size))
+    u = np.array([np.interp(FINE_NM, GRID_NM, row) for row in nominal_chart.u_reflectance])
+    r = np.array([np.interp(FINE_NM, GRID_NM, row) for row in nominal_chart.reflectance])
+    drawn = np.clip(r + u * (chol @ rng.standard_normal((FINE_NM.size, 24))).T, 0.0, None)
+    truth = TRUE_PEAK * phone_curves("imx219")
+    light = sunlight_fine()
+    y = np.trapezoid(truth[:, None, :] * drawn[None] * light / math.pi, FINE_NM, axis=-1)
+    sig = {p: y[i] for i, p in enumerate("RGB")}
+    cov = {p: (LIGHTING_NONUNIFORMITY * y[i]) ** 2 for i, p in enumerate("RGB")}
+    rec = recover_sensitivity(sig, cov, nominal_chart, clear_sky_irradiance(SUN_ZENITH_DEG), camera_basis())
+    for plane, (rms, covered) in check(truth, rec).items():
+        assert rms <= 10.0 and covered >= 0.90, (plane, rms, covered)

@@ -42,8 +42,6 @@ References
 Jiang, J., Liu, D., Gu, J., Süsstrunk, S. (2013). What is the space of spectral sensitivity functions for digital
 color cameras? IEEE WACV, 168-179.
 Tarantola, A. (2005). Inverse Problem Theory and Methods for Model Parameter Estimation. SIAM, §3.2.
-Finlayson, G., Darrodi, M. M., Mackiewicz, M. (2016). Rank-based camera spectral sensitivity estimation.
-J. Opt. Soc. Am. A 33(4), 589-599.
 """
 
 from __future__ import annotations
