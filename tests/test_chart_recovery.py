@@ -153,6 +153,13 @@ def test_raw_chart_in_sun_recovers_absolute_curves_within_10pct_and_u_covers(nam
     for plane, (rms, covered) in res.items():
         assert rms <= 10.0, f"{name} {plane}: {rms:.1f} % RMS of peak"
         assert covered >= 0.90, f"{name} {plane}: 2u covers {100 * covered:.0f} % of wavelengths"
+    # what radiance needs: the band response to a sunlit grey field, ∫ c E ρ/π dλ, within 3 % and within 2u
+    w = light.irradiance_w_m2_nm * 0.18 / math.pi * np.gradient(GRID_NM)
+    w[[0, -1]] /= 2
+    for i, plane in enumerate("RGB"):
+        est, true = rec.values[plane] @ w, np.interp(GRID_NM, FINE_NM, truth[i]) @ w
+        u = math.sqrt(w @ rec.covariance[plane] @ w)
+        assert abs(est / true - 1) <= 0.03 and abs(est - true) <= 2 * u, (plane, est / true - 1, u / true)
     # the recovery cannot beat the basis: its error is at least the best projection's (within the noise)
     floor = projection_floor(basis, np.array([np.interp(GRID_NM, FINE_NM, t) for t in truth]), rec.n_components)
     assert all(res[p][0] >= 0.8 * floor[p] for p in "RGB")
