@@ -449,10 +449,12 @@ def _processed_signal(frame: Frame, plan: ApplyPlan, iso: float, notes: list[str
     """Processed RGB -> (RAW-equivalent signal (3,h,w) binned, variance or None, invalid (3,h,w))."""
     profile = plan.profile
     resp = profile.response or {}
-    if "processed" not in resp or "raw" not in resp:
-        raise CamcalError("the profile has no JPEG response (needs a linearity series with RAW+JPEG pairs) "
-                          "to read processed photos; use the RAW file", frame.path)
-    rp, rr = resp["processed"], resp["raw"]
+    if "processed" not in resp or ("raw" not in resp and resp["processed"].colour_matrix is None):
+        raise CamcalError("the profile has no response for processed photos (HEIC/JPEG): photograph a colour chart "
+                          "with this camera in the same format and white balance and run camcal chart CHART.heic -o "
+                          "phone.camcal, or calibrate a linearity series of RAW+JPEG pairs; or read the RAW file "
+                          "(ProRAW/DNG) with a RAW profile", frame.path)
+    rp, rr = resp["processed"], resp.get("raw")
     values = frame.planes(np.float32)
     # processed pixels per RAW plane pixel: 2 for a Bayer profile (half-resolution planes); for a linear-RAW
     # profile the ratio of the image to the planes (1 when the JPEG has the RAW's size)

@@ -113,7 +113,9 @@ def region_rate(frame: Frame, box: Region | tuple[int, int, int, int] | None, *,
     """
     path = frame.path
     if frame.kind != "raw":
-        raise CamcalError("is not a RAW file; a reference-target photo must be linear RAW data", path)
+        raise CamcalError("is not a RAW file; a reference-target photo must be linear RAW data (shoot RAW: ProRAW/"
+                          "DNG on a phone); for a HEIC/JPEG camera, photograph a colour chart in the sun and run "
+                          "camcal chart CHART.heic -o phone.camcal", path)
     x = frame_relative_exposure(frame.exposure, reference_iso, reference_f_number, path)
     linear = frame.layout == "linear"
     shape_hw = tuple(frame.shape) if linear else (frame.shape[0] // 2, frame.shape[1] // 2)
