@@ -4,7 +4,7 @@ The chart is found automatically with colour-science's detector (:func:`colour_c
 detect_colour_checkers_segmentation`, Dallas 2024: the swatches segmented on a grey version of the image,
 their cluster's bounding quadrilateral fitted) on a display-like preview of the photo: the half-resolution
 CFA planes (R, mean G, B, black subtracted) of a Bayer RAW, the linear RAW's planes, or the processed image,
-each channel scaled to its 99.5th percentile and encoded with γ = 1/2.2. The detector returns the swatch
+each channel scaled to its 99.5th percentile (RAW data then encoded with γ = 1/2.2). The detector returns the swatch
 grid's outer quadrilateral; camcal then fixes its orientation itself from the chart's defining feature, the
 bottom row of six neutral patches (one chromaticity, luminance falling by ~25x from white to black), so that
 a camera-space preview without white balance is oriented as reliably as an sRGB one.
@@ -105,7 +105,9 @@ def preview(frame: Frame) -> tuple[np.ndarray, float]:
         scale /= f
     rgb = np.maximum(rgb, 0.0)
     top = np.percentile(rgb.reshape(-1, 3), 99.5, axis=0)
-    rgb = np.clip(rgb / np.maximum(top, 1e-6), 0.0, 1.0) ** (1 / 2.2)
+    rgb = np.clip(rgb / np.maximum(top, 1e-6), 0.0, 1.0)
+    if frame.kind == "raw":  # linear data: encoded for display (a processed image already is)
+        rgb = rgb ** (1 / 2.2)
     return np.ascontiguousarray(rgb, np.float32), scale
 
 
@@ -151,6 +153,47 @@ def orient(img: np.ndarray, corners: np.ndarray) -> tuple[np.ndarray, float]:
     return best  # type: ignore[return-value]
 
 
+def refine(img: np.ndarray, corners: np.ndarray) -> np.ndarray:
+    """Corners of the homography through the patches' own centres (the detector fits a rectangle, which under
+    perspective misplaces the far patches by a third of a patch).
+
+    Each patch's centre is the centroid of the connected region around its predicted centre whose colour lies
+    within 3 MAD (at least 0.04) of the colour at the centre; :func:`cv2.findHomography` (RANSAC, 0.15 of a
+    patch) maps the grid's centres onto them. Returns ``corners`` unchanged when fewer than 12 patches are found.
+    """
+    loc = ChartLocation(corners, "preview")
+    centres = loc.patch_centres_px()
+    cell = float(np.mean(np.hypot(*np.diff(np.vstack([corners, corners[:1]]), axis=0).T)) / 5.0)
+    found, grid = [], []
+    for k, (cx, cy) in enumerate(centres):
+        r = max(int(0.6 * cell), 3)
+        x0, y0 = int(round(cx)) - r, int(round(cy)) - r
+        if x0 < 0 or y0 < 0 or x0 + 2 * r >= img.shape[1] or y0 + 2 * r >= img.shape[0]:
+            continue
+        win = img[y0:y0 + 2 * r + 1, x0:x0 + 2 * r + 1]
+        q = max(int(0.12 * cell), 1)
+        core = win[r - q:r + q + 1, r - q:r + q + 1].reshape(-1, img.shape[2])
+        ref = np.median(core, axis=0)
+        d = np.max(np.abs(win - ref), axis=2)
+        tol = max(0.04, 3.0 * float(np.median(np.max(np.abs(core - ref), axis=1))) * 1.4826)
+        n, lab = cv2.connectedComponents((d <= tol).astype(np.uint8), connectivity=4)
+        if lab[r, r] == 0:
+            continue
+        ys, xs = np.nonzero(lab == lab[r, r])
+        if xs.size < 0.1 * (2 * r) ** 2 or xs.size > 0.9 * (2 * r + 1) ** 2:  # no patch, or the region leaks out
+            continue
+        found.append((x0 + xs.mean() + 0.5, y0 + ys.mean() + 0.5))
+        row, col = divmod(k, COLUMNS)
+        grid.append((col + 0.5, row + 0.5))
+    if len(found) < 12:
+        return corners
+    hm, inliers = cv2.findHomography(np.array(grid, np.float32), np.array(found, np.float32), cv2.RANSAC,
+                                     0.15 * cell)
+    if hm is None or int(inliers.sum()) < 12:
+        return corners
+    return to_photo(hm, np.array([[0, 0], [COLUMNS, 0], [COLUMNS, ROWS], [0, ROWS]], float))
+
+
 def detect_chart(frame: Frame) -> ChartLocation:
     """Find the ColorChecker in ``frame`` (module docstring).
 
@@ -181,6 +224,8 @@ def detect_chart(frame: Frame) -> ChartLocation:
         if portrait:  # undo the clockwise turn: (x', y') in the turned image ← (x, y) = (y', h − x')
             corners = np.column_stack([corners[:, 1], img.shape[0] - corners[:, 0]])
         corners, score = orient(img, corners)
+        corners = refine(img, corners)
+        score = neutral_score(_patch_means(img, corners))
         if best is None or score < best[1]:
             best = (corners, score)
     corners, score = best  # type: ignore[misc]
