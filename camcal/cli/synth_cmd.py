@@ -8,6 +8,7 @@ import numpy as np
 import typer
 
 from camcal.cli.common import console, one_output, progress
+from camcal.cli.synth_phone_cmd import register_phone
 from camcal.errors import CamcalError
 from camcal.reference_spectra import WAVELENGTHS_NM, gaussian_line, planck_radiance
 from camcal.synth.camera import Scene, SyntheticCamera, preset
@@ -40,6 +41,7 @@ def _f_numbers(text: str, option: str) -> tuple[float, ...]:
 def register(app: typer.Typer) -> None:
     synth = typer.Typer(help="Synthetic camera: real DNG/JPEG files from known parameters.", no_args_is_help=True)
     app.add_typer(synth, name="synth")
+    register_phone(synth)
 
     @synth.command("session")
     def session_cmd(

@@ -37,6 +37,7 @@ def write_heic(
     place: PlaceTime | None = None,
     exif: bytes | None = None,
     icc_profile: bytes | None = None,
+    preset: str | None = None,
 ) -> Path:
     """Write an (H, W, 3) image as a HEIC file with an EXIF block, atomically.
 
@@ -52,6 +53,9 @@ def write_heic(
         A ready TIFF-structure EXIF block instead of the one built from the tags.
     icc_profile : bytes, optional
         An ICC profile to embed (none by default: the pixels are sRGB-encoded).
+    preset : str, optional
+        x265 speed preset (``ultrafast`` … ``placebo``; None: libheif's default), as a phone's hardware encoder
+        trades size for speed.
     """
     rgb = np.ascontiguousarray(rgb)
     if rgb.ndim != 3 or rgb.shape[2] != 3:
@@ -75,7 +79,9 @@ def write_heic(
         exif = encode_exif_tiff(exposure_s=exposure_s, f_number=f_number, iso=iso, make=make, model=model,
                                 capture_time=capture_time, place=place)
     buf = io.BytesIO()
-    kwargs = {"icc_profile": icc_profile} if icc_profile is not None else {}
+    kwargs: dict = {"icc_profile": icc_profile} if icc_profile is not None else {}
+    if preset is not None:
+        kwargs["enc_params"] = {"preset": preset}
     heif.save(buf, quality=int(quality), chroma=444, exif=b"Exif\x00\x00" + exif, save_to_12bit=bits == 12,
               **kwargs)
     return atomic_write_bytes(path, buf.getvalue())
