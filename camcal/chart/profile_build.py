@@ -306,9 +306,7 @@ def _processed_response(tone: ToneFit, matrix: ColourMatrix, photos: Sequence[Ch
                                     linear_range_dn=(lo, hi), saturation_dn=w, linearity_error_pct=math.nan,
                                     pearson_r=math.nan)
     return ResponseModel("processed", chans, ref[0], ref[1], tone=tone.tone_record(RGB3, x_white),
-                         white_level_dn=w, colour_matrix=matrix,
-                         points={"chart_photos": {"files": [p.path.name for p in photos],
-                                                  "relative_exposure_s": None if x_s is None else list(x_s)}})
+                         white_level_dn=w, colour_matrix=matrix)
 
 
 # ---- the flat ----------------------------------------------------------------------------------------------------
