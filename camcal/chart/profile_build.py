@@ -309,6 +309,52 @@ def _processed_response(tone: ToneFit, matrix: ColourMatrix, photos: Sequence[Ch
                          white_level_dn=w, colour_matrix=matrix)
 
 
+#: Iterations and over-relaxation of the colour-matrix estimate of processed-only photos (:func:`unmix_processed`).
+UNMIX_ITERATIONS = 6
+UNMIX_RELAXATION = 2.5
+
+
+def unmix_processed(signal: dict[str, np.ndarray], scov: dict[str, np.ndarray], chart: ChartReflectance,
+                    light: Irradiance, basis, options: ChartOptions
+                    ) -> tuple[np.ndarray, dict[str, np.ndarray], dict[str, np.ndarray], str]:
+    """The colour matrix A of processed-only photos: j = A r with r = M c, c non-negative and camera-like.
+
+    A processed channel mixes the sensor's (j = A r, white balance included); any invertible B gives another
+    pair (A B⁻¹, B c), so the data alone cannot separate them: the basis's prior (curves shaped like measured
+    cameras, c ≥ 0) does. Alternating least squares: c recovered from A⁻¹ j (:func:`recover_sensitivity`),
+    then A fitted to j ≈ A (M c) (weighted by the signals' variances), over-relaxed by
+    :data:`UNMIX_RELAXATION`; A's rows normalised to sum 1 (a neutral stays neutral: the diagonal scale
+    ambiguity is given to c). Returns (A, the unmixed signals and their variances, a note).
+    """
+    from camcal.chart.recovery import design_matrix
+
+    j = np.column_stack([signal[c] for c in RGB3])
+    v = np.column_stack([np.diag(scov[c]) for c in RGB3])
+    m = design_matrix(chart, light)
+    a = np.eye(3)
+
+    def rows_to_one(x: np.ndarray) -> np.ndarray:
+        return x @ np.diag(np.linalg.inv(x) @ np.ones(3))
+
+    chi2 = math.nan
+    for _ in range(UNMIX_ITERATIONS):
+        ai = np.linalg.inv(a)
+        y, vy = j @ ai.T, v @ (ai ** 2).T
+        rec = recover_sensitivity({c: y[:, i] for i, c in enumerate(RGB3)},
+                                  {c: vy[:, i] for i, c in enumerate(RGB3)}, chart, light, basis,
+                                  n_components=options.n_components, regularisation=options.regularisation)
+        chi2 = sum(rec.chi2.values())
+        r = np.column_stack([m @ rec.values[c] for c in RGB3])
+        w = 1.0 / np.sqrt(v)
+        fit = np.vstack([np.linalg.lstsq(r * w[:, [i]], j[:, i] * w[:, i], rcond=None)[0] for i in range(3)])
+        a = rows_to_one(a + UNMIX_RELAXATION * (rows_to_one(fit) - a))
+    ai = np.linalg.inv(a)
+    y, vy = j @ ai.T, v @ (ai ** 2).T
+    note = ("colour matrix of the processed channels estimated from the chart (rows R, G, B: "
+            + "; ".join(", ".join(f"{x:.3f}" for x in row) for row in a) + f"; χ² {chi2:.3g} over 72 values)")
+    return a, {c: y[:, i] for i, c in enumerate(RGB3)}, {c: np.diag(vy[:, i]) for i, c in enumerate(RGB3)}, note
+
+
 # ---- the flat ----------------------------------------------------------------------------------------------------
 def flat_from_photos(paths: Sequence[Path], tone: ToneFit | None = None, progress=None) -> FlatModel:
     """A relative flat (vignetting, 1 on the optical axis) from photos of a uniform surface.
@@ -415,25 +461,28 @@ def build_chart_profile(paths: Sequence[str | Path], options: ChartOptions = Cha
         sem = [p.patches.sem_dn() for p in procs]
         xs = x_s if x_s is not None else [1.0] * len(procs)
         c_guess = None
-        for _ in range(2):
+        for _ in range(3 if options.flat else 2):
+            gains = None if flat is None else [_flat_gain_at(flat, p) for p in procs]
             tone = fit_tone_neutral([p.patches.mean_dn for p in procs], sem, xs, _rho_eff(chart, light, c_guess),
-                                    procs[0].white_level_dn)
-            signal, scov, usable = combine_signals(procs, x_s, None, lambda p, t=tone: _linearised(t, p))
+                                    procs[0].white_level_dn, gains)
+            if options.flat:  # the flat's shape depends on the tone curve that linearises it
+                flat = flat_from_photos(options.flat, tone)
+            signal, scov, usable = combine_signals(procs, x_s, flat, lambda p, t=tone: _linearised(t, p))
             if light is None:
-                break
+                continue
             rec0 = recover_sensitivity(signal, scov, chart, light, basis, n_components=options.n_components,
                                        regularisation=options.regularisation, nonnegative=False)
             c_guess = rec0.values
-        if options.flat:
-            flat = flat_from_photos(options.flat, tone)
-        if flat is not None:
-            signal, scov, usable = combine_signals(procs, x_s, flat, lambda p, t=tone: _linearised(t, p))
-        nonneg = False
-        matrix = ColourMatrix(np.eye(3), np.zeros((3, 3)), (len(procs),) * 3, (math.nan,) * 3,
-                              tuple(p.path.name for p in procs))
-        warnings.append("processed photos only: c(λ) is that of the camera's processed channels (its colour matrix "
-                        "and white balance included); the profile reads processed photos taken with the same white "
-                        "balance and style only; RAW (ProRAW/DNG) twins give the sensor's own c(λ)")
+        nonneg = True
+        a = np.eye(3)
+        if light is not None:
+            a, signal, scov, mix_note = unmix_processed(signal, scov, chart, light, basis, options)
+            notes.append(mix_note)
+        resid = tuple(float(v) for v in np.zeros(3))
+        matrix = ColourMatrix(a, np.zeros((3, 3)), (len(procs),) * 3, resid, tuple(p.path.name for p in procs))
+        warnings.append("processed photos only: the profile reads processed photos taken with the same white balance "
+                        "and style only; its colour matrix is estimated from the chart (channels unmixed into "
+                        "camera-like curves), not measured; RAW (ProRAW/DNG) twins measure it")
     tick("patches measured")
     estimate = None
     if light is None:

@@ -112,20 +112,24 @@ def _covariance(res) -> np.ndarray:
 
 
 def fit_tone_neutral(values_dn: Sequence[np.ndarray], sem_dn: Sequence[np.ndarray], x_s: Sequence[float],
-                     rho_eff: np.ndarray, white_level_dn: float) -> ToneFit:
+                     rho_eff: np.ndarray, white_level_dn: float,
+                     patch_gain: Sequence[np.ndarray] | None = None) -> ToneFit:
     """The tone curve from the neutral patches of one or more processed photos (module docstring).
 
     values_dn, sem_dn : per photo (24, 3) patch means and their standard errors, file DN.
     x_s : per photo relative exposure, s (any common scale: only ratios between photos matter).
     rho_eff : (24, 3) effective reflectance of each patch per channel (only the neutrals are used).
+    patch_gain : per photo (24, 3) relative illumination (the flat's gain) at each patch, which multiplies the
+        linear signal before the tone curve; None: 1 (no flat: the neutrals' own fall-off biases the curve).
     """
     w = float(white_level_dn)
     rows = []
-    for v, u, x in zip(values_dn, sem_dn, x_s, strict=True):
+    gains = patch_gain if patch_gain is not None else [np.ones((24, 3))] * len(values_dn)
+    for v, u, x, g in zip(values_dn, sem_dn, x_s, gains, strict=True):
         for k in NEUTRAL_PATCHES:
             for i in range(3):
                 if np.isfinite(v[k, i]) and 0.005 * w < v[k, i] < MAX_FRACTION_OF_WHITE * w:
-                    rows.append((i, x * rho_eff[k, i], v[k, i], max(u[k, i], 0.5)))
+                    rows.append((i, x * rho_eff[k, i] * g[k, i], v[k, i], max(u[k, i], 0.5)))
     if len(rows) < 8:
         raise CamcalError(f"only {len(rows)} neutral-patch values between black and white: the tone curve needs the "
                           "six grey patches exposed below clipping (expose for the white patch)")
