@@ -35,6 +35,7 @@ and the profile records that vignetting is not corrected.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections import Counter
 from collections.abc import Callable, Sequence
@@ -71,6 +72,13 @@ from camcal.water.field import (
 )
 
 RGB3 = ("R", "G", "B")
+
+
+@functools.lru_cache(maxsize=1)
+def _library_basis():
+    """The bundled library's camera basis, built once per process (its leave-one-out prior takes seconds)."""
+    return camera_basis()
+
 #: Variance given to a saturated patch so that the fit ignores it, relative to its signal².
 LEFT_OUT_VARIANCE = 1e8
 
@@ -434,7 +442,7 @@ def build_chart_profile(paths: Sequence[str | Path], options: ChartOptions = Cha
     if procs and len({p.white_level_dn for p in procs}) > 1:
         raise CamcalError("the processed chart photos differ in bit depth: give HEICs or JPEGs, not both")
     chart = (published_chart() if options.chart_csv is None else read_chart_csv(options.chart_csv))
-    basis = camera_basis()
+    basis = _library_basis()
     wl = basis.wavelength_nm
     chart = chart.on(wl)
     light = make_light(options, photos[0], wl)

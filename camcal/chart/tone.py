@@ -216,12 +216,11 @@ def white_balance_check(linear_neutrals: Sequence[np.ndarray], names: Sequence[s
         light = n[:4]  # the four lightest grey patches
         ratios.append(np.array([np.nanmedian(light[:, 0] / light[:, 1]), np.nanmedian(light[:, 2] / light[:, 1])]))
     ratios = np.array(ratios)
-    ref = np.median(ratios, axis=0)
-    dev = ratios / ref - 1.0
+    dev = ratios / ratios[0] - 1.0  # against the first photo
     worst = int(np.argmax(np.abs(dev).max(1)))
     if np.abs(dev).max() > WB_TOLERANCE:
         return False, (f"white balance changed between the photos: {names[worst]} has R/G {100 * dev[worst, 0]:+.1f} %"
-                       f", B/G {100 * dev[worst, 1]:+.1f} % against the others' neutral patches (tolerance "
+                       f", B/G {100 * dev[worst, 1]:+.1f} % against {names[0]}'s neutral patches (tolerance "
                        f"{100 * WB_TOLERANCE:g} %); lock the white balance (a fixed preset, not auto) and shoot again")
     return True, (f"white balance locked across {len(linear_neutrals)} photos (neutral R/G, B/G within "
                   f"{100 * np.abs(dev).max():.2g} %)")
