@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from camcal.chart.targets import GRID_NM
-from camcal.curve_library import Match, library_curves, list_cameras
+from camcal.curve_library import COLLECTION, library_folder, list_cameras, read_curve_json
 from camcal.errors import CamcalError
 
 CHANNELS = ("R", "G", "B")
@@ -140,8 +140,13 @@ def _library(exclude: tuple[str, ...], grid: tuple[float, ...]) -> tuple[tuple[s
     for cam in list_cameras():
         if cam.name in exclude or cam.file in exclude:
             continue
-        c, _, _ = library_curves(Match(cam, cam.name, "exact"), "linear")
-        rgb = np.array([np.interp(wl, c.wavelength_nm, c.values[ch], left=0.0, right=0.0) for ch in CHANNELS])
+        main = read_curve_json(library_folder() / cam.file)["spectral_data"]["data"]["main"]
+        x = np.array([float(key) for key in main])
+        v = np.array([main[key] for key in main], float)[np.argsort(x)]
+        x = np.sort(x)
+        rgb = np.array([np.interp(wl, x, v[:, i], left=0.0, right=0.0) for i in range(3)])
+        if not (np.all(np.isfinite(rgb)) and np.all(rgb.max(axis=1) > 0)):
+            raise CamcalError(f"library curves of {cam.name} are not finite and positive", cam.file)
         names.append(cam.name)
         curves.append(rgb / rgb.max(axis=1, keepdims=True))
     return tuple(names), np.array(curves)
@@ -166,15 +171,21 @@ def camera_basis(exclude=(), *, wavelength_nm=GRID_NM, extra: dict[str, np.ndarr
     if extra:
         names = names + tuple(extra)
         curves = np.concatenate([curves, np.array([normalise(v) for v in extra.values()])])
-    if len(names) < 3:
-        raise CamcalError("a camera basis needs at least three training cameras")
-    comps, eig = _pca(curves, None, wl)
-    from camcal.curve_library import COLLECTION
+    src = {"collection": COLLECTION, "excluded": list(exclude), "extra": list(extra or {})}
+    return basis_from_curves(curves, names, wl, src)
 
-    src = {"kind": "camera_basis", "method": "PCA_Jiang2013 (colour.recovery), per channel, curves normalised to "
-                                            "peak 1", "collection": COLLECTION, "n_cameras": len(names),
-           "excluded": list(exclude), "extra": list(extra or {})}
-    return CameraBasis(wl, names, curves, comps, eig, src)
+
+def basis_from_curves(curves: np.ndarray, names: tuple[str, ...], wavelength_nm, source: dict | None = None
+                      ) -> CameraBasis:
+    """A basis of (N, 3, n) training curves (each channel normalised here to peak 1) named ``names``."""
+    curves = np.array([normalise(c) for c in np.asarray(curves, float)])
+    if len(names) < 3 or curves.shape[0] != len(names):
+        raise CamcalError("a camera basis needs at least three training cameras, one name each")
+    wl = np.asarray(wavelength_nm, float)
+    comps, eig = _pca(curves, None, wl)
+    src = {**(source or {}), "kind": "camera_basis", "n_cameras": len(names),
+           "method": "PCA_Jiang2013 (colour.recovery), per channel, curves normalised to peak 1"}
+    return CameraBasis(wl, tuple(names), curves, comps, eig, src)
 
 
 def leave_one_out_table(basis: CameraBasis, k: int = DEFAULT_COMPONENTS) -> list[dict[str, Any]]:

@@ -61,6 +61,9 @@ TERMS = ("noise", "chart", "illuminant", "basis", "truncation")
 PLANE_CHANNEL = {"R": 0, "G": 1, "G1": 1, "G2": 1, "B": 2}
 #: Scale iterations (the prior's scale s is the recovered peak).
 SCALE_ITERATIONS = 4
+#: Default λ_reg: the library's covariance inflated 4× (a camera outside the library lies further from its mean
+#: than the library's spread says; calibrated by :func:`leave_one_out_recovery`, docs/spectral.md).
+DEFAULT_REGULARISATION = 0.25
 #: Relative jitter added to the prior covariance's diagonal (keeps it invertible).
 PRIOR_JITTER = 1e-8
 
@@ -255,7 +258,7 @@ def _solve_plane(y: np.ndarray, s_cov: np.ndarray, ctx: _Context, channel: int, 
 
 def recover_sensitivity(signal: dict[str, np.ndarray], signal_cov: dict[str, np.ndarray], chart: ChartReflectance,
                         light: Irradiance, basis: CameraBasis, *, n_components: int = DEFAULT_COMPONENTS,
-                        regularisation: float = 1.0, nonnegative: bool = True,
+                        regularisation: float = DEFAULT_REGULARISATION, nonnegative: bool = True,
                         absolute: bool | None = None) -> RecoveredSensitivity:
     """c(λ) per plane from one chart photo (module docstring).
 
@@ -353,7 +356,7 @@ def _evidence(signal, signal_cov, chart, light, basis, k, reg) -> float:
 
 def estimate_illuminant(signal: dict[str, np.ndarray], signal_cov: dict[str, np.ndarray], chart: ChartReflectance,
                         basis: CameraBasis, *, family: Literal["daylight", "blackbody"] = "daylight",
-                        n_components: int = DEFAULT_COMPONENTS, regularisation: float = 1.0,
+                        n_components: int = DEFAULT_COMPONENTS, regularisation: float = DEFAULT_REGULARISATION,
                         nonnegative: bool = True, range_K: tuple[float, float] | None = None,
                         n_scan: int = 25) -> IlluminantEstimate:
     """The light's temperature (CIE daylight CCT or black body) and c(λ), jointly, from one chart photo.
@@ -413,3 +416,46 @@ def estimate_illuminant(signal: dict[str, np.ndarray], signal_cov: dict[str, np.
     rec = recover_sensitivity(signal, signal_cov, chart, light, basis, n_components=k,
                               regularisation=regularisation, nonnegative=nonnegative, absolute=False)
     return IlluminantEstimate(family, t_best, u, light, rec, grid, prof, tuple(notes))
+
+
+def render_chart_signals(curves: np.ndarray, chart: ChartReflectance, light: Irradiance) -> np.ndarray:
+    """(3, P) noiseless y_i,p = Σ_λ M_pλ c_i(λ) of (3, n) curves on the chart's grid (the forward model)."""
+    return np.asarray(curves, float) @ design_matrix(chart, light).T
+
+
+def leave_one_out_recovery(basis: CameraBasis, chart_true: ChartReflectance, chart_nominal: ChartReflectance,
+                           light: Irradiance, *, n_components: int = DEFAULT_COMPONENTS,
+                           regularisation: float | None = None, relative_noise: float = 0.003,
+                           group: Literal["camera", "make"] = "camera") -> list[dict[str, Any]]:
+    """The whole recovery's error, camera by camera: each library camera's chart signals (rendered with
+    ``chart_true``, noise-free, stated noise ``relative_noise`` of each signal) recovered assuming
+    ``chart_nominal`` in a basis without that camera (``group`` ``"make"``: without every camera of its make,
+    as for a camera unlike the library's). Rows: camera, channel, RMS error % of peak, fraction of wavelengths
+    with |error| ≤ 2u, RMS u % of peak."""
+    rows = []
+    reg = DEFAULT_REGULARISATION if regularisation is None else regularisation
+    for j, name in enumerate(basis.cameras):
+        make = name.split()[0]
+        keep = [i for i, n in enumerate(basis.cameras)
+                if i != j and not (group == "make" and n.split()[0] == make)]
+        sub = _sub_basis(basis, keep)
+        true = basis.curves[j]
+        y = render_chart_signals(true, chart_true, light)
+        sig = {ch: y[i] for i, ch in enumerate(("R", "G", "B"))}
+        cov = {ch: (relative_noise * y[i]) ** 2 for i, ch in enumerate(("R", "G", "B"))}
+        rec = recover_sensitivity(sig, cov, chart_nominal, light, sub, n_components=n_components,
+                                  regularisation=reg)
+        unc = rec.uncertainty
+        for i, ch in enumerate(("R", "G", "B")):
+            err = rec.values[ch] - true[i]
+            rows.append({"camera": name, "channel": ch, "rms_pct_of_peak": float(100 * np.sqrt(np.mean(err ** 2))),
+                         "covered_2u": float(np.mean(np.abs(err) <= 2 * unc[ch])),
+                         "u_rms_pct_of_peak": float(100 * np.sqrt(np.mean(unc[ch] ** 2)))})
+    return rows
+
+
+def _sub_basis(basis: CameraBasis, keep: list[int]) -> CameraBasis:
+    from camcal.chart.basis import basis_from_curves
+
+    return basis_from_curves(basis.curves[keep], tuple(basis.cameras[i] for i in keep), basis.wavelength_nm,
+                             {**basis.source, "subset_of": basis.source.get("n_cameras")})
