@@ -8,7 +8,7 @@ import numpy as np
 import typer
 
 from camcal.cli.common import console, one_output, progress
-from camcal.cli.synth_phone_cmd import register_phone
+from camcal.cli.synth_phone import register_phone
 from camcal.errors import CamcalError
 from camcal.reference_spectra import WAVELENGTHS_NM, gaussian_line, planck_radiance
 from camcal.synth.camera import Scene, SyntheticCamera, preset

@@ -13,7 +13,7 @@ end values (not measured there), so that the product falls smoothly to zero outs
 :class:`camcal.synth.camera.SyntheticCamera` (photon noise, read noise, dark current, PRNU, quantisation) with a
 phone's numbers: 1.12 µm pixels, a full well of 4500 e⁻, 2 e⁻ read noise, 10-bit RAW, base ISO 50, a fixed f/1.8
 lens, and the natural falloff of a wide lens, cos⁴θ with tan θ = (r / r_corner) tan θ_corner (θ_corner = 37.4°:
-0.40 at the corners), represented exactly enough (< 0.3 % of the gain) by the DNG radial polynomial the camera
+0.40 at the corners), represented within 1e-4 of the gain by the DNG radial polynomial the camera
 uses (least squares in r², r⁴ … r¹⁰). The pinhole focal length follows from the same corner field angle, so the
 chart's perspective and the falloff share one lens. The RAW is a Bayer DNG (``synth.dng``); the processed photo
 is an 8-bit HEIC (``synth.heic``) made as a phone's pipeline does (:meth:`PhoneCamera.process`): black removed and
@@ -65,7 +65,7 @@ from camcal.synth.secchi import suggest_exposure_s
 from camcal.synth.sunlit import SunSky, reference_disk_radiance, sunlit_scenes, write_sunlit_pair
 from camcal.synth.targets import grey_card_reflectance
 from camcal.synth.tone import srgb_encode
-from camcal.units import SPECTRAL_RADIANCE, SPECTRAL_SENSITIVITY
+from camcal.units import DN_PER_S, SPECTRAL_RADIANCE, SPECTRAL_SENSITIVITY
 
 PHONE_SENSORS: dict[str, str] = {
     "imx219": "camera_curves/phone/imx219_qe_400_700_1.csv",
@@ -645,7 +645,7 @@ class ChartScene:
     truth: dict = field(default_factory=dict)
 
 
-def chart_scene(camera: PhoneCamera, sky: SunSky, *, reflectance: str = "ColorChecker N Ohta",
+def chart_scene(camera: PhoneCamera, sky: SunSky, *, reflectance: str | np.ndarray = "ColorChecker N Ohta",
                 layout: ChartLayout = ChartLayout(), pose: ChartPose = ChartPose(), ground_albedo: float = 0.25,
                 supersample: int = 4) -> ChartScene:
     """A ColorChecker Classic lying in the sun on a grey ground (flat albedo ``ground_albedo``), seen in perspective.
@@ -653,11 +653,22 @@ def chart_scene(camera: PhoneCamera, sky: SunSky, *, reflectance: str = "ColorCh
     Every surface is Lambertian and horizontal: L = ρ(λ) (DNI cos θs + DHI)/π. The truth holds the card's and the
     swatch grid's corners in image pixels (TL, TR, BR, BL: top-left is the corner next to 'dark skin'), every
     patch's corners and centre, the cos⁴ gain there, and each channel's true DN rate at the reference setting
-    (``∫ c_i L dλ`` on axis, DN s⁻¹; times the gain where the patch lies).
+    (``∫ c_i L dλ`` on axis, DN s⁻¹; times the gain where the patch lies). ``reflectance`` is a colour-science
+    data-set name or a (24, n) array on :data:`WAVELENGTHS_NM` (e.g. a chart perturbed within the published
+    chart-to-chart spread); the truth then names it ``given``.
     """
+    if isinstance(reflectance, str):
+        names, rho = chart_reflectances(reflectance)
+    else:
+        names, _ = chart_reflectances("ColorChecker N Ohta")
+        rho = np.asarray(reflectance, float)
+        if rho.shape != (CHART_PATCHES, WAVELENGTHS_NM.size) or not np.all(np.isfinite(rho)) or \
+                np.any(rho < 0) or np.any(rho > 1.5):
+            raise CamcalError(f"chart reflectance must be 24 rows of {WAVELENGTHS_NM.size} values in [0, 1.5] on the "
+                              "380-780 nm grid")
+        reflectance = "given"
     tform = chart_homography(camera, layout, pose)
     weights = chart_label_weights(camera, tform, layout, supersample)
-    names, rho = chart_reflectances(reflectance)
     white = horizontal_irradiance(sky) / np.pi
     patch_l = rho * white[None, :]
     comps = [(weights[k], patch_l[k]) for k in range(CHART_PATCHES)]
@@ -683,13 +694,15 @@ def chart_scene(camera: PhoneCamera, sky: SunSky, *, reflectance: str = "ColorCh
                         "band_radiance": {ch: float(rate[i, k] / np.trapezoid(sens[i], WAVELENGTHS_NM))
                                           for i, ch in enumerate("RGB")}})
     truth = {"chart": "X-Rite ColorChecker Classic (24 patches, 4x6, black card)",
-             "reflectance": f"colour-science SDS_COLOURCHECKERS[{reflectance!r}]", "reflectance_name": reflectance,
+             "reflectance": (f"colour-science SDS_COLOURCHECKERS[{reflectance!r}]" if reflectance != "given" else
+                             "given (patch_reflectance)"), "reflectance_name": reflectance,
+             "patch_reflectance": rho.tolist() if reflectance == "given" else None,
              "card_mm": list(layout.card_mm), "patch_mm": layout.patch_mm, "gap_mm": layout.gap_mm,
              "card_reflectance": layout.card_reflectance, "ground_albedo": ground_albedo,
              "pose": dataclasses.asdict(pose), "homography_card_mm_to_px": tform.params.tolist(),
              "pixel_convention": "full-resolution pixels, x right, y down, pixel centres at integers",
              "card_corners_px": card_px.tolist(), "grid_corners_px": grid_px.tolist(), "patches": patches,
-             "dn_rate_units": "DN s^-1 at the reference ISO and f-number, on axis (multiply by "
+             "dn_rate_units": f"{DN_PER_S} at the reference ISO and f-number, on axis (multiply by "
                               "relative_illumination for the patch's place)",
              "band_radiance_units": SPECTRAL_RADIANCE}
     return ChartScene(scene, patch_l, white, truth)
@@ -716,7 +729,7 @@ def grey_field_scene(camera: PhoneCamera, sky: SunSky, reflectance: np.ndarray |
              "band_radiance": {ch: float(rate[i] / np.trapezoid(sens[i], WAVELENGTHS_NM))
                                for i, ch in enumerate("RGB")},
              "band_radiance_units": SPECTRAL_RADIANCE,
-             "dn_rate_units": "DN s^-1 at the reference ISO and f-number, on axis"}
+             "dn_rate_units": f"{DN_PER_S} at the reference ISO and f-number, on axis"}
     return Scene.uniform(radiance), truth
 
 
@@ -735,7 +748,7 @@ def write_phone_photos(
     *,
     place: PlaceTime = DEFAULT_PLACE,
     sky: SunSky | None = None,
-    chart_reflectance: str = "ColorChecker N Ohta",
+    chart_reflectance: str | np.ndarray = "ColorChecker N Ohta",
     chart_pose: ChartPose = ChartPose(),
     chart_evs: tuple[float, ...] = (0.0, -1.0),
     c_ug_per_L: float = 5.0,
