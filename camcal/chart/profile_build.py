@@ -51,7 +51,12 @@ from camcal.chart.basis import DEFAULT_COMPONENTS, camera_basis
 from camcal.chart.detect import NEUTRAL_PATCHES, ChartLocation, locate_chart
 from camcal.chart.light import Irradiance, cie_illuminant, clear_sky_irradiance, read_irradiance_csv
 from camcal.chart.patches import PatchSignals, sample_patches
-from camcal.chart.recovery import RecoveredSensitivity, estimate_illuminant, recover_sensitivity
+from camcal.chart.recovery import (
+    DEFAULT_REGULARISATION,
+    RecoveredSensitivity,
+    estimate_illuminant,
+    recover_sensitivity,
+)
 from camcal.chart.targets import ChartReflectance, published_chart, read_chart_csv
 from camcal.chart.tone import ToneFit, fit_tone_neutral, fit_tone_twins, white_balance_check
 from camcal.errors import CamcalError
@@ -101,7 +106,7 @@ class ChartOptions:
     pressure_Pa: float = DEFAULT_PRESSURE_PA
     flat: tuple[Path, ...] = ()
     n_components: int = DEFAULT_COMPONENTS
-    regularisation: float = 1.0
+    regularisation: float = DEFAULT_REGULARISATION
 
     def record(self) -> dict:
         return {"chart": None if self.chart_csv is None else Path(self.chart_csv).name,
