@@ -27,6 +27,7 @@ from camcal.io import load_frame
 from camcal.profile import save_profile
 from camcal.secchi import run_secchi
 from camcal.sun import photo_sun
+from camcal.synth.phone import write_phone_photos
 from camcal.terminal import console, progress
 from camcal.units import CONCENTRATION
 from camcal.water.field import DEFAULT_AOD_500NM, ClearSky, FieldGeometry
@@ -53,8 +54,6 @@ def _secchi(profile: Path, folder: Path, ext: str, truth: dict) -> tuple[float, 
 
 def run_phone_demo(out: str | Path) -> dict:
     """Run the phone demo into ``out``; returns ``{"checks": [...], "ok": bool, "files": {...}, "seconds": s}``."""
-    from camcal.synth.phone import write_phone_photos
-
     t0 = time.perf_counter()
     out = Path(out)
     if out.exists() and not out.is_dir():

@@ -54,6 +54,7 @@ from camcal.chart.patches import PatchSignals, sample_patches
 from camcal.chart.recovery import (
     DEFAULT_REGULARISATION,
     RecoveredSensitivity,
+    design_matrix,
     estimate_illuminant,
     recover_sensitivity,
 )
@@ -339,8 +340,6 @@ def unmix_processed(signal: dict[str, np.ndarray], scov: dict[str, np.ndarray], 
     :data:`UNMIX_RELAXATION`; A's rows normalised to sum 1 (a neutral stays neutral: the diagonal scale
     ambiguity is given to c). Returns (A, the unmixed signals and their variances, a note).
     """
-    from camcal.chart.recovery import design_matrix
-
     j = np.column_stack([signal[c] for c in RGB3])
     v = np.column_stack([np.diag(scov[c]) for c in RGB3])
     m = design_matrix(chart, light)

@@ -7,6 +7,7 @@ from pathlib import Path
 import typer
 
 from camcal.demo import run_demo
+from camcal.demo_phone import run_phone_demo
 from camcal.errors import CamcalError
 
 
@@ -26,8 +27,6 @@ def register(app: typer.Typer) -> None:
     ) -> int:
         """Synthesise a calibration session and Secchi-disk photos, run every stage, print truth vs recovered."""
         if phone:
-            from camcal.demo_phone import run_phone_demo
-
             return 0 if run_phone_demo(out)["ok"] else 1
 
         if layout not in ("bayer", "linear"):
