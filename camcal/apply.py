@@ -542,6 +542,12 @@ def apply_prepared(frame: Frame, plan: ApplyPlan, *, allow_other_camera: bool = 
         pixels[..., 3], pixels[..., 4] = _radiance(signal, var, plan.model, inv_x)
     if plan.flat_planes is None and plan.flat_rgb is None:
         notes.append("no flat model: vignetting not corrected")
+        vig = (getattr(profile.spectral, "source", None) or {}).get("vignetting")
+        if isinstance(vig, dict) and not vig.get("corrected", True):
+            _add_unflat_sigma(pixels, float(vig["corner_field_deg"]))
+            notes.append("the profile's vignetting was not measured: R_unc, G_unc, B_unc and the L uncertainty "
+                         f"include the cos⁴ fall-off of a corner at {float(vig['corner_field_deg']):g}° as a bias "
+                         "of 0 to that loss (0 at the centre; shoot flats for camcal chart --flat to correct it)")
     name = radiance_channel_name(plan.model.wavelength_nm)
     names = [{"L": name, "L_unc": f"{name}_unc"}.get(c, c) for c in OUTPUT_CHANNELS]
     channels = {c: pixels[..., i] for i, c in enumerate(names)}
@@ -593,6 +599,26 @@ def apply_prepared(frame: Frame, plan: ApplyPlan, *, allow_other_camera: bool = 
         "notes": notes,
     }
     return RadianceImage(channels, meta)
+
+
+def _add_unflat_sigma(pixels: np.ndarray, corner_field_deg: float) -> None:
+    """Add, in place, the uncorrected fall-off's σ to the uncertainty channels of ``pixels`` (h, w, 8).
+
+    The relative illumination of a lens whose image corner lies at ``corner_field_deg`` is cos⁴ θ with
+    tan θ = r tan θ_corner (r the distance from the image centre over the distance to the corner); an uncorrected
+    pixel's value v is low by a fraction between 0 and ℓ = 1 − cos⁴ θ, so the radiance lies between v and
+    v/(1 − ℓ): a uniform bias of σ = v ℓ/((1 − ℓ)√3). Channels without a noise figure (NaN) get that term alone.
+    """
+    h, w = pixels.shape[:2]
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    r = np.hypot(xx - (w - 1) / 2, yy - (h - 1) / 2) / np.float32(math.hypot((w - 1) / 2, (h - 1) / 2) or 1.0)
+    t = r * np.float32(math.tan(math.radians(corner_field_deg)))
+    kept = 1.0 / (1.0 + t * t) ** 2  # cos⁴θ = 1/(1 + tan²θ)²
+    rel = (1.0 - kept) / (kept * np.float32(math.sqrt(3.0)))
+    for value, unc in ((0, 5), (1, 6), (2, 7), (3, 4)):
+        term = pixels[..., value] * rel
+        old = pixels[..., unc]
+        pixels[..., unc] = np.where(np.isfinite(old), np.hypot(np.nan_to_num(old), term), np.abs(term))
 
 
 def _radiance(signal: np.ndarray, var: np.ndarray | None, model: RadianceModel, inv_x: float):

@@ -164,3 +164,20 @@ def test_a_white_balance_change_is_reported():
 def test_no_photos_is_an_error():
     with pytest.raises(CamcalError, match="at least one photo"):
         build_chart_profile([])
+
+
+def test_without_flats_apply_states_the_fall_off_in_sigma(phone_day, tmp_path):
+    """A chart profile without --flat: apply corrects no vignetting, and the σ grows from 0 at the centre to cover
+    the corner's loss (the synthetic phone's corner keeps 0.40)."""
+    res = build_chart_profile([phone_day / "chart" / "chart_evp0.dng"], ChartOptions(sun="26.5,144.5"))
+    prof = save_profile(res.profile, tmp_path / "noflat.camcal")
+    assert prof.flat is None and prof.spectral.source["vignetting"]["corrected"] is False
+    img = apply(load_frame(phone_day / "grey" / "grey.dng"), load_profile(tmp_path / "noflat.camcal"))
+    r, u = img.channels["R"], img.channels["R_unc"]
+    h, w = r.shape
+    truth = _truth(phone_day)["grey"]["band_radiance"]["R"]
+    assert u[h // 2, w // 2] < 0.01 * r[h // 2, w // 2]
+    corner_err = truth - r[2, 2]
+    assert corner_err > 0.4 * truth  # uncorrected: the corner reads low
+    assert corner_err < 2 * u[2, 2]  # and its σ says so
+    assert any("vignetting was not measured" in n for n in img.metadata["notes"])

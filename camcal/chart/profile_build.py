@@ -85,6 +85,9 @@ def _library_basis():
     """The bundled library's camera basis, built once per process (its leave-one-out prior takes seconds)."""
     return camera_basis()
 
+#: Field angle of the image corner assumed for the uncorrected fall-off of a profile without flats, degrees (a
+#: phone's main camera: 26 mm equivalent, 39.8° to the corner of a 3:2 frame; 38° for 4:3).
+UNCORRECTED_CORNER_FIELD_DEG = 38.0
 #: Variance given to a saturated patch so that the fit ignores it, relative to its signal².
 LEFT_OUT_VARIANCE = 1e8
 
@@ -570,6 +573,11 @@ def build_chart_profile(paths: Sequence[str | Path], options: ChartOptions = Cha
         src["processed"] = processed_rec
     if estimate is not None:
         src["light"] = {**src.get("light", {}), "estimate": estimate}
+    if flat is None:
+        src["vignetting"] = {"corrected": False, "corner_field_deg": UNCORRECTED_CORNER_FIELD_DEG,
+                             "model": "not measured (no --flat photos): apply corrects none and adds to each pixel's "
+                                      "σ the cos⁴ fall-off of a lens whose corner lies at corner_field_deg, as a "
+                                      "uniform bias between 0 and that loss (σ = loss/√3)"}
     src["notes"] = [*notes, *warnings]
     spectral = dataclasses.replace(spectral, source=src)
     inputs = [_input(p.path, "chart", p.sha256) for p in photos] + [_input(Path(f), "flat") for f in options.flat]
