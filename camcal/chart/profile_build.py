@@ -62,7 +62,7 @@ from camcal.chart.targets import ChartReflectance, published_chart, read_chart_c
 from camcal.chart.tone import ToneFit, fit_tone_neutral, fit_tone_twins, white_balance_check
 from camcal.errors import CamcalError
 from camcal.exposure import frame_relative_exposure
-from camcal.flat import fit_flat_planes
+from camcal.flat import fit_flat_planes, flats_optics
 from camcal.flat_model import FlatModel
 from camcal.frame import Frame
 from camcal.hashing import sha256_file
@@ -381,8 +381,10 @@ def flat_from_photos(paths: Sequence[Path], tone: ToneFit | None = None, progres
     stack = None
     n = 0
     first = None
+    exposures = []
     for path in paths:
         frame = load_frame(path)
+        exposures.append(frame.exposure)
         if first is None:
             first = frame
         elif frame.shape != first.shape or frame.kind != first.kind:
@@ -417,7 +419,7 @@ def flat_from_photos(paths: Sequence[Path], tone: ToneFit | None = None, progres
                          mask=mask, with_prnu=False,
                          info={"n_frames": n, "files": [Path(p).name for p in paths],
                                "source": "photos of a uniform surface (camcal chart --flat)"})
-    return fm
+    return fm.replace(optics=flats_optics(exposures, Path(paths[0]).parent))
 
 
 # ---- the whole stage ---------------------------------------------------------------------------------------------
@@ -537,6 +539,13 @@ def build_chart_profile(paths: Sequence[str | Path], options: ChartOptions = Cha
             resid.append(float(np.sqrt(np.mean(((lin - pred) / lin)[ok] ** 2))) if ok.any() else math.nan)
         matrix = ColourMatrix(m, mu, (len(twins),) * 3, tuple(resid), tuple(q.path.name for q in tw_proc))
         procs = list(tw_proc)
+        if ref[0] is not None:  # the linear gain of the processed channels: lin / (x ρ̄) over the light neutrals
+            rho = _rho_eff(chart, light, {c: spectral.rgb()[c] for c in RGB3})
+            light4 = list(NEUTRAL_PATCHES[:4])
+            g = [tone.linearise(q.patches.mean_dn)[light4] / (frame_relative_exposure(q.exposure, ref[0], ref[1],
+                                                                                      q.path) * rho[light4])
+                 for q in procs]
+            tone = dataclasses.replace(tone, gains=np.nanmedian(np.concatenate(g), axis=0) / tone.white_level_dn)
     if procs and tone is not None:
         lin_neutral = [tone.linearise(p.patches.mean_dn)[list(NEUTRAL_PATCHES)] for p in procs]
         locked, wb_text = white_balance_check(lin_neutral, [p.path.name for p in procs])
