@@ -18,7 +18,7 @@ from camcal.errors import CamcalError
 
 @pytest.fixture(scope="module")
 def basis():
-    return camera_basis()
+    return camera_basis(filter_variants=False)
 
 
 def test_basis_is_pca_jiang2013_of_the_library(basis):
@@ -38,14 +38,29 @@ def test_basis_is_pca_jiang2013_of_the_library(basis):
 
 
 def test_prior_and_truncation(basis):
-    mu, cov_b, cov_t = basis.prior(0, 8)
+    mu, cov_b, cov_t, cov_lab = basis.prior(0, 8)
     assert mu.shape == GRID_NM.shape and 0.8 < mu.max() < 1.05
     np.testing.assert_allclose(np.diag(cov_t), basis.truncation_variance(8)[0])
-    assert np.all(np.linalg.eigvalsh(cov_b) > -1e-12)
+    assert np.all(np.linalg.eigvalsh(cov_b) > -1e-12) and np.all(np.linalg.eigvalsh(cov_lab) > -1e-12)
+    # the between-lab term is the borrowed-curve table: 7 % of peak at 620 nm in R (docs/spectral.md)
+    assert np.sqrt(cov_lab[GRID_NM == 620, GRID_NM == 620][0]) == pytest.approx(0.07, abs=0.005)
+
+
+def test_filter_variants_widen_the_basis_towards_phone_cut_filters(basis):
+    wide = camera_basis()
+    assert len(wide.cameras) == 52 * 6 and wide.source["n_measured_cameras"] == 52
+    assert "Canon EOS 600D × IR-cut 650 nm" in wide.cameras
+    i = wide.cameras.index("Canon EOS 600D × IR-cut 650 nm")
+    assert np.all(wide.curves[i, 0, GRID_NM >= 700] < 0.02) and wide.curves[i, 0].max() == pytest.approx(1.0)
+    # a camera is left out with its variants: the leave-one-out error stays that of a new camera
+    t = leave_one_out_table(wide, 8)
+    assert len(t) == 52 * 3
+    assert np.median([r["rms_pct_of_peak"] for r in t]) > 0.5 * np.median(
+        [r["rms_pct_of_peak"] for r in leave_one_out_table(basis, 8)])
 
 
 def test_exclude(basis):
-    b = camera_basis(exclude=("Nikon D5100",))
+    b = camera_basis(exclude=("Nikon D5100",), filter_variants=False)
     assert len(b.cameras) == 51 and "Nikon D5100" not in b.cameras
     d5100 = basis.curves[basis.cameras.index("Nikon D5100")]
     assert max(projection_floor(b, d5100, 8).values()) > 0.1

@@ -62,7 +62,7 @@ def test_measured_spectrum_csv(tmp_path):
     e = 1.0 + wl / 1000
     p = tmp_path / "lamp.csv"
     p.write_text("# a lamp\nwavelength_nm,irradiance_w_m2_nm,u_irradiance_w_m2_nm\n"
-                 + "\n".join(f"{a:g},{b:g},{0.01 * b:g}" for a, b in zip(wl, e)))
+                 + "\n".join(f"{a:g},{b:g},{0.01 * b:g}" for a, b in zip(wl, e, strict=True)))
     got = read_irradiance_csv(p, absolute=True)
     np.testing.assert_allclose(got.irradiance_w_m2_nm, 1.0 + GRID_NM / 1000)
     np.testing.assert_allclose(got.uncertainty, 0.01 * got.irradiance_w_m2_nm)

@@ -8,12 +8,13 @@ moment Σ_j c_j c_jᵀ): c(λ) ≈ Σ_k w_k φ_k(λ).
 The Bayesian reading of that PCA, used by :mod:`camcal.chart.recovery`: the library is a sample of the
 population of cameras, so a new camera's normalised curve is a priori
 
-    c ~ N(μ, Σ),   μ = Φ w̄,   Σ = Φ Cov(w) Φᵀ + Σ_trunc,
+    c ~ N(μ, Σ),   μ = Φ w̄,   Σ = Φ Cov(w) Φᵀ + Σ_trunc (+ Σ_lab),
 
 w̄ and Cov(w) the mean and covariance of the library's coefficients on the first K components Φ, and Σ_trunc
 the second moment of what K components miss for a camera the basis was not learnt from: the leave-one-camera-out
 residuals r_j = c_j − Φ_(−j) Φ_(−j)ᵀ c_j (each camera projected onto the basis of the other cameras). Its
-diagonal is the basis (truncation) error per wavelength.
+diagonal is the basis (truncation) error per wavelength. Σ_lab (:func:`lab_covariance`) adds that the library's
+curves are measurements of one lab: independent labs' curves of one camera model differ by 1-7 % of the peak.
 
 References
 ----------
@@ -24,14 +25,18 @@ color cameras? IEEE Workshop on Applications of Computer Vision (WACV), 168-179.
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from scipy import special
 
+from camcal.borrowed_uncertainty import shipped_borrowed_uncertainty
 from camcal.chart.targets import GRID_NM
 from camcal.curve_library import COLLECTION, library_folder, list_cameras, read_curve_json
 from camcal.errors import CamcalError
+from camcal.reference_targets import CURVE_CORRELATION
 
 CHANNELS = ("R", "G", "B")
 #: Components kept when not stated (a 24-patch chart constrains few more per channel).
@@ -84,12 +89,17 @@ class CameraBasis:
         return p @ (p.T @ np.asarray(curve, float))
 
     def residuals(self, k: int) -> np.ndarray:
-        """(N, 3, n) leave-one-camera-out residuals on ``k`` components (module docstring)."""
+        """(N, 3, n) leave-one-camera-out residuals on ``k`` components (module docstring); a camera is left out
+        with its filter variants (:func:`with_filter_variants`)."""
         if k not in self.loo_residuals:
+            base = [n.split(" × ")[0] for n in self.cameras]
             out = np.empty_like(self.curves)
+            comps_of: dict[str, np.ndarray] = {}
             for j in range(len(self.cameras)):
-                keep = np.arange(len(self.cameras)) != j
-                comps = _uncentred_components(self.curves[keep], k)
+                if base[j] not in comps_of:
+                    keep = np.array([b != base[j] for b in base])
+                    comps_of[base[j]] = _uncentred_components(self.curves[keep], k)
+                comps = comps_of[base[j]]
                 for ch in range(3):
                     p = comps[ch]
                     out[j, ch] = self.curves[j, ch] - p @ (p.T @ self.curves[j, ch])
@@ -101,14 +111,26 @@ class CameraBasis:
         (normalised to peak 1) on ``k`` components, variance."""
         return np.mean(self.residuals(k) ** 2, axis=0)
 
-    def prior(self, channel: int, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(μ (n,), Σ_basis (n, n), Σ_trunc (n, n)) of a new camera's normalised curve (module docstring)."""
+    def prior(self, channel: int, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(μ (n,), Σ_basis, Σ_trunc, Σ_lab (n, n)) of a new camera's normalised curve (module docstring)."""
         p = self.phi(channel, k)
         w = self.curves[:, channel] @ p
         mu = p @ w.mean(axis=0)
         cov_w = np.atleast_2d(np.cov(w, rowvar=False))
         r = self.residuals(k)[:, channel]
-        return mu, p @ cov_w @ p.T, r.T @ r / r.shape[0]
+        return mu, p @ cov_w @ p.T, r.T @ r / r.shape[0], lab_covariance(self.wavelength_nm, CHANNELS[channel])
+
+
+def lab_covariance(wavelength_nm, channel: str) -> np.ndarray:
+    """(n, n) Σ_lab = f(λ) f(λ') ρ(λ − λ'): how far a measured curve lies from the camera's true curve, as a
+    fraction of the peak (f: the borrowed-curve table of :mod:`camcal.borrowed_uncertainty`, independent
+    measurements of one model by different labs; ρ: their correlation over wavelength,
+    :data:`camcal.reference_targets.CURVE_CORRELATION`)."""
+    wl = np.asarray(wavelength_nm, float)
+    f = shipped_borrowed_uncertainty().at(wl)[channel]
+    d = wl[:, None] - wl[None, :]
+    rho = sum(w * np.exp(-d ** 2 / (2 * ell ** 2)) for w, ell in CURVE_CORRELATION)
+    return f[:, None] * f[None, :] * rho
 
 
 def _uncentred_components(curves: np.ndarray, k: int) -> np.ndarray:
@@ -158,9 +180,37 @@ def normalise(curves: np.ndarray) -> np.ndarray:
     return c / np.max(c, axis=-1, keepdims=True)
 
 
-def camera_basis(exclude=(), *, wavelength_nm=GRID_NM, extra: dict[str, np.ndarray] | None = None) -> CameraBasis:
+#: Extra cut-off edges of the filter-shape prior: IR-cut half-transmission wavelengths, UV-cut ones, and the
+#: edges' Gaussian width (nm). Phone modules cut the infrared earlier than DSLRs (about 650 nm against 680-700 nm).
+FILTER_IR_CUTS_NM = (630.0, 650.0, 670.0)
+FILTER_UV_CUTS_NM = (405.0, 415.0)
+FILTER_EDGE_SIGMA_NM = 8.0
+
+
+def filter_edge(wavelength_nm, cut_nm: float, kind: str, sigma_nm: float = FILTER_EDGE_SIGMA_NM) -> np.ndarray:
+    """Transmittance of an interference cut filter's edge: an error-function step, 0.5 at ``cut_nm``
+    (``kind`` ``"ir"`` passes below it, ``"uv"`` above)."""
+    x = (np.asarray(wavelength_nm, float) - cut_nm) / (sigma_nm * math.sqrt(2.0))
+    return 0.5 * special.erfc(x if kind == "ir" else -x)
+
+
+def with_filter_variants(names: tuple[str, ...], curves: np.ndarray, wavelength_nm
+                         ) -> tuple[tuple[str, ...], np.ndarray]:
+    """The filter-shape prior: every training camera also behind each extra IR- and UV-cut edge
+    (:data:`FILTER_IR_CUTS_NM`, :data:`FILTER_UV_CUTS_NM`), the same sensor in a module with another cut filter."""
+    out, labels = [curves], list(names)
+    for kind, cuts in (("ir", FILTER_IR_CUTS_NM), ("uv", FILTER_UV_CUTS_NM)):
+        for cut in cuts:
+            out.append(curves * filter_edge(wavelength_nm, cut, kind))
+            labels += [f"{n} × {kind.upper()}-cut {cut:g} nm" for n in names]
+    return tuple(labels), np.concatenate(out)
+
+
+def camera_basis(exclude=(), *, wavelength_nm=GRID_NM, extra: dict[str, np.ndarray] | None = None,
+                 filter_variants: bool = True) -> CameraBasis:
     """The basis of the bundled library's cameras (:mod:`camcal.curve_library`), less ``exclude`` (names such as
-    ``"Nikon D5100"`` or file names), plus ``extra`` curves ({name: (3, n) R, G, B on ``wavelength_nm``})."""
+    ``"Nikon D5100"`` or file names), plus ``extra`` curves ({name: (3, n) R, G, B on ``wavelength_nm``}), with
+    the filter-shape prior (:func:`with_filter_variants`) unless ``filter_variants`` is False."""
     wl = np.asarray(wavelength_nm, float)
     exclude = tuple(str(e) for e in exclude)
     names, curves = _library(exclude, tuple(float(x) for x in wl))
@@ -171,7 +221,13 @@ def camera_basis(exclude=(), *, wavelength_nm=GRID_NM, extra: dict[str, np.ndarr
     if extra:
         names = names + tuple(extra)
         curves = np.concatenate([curves, np.array([normalise(v) for v in extra.values()])])
-    src = {"collection": COLLECTION, "excluded": list(exclude), "extra": list(extra or {})}
+    n_measured = len(names)
+    if filter_variants:
+        names, curves = with_filter_variants(names, curves, wl)
+    src = {"collection": COLLECTION, "excluded": list(exclude), "extra": list(extra or {}),
+           "n_measured_cameras": n_measured,
+           "filter_variants": {"ir_cuts_nm": list(FILTER_IR_CUTS_NM), "uv_cuts_nm": list(FILTER_UV_CUTS_NM),
+                               "edge_sigma_nm": FILTER_EDGE_SIGMA_NM} if filter_variants else None}
     return basis_from_curves(curves, names, wl, src)
 
 
@@ -189,12 +245,13 @@ def basis_from_curves(curves: np.ndarray, names: tuple[str, ...], wavelength_nm,
 
 
 def leave_one_out_table(basis: CameraBasis, k: int = DEFAULT_COMPONENTS) -> list[dict[str, Any]]:
-    """Per training camera and channel, the RMS (over the grid) of the leave-one-camera-out residual on ``k``
-    components, % of the channel's peak: the basis's own error for a camera it was not learnt from."""
+    """Per measured training camera and channel, the RMS (over the grid) of the leave-one-camera-out residual on
+    ``k`` components (the camera left out with its filter variants), % of the channel's peak: the basis's own
+    error for a camera it was not learnt from."""
     r = basis.residuals(k)
     return [{"camera": name, "channel": ch, "k": k,
              "rms_pct_of_peak": float(100.0 * np.sqrt(np.mean(r[j, i] ** 2)))}
-            for j, name in enumerate(basis.cameras) for i, ch in enumerate(CHANNELS)]
+            for j, name in enumerate(basis.cameras) if " × " not in name for i, ch in enumerate(CHANNELS)]
 
 
 def projection_floor(basis: CameraBasis, curves: np.ndarray, k: int = DEFAULT_COMPONENTS) -> dict[str, float]:

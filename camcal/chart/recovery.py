@@ -11,25 +11,31 @@ when E is absolute, otherwise only c's shape is determined.
 
 Twenty-four patches constrain only a few dimensions of c (the patches' spectra are smooth and correlated), so c
 is estimated in the space of measured camera curves: the prior of :mod:`camcal.chart.basis`,
-c_i ~ N(s_i μ_i, s_i² Σ_i / λ_reg) with Σ_i = Σ_basis + Σ_trunc (Jiang et al. 2013 read as a Gaussian
-population; s_i the channel's peak, refined by iteration, λ_reg the regularisation, 1 the Bayesian value). The
-maximum a posteriori estimate under c ≥ 0 is the bounded least-squares problem
 
-    min_c ‖N^(-1/2) (M c − y)‖² + λ_reg ‖(s Σ^(1/2))⁻¹ (c − s μ)‖²,   c ≥ 0
+    c_i ~ N(s_i μ_i, s_i² Σ_i),   Σ_i = (Σ_basis + Σ_trunc)/λ_reg + Σ_lab,
+
+(Jiang et al. 2013 read as a Gaussian population of cameras; s_i the channel's peak, refined by iteration).
+λ_reg < 1 inflates the library's spread: a new camera lies further from the library's mean than the library's
+own cameras lie from each other (the library is dominated by a few makes); :data:`DEFAULT_REGULARISATION` is
+calibrated by :func:`leave_one_out_recovery` leaving out every camera of the tested one's make. Σ_lab is the
+between-lab spread of measured curves (:func:`camcal.chart.basis.lab_covariance`): the library's curves are one
+lab's measurements. The maximum a posteriori estimate under c ≥ 0 is the bounded least-squares problem
+
+    min_c ‖N^(-1/2) (M c − y)‖² + ‖(s Σ^(1/2))⁻¹ (c − s μ)‖²,   c ≥ 0
 
 (:func:`scipy.optimize.lsq_linear`), N the covariance of y: the signal noise S plus what the chart's and the
 light's uncertainties do to y (C_R: each patch's reflectance error fully correlated over λ, independent between
 patches; C_E = Σ_k (M_δE_k c)(M_δE_k c)ᵀ, one row per perturbed spectrum). Tikhonov regularisation with a prior
 covariance is exactly this Bayesian estimate (Tarantola 2005, §3.2).
 
-Its uncertainty. With the linear gain G = P Mᵀ N⁻¹, P = (Mᵀ N⁻¹ M + λ_reg (s²Σ)⁻¹)⁻¹, the error of ĉ is
-G (noise) + G (chart) + G (light) + (I − G M)(prior's deviation), so
+Its uncertainty. With the linear gain G = P Mᵀ N⁻¹, P = (Mᵀ N⁻¹ M + (s²Σ)⁻¹)⁻¹, the error of ĉ is
+G (noise) + G (chart) + G (light) + (I − G M)(the prior's deviation), so
 
-    cov ĉ = G S Gᵀ + G C_R Gᵀ + G C_E Gᵀ + (I − GM) s²Σ_basis/λ (I − GM)ᵀ + (I − GM) s²Σ_trunc/λ (I − GM)ᵀ,
+    cov ĉ = G S Gᵀ + G C_R Gᵀ + G C_E Gᵀ + Σ_t (I − GM) s²Σ_t (I − GM)ᵀ,   t = basis, truncation, library,
 
-each term kept: ``noise``, ``chart``, ``illuminant``, ``basis`` (the chart cannot see that part of c, the
-library's spread fills it) and ``truncation`` (what K components of the library miss). Their sum is P when
-λ_reg = 1. Active bounds (c = 0 where the camera is blind) are not linearised.
+each term kept: ``noise``, ``chart``, ``illuminant``, ``basis`` (the part of c the chart cannot see, filled by
+the library's spread), ``truncation`` (what K components of the library miss) and ``library`` (between-lab
+spread). Their sum is P. Active bounds (c = 0 where the camera is blind) are not linearised.
 
 References
 ----------
@@ -49,21 +55,21 @@ from typing import Any, Literal
 import numpy as np
 from scipy.optimize import lsq_linear, minimize_scalar
 
-from camcal.chart.basis import DEFAULT_COMPONENTS, CameraBasis
+from camcal.chart.basis import DEFAULT_COMPONENTS, CameraBasis, basis_from_curves
 from camcal.chart.light import Irradiance, blackbody, daylight
 from camcal.chart.targets import ChartReflectance
 from camcal.errors import CamcalError
 from camcal.spectral_model import ABSOLUTE_UNITS, RELATIVE_UNITS, SpectralSensitivity
 
 #: Uncertainty terms of a recovered curve, in the order they are reported.
-TERMS = ("noise", "chart", "illuminant", "basis", "truncation")
+TERMS = ("noise", "chart", "illuminant", "basis", "truncation", "library")
 #: Channel of the basis each plane is recovered in.
 PLANE_CHANNEL = {"R": 0, "G": 1, "G1": 1, "G2": 1, "B": 2}
 #: Scale iterations (the prior's scale s is the recovered peak).
 SCALE_ITERATIONS = 4
 #: Default λ_reg: the library's covariance inflated 4× (a camera outside the library lies further from its mean
 #: than the library's spread says; calibrated by :func:`leave_one_out_recovery`, docs/spectral.md).
-DEFAULT_REGULARISATION = 0.25
+DEFAULT_REGULARISATION = 0.1
 #: Relative jitter added to the prior covariance's diagonal (keeps it invertible).
 PRIOR_JITTER = 1e-8
 
@@ -210,12 +216,20 @@ def _context(chart: ChartReflectance, light: Irradiance, basis: CameraBasis, k: 
     return _Context(wl, m, m_u, m_de, {ch: basis.prior(ch, k) for ch in range(3)})
 
 
+def _prior_cov(ctx: _Context, channel: int, reg: float, between_lab: bool) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """(Σ of the normalised curve, its parts): (Σ_basis + Σ_trunc)/λ_reg + Σ_lab."""
+    mu, cov_b, cov_t, cov_l = ctx.prior[channel]
+    parts = {"basis": cov_b / reg, "truncation": cov_t / reg, "library": cov_l if between_lab else 0 * cov_l}
+    return mu, parts
+
+
 def _solve_plane(y: np.ndarray, s_cov: np.ndarray, ctx: _Context, channel: int, reg: float,
-                 nonnegative: bool) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray, float, float]:
+                 nonnegative: bool, between_lab: bool
+                 ) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray, float, float]:
     """(ĉ, term covariances, total covariance, χ², dof) for one plane."""
-    mu, cov_b, cov_t = ctx.prior[channel]
+    mu, parts = _prior_cov(ctx, channel, reg, between_lab)
     n = mu.size
-    cov_prior = cov_b + cov_t
+    cov_prior = sum(parts.values())
     cov_prior = cov_prior + PRIOR_JITTER * np.trace(cov_prior) / n * np.eye(n)
     m = ctx.m
     pred = m @ mu
@@ -231,7 +245,7 @@ def _solve_plane(y: np.ndarray, s_cov: np.ndarray, ctx: _Context, channel: int, 
         cov_e = dy_e.T @ dy_e
         n_cov = s_cov + cov_r + cov_e
         wn = _inv_sqrt(n_cov)
-        lp = math.sqrt(reg) / s * l_prior
+        lp = l_prior / s
         a = np.vstack([wn @ m, lp])
         b = np.concatenate([wn @ y, lp @ (s * mu)])
         if nonnegative:
@@ -243,13 +257,13 @@ def _solve_plane(y: np.ndarray, s_cov: np.ndarray, ctx: _Context, channel: int, 
             raise CamcalError("the recovered curve is zero everywhere (no signal in the chart's patches?)")
         s = s_new
     n_inv = wn.T @ wn
-    prior_prec = reg / s ** 2 * (l_prior.T @ l_prior)
+    prior_prec = (l_prior.T @ l_prior) / s ** 2
     post = np.linalg.inv(m.T @ n_inv @ m + prior_prec)
     post = 0.5 * (post + post.T)
     g = post @ m.T @ n_inv
     i_gm = np.eye(n) - g @ m
     terms = {"noise": g @ s_cov @ g.T, "chart": g @ cov_r @ g.T, "illuminant": g @ cov_e @ g.T,
-             "basis": i_gm @ (s ** 2 / reg * cov_b) @ i_gm.T, "truncation": i_gm @ (s ** 2 / reg * cov_t) @ i_gm.T}
+             **{t: s ** 2 * i_gm @ c @ i_gm.T for t, c in parts.items()}}
     total = sum(terms.values())
     r = wn @ (y - m @ c)
     dof = float(y.size - np.trace(m @ g))
@@ -259,7 +273,7 @@ def _solve_plane(y: np.ndarray, s_cov: np.ndarray, ctx: _Context, channel: int, 
 def recover_sensitivity(signal: dict[str, np.ndarray], signal_cov: dict[str, np.ndarray], chart: ChartReflectance,
                         light: Irradiance, basis: CameraBasis, *, n_components: int = DEFAULT_COMPONENTS,
                         regularisation: float = DEFAULT_REGULARISATION, nonnegative: bool = True,
-                        absolute: bool | None = None) -> RecoveredSensitivity:
+                        absolute: bool | None = None, between_lab: bool = True) -> RecoveredSensitivity:
     """c(λ) per plane from one chart photo (module docstring).
 
     Parameters
@@ -277,11 +291,14 @@ def recover_sensitivity(signal: dict[str, np.ndarray], signal_cov: dict[str, np.
     n_components : int
         K, components of the basis spanning the prior's mean and covariance.
     regularisation : float
-        λ_reg multiplying the prior's precision; 1 is the Bayesian estimate.
+        λ_reg dividing the library's part of the prior covariance (1: the library's spread as it is).
     nonnegative : bool
         Bound c ≥ 0 (RAW data).
     absolute : bool or None
         Whether ``signal`` and ``light`` are absolute (default: ``light.absolute``).
+    between_lab : bool
+        Include Σ_lab (False only when the truth is measured by the library's own lab, as in
+        :func:`leave_one_out_recovery`).
 
     Returns
     -------
@@ -300,7 +317,8 @@ def recover_sensitivity(signal: dict[str, np.ndarray], signal_cov: dict[str, np.
         if y.shape != (n_p,) or not np.all(np.isfinite(y)):
             raise CamcalError(f"plane {plane}: {n_p} finite patch signals needed")
         s_cov = _as_cov(signal_cov[plane], n_p, plane)
-        c, tc, total, x2, df = _solve_plane(y, s_cov, ctx, PLANE_CHANNEL[plane], float(regularisation), nonnegative)
+        c, tc, total, x2, df = _solve_plane(y, s_cov, ctx, PLANE_CHANNEL[plane], float(regularisation), nonnegative,
+                                            between_lab)
         values[plane] = c
         for t in TERMS:
             terms[t][plane] = np.sqrt(np.clip(np.diag(tc[t]), 0, None))
@@ -343,11 +361,11 @@ def _evidence(signal, signal_cov, chart, light, basis, k, reg) -> float:
     total = 0.0
     for plane, y in signal.items():
         y = np.asarray(y, float)
-        mu, cb, ct = ctx.prior[PLANE_CHANNEL[plane]]
+        mu, parts = _prior_cov(ctx, PLANE_CHANNEL[plane], reg, True)
         pred = ctx.m @ mu
         s = max(float(y @ pred / (pred @ pred)), 1e-300)
         cov = (_as_cov(signal_cov[plane], y.size, plane) + np.diag((ctx.m_u @ (s * mu)) ** 2)
-               + s ** 2 / reg * ctx.m @ (cb + ct) @ ctx.m.T)
+               + s ** 2 * ctx.m @ sum(parts.values()) @ ctx.m.T)
         r = y - s * pred
         sign, logdet = np.linalg.slogdet(cov)
         total += float(r @ np.linalg.solve(cov, r) + logdet)
@@ -426,7 +444,8 @@ def render_chart_signals(curves: np.ndarray, chart: ChartReflectance, light: Irr
 def leave_one_out_recovery(basis: CameraBasis, chart_true: ChartReflectance, chart_nominal: ChartReflectance,
                            light: Irradiance, *, n_components: int = DEFAULT_COMPONENTS,
                            regularisation: float | None = None, relative_noise: float = 0.003,
-                           group: Literal["camera", "make"] = "camera") -> list[dict[str, Any]]:
+                           group: Literal["camera", "make"] = "camera", between_lab: bool = False
+                           ) -> list[dict[str, Any]]:
     """The whole recovery's error, camera by camera: each library camera's chart signals (rendered with
     ``chart_true``, noise-free, stated noise ``relative_noise`` of each signal) recovered assuming
     ``chart_nominal`` in a basis without that camera (``group`` ``"make"``: without every camera of its make,
@@ -435,16 +454,18 @@ def leave_one_out_recovery(basis: CameraBasis, chart_true: ChartReflectance, cha
     rows = []
     reg = DEFAULT_REGULARISATION if regularisation is None else regularisation
     for j, name in enumerate(basis.cameras):
+        if " × " in name:  # a filter variant is not a camera to test
+            continue
         make = name.split()[0]
         keep = [i for i, n in enumerate(basis.cameras)
-                if i != j and not (group == "make" and n.split()[0] == make)]
+                if n.split(" × ")[0] != name and not (group == "make" and n.split()[0] == make)]
         sub = _sub_basis(basis, keep)
         true = basis.curves[j]
         y = render_chart_signals(true, chart_true, light)
         sig = {ch: y[i] for i, ch in enumerate(("R", "G", "B"))}
         cov = {ch: (relative_noise * y[i]) ** 2 for i, ch in enumerate(("R", "G", "B"))}
         rec = recover_sensitivity(sig, cov, chart_nominal, light, sub, n_components=n_components,
-                                  regularisation=reg)
+                                  regularisation=reg, between_lab=between_lab)
         unc = rec.uncertainty
         for i, ch in enumerate(("R", "G", "B")):
             err = rec.values[ch] - true[i]
@@ -455,7 +476,5 @@ def leave_one_out_recovery(basis: CameraBasis, chart_true: ChartReflectance, cha
 
 
 def _sub_basis(basis: CameraBasis, keep: list[int]) -> CameraBasis:
-    from camcal.chart.basis import basis_from_curves
-
     return basis_from_curves(basis.curves[keep], tuple(basis.cameras[i] for i in keep), basis.wavelength_nm,
                              {**basis.source, "subset_of": basis.source.get("n_cameras")})
