@@ -207,3 +207,31 @@ def test_the_real_canon_chart_with_the_light_estimated(tmp_path):
         lib = np.interp(s.wavelength_nm, curves.wavelength_nm, curves.rgb()[ch])
         rms = np.sqrt(np.mean((v / v.max() - lib / lib.max()) ** 2))
         assert rms < 0.08, (ch, rms)  # measured: 5.4 %, 5.7 %, 4.0 % of the peak (docs/user-guide.md)
+
+
+def test_the_light_options(tmp_path):
+    """Clear sky from --sun with the atmosphere's options; a CIE illuminant by name; a measured CSV; estimate."""
+    from camcal.chart.profile_build import make_light
+    from camcal.chart.targets import GRID_NM
+    from camcal.frame import Exposure
+
+    class Photo:  # the two fields make_light reads
+        exposure = Exposure()
+        path = tmp_path / "x.dng"
+
+    sky = make_light(ChartOptions(sun="30,180", aerosol_optical_depth_500nm=0.2), Photo(), GRID_NM)
+    assert sky.absolute and sky.source["kind"] == "clear_sky" and sky.source["sun"]["source"] == "--sun"
+    assert sky.source["aerosol_optical_depth_500nm"] == 0.2 and sky.perturbations.shape[0] >= 1
+    hazier = make_light(ChartOptions(sun="30,180", aerosol_optical_depth_500nm=0.4), Photo(), GRID_NM)
+    assert np.trapezoid(hazier.irradiance_w_m2_nm, GRID_NM) < np.trapezoid(sky.irradiance_w_m2_nm, GRID_NM)
+    d65 = make_light(ChartOptions(illuminant="D65"), Photo(), GRID_NM)
+    assert not d65.absolute and d65.source["name"] == "D65"
+    csv = tmp_path / "lamp.csv"
+    csv.write_text("wavelength_nm,irradiance_w_m2_nm\n" + "\n".join(f"{w},{0.01 * w / 500:.6f}"
+                                                                     for w in range(350, 801, 10)))
+    lamp = make_light(ChartOptions(illuminant=str(csv)), Photo(), GRID_NM)
+    assert lamp.absolute and lamp.source["kind"] == "measured"
+    np.testing.assert_allclose(lamp.irradiance_w_m2_nm, 0.01 * GRID_NM / 500, rtol=1e-4)
+    assert make_light(ChartOptions(illuminant="estimate"), Photo(), GRID_NM) is None
+    with pytest.raises(CamcalError, match="--sun ZENITH,AZIMUTH.*--illuminant"):
+        make_light(ChartOptions(), Photo(), GRID_NM)  # no GPS time and place: the steps that exist
