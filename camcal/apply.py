@@ -95,11 +95,16 @@ def next_step_for_c(profile) -> str:
             return ("this bias/dark-only profile needs a monochromator sweep (SESSION/sweep/ with sweep.csv, then "
                     "camcal calibrate), or imported curves (camcal profile import-spectral CURVES --into PROFILE)")
         return ("add a monochromator sweep (SESSION/sweep/, camcal calibrate) or import curves "
-                "(camcal profile import-spectral CURVES --into PROFILE --targets targets/ -o abs.camcal)")
+                "(camcal profile import-spectral CURVES --into PROFILE --targets targets/ -o abs.camcal); without a "
+                "lab, photograph a colour chart in the sun: camcal chart CHART.dng -o camera.camcal")
     source = (spectral.source or {}).get("kind") if isinstance(getattr(spectral, "source", None), dict) else None
     if source in ("imported", "library"):
         return ("set the absolute scale of the imported curves from reference targets: camcal profile "
-                "import-spectral CURVES --into PROFILE --targets targets/ -o abs.camcal")
+                "import-spectral CURVES --into PROFILE --targets targets/ -o abs.camcal; or make the profile from "
+                "a colour chart in the sun (camcal chart CHART.dng -o camera.camcal)")
+    if source == "chart":
+        return ("photograph the chart again with its exposure tags (time, ISO, f-number) under the sun or a measured "
+                "light (camcal chart CHART.dng -o camera.camcal; --illuminant D65 or estimate give shape only)")
     return "calibrate the sweep with --sweep-mode absolute (it needs the reference detector's radiances)"
 
 

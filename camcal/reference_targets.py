@@ -460,8 +460,9 @@ def read_targets(targets_csv: str | Path) -> list[tuple[TargetSpectrum, list[tup
             raise CamcalError(f"{where}: lists {name!r}, which is not in the folder", csv_path)
         rad, refl, irr = rec.get("radiance"), rec.get("reflectance"), rec.get("irradiance")
         if rad and (refl or irr) or not rad and not (refl and irr):
-            raise CamcalError(f"{where}: give either a radiance file or a reflectance and an irradiance file",
-                              csv_path)
+            raise CamcalError(f"{where}: give either a radiance file or a reflectance and an irradiance file (no "
+                              "measured irradiance? camcal chart models the clear-sky sunlight on a colour chart "
+                              "from the photo's time and GPS)", csv_path)
         tname = str(rec.get("target") or Path(str(rad or refl)).stem)
         sunc = _number(rec, "scale_unc_rel", where, csv_path) or 0.0
         key = tname
