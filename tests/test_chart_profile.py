@@ -4,6 +4,7 @@ chart that is not the nominal one, cos⁴ vignetting, a HEIC through white balan
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -235,3 +236,35 @@ def test_the_light_options(tmp_path):
     assert make_light(ChartOptions(illuminant="estimate"), Photo(), GRID_NM) is None
     with pytest.raises(CamcalError, match="--sun ZENITH,AZIMUTH.*--illuminant"):
         make_light(ChartOptions(), Photo(), GRID_NM)  # no GPS time and place: the steps that exist
+
+
+def test_a_tone_table_replaces_the_srgb_form_where_it_misfits_and_apply_reads_it():
+    """A filmic (S-shaped) tone curve: the sRGB form misfits, the monotone table fits, and the profile's
+    processed response linearises exactly as the fit does."""
+    from camcal.chart.profile_build import _processed_response
+    from camcal.response_model import ColourMatrix
+
+    rng = np.random.default_rng(5)
+    a = np.array([[1.6, -0.5, -0.1], [-0.2, 1.4, -0.2], [0.0, -0.5, 1.5]])
+    rs = [rng.uniform(30, 2000, (24, 3)) * f for f in (1.0, 0.5)]
+
+    def filmic(x):  # a shoulder and a toe: no sRGB form
+        x = np.clip(x, 0, None)
+        return (x * (1 + x / 2.25)) / (1 + x) ** 0.9 / 1.35
+
+    vals = [np.clip(255 * filmic(r @ a.T / 3000), 0, 255) + rng.normal(0, 0.3, (24, 3)) for r in rs]
+    t = fit_tone_twins(vals, [np.full((24, 3), 0.3)] * 2, rs, 255.0)
+    assert t.table_v_dn is not None and t.table_rms_dn < t.rms_dn and "tone table" in t.notes[0]
+    truth_lin = 255 * (rs[0] @ a.T / 3000)
+    got = t.linearise(vals[0])
+    ok = (vals[0] > 10) & (vals[0] < 245)
+
+    def err90(lin):  # the 90th percentile of the relative error, up to the linear scale (the matrix's)
+        return np.percentile(np.abs(lin[ok] / (np.median(lin[ok] / truth_lin[ok]) * truth_lin[ok]) - 1), 90)
+
+    form = dataclasses.replace(t, table_v_dn=None, table_linear_dn=None)
+    assert err90(got) < 0.03 and err90(got) < err90(form.linearise(vals[0]))
+    resp = _processed_response(t, ColourMatrix(t.matrix * 255, np.zeros((3, 3)), (2, 2, 2), (0.0,) * 3, ()),
+                               [], (50.0, 1.8), None)
+    assert resp.tone["channels"]["R"]["use"] == "table"
+    np.testing.assert_allclose(resp.linearise(np.moveaxis(vals[0], -1, 0)), np.moveaxis(got, -1, 0), rtol=1e-9)

@@ -529,6 +529,7 @@ def build_chart_profile(paths: Sequence[str | Path], options: ChartOptions = Cha
         use = [~(r.patches.saturated | q.patches.saturated) for r, q in twins]
         tone = fit_tone_twins([q.patches.mean_dn for q in tw_proc], [q.patches.sem_dn() for q in tw_proc], raw_rgb,
                               tw_proc[0].white_level_dn, use)
+        notes.extend(tone.notes)
         m = tone.matrix * tone.white_level_dn
         mu = tone.matrix_unc * tone.white_level_dn
         resid = []

@@ -28,11 +28,12 @@ own misfit enters). White balance: the linearised neutrals' R/G and B/G of each 
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import least_squares
+from scipy.optimize import isotonic_regression, least_squares
 
 from camcal.chart.detect import NEUTRAL_PATCHES
 from camcal.errors import CamcalError
@@ -67,11 +68,20 @@ class ToneFit:
     chi2_red: float
     n_points: int
     notes: tuple[str, ...] = field(default_factory=tuple)
+    table_v_dn: np.ndarray | None = None
+    """Twins only: knots of a monotone tone table (file DN), which replaces the sRGB form where the form misfits."""
+    table_linear_dn: np.ndarray | None = None
+    """The table's linear values at the knots, DN on the 0..W scale."""
+    table_rms_dn: float = float("nan")
 
     def linearise(self, v_dn: np.ndarray) -> np.ndarray:
         """File DN → linear DN on the 0..W scale (what ``camcal apply`` computes)."""
-        return self.white_level_dn * srgb_form_decode(np.asarray(v_dn, float) / self.white_level_dn,
-                                                      self.exponent, self.offset_a)
+        v = np.asarray(v_dn, float)
+        if self.table_v_dn is not None:
+            vk, lk = self.table_v_dn, self.table_linear_dn
+            slope = (lk[-1] - lk[-2]) / (vk[-1] - vk[-2])
+            return np.where(v > vk[-1], lk[-1] + slope * (v - vk[-1]), np.maximum(np.interp(v, vk, lk), 0.0))
+        return self.white_level_dn * srgb_form_decode(v / self.white_level_dn, self.exponent, self.offset_a)
 
     def slope(self, v_dn: np.ndarray) -> np.ndarray:
         """d(linear DN)/d(file DN) at ``v_dn`` (numerical, for propagating the patches' noise)."""
@@ -85,12 +95,16 @@ class ToneFit:
         out = {}
         for i, ch in enumerate(channels):
             xw = None if x_white_s is None else float(x_white_s[i])
-            out[ch] = {"use": "srgb",
+            out[ch] = {"use": "srgb" if self.table_v_dn is None else "table",
                        "srgb": {"form": "srgb", "exponent": self.exponent, "exponent_unc": self.exponent_unc,
                                 "offset_a": self.offset_a, "x_white_s": xw, "toe_linear": lb, "toe_slope": s,
                                 "chi2_red": self.chi2_red, "rms_dn": self.rms_dn},
                        "eq12_rms_dn": None, "x_white_s": xw,
                        "linear_gain_dn_per_s": None if xw is None else self.white_level_dn / xw}
+            if self.table_v_dn is not None:
+                out[ch]["table"] = {"v_dn": [float(x) for x in self.table_v_dn],
+                                    "linear_dn": [float(x) for x in self.table_linear_dn],
+                                    "rms_dn": self.table_rms_dn}
         return {"form": "srgb form with free exponent and offset (IEC 61966-2-1 shape), fitted on a colour chart's "
                         + ("patches with RAW twins" if self.matrix is not None else "six neutral patches"),
                 "channels": out}
@@ -197,9 +211,62 @@ def fit_tone_twins(values_dn: Sequence[np.ndarray], sem_dn: Sequence[np.ndarray]
     m_unc = np.sqrt(np.maximum(np.diag(cov)[2:], 0.0)).reshape(3, 3) / rscale
     dof = max(res.fun.size - res.x.size, 1)
     rms = float(np.sqrt(np.mean((res.fun * np.maximum(u, 0.5)[good]) ** 2)))
-    return ToneFit(float(res.x[0]), float(np.sqrt(max(cov[0, 0], 0.0))), float(res.x[1]),
-                   float(np.sqrt(max(cov[1, 1], 0.0))), w, None, m, m_unc, rms, float(res.fun @ res.fun) / dof,
-                   int(good.sum()))
+    fit = ToneFit(float(res.x[0]), float(np.sqrt(max(cov[0, 0], 0.0))), float(res.x[1]),
+                  float(np.sqrt(max(cov[1, 1], 0.0))), w, None, m, m_unc, rms, float(res.fun @ res.fun) / dof,
+                  int(good.sum()))
+    if good.sum() >= TABLE_MIN_POINTS:
+        fit = _with_table(fit, v, r, good)
+    return fit
+
+
+#: Fewest processed values (patches × channels × photos) for a tone table instead of the sRGB form alone.
+TABLE_MIN_POINTS = 48
+#: Knots of the tone table (quantiles of the fitted values).
+TABLE_KNOTS = 12
+
+
+def _with_table(fit: ToneFit, v: np.ndarray, r: np.ndarray, good: np.ndarray) -> ToneFit:
+    """A monotone tone table from the twins: alternately, the isotonic regression of the predicted linear value
+    A r on the file value v (:func:`scipy.optimize.isotonic_regression`), binned into :data:`TABLE_KNOTS` knots,
+    and A refitted by least squares on the table's linearised values. Kept only when it fits better than the sRGB
+    form (the table's RMS in DN, v against the table's inverse at A r)."""
+    w = fit.white_level_dn
+    m = fit.matrix.copy()
+    best = None
+    for _ in range(3):
+        pred = w * (r @ m.T)  # linear DN the matrix predicts
+        vv, pp = v[good], pred[good]
+        order = np.argsort(vv)
+        vv, pp = vv[order], pp[order]
+        iso = isotonic_regression(pp).x
+        edges = np.quantile(vv, np.linspace(0, 1, TABLE_KNOTS + 1))
+        vk, lk = [0.0], [0.0]
+        for a, b in zip(edges[:-1], edges[1:], strict=True):
+            sel = (vv >= a) & (vv <= b)
+            if sel.any():
+                vk.append(float(np.median(vv[sel])))
+                lk.append(float(np.median(iso[sel])))
+        vk.append(float(vv[-1]))  # the brightest value fitted ends the table (apply extends its last slope)
+        lk.append(float(iso[-1]))
+        vk, lk = np.array(vk), np.maximum.accumulate(np.array(lk))
+        keep = np.r_[True, np.diff(vk) > 1e-6]
+        vk, lk = vk[keep], lk[keep]
+        if vk.size < 4:
+            return fit
+        table = dataclasses.replace(fit, table_v_dn=vk, table_linear_dn=lk, matrix=m)
+        lin = table.linearise(v)
+        m = np.vstack([np.linalg.lstsq(r[good[:, i]], lin[good[:, i], i], rcond=None)[0] for i in range(3)]) / w
+        x = w * (r @ m.T)
+        top = (vk[-1] - vk[-2]) / max(lk[-1] - lk[-2], 1e-12)
+        v_back = np.where(x > lk[-1], vk[-1] + top * (x - lk[-1]), np.interp(x, lk, vk))
+        rms = float(np.sqrt(np.mean((v_back - v)[good] ** 2)))
+        if best is None or rms < best.table_rms_dn:
+            best = dataclasses.replace(table, matrix=m, table_rms_dn=rms)
+    if best is None or not best.table_rms_dn < fit.rms_dn:
+        return fit
+    return dataclasses.replace(best, notes=(*fit.notes, f"tone table ({best.table_v_dn.size} knots, RMS "
+                                                        f"{best.table_rms_dn:.3g} DN) replaces the sRGB form (RMS "
+                                                        f"{fit.rms_dn:.3g} DN)"))
 
 
 def white_balance_check(linear_neutrals: Sequence[np.ndarray], names: Sequence[str],
