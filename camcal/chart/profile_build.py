@@ -310,7 +310,7 @@ def _processed_response(tone: ToneFit, matrix: ColourMatrix, photos: Sequence[Ch
     """The ``processed`` response a chart fit gives: the tone curve and the colour matrix apply reads."""
     w = tone.white_level_dn
     chans = {}
-    vals = np.concatenate([p.patches.mean_dn[list(NEUTRAL_PATCHES)] for p in photos])
+    vals = np.concatenate([p.patches.mean_dn[list(NEUTRAL_PATCHES)] for p in photos] or [np.empty((0, 3))])
     x_white = None
     if tone.gains is not None:
         x_white = [1.0 / max(float(g), 1e-300) for g in tone.gains]  # x·ρ̄ reaching white
