@@ -42,8 +42,6 @@ References
 Jiang, J., Liu, D., Gu, J., Süsstrunk, S. (2013). What is the space of spectral sensitivity functions for digital
 color cameras? IEEE WACV, 168-179.
 Tarantola, A. (2005). Inverse Problem Theory and Methods for Model Parameter Estimation. SIAM, §3.2.
-Finlayson, G., Darrodi, M. M., Mackiewicz, M. (2016). Rank-based camera spectral sensitivity estimation.
-J. Opt. Soc. Am. A 33(4), 589-599.
 """
 
 from __future__ import annotations
@@ -161,8 +159,7 @@ class RecoveredSensitivity:
             wavelength_nm=np.asarray(self.wavelength_nm, float), values=values, uncertainty=unc,
             units=ABSOLUTE_UNITS if self.absolute else RELATIVE_UNITS,
             mode="absolute" if self.absolute else "relative",
-            reference_iso=reference_iso, reference_f_number=reference_f_number, deconvolved=True,
-            notes=notes, source=src)
+            reference_iso=reference_iso, reference_f_number=reference_f_number, notes=notes, source=src)
 
 
 def _trapezoid_weights(wl: np.ndarray) -> np.ndarray:
@@ -429,7 +426,7 @@ def estimate_illuminant(signal: dict[str, np.ndarray], signal_cov: dict[str, np.
     else:
         pert = np.zeros((0, wl.size))
     light = Irradiance(wl, light.irradiance_w_m2_nm, pert, False,
-                       {**light.source, "fitted": True, "u_K": u,
+                       {**light.source, "fitted": True, "u_K": u if math.isfinite(u) else None,
                         "method": "evidence maximised over the temperature, c marginalised (camcal.chart.recovery)"})
     rec = recover_sensitivity(signal, signal_cov, chart, light, basis, n_components=k,
                               regularisation=regularisation, nonnegative=nonnegative, absolute=False)
@@ -444,22 +441,24 @@ def render_chart_signals(curves: np.ndarray, chart: ChartReflectance, light: Irr
 def leave_one_out_recovery(basis: CameraBasis, chart_true: ChartReflectance, chart_nominal: ChartReflectance,
                            light: Irradiance, *, n_components: int = DEFAULT_COMPONENTS,
                            regularisation: float | None = None, relative_noise: float = 0.003,
-                           group: Literal["camera", "make"] = "camera", between_lab: bool = False
-                           ) -> list[dict[str, Any]]:
+                           group: Literal["camera", "make"] = "camera", between_lab: bool = False,
+                           cameras: tuple[str, ...] | None = None) -> list[dict[str, Any]]:
     """The whole recovery's error, camera by camera: each library camera's chart signals (rendered with
     ``chart_true``, noise-free, stated noise ``relative_noise`` of each signal) recovered assuming
     ``chart_nominal`` in a basis without that camera (``group`` ``"make"``: without every camera of its make,
     as for a camera unlike the library's). Rows: camera, channel, RMS error % of peak, fraction of wavelengths
-    with |error| ≤ 2u, RMS u % of peak."""
+    with |error| ≤ 2u, RMS u % of peak. ``cameras`` limits the cameras tested (default: all measured ones)."""
     rows = []
     reg = DEFAULT_REGULARISATION if regularisation is None else regularisation
     for j, name in enumerate(basis.cameras):
-        if " × " in name:  # a filter variant is not a camera to test
+        if " × " in name or (cameras is not None and name not in cameras):  # a filter variant is not a camera
             continue
         make = name.split()[0]
         keep = [i for i, n in enumerate(basis.cameras)
                 if n.split(" × ")[0] != name and not (group == "make" and n.split()[0] == make)]
         sub = _sub_basis(basis, keep)
+        if any(n.split(" × ")[0] == name for n in sub.cameras):
+            raise CamcalError(f"leave-one-out: {name} is still in the basis")
         true = basis.curves[j]
         y = render_chart_signals(true, chart_true, light)
         sig = {ch: y[i] for i, ch in enumerate(("R", "G", "B"))}
