@@ -95,11 +95,16 @@ def next_step_for_c(profile) -> str:
             return ("this bias/dark-only profile needs a monochromator sweep (SESSION/sweep/ with sweep.csv, then "
                     "camcal calibrate), or imported curves (camcal profile import-spectral CURVES --into PROFILE)")
         return ("add a monochromator sweep (SESSION/sweep/, camcal calibrate) or import curves "
-                "(camcal profile import-spectral CURVES --into PROFILE --targets targets/ -o abs.camcal)")
+                "(camcal profile import-spectral CURVES --into PROFILE --targets targets/ -o abs.camcal); without a "
+                "lab, photograph a colour chart in the sun: camcal chart CHART.dng -o camera.camcal")
     source = (spectral.source or {}).get("kind") if isinstance(getattr(spectral, "source", None), dict) else None
     if source in ("imported", "library"):
         return ("set the absolute scale of the imported curves from reference targets: camcal profile "
-                "import-spectral CURVES --into PROFILE --targets targets/ -o abs.camcal")
+                "import-spectral CURVES --into PROFILE --targets targets/ -o abs.camcal; or make the profile from "
+                "a colour chart in the sun (camcal chart CHART.dng -o camera.camcal)")
+    if source == "chart":
+        return ("photograph the chart again with its exposure tags (time, ISO, f-number) under the sun or a measured "
+                "light (camcal chart CHART.dng -o camera.camcal; --illuminant D65 or estimate give shape only)")
     return "calibrate the sweep with --sweep-mode absolute (it needs the reference detector's radiances)"
 
 
@@ -449,10 +454,12 @@ def _processed_signal(frame: Frame, plan: ApplyPlan, iso: float, notes: list[str
     """Processed RGB -> (RAW-equivalent signal (3,h,w) binned, variance or None, invalid (3,h,w))."""
     profile = plan.profile
     resp = profile.response or {}
-    if "processed" not in resp or "raw" not in resp:
-        raise CamcalError("the profile has no JPEG response (needs a linearity series with RAW+JPEG pairs) "
-                          "to read processed photos; use the RAW file", frame.path)
-    rp, rr = resp["processed"], resp["raw"]
+    if "processed" not in resp or ("raw" not in resp and resp["processed"].colour_matrix is None):
+        raise CamcalError("the profile has no response for processed photos (HEIC/JPEG): photograph a colour chart "
+                          "with this camera in the same format and white balance and run camcal chart CHART.heic -o "
+                          "phone.camcal, or calibrate a linearity series of RAW+JPEG pairs; or read the RAW file "
+                          "(ProRAW/DNG) with a RAW profile", frame.path)
+    rp, rr = resp["processed"], resp.get("raw")
     values = frame.planes(np.float32)
     # processed pixels per RAW plane pixel: 2 for a Bayer profile (half-resolution planes); for a linear-RAW
     # profile the ratio of the image to the planes (1 when the JPEG has the RAW's size)
@@ -540,6 +547,12 @@ def apply_prepared(frame: Frame, plan: ApplyPlan, *, allow_other_camera: bool = 
         pixels[..., 3], pixels[..., 4] = _radiance(signal, var, plan.model, inv_x)
     if plan.flat_planes is None and plan.flat_rgb is None:
         notes.append("no flat model: vignetting not corrected")
+        vig = (getattr(profile.spectral, "source", None) or {}).get("vignetting")
+        if isinstance(vig, dict) and not vig.get("corrected", True):
+            _add_unflat_sigma(pixels, float(vig["corner_field_deg"]))
+            notes.append("the profile's vignetting was not measured: R_unc, G_unc, B_unc and the L uncertainty "
+                         f"include the cos⁴ fall-off of a corner at {float(vig['corner_field_deg']):g}° as a bias "
+                         "of 0 to that loss (0 at the centre; shoot flats for camcal chart --flat to correct it)")
     name = radiance_channel_name(plan.model.wavelength_nm)
     names = [{"L": name, "L_unc": f"{name}_unc"}.get(c, c) for c in OUTPUT_CHANNELS]
     channels = {c: pixels[..., i] for i, c in enumerate(names)}
@@ -591,6 +604,26 @@ def apply_prepared(frame: Frame, plan: ApplyPlan, *, allow_other_camera: bool = 
         "notes": notes,
     }
     return RadianceImage(channels, meta)
+
+
+def _add_unflat_sigma(pixels: np.ndarray, corner_field_deg: float) -> None:
+    """Add, in place, the uncorrected fall-off's σ to the uncertainty channels of ``pixels`` (h, w, 8).
+
+    The relative illumination of a lens whose image corner lies at ``corner_field_deg`` is cos⁴ θ with
+    tan θ = r tan θ_corner (r the distance from the image centre over the distance to the corner); an uncorrected
+    pixel's value v is low by a fraction between 0 and ℓ = 1 − cos⁴ θ, so the radiance lies between v and
+    v/(1 − ℓ): a uniform bias of σ = v ℓ/((1 − ℓ)√3). Channels without a noise figure (NaN) get that term alone.
+    """
+    h, w = pixels.shape[:2]
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    r = np.hypot(xx - (w - 1) / 2, yy - (h - 1) / 2) / np.float32(math.hypot((w - 1) / 2, (h - 1) / 2) or 1.0)
+    t = r * np.float32(math.tan(math.radians(corner_field_deg)))
+    kept = 1.0 / (1.0 + t * t) ** 2  # cos⁴θ = 1/(1 + tan²θ)²
+    rel = (1.0 - kept) / (kept * np.float32(math.sqrt(3.0)))
+    for value, unc in ((0, 5), (1, 6), (2, 7), (3, 4)):
+        term = pixels[..., value] * rel
+        old = pixels[..., unc]
+        pixels[..., unc] = np.where(np.isfinite(old), np.hypot(np.nan_to_num(old), term), np.abs(term))
 
 
 def _radiance(signal: np.ndarray, var: np.ndarray | None, model: RadianceModel, inv_x: float):

@@ -187,6 +187,12 @@ def _resolve(mk: str | None, mdk: str, cams: list[LibraryCamera], folder: str, q
     return None
 
 
+#: What a user whose camera has no curves in the library can do (every step exists).
+NO_CURVES_NEXT_STEP = ("photograph a colour chart (X-Rite ColorChecker) in the sun and run camcal chart PHOTO -o "
+                       "camera.camcal (c(λ) from the chart), or import a measured curve file (camcal profile "
+                       "import-spectral CURVES.csv; see camcal curves list for the library)")
+
+
 def find_camera(name: str | None = None, *, make: str | None = None, model: str | None = None,
                 folder: str | Path | None = None) -> Match:
     """The library camera named ``name`` (a full name or a model) or by EXIF ``make`` and ``model``.
@@ -220,12 +226,16 @@ def find_camera(name: str | None = None, *, make: str | None = None, model: str 
             hits = [c for c in cams if c.model_key == k]
             found = Match(hits[0], query, "model") if len(hits) == 1 else _resolve(None, k, cams, folder, query)
     if found is None:
-        names = [c.name for c in cams]
+        # closest models only of the same make: another make's camera is no substitute (a phone for a DSLR)
+        mk = make_key(make) if make else next((m for m in sorted({c.make_key for c in cams}, key=len, reverse=True)
+                                               if _key(query).startswith(m)), None)
+        names = [c.name for c in cams if mk is not None and c.make_key == mk]
         close = difflib.get_close_matches(query, names, n=4, cutoff=0.5) or \
             difflib.get_close_matches(query.lower(), [n.lower() for n in names], n=4, cutoff=0.3)
         close = [next(n for n in names if n.lower() == c.lower()) for c in close]
-        hint = f"; closest: {', '.join(close)}" if close else "; see camcal curves list"
-        raise CamcalError(f"camera {query!r} is not in the curve library ({len(cams)} cameras){hint}")
+        hint = f"; closest: {', '.join(close)}" if close else ""
+        raise CamcalError(f"camera {query!r} is not in the curve library ({len(cams)} cameras){hint}; "
+                          f"{NO_CURVES_NEXT_STEP}")
     return found
 
 

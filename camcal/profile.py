@@ -36,7 +36,7 @@ from camcal.store import to_jsonable
 from camcal.units import SPECTRAL_SENSITIVITY
 
 FORMAT = "camcal-profile"
-SCHEMA_VERSION = "1.8"  # 1.1: optional response.processed.colour_matrix; 1.2: optional spectral_sensitivity.source;
+SCHEMA_VERSION = "1.9"  # 1.1: optional response.processed.colour_matrix; 1.2: optional spectral_sensitivity.source;
 # 1.3: camera.layout, dark.layout, dark.dark_current_known, dark channels temporal_noise_dn, R, G, B planes (linear RAW)
 # 1.4: optional emva1288 section (EMVA 1288 summary: K from photon transfer, DSNU, PRNU, saturation, SNR, DR, LE)
 # 1.5: provenance.left_out and provenance.not_calibrated; reference iso / f_number may be null (no stage
@@ -45,6 +45,8 @@ SCHEMA_VERSION = "1.8"  # 1.1: optional response.processed.colour_matrix; 1.2: o
 # 1.7: flat.optics (the flats' f-number and focal length with their sources) and flat.apertures (models fitted at
 # other f-numbers); a 1.6 profile loads with the flats' optics unknown
 # 1.8: spectral_sensitivity.reference_iso / reference_f_number may be null (relative curves of unknown setting)
+# 1.9: spectral_sensitivity.source kind "chart" (camcal chart: c(λ) from a colour chart) with its chart, light,
+# basis, photos and processed records; absolute_scale method "chart"
 SUPPORTED_MAJOR = 1
 SPECTRAL_UNITS_DEFAULT = SPECTRAL_SENSITIVITY
 

@@ -113,7 +113,9 @@ def region_rate(frame: Frame, box: Region | tuple[int, int, int, int] | None, *,
     """
     path = frame.path
     if frame.kind != "raw":
-        raise CamcalError("is not a RAW file; a reference-target photo must be linear RAW data", path)
+        raise CamcalError("is not a RAW file; a reference-target photo must be linear RAW data (shoot RAW: ProRAW/"
+                          "DNG on a phone); for a HEIC/JPEG camera, photograph a colour chart in the sun and run "
+                          "camcal chart CHART.heic -o phone.camcal", path)
     x = frame_relative_exposure(frame.exposure, reference_iso, reference_f_number, path)
     linear = frame.layout == "linear"
     shape_hw = tuple(frame.shape) if linear else (frame.shape[0] // 2, frame.shape[1] // 2)
@@ -458,8 +460,9 @@ def read_targets(targets_csv: str | Path) -> list[tuple[TargetSpectrum, list[tup
             raise CamcalError(f"{where}: lists {name!r}, which is not in the folder", csv_path)
         rad, refl, irr = rec.get("radiance"), rec.get("reflectance"), rec.get("irradiance")
         if rad and (refl or irr) or not rad and not (refl and irr):
-            raise CamcalError(f"{where}: give either a radiance file or a reflectance and an irradiance file",
-                              csv_path)
+            raise CamcalError(f"{where}: give either a radiance file or a reflectance and an irradiance file (no "
+                              "measured irradiance? camcal chart models the clear-sky sunlight on a colour chart "
+                              "from the photo's time and GPS)", csv_path)
         tname = str(rec.get("target") or Path(str(rad or refl)).stem)
         sunc = _number(rec, "scale_unc_rel", where, csv_path) or 0.0
         key = tname

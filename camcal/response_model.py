@@ -357,6 +357,14 @@ def srgb_form_decode(v: np.ndarray, p: float, a: float = SRGB_OFFSET_A) -> np.nd
 
 def _detone(v: np.ndarray, ch: ChannelResponse, tone: dict, white_dn: float) -> np.ndarray:
     """Processed value -> linear DN on the 0..W scale (W·x/x_w)."""
+    if tone["use"] == "table":  # a monotone table (camcal chart): linear between the knots, held at the ends' slope
+        t = tone["table"]
+        vk, lk = np.asarray(t["v_dn"], float), np.asarray(t["linear_dn"], float)
+        if vk.size < 2 or np.any(np.diff(vk) <= 0) or np.any(np.diff(lk) < 0):
+            raise CamcalError("malformed tone table: v_dn must increase and linear_dn must not decrease")
+        slope = (lk[-1] - lk[-2]) / (vk[-1] - vk[-2])
+        out = np.interp(v, vk, lk)
+        return np.where(v > vk[-1], lk[-1] + slope * (v - vk[-1]), np.maximum(out, 0.0))
     if tone["use"] == "srgb":
         return white_dn * srgb_form_decode(v / white_dn, tone["srgb"]["exponent"], tone["srgb"]["offset_a"])
     num = np.maximum(v - ch.beta, 0.0)

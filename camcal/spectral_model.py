@@ -215,6 +215,12 @@ def describe_origin(src: dict[str, Any]) -> tuple[str, str]:
         lib = src.get("library") or {}
         where = (f"curve library: {lib.get('name')} ({lib.get('file')}, {lib.get('collection')}; measured by "
                  f"{lib.get('creator') or 'unknown'}, {lib.get('license')}), matched from {lib.get('matched')}")
+    elif src.get("kind") == "chart":
+        photos = src.get("photos") or []
+        light = src.get("light") or {}
+        where = (f"a colour chart ({len(photos)} photo{'s' if len(photos) != 1 else ''}: "
+                 f"{', '.join(str(p.get('file')) for p in photos[:4])}) under {light.get('model') or light.get('kind')}"
+                 f"; basis of {((src.get('basis') or {}).get('n_cameras'))} library cameras")
     else:
         where = (f"imported from {src.get('file')} ({src.get('format')} format, SHA-256 "
                  f"{str(src.get('sha256'))[:12]}…)")

@@ -296,3 +296,18 @@ def test_linear_raw_profile_from_relative_curves_and_one_target(linear_camera, t
         a, b = apply(frame, prof, 663.0), apply(frame, sweep, 663.0)
         for ch in ("R", "G", "B"):
             assert np.nanmean(a.channels[ch]) == pytest.approx(np.nanmean(b.channels[ch]), rel=0.01), ch
+
+
+def test_a_phone_not_in_the_library_gets_a_next_step_not_a_dslr():
+    """A make the library lacks gets no look-alike models, but the steps that exist: a chart, a curve file."""
+    with pytest.raises(CamcalError) as exc:
+        find_camera(make="Apple", model="iPhone 15 Pro")
+    msg = str(exc.value)
+    assert "closest" not in msg and "camcal chart" in msg and "import-spectral" in msg
+    assert "Canon" not in msg and "Nikon" not in msg
+
+
+def test_cli_curves_search_without_a_match_exits_1():
+    proc = run_cli("curves", "list", "--search", "apple")
+    assert proc.returncode == 1
+    assert "no camera in the library matches 'apple'" in proc.stderr and "camcal chart" in proc.stderr

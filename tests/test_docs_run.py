@@ -54,6 +54,9 @@ PLACEHOLDERS = (
 #: Examples that are not run, by a fragment of the command, with the reason.
 NOT_RUN = {
     "camcal demo": "the session fixture runs the README's demo command itself",
+    "phone.camcal": "needs photos of a colour chart and a phone's survey (tests/test_chart_profile.py runs the "
+    "phone chapter's commands on camcal synth phone's photos)",
+    "camcal chart": "needs photos of a colour chart (tests/test_chart_profile.py and tests/test_chart_detect.py)",
     "import-spectral": "needs photos of reference targets of known radiance (tests/test_spectral_import.py runs it)",
     "--dask-scheduler": "needs a Dask cluster",
     "--model lamp --lamp-height 1m±1cm --lamp-angle 20±0.5 --profile": "needs photos of a lamp-lit tank and a dye "

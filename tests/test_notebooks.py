@@ -21,7 +21,8 @@ pytest.importorskip("ipykernel")
 ROOT = Path(__file__).resolve().parents[1]
 NOTEBOOKS = sorted((ROOT / "notebooks").glob("*.ipynb"))
 EXPECTED = {"01_calibrate_a_camera.ipynb", "02_survey_photos_to_radiance.ipynb",
-            "03_secchi_disk_chlorophyll.ipynb", "04_lamp_tank_experiment.ipynb", "05_sunlit_survey_day.ipynb"}
+            "03_secchi_disk_chlorophyll.ipynb", "04_lamp_tank_experiment.ipynb", "05_sunlit_survey_day.ipynb",
+            "06_phone_in_the_field.ipynb"}
 TIMEOUT_S = 300.0  # per notebook (all its cells together); each takes ≈ 10-15 s on 2 cores
 
 

@@ -214,11 +214,11 @@ def test_unknown_key_cli_one_line(profile_path, tmp_path):
 
 def test_newer_minor_version_with_new_keys_says_so(profile_path, tmp_path):
     def newer(d):
-        d["schema_version"] = "1.9"
+        d["schema_version"] = "1.99"
         d["camera"]["lens"] = "50 mm"
 
     bad = _rehashed_copy(profile_path, tmp_path / "newer.camcal", newer)
-    with pytest.raises(CamcalError, match="unknown key camera/lens .*1.9 is newer.*use a newer camcal"):
+    with pytest.raises(CamcalError, match="unknown key camera/lens .*1.99 is newer.*use a newer camcal"):
         load_profile(bad)
 
 

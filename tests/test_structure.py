@@ -23,8 +23,10 @@ ROOT = Path(__file__).resolve().parents[1]
 # The only imports allowed inside a function: packages that must stay off the paths that do not plot or do not
 # distribute (test_a_calibrate_run_loads_no_plotting_or_distribution). matplotlib draws figures; dask runs a batch on
 # a cluster; colour-science imports matplotlib itself (its package __init__ imports colour.plotting), so it follows
-# matplotlib's rule. Everything else, camcal's own modules and every other library, is imported at the top.
-IMPORTED_WHERE_USED = {"matplotlib", "dask", "colour", "astropy"}  # astropy: FITS frames only (0.7 s to import)
+# matplotlib's rule, and so does colour-checker-detection (it imports colour-science). astropy reads FITS frames
+# only and costs 0.7 s to import. Everything else, camcal's own modules and every other library, is imported at the
+# top.
+IMPORTED_WHERE_USED = {"matplotlib", "dask", "colour", "colour_checker_detection", "astropy"}
 
 
 def _imports_inside_functions(path: Path) -> list[tuple[int, str]]:

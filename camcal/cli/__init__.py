@@ -37,8 +37,8 @@ app = typer.Typer(
 
 #: Commands (``camcal NAME``) in help order; each is implemented by ``camcal.cli.NAME_cmd.register(app)``.
 COMMAND_MODULES = (
-    "demo", "inspect", "synth", "dark", "flat", "linearity", "sweep", "calibrate", "profile", "curves", "report",
-    "apply", "water", "secchi", "rrs", "emva",
+    "demo", "inspect", "synth", "dark", "flat", "linearity", "sweep", "calibrate", "chart", "profile", "curves",
+    "report", "apply", "water", "secchi", "rrs", "emva",
 )
 
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import typer
 from rich.table import Table
 
-from camcal.cli.common import console, print_json
-from camcal.curve_library import COLLECTION, list_cameras
+from camcal.cli.common import console, err_console, print_json
+from camcal.curve_library import COLLECTION, NO_CURVES_NEXT_STEP, list_cameras
 
 
 def register(app: typer.Typer) -> None:
@@ -21,6 +21,12 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """List the library's cameras (use a name with profile import-spectral --camera)."""
         cams = list_cameras(search)
+        if not cams and search is not None:  # a search that finds nothing is a failed look-up: exit 1
+            if as_json:
+                print_json([])
+            err_console.print(f"no camera in the library matches {search!r}; {NO_CURVES_NEXT_STEP}",
+                              soft_wrap=True, markup=False, highlight=False)
+            raise typer.Exit(1)
         if as_json:
             print_json([{"name": c.name, "make": c.make, "model": c.model, "file": c.file, "creator": c.creator,
                          "equipment": c.equipment, "license": c.license} for c in cams])

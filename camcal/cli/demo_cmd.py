@@ -7,6 +7,7 @@ from pathlib import Path
 import typer
 
 from camcal.demo import run_demo
+from camcal.demo_phone import run_phone_demo
 from camcal.errors import CamcalError
 
 
@@ -20,8 +21,13 @@ def register(app: typer.Typer) -> None:
         layout: str = typer.Option("bayer", "--layout",
                                    help="RAW layout of every synthetic file: bayer (CFA mosaics) or linear "
                                         "(LinearRaw DNGs with R, G, B planes, as converters and phones write)."),
+        phone: bool = typer.Option(False, "--phone", help="The phone route instead: a colour chart in the sun (camcal "
+                                   "chart) to a profile, then the grey field (apply) and the Secchi disk (secchi) "
+                                   "from DNG and HEIC."),
     ) -> int:
         """Synthesise a calibration session and Secchi-disk photos, run every stage, print truth vs recovered."""
+        if phone:
+            return 0 if run_phone_demo(out)["ok"] else 1
 
         if layout not in ("bayer", "linear"):
             raise CamcalError(f"unknown layout {layout!r}; choose bayer or linear")
