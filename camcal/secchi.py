@@ -3,13 +3,18 @@
 1. **Apply** the calibration profile to every photo (:func:`camcal.apply.apply_prepared`): band radiance R, G, B.
 2. **Find the disk** in each (:func:`camcal.water.disk.find_disk`, or ``--roi``): the interior and, in the
    submerged photos, the surround water that measures the sky reflected by the surface.
-3. **Band-radiance ratio** r = (L̄_sub − L̄_surround)/L̄_ref of the band channel (R), with
-   σ_ln r² = (SE_sub² + SE_surround²)/(L̄_sub − L̄_surround)² + (SE_ref/L̄_ref)² (standard errors of the region
-   means: the photos' own noise).
-4. **Invert** with the field model (:class:`camcal.water.field.FieldBandModel`: sun and sky over a flat surface,
+3. **Glare and water-leaving radiance** (:mod:`camcal.water.surround`): the surface glare over the disk is
+   modelled from the sky model and the view, G = R(θv) f L̄_ref/ρ_ref; the measured surround beyond it is the
+   water's own light W, whose part over the disk F W (a homogeneous column) is subtracted with a 1-σ covering
+   none to all of it. A surround the glare does not explain is a warning.
+4. **Band-radiance ratio** r = (L̄_sub − G − F W)/L̄_ref of the band channel (R), with the photos' noise
+   σ_ln r² = SE_sub²/(L̄_sub − G − F W)² + (SE_ref/L̄_ref)²; F depends on C (the band's absorption), so C and F
+   are solved together by fixed-point iteration.
+5. **Invert** with the field model (:class:`camcal.water.field.FieldBandModel`: sun and sky over a flat surface,
    SPECTRL2 or a measured sky, or ``overcast``) over the profile's c(λ).
-5. σ_C: the ratio's noise, the depth, the absorber's scale (ε), the sun's zenith angle, the diffuse fraction, the
-   aerosol and the profile's c(λ) (:mod:`camcal.water.uncertainty`), root sum of squares, with the dominant term.
+6. σ_C: the ratio's noise, the glare, the water-leaving radiance over the disk, the surround's noise, the depth,
+   the absorber's scale (ε), the sun's zenith angle, the diffuse fraction, the aerosol and the profile's c(λ)
+   (:mod:`camcal.water.uncertainty`), root sum of squares, with the dominant term.
 
 Several submerged photos (depths) give one C each and a combined C: the inverse-variance weighted mean, whose
 σ keeps the independent terms (ratio, depth) independent and the shared ones (ε, sun, sky, c(λ)) fully
@@ -37,10 +42,22 @@ from camcal.water.band import band_model_from_profile
 from camcal.water.disk import DiskFit, disk_from_roi, find_disk, region_mean
 from camcal.water.field import FieldBandModel, FieldGeometry
 from camcal.water.invert import Reason
+from camcal.water.surround import (
+    REFERENCE_ALBEDO,
+    REFERENCE_ALBEDO_SIGMA,
+    SurroundBudget,
+    column_fraction,
+    glare_radiance,
+    surround_budget,
+)
 from camcal.water.uncertainty import Uncertain, combine, solve_c, uncertainty_terms
 
 #: Terms that differ from photo to photo (independent); the rest are shared by all photos of a survey.
-INDEPENDENT_TERMS = ("ratio", "depth")
+INDEPENDENT_TERMS = ("ratio", "depth", "surround_noise")
+#: Relative 1-σ of the uniform sky's radiance when the sky model states none (overcast).
+DIFFUSE_SIGMA_DEFAULT = 0.2
+#: Fixed-point iterations of C and the column fraction F.
+MAX_ITERATIONS = 30
 
 
 @dataclass
@@ -65,6 +82,11 @@ class Shot:
     reason: str = ""
     error: str | None = None
     notes: list = field(default_factory=list)
+    warnings: list = field(default_factory=list)
+    budget: SurroundBudget | None = None
+    unit: str = ""
+    preview: dict | None = None
+    """Downsampled G and band-ratio images for the page (:func:`downsample`), made as each photo is done."""
 
 
 def measure_photo(shot: Shot, plan, channel: str, roi: Region | None, surround: bool) -> Shot:
@@ -80,12 +102,95 @@ def measure_photo(shot: Shot, plan, channel: str, roi: Region | None, surround: 
     shot.fit, shot.channels = fit, {k: img.channels[k] for k in {"G", channel}}  # for the diagnostic page
     shot.notes += list(fit.notes) + list(img.metadata.get("notes", []))
     shot.disk_radiance, shot.disk_se, _ = region_mean(band, fit.interior)
+    shot.unit = str(img.metadata.get("units", {}).get(channel, ""))
     if surround:
         if fit.surround.sum() < 20:
             raise CamcalError("too little water around the disk to measure the reflected sky (move the disk "
                               "away from the frame's edge or give --roi)", shot.path)
         shot.surround_radiance, shot.surround_se, _ = region_mean(band, fit.surround)
     return shot
+
+
+def diffuse_fraction_in_band(model: FieldBandModel) -> float:
+    """The band's diffuse fraction f = ∫ c E_g f dλ / ∫ c E_g dλ of the field model's light."""
+    w, _, _, f = model._fparts
+    return float(np.sum(w * f))
+
+
+def band_absorption_per_m(model: FieldBandModel, c_ug_per_L: float) -> float:
+    """The band-weighted absorption a = Σ w (a_w + a_bg + a_chl(C)), m⁻¹."""
+    w, chl, bg, _ = model._fparts
+    return float(np.sum(w * (bg + chl.absorption_per_m(c_ug_per_L))))
+
+
+def unexplained_sigma(model: FieldBandModel, disk: float, reference: float, depth_m: float,
+                      span: tuple[float, float], c_ug_per_L: float, nodes: int = 12) -> float:
+    """RMS of C(X) − C for the light X over the disk uniform on ``span`` (Gauss-Legendre over X, each node
+    inverted exactly); a node no C explains (X too large: a dark disk) counts as a zero-signal bound, C = 2×
+    the largest explained C, so σ stays finite and large."""
+    x, w = np.polynomial.legendre.leggauss(nodes)
+    lo, hi = span
+    xs = lo + (x + 1.0) * 0.5 * (hi - lo)
+    cs = np.array([invert_one(model, (disk - xx) / reference, depth_m)[0] for xx in xs])
+    ok = np.isfinite(cs)
+    if not ok.any():
+        return float("inf")
+    cs = np.where(ok, cs, 2.0 * np.nanmax(cs))
+    return float(np.sqrt(np.sum(0.5 * w * (cs - c_ug_per_L) ** 2)))
+
+
+def solve_shot(s: Shot, ref: Shot, model: FieldBandModel, depth_m: float, depth_sigma_m: float, inputs: list,
+               glare_rel_sigma: float, *, view_angle_rad: float = 0.0, n_water: float = 1.33) -> Shot:
+    """C of one submerged photo with its glare and water-leaving budget (:mod:`camcal.water.surround`) and every
+    σ_C term. C and the column fraction F(C) are solved together (fixed point from F = ½)."""
+    glare = glare_radiance(ref.disk_radiance, diffuse_fraction_in_band(model), view_angle_rad=view_angle_rad,
+                           n_water=n_water)
+    col = 0.5
+    c = float("nan")
+    for _ in range(MAX_ITERATIONS):
+        budget = surround_budget(s.disk_radiance, s.surround_radiance, s.surround_se, glare,
+                                 glare_rel_sigma * glare, col, unit=s.unit)
+        c_new, reason = invert_one(model, budget.signal / ref.disk_radiance, depth_m)
+        if reason != "ok":
+            c = c_new
+            break
+        new_col = column_fraction(band_absorption_per_m(model, c_new), depth_m, view_angle_rad=view_angle_rad,
+                                  n_water=n_water)
+        done = np.isfinite(c) and abs(c_new - c) <= 1e-6 * c_new and abs(new_col - col) < 1e-6
+        c, col = c_new, new_col
+        if done:
+            break
+    budget = surround_budget(s.disk_radiance, s.surround_radiance, s.surround_se, glare, glare_rel_sigma * glare,
+                             col, unit=s.unit)
+    s.budget = budget
+    if budget.warning:
+        s.warnings.append(budget.warning)
+    sig = budget.signal
+    s.ratio = sig / ref.disk_radiance
+    s.sigma_ln_ratio = float(np.sqrt(s.disk_se ** 2 / sig ** 2 + (ref.disk_se / ref.disk_radiance) ** 2)) \
+        if sig > 0 else float("nan")
+    s.c_ug_per_L, s.reason = invert_one(model, s.ratio, depth_m)
+    if s.reason != "ok":
+        s.error = f"{s.path}: no concentration explains the ratio {s.ratio:.4g} ({s.reason})"
+        return s
+    b, db = model.ratio_and_derivative(np.array([s.c_ug_per_L]), depth_m)
+    per_ln_ratio = float(b[0]) / abs(float(db[0]))  # σ_C per unit σ_ln r
+    terms = {"ratio": np.array([s.sigma_ln_ratio * per_ln_ratio])}
+    for k, v in budget.sigma_terms().items():
+        if v > 0:
+            terms[k] = np.array([v / sig * per_ln_ratio])
+    span = budget.unexplained_interval()
+    if span is not None:  # the surround model does not hold: X ~ U(0, S) over the disk, through the inversion
+        terms.pop("glare", None)
+        terms.pop("water_leaving", None)
+        terms["unexplained_surround"] = np.array([unexplained_sigma(model, s.disk_radiance, ref.disk_radiance,
+                                                                    depth_m, span, s.c_ug_per_L)])
+    grid = s.c_ug_per_L * np.array([0.999, 1.0, 1.001])  # one C: a three-node log-uniform grid
+    terms.update(uncertainty_terms(model, depth_m, np.array([s.c_ug_per_L]),
+                                   [Uncertain("depth", depth_m, depth_sigma_m, "m"), *inputs], grid=grid))
+    s.terms = {k: float(np.asarray(v).reshape(-1)[0]) for k, v in terms.items()}
+    s.sigma_ug_per_L = float(combine({k: np.array(v) for k, v in s.terms.items()}))
+    return s
 
 
 @dataclass
@@ -145,6 +250,8 @@ def run_secchi(profile_path: str | Path, reference: str | Path, submerged: list,
                            sensitivity_sigma=base.sensitivity_sigma, sky=sky)
     model = replace(model, illuminant=model._light[0])
     ref = measure_photo(Shot(Path(reference), "reference"), plan, channel, roi, surround=False)
+    diffuse_sigma = next((q.sigma for q in inputs if q.name == "diffuse_fraction"), DIFFUSE_SIGMA_DEFAULT)
+    glare_rel_sigma = float(np.hypot(diffuse_sigma, REFERENCE_ALBEDO_SIGMA / REFERENCE_ALBEDO))
     if progress:
         progress()
     if not (np.isfinite(ref.disk_radiance) and ref.disk_radiance > 0):
@@ -164,21 +271,9 @@ def run_secchi(profile_path: str | Path, reference: str | Path, submerged: list,
             inputs = [replace(q, value=key) if q.name == "sun_zenith" else q for q in inputs]
         try:
             measure_photo(s, plan, channel, roi, surround=True)
-            sig = s.disk_radiance - s.surround_radiance
-            s.ratio = sig / ref.disk_radiance
-            s.sigma_ln_ratio = float(np.sqrt((s.disk_se ** 2 + s.surround_se ** 2) / sig ** 2
-                                             + (ref.disk_se / ref.disk_radiance) ** 2)) if sig > 0 else float("nan")
-            s.c_ug_per_L, s.reason = invert_one(model, s.ratio, d)
-            if s.reason != "ok":
-                s.error = f"{s.path}: no concentration explains the ratio {s.ratio:.4g} ({s.reason})"
-            else:
-                b, db = model.ratio_and_derivative(np.array([s.c_ug_per_L]), d)
-                terms = {"ratio": np.array([s.sigma_ln_ratio * float(b[0]) / abs(float(db[0]))])}
-                grid = s.c_ug_per_L * np.array([0.999, 1.0, 1.001])  # one C: a three-node log-uniform grid
-                terms.update(uncertainty_terms(model, d, np.array([s.c_ug_per_L]),
-                                               [Uncertain("depth", d, sd, "m"), *inputs], grid=grid))
-                s.terms = {k: float(np.asarray(v).reshape(-1)[0]) for k, v in terms.items()}
-                s.sigma_ug_per_L = float(combine({k: np.array(v) for k, v in s.terms.items()}))
+            s.unit = ref.unit
+            solve_shot(s, ref, model, d, sd, inputs, glare_rel_sigma, view_angle_rad=geometry.view_angle_rad,
+                       n_water=geometry.n_water)
         except CamcalError as exc:
             s.error = str(exc)
         shots.append(s)
@@ -205,11 +300,19 @@ def result_json(res: SecchiResult) -> dict:
                 "sigma_ug_per_L": num(s.sigma_ug_per_L), "sigma_terms_ug_per_L": {k: num(v) for k, v in
                                                                                   s.terms.items()},
                 "dominant": max(s.terms, key=s.terms.get) if s.terms else None, "reason": s.reason or None,
-                "error": s.error, "notes": s.notes}
+                "error": s.error, "notes": s.notes, "warnings": s.warnings, "unit": s.unit,
+                "surround_budget": None if s.budget is None else {k: num(v) if not isinstance(v, bool) else v
+                                                                  for k, v in s.budget.describe().items()}}
 
     return {"c_ug_per_L": num(res.c_ug_per_L), "sigma_ug_per_L": num(res.sigma_ug_per_L),
             "sigma_terms_ug_per_L": {k: num(v) for k, v in res.terms.items()}, "dominant": res.dominant,
+            "warnings": all_warnings(res), "unit_radiance": res.reference.unit, "unit_c": CONCENTRATION,
             "reference": shot(res.reference), "submerged": [shot(s) for s in res.submerged], **res.meta}
+
+
+def all_warnings(res: SecchiResult) -> list[str]:
+    """Every photo's warnings, each prefixed with its file name."""
+    return [f"{s.path.name}: {w}" for s in [res.reference, *res.submerged] for w in s.warnings]
 
 
 def _shot_figure(s: Shot, res: SecchiResult, channel: str):
@@ -234,7 +337,8 @@ def _shot_figure(s: Shot, res: SecchiResult, channel: str):
     ax.set_title(f"{s.path.name}: disk (orange), interior (green)" + (", surround (blue), glint (red)"
                                                                      if s.kind == "submerged" else ""), fontsize=7)
     if sub:
-        ratio = np.where(s.fit.interior, (s.channels[channel] - s.surround_radiance) / res.reference.disk_radiance,
+        ratio = np.where(s.fit.interior, (s.channels[channel] - s.budget.glare - s.budget.over_disk)
+                         / res.reference.disk_radiance,
                          np.nan)
         im = axes[1].imshow(ratio, cmap="viridis", interpolation="nearest")
         fig.colorbar(im, ax=axes[1], shrink=0.8)

@@ -11,7 +11,7 @@ from camcal.cli.common import console, print_json, progress
 from camcal.cli.water_cmd import _depth_unc, _number, _split_unc, _unc_value
 from camcal.errors import CamcalError
 from camcal.region import Region
-from camcal.secchi import result_json, run_secchi, write_diagnostics
+from camcal.secchi import all_warnings, result_json, run_secchi, write_diagnostics
 from camcal.sun import parse_sun_option, photo_sun
 from camcal.units import CONCENTRATION
 from camcal.water.band import read_chlorophyll_csv
@@ -146,6 +146,8 @@ def register(app: typer.Typer) -> None:
                 console.print(f"C = {res.c_ug_per_L:.4g} ± {res.sigma_ug_per_L:.2g} {CONCENTRATION} "
                               f"(dominant: {res.dominant})",
                               markup=False)
+            for w in all_warnings(res):
+                console.print(f"warning: {w}", markup=False, style="yellow")
             if page is not None:
                 console.print(f"wrote {page}", markup=False)
         if failed and len(failed) == len(res.submerged):
