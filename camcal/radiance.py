@@ -237,8 +237,8 @@ def radiance_at(
     Returns
     -------
     (L, L_unc) in ``model.units``, float32 for float32 rates (else float64): L = Σ_i w_i s rate_i over the
-    channels of non-zero weight (a NaN in an unused channel does not spread), L_unc² = Σ_i (w_i s)² var_i + (u L)², u = :attr:`RadianceModel.unc_rel`
-    (c(λ) ⊕ the spectral reconstruction).
+    channels of non-zero weight (a NaN in an unused channel does not spread),
+    L_unc² = Σ_i (w_i s)² var_i + (u L)², u = :attr:`RadianceModel.unc_rel` (c(λ) ⊕ the spectral reconstruction).
     """
     idx = [i for i in range(3) if model.weights[i] != 0]
     if not idx:
