@@ -166,7 +166,14 @@ def test_secchi_end_to_end_dng(shots, profile_path, tmp_path):
         assert abs(s["c_ug_per_L"] - 30.0) <= 2 * s["sigma_ug_per_L"], s
     assert out["c_ug_per_L"] == pytest.approx(30.0, rel=0.03)
     assert out["dominant"] in out["sigma_terms_ug_per_L"]
-    assert (tmp_path / "page" / "index.html").is_file() and len(list((tmp_path / "page").glob("*.png"))) == 3
+    assert (tmp_path / "page" / "index.html").is_file() and len(list((tmp_path / "page").glob("photo*.png"))) == 3
+    assert (tmp_path / "page" / "survey_time.png").is_file()  # C over the capture time
+    assert (tmp_path / "page" / "survey_positions.png").is_file()  # the photos hold GPS
+    page = (tmp_path / "page" / "index.html").read_text()
+    assert page.count('<div class="card"><h3>') == 3  # one card per photo, each with its image
+    assert page.count('<img src="photo') == 3 and "<style>" in page
+    assert "{'" not in page and '{"' not in page  # no raw dict
+    assert page.count("W m⁻² sr⁻¹ nm⁻¹") >= 6 and "µg/L" in page and "(dimensionless)" in page
     # the sun placed from each photo's GPS time and position
     assert out["sun"]["reference"]["zenith_deg"] == pytest.approx(shots["sun"].zenith_deg, abs=1e-6)
     assert "GPS" in out["sun"]["reference"]["source"]
@@ -288,15 +295,17 @@ def test_secchi_on_the_demo_disk_photos_warns_and_states_its_error(demo_run):
     """The demo's disk photos have a bright surround and no glare: secchi cannot trust its surround model, warns,
     and its σ_C covers at least half its error (C = 60 µg/L is the truth)."""
     demo, _ = demo_run
-    proc = run_cli("secchi", "--profile", demo / "camera.camcal", "--reference", demo / "survey/disk_reference.dng",
-                   "--submerged", demo / "survey/disk_submerged.dng", "--depth", "0.8m", "--sky", "overcast",
-                   "--json")
-    assert proc.returncode == 0, proc.stderr
-    out = json.loads(proc.stdout)
-    assert out["warnings"] and all(isinstance(w, str) for w in out["warnings"])
-    assert "unexplained_surround" in out["sigma_terms_ug_per_L"]
-    err = abs(out["c_ug_per_L"] - 60.0)
-    assert err <= 0.03 * 60.0 or out["sigma_ug_per_L"] >= 0.5 * err, out
+    for light in (("--sky", "overcast"), ("--sun", "35,160")):
+        proc = run_cli("secchi", "--profile", demo / "camera.camcal", "--reference",
+                       demo / "survey/disk_reference.dng", "--submerged", demo / "survey/disk_submerged.dng",
+                       "--depth", "0.8m", *light, "--json")
+        assert proc.returncode == 0, proc.stderr
+        out = json.loads(proc.stdout)
+        assert out["warnings"] and all(isinstance(w, str) for w in out["warnings"])
+        assert "unexplained_surround" in out["sigma_terms_ug_per_L"]
+        err = abs(out["c_ug_per_L"] - 60.0)
+        assert err <= 0.03 * 60.0 or out["sigma_ug_per_L"] >= 0.5 * err, (light, out["c_ug_per_L"],
+                                                                          out["sigma_ug_per_L"])
 
 
 def test_synth_sunlit_photos_from_the_cli_read_by_secchi(profile_path, tmp_path):
@@ -317,3 +326,18 @@ def test_synth_sunlit_photos_from_the_cli_read_by_secchi(profile_path, tmp_path)
     budget = out["submerged"][0]["surround_budget"]
     assert budget["explained"] and budget["surround_measured"] == pytest.approx(budget["glare_modelled"], rel=0.3)
     assert run_cli("synth", "photo", tmp_path / "x.dng", "--scene", "secchi-sunlit").returncode == 2
+
+
+def test_secchi_reads_exrs_of_its_profile_and_offers_only_options_that_exist(demo_run, profile_path, tmp_path):
+    """secchi takes apply's EXRs too and refuses those of another profile; the advice for another camera names
+    --allow-other-camera, which secchi accepts."""
+    demo, _ = demo_run
+    exr = ("--reference", demo / "radiance/disk_reference.dng.exr", "--submerged",
+           demo / "radiance/disk_submerged.dng.exr", "--depth", "0.8m", "--sky", "overcast", "--json")
+    proc = run_cli("secchi", "--profile", demo / "camera.camcal", *exr)
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout)["submerged"][0]["c_ug_per_L"] > 0
+    proc = run_cli("secchi", "--profile", profile_path, *exr)
+    assert_one_line_error(proc, "disk_reference.dng.exr", "was made by the profile", str(profile_path))
+    help_text = run_cli("secchi", "--help").stdout
+    assert "--allow-other-camera" in help_text

@@ -22,13 +22,13 @@ def test_old_spellings_are_rewritten_with_one_deprecation_line():
 
 
 def test_old_water_spelling_still_works_through_the_cli():
-    new = run_cli("water", "forward", "--concentration", "89ug/L", "--depth", "20cm", "--water-model", "seed")
-    old = run_cli("water", "forward", "--concentration", "89ug/L", "--depth", "20cm", "--model", "seed")
+    new = run_cli("water", "forward", "--json", "--concentration", "89ug/L", "--depth", "20cm", "--water-model", "seed")
+    old = run_cli("water", "forward", "--json", "--concentration", "89ug/L", "--depth", "20cm", "--model", "seed")
     assert new.returncode == old.returncode == 0, old.stderr
     assert json.loads(new.stdout)["ratio"] == json.loads(old.stdout)["ratio"]
     assert "deprecated: --model is now --water-model" in old.stderr and not new.stderr.strip()
     # the default is the refined model: water, surface and all
-    default = run_cli("water", "forward", "--concentration", "89ug/L", "--depth", "20cm")
+    default = run_cli("water", "forward", "--json", "--concentration", "89ug/L", "--depth", "20cm")
     assert json.loads(default.stdout)["model"] == "refined"
 
 

@@ -11,7 +11,7 @@ from camcal.cli.common import console, print_json, progress
 from camcal.cli.water_cmd import _depth_unc, _number, _split_unc, _unc_value
 from camcal.errors import CamcalError
 from camcal.region import Region
-from camcal.secchi import all_warnings, result_json, run_secchi, write_diagnostics
+from camcal.secchi import all_warnings, result_json, result_table, run_secchi, write_diagnostics
 from camcal.sun import parse_sun_option, photo_sun
 from camcal.units import CONCENTRATION
 from camcal.water.band import read_chlorophyll_csv
@@ -39,7 +39,7 @@ def register(app: typer.Typer) -> None:
     def secchi_cmd(
         profile: Path = typer.Option(..., "--profile", help="Calibration profile (.camcal) of the camera."),
         reference: Path = typer.Option(..., "--reference", help="Photo of the disk in air (dry, horizontal, "
-                                       "under the same light)."),
+                                       "under the same light), or its radiance EXR from camcal apply with --profile."),
         submerged: list[Path] = typer.Option(..., "--submerged", help="Photo of the disk under water (repeat "
                                              "for several; one --depth each)."),
         depth: list[str] = typer.Option(..., "--depth", help="Disk depth per submerged photo: '0.5m', '50cm', "
@@ -74,6 +74,8 @@ def register(app: typer.Typer) -> None:
         view_deg: float = typer.Option(0.0, help="Camera view angle from nadir in air, degrees."),
         reflectance: str = typer.Option("fresnel", help="fresnel (exact) or schlick."),
         transmittance: str = typer.Option("exact", help="Sky part: exact (T(θ) in the integral) or mean (T̄)."),
+        allow_other_camera: bool = typer.Option(False, "--allow-other-camera",
+                                                help="Accept photos of another camera model than the profile's."),
     ) -> None:
         """Chlorophyll-a from photos of a Secchi disk under the sun: apply the profile, find the disks, form the
         band ratio, invert the field model (direct sun + sky over a flat surface); C ± σ_C and one line per
@@ -125,27 +127,18 @@ def register(app: typer.Typer) -> None:
                              inputs=inputs, channel=band_channel, chlorophyll=chl,
                              background_absorption_per_m=background_absorption, roi=region,
                              sun_zeniths_deg=None if suns is None else [s.apparent_zenith_deg for s in suns],
-                             progress=lambda: bar.advance(task))
+                             progress=lambda: bar.advance(task), allow_other_camera=allow_other_camera,
+                             page_dir=out)
         res.meta["sun"] = sun_meta
         page = write_diagnostics(res, out, band_channel) if out is not None else None
         failed = [s for s in res.submerged if s.error]
         if as_json:
             print_json({**result_json(res), "page": None if page is None else str(page)})
         else:
-            for s in [res.reference, *res.submerged]:
-                if s.error:
-                    console.print(f"{s.path.name}: FAILED {s.error}", markup=False)
-                elif s.kind == "reference":
-                    console.print(f"{s.path.name}: reference, disk at {s.fit.describe()['centre_photo_px']} "
-                                  f"r = {s.fit.radius_photo_px:.1f} px, L = {s.disk_radiance:.4g}", markup=False)
-                else:
-                    dom = max(s.terms, key=s.terms.get)
-                    console.print(f"{s.path.name}: d = {s.depth_m:g} m, ratio {s.ratio:.5f}, C = {s.c_ug_per_L:.4g}"
-                                  f" ± {s.sigma_ug_per_L:.2g} {CONCENTRATION} (dominant: {dom})", markup=False)
+            console.print(result_table(res))
             if np.isfinite(res.c_ug_per_L):
-                console.print(f"C = {res.c_ug_per_L:.4g} ± {res.sigma_ug_per_L:.2g} {CONCENTRATION} "
-                              f"(dominant: {res.dominant})",
-                              markup=False)
+                console.print(f"C = {res.c_ug_per_L:.4g} ± {res.sigma_ug_per_L:.2g} {CONCENTRATION} (1σ; dominant "
+                              f"term: {res.dominant})", markup=False)
             for w in all_warnings(res):
                 console.print(f"warning: {w}", markup=False, style="yellow")
             if page is not None:

@@ -24,9 +24,11 @@ The disk's signal is then D − G − F W; with W estimated as S − G that is D
 enters σ with the weight (1 − F) and the surround's noise with F. A surround brighter than the glare by more
 than twice its 1-σ is **not explained** by the model: the result carries a warning, and since neither the glare
 model nor the column model can then be trusted, the light over the disk beyond the disk's own is known only to
-lie between none and all of the surround, X ~ U(0, S) (:meth:`SurroundBudget.unexplained_interval`); C stays
-the model's estimate and σ_C takes the unexplained term, the RMS of C(X) − C over that distribution (computed
-through the nonlinear inversion, not its slope). A surround darker than the glare by more than that is also a
+lie between none and all of the surround, X in [0, S] (:meth:`SurroundBudget.unexplained_interval`), and the
+sky may be brighter than the model's (up to the diffuse fraction whose glare would be the whole surround). C stays
+the model's estimate; σ_C takes the unexplained term, a rectangular distribution whose half-width is the largest
+|C(X; sky) − C| over those bounds (GUM 4.3.7; computed through the nonlinear inversion, not its slope):
+:func:`camcal.secchi.unexplained_sigma`. A surround darker than the glare by more than that is also a
 warning (the sky in the reflected direction is darker than the uniform sky, a polariser): the measured surround
 is then the glare.
 
