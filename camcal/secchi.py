@@ -423,36 +423,6 @@ def all_warnings(res: SecchiResult) -> list[str]:
     return [f"{s.path.name}: {w}" for s in [res.reference, *res.submerged] for w in s.warnings]
 
 
-def result_table(res: SecchiResult):
-    """A Rich table of the survey: one row per photo, units in the headers (the surround budget is in the JSON
-    and on the page)."""
-    from rich.markup import escape
-    from rich.table import Table
-
-    unit = res.reference.unit or "?"
-    t = Table(title=f"camcal secchi: band {escape(unit)}", title_justify="left")
-    for col in ("photo", "depth (m)", "disk L", "ratio", f"C ± σ_C ({CONCENTRATION})", "dominant σ term"):
-        t.add_column(col, justify="left" if col in ("photo", "dominant σ term") else "right",
-                     overflow="fold")
-
-    def g(v, digits=4):
-        return "—" if v is None or not np.isfinite(v) else f"{v:.{digits}g}"
-
-    for s in [res.reference, *res.submerged]:
-        name = escape(s.path.name)
-        if s.error:
-            t.add_row(name, "" if s.depth_m is None else f"{s.depth_m:g}", g(s.disk_radiance), "", "[red]failed[/red]",
-                      "")
-        elif s.kind == "reference":
-            t.add_row(name, "air", g(s.disk_radiance), "", "", "")
-        else:
-            dom = max(s.terms, key=s.terms.get) if s.terms else ""
-            t.add_row(name, f"{s.depth_m:g}", g(s.disk_radiance), g(s.ratio, 5),
-                      f"{s.c_ug_per_L:.4g} ± {s.sigma_ug_per_L:.2g}" + (" [yellow]⚠[/yellow]" if s.warnings else ""),
-                      escape(dom))
-    return t
-
-
 def _shot_figure(s: Shot, ref: Shot, model, channel: str):
     """The page image of one photo, from block means of its full-size maps: the photo (G band radiance) with the
     disk, interior, surround and glints; for a submerged photo also its per-pixel band ratio over the interior."""

@@ -6,12 +6,14 @@ from pathlib import Path
 
 import numpy as np
 import typer
+from rich.markup import escape
+from rich.table import Table
 
 from camcal.cli.common import console, print_json, progress
 from camcal.cli.water_cmd import _depth_unc, _number, _split_unc, _unc_value
 from camcal.errors import CamcalError
 from camcal.region import Region
-from camcal.secchi import all_warnings, result_json, result_table, run_secchi, write_diagnostics
+from camcal.secchi import SecchiResult, all_warnings, result_json, run_secchi, write_diagnostics
 from camcal.sun import parse_sun_option, photo_sun
 from camcal.units import CONCENTRATION
 from camcal.water.band import read_chlorophyll_csv
@@ -28,6 +30,33 @@ from camcal.water.uncertainty import Uncertain
 SUN_SIGMA_DEG = 0.5
 DIFFUSE_SIGMA = 0.2
 AEROSOL_SIGMA = 0.05
+
+
+def result_table(res: SecchiResult):
+    """A Rich table of the survey: one row per photo, units in the headers (the surround budget is in the JSON
+    and on the page)."""
+    unit = res.reference.unit or "?"
+    t = Table(title=f"camcal secchi: band {escape(unit)}", title_justify="left")
+    for col in ("photo", "depth (m)", "disk L", "ratio", f"C ± σ_C ({CONCENTRATION})", "dominant σ term"):
+        t.add_column(col, justify="left" if col in ("photo", "dominant σ term") else "right",
+                     overflow="fold")
+
+    def g(v, digits=4):
+        return "—" if v is None or not np.isfinite(v) else f"{v:.{digits}g}"
+
+    for s in [res.reference, *res.submerged]:
+        name = escape(s.path.name)
+        if s.error:
+            t.add_row(name, "" if s.depth_m is None else f"{s.depth_m:g}", g(s.disk_radiance), "", "[red]failed[/red]",
+                      "")
+        elif s.kind == "reference":
+            t.add_row(name, "air", g(s.disk_radiance), "", "", "")
+        else:
+            dom = max(s.terms, key=s.terms.get) if s.terms else ""
+            t.add_row(name, f"{s.depth_m:g}", g(s.disk_radiance), g(s.ratio, 5),
+                      f"{s.c_ug_per_L:.4g} ± {s.sigma_ug_per_L:.2g}" + (" [yellow]⚠[/yellow]" if s.warnings else ""),
+                      escape(dom))
+    return t
 
 
 def _percent(text: str, what: str) -> float:
