@@ -539,7 +539,7 @@ table.kv td:last-child{text-align:right;font-variant-numeric:tabular-nums}
 figure{margin:0}
 figcaption{font-size:12px;color:#55606b;margin-top:4px}
 .plots{display:flex;flex-wrap:wrap;gap:16px;margin:12px 0 24px}
-.plots .card{flex:0 1 520px}
+.plots .card{flex:0 1 480px}
 footer{font-size:12px;color:#6b7680;padding:12px 32px 24px}
 """
 
@@ -550,7 +550,7 @@ def _fmt(v, digits: int = 4, unit: str = "") -> str:
     return f"{v:.{digits}g}" + (f" {unit}" if unit else "")
 
 
-def _card(s: Shot, res: SecchiResult) -> str:
+def _card(s: Shot, res: SecchiResult, title: str) -> str:
     e = html.escape
     unit = s.unit or res.reference.unit
     rows = [("kind", "reference (disk in air)" if s.kind == "reference" else "submerged")]
@@ -581,7 +581,7 @@ def _card(s: Shot, res: SecchiResult) -> str:
     warns = "".join(f'<div class="warn">⚠ {e(w)}</div>' for w in s.warnings)
     err = f'<div class="err">failed: {e(s.error)}</div>' if s.error else ""
     notes = "".join(f'<p class="terms">note: {e(str(n))}</p>' for n in s.notes)
-    return (f'<div class="card"><h3>{e(s.path.name)}</h3>{img}{err}{warns}<table class="kv">{kv}</table>'
+    return (f'<div class="card"><h3>{e(title)}</h3>{img}{err}{warns}<table class="kv">{kv}</table>'
             f"{terms}{notes}</div>")
 
 
@@ -617,7 +617,10 @@ def write_diagnostics(res: SecchiResult, outdir: str | Path, channel: str = "R")
             f"{e(str(res.dominant))}; band channel {e(channel)}; radiance in {e(res.reference.unit or '?')}</p>"
             f"<p>light: {e(_light_text(res.meta))}</p></header>")
     banner = "".join(f'<div class="warn">⚠ {e(w)}</div>' for w in warns)
-    cards = "".join(_card(s, res) for s in [res.reference, *res.submerged])
+    every = [res.reference, *res.submerged]
+    names = [s.path.name for s in every]  # a file name shared by photos of several folders gets its folder
+    cards = "".join(_card(s, res, s.path.name if names.count(s.path.name) == 1 else f"{s.path.parent.name}/"
+                          f"{s.path.name}") for s in every)
     page = ("<!doctype html><html lang='en'><head><meta charset='utf-8'><meta name='viewport' "
             "content='width=device-width, initial-scale=1'><title>camcal secchi: "
             f"{e(result)}</title><style>{PAGE_CSS}</style></head><body>{head}<main>{banner}"

@@ -36,7 +36,7 @@ def result_table(res: SecchiResult):
     """A Rich table of the survey: one row per photo, units in the headers (the surround budget is in the JSON
     and on the page)."""
     unit = res.reference.unit or "?"
-    t = Table(title=f"camcal secchi: band {escape(unit)}", title_justify="left")
+    t = Table(title=f"camcal secchi (disk L: band radiance, {escape(unit)})", title_justify="left")
     for col in ("photo", "depth (m)", "disk L", "ratio", f"C ± σ_C ({CONCENTRATION})", "dominant σ term"):
         t.add_column(col, justify="left" if col in ("photo", "dominant σ term") else "right",
                      overflow="fold")
@@ -170,6 +170,9 @@ def register(app: typer.Typer) -> None:
                               f"term: {res.dominant})", markup=False)
             for w in all_warnings(res):
                 console.print(f"warning: {w}", markup=False, style="yellow")
+            for s in res.submerged:
+                if s.error:
+                    console.print(f"{s.path.name}: failed: {s.error}", markup=False, style="red")
             if page is not None:
                 console.print(f"wrote {page}", markup=False)
         if failed and len(failed) == len(res.submerged):
