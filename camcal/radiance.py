@@ -296,7 +296,10 @@ def _prior_spectra(grid: tuple) -> tuple:
     import colour  # loads matplotlib: kept off paths that do not plot
 
     wl = np.asarray(grid, float)
-    shape = colour.SpectralShape(float(wl[0]), float(wl[-1]), float(wl[1] - wl[0]))
+    # aligned (colour-science's interpolation) on a 1 nm grid over the curve's range, then read linearly at the
+    # curve's own wavelengths: any grid, however coarse or uneven, and the table's values on its nodes
+    lo, hi = float(np.floor(wl[0])), float(np.ceil(wl[-1]))
+    shape = colour.SpectralShape(lo, max(hi, lo + 10.0), 1.0)
 
     def sd_values(sd) -> np.ndarray:
         s = sd.copy().align(shape)

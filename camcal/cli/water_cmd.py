@@ -92,10 +92,10 @@ def _depth(text: str) -> float:
 
     t = str(text).strip()
     try:
-        float(t)
+        bare = np.isfinite(float(t))
     except ValueError:
-        pass
-    else:
+        bare = False
+    if bare:
         raise CamcalError(f"--depth {t} has no unit: give it with one, e.g. {t}m, {t}cm or {t}mm (accepted units: "
                           "m, cm, mm)")
     d = parse_length_m(text)
