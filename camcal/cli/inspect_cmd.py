@@ -55,6 +55,10 @@ def _summary_rows(info: dict) -> list[tuple[str, str]]:
     layout = f"{info.get('kind')} {info.get('format')}, {info.get('width')} × {info.get('height')} px"
     if info.get("cfa_pattern"):
         layout += f", {info.get('layout')} {info['cfa_pattern']}"
+    if info.get("bit_depth"):
+        layout += f", {info['bit_depth']} bit"
+    if info.get("icc_profile"):
+        layout += f", colour profile {info['icc_profile']}"
     rows = [("file type", layout), ("camera", cam),
             ("black / white level", f"{_levels(info.get('black_level_dn'))} / {_levels(info.get('white_level_dn'))}"),
             ("exposure time", known("exposure_s", lambda v: f"{_g(v, 4)} s")),
@@ -77,7 +81,8 @@ def _summary_rows(info: dict) -> list[tuple[str, str]]:
     else:
         rows.append(("sun", f"zenith {sun['zenith_deg']:.2f}°, azimuth {sun['azimuth_deg']:.2f}°  ({sun['source']})"))
     if info.get("saturated_pct") is not None:
-        rows.append(("saturated pixels", f"{_g(info['saturated_pct'], 3)} %"))
+        rows.append(("saturated pixels", f"{_g(info['saturated_pct'], 3)} %"
+                     + (f": {info['saturated']}" if info.get("saturated") else "")))
     if info.get("notes"):
         rows.append(("notes", "; ".join(info["notes"])))
     return rows
