@@ -74,7 +74,7 @@ from camcal.exposure import frame_relative_exposure
 from camcal.flat_model import FlatChoice, choose_flat
 from camcal.frame import PLANES, Frame, plane_offsets, rgb_from_planes
 from camcal.io import open_image, read_pixels
-from camcal.radiance import RadianceModel, radiance_model, smooth_spread_rel
+from camcal.radiance import RadianceModel, radiance_at, radiance_model
 from camcal.region import Region
 from camcal.threads import default_threads, thread_map
 from camcal.units import BAND_RADIANCE
@@ -112,9 +112,10 @@ RESOLUTION_NOTE = "half resolution: one value per 2x2 CFA cell (R, mean of G1 an
 LINEAR_RESOLUTION_NOTE = "full resolution: the linear RAW's own R, G, B planes (already demosaicked by its writer)"
 
 
-def radiance_channel_name(wavelength_nm: float) -> str:
-    """``L663`` for 663 nm; ``L662.5`` for 662.5 nm."""
-    return f"L{float(wavelength_nm):g}"
+def radiance_channel_name(wavelength_nm: float, in_band: bool = False) -> str:
+    """``L663`` for the spectral radiance at 663 nm; ``L662.5`` for 662.5 nm; ``L663_inband`` for the in-band
+    radiance (W m⁻² sr⁻¹) of ``narrowband`` without a filter width, which is not a spectral radiance."""
+    return f"L{float(wavelength_nm):g}" + ("_inband" if in_band else "")
 
 
 @dataclass(frozen=True, eq=False)
@@ -184,7 +185,7 @@ class ApplyPlan:
 def prepare(
     profile,
     wavelength_nm: float = 663.0,
-    estimator: str = "narrowband",
+    estimator: str = "auto",
     *,
     filter_fwhm_nm: float | None = None,
     line_fwhm_nm: float | None = None,
@@ -209,9 +210,6 @@ def prepare(
     slit = 0.0 if spectral.deconvolved else spectral.bandwidth_nm
     model = radiance_model(spectral.wavelength_nm, spectral.rgb(), spectral.rgb_uncertainty(), float(wavelength_nm),
                            estimator, filter_fwhm_nm=filter_fwhm_nm, line_fwhm_nm=line_fwhm_nm, slit_fwhm_nm=slit)
-    if estimator == "smooth":  # the reconstruction's own error: the spread over the prior spectra
-        model = replace(model, spectral_unc_rel=smooth_spread_rel(spectral.wavelength_nm, spectral.rgb(),
-                                                                  float(wavelength_nm)))
     flat_planes, flat_rgb = _flat_maps(None if profile.flat is None else profile.flat.gain(with_prnu=with_prnu),
                                        profile)
     prnu_rel = None
@@ -378,10 +376,8 @@ def _raw_pixels(frame: Frame, plan: ApplyPlan, t: float, iso: float, inv_x: floa
         notes.append("the profile's dark current is unknown (bias-only calibration): the bias was subtracted, "
                      "dark current was not")
     band_k = [np.float32(inv_x / model.band_integral[i]) for i in range(3)]
-    used = [(i, np.float32(model.weights[i] * inv_x)) for i in range(3) if model.weights[i] != 0]
-    if not used:
+    if not any(model.weights[i] != 0 for i in range(3)):
         raise CamcalError("the radiance estimator has no non-zero weight; the profile's c(λ) is unusable", frame.path)
-    rel = _rel_unc(model)
     nan = np.float32(np.nan)
     out = np.empty((h, w, len(OUTPUT_CHANNELS)), np.float32)
 
@@ -421,25 +417,10 @@ def _raw_pixels(frame: Frame, plan: ApplyPlan, t: float, iso: float, inv_x: floa
             for i in range(3):
                 var[i] += (plan.prnu_rel[i] * signal[i]) ** 2
         o = out[r0:r1]
-        # L(λ0) = Σ w_i·s_i over the used channels and its noise Σ w_i²·var_i, in that order (no zero-filled
-        # accumulators: 0 + x is x), then ⊕ the relative c(λ) term
-        i0, w0 = used[0]
-        value = signal[i0] * w0
-        for i, wi in used[1:]:
-            value += signal[i] * wi
-        o[..., 3] = value
-        if var is None:  # no noise model: the c(λ) term alone
-            noise = np.zeros((n, w), np.float32)
+        # L(λ0) and its 1-σ (noise ⊕ c(λ) ⊕ spectral reconstruction) by the one path, written into the output
+        radiance_at(signal, var, model, inv_x, out=(o[..., 3], o[..., 4]))
+        if var is None:  # no noise model: the common terms alone
             o[..., 5:] = nan
-        else:
-            noise = var[i0] * (w0 * w0)
-            for i, wi in used[1:]:
-                noise += var[i] * (wi * wi)
-        if rel:
-            value *= rel
-            value *= value
-            noise += value
-        np.sqrt(noise, out=o[..., 4])
         for i in range(3):
             np.multiply(signal[i], band_k[i], out=o[..., i])
             if var is not None:
@@ -544,7 +525,7 @@ def apply_prepared(frame: Frame, plan: ApplyPlan, *, allow_other_camera: bool = 
             k = np.float32(inv_x / plan.model.band_integral[i])
             np.multiply(signal[i], k, out=pixels[..., i])
             pixels[..., 5 + i] = np.nan if var is None else np.sqrt(np.maximum(var[i], 0)) * k
-        pixels[..., 3], pixels[..., 4] = _radiance(signal, var, plan.model, inv_x)
+        radiance_at(signal, var, plan.model, inv_x, out=(pixels[..., 3], pixels[..., 4]))
     if plan.flat_planes is None and plan.flat_rgb is None:
         notes.append("no flat model: vignetting not corrected")
         vig = (getattr(profile.spectral, "source", None) or {}).get("vignetting")
@@ -553,7 +534,7 @@ def apply_prepared(frame: Frame, plan: ApplyPlan, *, allow_other_camera: bool = 
             notes.append("the profile's vignetting was not measured: R_unc, G_unc, B_unc and the L uncertainty "
                          f"include the cos⁴ fall-off of a corner at {float(vig['corner_field_deg']):g}° as a bias "
                          "of 0 to that loss (0 at the centre; shoot flats for camcal chart --flat to correct it)")
-    name = radiance_channel_name(plan.model.wavelength_nm)
+    name = radiance_channel_name(plan.model.wavelength_nm, plan.model.in_band)
     names = [{"L": name, "L_unc": f"{name}_unc"}.get(c, c) for c in OUTPUT_CHANNELS]
     channels = {c: pixels[..., i] for i, c in enumerate(names)}
     e = frame.exposure
@@ -579,7 +560,12 @@ def apply_prepared(frame: Frame, plan: ApplyPlan, *, allow_other_camera: bool = 
         "spectral_assumption": ("light confined near the wavelength (a line or an interference filter); on a "
                                 "broadband scene L is the in-band radiance, not a spectral radiance, and its "
                                 "spectral error is unbounded" if plan.model.estimator == "narrowband" else
-                                "smooth spectrum (no lines); spectral_unc_rel is the RMS error over the priors"),
+                                "smooth spectrum (no lines); spectral_unc_rel is the RMS error over the priors"
+                                if plan.model.estimator == "smooth" else
+                                "a scene like the prior spectra (black bodies, daylight, reflectances under "
+                                "daylight); spectral_unc_rel is the leave-one-out RMS error over them"),
+        "estimator_summary": plan.model.describe(),
+        "estimator_candidates": [list(c) for c in plan.model.candidates],
         "wavelength_nm": plan.model.wavelength_nm,
         "estimator": plan.model.estimator,
         "estimator_channel": plan.model.channel,
@@ -626,37 +612,11 @@ def _add_unflat_sigma(pixels: np.ndarray, corner_field_deg: float) -> None:
         pixels[..., unc] = np.where(np.isfinite(old), np.hypot(np.nan_to_num(old), term), np.abs(term))
 
 
-def _radiance(signal: np.ndarray, var: np.ndarray | None, model: RadianceModel, inv_x: float):
-    """L(λ0) = Σ w_i·signal_i/x and its uncertainty (noise ⊕ relative c(λ) uncertainty), float32.
-
-    Only channels with a non-zero weight enter (a NaN in an unused channel does not spread).
-    """
-    used = [i for i in range(3) if model.weights[i] != 0]
-    value = np.zeros(signal.shape[1:], np.float32)
-    noise = np.zeros(signal.shape[1:], np.float32)
-    for i in used:
-        wi = np.float32(model.weights[i] * inv_x)
-        value += signal[i] * wi
-        if var is not None:
-            noise += var[i] * (wi * wi)
-    rel = _rel_unc(model)
-    if rel:
-        noise += (value * rel) ** 2
-    np.sqrt(noise, out=noise)
-    return value, noise
-
-
-def _rel_unc(model: RadianceModel) -> np.float32:
-    """Relative 1-σ of L(λ0) common to every pixel: c(λ) ⊕ the spectral reconstruction (finite parts)."""
-    parts = [v for v in (model.weights_unc_rel, model.spectral_unc_rel) if math.isfinite(v)]
-    return np.float32(math.hypot(*parts) if parts else 0.0)
-
-
 def apply(
     frame: Frame,
     profile,
     wavelength_nm: float = 663.0,
-    estimator: str = "narrowband",
+    estimator: str = "auto",
     *,
     filter_fwhm_nm: float | None = None,
     line_fwhm_nm: float | None = None,
@@ -671,8 +631,9 @@ def apply(
     frame : a decoded photo (:func:`camcal.io.load_frame`), RAW or processed.
     profile : :class:`camcal.profile.CalibrationProfile` with an absolute spectral sensitivity.
     wavelength_nm : λ0 of the spectral-radiance map, nm (channel ``L<λ0>``).
-    estimator : ``"narrowband"`` (light confined near λ0) or ``"smooth"`` (smooth spectrum);
-        see :mod:`camcal.radiance`.
+    estimator : ``"auto"`` (the spectral estimator with the smallest reconstruction error for this c(λ)),
+        ``"trained"``, ``"smooth"`` (smooth spectrum) or ``"narrowband"`` (light confined near λ0: an in-band
+        radiance ``L<λ0>_inband`` unless ``filter_fwhm_nm``); see :mod:`camcal.radiance`.
     filter_fwhm_nm : narrowband only: divide by this width to give W m⁻² sr⁻¹ nm⁻¹.
     line_fwhm_nm : narrowband only: FWHM of the light, for the slit correction of c(λ0).
     with_prnu : also divide by the profile's PRNU map.

@@ -77,7 +77,7 @@ class BatchOptions:
     """
 
     wavelength_nm: float = 663.0
-    estimator: str = "narrowband"
+    estimator: str = "auto"
     filter_fwhm_nm: float | None = None
     line_fwhm_nm: float | None = None
     with_prnu: bool = False
@@ -115,6 +115,8 @@ class BatchReport:
     report_csv: str
     roi_csv: str | None = None
     counts: dict = field(default_factory=dict)
+    estimator: str = ""
+    """One line: the L<λ0> estimator, its unit and its spectral-reconstruction term (:meth:`RadianceModel.describe`)."""
 
     @property
     def failed(self) -> list[PhotoResult]:
@@ -231,7 +233,8 @@ def _is_current(out: Path, profile_sha256: str | None, options: BatchOptions) ->
     if not meta:
         return False
     wl = meta.get("wavelength_nm")
-    return (meta.get("profile_sha256") == profile_sha256 and meta.get("estimator") == options.estimator
+    asked = (meta.get("options") or {}).get("estimator", meta.get("estimator"))  # 'auto' and what it chose
+    return (meta.get("profile_sha256") == profile_sha256 and asked == options.estimator
             and isinstance(wl, int | float) and math.isclose(float(wl), options.wavelength_nm)
             and (meta.get("options") or {}).get("filter_fwhm_nm") == options.filter_fwhm_nm
             and _precision_of(meta) == options.precision
@@ -275,7 +278,9 @@ def _stats(channels: dict, options: BatchOptions, mask_image, where: Path, meta:
     shape = next(iter(channels.values())).shape
     scale = 1 if (meta or {}).get("resolution") == LINEAR_RESOLUTION_NOTE else 2
     m = roi_mask(shape, options.roi, mask_image, where, scale=scale)
-    return tuple(roi_statistics({k: channels[k] for k in sorted(channels, key=_channel_order)}, m))
+    units = (meta or {}).get("units") or {}
+    rows = roi_statistics({k: channels[k] for k in sorted(channels, key=_channel_order)}, m)
+    return tuple({**row, "unit": str(units.get(row["channel"], ""))} for row in rows)
 
 
 def _channel_order(name: str) -> tuple:
@@ -468,11 +473,25 @@ def preflight(profile_path: str | Path, photos: Sequence[Path], options: BatchOp
     return plan
 
 
+def _earlier_rows(path: Path, header: list[str]) -> str:
+    """The data rows of an earlier report with the same header (text, each line ending in a newline), else ''."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError):
+        return ""
+    first, _, rest = text.partition("\n")
+    return rest if first.strip() == ",".join(header) and rest.strip() else ""
+
+
 def _write_reports(outdir: Path, results: list[PhotoResult], options: BatchOptions) -> tuple[Path, Path | None]:
 
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(["file", "status", "output", "seconds", "error", "warning"])
+    header = ["file", "status", "output", "seconds", "error", "warning"]
+    w.writerow(header)
+    earlier = _earlier_rows(outdir / REPORT_CSV, header)
+    if earlier:  # a rerun into the same folder appends: the earlier runs' rows stay
+        buf.write(earlier)
     for r in results:
         w.writerow([r.source, r.status, r.output if r.status != "failed" else "", f"{r.seconds:.3f}", r.error or "",
                     r.warning or ""])
@@ -483,11 +502,11 @@ def _write_reports(outdir: Path, results: list[PhotoResult], options: BatchOptio
         w = csv.writer(buf, lineterminator="\n")
         region = (f"roi {options.roi}" if options.roi is not None
                   else f"mask {options.mask_path}")
-        w.writerow(["file", "channel", "n", "mean", "median", "sigma", "region"])
+        w.writerow(["file", "channel", "n", "mean", "median", "sigma", "unit", "region"])
         for r in results:
             for row in r.stats:
                 w.writerow([Path(r.source).name, row["channel"], row["n"], repr(row["mean"]), repr(row["median"]),
-                            repr(row["sigma"]), region])
+                            repr(row["sigma"]), row.get("unit", ""), region])
         roi_csv = atomic_write_text(outdir / ROI_CSV, buf.getvalue())
     return report, roi_csv
 
@@ -525,6 +544,8 @@ def run_batch(
     jobs = usable_cores() if jobs is None else jobs
     outdir = Path(outdir)
     paths = expand_photos(photos)
+    if progress is not None:  # the total is known before the profile is loaded
+        progress(0, len(paths), None)
     plan = preflight(profile_path, paths, options, with_maps=scheduler is None and jobs <= 1)
     outdir.mkdir(parents=True, exist_ok=True)
     profile_path = str(Path(profile_path).resolve())
@@ -563,7 +584,8 @@ def run_batch(
     ordered = [results[a[0]] for a in args]
     report, roi_csv = _write_reports(outdir, ordered, options)
     counts = {s: sum(r.status == s for r in ordered) for s in STATUSES}
-    return BatchReport(tuple(ordered), str(outdir), str(report), None if roi_csv is None else str(roi_csv), counts)
+    return BatchReport(tuple(ordered), str(outdir), str(report), None if roi_csv is None else str(roi_csv), counts,
+                       plan.model.describe())
 
 
 def _with_threads(args: list[tuple], threads: int) -> list[tuple]:

@@ -4,7 +4,9 @@
    camera with the NPL-measured Nikon D5100 spectral sensitivities;
 2. calibrate it into a profile and write the HTML report;
 3. synthesise two survey photos of a Secchi disk in daylight (CIE D65): the reference disk above water
-   and the disk submerged at a known depth in water with a known chlorophyll-a concentration;
+   and the disk submerged at a known depth in water with a known chlorophyll-a concentration; and a sunlit pair
+   (:mod:`camcal.synth.sunlit`: SPECTRL2 sun and sky, surface glare) in ``survey/sunlit/``, read by
+   :func:`camcal.secchi.run_secchi`;
 4. apply the profile: radiance EXRs (band radiance R, G, B and L663);
 5. invert the red-band ratio per pixel for chlorophyll-a with the band-aware model built from the
    profile's measured c_R(λ) (Bricaud et al. 1998 absorption, Pope & Fry 1997 water);
@@ -27,15 +29,21 @@ from camcal.errors import CamcalError
 from camcal.exr import read_exr, write_exr
 from camcal.profile import contract, save_profile
 from camcal.report import write_report
+from camcal.secchi import run_secchi
 from camcal.synth.camera import LINEAR_FROM_PLANES, SyntheticCamera, frame_rngs, preset
 from camcal.synth.secchi import secchi_scenes, suggest_exposure_s
 from camcal.synth.session import SessionPlan, write_session
+from camcal.synth.sunlit import SunSky, write_sunlit_survey
 from camcal.terminal import console, progress
 from camcal.units import CONCENTRATION, DN_PER_ELECTRON, DN_PER_S
 from camcal.water.band import BandInverse, band_model_from_profile
+from camcal.water.field import ClearSky, FieldGeometry
 
 CHL_UG_PER_L = 60.0
 DEPTH_M = 0.80
+#: The sun of the sunlit Secchi photos (survey/sunlit/), degrees.
+SUNLIT_ZENITH_DEG = 35.0
+SUNLIT_AZIMUTH_DEG = 160.0
 
 
 @dataclass(frozen=True)
@@ -159,6 +167,15 @@ def run_demo(out: str | Path, *, size: tuple[int, int] = (384, 256), preset_name
                   {"units": CONCENTRATION, "depth_m": DEPTH_M, "model": "band-aware, refined geometry, profile c_R"})
         tick("water", 1, 1)
 
+        # sunlit Secchi photos (SPECTRL2 sun and sky, surface glare), read by `camcal secchi`'s stage
+        sunlit = write_sunlit_survey(survey / "sunlit", cam, sky=SunSky(SUNLIT_ZENITH_DEG, SUNLIT_AZIMUTH_DEG),
+                                     depths_m=[DEPTH_M], c_ug_per_L=CHL_UG_PER_L, rng=frame_rngs(cam.params.seed, 1,
+                                                                                                  45)[0])
+        files_sun = sunlit["shots"][0]["files"]
+        sec = run_secchi(out / "camera.camcal", files_sun["ref"]["dng"], [files_sun["sub"]["dng"]], [(DEPTH_M, 0.0)],
+                         sky=ClearSky(SUNLIT_ZENITH_DEG), geometry=FieldGeometry(), inputs=[])
+        tick("secchi", 1, 1)
+
     # the disk region at half resolution, away from its edge
     weight = scenes.weight[::2, ::2]
     disk = weight > 0.99
@@ -181,6 +198,7 @@ def run_demo(out: str | Path, *, size: tuple[int, int] = (384, 256), preset_name
     planes = list(LINEAR_FROM_PLANES) if layout == "linear" else [0, 1, 2, 3]
     vig = float(np.max(np.abs(profile.flat.gain() / cam.vignetting_map[planes] - 1)))
     checks = _checks(truth, contract(profile), survey_vals, vig)
+    checks.append(Check("secchi", f"chl-a sunlit ({CONCENTRATION})", CHL_UG_PER_L, sec.c_ug_per_L, 0.03))
 
     table = Table(title=f"camcal demo: truth against recovered (chl-a {CHL_UG_PER_L:g} {CONCENTRATION} at "
                         f"{100 * DEPTH_M:g} cm)",

@@ -27,6 +27,16 @@ Estimators
     c ⊛ line ≈ c ⊛ slit + (σ_w² − σ_s²)/2 · c'' (Gaussian shapes; σ = FWHM/2.355).
     Without ``line_fwhm_nm`` the line is assumed as wide as the slit (no
     correction); a 1 nm line read with a 5 nm-slit curve is then 0.6 % high at 663 nm.
+``trained``
+    The linear estimator L̂(λ0) = w · rate with the least relative error over the prior spectra of
+    :func:`prior_spectra` (black bodies, CIE illuminants, the ColorChecker under D65): w minimises
+    Σ_s (w · rate_s / L_s(λ0) − 1)² (ordinary least squares, three unknowns, 32 spectra). Its
+    spectral-reconstruction term is the leave-one-out RMS error (each spectrum predicted by weights trained
+    without it), an honest figure for a scene not in the set. In W m⁻² sr⁻¹ nm⁻¹.
+``auto`` (default)
+    The estimator of a spectral radiance at λ0 with the smallest spectral-reconstruction error the profile's
+    c(λ) supports, among ``trained`` (leave-one-out RMS) and ``smooth`` (RMS over the priors); the chosen one
+    and both figures are in :attr:`RadianceModel.candidates`.
 ``smooth``
     Assumes L(λ) is smooth (no lines). A regularised linear reconstruction
     (Gaussian-process/Wiener estimate) on the sensitivity grid with prior
@@ -47,7 +57,8 @@ Rasmussen, C. E., Williams, C. K. I. (2006). Gaussian Processes for Machine Lear
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import functools
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.interpolate import CubicSpline
@@ -57,7 +68,9 @@ from camcal.reference_spectra import FWHM_TO_SIGMA, planck_radiance
 from camcal.units import IN_BAND_RADIANCE, SPECTRAL_RADIANCE
 
 RGB = ("R", "G", "B")
-ESTIMATORS = ("narrowband", "smooth")
+ESTIMATORS = ("narrowband", "smooth", "trained", "auto")
+#: Estimators whose L(λ0) is a spectral radiance for broadband light (``narrowband`` is one only with a filter).
+SPECTRAL_ESTIMATORS = ("trained", "smooth")
 
 
 @dataclass(frozen=True)
@@ -88,6 +101,32 @@ class RadianceModel:
     """Relative standard uncertainty of L(λ0) from the spectral reconstruction itself (``smooth``: the RMS
     error over the prior spectra of :func:`smooth_error_table`; ``narrowband``: 0, valid only for light
     confined near λ0, see docs/apply.md)."""
+    candidates: tuple = ()
+    """``auto``: ((estimator, spectral_unc_rel), ...) it chose from, the chosen first."""
+
+    @property
+    def in_band(self) -> bool:
+        """True when L(λ0) is an in-band radiance (W m⁻² sr⁻¹, ``narrowband`` without a filter width), not a
+        spectral radiance."""
+        return self.units.startswith(IN_BAND_RADIANCE) and not self.units.startswith(SPECTRAL_RADIANCE)
+
+    @property
+    def unc_rel(self) -> float:
+        """Relative 1-σ of L(λ0) common to every pixel: c(λ) ⊕ the spectral reconstruction (finite parts)."""
+        parts = [v for v in (self.weights_unc_rel, self.spectral_unc_rel) if np.isfinite(v)]
+        return float(np.hypot(*parts)) if len(parts) == 2 else (float(parts[0]) if parts else 0.0)
+
+    def describe(self) -> str:
+        """One line for a console: the estimator, its channel or weights and the spectral term."""
+        what = ("in-band radiance (narrowband, light confined near the wavelength)" if self.in_band
+                else "spectral radiance")
+        spec = (f"spectral reconstruction ±{100 * self.spectral_unc_rel:.0f} % (1σ)" if self.spectral_unc_rel > 0
+                else "no spectral-reconstruction term (exact only for light near the wavelength)")
+        chose = ""
+        if self.candidates:
+            chose = " chosen from " + ", ".join(f"{k} ±{100 * v:.0f} %" for k, v in self.candidates)
+        return (f"L{self.wavelength_nm:g}: {what}, {self.units}, estimator {self.estimator}{chose}; {spec}; "
+                f"c(λ) ±{100 * self.weights_unc_rel:.1f} %")
 
 
 def _interp(wl: np.ndarray, values: np.ndarray, at: float, derivative: int = 0) -> float:
@@ -130,11 +169,20 @@ def radiance_model(
     monochromator slit the curve was measured with; 0 for a deconvolved curve) enable the
     second-order slit correction described in the module docstring.
 
+    Every estimator's spectral-reconstruction term is set here (``spectral_unc_rel``).
+
     Raises
     ------
     CamcalError
         Unknown estimator, or ``target_nm`` outside the measured range.
     """
+    if estimator == "auto":
+        built = [radiance_model(wavelength_nm, c_rgb, c_rgb_unc, target_nm, e) for e in SPECTRAL_ESTIMATORS]
+        ok = [m for m in built if np.isfinite(m.spectral_unc_rel)]
+        if not ok:
+            raise CamcalError("no spectral estimator has a finite error over the prior spectra for this c(λ)")
+        ranked = sorted(ok, key=lambda m: m.spectral_unc_rel)
+        return replace(ranked[0], candidates=tuple((m.estimator, float(m.spectral_unc_rel)) for m in ranked))
     if estimator not in ESTIMATORS:
         raise CamcalError(f"unknown estimator {estimator!r}; choose {', '.join(ESTIMATORS)}")
     wl = np.asarray(wavelength_nm, float)
@@ -162,32 +210,57 @@ def radiance_model(
             weights /= filter_fwhm_nm
             units = f"{SPECTRAL_RADIANCE} (mean over the filter band)"
         return RadianceModel(band, band_unc, float(target_nm), estimator, weights, float(rel), units, RGB[best])
-    m = smooth_operator(wl, c)
-    row = np.array([np.interp(target_nm, wl, m[:, i]) for i in range(3)])
     # relative uncertainty from c(λ): first order, rate ~ c·L so δL/L ~ δc/c of the weighted band
     rel = float(np.sqrt(np.sum((band_unc / band) ** 2) / 3))
-    return RadianceModel(band, band_unc, float(target_nm), estimator, row, rel, SPECTRAL_RADIANCE, None)
+    if estimator == "trained":
+        row, spread = trained_weights(wl, {k: c[i] for i, k in enumerate(RGB)}, float(target_nm))
+    else:
+        m = smooth_operator(wl, c)
+        row = np.array([np.interp(target_nm, wl, m[:, i]) for i in range(3)])
+        spread = smooth_spread_rel(wl, {k: c[i] for i, k in enumerate(RGB)}, float(target_nm))
+    return RadianceModel(band, band_unc, float(target_nm), estimator, row, rel, SPECTRAL_RADIANCE, None,
+                         spectral_unc_rel=float(spread))
 
 
 def radiance_at(
-    rates: np.ndarray, rate_var: np.ndarray | None, model: RadianceModel
+    rates, rate_var, model: RadianceModel, scale: float = 1.0, out: tuple | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Spectral radiance at λ0 and its standard uncertainty, per pixel.
+    """Spectral radiance at λ0 and its standard uncertainty, per pixel: the one path of every caller.
 
     Parameters
     ----------
-    rates : (3, ...) DN s⁻¹ per channel R, G, B.
-    rate_var : (3, ...) variance of the rates (noise), or None.
+    rates : sequence of 3 arrays (or a (3, ...) array), the channels R, G, B in any common unit.
+    rate_var : their noise variances (same shapes), or None (no noise model: the common terms alone).
+    scale : multiplies the rates (1/x, the relative exposure, in :mod:`camcal.apply`).
+    out : optional (value, unc) float32 arrays to write into.
 
     Returns
     -------
-    (L, L_unc) in ``model.units``; uncertainty combines the rate noise propagated
-    through the linear weights and the relative uncertainty of c(λ).
+    (L, L_unc) in ``model.units``, float32 for float32 rates (else float64): L = Σ_i w_i s rate_i over the
+    channels of non-zero weight (a NaN in an unused channel does not spread),
+    L_unc² = Σ_i (w_i s)² var_i + (u L)², u = :attr:`RadianceModel.unc_rel` (c(λ) ⊕ the spectral reconstruction).
     """
-    w = model.weights.reshape((3,) + (1,) * (np.ndim(rates) - 1))
-    value = np.sum(w * rates, axis=0)
-    var = np.zeros_like(value) if rate_var is None else np.sum(w**2 * rate_var, axis=0)
-    unc = np.sqrt(var + (model.weights_unc_rel * value) ** 2)
+    idx = [i for i in range(3) if model.weights[i] != 0]
+    if not idx:
+        raise CamcalError("the radiance estimator has no non-zero weight; the profile's c(λ) is unusable")
+    dtype = np.result_type(*(np.asarray(rates[i]).dtype for i in idx), np.float32)  # float32 stays float32
+    used = [(i, dtype.type(model.weights[i] * scale)) for i in idx]
+    shape = np.shape(rates[idx[0]])
+    value, unc = out if out is not None else (np.empty(shape, dtype), np.empty(shape, dtype))
+    i0, w0 = used[0]
+    np.multiply(rates[i0], w0, out=value)
+    for i, wi in used[1:]:
+        value += np.asarray(rates[i], dtype) * wi
+    if rate_var is None:
+        noise = np.zeros(shape, dtype)
+    else:
+        noise = np.asarray(rate_var[i0], dtype) * (w0 * w0)
+        for i, wi in used[1:]:
+            noise += np.asarray(rate_var[i], dtype) * (wi * wi)
+    rel = dtype.type(model.unc_rel)
+    if rel:
+        noise += (value * rel) ** 2
+    np.sqrt(noise, out=unc)
     return value, unc
 
 
@@ -198,14 +271,35 @@ def smooth_error_table(wavelength_nm: np.ndarray, c_rgb: dict[str, np.ndarray], 
     24 ColorChecker patches (Ohta) under D65 — all from colour-science.
     Returns rows ``{"spectrum", "true", "estimate", "error_pct"}``.
     """
-    import colour  # loads matplotlib: kept off paths that do not plot
-
-
     wl = np.asarray(wavelength_nm, float)
     c = np.stack([np.asarray(c_rgb[k], float) for k in RGB])
     m = smooth_operator(wl, c)
     row = np.array([np.interp(target_nm, wl, m[:, i]) for i in range(3)])
-    shape = colour.SpectralShape(float(wl[0]), float(wl[-1]), float(wl[1] - wl[0]))
+    spectra = prior_spectra(wl)
+    out = []
+    for name, spec in spectra:
+        rates = np.trapezoid(c * spec[None, :], wl, axis=1)
+        est = float(row @ rates)
+        true = float(np.interp(target_nm, wl, spec))
+        out.append({"spectrum": name, "true": true, "estimate": est, "error_pct": 100 * (est / true - 1)})
+    return out
+
+
+def prior_spectra(wavelength_nm: np.ndarray) -> list[tuple[str, np.ndarray]]:
+    """The prior spectra on ``wavelength_nm``: black bodies 2500–10000 K, CIE D50/D65/A and the 24 ColorChecker
+    patches (Ohta) under D65, from colour-science (cached per grid)."""
+    return list(_prior_spectra(tuple(float(v) for v in np.asarray(wavelength_nm, float))))
+
+
+@functools.lru_cache(maxsize=4)
+def _prior_spectra(grid: tuple) -> tuple:
+    import colour  # loads matplotlib: kept off paths that do not plot
+
+    wl = np.asarray(grid, float)
+    # aligned (colour-science's interpolation) on a 1 nm grid over the curve's range, then read linearly at the
+    # curve's own wavelengths: any grid, however coarse or uneven, and the table's values on its nodes
+    lo, hi = float(np.floor(wl[0])), float(np.ceil(wl[-1]))
+    shape = colour.SpectralShape(lo, max(hi, lo + 10.0), 1.0)
 
     def sd_values(sd) -> np.ndarray:
         s = sd.copy().align(shape)
@@ -219,13 +313,32 @@ def smooth_error_table(wavelength_nm: np.ndarray, c_rgb: dict[str, np.ndarray], 
     checker = colour.SDS_COLOURCHECKERS["ColorChecker N Ohta"]
     for name, sd in checker.items():
         spectra.append((f"ColorChecker {name} under D65", d65 * sd_values(sd)))
-    out = []
-    for name, spec in spectra:
-        rates = np.trapezoid(c * spec[None, :], wl, axis=1)
-        est = float(row @ rates)
+    return tuple(spectra)
+
+
+def trained_weights(wavelength_nm: np.ndarray, c_rgb: dict[str, np.ndarray], target_nm: float = 663.0,
+                    ) -> tuple[np.ndarray, float]:
+    """(w, leave-one-out RMS relative error) of the ``trained`` estimator (module docstring): w minimises
+    Σ_s (w · rate_s / L_s(λ0) − 1)² over :func:`prior_spectra` (numpy least squares)."""
+    wl = np.asarray(wavelength_nm, float)
+    c = np.stack([np.clip(np.asarray(c_rgb[k], float), 0, None) for k in RGB])
+    rows = []
+    for _, spec in prior_spectra(wl):
         true = float(np.interp(target_nm, wl, spec))
-        out.append({"spectrum": name, "true": true, "estimate": est, "error_pct": 100 * (est / true - 1)})
-    return out
+        if true > 0:
+            rows.append(np.trapezoid(c * spec[None, :], wl, axis=1) / true)
+    a = np.array(rows)
+    if a.shape[0] < 4 or not np.all(np.isfinite(a)):
+        return np.full(3, np.nan), float("nan")
+    scale = np.abs(a).max(axis=0)
+    scale[scale == 0] = 1.0
+    w = np.linalg.lstsq(a / scale, np.ones(len(a)), rcond=None)[0] / scale
+    loo = []
+    for i in range(len(a)):
+        keep = np.arange(len(a)) != i
+        wi = np.linalg.lstsq(a[keep] / scale, np.ones(keep.sum()), rcond=None)[0] / scale
+        loo.append(float(a[i] @ wi) - 1.0)
+    return w, float(np.sqrt(np.mean(np.square(loo))))
 
 
 def smooth_spread_rel(wavelength_nm: np.ndarray, c_rgb: dict[str, np.ndarray], target_nm: float = 663.0) -> float:

@@ -74,20 +74,21 @@ def mean(a: np.ndarray) -> float:
 
 def test_narrowband_line_within_1pct(photos, profile, camera):
     img = apply(load_frame(photos[("line", "raw", 100, 4.0)]), profile, 663.0, "narrowband")
-    assert set(img.channels) == {"R", "G", "B", "L663", "L663_unc", "R_unc", "G_unc", "B_unc"}
+    # an in-band radiance (W m⁻² sr⁻¹) is named for what it is, not L663 (a spectral radiance)
+    assert set(img.channels) == {"R", "G", "B", "L663_inband", "L663_inband_unc", "R_unc", "G_unc", "B_unc"}
     assert img.shape == (128, 192)  # half resolution of 384x256
     assert img.metadata["estimator_channel"] == "R"
-    assert img.metadata["units"]["L663"].startswith(IN_BAND_RADIANCE)
+    assert img.metadata["units"]["L663_inband"].startswith(IN_BAND_RADIANCE)
     # target 1 %; measured ≈0.05 % (noise 0.01 %, c(λ0) spline 0.05 %)
-    assert mean(img.channels["L663"]) == pytest.approx(LINE_BAND_W_M2_SR, rel=0.01)
+    assert mean(img.channels["L663_inband"]) == pytest.approx(LINE_BAND_W_M2_SR, rel=0.01)
     tb = true_band(camera, LINE)
     for i, ch in enumerate("RGB"):
         assert mean(img.channels[ch]) == pytest.approx(tb[i], rel=0.005), ch
 
 
 def test_vignetting_and_dark_removed(photos, profile):
-    img = apply(load_frame(photos[("line", "raw", 100, 4.0)]), profile)
-    L = img.channels["L663"]
+    img = apply(load_frame(photos[("line", "raw", 100, 4.0)]), profile, 663.0, "narrowband")
+    L = img.channels["L663_inband"]
     centre = mean(L[54:74, 86:106])
     # the raw corner gain is 0.62; after the flat every 20x20 corner block agrees with the centre
     # to within 0.5 % (block noise 0.08 %, flat-model residual a few 0.1 %)
@@ -95,7 +96,7 @@ def test_vignetting_and_dark_removed(photos, profile):
         assert mean(block) == pytest.approx(centre, rel=0.005)
     # 10 s exposure of a dim line: dark current ≈ 1 % of the signal and hot pixels up to 300x are removed
     path, scale = photos["dim"]
-    dim = apply(load_frame(path), profile).channels["L663"]
+    dim = apply(load_frame(path), profile, 663.0, "narrowband").channels["L663_inband"]
     assert mean(dim) == pytest.approx(LINE_BAND_W_M2_SR * scale, rel=0.005)
     finite = dim[np.isfinite(dim)]
     z = np.abs(finite - np.median(finite)) / (1.4826 * np.median(np.abs(finite - np.median(finite))))
@@ -120,8 +121,8 @@ def test_exposure_settings_give_the_same_radiance(photos, profile):
 
 
 def test_uncertainty_map_matches_scatter(photos, profile):
-    img = apply(load_frame(photos[("line", "raw", 100, 4.0)]), profile)
-    L, u = img.channels["L663"], img.channels["L663_unc"]
+    img = apply(load_frame(photos[("line", "raw", 100, 4.0)]), profile, 663.0, "narrowband")
+    L, u = img.channels["L663_inband"], img.channels["L663_inband_unc"]
     rel_unc = float(np.nanmedian(u / L))
     # the map = noise (shot + read + PRNU) ⊕ c(λ0) uncertainty (0.5 %, the reference detector)
     c_rel = 0.005
@@ -151,7 +152,7 @@ def test_smooth_estimator_has_its_spectral_term(photos, profile):
     errors = [r["error_pct"] / 100 for r in smooth_error_table(s.wavelength_nm, s.rgb())]
     assert spread == pytest.approx(float(np.sqrt(np.mean(np.square(errors)))), rel=1e-6) and spread > 0.05
     assert float(np.nanmedian(img.channels["L663_unc"] / img.channels["L663"])) >= spread
-    narrow = apply(load_frame(photos[("line", "raw", 100, 4.0)]), profile)
+    narrow = apply(load_frame(photos[("line", "raw", 100, 4.0)]), profile, 663.0, "narrowband")
     assert narrow.metadata["spectral_unc_rel"] == 0 and "unbounded" in narrow.metadata["spectral_assumption"]
 
 
@@ -182,7 +183,7 @@ def test_jpeg_within_3pct(photos, profile, camera):
         for i, ch in enumerate("RGB"):
             assert mean(img.channels[ch]) == pytest.approx(tb[i], rel=0.03), (name, ch)
         if truth is not None:
-            assert mean(img.channels["L663"]) == pytest.approx(truth, rel=0.03)
+            assert mean(img.channels["L663_inband"]) == pytest.approx(truth, rel=0.03)
         assert any("through the profile's colour matrix" in n for n in img.metadata["notes"])  # sweep twins
 
 
@@ -202,8 +203,9 @@ def test_other_camera_refused(tmp_path, profile, profile_path):
 
 
 def test_channel_names_follow_wavelength(photos, profile):
-    img = apply(load_frame(photos[("line", "raw", 100, 4.0)]), profile, 560.0)
-    assert radiance_channel_name(560) == "L560" and "L560" in img.channels and "L560_unc" in img.channels
+    img = apply(load_frame(photos[("line", "raw", 100, 4.0)]), profile, 560.0, "narrowband")
+    assert radiance_channel_name(560) == "L560" and radiance_channel_name(560, in_band=True) == "L560_inband"
+    assert "L560_inband" in img.channels and "L560_inband_unc" in img.channels
     assert img.metadata["estimator_channel"] == "G"
     with pytest.raises(CamcalError, match="outside the calibrated range"):
         prepare(profile, 900.0)
@@ -214,22 +216,24 @@ def test_channel_names_follow_wavelength(photos, profile):
 def test_cli_exr_and_roi_stats(tmp_path, photos, profile_path, profile):
     src = photos[("line", "raw", 100, 4.0)]
     out = tmp_path / "out"
-    proc = run_cli("apply", profile_path, src, "-o", out, "--roi", "100,60,80,60", "-j", "1")
+    proc = run_cli("apply", profile_path, src, "-o", out, "--roi", "100,60,80,60", "-j", "1", "--estimator",
+                   "narrowband")
     assert proc.returncode == 0, proc.stderr
+    assert "in-band radiance" in proc.stdout and "estimator narrowband" in proc.stdout  # the summary says what L is
     chans, meta = read_exr(out / f"{src.name}.exr")
-    assert set(chans) == {"R", "G", "B", "L663", "L663_unc", "R_unc", "G_unc", "B_unc"}
+    assert set(chans) == {"R", "G", "B", "L663_inband", "L663_inband_unc", "R_unc", "G_unc", "B_unc"}
     assert meta["profile_sha256"] == profile.content_sha256
     assert meta["wavelength_nm"] == pytest.approx(663.0) and meta["estimator"] == "narrowband"
     assert meta["source_name"] == src.name and meta["exposure"]["iso"] == 100
     assert meta["units"]["R"] == BAND_RADIANCE and "half resolution" in meta["resolution"]
     rows = (out / "roi_stats.csv").read_text().splitlines()
-    assert rows[0] == "file,channel,n,mean,median,sigma,region"
+    assert rows[0] == "file,channel,n,mean,median,sigma,unit,region"
     stats = {r.split(",")[1]: r.split(",") for r in rows[1:]}
-    assert int(stats["L663"][2]) <= 40 * 30
+    assert int(stats["L663_inband"][2]) <= 40 * 30
     m = roi_mask((128, 192), Region(100, 60, 80, 60))
     ref = {r["channel"]: r for r in roi_statistics(chans, m)}
-    assert float(stats["L663"][3]) == pytest.approx(ref["L663"]["mean"], rel=1e-6)
-    assert float(stats["L663"][3]) == pytest.approx(LINE_BAND_W_M2_SR, rel=0.01)
+    assert float(stats["L663_inband"][3]) == pytest.approx(ref["L663_inband"]["mean"], rel=1e-6)
+    assert float(stats["L663_inband"][3]) == pytest.approx(LINE_BAND_W_M2_SR, rel=0.01)
     # a mask image over the same region gives the same numbers
     import OpenImageIO as oiio
 
@@ -240,7 +244,8 @@ def test_cli_exr_and_roi_stats(tmp_path, photos, profile_path, profile):
     mo.open(str(tmp_path / "mask.png"), spec)
     mo.write_image(mask[..., None])
     mo.close()
-    proc = run_cli("apply", profile_path, src, "-o", out, "--mask", tmp_path / "mask.png", "-j", "1")
+    proc = run_cli("apply", profile_path, src, "-o", out, "--mask", tmp_path / "mask.png", "-j", "1", "--estimator",
+                   "narrowband")
     assert proc.returncode == 0, proc.stderr
     rows2 = (out / "roi_stats.csv").read_text().splitlines()
     assert [r.split(",")[:6] for r in rows2[1:]] == [r.split(",")[:6] for r in rows[1:]]
@@ -311,7 +316,8 @@ def _reference_raw(frame, plan, notes_dark: bool = True):
     unc = np.sqrt(noise + (value * rel) ** 2)
     k = 1 / x / np.asarray(model.band_integral)[:, None, None]
     band = signal * k
-    out = {"R": band[0], "G": band[1], "B": band[2], "L663": value, "L663_unc": unc}
+    name = radiance_channel_name(model.wavelength_nm, model.in_band)
+    out = {"R": band[0], "G": band[1], "B": band[2], name: value, f"{name}_unc": unc}
     if var is not None:  # the band noise maps: the same variance, through the band's own scale
         band_unc = np.sqrt(var) * k
         out.update({"R_unc": band_unc[0], "G_unc": band_unc[1], "B_unc": band_unc[2]})
@@ -412,3 +418,22 @@ def test_no_spectral_names_the_next_step(profile):
     imported = replace(profile, spectral=replace(profile.spectral, mode="relative",
                                                  source={"kind": "imported", "file": "c.csv"}))
     assert "--targets" in next_step_for_c(imported)
+
+
+def test_uniform_grey_scene_l663_is_its_spectral_radiance(tmp_path, profile_path):
+    """A uniform 0.02 W m⁻² sr⁻¹ nm⁻¹ grey scene (`camcal synth photo`) through `camcal apply`: L663 is a spectral
+    radiance (per nm) from the default estimator and lies within its stated 2σ (noise ⊕ c(λ) ⊕ the spectral
+    reconstruction) of 0.02; the console names the estimator and the spectral term."""
+    photo = tmp_path / "grey.dng"
+    assert run_cli("synth", "photo", photo, "--scene", "uniform", "--radiance", "0.02").returncode == 0
+    proc = run_cli("apply", profile_path, photo, "-o", tmp_path / "out", "-j", "1")
+    assert proc.returncode == 0, proc.stderr
+    assert "L663: spectral radiance" in proc.stdout and "spectral reconstruction" in proc.stdout, proc.stdout
+    chans, meta = read_exr(tmp_path / "out" / "grey.dng.exr")
+    assert meta["units"]["L663"] == "W m⁻² sr⁻¹ nm⁻¹" and meta["options"]["estimator"] == "auto"
+    assert meta["estimator"] in ("trained", "smooth") and meta["spectral_unc_rel"] > 0
+    value, sigma = float(np.nanmedian(chans["L663"])), float(np.nanmedian(chans["L663_unc"]))
+    assert abs(value - 0.02) <= 2 * sigma, (value, sigma)
+    assert sigma >= meta["spectral_unc_rel"] * value  # the spectral term is in the stated σ
+    for ch in "RGB":  # a flat spectrum: every band radiance is the spectral radiance itself
+        assert float(np.nanmedian(chans[ch])) == pytest.approx(0.02, rel=0.01), ch

@@ -126,3 +126,17 @@ def test_start_up_imports_only_the_command_it_runs():
     proc = _python("import sys, camcal.demo, camcal.apply, camcal.batch, camcal.water.invert\n"
                    "assert not any(m == 'camcal.cli' or m.startswith('camcal.cli.') for m in sys.modules)\n")
     assert proc.returncode == 0, proc.stderr[-3000:]
+
+
+def test_inspect_shows_what_a_user_needs_with_sensible_digits(session_dir):
+    """By default one row per thing a user needs (no 15-digit floats, no raw dicts); --all shows every field."""
+    p = session_dir / "bias" / "bias_000.dng"
+    short = run_cli("inspect", p).stdout
+    full = run_cli("inspect", p, "--all").stdout
+    assert "exposure time" in short and "black / white level" in short and "{'R'" not in short
+    assert short.count("\n") < full.count("\n")
+    assert "exposure_value_s" in full and "exposure_value_s" not in short
+    for line in short.splitlines() + full.splitlines():  # at most 6 significant digits in any number
+        for token in line.replace("(", " ").replace(")", " ").split():
+            digits = token.rstrip("s°%,").replace(".", "").lstrip("0")
+            assert not (digits.isdigit() and len(digits) > 10), line

@@ -299,13 +299,13 @@ def test_sigma_maps_match_the_scatter_of_repeated_photos(pair_session, tmp_path)
     spec = _white_spectrum(5000.0)
     t = exposure_for_level(cam, spec, 0.4, 100, 4.0)
     rng = np.random.default_rng(11)
-    plan_rel = prepare(profile, 663.0, with_prnu=True).model.weights_unc_rel
+    plan_rel = prepare(profile, 663.0, "narrowband", with_prnu=True).model.weights_unc_rel
     values, sigmas = [], []
     for i in range(10):
         path = tmp_path / f"p{i}.dng"
         cam.write_dng(path, Scene.uniform(spec), exposure_s=t, iso=100, f_number=4.0, rng=rng)
-        img = apply(load_frame(path), profile, 663.0, with_prnu=True)
-        L, u = img.channels["L663"], img.channels["L663_unc"]
+        img = apply(load_frame(path), profile, 663.0, "narrowband", with_prnu=True)
+        L, u = img.channels["L663_inband"], img.channels["L663_inband_unc"]
         values.append(L)
         sigmas.append(np.sqrt(np.maximum(u**2 - (plan_rel * L) ** 2, 0)))  # the noise part of the map
     values, sigmas = np.array(values), np.array(sigmas)

@@ -166,7 +166,14 @@ def test_secchi_end_to_end_dng(shots, profile_path, tmp_path):
         assert abs(s["c_ug_per_L"] - 30.0) <= 2 * s["sigma_ug_per_L"], s
     assert out["c_ug_per_L"] == pytest.approx(30.0, rel=0.03)
     assert out["dominant"] in out["sigma_terms_ug_per_L"]
-    assert (tmp_path / "page" / "index.html").is_file() and len(list((tmp_path / "page").glob("*.png"))) == 3
+    assert (tmp_path / "page" / "index.html").is_file() and len(list((tmp_path / "page").glob("photo*.png"))) == 3
+    assert (tmp_path / "page" / "survey_time.png").is_file()  # C over the capture time
+    assert (tmp_path / "page" / "survey_positions.png").is_file()  # the photos hold GPS
+    page = (tmp_path / "page" / "index.html").read_text()
+    assert page.count('<div class="card"><h3>') == 3  # one card per photo, each with its image
+    assert page.count('<img src="photo') == 3 and "<style>" in page
+    assert "{'" not in page and '{"' not in page  # no raw dict
+    assert page.count("W m⁻² sr⁻¹ nm⁻¹") >= 6 and "µg/L" in page and "(dimensionless)" in page
     # the sun placed from each photo's GPS time and position
     assert out["sun"]["reference"]["zenith_deg"] == pytest.approx(shots["sun"].zenith_deg, abs=1e-6)
     assert "GPS" in out["sun"]["reference"]["source"]
@@ -261,3 +268,76 @@ def test_roi_gives_the_interior_by_hand():
     assert fit.interior.sum() == 10 * 5 and fit.interior[10:15, 20:30].all()
     assert fit.surround.any() and not (fit.surround & fit.interior).any()
     assert fit.centre_photo_px == pytest.approx((49.5, 24.5))
+
+
+def test_surround_glare_and_water_leaving_budget():
+    """The glare from the sky model and the view; a surround it explains gives no warning; one it does not
+    warns and spans none to all of the surround; one darker than the glare warns and becomes the glare."""
+    from camcal.water.optics import fresnel_reflectance
+    from camcal.water.surround import column_fraction, glare_radiance, surround_budget
+
+    g = glare_radiance(0.3, 0.15)
+    assert g == pytest.approx(float(fresnel_reflectance(0.0, 1.0, 1.33)) * 0.15 * 0.3 / 0.85, rel=1e-12)
+    assert glare_radiance(0.3, 0.15, view_angle_rad=np.radians(50)) > g  # Fresnel R rises with the view angle
+    assert column_fraction(0.0, 1.0) == 0.0 and 0.86 < column_fraction(1.0, 1.0) < 0.87  # 1 − e^(−2)
+    ok = surround_budget(0.07, g * 1.01, 1e-6, g, 0.25 * g, 0.8)
+    assert ok.explained and ok.unexplained_interval() is None
+    assert ok.signal == pytest.approx(0.07 - g - 0.8 * 0.01 * g, rel=1e-12)
+    bright = surround_budget(0.07, 0.017, 1e-5, g, 0.25 * g, 0.6)
+    assert not bright.explained and "light from the water itself" in bright.warning
+    assert bright.unexplained_interval() == (0.0, 0.017)
+    assert bright.signal == pytest.approx(0.07 - g - 0.6 * (0.017 - g), rel=1e-12)
+    dark = surround_budget(0.07, 0.2 * g, 1e-7, g, 0.1 * g, 0.6)
+    assert not dark.explained and "darker" in dark.warning and dark.signal == pytest.approx(0.07 - 0.2 * g)
+
+
+def test_secchi_on_the_demo_disk_photos_warns_and_states_its_error(demo_run):
+    """The demo's disk photos have a bright surround and no glare: secchi cannot trust its surround model, warns,
+    and its σ_C covers at least half its error (C = 60 µg/L is the truth)."""
+    demo, _ = demo_run
+    for light in (("--sky", "overcast"), ("--sun", "35,160")):
+        proc = run_cli("secchi", "--profile", demo / "camera.camcal", "--reference",
+                       demo / "survey/disk_reference.dng", "--submerged", demo / "survey/disk_submerged.dng",
+                       "--depth", "0.8m", *light, "--json")
+        assert proc.returncode == 0, proc.stderr
+        out = json.loads(proc.stdout)
+        assert out["warnings"] and all(isinstance(w, str) for w in out["warnings"])
+        assert "unexplained_surround" in out["sigma_terms_ug_per_L"]
+        err = abs(out["c_ug_per_L"] - 60.0)
+        assert err <= 0.03 * 60.0 or out["sigma_ug_per_L"] >= 0.5 * err, (light, out["c_ug_per_L"],
+                                                                          out["sigma_ug_per_L"])
+
+
+def test_synth_sunlit_photos_from_the_cli_read_by_secchi(profile_path, tmp_path):
+    """`camcal synth photo --scene secchi-sunlit` (rendered by camcal.synth.sunlit, independent of the field
+    model): secchi from DNG within 3 % of the truth, with no warning (the surround is the glare)."""
+    folder = tmp_path / "sun"
+    proc = run_cli("synth", "photo", folder, "--scene", "secchi-sunlit", "--chl", "60", "--depths", "0.8",
+                   "--sun-zenith", "35")
+    assert proc.returncode == 0, proc.stderr
+    truth = json.loads((folder / "truth.json").read_text())
+    assert truth["c_ug_per_L"] == 60.0 and truth["shots"][0]["depth_m"] == 0.8
+    proc = run_cli("secchi", "--profile", profile_path, "--reference", folder / "d0.8m_ref.dng", "--submerged",
+                   folder / "d0.8m_sub.dng", "--depth", "0.8m", "--sun", "35,160", "--json")
+    assert proc.returncode == 0, proc.stderr
+    out = json.loads(proc.stdout)
+    assert out["warnings"] == []
+    assert out["c_ug_per_L"] == pytest.approx(60.0, rel=0.03)
+    budget = out["submerged"][0]["surround_budget"]
+    assert budget["explained"] and budget["surround_measured"] == pytest.approx(budget["glare_modelled"], rel=0.3)
+    assert run_cli("synth", "photo", tmp_path / "x.dng", "--scene", "secchi-sunlit").returncode == 2
+
+
+def test_secchi_reads_exrs_of_its_profile_and_offers_only_options_that_exist(demo_run, profile_path, tmp_path):
+    """secchi takes apply's EXRs too and refuses those of another profile; the advice for another camera names
+    --allow-other-camera, which secchi accepts."""
+    demo, _ = demo_run
+    exr = ("--reference", demo / "radiance/disk_reference.dng.exr", "--submerged",
+           demo / "radiance/disk_submerged.dng.exr", "--depth", "0.8m", "--sky", "overcast", "--json")
+    proc = run_cli("secchi", "--profile", demo / "camera.camcal", *exr)
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout)["submerged"][0]["c_ug_per_L"] > 0
+    proc = run_cli("secchi", "--profile", profile_path, *exr)
+    assert_one_line_error(proc, "disk_reference.dng.exr", "was made by the profile", str(profile_path))
+    help_text = run_cli("secchi", "--help").stdout
+    assert "--allow-other-camera" in help_text

@@ -18,7 +18,7 @@ def test_old_spellings_are_gone():
     assert new.returncode == 0, new.stderr
     assert old.returncode == 2 and "--model" in old.stderr and "Traceback" not in old.stderr
     # the default is the refined model: water, surface and all
-    default = run_cli("water", "forward", "--concentration", "89ug/L", "--depth", "20cm")
+    default = run_cli("water", "forward", "--json", "--concentration", "89ug/L", "--depth", "20cm")
     assert json.loads(default.stdout)["model"] == "refined"
 
 

@@ -150,7 +150,7 @@ def test_long_dim_photo_at_f8_gives_the_true_radiance(tmp_path, camera, profile_
     p = tmp_path / "dim_30s_f8.dng"
     camera.write_dng(p, Scene.uniform(line * scale), exposure_s=t, iso=100, f_number=8.0,
                      rng=np.random.default_rng(29))
-    got = float(np.nanmean(apply(load_frame(p), profile).channels["L663"]))
+    got = float(np.nanmean(apply(load_frame(p), profile, 663.0, "narrowband").channels["L663_inband"]))
     assert got == pytest.approx(LINE_BAND_W_M2_SR * scale, rel=0.01)
 
 

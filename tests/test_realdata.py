@@ -162,5 +162,5 @@ def test_session_defaults_give_the_fixed_lens_f_number(tmp_path):
 def test_human_table_shows_value_and_source():
     proc = run_cli("inspect", REALDATA / "raw" / "RAW_KODAK_DC50_é.KDC", REALDATA / "stripped" / "Nikon.nef")
     assert proc.returncode == 1
-    assert "84.0  (libraw)" in proc.stdout and "(tag)" in proc.stdout and "1 of 2 files read" in proc.stdout
+    assert "84  (libraw)" in proc.stdout and "(tag)" in proc.stdout and "1 of 2 files read" in proc.stdout
     assert proc.stderr.count("camcal: failed: ") == 1 and "Nikon.nef" in proc.stderr

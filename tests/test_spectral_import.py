@@ -252,7 +252,7 @@ def test_imported_profile_runs_through_apply_and_water_invert(targets, profile_p
         assert proc.returncode == 0, proc.stderr
         ch, _ = read_exr(tmp_path / name / "s.dng.exr", ["L663"])
         res[name] = float(np.nanmean(ch["L663"]))
-        proc = run_cli("water", "invert", "--ratio", "0.3", "--depth", "0.8m", "--water-model", "refined",
+        proc = run_cli("water", "invert", "--json", "--ratio", "0.3", "--depth", "0.8m", "--water-model", "refined",
                        "--profile", prof)
         assert proc.returncode == 0, proc.stderr
         res[name + "_chl"] = json.loads(proc.stdout)["c_ug_per_L"][0]

@@ -313,6 +313,8 @@ def test_photo_without_time_or_gps_one_line_asks_for_sun(tmp_path, small_camera)
     sun = json.loads(proc.stdout)[0]["sun"]
     assert (sun["zenith_deg"], sun["azimuth_deg"], sun["source"]) == (35.0, 160.5, "--sun")
     proc = run_cli("inspect", p, "--sun", "35,160.5")
+    assert "zenith 35.00°, azimuth 160.50°" in proc.stdout and "--sun" in proc.stdout
+    proc = run_cli("inspect", p, "--sun", "35,160.5", "--all")
     assert "sun.zenith_deg" in proc.stdout and "35.000" in proc.stdout and "--sun" in proc.stdout
     assert_one_line_error(run_cli("inspect", p, "--sun", "95,10"), "zenith")
 

@@ -124,3 +124,16 @@ def test_bad_means_files(tmp_path):
     short.write_text("wavelength_nm,responsivity\n500,0.5\n600,0.6\n")
     with pytest.raises(CamcalError, match="leaves the responsivity's range"):
         reduce_sweep(read_means_csv(csv, short))
+
+
+@needs_real
+def test_means_table_shows_what_the_csv_holds(tmp_path):
+    """The console's peaks are the written curves' (divided by the largest channel's peak): one of them is 1, the
+    others below, as the title says."""
+    out = tmp_path / "c.csv"
+    proc = run_cli("sweep", "--means", SWEEPS / "Sony_ILCE-7_001_info.txt", "-o", out)
+    assert proc.returncode == 0, proc.stderr
+    assert "largest = 1" in proc.stdout and "1.0000" in proc.stdout
+    rows = [ln.split(",") for ln in out.read_text().splitlines() if ln and not ln.startswith("#")]
+    peaks = np.nanmax(np.array([[float(v) for v in r[1:5]] for r in rows]), axis=0)
+    assert peaks.max() == pytest.approx(1.0) and all(f"{p:.4f}" in proc.stdout for p in peaks)

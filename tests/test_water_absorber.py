@@ -63,14 +63,14 @@ def test_dye_round_trip_through_the_cli(profile_path, tmp_path):
                  ["concentration: 5 mg/L", "path_length: 1 cm"])
     lamp = ["--water-model", "lamp", "--lamp-height", "1m", "--lamp-angle", "15", "--profile", profile_path,
             "--absorber-csv", csv]
-    proc = run_cli("water", "forward", "--concentration", "50ug/L,500ug/L", "--depth", "0.3m", *lamp)
+    proc = run_cli("water", "forward", "--json", "--concentration", "50ug/L,500ug/L", "--depth", "0.3m", *lamp)
     assert proc.returncode == 0, proc.stderr
     out = json.loads(proc.stdout)
     assert out["band_model"]["chlorophyll"].startswith(str(csv)) and out["illuminant"] == "lamp"
     r = out["ratio"][0]
     assert r[1] < r[0]
-    proc = run_cli("water", "invert", "--ratio", ",".join(map(repr, r)), "--depth", "0.3m", *lamp)
+    proc = run_cli("water", "invert", "--json", "--ratio", ",".join(map(repr, r)), "--depth", "0.3m", *lamp)
     assert proc.returncode == 0, proc.stderr
     np.testing.assert_allclose(json.loads(proc.stdout)["c_ug_per_L"], [50.0, 500.0], rtol=1e-6)
-    assert_one_line_error(run_cli("water", "invert", "--ratio", "0.3", "--depth", "0.3m", *lamp[:-1],
+    assert_one_line_error(run_cli("water", "invert", "--json", "--ratio", "0.3", "--depth", "0.3m", *lamp[:-1],
                                   tmp_path / "none.csv"), "none.csv")

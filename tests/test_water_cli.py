@@ -40,11 +40,12 @@ def test_invert_exr_round_trip(tmp_path):
 
 
 def test_invert_numbers_and_forward_json():
-    proc = run_cli("water", "forward", "--concentration", "1e-7mol/L", "--depth", "10cm", "--water-model", "seed")
+    proc = run_cli("water", "forward", "--json", "--concentration", "1e-7mol/L", "--depth", "10cm", "--water-model",
+                   "seed")
     assert proc.returncode == 0, proc.stderr
     r = json.loads(proc.stdout)["ratio"][0][0]
     assert abs(r - 0.545) < 0.01
-    proc = run_cli("water", "invert", "--ratio", f"{r!r},2", "--depth", "0.1m", "--water-model", "seed")
+    proc = run_cli("water", "invert", "--json", "--ratio", f"{r!r},2", "--depth", "0.1m", "--water-model", "seed")
     out = json.loads(proc.stdout)
     assert abs(out["c_mol_per_L"][0] / 1e-7 - 1) < 1e-9 and out["c_mol_per_L"][1] is None
     assert out["reason"] == ["ok", "above_clear_water"]
@@ -64,7 +65,7 @@ def test_simulate_writes_csv_and_png(tmp_path):
 
 
 def test_errors_are_one_line(tmp_path):
-    assert_one_line_error(run_cli("water", "invert", "--ratio", "0.3", "--depth", "2furlongs"), "length unit")
+    assert_one_line_error(run_cli("water", "invert", "--json", "--ratio", "0.3", "--depth", "2furlongs"), "length unit")
     assert_one_line_error(run_cli("water", "invert", "--submerged", tmp_path / "no.exr", "--reference",
                                   tmp_path / "no.exr", "--depth", "1m", "-o", tmp_path / "o.exr"), "no such EXR")
     write_exr(tmp_path / "a.exr", {"L663": np.ones((4, 4), np.float32)})
@@ -109,7 +110,7 @@ def test_invert_band_aware_with_profile(profile_path, secchi_exrs, tmp_path):
     # the profile's c_R (from the noisy sweep) biases C by < 1 % here; ≈ 5 % per-pixel noise averages out
     assert np.median(ch["chl_ug_per_L"][ok]) == pytest.approx(truth["c_ug_per_L"], rel=0.05)
     # numbers only, on the predicted ratio: the profile's band model reproduces the camera's truth to 1 %
-    proc = run_cli("water", "invert", "--ratio", repr(truth["predicted_red_band_ratio"]), "--depth", "0.8m",
+    proc = run_cli("water", "invert", "--json", "--ratio", repr(truth["predicted_red_band_ratio"]), "--depth", "0.8m",
                    "--water-model", "refined", "--profile", profile_path)
     assert proc.returncode == 0, proc.stderr
     out = json.loads(proc.stdout)
@@ -129,9 +130,54 @@ def test_invert_band_aware_with_profile(profile_path, secchi_exrs, tmp_path):
 
 
 def test_profile_errors(profile_path, tmp_path):
-    assert_one_line_error(run_cli("water", "invert", "--ratio", "0.3", "--depth", "1m", "--profile",
+    assert_one_line_error(run_cli("water", "invert", "--json", "--ratio", "0.3", "--depth", "1m", "--profile",
                                   tmp_path / "none.camcal"))
     with pytest.raises(CamcalError, match="no channel"):
         band_model_from_profile(profile_path, "IR")
     with pytest.raises(CamcalError, match="illuminant"):
         band_model_from_profile(profile_path, "R", illuminant="candle")
+
+
+def test_invert_refuses_exrs_of_another_profile_or_mixed_scales(tmp_path, demo_run, profile_path):
+    """The EXRs store the hash of the profile that made them: another --profile is refused naming both, and so is
+    a pair of EXRs from two profiles or of relative and absolute radiance (exit 2, one line)."""
+    demo, _ = demo_run
+    sub, ref = demo / "radiance" / "disk_submerged.dng.exr", demo / "radiance" / "disk_reference.dng.exr"
+    base = ("water", "invert", "--depth", "0.8m", "-o", tmp_path / "c.exr")
+    ok = run_cli(*base, "--submerged", sub, "--reference", ref, "--profile", demo / "camera.camcal")
+    assert ok.returncode == 0, ok.stderr
+    proc = run_cli(*base, "--submerged", sub, "--reference", ref, "--profile", profile_path)
+    assert_one_line_error(proc, "disk_submerged.dng.exr", "was made by the profile", str(profile_path))
+    _, meta = read_exr(sub)
+    assert meta["profile_sha256"][:12] in proc.stderr
+    img = np.ones((8, 8), np.float32)
+    write_exr(tmp_path / "abs.exr", {"R": img}, {"radiance_scale": "absolute", "profile_sha256": "a" * 64})
+    write_exr(tmp_path / "rel.exr", {"R": img}, {"radiance_scale": "relative", "profile_sha256": "a" * 64})
+    write_exr(tmp_path / "oth.exr", {"R": img}, {"radiance_scale": "absolute", "profile_sha256": "b" * 64})
+    pair = ("water", "invert", "--depth", "0.5m", "--channel", "R", "-o", tmp_path / "d.exr", "--relative-sigma",
+            "1%")
+    proc = run_cli(*pair, "--submerged", tmp_path / "rel.exr", "--reference", tmp_path / "abs.exr")
+    assert_one_line_error(proc, "rel.exr", "relative radiance", "abs.exr", "absolute radiance")
+    proc = run_cli(*pair, "--submerged", tmp_path / "oth.exr", "--reference", tmp_path / "abs.exr")
+    assert_one_line_error(proc, "oth.exr", "bbbbbbbbbbbb", "abs.exr", "aaaaaaaaaaaa")
+
+
+def test_water_outputs_are_tables_and_json_only_when_asked():
+    """Tables for people by default; --json prints JSON with its characters as they are (σ, not \\u03c3)."""
+    proc = run_cli("water", "forward", "--concentration", "30ug/L,60ug/L", "--depth", "0.5m,1m")
+    assert proc.returncode == 0, proc.stderr
+    assert "depth (m)" in proc.stdout and "C = 30 µg/L" in proc.stdout and "0.16613" in proc.stdout
+    assert not proc.stdout.lstrip().startswith("{")
+    proc = run_cli("water", "invert", "--ratio", "0.3,0.25", "--depth", "0.3m", "--relative-sigma", "1%")
+    assert proc.returncode == 0, proc.stderr
+    assert "C (µg/L)" in proc.stdout and "σ_C (µg/L)" in proc.stdout and not proc.stdout.lstrip().startswith("{")
+    proc = run_cli("water", "invert", "--json", "--ratio", "0.3", "--depth", "0.3m")
+    assert "\\u03c3" not in proc.stdout and "σ_C" in proc.stdout
+    assert json.loads(proc.stdout)["c_ug_per_L"][0] > 0
+
+
+def test_bare_depth_is_refused_listing_the_units():
+    for argv in (("water", "invert", "--ratio", "0.3", "--depth", "0.8"),
+                 ("water", "forward", "--concentration", "30ug/L", "--depth", "0.8")):
+        assert_one_line_error(run_cli(*argv), "--depth 0.8 has no unit", "0.8m", "0.8cm", "m, cm, mm")
+    assert run_cli("water", "invert", "--ratio", "0.3", "--depth", "80cm").returncode == 0

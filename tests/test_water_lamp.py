@@ -74,11 +74,11 @@ def test_lamp_round_trip_dense_grid_in_process():
 def test_lamp_round_trip_through_the_cli(h, angle):
     lamp = ["--water-model", "lamp", "--lamp-height", h, "--lamp-angle", angle]
     conc = ",".join(f"{float(c)!r}mol/L" for c in C_MOL)
-    proc = run_cli("water", "forward", "--concentration", conc, "--depth", "0.1m,0.5m", *lamp)
+    proc = run_cli("water", "forward", "--json", "--concentration", conc, "--depth", "0.1m,0.5m", *lamp)
     assert proc.returncode == 0, proc.stderr
     ratios = json.loads(proc.stdout)["ratio"]
     for depth, row in zip(("0.1m", "0.5m"), ratios, strict=True):
-        proc = run_cli("water", "invert", "--ratio", ",".join(repr(r) for r in row), "--depth", depth, *lamp)
+        proc = run_cli("water", "invert", "--json", "--ratio", ",".join(repr(r) for r in row), "--depth", depth, *lamp)
         assert proc.returncode == 0, proc.stderr
         out = json.loads(proc.stdout)
         assert out["reason"] == ["ok"] * len(C_MOL)
@@ -93,9 +93,10 @@ def test_lamp_reasons_and_errors():
                                 Reason.OK]
     with pytest.raises(CamcalError, match="one depth at a time"):
         invert_ratio(np.array([0.1, 0.1]), m, np.array([0.2, 0.3]))
-    assert_one_line_error(run_cli("water", "invert", "--ratio", "0.3", "--depth", "0.2m", "--water-model", "lamp"),
+    assert_one_line_error(run_cli("water", "invert", "--json", "--ratio", "0.3", "--depth", "0.2m", "--water-model",
+                                  "lamp"),
                           "--lamp-height")
-    assert_one_line_error(run_cli("water", "forward", "--concentration", "1e-7", "--depth", "0.2m",
+    assert_one_line_error(run_cli("water", "forward", "--json", "--concentration", "1e-7", "--depth", "0.2m",
                                   "--water-model", "lamp", "--lamp-height", "1m", "--lamp-angle", "89"), "--lamp-angle")
 
 
@@ -123,11 +124,11 @@ def test_exact_transmittance_refined_model_inverts():
 
 
 def test_exact_refined_through_the_cli():
-    proc = run_cli("water", "forward", "--concentration", "1e-7mol/L", "--depth", "0.3m", "--water-model", "refined",
-                   "--transmittance", "exact")
+    proc = run_cli("water", "forward", "--json", "--concentration", "1e-7mol/L", "--depth", "0.3m", "--water-model",
+                   "refined", "--transmittance", "exact")
     r = json.loads(proc.stdout)["ratio"][0][0]
     assert r == pytest.approx(float(RefinedModel(transmittance="exact").ratio(1e-7, 0.3)), rel=1e-12)
-    proc = run_cli("water", "invert", "--ratio", repr(r), "--depth", "0.3m", "--water-model", "refined",
+    proc = run_cli("water", "invert", "--json", "--ratio", repr(r), "--depth", "0.3m", "--water-model", "refined",
                    "--transmittance", "exact")
     assert proc.returncode == 0, proc.stderr
     out = json.loads(proc.stdout)
@@ -224,8 +225,8 @@ def test_per_pixel_geometry_through_the_cli(tmp_path):
 
 def test_epsilon_unc_as_percent_or_fraction():
     r = repr(float(LampModel(1.0, 0.2).ratio(1e-7, 0.3)))
-    base = ["water", "invert", "--ratio", r, "--depth", "0.3m", "--water-model", "lamp", "--lamp-height", "1m",
-            "--lamp-angle", str(np.degrees(0.2))]
+    base = ["water", "invert", "--json", "--ratio", r, "--depth", "0.3m", "--water-model", "lamp", "--lamp-height",
+            "1m", "--lamp-angle", str(np.degrees(0.2))]
     a = json.loads(run_cli(*base, "--epsilon-unc", "3%").stdout)["sigma_terms_ug_per_L"]["epsilon"][0]
     b = json.loads(run_cli(*base, "--epsilon-unc", "0.03").stdout)["sigma_terms_ug_per_L"]["epsilon"][0]
     assert a == pytest.approx(b) and a == pytest.approx(0.03 * 89.35, rel=0.01)

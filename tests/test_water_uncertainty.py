@@ -109,7 +109,7 @@ def test_cli_writes_total_and_terms(tmp_path):
     assert unc["dominant"] == max(unc["median_terms_ug_per_L"], key=unc["median_terms_ug_per_L"].get)
     assert meta["stated_uncertainties"]["depth"]["sigma"] == pytest.approx(0.005)
     # numbers: the same terms in JSON
-    proc = run_cli("water", "invert", "--ratio", repr(float(m.ratio(1e-7, 0.3))), "--depth", "30cm±5mm",
+    proc = run_cli("water", "invert", "--json", "--ratio", repr(float(m.ratio(1e-7, 0.3))), "--depth", "30cm±5mm",
                    "--water-model", "lamp", "--lamp-height", "1m", "--lamp-angle", "20", "--epsilon-unc", "3%")
     out = json.loads(proc.stdout)
     assert set(out["sigma_terms_ug_per_L"]) == {"depth", "epsilon"}

@@ -20,7 +20,10 @@ def register(app: typer.Typer) -> None:
         photos: list[Path] = typer.Argument(..., help="Photos (RAW or JPEG) and/or folders of photos."),
         outdir: Path = typer.Option(..., "-o", "--output", help="Output folder: one <photo>.exr per photo."),
         wavelength: float = typer.Option(663.0, "--wavelength", help="λ0 of the L<λ0> map, nm."),
-        estimator: str = typer.Option("narrowband", "--estimator", help="narrowband or smooth (docs/apply.md)."),
+        estimator: str = typer.Option("auto", "--estimator", help="auto (default: the spectral estimator with the "
+                                      "smallest reconstruction error for the profile's c(λ)), trained, smooth, or "
+                                      "narrowband (light confined near λ0: the in-band radiance L<λ0>_inband, "
+                                      "W m⁻² sr⁻¹, unless --filter-fwhm); docs/apply.md."),
         filter_fwhm: float | None = typer.Option(None, "--filter-fwhm",
                                                  help="narrowband: filter width, nm; L<λ0> then per nm."),
         line_fwhm: float | None = typer.Option(None, "--line-fwhm",
@@ -68,21 +71,22 @@ def register(app: typer.Typer) -> None:
                             mask_path=None if mask is None else str(mask), precision=precision, compression=compression,
                             strict=strict)
         with progress() as bar:
-            task = bar.add_task("apply", total=None)
+            task = bar.add_task("apply (loading the profile)", total=None)
 
             def tick(done: int, total: int, _result) -> None:
-                bar.update(task, completed=done, total=total)
+                bar.update(task, completed=done, total=total, description="apply")
 
             report = run_batch(profile, photos, outdir, opts, jobs=jobs, scheduler=dask_scheduler, progress=tick)
         if json_out:
 
             print_json({"counts": report.counts, "report_csv": report.report_csv, "roi_csv": report.roi_csv,
-                        "photos": report_rows(report)})
+                        "estimator": report.estimator, "photos": report_rows(report)})
         else:
             c = report.counts
             console.print(f"{c['done']} written, {c['skipped']} already done (skipped), {c['failed']} failed "
                           f"→ {report.outdir} (report {Path(report.report_csv).name}"
                           f"{', ' + Path(report.roi_csv).name if report.roi_csv else ''})", soft_wrap=True)
+            console.print(report.estimator, soft_wrap=True, markup=False, highlight=False)
         for r in report.results:
             if r.warning and r.status != "failed":
                 err_console.print(f"camcal: warning: {Path(r.source).name}: {r.warning}", markup=False,

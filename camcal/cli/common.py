@@ -13,7 +13,8 @@ __all__ = ["console", "err_console", "fraction", "one_output", "plot_path", "pri
 
 
 def print_json(obj: object) -> None:
-    sys.stdout.write(json.dumps(obj, indent=2, sort_keys=False, allow_nan=False, default=str) + "\n")
+    sys.stdout.write(json.dumps(obj, indent=2, sort_keys=False, allow_nan=False, default=str, ensure_ascii=False)
+                     + "\n")
 
 
 def plot_path(png: Path | None, plot: bool, default: Path) -> Path | None:

@@ -6,12 +6,14 @@ from pathlib import Path
 
 import numpy as np
 import typer
+from rich.markup import escape
+from rich.table import Table
 
 from camcal.cli.common import console, print_json, progress
 from camcal.cli.water_cmd import _depth_unc, _number, _split_unc, _unc_value
 from camcal.errors import CamcalError
 from camcal.region import Region
-from camcal.secchi import result_json, run_secchi, write_diagnostics
+from camcal.secchi import SecchiResult, all_warnings, result_json, run_secchi, write_diagnostics
 from camcal.sun import parse_sun_option, photo_sun
 from camcal.units import CONCENTRATION
 from camcal.water.band import read_chlorophyll_csv
@@ -30,6 +32,33 @@ DIFFUSE_SIGMA = 0.2
 AEROSOL_SIGMA = 0.05
 
 
+def result_table(res: SecchiResult):
+    """A Rich table of the survey: one row per photo, units in the headers (the surround budget is in the JSON
+    and on the page)."""
+    unit = res.reference.unit or "?"
+    t = Table(title=f"camcal secchi (disk L: band radiance, {escape(unit)})", title_justify="left")
+    for col in ("photo", "depth (m)", "disk L", "ratio", f"C ± σ_C ({CONCENTRATION})", "dominant σ term"):
+        t.add_column(col, justify="left" if col in ("photo", "dominant σ term") else "right",
+                     overflow="fold")
+
+    def g(v, digits=4):
+        return "—" if v is None or not np.isfinite(v) else f"{v:.{digits}g}"
+
+    for s in [res.reference, *res.submerged]:
+        name = escape(s.path.name)
+        if s.error:
+            t.add_row(name, "" if s.depth_m is None else f"{s.depth_m:g}", g(s.disk_radiance), "", "[red]failed[/red]",
+                      "")
+        elif s.kind == "reference":
+            t.add_row(name, "air", g(s.disk_radiance), "", "", "")
+        else:
+            dom = max(s.terms, key=s.terms.get) if s.terms else ""
+            t.add_row(name, f"{s.depth_m:g}", g(s.disk_radiance), g(s.ratio, 5),
+                      f"{s.c_ug_per_L:.4g} ± {s.sigma_ug_per_L:.2g}" + (" [yellow]⚠[/yellow]" if s.warnings else ""),
+                      escape(dom))
+    return t
+
+
 def _percent(text: str, what: str) -> float:
     return _unc_value(1.0, text.strip(), _number(what), what)
 
@@ -39,7 +68,7 @@ def register(app: typer.Typer) -> None:
     def secchi_cmd(
         profile: Path = typer.Option(..., "--profile", help="Calibration profile (.camcal) of the camera."),
         reference: Path = typer.Option(..., "--reference", help="Photo of the disk in air (dry, horizontal, "
-                                       "under the same light)."),
+                                       "under the same light), or its radiance EXR from camcal apply with --profile."),
         submerged: list[Path] = typer.Option(..., "--submerged", help="Photo of the disk under water (repeat "
                                              "for several; one --depth each)."),
         depth: list[str] = typer.Option(..., "--depth", help="Disk depth per submerged photo: '0.5m', '50cm', "
@@ -74,6 +103,8 @@ def register(app: typer.Typer) -> None:
         view_deg: float = typer.Option(0.0, help="Camera view angle from nadir in air, degrees."),
         reflectance: str = typer.Option("fresnel", help="fresnel (exact) or schlick."),
         transmittance: str = typer.Option("exact", help="Sky part: exact (T(θ) in the integral) or mean (T̄)."),
+        allow_other_camera: bool = typer.Option(False, "--allow-other-camera",
+                                                help="Accept photos of another camera model than the profile's."),
     ) -> None:
         """Chlorophyll-a from photos of a Secchi disk under the sun: apply the profile, find the disks, form the
         band ratio, invert the field model (direct sun + sky over a flat surface); C ± σ_C and one line per
@@ -125,27 +156,23 @@ def register(app: typer.Typer) -> None:
                              inputs=inputs, channel=band_channel, chlorophyll=chl,
                              background_absorption_per_m=background_absorption, roi=region,
                              sun_zeniths_deg=None if suns is None else [s.apparent_zenith_deg for s in suns],
-                             progress=lambda: bar.advance(task))
+                             progress=lambda: bar.advance(task), allow_other_camera=allow_other_camera,
+                             page_dir=out)
         res.meta["sun"] = sun_meta
         page = write_diagnostics(res, out, band_channel) if out is not None else None
         failed = [s for s in res.submerged if s.error]
         if as_json:
             print_json({**result_json(res), "page": None if page is None else str(page)})
         else:
-            for s in [res.reference, *res.submerged]:
-                if s.error:
-                    console.print(f"{s.path.name}: FAILED {s.error}", markup=False)
-                elif s.kind == "reference":
-                    console.print(f"{s.path.name}: reference, disk at {s.fit.describe()['centre_photo_px']} "
-                                  f"r = {s.fit.radius_photo_px:.1f} px, L = {s.disk_radiance:.4g}", markup=False)
-                else:
-                    dom = max(s.terms, key=s.terms.get)
-                    console.print(f"{s.path.name}: d = {s.depth_m:g} m, ratio {s.ratio:.5f}, C = {s.c_ug_per_L:.4g}"
-                                  f" ± {s.sigma_ug_per_L:.2g} {CONCENTRATION} (dominant: {dom})", markup=False)
+            console.print(result_table(res))
             if np.isfinite(res.c_ug_per_L):
-                console.print(f"C = {res.c_ug_per_L:.4g} ± {res.sigma_ug_per_L:.2g} {CONCENTRATION} "
-                              f"(dominant: {res.dominant})",
-                              markup=False)
+                console.print(f"C = {res.c_ug_per_L:.4g} ± {res.sigma_ug_per_L:.2g} {CONCENTRATION} (1σ; dominant "
+                              f"term: {res.dominant})", markup=False)
+            for w in all_warnings(res):
+                console.print(f"warning: {w}", markup=False, style="yellow")
+            for s in res.submerged:
+                if s.error:
+                    console.print(f"{s.path.name}: failed: {s.error}", markup=False, style="red")
             if page is not None:
                 console.print(f"wrote {page}", markup=False)
         if failed and len(failed) == len(res.submerged):

@@ -39,14 +39,19 @@ def _means(means: Path, responsivity: Path | None, reduction: str, output: Path,
     summary = sens.summary()
     if as_json:
         print_json({**summary, "output": str(output), "png": str(png_path), "reduction": reduction,
-                    "peak_response": {k: float(v.max()) for k, v in red.response.items()}})
+                    "peak_response": {k: float(v.max()) for k, v in red.response.items()},
+                    "peak_relative": {k: float(np.nanmax(v)) for k, v in sens.values.items()}})
         return
-    table = Table(title=f"spectral sensitivity from sweep means ({reduction} reduction, relative)")
-    for col in ("channel", "peak λ (nm)", "peak response", "u at peak (%)", "λ_eff (nm)"):
+    # what the CSV holds: every channel divided by the largest value of any channel (that one peaks at 1)
+    table = Table(title=f"spectral sensitivity from sweep means ({reduction} reduction; relative: divided by the "
+                        "largest channel's peak)")
+    for col in ("channel", "peak λ (nm)", "peak (largest = 1)", "u at peak (%)", "λ_eff (nm)"):
         table.add_column(col)
-    for ch, v in red.response.items():
-        k = int(np.argmax(v))
-        table.add_row(ch, f"{red.wavelength_nm[k]:g}", f"{v[k]:.5g}", f"{100 * red.uncertainty[ch][k] / v[k]:.2g}",
+    for ch, v in sens.values.items():
+        v = np.asarray(v, float)
+        k = int(np.nanargmax(v))
+        u = np.asarray(sens.uncertainty[ch], float)
+        table.add_row(ch, f"{sens.wavelength_nm[k]:g}", f"{v[k]:.4f}", f"{100 * u[k] / v[k]:.2g}",
                       f"{summary['effective_wavelength_nm'].get(ch, summary['effective_wavelength_nm']['G']):.1f}")
     console.print(table)
     console.print(f"wrote {output} (+ {output.stem}.meta.json) and {png_path}")
@@ -84,7 +89,7 @@ def register(app: typer.Typer) -> None:
         dark: Path | None = typer.Option(None, "--dark", help="Dark model (camcal dark -o dark.json)."),
         flat: Path | None = typer.Option(None, "--flat", help="Flat model (camcal flat -o flat.json)."),
         mode: str = typer.Option("absolute", "--sweep-mode", help=f"absolute ({SPECTRAL_SENSITIVITY}) or "
-                                 "relative (peak 1)."),
+                                 "relative (divided by the largest value of any channel: that channel peaks at 1)."),
         roi: str | None = typer.Option(None, "--roi", help="Region x,y,w,h in photo pixels at full resolution "
                                        "(rounded outward to whole plane pixels)."),
         roi_fraction: float | None = typer.Option(None, "--roi-fraction", parser=fraction, help="('20%' or 0.2) "

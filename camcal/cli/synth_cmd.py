@@ -16,7 +16,8 @@ from camcal.synth.camera import Scene, SyntheticCamera, preset
 from camcal.synth.exif import place_time_from_text
 from camcal.synth.messy import plant_problems
 from camcal.synth.session import STAGES, SessionPlan, write_session
-from camcal.units import IN_BAND_RADIANCE, SPECTRAL_RADIANCE
+from camcal.synth.sunlit import write_sunlit_photos
+from camcal.units import CONCENTRATION, IN_BAND_RADIANCE, SPECTRAL_RADIANCE
 
 
 def _camera(pattern: str | None, bits: int | None, width: int | None, height: int | None, seed: int,
@@ -122,7 +123,14 @@ def register(app: typer.Typer) -> None:
     def photo_cmd(
         out_arg: Path | None = typer.Argument(None, metavar="FILE", help="Output file: .dng, .jpg or .heic (or -o)."),
         out_opt: Path | None = typer.Option(None, "-o", "--output", help="Output file: .dng, .jpg or .heic."),
-        scene: str = typer.Option("uniform", help="uniform (flat spectrum), line (monochromator), lamp (black body)."),
+        scene: str = typer.Option("uniform", help="uniform (flat spectrum), line (monochromator), lamp (black body), "
+                                  "secchi-sunlit (FILE is a folder: a Secchi disk in a sunlit lake, SPECTRL2 sun "
+                                  "and sky, one reference and one submerged photo per --depth, truth.json)."),
+        chl: float = typer.Option(60.0, "--chl", help=f"secchi-sunlit: chlorophyll-a, {CONCENTRATION}."),
+        depths: str = typer.Option("0.8", "--depths", help="secchi-sunlit: disk depths in m, comma-separated."),
+        sun_zenith: float = typer.Option(35.0, "--sun-zenith", help="secchi-sunlit: the sun's zenith angle, deg."),
+        sun_azimuth: float = typer.Option(160.0, "--sun-azimuth", help="secchi-sunlit: the sun's azimuth, deg."),
+        photo_format: str = typer.Option("dng", "--format", help="secchi-sunlit: dng, jpg or heic, comma-separated."),
         radiance: float = typer.Option(0.02, help=f"uniform: {SPECTRAL_RADIANCE}; line: in-band {IN_BAND_RADIANCE}; "
                                         "lamp: peak."),
         wavelength: float = typer.Option(663.0, help="line centre, nm."),
@@ -160,6 +168,12 @@ def register(app: typer.Typer) -> None:
                  if utc is not None else None)
 
         cam = _camera(pattern, bits, width, height, seed, sensitivity, preset_name)
+        if scene == "secchi-sunlit":
+            files = write_sunlit_photos(out, cam, chl=chl, depths=depths, sun_zenith_deg=sun_zenith,
+                                        sun_azimuth_deg=sun_azimuth, formats=photo_format, seed=seed, place=place)
+            for f in files:
+                console.print(f"wrote {f}", markup=False)
+            return
         if scene == "uniform":
             spectrum = np.full(WAVELENGTHS_NM.size, radiance)
         elif scene == "line":
@@ -168,7 +182,7 @@ def register(app: typer.Typer) -> None:
             b = planck_radiance(temperature)
             spectrum = radiance * b / b.max()
         else:
-            raise CamcalError(f"unknown scene {scene!r}; choose uniform, line or lamp")
+            raise CamcalError(f"unknown scene {scene!r}; choose uniform, line, lamp or secchi-sunlit")
         rng = np.random.default_rng(seed)
         kw = dict(exposure_s=exposure, iso=iso, f_number=f_number, rng=rng, place=place)
         suffix = out.suffix.lower()

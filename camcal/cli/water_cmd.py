@@ -2,15 +2,17 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 import typer
 
 from camcal.cli.common import console, print_json, progress
+from camcal.cli.water_tables import forward_table, ratio_table, summary_table
 from camcal.errors import CamcalError
 from camcal.exr import read_exr, write_exr
+from camcal.profile import load_profile
+from camcal.provenance import check_made_by, check_pair
 from camcal.region import Region, pixels_per_output_cell
 from camcal.water.band import band_model_from_profile, read_chlorophyll_csv
 from camcal.water.invert import Reason, invert_images, invert_ratio
@@ -85,8 +87,17 @@ def _list(text: str, parse, what: str) -> np.ndarray:
 
 
 def _depth(text: str) -> float:
-    """A disk depth in metres: positive and plausible (:data:`DEPTH_RANGE_M`), else CamcalError."""
+    """A disk depth in metres: with its unit, positive and plausible (:data:`DEPTH_RANGE_M`), else CamcalError.
+    A bare number is refused: metres, centimetres and millimetres are all in use at the water's edge."""
 
+    t = str(text).strip()
+    try:
+        bare = np.isfinite(float(t))
+    except ValueError:
+        bare = False
+    if bare:
+        raise CamcalError(f"--depth {t} has no unit: give it with one, e.g. {t}m, {t}cm or {t}mm (accepted units: "
+                          "m, cm, mm)")
     d = parse_length_m(text)
     if not d > 0:
         raise CamcalError(f"depth must be positive, got {text!r}")
@@ -239,6 +250,14 @@ def _unc_summary(terms: dict, inputs: list) -> dict:
     return out
 
 
+def _print_unc_note(unc: dict) -> None:
+    """The σ_C caveats of a ratio table: inputs whose uncertainty was not stated, and why there is no total."""
+    if unc.get("not_stated"):
+        console.print(f"not stated (no σ): {', '.join(unc['not_stated'])}", markup=False, highlight=False)
+    if unc.get("note"):
+        console.print(f"note: {unc['note']}", markup=False, highlight=False)
+
+
 def _total(terms: dict, inv) -> np.ndarray:
     """σ_C per pixel from the terms; NaN (not stated) when the ratio's noise is not among them."""
     if "ratio" not in terms:
@@ -304,6 +323,7 @@ def register(app: typer.Typer) -> None:
         chlorophyll_csv=typer.Option(None, "--absorber-csv", "--chlorophyll-csv", help="With --profile: the "
                                      "absorber's spectrum (chlorophyll, a dye): CSV of ε(λ) per gram or per mole, "
                                      "or a measured absorbance (default: Bricaud 1998 chlorophyll)."),
+        as_json=typer.Option(False, "--json", help="Print the result as JSON (default: a table)."),
     )
 
     @water.command("forward")
@@ -317,9 +337,10 @@ def register(app: typer.Typer) -> None:
         transmittance: str = common["transmittance"], lamp_height: str = common["lamp_height"],
         lamp_angle: str = common["lamp_angle"], profile: Path = common["profile"],
         band_channel: str = common["band_channel"], illuminant: str = common["illuminant"],
-        chlorophyll_csv: Path = common["chlorophyll_csv"],
+        chlorophyll_csv: Path = common["chlorophyll_csv"], as_json: bool = common["as_json"],
     ) -> None:
-        """Predicted ratio (disk radiance over reference) for each concentration and depth, as JSON."""
+        """Predicted ratio (disk radiance over reference) for each concentration and depth: a table (rows depth,
+        columns concentration), or JSON with --json."""
 
         m, _ = _build(model, epsilon, albedo, cutoff_deg, view_deg, n_water, water_absorption,
                       background_absorption, reflectance, transmittance, lamp_height, lamp_angle, None)
@@ -339,8 +360,12 @@ def register(app: typer.Typer) -> None:
                 ratio = m.ratio_first_order(c[None, :], d[:, None])
             else:
                 ratio = m.ratio(c[None, :], d[:, None])
-        print_json({**meta, "depth_m": d.tolist(), "c_mol_per_L": c.tolist(),
-                    "c_ug_per_L": mol_per_L_to_ug_per_L(c).tolist(), "ratio": _json_nested(ratio)})
+        doc = {**meta, "depth_m": d.tolist(), "c_mol_per_L": c.tolist(),
+               "c_ug_per_L": mol_per_L_to_ug_per_L(c).tolist(), "ratio": _json_nested(ratio)}
+        if as_json:
+            print_json(doc)
+        else:
+            console.print(forward_table(doc))
 
     @water.command("invert")
     def invert_cmd(
@@ -355,7 +380,7 @@ def register(app: typer.Typer) -> None:
                                 "outward to the EXR's grid: half resolution for Bayer photos, from the EXR's "
                                 "'resolution' note; an EXR without one is taken at its own pixels); other "
                                 "pixels become NaN."),
-        ratio: str = typer.Option(None, help="Numbers only: comma list of ratios; prints JSON."),
+        ratio: str = typer.Option(None, help="Numbers only: comma list of ratios; prints a table (JSON with --json)."),
         out: Path = typer.Option(None, "-o", "--output", help="Output EXR (chl_ug_per_L, chl_unc_ug_per_L, the σ "
                                  "terms chl_unc_<term>_ug_per_L, reason)."),
         profile: Path = common["profile"], band_channel: str = common["band_channel"],
@@ -373,6 +398,7 @@ def register(app: typer.Typer) -> None:
                                            "resolution, 'x,y'."),
         lamp_direction: float = typer.Option(180.0, help="lamp, per pixel: direction in the image from the disk "
                                              "centre toward the lamp, degrees from +x toward +y (180: left)."),
+        as_json: bool = common["as_json"],
     ) -> None:
         """Chlorophyll-a (or dye) per pixel from a submerged and a reference radiance image (or from numbers).
 
@@ -410,11 +436,16 @@ def register(app: typer.Typer) -> None:
                 inv = invert_ratio(r, m, d, sigma_ln_ratio=relative_sigma)
             terms = all_terms(inv, m, d, inputs)
             total = _total(terms, inv)
-            print_json({**meta, "ratio": _json_list(r), "c_mol_per_L": _json_list(inv.c_mol_per_L),
-                        "c_ug_per_L": _json_list(inv.c_ug_per_L), "sigma_ug_per_L": _json_list(total),
-                        "sigma_terms_ug_per_L": {k: _json_list(v) for k, v in terms.items()},
-                        "uncertainty": _unc_summary(terms, inputs),
-                        "reason": [Reason(int(v)).name.lower() for v in inv.reason]})
+            doc = {**meta, "ratio": _json_list(r), "c_mol_per_L": _json_list(inv.c_mol_per_L),
+                   "c_ug_per_L": _json_list(inv.c_ug_per_L), "sigma_ug_per_L": _json_list(total),
+                   "sigma_terms_ug_per_L": {k: _json_list(v) for k, v in terms.items()},
+                   "uncertainty": _unc_summary(terms, inputs),
+                   "reason": [Reason(int(v)).name.lower() for v in inv.reason]}
+            if as_json:
+                print_json(doc)
+            else:
+                console.print(ratio_table(doc))
+                _print_unc_note(doc["uncertainty"])
             return
         if submerged is None or reference is None or out is None:
             raise CamcalError("give --submerged A.exr --reference B.exr -o chl.exr, or --ratio for numbers")
@@ -426,7 +457,12 @@ def register(app: typer.Typer) -> None:
         with progress() as bar:
             task = bar.add_task("inverting", total=3)
             sub, sub_meta = read_exr(submerged, names)
-            ref, _ = read_exr(reference, names)
+            ref, ref_meta = read_exr(reference, names)
+            check_pair(sub_meta, submerged, ref_meta, reference)
+            if profile is not None:
+                prof = load_profile(profile)
+                for meta_x, path_x in ((sub_meta, submerged), (ref_meta, reference)):
+                    check_made_by(meta_x, path_x, prof, profile)
             (h, w), (rh, rw) = sub[channel].shape, ref[channel].shape
             if (h, w) != (rh, rw):
                 raise CamcalError(f"is {w}x{h} pixels but the reference {reference.name} is {rw}x{rh}; the two images "
@@ -466,8 +502,11 @@ def register(app: typer.Typer) -> None:
                         "reason": inv.reason.astype(np.float32)}
             write_exr(out, channels, meta)
             bar.advance(task)
-        console.print(json.dumps(summary, ensure_ascii=False))
-        console.print(f"wrote {out}")
+        if as_json:
+            print_json({**summary, "output": str(out)})
+        else:
+            console.print(summary_table(summary))
+            console.print(f"wrote {out}", markup=False, highlight=False)
 
     @water.command("simulate")
     def simulate_cmd(out: Path = typer.Option(..., "-o", "--output", help="Output folder.")) -> None:

@@ -248,3 +248,28 @@ def write_sunlit_survey(outdir: str | Path, camera: SyntheticCamera, *, sky: Sun
              "shots": shots, "camera": camera.truth()}
     save_truth(out / "truth.json", truth)
     return truth
+
+
+def write_sunlit_photos(outdir: str | Path, camera: SyntheticCamera, *, chl: float, depths: str,
+                        sun_zenith_deg: float, sun_azimuth_deg: float = 180.0, formats: str = "dng", seed: int = 1,
+                        place: PlaceTime | None = None) -> list[Path]:
+    """``camcal synth photo --scene secchi-sunlit``: parse the options' text and write
+    :func:`write_sunlit_survey` into ``outdir`` (a folder); returns the files written (truth.json last)."""
+    out = Path(outdir)
+    if out.suffix.lower() in (".dng", ".jpg", ".jpeg", ".heic", ".heif") or (out.exists() and not out.is_dir()):
+        raise CamcalError("--scene secchi-sunlit writes several photos: give a folder", out)
+    try:
+        ds = [float(t) for t in depths.replace("m", "").split(",") if t.strip()]
+    except ValueError:
+        raise CamcalError(f"--depths takes depths in m separated by commas (0.5,1), got {depths!r}") from None
+    fmts = tuple(f.strip().lower() for f in formats.split(",") if f.strip())
+    if not ds or not fmts or any(f not in ("dng", "jpg", "jpeg", "heic") for f in fmts):
+        raise CamcalError(f"--format takes dng, jpg or heic separated by commas, got {formats!r}")
+    if not 0 <= sun_zenith_deg < 89:
+        raise CamcalError(f"--sun-zenith must be 0-89 deg, got {sun_zenith_deg:g}")
+    sky = SunSky(float(sun_zenith_deg), float(sun_azimuth_deg))
+    truth = write_sunlit_survey(out, camera, sky=sky, depths_m=ds, c_ug_per_L=float(chl),
+                                rng=np.random.default_rng([seed, 45]), formats=fmts, place=place)
+    files = [Path(p) for shot in truth["shots"] for kind in ("ref", "sub")
+             for p in shot["files"].get(kind, {}).values()]
+    return [*files, out / "truth.json"]
