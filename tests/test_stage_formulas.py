@@ -2032,7 +2032,7 @@ def test_response_model_record_defaults_and_refusals():
         return str(info.value)
 
     expect = ("malformed response model (ValueError: kind {!r} with channels {}; expected raw R, G1, G2, B (or R, G, "
-              "B for linear RAW) or processed R, G, B)")
+              "B for linear RAW, Y for a monochrome sensor) or processed R, G, B)")
     assert refused({**d, "kind": "jpeg"}) == expect.format("jpeg", "['B', 'G', 'R']")
     four = {n: dict(rec) for n in ("R", "G1", "G2", "B")}
     assert refused({**d, "channels": four}) == expect.format("processed", "['B', 'G1', 'G2', 'R']")

@@ -2,6 +2,9 @@
 
 ``tests/data/stored.camcal`` (schema 1.3), ``stored_photo.dng`` and ``stored_expected.npz`` were written by
 ``tests/data/make_stored_profile.py`` before the structure rework of issue 17; the files are ours (synthetic).
+``L663`` and ``L663_unc`` were recorded again when L663 became the spectral radiance at 663 nm (W m⁻² sr⁻¹ nm⁻¹,
+from the best estimator the profile supports, issue 45; before, the default estimator wrote an in-band
+quantity under that name); R, G and B are the numbers stored at first, bit for bit.
 """
 
 from __future__ import annotations

@@ -11,6 +11,7 @@ from camcal.cli.common import console, err_console, print_json, progress
 from camcal.errors import CamcalError
 from camcal.exr import COMPRESSIONS, PRECISIONS
 from camcal.region import Region
+from camcal.units import IN_BAND_RADIANCE
 
 
 def register(app: typer.Typer) -> None:
@@ -23,7 +24,7 @@ def register(app: typer.Typer) -> None:
         estimator: str = typer.Option("auto", "--estimator", help="auto (default: the spectral estimator with the "
                                       "smallest reconstruction error for the profile's c(λ)), trained, smooth, or "
                                       "narrowband (light confined near λ0: the in-band radiance L<λ0>_inband, "
-                                      "W m⁻² sr⁻¹, unless --filter-fwhm); docs/apply.md."),
+                                      f"{IN_BAND_RADIANCE}, unless --filter-fwhm); docs/apply.md."),
         filter_fwhm: float | None = typer.Option(None, "--filter-fwhm",
                                                  help="narrowband: filter width, nm; L<λ0> then per nm."),
         line_fwhm: float | None = typer.Option(None, "--line-fwhm",
