@@ -12,9 +12,9 @@ each count: flat in the count. All runs in one shuffled order; medians.
 
 Floor (the unavoidable work, measured in the same run): ``rawpy`` decode of the DNG (mosaic copied
 out) plus an OpenImageIO write of an EXR of the same size as camcal's output (8 float32 channels at
-3000x2000, with ``BatchOptions``' default compression). camcal: :func:`camcal.io.load_frame` +
-:func:`camcal.apply.apply_prepared` +
-:func:`camcal.exr.write_exr` (what a batch worker does per photo; the profile-dependent maps are
+3000x2000, with ``BatchOptions``' default compression). camcal: :func:`camcal.io.read.load_frame` +
+:func:`camcal.apply.photo.apply_prepared` +
+:func:`camcal.io.exr.write_exr` (what a batch worker does per photo; the profile-dependent maps are
 prepared once per worker and timed separately). Target: camcal ≤ 1.3x the floor.
 
 The 24-megapixel profile is assembled from the synthetic camera's truth (dark maps, radial
@@ -49,8 +49,8 @@ REPEATS = 5
 
 
 def _small_profile(work: Path):
-    from camcal.calibrate import calibrate_session
-    from camcal.profile import load_profile, save_profile
+    from camcal.calibrate.run import calibrate_session
+    from camcal.models.profile import load_profile, save_profile
     from camcal.synth.camera import SyntheticCamera
     from camcal.synth.session import SessionPlan, write_session
 
@@ -65,11 +65,11 @@ def _small_profile(work: Path):
 
 def build(work: Path):
     """The 24 MP camera, profile and photos (written once)."""
-    from camcal.dark_model import DarkModel
-    from camcal.flat_model import FlatModel
     from camcal.frame import PLANES
-    from camcal.profile import CameraIdentity, load_profile, save_profile
-    from camcal.reference_spectra import gaussian_line
+    from camcal.models.dark import DarkModel
+    from camcal.models.flat import FlatModel
+    from camcal.models.profile import CameraIdentity, load_profile, save_profile
+    from camcal.models.spectra import gaussian_line
     from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
     from camcal.synth.session import exposure_for_level
 
@@ -125,7 +125,7 @@ def floor_once(photo: Path, out: Path) -> float:
     import OpenImageIO as oiio
     import rawpy
 
-    from camcal.batch import BatchOptions
+    from camcal.apply.batch import BatchOptions
 
     compression = BatchOptions().compression
     t0 = time.perf_counter()
@@ -148,10 +148,10 @@ def floor_once(photo: Path, out: Path) -> float:
 
 
 def camcal_once(photo: Path, plan, out: Path) -> float:
-    from camcal.apply import apply_prepared
-    from camcal.batch import BatchOptions
-    from camcal.exr import write_exr
-    from camcal.io import load_frame
+    from camcal.apply.batch import BatchOptions
+    from camcal.apply.photo import apply_prepared
+    from camcal.io.exr import write_exr
+    from camcal.io.read import load_frame
 
     opts = BatchOptions()  # the default output
     t0 = time.perf_counter()
@@ -162,10 +162,10 @@ def camcal_once(photo: Path, plan, out: Path) -> float:
 
 def breakdown(photo: Path, plan, out: Path) -> dict[str, float]:
     """Seconds of each step of :func:`camcal_once` (wall and CPU of this process)."""
-    from camcal.apply import apply_prepared
-    from camcal.batch import BatchOptions
-    from camcal.exr import write_exr
-    from camcal.io import load_frame
+    from camcal.apply.batch import BatchOptions
+    from camcal.apply.photo import apply_prepared
+    from camcal.io.exr import write_exr
+    from camcal.io.read import load_frame
 
     def clock():
         r = resource.getrusage(resource.RUSAGE_SELF)
@@ -192,7 +192,7 @@ def batch_once(kind: str, n: int, jobs: int) -> dict:
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
-    from camcal.batch import BatchOptions, run_batch
+    from camcal.apply.batch import BatchOptions, run_batch
 
     _, prof_path, photos = build(WORK)
     with tempfile.TemporaryDirectory(dir=WORK) as tmp:
@@ -209,7 +209,7 @@ def batch_once(kind: str, n: int, jobs: int) -> dict:
 
 
 def batch_section(counts: list[int], jobs: int, runs: int) -> None:
-    from camcal.batch import BatchOptions
+    from camcal.apply.batch import BatchOptions
 
     build(WORK)
     opts = BatchOptions()
@@ -288,8 +288,8 @@ def main() -> None:
 
 
 def single_section() -> None:
-    from camcal.apply import prepare
-    from camcal.batch import BatchOptions, run_batch
+    from camcal.apply.batch import BatchOptions, run_batch
+    from camcal.apply.photo import prepare
 
     profile, prof_path, photos = build(WORK)
     n_batch = min(8, len(photos))
@@ -302,10 +302,10 @@ def single_section() -> None:
         floor, ours = [], []
         for _ in range(REPEATS):  # interleaved, best of
             floor.append(floor_once(photos[0], tmp / "floor.exr"))
-            ours.append(camcal_once(photos[0], plan, tmp / "camcal.exr"))
+            ours.append(camcal_once(photos[0], plan, tmp / "camcal.io.exr"))
         f, c = min(floor), min(ours)
         size_floor = (tmp / "floor.exr").stat().st_size / 1e6
-        size_ours = (tmp / "camcal.exr").stat().st_size / 1e6
+        size_ours = (tmp / "camcal.io.exr").stat().st_size / 1e6
         # where camcal's time goes (one more run, timed per step)
         steps = breakdown(photos[0], plan, tmp / "steps.exr")
         # batch throughput: the CLI's path (process pool of 2, profile loaded once per worker); the

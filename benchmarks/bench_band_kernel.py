@@ -2,10 +2,11 @@
 
 camcal does not use this: it needs numba (``pip install numba``), which is not a camcal dependency. It measures
 what the decision left open by issue 28 would buy: the master dark of 32 frames of 12 MP within 2x the 2-thread
-decode needs the band statistics (``camcal.stack._integer_band_stats``) in fewer passes than numpy's whole-plane
-calls allow, so ``python benchmarks/bench_band_kernel.py`` prints a Markdown section for ``benchmarks/RESULTS.md``:
+decode needs the band statistics (``camcal.calibrate.stack._integer_band_stats``) in fewer passes than numpy's
+whole-plane calls allow, so ``python benchmarks/bench_band_kernel.py`` prints a Markdown section for
+``benchmarks/RESULTS.md``:
 
-1. **Identity.** The kernel reproduces ``camcal.stack._band_stats(x, "sigma_clip", 3.0)`` on integer bands
+1. **Identity.** The kernel reproduces ``camcal.calibrate.stack._band_stats(x, "sigma_clip", 3.0)`` on integer bands
    (uint16, 2 to 64 frames, noise from 0.3 to 400 DN, cosmic rays, constant pixels): every output, bit for bit.
    It follows the same arithmetic: float32 deviations from the median (exact); their sums and the sums of
    their squares in float64 (exact: whole and half DN) rounded once to float32, which is what numpy's path
@@ -14,7 +15,8 @@ calls allow, so ``python benchmarks/bench_band_kernel.py`` prints a Markdown sec
    (``_moments``), the pass-2 half-width (``_pass2_threshold``). A value is kept when ``lo <= d <= hi``: the
    values a clip removes from a sorted pixel are its lowest and highest ranks, so masking every value gives the
    rank-wise result.
-2. **The band phase.** ``camcal.stack._bands`` over the spilled 32 x 12 MP mosaics of ``benchmarks/bench_dark.py``
+2. **The band phase.** ``camcal.calibrate.stack._bands`` over the spilled 32 x 12 MP mosaics of
+``benchmarks/bench_dark.py``
    (its frames, written by its ``prepare``), in camcal's 2 band threads, once with camcal's numpy statistics
    and once with the kernel in their place (each band thread runs the kernel, which releases the GIL),
    interleaved, medians of ``--runs``.
@@ -22,7 +24,7 @@ calls allow, so ``python benchmarks/bench_band_kernel.py`` prints a Markdown sec
    the 2-thread decode, camcal's master dark, and the same with the kernel in place of the numpy statistics.
 
 The kernel: a block of 256 pixels of every frame is copied into a (N, 256) buffer that stays in the core's
-first-level cache, sorted by camcal's sorting network (``camcal.stack._sorting_network``: one min and one max
+first-level cache, sorted by camcal's sorting network (``camcal.calibrate.stack._sorting_network``: one min and one max
 per pair, vectorised over the block's pixels), then every statistic is taken on that block, each step a loop
 over the block's pixels that the compiler vectorises.
 """
@@ -49,8 +51,8 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))  # run from a checkout without installing
 sys.path.insert(0, str(HERE))
 
-from camcal import stack  # noqa: E402
-from camcal.stack import IQR_TO_SIGMA  # noqa: E402
+from camcal.calibrate import stack  # noqa: E402
+from camcal.calibrate.stack import IQR_TO_SIGMA  # noqa: E402
 
 NUMPY_BAND_STATS = stack._band_stats
 """camcal's own band statistics (numpy), kept before any run puts the kernel in their place."""
@@ -71,7 +73,7 @@ def _kernel():
         iqr = np.float32(IQR_TO_SIGMA)
         half = np.float32(0.5)
         zero = np.float32(0.0)
-        eps = np.float32(1e-6)  # camcal.stack._pass2_threshold's share of the median
+        eps = np.float32(1e-6)  # camcal.calibrate.stack._pass2_threshold's share of the median
         q1a = int(math.floor(0.25 * (n - 1)))
         q1b = min(q1a + 1, n - 1)
         q1f = np.float32(0.25 * (n - 1) - q1a)
@@ -168,7 +170,8 @@ _CLIP_STATS = None
 
 
 def band_stats(x: np.ndarray, method: str, sigma: float, work: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
-    """``camcal.stack._band_stats`` with the kernel for integer sigma-clipped bands (camcal's numpy otherwise)."""
+    """``camcal.calibrate.stack._band_stats`` with the kernel for integer sigma-clipped bands (camcal's numpy
+    otherwise)."""
     global _CLIP_STATS
     if x.dtype.kind not in "ui" or x.dtype.itemsize > 2 or method != "sigma_clip" or x.shape[0] > 128:
         return NUMPY_BAND_STATS(x, method, sigma, work)
@@ -219,8 +222,8 @@ def measure_bands(runs: int) -> dict[str, list[tuple[float, float]]]:
     """The band phase of the 32-frame 12 MP master dark, numpy against the kernel, interleaved: (wall, CPU) s."""
     import bench_dark
 
-    from camcal.dark import DARK_STATISTICS
-    from camcal.io import load_frame
+    from camcal.calibrate.dark import DARK_STATISTICS
+    from camcal.io.read import load_frame
 
     n = bench_dark.N_MAX
     fd = os.memfd_create("camcal-bench-spill")
@@ -261,9 +264,9 @@ def _run_calibrate(kernel: bool) -> dict:
 
     import bench_calibrate
 
-    from camcal.allocator import use_frame_allocator
-    from camcal.calibrate import calibrate_session
-    from camcal.profile import save_profile
+    from camcal.calibrate.run import calibrate_session
+    from camcal.io.allocator import use_frame_allocator
+    from camcal.models.profile import save_profile
 
     use_frame_allocator()
     if kernel:

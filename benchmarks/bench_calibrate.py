@@ -10,10 +10,10 @@ RAW only: 129 DNG files.
 
 Each measurement is a fresh process (medians; all runs in one shuffled order):
 
-- baseline: ``camcal.io.load_frame`` + ``Frame.planes`` of every file once, in 2 threads (camcal's own decode);
-- the same under camcal's allocator policy (``camcal.allocator.use_frame_allocator``, which the command line
+- baseline: ``camcal.io.read.load_frame`` + ``Frame.planes`` of every file once, in 2 threads (camcal's own decode);
+- the same under camcal's allocator policy (``camcal.io.allocator.use_frame_allocator``, which the command line
   sets): the decode's own speed-up from it, so that the ratio is not flattered by it;
-- the same plus each file's SHA-256 (``camcal.hashing.sha256_file``, the hash every input gets in the profile's
+- the same plus each file's SHA-256 (``camcal.io.hashing.sha256_file``, the hash every input gets in the profile's
   provenance): the floor of a calibration that records what it was made from;
 - ``camcal calibrate SESSION -o P.camcal``: the whole command, wall and CPU time (children included), and the
   same with glibc's own allocator policy (``CAMCAL_MALLOC=default``);
@@ -43,7 +43,7 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))  # run from a checkout without installing
 
-# (module attribute of camcal.calibrate, label): the stages' entry points, timed where calibrate calls them
+# (module attribute of camcal.calibrate.run, label): the stages' entry points, timed where calibrate calls them
 STAGES = (
     ("index_session", "index the session (folders, manifests)"),
     ("screen_session", "screening: every frame's header read (its stage decodes and judges it)"),
@@ -90,7 +90,7 @@ def prepare(width: int, height: int) -> Path:
 
 
 def files(session: Path) -> list[Path]:
-    from camcal.io import list_frames
+    from camcal.io.read import list_frames
 
     return [p for d in sorted(session.iterdir()) if d.is_dir() for p in list_frames(d)]
 
@@ -106,9 +106,9 @@ def run_decode(session: Path, hashed: bool = False, policy: bool = False) -> dic
     ``policy``: under camcal's allocator policy)."""
     from concurrent.futures import ThreadPoolExecutor
 
-    from camcal.allocator import use_frame_allocator
-    from camcal.hashing import sha256_file
-    from camcal.io import load_frame
+    from camcal.io.allocator import use_frame_allocator
+    from camcal.io.hashing import sha256_file
+    from camcal.io.read import load_frame
 
     if policy and not use_frame_allocator():
         raise SystemExit("the allocator policy does not apply here (not glibc, or set in the environment)")
@@ -143,9 +143,9 @@ def run_stages(session: Path) -> dict:
     """calibrate_session + save_profile in this process, each stage's entry point timed (wall, CPU, system CPU,
     minor page faults) and the process's peak resident memory when it ended (MB: the stage that raises it is the
     one that sets the calibration's peak)."""
-    import camcal.calibrate as cal
-    from camcal.allocator import use_frame_allocator
-    from camcal.profile import save_profile
+    import camcal.calibrate.run as cal
+    from camcal.io.allocator import use_frame_allocator
+    from camcal.models.profile import save_profile
 
     use_frame_allocator()  # as the command line does
     spent: dict[str, list[float]] = {}
@@ -254,7 +254,7 @@ def main() -> None:
         "|---|---:|---:|---:|",
         f"| baseline: decode each file once (load_frame + planes, 2 threads) | {d:.2f} | {med(dec, 'cpu_s'):.2f} "
         "| 1.00 |",
-        f"| the same under camcal's allocator policy (`camcal.allocator`) | {dp:.2f} | {med(dec_p, 'cpu_s'):.2f} "
+        f"| the same under camcal's allocator policy (`camcal.io.allocator`) | {dp:.2f} | {med(dec_p, 'cpu_s'):.2f} "
         f"| {dp / d:.2f} |",
         f"| the same, and each file's SHA-256 (as the profile's provenance records it) | {h:.2f} | "
         f"{med(hashed, 'cpu_s'):.2f} | {h / d:.2f} |",

@@ -12,12 +12,12 @@ adds the ccdproc row (about a minute at 12 MP).
    its children, read with :mod:`resource`. All runs go in one shuffled order (a fixed seed) and the medians
    are reported.
 
-   - baseline: ``camcal.io.load_frame`` + ``Frame.planes`` (uint16) of every file in 2 threads: the decode
+   - baseline: ``camcal.io.read.load_frame`` + ``Frame.planes`` (uint16) of every file in 2 threads: the decode
      the stack itself does, nothing else.
-   - camcal: ``combine_frames(paths, method="sigma_clip", jobs=2, statistics=camcal.dark.DARK_STATISTICS)`` on
+   - camcal: ``combine_frames(paths, method="sigma_clip", jobs=2, statistics=camcal.calibrate.dark.DARK_STATISTICS)`` on
      the DNG files (decode included): the master dark as the dark stage makes it, with the statistics that stage
      asks for (the clipped value and count, the variance and the mean of all values); its spill is held in memory
-     when it fits (``camcal.atomic.scratch_fd``);
+     when it fits (``camcal.io.atomic.scratch_fd``);
    - camcal with every statistic (the clipped values' variance as well, one more result map), at the largest
      frame count: what the entries before 3 December 2026 measured;
    - the decode and the spill alone, at the largest frame count: the baseline plus each mosaic written to its
@@ -74,7 +74,7 @@ def _write_one(i: int) -> None:
     if i < N_CCDPROC and not _fits(i).exists():
         from astropy.io import fits
 
-        from camcal.io import load_frame
+        from camcal.io.read import load_frame
 
         mosaic = load_frame(_dng(i)).data.astype(np.float32)
         tmp = _fits(i).with_suffix(".tmp")
@@ -124,8 +124,8 @@ def _cpu_s() -> float:
 def run_camcal(n: int, jobs: int, every_statistic: bool = False) -> dict:
     """The master dark of the first ``n`` frames as the dark stage makes it (its statistics), or with every
     statistic (``every_statistic``)."""
-    from camcal.dark import DARK_STATISTICS
-    from camcal.stack import combine_frames
+    from camcal.calibrate.dark import DARK_STATISTICS
+    from camcal.calibrate.stack import combine_frames
 
     paths = [_dng(i) for i in range(n)]
     c0 = _cpu_s()
@@ -141,14 +141,14 @@ def run_decode(n: int, jobs: int, spill: bool = False) -> dict:
     """The baseline: decode the same files into uint16 planes in ``jobs`` threads, nothing kept.
 
     ``spill``: each frame's mosaic is also written to its slot of one memory file
-    (:func:`camcal.atomic.scratch_fd`), as the stack holds its frames: the decode plus the memory every
+    (:func:`camcal.io.atomic.scratch_fd`), as the stack holds its frames: the decode plus the memory every
     median or clipped stack must fill, before any statistics."""
     from concurrent.futures import ThreadPoolExecutor
 
     import numpy as np
 
-    from camcal.atomic import scratch_fd
-    from camcal.io import load_frame
+    from camcal.io.atomic import scratch_fd
+    from camcal.io.read import load_frame
 
     paths = [_dng(i) for i in range(n)]
     c0 = _cpu_s()

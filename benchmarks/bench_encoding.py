@@ -4,15 +4,15 @@ Run ``python benchmarks/bench_encoding.py [WIDTH HEIGHT]`` (default 3000x2000, a
 output with R, G, B, L663, L663_unc); prints a Markdown section for ``benchmarks/RESULTS.md``.
 
 One synthetic RGGB 14-bit DNG (the 24 MP benchmark's camera and profile, built by ``bench_apply.build`` at the
-size asked) goes through :func:`camcal.apply.apply_prepared` once; its channels are then written with
-:func:`camcal.exr.write_exr` for each compression and precision (best of ``REPEATS``, interleaved), read back,
+size asked) goes through :func:`camcal.apply.photo.apply_prepared` once; its channels are then written with
+:func:`camcal.io.exr.write_exr` for each compression and precision (best of ``REPEATS``, interleaved), read back,
 and compared with the float32 zip file (lossless; the default before issue 28): maximum and median relative change
 of the radiance channels (R, G, B, L663) over the valid pixels, and of the 1σ channels. The pixels' own noise is
 ``L663_unc / L663`` (photon and read noise, docs/apply.md), to which half's relative step is compared. Times
 (wall and the CPU time of this process, OpenImageIO's threads included: what a batch of busy workers pays) are
 ratios to float32 zip of the same run. ``mixed`` (radiance float32, 1σ channels half) falls back to float32 for
 the whole file's 1σ channels when one of them is outside half's normal range; the header's note is printed.
-The default output (:class:`camcal.batch.BatchOptions`) is marked.
+The default output (:class:`camcal.apply.batch.BatchOptions`) is marked.
 """
 
 from __future__ import annotations
@@ -37,10 +37,10 @@ RADIANCE = ("R", "G", "B", "L663")
 def main(width: int = 3000, height: int = 2000) -> None:
     import bench_apply
 
-    from camcal.apply import apply_prepared, prepare
-    from camcal.batch import BatchOptions
-    from camcal.exr import COMPRESSIONS, PRECISIONS, read_exr, read_exr_header, write_exr
-    from camcal.io import load_frame
+    from camcal.apply.batch import BatchOptions
+    from camcal.apply.photo import apply_prepared, prepare
+    from camcal.io.exr import COMPRESSIONS, PRECISIONS, read_exr, read_exr_header, write_exr
+    from camcal.io.read import load_frame
 
     bench_apply.WIDTH, bench_apply.HEIGHT, bench_apply.N_BATCH = width, height, 1
     work = Path(__file__).resolve().parent / "_work" / f"encoding{width}x{height}"

@@ -3,10 +3,10 @@
 Run ``python benchmarks/bench_flat.py``; prints a Markdown section for ``benchmarks/RESULTS.md``.
 
 Baseline: the straightforward approach, :func:`scipy.optimize.least_squares` over all parameters
-(level, centre x/y, k0..k2) on every pixel of the plane, from a fair start. camcal: :func:`camcal.flat.fit_flat_planes`
-(block means, ~64 blocks on the long side; the centre searched by least_squares, the rest by a
-linear solve). Both fit the same synthetic 4-plane master flat of an 800x600 sensor (40 % corner falloff,
-centre 5 % off, 1 % PRNU, 0.35 % shot noise; the baseline takes minutes on bigger ones); camcal is
+(level, centre x/y, k0..k2) on every pixel of the plane, from a fair start. camcal:
+:func:`camcal.calibrate.flat.fit_flat_planes` (block means, ~64 blocks on the long side; the centre searched by
+least_squares, the rest by a linear solve). Both fit the same synthetic 4-plane master flat of an 800x600 sensor (40 %
+corner falloff, centre 5 % off, 1 % PRNU, 0.35 % shot noise; the baseline takes minutes on bigger ones); camcal is
 also timed on a 12-Mpixel sensor. The table gives times and the accuracy against the truth.
 """
 
@@ -20,8 +20,8 @@ import time
 import numpy as np
 from scipy.optimize import least_squares
 
-from camcal.flat import fit_flat_planes
-from camcal.flat_model import PlaneGeometry, radial_gain
+from camcal.calibrate.flat import fit_flat_planes
+from camcal.models.flat import PlaneGeometry, radial_gain
 
 SIZES = ((600, 800), (3000, 4000))
 """Full-resolution sensors (H, W): the baseline runs on the first only (minutes on the second)."""

@@ -31,8 +31,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))  # run from a checkout without installing
 
-from camcal.calibrate import calibrate_session  # noqa: E402
-from camcal.profile import save_profile  # noqa: E402
+from camcal.calibrate.run import calibrate_session  # noqa: E402
+from camcal.models.profile import save_profile  # noqa: E402
 from camcal.synth.camera import SensorParams, SyntheticCamera  # noqa: E402
 from camcal.synth.session import SessionPlan, write_session  # noqa: E402
 from camcal.synth.sunlit import SunSky, sunlit_scenes, write_sunlit_pair  # noqa: E402
@@ -42,8 +42,8 @@ DEPTHS_M = (0.5, 0.8, 1.0, 1.2, 1.5)
 CHILD = r"""
 import json, resource, sys, time
 sys.path.insert(0, sys.argv[1])
-import camcal.secchi as secchi
-from camcal.secchi import run_secchi, write_diagnostics
+import camcal.water.secchi as secchi
+from camcal.water.secchi import run_secchi, write_diagnostics
 from camcal.water.field import ClearSky, FieldGeometry
 if sys.argv[7] == "keep":  # the behaviour before streaming: every photo keeps its full-size maps to the end
     drop = secchi.finish_photo

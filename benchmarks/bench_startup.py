@@ -70,8 +70,8 @@ IMPORT_LIST = ("import importlib, sys\n"
 
 #: ``calibrate_session`` + ``save_profile`` inside one process after every import, printed as seconds.
 WORK_ONLY = ("import sys, time\n"
-        "from camcal.calibrate import CalibrateOptions, calibrate_session\n"
-        "from camcal.profile import save_profile\n"
+        "from camcal.calibrate.run import CalibrateOptions, calibrate_session\n"
+        "from camcal.models.profile import save_profile\n"
         "calibrate_session(sys.argv[1])  # loads whatever is lazily imported\n"
         "t = time.perf_counter()\n"
         "profile, _ = calibrate_session(sys.argv[1])\n"

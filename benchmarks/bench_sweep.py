@@ -7,7 +7,7 @@ synthetic camera (real DNG files, 4000x3000 RGGB 14-bit, NPL Nikon D5100 curves,
 lamp, 5 nm FWHM line, exposure capped at 30 s), using both cores. The baseline is the
 bare decode of the same files in the same run: ``rawpy.imread`` + a copy of
 ``raw_image_visible``, one file after another (and, for reference, on two threads).
-camcal's time is the whole :func:`camcal.spectral.measure_sweep` call (manifest,
+camcal's time is the whole :func:`camcal.calibrate.sweep.measure_sweep` call (manifest,
 decode, metadata, ROI, dark/black subtraction, per-wavelength statistics).
 """
 
@@ -27,7 +27,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent
 sys.path.insert(0, str(ROOT.parent))
 
-from camcal.reference_spectra import WAVELENGTHS_NM  # noqa: E402
+from camcal.models.spectra import WAVELENGTHS_NM  # noqa: E402
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera, frame_rngs  # noqa: E402
 from camcal.synth.session import SessionPlan, _csv, sweep_shots  # noqa: E402
 
@@ -63,7 +63,7 @@ def generate() -> list[Path]:
                 if i % 20 == 0:
                     print(f"  generated {i + 1}/{len(todo)} frames", file=sys.stderr)
         print(f"  generation took {time.perf_counter() - t0:.0f} s", file=sys.stderr)
-    from camcal.atomic import atomic_write_text
+    from camcal.io.atomic import atomic_write_text
 
     atomic_write_text(WORK / "sweep.csv", _csv([s.row for s in shots]))
     return [WORK / s.name for s in shots]
@@ -87,7 +87,7 @@ def bare_decode(paths: list[Path], threads: int = 1) -> float:
 
 
 def run_camcal() -> tuple[float, object]:
-    from camcal.spectral import measure_sweep
+    from camcal.calibrate.sweep import measure_sweep
 
     t0 = time.perf_counter()
     with warnings.catch_warnings():
@@ -131,7 +131,7 @@ def main() -> None:
     print(f"Target: at most 1.3x the bare decode; measured {t_camcal / decode_1:.2f}x "
           f"({t_camcal / decode_2:.2f}x the 2-thread decode). Accuracy of the same run: largest per-plane RMS "
           f"error {100 * err:.2f} % of the peak (relative mode, target 1 %).\n")
-    print("How: each file is decoded once (camcal.io.load_frame), only the region of interest "
+    print("How: each file is decoded once (camcal.io.read.load_frame), only the region of interest "
           "(central 20 % of each side) is split into planes and corrected in place, and two threads decode "
           "in parallel (LibRaw releases the GIL); per-wavelength statistics use the small ROI stacks.")
 

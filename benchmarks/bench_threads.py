@@ -1,7 +1,7 @@
 """Benchmark: reading DNG frames in 2 threads against 1, by frame size (the small-frame rule of camcal.threads).
 
 Run: ``python benchmarks/bench_threads.py [--runs 5]``. For each size, 40 (below 1 MP) or 16 random-mosaic DNGs
-are written once into a temporary folder; each run reads them all (``camcal.io.load_frame`` + float32 planes:
+are written once into a temporary folder; each run reads them all (``camcal.io.read.load_frame`` + float32 planes:
 decode, EXIF, checks) serially and in a 2-thread pool, interleaved; the medians per frame and their ratio are
 printed. :data:`camcal.threads.SMALL_FRAME_PIXELS` sits where the pool stops paying.
 """
@@ -20,7 +20,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from camcal.io import load_frame  # noqa: E402
+from camcal.io.read import load_frame  # noqa: E402
 from camcal.synth.dng import write_dng  # noqa: E402
 from camcal.threads import SMALL_FRAME_PIXELS  # noqa: E402
 

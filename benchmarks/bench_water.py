@@ -23,7 +23,7 @@ from scipy.optimize import brentq
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # run from a checkout without installing
 
-from camcal.reference_spectra import WAVELENGTHS_NM
+from camcal.models.spectra import WAVELENGTHS_NM
 from camcal.synth.camera import SyntheticCamera
 from camcal.water.band import BandModel, illuminant_spectrum
 from camcal.water.invert import invert_ratio, tau_table

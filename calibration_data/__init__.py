@@ -1,4 +1,4 @@
-"""Data camcal ships: small, cited reference tables, read with :func:`camcal.data.read_bundled_table`.
+"""Data camcal ships: small, cited reference tables, read with :func:`camcal.io.data.read_bundled_table`.
 
 Files are loaded through :mod:`importlib.resources`, so they work from an
 installed package as well as from a source checkout. Each CSV begins with

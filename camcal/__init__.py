@@ -1,10 +1,11 @@
 """camcal: turn a consumer camera into a calibrated radiometer for water-quality science.
 
-Pipeline stages, one module each (see ``docs/architecture.md``): :mod:`camcal.io`
-(frames), :mod:`camcal.stack` (streaming combination), :mod:`camcal.dark`,
-:mod:`camcal.flat`, :mod:`camcal.response`, :mod:`camcal.spectral`,
-:mod:`camcal.profile`, :mod:`camcal.apply`, :mod:`camcal.water`; the synthetic
-camera is :mod:`camcal.synth`. Importing camcal has no side effects.
+One sub-package per layer (see ``docs/architecture.md``): ``camcal/io/`` (files in and out),
+``camcal/models/`` (what a calibration is: the stages' results, the profile, the correction path),
+``camcal/calibrate/`` (lab frames to a profile), ``camcal/curves/`` (c(λ) without a sweep),
+``camcal/apply/`` (survey photos to radiance), ``camcal/report/`` (the report and figures),
+``camcal/water/`` (the water column, chlorophyll-a, Secchi), ``camcal/cli/`` (the command line) and
+``camcal/synth/`` (the synthetic camera, the source of ground truth). Importing camcal has no side effects.
 """
 
 __version__ = "0.1.0"

@@ -51,7 +51,7 @@ recorded as for :data:`TRACKED` (``tag``, or ``session`` for a ``utc_offset`` gi
 SOURCES: tuple[str, ...] = ("tag", "libraw", "frames.csv", "session")
 """Where a value came from: the file's own metadata tag (read by an EXIF reader), LibRaw alone
 (its decoding of a maker header, no tag an EXIF reader finds), the folder's ``frames.csv``, the
-session defaults file (``session.toml``, see :mod:`camcal.manifest`)."""
+session defaults file (``session.toml``, see :mod:`camcal.io.manifest`)."""
 
 PATTERNS: tuple[str, ...] = ("RGGB", "BGGR", "GRBG", "GBRG")
 

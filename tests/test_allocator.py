@@ -1,4 +1,4 @@
-"""camcal.allocator: frame-sized buffers are reused from the heap under camcal's policy, and the user's own
+"""camcal.io.allocator: frame-sized buffers are reused from the heap under camcal's policy, and the user's own
 allocator settings stand."""
 
 from __future__ import annotations
@@ -11,12 +11,12 @@ import types
 
 import pytest
 
-from camcal import allocator
+from camcal.io import allocator
 
 PROBE = """
 import json, resource, sys, threading
 import numpy as np
-from camcal.allocator import use_frame_allocator
+from camcal.io.allocator import use_frame_allocator
 on = use_frame_allocator() if sys.argv[1] == "policy" else False
 size_bytes = int(sys.argv[2])
 

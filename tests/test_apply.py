@@ -14,13 +14,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from camcal.apply import apply, next_step_for_c, prepare, radiance_channel_name, roi_mask, roi_statistics
+from camcal.apply.photo import apply, next_step_for_c, prepare, radiance_channel_name, roi_mask, roi_statistics
+from camcal.apply.radiance import radiance_model, smooth_error_table
 from camcal.errors import CamcalError
-from camcal.exr import read_exr
-from camcal.io import load_frame
-from camcal.profile import load_profile
-from camcal.radiance import radiance_model, smooth_error_table
-from camcal.reference_spectra import WAVELENGTHS_NM, gaussian_line, planck_radiance
+from camcal.io.exr import read_exr
+from camcal.io.read import load_frame
+from camcal.models.profile import load_profile
+from camcal.models.spectra import WAVELENGTHS_NM, gaussian_line, planck_radiance
 from camcal.region import Region
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
 from camcal.synth.session import exposure_for_level
@@ -265,10 +265,10 @@ def test_bad_roi_and_profile(tmp_path, photos, profile_path):
 
 
 def test_mask_over_the_pixel_limit_is_refused_before_reading(tmp_path, monkeypatch):
-    """The mask reader shares camcal.io.open_image: declared size checked before any pixel is read."""
+    """The mask reader shares camcal.io.read.open_image: declared size checked before any pixel is read."""
     import OpenImageIO as oiio
 
-    from camcal.apply import read_mask
+    from camcal.apply.photo import read_mask
 
     path = tmp_path / "mask.png"
     out = oiio.ImageOutput.create(str(path))
@@ -330,7 +330,7 @@ def test_banded_threaded_raw_path_matches_whole_frame_reference(photos, profile,
     the whole-frame formula (float32 arithmetic against float64: rel 1e-5), identical across threads."""
     import dataclasses
 
-    import camcal.apply as ap
+    import camcal.apply.photo as ap
 
     prof = {"no dark model": dataclasses.replace(profile, dark=None),
             "no flat model": dataclasses.replace(profile, flat=None)}.get(variant, profile)
@@ -354,7 +354,7 @@ def test_banded_threaded_raw_path_matches_whole_frame_reference(photos, profile,
 
 def test_exr_of_interleaved_channels_is_written_without_reordering(tmp_path, photos, profile):
     """apply's channels are views of one (h, w, 5) array; the EXR holds each under its own name."""
-    from camcal.exr import interleaved, write_exr
+    from camcal.io.exr import interleaved, write_exr
 
     img = apply(load_frame(photos[("line", "raw", 100, 4.0)]), profile)
     arrays = list(img.channels.values())
@@ -370,7 +370,7 @@ def test_exr_of_interleaved_channels_is_written_without_reordering(tmp_path, pho
 
 def test_camcal_threads_environment(monkeypatch, tmp_path, photos, profile_path):
     """CAMCAL_THREADS sets the threads of one photo's arithmetic; a bad value refuses the batch (exit 2)."""
-    from camcal.apply import default_threads
+    from camcal.apply.photo import default_threads
 
     monkeypatch.setenv("CAMCAL_THREADS", "3")
     assert default_threads() == 3
@@ -392,8 +392,8 @@ def test_relative_profile_gives_relative_radiance_for_ratios(photos, profile):
     ratio: every map is relative radiance, labelled so, and the ratio of two photos equals the absolute one."""
     from dataclasses import replace
 
-    from camcal.apply import RELATIVE_UNITS
-    from camcal.spectral_model import to_relative
+    from camcal.apply.photo import RELATIVE_UNITS
+    from camcal.models.spectral import to_relative
 
     rel = replace(profile, spectral=to_relative(profile.spectral))
     a_line = apply(load_frame(photos[("line", "raw", 100, 4.0)]), profile)

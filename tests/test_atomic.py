@@ -20,14 +20,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from camcal import atomic
-from camcal.atomic import available_memory_bytes, remove_pending, scratch_fd, scratch_file, spill_memory_limit_bytes
 from camcal.errors import CamcalError
-from camcal.exr import read_exr, write_exr
-from camcal.io import load_frame
-from camcal.manifest import read_manifest
-from camcal.profile import load_profile
-from camcal.store import load_stage, save_stage
+from camcal.io import atomic
+from camcal.io.atomic import available_memory_bytes, remove_pending, scratch_fd, scratch_file, spill_memory_limit_bytes
+from camcal.io.exr import read_exr, write_exr
+from camcal.io.manifest import read_manifest
+from camcal.io.read import load_frame
+from camcal.io.store import load_stage, save_stage
+from camcal.models.profile import load_profile
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -56,7 +56,7 @@ def test_failed_writes_keep_the_old_file(tmp_path):
 
 
 def test_writers_leave_no_temporary_files(tmp_path):
-    from camcal.atomic import atomic_write_text
+    from camcal.io.atomic import atomic_write_text
 
     write_exr(tmp_path / "a" / "m.exr", {"a": np.ones((4, 6))}, {"k": "v"})
     save_stage(tmp_path / "b" / "s.json", "flat", {"y": [1, 2]}, {"g": np.ones((2, 2))})
@@ -165,7 +165,7 @@ def test_sigint_during_apply_batch_then_rerun_resumes(profile_path, camera, tmp_
 def test_interrupt_between_enter_and_with_block_leaves_no_part_file(tmp_path):
     """CPython can deliver Ctrl-C after ``__enter__`` returned and before the ``with`` block starts, where no
     ``except`` of atomic_path runs (the flaky case seen in CI). The CLI's exit removes such files."""
-    from camcal.atomic import _PENDING, atomic_path, atomic_write_text, remove_pending
+    from camcal.io.atomic import _PENDING, atomic_path, atomic_write_text, remove_pending
 
     atomic_write_text(tmp_path / "done.txt", "x")
     assert not _PENDING  # a finished write is no longer pending

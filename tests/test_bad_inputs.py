@@ -40,7 +40,7 @@ import numpy as np
 import pytest
 
 from camcal.cli import main
-from camcal.container import JSON_MEMBER, MAPS_MEMBER, content_hash
+from camcal.io.container import JSON_MEMBER, MAPS_MEMBER, content_hash
 
 SUBPROCESS_EVERY = 150
 OK, ERROR, EITHER = "ok", "error", "either"
@@ -103,7 +103,7 @@ def water_exrs(folder: Path, shape: tuple[int, int] = WATER_SHAPE, **pixels: np.
     concentration with every model (the refined model's clear water gives 0.43 there: a ratio of 0.5 would be
     above clear water, no valid pixel, an error). ``pixels`` replace the L663 and R pixels of the named image.
     """
-    from camcal.exr import write_exr
+    from camcal.io.exr import write_exr
 
     ref = np.linspace(0.1, 1.0, shape[0] * shape[1], dtype=np.float32).reshape(shape)
     images = {"sub": 0.3 * ref, "ref": ref, **pixels}
@@ -561,7 +561,7 @@ def stage_cases() -> list[Case]:
         return p.with_name(p.stem + ".maps.exr")
 
     def rehash(p: Path) -> None:
-        from camcal.store import sha256_file
+        from camcal.io.store import sha256_file
 
         doc = json.loads(p.read_text())
         doc["maps_sha256"] = sha256_file(maps(p))
@@ -1310,11 +1310,11 @@ def test_pixel_limit_is_checked_before_decoding(base, tmp_path, monkeypatch):
     """RAW, JPEG, TIFF and EXR: the declared size is refused from the header, before pixels are allocated.
 
     A DNG declaring 60000x60000 (7.2 GB of uint16 if allocated) is refused by the limit, not by LibRaw or
-    a MemoryError; an EXR above ``CAMCAL_MAX_PIXELS`` is refused by :func:`camcal.exr.read_exr`.
+    a MemoryError; an EXR above ``CAMCAL_MAX_PIXELS`` is refused by :func:`camcal.io.exr.read_exr`.
     """
     from camcal.errors import CamcalError
-    from camcal.exr import read_exr, write_exr
-    from camcal.io import load_frame
+    from camcal.io.exr import read_exr, write_exr
+    from camcal.io.read import load_frame
 
     big = tmp_path / "big.dng"
     big.write_bytes(tiff_patch(tiff_patch(tiff_patch(base.files["dng"], 256, 60000), 257, 60000), 278, 60000))

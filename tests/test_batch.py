@@ -7,9 +7,9 @@ import csv
 import numpy as np
 import pytest
 
-from camcal.batch import BatchOptions, run_batch
-from camcal.exr import read_exr
-from camcal.reference_spectra import gaussian_line
+from camcal.apply.batch import BatchOptions, run_batch
+from camcal.io.exr import read_exr
+from camcal.models.spectra import gaussian_line
 from camcal.synth.camera import Scene
 from tests.conftest import run_cli
 

@@ -17,9 +17,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from camcal.atomic import clear_stale
-from camcal.exr import read_exr
-from camcal.reference_spectra import gaussian_line
+from camcal.io.atomic import clear_stale
+from camcal.io.exr import read_exr
+from camcal.models.spectra import gaussian_line
 from camcal.synth.camera import Scene
 from tests.conftest import run_cli
 
@@ -147,7 +147,8 @@ def test_clear_stale_removes_a_killed_writers_file_before_it_is_reaped(tmp_path)
 def test_orphaned_worker_exits_by_itself(tmp_path):
     """A process that called die_with_parent exits when its parent is killed (the worker start-up rule)."""
     code = ("import os, subprocess, sys, time\n"
-            "c = subprocess.Popen([sys.executable, '-c', 'import os, time; from camcal.batch import die_with_parent; "
+            "c = subprocess.Popen([sys.executable, '-c', 'import os, time; from camcal.apply.batch import "
+            "die_with_parent; "
             "print(die_with_parent(os.getppid()), flush=True); time.sleep(60)'], stdout=subprocess.PIPE, text=True)\n"
             "print(c.pid, c.stdout.readline().strip(), flush=True); time.sleep(60)\n")
     parent = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True,

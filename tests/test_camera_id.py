@@ -1,4 +1,4 @@
-"""One camera under two software names (camcal.camera_id): the Raspberry Pi's PiDNG and picamera2 files."""
+"""One camera under two software names (camcal.models.camera_id): the Raspberry Pi's PiDNG and picamera2 files."""
 
 from __future__ import annotations
 
@@ -8,12 +8,12 @@ from pathlib import Path
 
 import pytest
 
-from camcal.apply import check_camera
-from camcal.calibrate import calibrate_session, camera_identity
-from camcal.camera_id import Sensor, match, sensor_of
+from camcal.apply.photo import check_camera
+from camcal.calibrate.run import calibrate_session, camera_identity
 from camcal.errors import CamcalError
-from camcal.io import load_frame
-from camcal.profile import save_profile
+from camcal.io.read import load_frame
+from camcal.models.camera_id import Sensor, match, sensor_of
+from camcal.models.profile import save_profile
 from tests.conftest import run_cli
 
 REALDATA = Path(__file__).resolve().parents[1].parent / "shared" / "realdata"
@@ -50,7 +50,7 @@ def test_pidng_and_picamera2_are_one_camera_across_stages(tmp_path):
 
 
 def test_picamera2_photo_passes_a_pidng_profile_and_a_real_conflict_refuses(pi_profile):
-    from camcal.profile import load_profile
+    from camcal.models.profile import load_profile
 
     profile = load_profile(pi_profile)
     assert profile.camera.model == "PiDNG / PiCamera2"

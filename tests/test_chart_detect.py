@@ -123,7 +123,7 @@ def test_the_neutral_row_score_tells_the_grey_row_from_colours():
 @pytest.mark.skipif(not CANON_CHART.is_file(), reason="../shared/realdata is absent")
 def test_the_real_canon_chart_is_found_automatically():
     """A real ColorChecker Passport indoors (a crop of a Canon EOS Kiss X4 DNG): found, oriented, 24 patches."""
-    from camcal.io import load_frame
+    from camcal.io.read import load_frame
 
     frame = load_frame(CANON_CHART)
     loc = detect_chart(frame)

@@ -11,13 +11,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from camcal.apply import apply
+from camcal.apply.photo import apply
 from camcal.chart.profile_build import ChartOptions, build_chart_profile
 from camcal.chart.tone import fit_tone_neutral, fit_tone_twins, white_balance_check
 from camcal.errors import CamcalError
-from camcal.io import load_frame
-from camcal.profile import load_profile, save_profile
-from camcal.response_model import srgb_form_encode
+from camcal.io.read import load_frame
+from camcal.models.profile import load_profile, save_profile
+from camcal.models.response import srgb_form_encode
 from tests.conftest import assert_one_line_error, run_cli, shared_once
 
 pytestmark = pytest.mark.slow
@@ -192,7 +192,7 @@ REALDATA = Path(__file__).resolve().parents[1].parent / "shared" / "realdata"
 def test_the_real_canon_chart_with_the_light_estimated(tmp_path):
     """A real ColorChecker Passport indoors: found automatically, the light fitted (a warm black body beats
     daylight), c(λ) relative (the file's exposure tags are zero), close to the library's Canon EOS 600D."""
-    from camcal.curve_library import find_camera, library_curves
+    from camcal.curves.library import find_camera, library_curves
 
     out = tmp_path / "canon.camcal"
     proc = run_cli("chart", REALDATA / "raw" / "canon_kissx4_colorchart.dng", "--illuminant", "estimate", "-o", out,
@@ -242,7 +242,7 @@ def test_a_tone_table_replaces_the_srgb_form_where_it_misfits_and_apply_reads_it
     """A filmic (S-shaped) tone curve: the sRGB form misfits, the monotone table fits, and the profile's
     processed response linearises exactly as the fit does."""
     from camcal.chart.profile_build import _processed_response
-    from camcal.response_model import ColourMatrix
+    from camcal.models.response import ColourMatrix
 
     rng = np.random.default_rng(5)
     a = np.array([[1.6, -0.5, -0.1], [-0.2, 1.4, -0.2], [0.0, -0.5, 1.5]])

@@ -33,7 +33,7 @@ from camcal.chart.light import blackbody, clear_sky_irradiance, daylight
 from camcal.chart.recovery import TERMS, estimate_illuminant, leave_one_out_recovery, recover_sensitivity
 from camcal.chart.targets import GRID_NM, NEUTRAL_PATCHES, published_chart
 from camcal.errors import CamcalError
-from camcal.spectral_model import ABSOLUTE_UNITS, RELATIVE_UNITS, spectral_from_dict, spectral_to_dict
+from camcal.models.spectral import ABSOLUTE_UNITS, RELATIVE_UNITS, spectral_from_dict, spectral_to_dict
 
 REAL = Path(__file__).resolve().parents[1].parent / "shared" / "realdata" / "spectral"
 FINE_NM = np.arange(380.0, 780.5, 1.0)

@@ -118,12 +118,12 @@ def test_start_up_imports_only_the_command_it_runs():
         "main(['inspect', '--help'])\n"
         "loaded = sorted(m for m in sys.modules if m.startswith('camcal.cli.') and m.endswith('_cmd'))\n"
         "assert loaded == ['camcal.cli.inspect_cmd'], loaded\n"
-        "import camcal.demo\n"
+        "import camcal.demo.lab\n"
         "print('ok')\n"
     )
     proc = _python(code)
     assert proc.returncode == 0 and proc.stdout.strip().endswith("ok"), proc.stderr[-3000:]
-    proc = _python("import sys, camcal.demo, camcal.apply, camcal.batch, camcal.water.invert\n"
+    proc = _python("import sys, camcal.demo.lab, camcal.apply.photo, camcal.apply.batch, camcal.water.invert\n"
                    "assert not any(m == 'camcal.cli' or m.startswith('camcal.cli.') for m in sys.modules)\n")
     assert proc.returncode == 0, proc.stderr[-3000:]
 

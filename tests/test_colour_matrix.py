@@ -1,4 +1,4 @@
-"""The JPEG colour matrix (camcal.colour_matrix): a camera that mixes its channels before the tone curve.
+"""The JPEG colour matrix (camcal.calibrate.colour_matrix): a camera that mixes its channels before the tone curve.
 
 Truth: the synthetic camera renders its JPEGs as tone(M · linear RAW) with the matrix M below (rows sum
 to 1: white stays white; negative off-diagonals as in real cameras' camera-RGB → sRGB matrices). The
@@ -19,14 +19,14 @@ import dataclasses
 import numpy as np
 import pytest
 
-from camcal.apply import apply
-from camcal.calibrate import calibrate_session
-from camcal.colour_matrix import fit_colour_matrix, twin_pairs
+from camcal.apply.photo import apply
+from camcal.calibrate.colour_matrix import fit_colour_matrix, twin_pairs
+from camcal.calibrate.run import calibrate_session
 from camcal.errors import CamcalError
-from camcal.io import load_frame
-from camcal.profile import load_profile, save_profile
-from camcal.reference_spectra import WAVELENGTHS_NM, planck_radiance
-from camcal.response_model import ColourMatrix
+from camcal.io.read import load_frame
+from camcal.models.profile import load_profile, save_profile
+from camcal.models.response import ColourMatrix
+from camcal.models.spectra import WAVELENGTHS_NM, planck_radiance
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
 from camcal.synth.session import SessionPlan, exposure_for_level, write_session
 

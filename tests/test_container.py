@@ -4,8 +4,8 @@ import zipfile
 import numpy as np
 import pytest
 
-from camcal.container import JSON_MEMBER, MAPS_MEMBER, read_container, write_container
 from camcal.errors import CamcalError
+from camcal.io.container import JSON_MEMBER, MAPS_MEMBER, read_container, write_container
 
 
 @pytest.fixture
@@ -92,7 +92,7 @@ def _raw_members(path, members):
 def test_maps_larger_than_the_sensor_needs_are_refused_before_reading(written):
     """The bound comes from the profile's own camera (48x32: planes of 24x16) and map list (2 maps):
     2 x 24 x 16 x 4 B x 1.05 + 1 MiB. 2 MiB of zeros (6 kB deflated) declares more and is never read."""
-    from camcal.limits import maps_size_bound
+    from camcal.io.limits import maps_size_bound
 
     path, doc, _ = written
     bound, needs = maps_size_bound(doc)
@@ -142,7 +142,7 @@ def test_zip64_end_record_is_read(tmp_path):
     """A ZIP64 end record (written for maps above 4 GiB or more than 65535 members) gives the real counts."""
     import struct
 
-    from camcal.limits import check_zip_directory, zip_directory_size
+    from camcal.io.limits import check_zip_directory, zip_directory_size
 
     def zip64(entries: int) -> bytes:
         body = b""

@@ -1,4 +1,4 @@
-"""The one correction path (camcal.correct), quantisation-aware noise, and the synthetic camera presets.
+"""The one correction path (camcal.models.correct), quantisation-aware noise, and the synthetic camera presets.
 
 Real-sensor conditions of issue 15: hot pixels that saturate in the blue of a sweep, a 10-bit sensor with
 sub-DN read noise (the Raspberry Pi IMX296's real dark frames in ../shared/realdata/pi), frame-to-frame
@@ -19,13 +19,13 @@ import rawpy
 from scipy.optimize import minimize
 from scipy.special import erfc
 
-from camcal.calibrate import calibrate_session
-from camcal.correct import Calibration, Corrected, correct_planes, require_valid
-from camcal.dark import fit_dark, quantised_noise_fit
-from camcal.dark_model import DEAD, HOT, NOISY, DarkModel
+from camcal.calibrate.dark import fit_dark, quantised_noise_fit
+from camcal.calibrate.run import calibrate_session
 from camcal.errors import CamcalError
 from camcal.frame import PLANES
-from camcal.profile import contract
+from camcal.models.correct import Calibration, Corrected, correct_planes, require_valid
+from camcal.models.dark import DEAD, HOT, NOISY, DarkModel
+from camcal.models.profile import contract
 from camcal.synth.camera import SyntheticCamera, preset
 from camcal.synth.session import SessionPlan, write_session
 from tests.conftest import assert_one_line_error, run_cli
@@ -254,9 +254,9 @@ def test_quantised_noise_fit_recovers_sub_dn_read_noise(rng, dsnu):
 
 
 def _quantised_pair_ml(a, b, start_dsnu, start_sigma, eps=1e-4):
-    """Maximum likelihood of the model of :func:`camcal.dark.quantised_noise_fit`'s docstring, written out here:
-    P(k1 = i, k2 = j) = ∫ N(μ; m, dsnu²) p(i | μ) p(j | μ + o) dμ with p(i | c) = Φ((i + ½ − c)/σ) − Φ((i − ½ − c)/σ)
-    on the cells [lo, hi]² of the levels between the 0.02 % and 99.98 % quantiles, mixed with a uniform outlier
+    """Maximum likelihood of the model of :func:`camcal.calibrate.dark.quantised_noise_fit`'s docstring, written out
+    here: P(k1 = i, k2 = j) = ∫ N(μ; m, dsnu²) p(i | μ) p(j | μ + o) dμ with p(i | c) = Φ((i + ½ − c)/σ) − Φ((i − ½ −
+    c)/σ) on the cells [lo, hi]² of the levels between the 0.02 % and 99.98 % quantiles, mixed with a uniform outlier
     weight ``eps`` over those cells, Φ from the complementary error function; the μ integral by the trapezoid rule
     on ±8 dsnu (481 points: steps of σ/3 or less here), maximised by Powell's method from the truth. Returns σ,
     dsnu, o."""
@@ -446,7 +446,7 @@ def test_bias_only_session_then_apply_says_what_it_cannot_correct(tmp_path):
     assert run_cli("synth", "photo", photo, "--width", 192, "--height", 128, "--exposure", 0.002).returncode == 0
     proc = run_cli("apply", prof, photo, "-o", tmp_path / "exr")
     assert proc.returncode == 0, proc.stderr
-    from camcal.exr import read_exr
+    from camcal.io.exr import read_exr
 
     (exr,) = (tmp_path / "exr").glob("*.exr")
     _, meta = read_exr(exr)

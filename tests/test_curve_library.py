@@ -16,23 +16,23 @@ import colour
 import numpy as np
 import pytest
 
-from camcal.apply import apply
-from camcal.borrowed_uncertainty import (
+from camcal.apply.photo import apply
+from camcal.calibrate.run import calibrate_session
+from camcal.curves.borrowed import (
     CurvePair,
     derive_borrowed_uncertainty,
     shipped_borrowed_uncertainty,
     with_borrowed_uncertainty,
 )
-from camcal.calibrate import calibrate_session
-from camcal.curve_library import find_camera, library_curves, library_folder, list_cameras, read_curve_json
+from camcal.curves.import_spectral import CURVE_CORRELATION, fit_scale, import_spectral, observe_targets
+from camcal.curves.library import find_camera, library_curves, library_folder, list_cameras, read_curve_json
 from camcal.errors import CamcalError
 from camcal.frame import RGB
-from camcal.io import load_frame
-from camcal.limits import MAX_CURVE_JSON_BYTES
-from camcal.profile import CalibrationProfile, CameraIdentity, Provenance, contract, load_profile, save_profile
-from camcal.reference_spectra import WAVELENGTHS_NM, planck_radiance
-from camcal.reference_targets import CURVE_CORRELATION, fit_scale, import_spectral, observe_targets
-from camcal.spectral_model import RELATIVE_UNITS, SpectralSensitivity
+from camcal.io.limits import MAX_CURVE_JSON_BYTES
+from camcal.io.read import load_frame
+from camcal.models.profile import CalibrationProfile, CameraIdentity, Provenance, contract, load_profile, save_profile
+from camcal.models.spectra import WAVELENGTHS_NM, planck_radiance
+from camcal.models.spectral import RELATIVE_UNITS, SpectralSensitivity
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
 from camcal.synth.session import SessionPlan, exposure_for_level, write_session
 from camcal.synth.targets import smooth_target_spectra, write_target_photos

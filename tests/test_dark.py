@@ -8,11 +8,11 @@ import shutil
 import numpy as np
 import pytest
 
-from camcal.correct import dark_frame
-from camcal.dark import fit_dark, subtract_dark
-from camcal.dark_model import HOT, DarkModel, load_dark, save_dark
+from camcal.calibrate.dark import fit_dark, subtract_dark
+from camcal.calibrate.stack import combine_frames
 from camcal.errors import CamcalError
-from camcal.stack import combine_frames
+from camcal.models.correct import dark_frame
+from camcal.models.dark import HOT, DarkModel, load_dark, save_dark
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
 from camcal.synth.dng import write_dng
 from camcal.synth.session import SessionPlan, write_session

@@ -1,7 +1,7 @@
 """The README's first command: `camcal demo` runs end to end and every check is within tolerance."""
 
-from camcal.exr import read_exr
-from camcal.profile import load_profile
+from camcal.io.exr import read_exr
+from camcal.models.profile import load_profile
 
 
 def test_demo_end_to_end(demo_run):

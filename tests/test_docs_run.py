@@ -19,13 +19,13 @@ import numpy as np
 import pytest
 
 from camcal.cli import main
-from camcal.exr import read_exr
+from camcal.io.exr import read_exr
 
 ROOT = Path(__file__).resolve().parents[1]
 #: The pages whose examples are run, in this order (later pages use files earlier ones wrote: dark.json...).
 PAGES = ("README.md", "docs/user-guide.md", "docs/dark.md", "docs/flat.md", "docs/response.md", "docs/spectral.md",
          "docs/apply.md", "docs/water.md", "docs/report.md")
-#: The demo's truth (camcal.demo.CHL_UG_PER_L) and the stated tolerance of the chlorophyll examples.
+#: The demo's truth (camcal.demo.lab.CHL_UG_PER_L) and the stated tolerance of the chlorophyll examples.
 CHL_TRUTH_UG_PER_L = 60.0
 CHL_TOLERANCE = 0.03
 

@@ -26,10 +26,8 @@ from emva1288.camera.points_generator import PointsGenerator
 from emva1288.process import Data1288, Results1288
 from emva1288.process.routines import get_int_imgs
 
-from camcal.apply import apply, prepare
-from camcal.calibrate import calibrate_session
-from camcal.cli import main
-from camcal.emva import (
+from camcal.apply.photo import apply, prepare
+from camcal.calibrate.emva import (
     dark_temporal,
     flats_needed,
     linearity_error,
@@ -38,9 +36,11 @@ from camcal.emva import (
     saturation_index,
     spatial_variance,
 )
-from camcal.emva_model import sheet_rows
-from camcal.io import load_frame
-from camcal.profile import save_profile
+from camcal.calibrate.run import calibrate_session
+from camcal.cli import main
+from camcal.io.read import load_frame
+from camcal.models.emva import sheet_rows
+from camcal.models.profile import save_profile
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
 from camcal.synth.dng import write_dng
 from camcal.synth.session import SessionPlan, _white_spectrum, exposure_for_level, write_session

@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from camcal.calibrate.emva_descriptor import load_measurement, parse_descriptor, read_descriptor
+from camcal.calibrate.emva_standard import evaluate
 from camcal.cli import main
-from camcal.emva_descriptor import load_measurement, parse_descriptor, read_descriptor
-from camcal.emva_standard import evaluate
 from camcal.errors import CamcalError
 from tests.conftest import run_cli
 
@@ -205,7 +205,7 @@ def _session_of(descriptor: Path, root: Path) -> Path:
 def test_basler_as_a_session_of_monochrome_frames_through_calibrate(basler, tmp_path):
     """The same 300 frames as a session of one-channel 16-bit PNGs through ``camcal calibrate``: the profile's
     EMVA 1288 section gives the issue's six figures within 1 % of the reference implementation."""
-    from camcal.calibrate import calibrate_session
+    from camcal.calibrate.run import calibrate_session
 
     _, _, ref = basler
     profile, _ = calibrate_session(_session_of(BASLER, tmp_path / "S"))

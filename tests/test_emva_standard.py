@@ -1,4 +1,5 @@
-"""EMVA 1288 figures as the standard defines them (camcal.emva_standard) against the synthetic camera's truth."""
+"""EMVA 1288 figures as the standard defines them (camcal.calibrate.emva_standard) against the synthetic camera's
+truth."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from camcal.emva_standard import (
+from camcal.calibrate.emva_standard import (
     StackAccumulator,
     TemporalSeries,
     evaluate,

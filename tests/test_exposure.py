@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 
 from camcal.errors import MissingMetadataError
-from camcal.exposure import frame_relative_exposure, normalise, relative_exposure
 from camcal.frame import Exposure
+from camcal.models.exposure import frame_relative_exposure, normalise, relative_exposure
 
 
 def test_relative_exposure_scales_as_iso_t_over_n2():

@@ -3,7 +3,7 @@ import OpenImageIO as oiio
 import pytest
 
 from camcal.errors import CamcalError
-from camcal.exr import HALF_MIN_NORMAL, read_exr, read_exr_header, write_exr
+from camcal.io.exr import HALF_MIN_NORMAL, read_exr, read_exr_header, write_exr
 
 
 def test_round_trip_named_channels_and_metadata(tmp_path, rng):

@@ -12,12 +12,12 @@ from datetime import datetime
 import numpy as np
 import pytest
 
-from camcal.apply import apply_prepared, prepare
+from camcal.apply.photo import apply_prepared, prepare
 from camcal.errors import CamcalError
-from camcal.io import load_frame
-from camcal.profile import load_profile
-from camcal.reference_spectra import WAVELENGTHS_NM
-from camcal.sun import sun_position
+from camcal.io.read import load_frame
+from camcal.io.sun import sun_position
+from camcal.models.profile import load_profile
+from camcal.models.spectra import WAVELENGTHS_NM
 from camcal.synth.exif import PlaceTime
 from camcal.synth.sunlit import SunSky, sunlit_scenes, write_sunlit_pair
 from camcal.water.band import BandModel, illuminant_spectrum
@@ -198,8 +198,8 @@ def test_sigma_c_covers_the_error_when_the_inputs_are_off(red):
     (and a 0.05 % ratio noise), read with the nominal values; the error must lie within 2 σ_C in ≥ 95 % of cases
     for a Gaussian first-order σ. 72 draws over the grid; a binomial sample of 72 at 95.4 % falls below 90 % with
     probability ≈ 3 %, so the test asks ≥ 90 % (this seed: 68/72)."""
-    from camcal.secchi import invert_one
     from camcal.synth.sunlit import reference_disk_radiance, submerged_disk_radiance
+    from camcal.water.secchi import invert_one
 
     rng = np.random.default_rng(2026)
     models = {z: field_band_model(WAVELENGTHS_NM, red, sky=ClearSky(z)) for z in (20.0, 40.0, 60.0)}
@@ -235,7 +235,7 @@ def test_raw_photos_on_the_scene_grid(camera, profile_path, tmp_path):
     profile, the disk finder and the field model, and within 2 σ_C (stated: depth ± 5 mm, sun ± 0.5°, AOD ± 0.05).
     Measured on another noise realisation: −0.16 … +0.61 % (ratio noise ≈ 0.03 % per region mean; the profile's c_R and
     flat errors the rest)."""
-    from camcal.secchi import run_secchi
+    from camcal.water.secchi import run_secchi
 
     rng = np.random.default_rng(20)
     errors = []

@@ -7,7 +7,7 @@ import shutil
 
 import numpy as np
 
-from camcal.exr import read_exr, write_exr
+from camcal.io.exr import read_exr, write_exr
 from tests.conftest import assert_one_line_error, run_cli
 
 

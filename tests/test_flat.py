@@ -17,11 +17,11 @@ import shutil
 import numpy as np
 import pytest
 
+from camcal.calibrate.flat import FlatChecks, correct_flat, fit_flat, fit_flat_planes
 from camcal.errors import CamcalError
-from camcal.flat import FlatChecks, correct_flat, fit_flat, fit_flat_planes
-from camcal.flat_model import load_flat, radial_gain, save_flat
 from camcal.frame import split_planes
-from camcal.io import load_frame
+from camcal.io.read import load_frame
+from camcal.models.flat import load_flat, radial_gain, save_flat
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
 from camcal.synth.session import SessionPlan, _white_spectrum, exposure_for_level, write_session
 from tests.conftest import assert_one_line_error, run_cli
@@ -174,7 +174,7 @@ def test_save_load_round_trip(fitted, tmp_path):
     doc = json.loads(path.read_text())
     assert doc["kind"] == "flat" and set(doc["maps"]) >= {"gain.G1", "prnu.B"}
     with pytest.raises(CamcalError, match="not a camcal dark file"):
-        from camcal.store import load_stage
+        from camcal.io.store import load_stage
 
         load_stage(path, "dark")
 
@@ -273,7 +273,7 @@ def test_cli_flat_errors_are_one_line(tmp_path, session_dir):
 
 
 def test_bad_options_and_empty_folders(tmp_path, session_dir):
-    from camcal.flat import run_flat_stage
+    from camcal.calibrate.flat import run_flat_stage
 
     with pytest.raises(CamcalError, match="unknown flat model"):
         run_flat_stage(session_dir / "flat", tmp_path / "f.json", model="3d")
@@ -286,8 +286,8 @@ def test_bad_options_and_empty_folders(tmp_path, session_dir):
 
 @pytest.fixture(scope="module")
 def dark_json(session_dir, tmp_path_factory):
-    from camcal.dark import fit_dark
-    from camcal.dark_model import save_dark
+    from camcal.calibrate.dark import fit_dark
+    from camcal.models.dark import save_dark
 
     return save_dark(fit_dark(session_dir / "dark", session_dir / "bias"), tmp_path_factory.mktemp("dark") / "d.json")
 
@@ -343,7 +343,7 @@ def test_histogram_median_of_integer_planes_is_numpys(rng):
     """The flat check's per-plane median of integer planes (a banded histogram) is exactly ``np.median`` of the
     planes minus the black level: odd and even pixel counts, planes taller than one histogram band, ties, a
     single value, a value 0 and uint16 values near the top of the range."""
-    from camcal.flat import HISTOGRAM_ROWS, _histogram, _medians_above
+    from camcal.calibrate.flat import HISTOGRAM_ROWS, _histogram, _medians_above
 
     black = np.array([512.0, 511.5, 512.0, 0.0])[:, None, None]
     for h, w in ((HISTOGRAM_ROWS * 2 + 3, 7), (HISTOGRAM_ROWS + 1, 6), (1, 1), (2, 1), (5, 4)):

@@ -19,9 +19,10 @@ from scipy.integrate import quad
 from scipy.special import ndtri
 from scipy.stats import chi2
 
-import camcal.dark
-from camcal.apply import apply
-from camcal.dark import (
+import camcal.calibrate.dark
+from camcal.apply.photo import apply
+from camcal.apply.radiance import radiance_model
+from camcal.calibrate.dark import (
     DarkOptions,
     DarkStacks,
     TemporalNoise,
@@ -32,15 +33,14 @@ from camcal.dark import (
     _robust,
     fit_dark_stacks,
 )
-from camcal.dark_model import DEAD, HOT, NOISY
-from camcal.emva import dark_noise_stacks
+from camcal.calibrate.emva import dark_noise_stacks
+from camcal.calibrate.stack import StackResult
 from camcal.errors import CamcalError, MissingMetadataError
 from camcal.frame import PLANES, Exposure
-from camcal.io import load_frame
-from camcal.profile import load_profile
-from camcal.radiance import radiance_model
-from camcal.reference_spectra import gaussian_line
-from camcal.stack import StackResult
+from camcal.io.read import load_frame
+from camcal.models.dark import DEAD, HOT, NOISY
+from camcal.models.profile import load_profile
+from camcal.models.spectra import gaussian_line
 from camcal.synth.camera import Scene
 from camcal.synth.session import exposure_for_level
 from camcal.water.models import LampModel, RefinedModel, SeedModel, lamp_ratio
@@ -716,7 +716,7 @@ def test_dark_line_fit_over_many_bands_of_every_shape(monkeypatch):
     and 4-D (one band). Every pixel must be fitted exactly once from its own levels: β, b, var(β), var(b) of the
     line through two levels with σ² = 2 DN² per frame and n = 4 frames at t1 = 1 s, t2 = 3 s:
     var(β) = 2σ²/(nΔt²), var(b) = σ²(t1² + t2²)/(nΔt²)."""
-    monkeypatch.setattr(camcal.dark, "FIT_BAND_PIXELS", 4)
+    monkeypatch.setattr(camcal.calibrate.dark, "FIT_BAND_PIXELS", 4)
     rng = np.random.default_rng(9)
     for shape in ((), (7,), (5, 3), (4, 3, 5), (2, 4, 3, 2)):
         b = 1000.0 + rng.integers(-20, 21, shape)

@@ -18,14 +18,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from camcal.apply import apply
+from camcal.apply.photo import apply
+from camcal.calibrate.inspect import describe
+from camcal.calibrate.response import fit_response
 from camcal.errors import CamcalError
-from camcal.exr import read_exr
-from camcal.inspect import describe
-from camcal.io import is_raw_path, load_frame
-from camcal.profile import load_profile, save_profile
-from camcal.reference_spectra import WAVELENGTHS_NM, gaussian_line
-from camcal.response import fit_response
+from camcal.io.exr import read_exr
+from camcal.io.read import is_raw_path, load_frame
+from camcal.models.profile import load_profile, save_profile
+from camcal.models.spectra import WAVELENGTHS_NM, gaussian_line
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
 from camcal.synth.heic import write_heic
 from camcal.synth.session import exposure_for_level

@@ -12,7 +12,7 @@ import rawpy
 
 from camcal.errors import CamcalError, MissingMetadataError
 from camcal.frame import PATTERNS, PLANES, split_planes
-from camcal.io import frame_header, iter_folder, load_frame
+from camcal.io.read import frame_header, iter_folder, load_frame
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
 from camcal.synth.dng import encode_linear_dng, write_dng
 
@@ -156,7 +156,7 @@ def test_read_ahead_keeps_order_bounds_frames_in_flight_and_raises_in_turn(tmp_p
     import threading
     import time
 
-    from camcal.io import read_ahead
+    from camcal.io.read import read_ahead
 
     paths = []
     for i in range(6):
@@ -191,7 +191,7 @@ def test_file_hash_is_remembered_until_the_file_changes(tmp_path):
     is never reused, whatever the clock."""
     import hashlib
 
-    from camcal.hashing import hash_files, sha256_file
+    from camcal.io.hashing import hash_files, sha256_file
 
     def sha(b):
         return hashlib.sha256(b).hexdigest()
@@ -243,8 +243,8 @@ def test_frame_header_of_synthetic_bayer_and_linear_dngs(tmp_path):
 
 QUIET_SCRIPT = textwrap.dedent("""
     import os, sys, threading
-    from camcal.io import quiet_stderr
-    from camcal.terminal import err_console
+    from camcal.io.read import quiet_stderr
+    from camcal.io.terminal import err_console
     inside, leave = threading.Event(), threading.Event()
     def decode():  # a decode thread, with LibRaw silenced
         with quiet_stderr():

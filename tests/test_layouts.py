@@ -13,11 +13,11 @@ from types import SimpleNamespace as NS
 import numpy as np
 import pytest
 
-from camcal.calibrate import calibrate_session
+from camcal.calibrate.run import calibrate_session
 from camcal.errors import CamcalError
 from camcal.frame import Exposure, Frame
-from camcal.io import _layout_name, _mostly_below, check_has_data, load_frame
-from camcal.manifest import read_session_defaults
+from camcal.io.manifest import read_session_defaults
+from camcal.io.read import _layout_name, _mostly_below, check_has_data, load_frame
 from camcal.synth.camera import LINEAR_FROM_PLANES, Scene, SensorParams, SyntheticCamera
 from camcal.synth.dng import encode_dng, write_dng, write_linear_dng
 from camcal.synth.session import SessionPlan, write_session
@@ -287,7 +287,7 @@ def test_the_reader_keeps_the_value_range_it_measured(tmp_path):
     data) measures its range again; a processed frame measures it when asked."""
     import dataclasses
 
-    from camcal.dark import dark_frame_check
+    from camcal.calibrate.dark import dark_frame_check
 
     mosaic = np.full((64, 64), 70, np.uint16)
     mosaic[0, :7] = 60

@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 import rawpy
 
-from camcal.calibrate import calibrate_session
-from camcal.exr import read_exr
-from camcal.profile import contract, save_profile
-from camcal.reference_spectra import WAVELENGTHS_NM, planck_radiance
+from camcal.calibrate.run import calibrate_session
+from camcal.io.exr import read_exr
+from camcal.models.profile import contract, save_profile
+from camcal.models.spectra import WAVELENGTHS_NM, planck_radiance
 from camcal.synth.camera import LINEAR_FROM_PLANES, Scene, SensorParams, SyntheticCamera, preset
 from camcal.synth.session import SessionPlan, write_session
 from tests.conftest import assert_one_line_error, run_cli

@@ -5,7 +5,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from camcal.errors import CamcalError
-from camcal.manifest import read_manifest, safe_member
+from camcal.io.manifest import read_manifest, safe_member
 
 
 def write(tmp_path, text, encoding="utf-8"):

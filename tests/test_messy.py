@@ -14,15 +14,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import camcal.io as camcal_io
-from camcal.calibrate import calibrate_session, stage_checks
+import camcal.io.read as camcal_io
+from camcal.calibrate.response import MIN_EXPOSURES, fit_series, measure_series, saturation_point
+from camcal.calibrate.run import calibrate_session, stage_checks
+from camcal.calibrate.screen import screen_session
+from camcal.calibrate.session import index_session
+from camcal.calibrate.stack import combine_frames
+from camcal.calibrate.sweep import MIN_WAVELENGTHS
 from camcal.errors import CamcalError, FrameLeftOut
-from camcal.profile import load_profile
-from camcal.response import MIN_EXPOSURES, fit_series, measure_series, saturation_point
-from camcal.screen import screen_session
-from camcal.session import index_session
-from camcal.spectral import MIN_WAVELENGTHS
-from camcal.stack import combine_frames
+from camcal.models.profile import load_profile
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
 from camcal.synth.dng import write_dng
 from camcal.synth.messy import plant_problems
@@ -323,7 +323,7 @@ def test_calibrate_refuses_when_no_stage_can_be_calibrated(tmp_path, tiny_camera
 def test_every_frame_is_decoded_once(tiny, monkeypatch):
     """Each stage judges its own frames as it decodes them: in a whole calibration every frame is decoded once
     (the screening reads only headers). Counted at the RAW decoder, which every stage reaches through
-    camcal.io.load_frame."""
+    camcal.io.read.load_frame."""
     counts: Counter = Counter()
     real = camcal_io._load_raw
 

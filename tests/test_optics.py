@@ -16,18 +16,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from camcal.apply import apply
-from camcal.batch import BatchOptions, run_batch
-from camcal.calibrate import calibrate_session
+from camcal.apply.batch import BatchOptions, run_batch
+from camcal.apply.photo import apply
+from camcal.calibrate.flat import run_flat_stage
+from camcal.calibrate.run import calibrate_session
+from camcal.calibrate.session import index_session
 from camcal.errors import CamcalError
-from camcal.exr import read_exr_header
-from camcal.flat import run_flat_stage
-from camcal.flat_model import choose_flat
-from camcal.io import load_frame
-from camcal.manifest import read_manifest, read_session_defaults
-from camcal.profile import contract, flats_optics_text, load_profile, save_profile
-from camcal.reference_spectra import WAVELENGTHS_NM
-from camcal.session import index_session
+from camcal.io.exr import read_exr_header
+from camcal.io.manifest import read_manifest, read_session_defaults
+from camcal.io.read import load_frame
+from camcal.models.flat import choose_flat
+from camcal.models.profile import contract, flats_optics_text, load_profile, save_profile
+from camcal.models.spectra import WAVELENGTHS_NM
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
 from camcal.synth.session import SessionPlan, write_session
 from tests.conftest import run_cli

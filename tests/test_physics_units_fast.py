@@ -12,16 +12,16 @@ from scipy.optimize import brentq, minimize
 from scipy.special import eval_legendre
 from scipy.stats import norm
 
-from camcal.correct import Calibration, correct_planes, system_gain_dn_per_e
-from camcal.dark_model import DarkModel
+from camcal.calibrate.flat import fit_2d_plane, fit_radial_plane
+from camcal.calibrate.response import emva_linearity_error, fit_eq12, fit_line, fit_srgb_form, saturation_point
+from camcal.calibrate.sweep import deconvolve_slit, merge_sweeps, slit_matrix
 from camcal.errors import CamcalError
-from camcal.exposure import frame_relative_exposure
-from camcal.flat import fit_2d_plane, fit_radial_plane
-from camcal.flat_model import FlatModel, PlaneGeometry, dead_pixels
 from camcal.frame import Exposure
-from camcal.response import emva_linearity_error, fit_eq12, fit_line, fit_srgb_form, saturation_point
-from camcal.spectral import deconvolve_slit, merge_sweeps, slit_matrix
-from camcal.spectral_model import RELATIVE_UNITS, SpectralSensitivity, to_relative
+from camcal.models.correct import Calibration, correct_planes, system_gain_dn_per_e
+from camcal.models.dark import DarkModel
+from camcal.models.exposure import frame_relative_exposure
+from camcal.models.flat import FlatModel, PlaneGeometry, dead_pixels
+from camcal.models.spectral import RELATIVE_UNITS, SpectralSensitivity, to_relative
 from camcal.water.band import BandModel, ChlorophyllAbsorption, bricaud_1998
 from camcal.water.field import (
     DEFAULT_AOD_500NM,
@@ -1156,7 +1156,7 @@ def test_third_party_dark_frame_is_split_only_when_a_mosaic_of_the_frame():
     2-D frame is exactly the mosaic (2h × 2w); a mosaic-sized frame without a pattern, or a 2-D frame of another
     size with one, is refused with its shape named. The split planes are the mosaic's samples (RGGB: R at
     (0, 0), G at (0, 1) and (1, 0), B at (1, 1))."""
-    from camcal.correct import dark_frame
+    from camcal.models.correct import dark_frame
 
     class Mosaic:
         def __init__(self, frame):
@@ -1198,7 +1198,7 @@ def test_srgb_form_fit_exponent_stays_below_one_for_a_response_steeper_than_line
     """A response that follows the sRGB form with p = 1.2 above its knee (a curve bending up, which the form's
     documented range 0.05 ≤ p ≤ 0.99 excludes): the fit must stay in range (p ≤ 0.99 and a poor χ²), not follow
     the data to p = 1.2 (χ² ≈ 0), whatever its start."""
-    from camcal.response_model import SRGB_OFFSET_A
+    from camcal.models.response import SRGB_OFFSET_A
 
     x = np.linspace(0.3, 1.0, 8) * 0.03
     g = 255.0 * ((1 + SRGB_OFFSET_A) * (x / 0.03) ** 1.2 - SRGB_OFFSET_A)
@@ -1494,7 +1494,7 @@ _BAND_WL = np.arange(400.0, 701.0, 10.0)
 def _band_profile(zero_blue=False):
     """A profile holding only c(λ): R rises from exactly 1 % of its peak at 500 nm (0 below, and 0 at 490 nm) to
     its peak 0.5 at 600 nm; G1, G2 and B are Gaussians; each plane has its own uncertainty."""
-    from camcal.profile import CalibrationProfile, CameraIdentity, Provenance
+    from camcal.models.profile import CalibrationProfile, CameraIdentity, Provenance
 
     wl = _BAND_WL
     values = {"R": np.interp(wl, [490.0, 500.0, 600.0, 700.0], [0.0, 0.005, 0.5, 0.15]),
@@ -1621,7 +1621,7 @@ def test_band_model_of_a_profile_needs_a_chlorophyll_spectrum_over_the_weighted_
 def test_band_model_of_a_profile_file_and_its_refusals(tmp_path):
     """A profile given by its path gives the same model as the profile in memory; a profile without c(λ) or
     without the channel is refused in one line naming the file (no file for a profile in memory)."""
-    from camcal.profile import save_profile
+    from camcal.models.profile import save_profile
     from camcal.water.band import band_model_from_profile
 
     prof = _band_profile()
@@ -1658,7 +1658,7 @@ def _json_round_trip(obj):
 def test_spectral_record_round_trip_keeps_every_field():
     """spectral_to_dict -> JSON text -> spectral_from_dict gives back every field of a Bayer and of a linear-RAW
     curve set, as float arrays; fields left out of a record take their documented defaults."""
-    from camcal.spectral_model import spectral_from_dict, spectral_to_dict
+    from camcal.models.spectral import spectral_from_dict, spectral_to_dict
 
     wl = np.array([450.0, 500.5, 550.0, 600.0, 650.0])
     bayer = {"R": [0.1, 0.2, 0.4, 1.5, 0.9], "G1": [0.3, 1.2, 1.4, 0.5, 0.1], "G2": [0.31, 1.1, 1.3, 0.6, 0.2],
@@ -1714,7 +1714,7 @@ def test_spectral_record_round_trip_keeps_every_field():
 ])
 def test_spectral_record_refusals_say_what_is_wrong(drop, change, says):
     """A record with a missing key or a value of the wrong type is one CamcalError naming the exception."""
-    from camcal.spectral_model import spectral_from_dict
+    from camcal.models.spectral import spectral_from_dict
 
     d = {"wavelength_nm": [500, 600], "values": {p: [1, 2] for p in "RGB"},
          "uncertainty": {p: [0, 0] for p in "RGB"}, "units": "relative", "mode": "relative", **change}
@@ -1749,7 +1749,7 @@ def test_dark_record_round_trip_keeps_every_field(planes, known):
     """dark_to_parts -> JSON text for the record (maps as arrays) -> dark_from_parts gives back every map (float32,
     an unknown β uncertainty inf again, defects uint8) and every field; the record names the maps' units and
     counts the defects (hot 1, dead 1, noisy 2, here counted by hand)."""
-    from camcal.dark_model import dark_from_parts, dark_to_parts
+    from camcal.models.dark import dark_from_parts, dark_to_parts
 
     m = _dark_model(planes, known)
     data, maps = dark_to_parts(m)
@@ -1796,7 +1796,7 @@ def test_dark_record_round_trip_keeps_every_field(planes, known):
 def test_dark_record_optional_fields_and_defects_read_from_floats():
     """Missing optional fields take their defaults (no CFA, no temperature, no times or levels, white level NaN);
     numbers given as text are read as numbers; defect bits stored as floats are rounded to the nearest integer."""
-    from camcal.dark_model import dark_from_parts
+    from camcal.models.dark import dark_from_parts
 
     maps = {f"{m}.{p}": np.full((1, 2), 2.0, np.float32) for m in ("bias", "read_noise") for p in "RGB"}
     maps.update({f"defects.{p}": np.array([[0.9999, 4.0001]], np.float32) for p in "RGB"})
@@ -1829,7 +1829,7 @@ def test_dark_record_optional_fields_and_defects_read_from_floats():
 ])
 def test_dark_record_refusals_name_the_file(data, drop, says):
     """A record lacking a map (the first four named) or with a malformed field: one line naming the file."""
-    from camcal.dark_model import dark_from_parts
+    from camcal.models.dark import dark_from_parts
 
     maps = {f"{m}.{p}": np.ones((1, 2), np.float32) for m in ("bias", "dark_current", "dark_current_unc",
                                                                "read_noise", "defects") for p in PLANES4}
@@ -1846,7 +1846,7 @@ PLANES4 = ("R", "G1", "G2", "B")
 
 def _flat_models():
     """A radial Bayer model at f/5.6 with a PRNU map and a model of the same planes at f/11; a 2-D linear one."""
-    from camcal.flat_model import Optics
+    from camcal.models.flat import Optics
 
     ch = ("R", "G1", "G2", "B")
     prnu = (1.0 + 0.001 * np.arange(4 * 3 * 5).reshape(4, 3, 5)).astype(np.float32)
@@ -1887,7 +1887,7 @@ def test_flat_record_round_trip_keeps_every_field_and_the_other_apertures():
     """flat_to_parts -> JSON text for the record -> flat_from_parts gives back every field of a radial model with
     a PRNU map and a model at another f-number (which shares the PRNU map), and of a 2-D Legendre model; the gain
     of the model read back is the DNG radial sum 1 + k0 r² + k1 r⁴ + ... written out here."""
-    from camcal.flat_model import flat_from_parts, flat_to_parts
+    from camcal.models.flat import flat_from_parts, flat_to_parts
 
     radial, f11, two_d = _flat_models()
     data, maps = flat_to_parts(radial)
@@ -1922,7 +1922,7 @@ def test_flat_record_round_trip_keeps_every_field_and_the_other_apertures():
     np.testing.assert_allclose(back.gain()[1], gb, rtol=1e-6)  # float32 map
 
     # a 2-D model with a 2-D model at another f-number: the other model's own coefficients come back
-    from camcal.flat_model import Optics
+    from camcal.models.flat import Optics
 
     coef = {c: [[1.0, 0.0, -0.2], [0.01, 0.0, 0.0], [-0.05, 0.0, 0.0]] for c in "RGB"}
     other = replace(two_d, model_2d={**two_d.model_2d, "coefficients": coef}, optics=Optics(8.0, "tag", 35.0, "tag"))
@@ -1956,7 +1956,7 @@ def test_flat_model_summary_names_its_kind_normalisation_full_frame_centres_and_
 
 def test_flat_record_optional_fields_take_their_defaults():
     """A record with only the required fields: no CFA, no levels, PRNU RMS, info or optics, radial."""
-    from camcal.flat_model import Optics, flat_from_parts
+    from camcal.models.flat import Optics, flat_from_parts
 
     m = flat_from_parts({"channels": ["R", "G", "B"], "shape": ["2", 3.0], "centre_px": {c: ["1", 0.5] for c in "RGB"},
                          "k": {c: ["-0.1", 0] for c in "RGB"}, "residual_rms": {c: "0.01" for c in "RGB"},
@@ -1984,7 +1984,7 @@ def _flat_record(model_2d=None, k=(-0.3, 0.0), centre=(1.5, 1.0)):
 def test_flat_record_is_probed_at_each_of_the_four_plane_corners(a, b):
     """A model that is not finite at one plane corner is refused, whichever corner; a model finite at the four
     corners (g = 1.7e308 u, or v, which would overflow beyond them) is accepted."""
-    from camcal.flat_model import flat_from_parts
+    from camcal.models.flat import flat_from_parts
 
     with pytest.raises(CamcalError) as e:
         flat_from_parts(_flat_record(_legendre_2x2(a, b)), {}, "f.json")
@@ -2022,7 +2022,7 @@ def test_flat_record_is_probed_at_each_of_the_four_plane_corners(a, b):
 def test_flat_record_refusals_name_the_file_and_the_fault(change, maps, says):
     """A record whose PRNU maps, other f-number models or fields do not fit: one line naming the file and the
     exception."""
-    from camcal.flat_model import flat_from_parts
+    from camcal.models.flat import flat_from_parts
 
     with pytest.raises(CamcalError) as e:
         flat_from_parts({**_flat_record(), **change}, maps, "cam/flat.json")
@@ -2067,7 +2067,7 @@ def test_readers_name_what_they_were_asked_to_read_when_it_is_not_a_file(tmp_pat
 
 def test_flat_record_with_a_malformed_model_of_another_f_number_names_the_file():
     """A record whose model of another f-number lacks a field is refused naming the file, like the record itself."""
-    from camcal.flat_model import flat_from_parts
+    from camcal.models.flat import flat_from_parts
 
     other = {k: v for k, v in _flat_record().items() if k != "k"}
     with pytest.raises(CamcalError) as e:
@@ -2088,7 +2088,7 @@ def _vignetting(k, centre, shape):
 def _aperture_series():
     """Radial models (planes R, G on 3 x 4, no mosaic) at f/2.8, f/5.6 and f/11 (35 mm), their hand-computed gains
     and one shared PRNU map; the f/5.6 model is the primary one, holding the others (given out of order)."""
-    from camcal.flat_model import Optics
+    from camcal.models.flat import Optics
 
     ks = {2.8: {"R": (-0.5, 0.1), "G": (-0.42, 0.07)}, 5.6: {"R": (-0.3, 0.05), "G": (-0.26, 0.03)},
           11.0: {"R": (-0.12, 0.02), "G": (-0.1, 0.01)}}
@@ -2115,7 +2115,7 @@ def test_flat_choice_interpolates_ln_gain_in_inverse_f_number_squared_between_th
     exp(w ln g_2.8 + (1 - w) ln g_5.6) pixel by pixel (times the shared PRNU when asked), the corner uncertainty
     as the largest |ratio - 1| at the corners against interpolating in ln N instead, the warning, description and
     record; float32 maps, so rtol 1e-6."""
-    from camcal.flat_model import choose_flat
+    from camcal.models.flat import choose_flat
 
     primary, m28, m11, gains, prnu = _aperture_series()
     assert primary.models() == (m28, primary, m11) and primary.f_numbers() == [2.8, 5.6, 11.0]
@@ -2171,7 +2171,7 @@ def test_flat_choice_interpolates_ln_gain_in_inverse_f_number_squared_between_th
 def test_flat_choice_at_a_measured_f_number_and_outside_the_measured_range():
     """At a measured f-number (within 3 %: 2.83 is f/2.8) the model as it is, no warning; beyond the range the
     nearest model in 1/N², its corners' change extrapolated linearly in 1/N² from the next model written out."""
-    from camcal.flat_model import choose_flat
+    from camcal.models.flat import choose_flat
 
     primary, m28, m11, gains, prnu = _aperture_series()
     for n, m in ((2.83, m28), (5.6, primary), (10.8, m11)):
@@ -2197,7 +2197,7 @@ def test_flat_choice_at_a_measured_f_number_and_outside_the_measured_range():
 def test_flat_choice_with_one_model_of_its_form_bounds_stopping_down_only():
     """Flats of one f-number: stopping down over-corrects the corners by at most 1/g_corner - 1; opening up has
     no bound. A pair of models of different forms is not interpolated: the nearest in 1/N² is used alone."""
-    from camcal.flat_model import Optics, choose_flat
+    from camcal.models.flat import Optics, choose_flat
 
     primary, m28, m11, gains, _ = _aperture_series()
     only = replace(primary, apertures=())
@@ -2243,7 +2243,7 @@ def test_flat_choice_unknown_f_numbers_and_another_focal_length():
     """An unknown f-number (the photo's or the flats') leaves the primary model unchecked, with a warning naming
     what to record; a focal length off by more than 1 % warns that the corners may differ by the flats' corner
     falloff 1 - min g (or the interpolation's uncertainty, if larger)."""
-    from camcal.flat_model import Optics, choose_flat
+    from camcal.models.flat import Optics, choose_flat
 
     primary, m28, m11, gains, _ = _aperture_series()
     c = choose_flat(primary, None, 35.0)
@@ -2290,7 +2290,7 @@ def test_same_f_number_within_three_percent_of_the_smaller_and_same_form():
     """f-numbers within 3 % of the smaller are one (103 vs 100: exactly 3 %; 97 vs 100: 3.09 %); None is never
     the same. Models of the same kind, planes, shape, CFA and number of terms (radial) or degree (2-D) may be
     interpolated; any difference refuses."""
-    from camcal.flat_model import same_f_number, same_form
+    from camcal.models.flat import same_f_number, same_form
 
     assert same_f_number(100.0, 103.0) and same_f_number(103.0, 100.0)
     assert not same_f_number(100.0, 97.0) and not same_f_number(97.0, 100.0)
@@ -2312,7 +2312,7 @@ def test_same_f_number_within_three_percent_of_the_smaller_and_same_form():
 def test_flat_model_replace_keeps_the_evaluated_gain_only_while_the_model_is_unchanged():
     """A model holding its gain keeps it through a change of provenance or optics; a change of coefficients,
     centres, planes or shape evaluates the new model (the DNG sum written out)."""
-    from camcal.flat_model import Optics
+    from camcal.models.flat import Optics
 
     primary, _, _, gains, _ = _aperture_series()
     held = np.full((2, 3, 4), 0.5, np.float32)
@@ -2338,7 +2338,7 @@ def _emva_prnu_by_hand(rel, var_rel, n_frames):
 
 
 def _master_for_prnu(mean_all, variance_all, n_frames=4):
-    from camcal.flat import MasterFlat
+    from camcal.calibrate.flat import MasterFlat
 
     return MasterFlat(value=mean_all, variance_of_mean=None, level_dn={"R": 1.0, "G": 1.0}, n_frames=n_frames,
                       paths=(), channels=("R", "G"), cfa_pattern=None, method="mean", exposure_s=(None,) * n_frames,
@@ -2349,7 +2349,7 @@ def test_prnu_figures_are_the_emva_spatial_variance_of_good_pixels_about_the_smo
     """PRNU per plane of the unclipped mean over the smooth model A·g: pixels masked, non-finite (mean or
     variance), under a non-positive model, below half or above 1.5 times the median response left out (the
     bounds themselves kept), then the EMVA formula written out with numpy; the refusal without statistics."""
-    from camcal.flat import _prnu_figures, flat_prnu
+    from camcal.calibrate.flat import _prnu_figures, flat_prnu
 
     rng = np.random.default_rng(5)
     smooth = np.full((2, 4, 5), 2.0)
@@ -2417,7 +2417,7 @@ def test_medians_above_black_equal_numpy_medians_for_every_dtype_and_histograms_
     """The per-plane median of planes − black is np.median of the float64 differences (sorted and written out for
     odd and even counts) for unsigned and signed integers, negative values, floats and empty planes; the banded
     histogram is np.bincount whichever band holds the largest value."""
-    from camcal.flat import HISTOGRAM_ROWS, _histogram, _medians_above
+    from camcal.calibrate.flat import HISTOGRAM_ROWS, _histogram, _medians_above
 
     def by_hand(planes, black):
         out = []
@@ -2457,7 +2457,7 @@ def test_medians_above_black_equal_numpy_medians_for_every_dtype_and_histograms_
 def test_flat_fit_options_and_their_refusals():
     """The fit keywords of the flat stage's options; an unknown model or a number of radial terms outside 1..5
     refused with its one-line message."""
-    from camcal.flat import FlatOptions, _check_options
+    from camcal.calibrate.flat import FlatOptions, _check_options
 
     o = FlatOptions(model="2d", downsample=8, n_terms=3, degree_2d=2, with_prnu=False, method="mean")
     assert o.fit_kwargs() == {"model": "2d", "downsample": 8, "n_terms": 3, "degree_2d": 2, "with_prnu": False}
@@ -2476,7 +2476,7 @@ def test_dead_pixels_join_the_dark_defect_map_with_their_counts_and_source():
     """Dead pixels (bit 2) are OR-ed into the defect map, other bits kept; each plane's dead count is the number
     of its pixels with bit 2 set, counted here with a loop; the source joins the provenance; a map of another
     shape is refused."""
-    from camcal.dark_model import DEAD, with_dead_pixels
+    from camcal.models.dark import DEAD, with_dead_pixels
 
     m = _dark_model(("R", "G", "B"), True)
     dead = np.zeros(m.defects.shape, bool)
@@ -2506,7 +2506,7 @@ def test_exposure_time_rules_leave_out_lone_frames_and_need_two_times_without_bi
     import warnings as _warnings
     from pathlib import Path
 
-    from camcal.dark import _exposure_time_rules
+    from camcal.calibrate.dark import _exposure_time_rules
     from camcal.errors import FrameLeftOut, TooFewFrames
 
     a, b, c, d = (Path(f"/d/{n}.dng") for n in "abcd")
@@ -2547,7 +2547,7 @@ def test_dark_frame_check_refuses_processed_and_saturated_frames():
     saturated dark frame, the fraction and level in its message."""
     from pathlib import Path
 
-    from camcal.dark import dark_frame_check
+    from camcal.calibrate.dark import dark_frame_check
     from camcal.frame import Frame
 
     data = np.full((10, 10), 100, np.uint16)
@@ -2583,9 +2583,9 @@ def test_dark_exposure_times_take_the_index_then_the_manifest_then_the_file_tag(
     from PIL import Image
     from PIL.TiffImagePlugin import IFDRational
 
-    from camcal.dark import _exposure_times
+    from camcal.calibrate.dark import _exposure_times
+    from camcal.calibrate.session import FrameRef, StageFrames
     from camcal.errors import MissingMetadataError
-    from camcal.session import FrameRef, StageFrames
 
     a, b, c, d = (tmp_path / f"{n}.jpg" for n in "abcd")
     exif = Image.Exif()
@@ -2611,7 +2611,7 @@ def test_dark_stacks_must_share_frame_size_pattern_and_iso():
     from pathlib import Path
     from types import SimpleNamespace
 
-    from camcal.dark import _check_stacks
+    from camcal.calibrate.dark import _check_stacks
 
     def stack(name, shape=(4, 6), cfa="RGGB", iso=400.0):
         return SimpleNamespace(frame_shape=shape, cfa_pattern=cfa, paths=(Path(f"/d/{name}1.dng"),

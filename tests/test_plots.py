@@ -1,4 +1,5 @@
-"""camcal.plots: Figures with the expected content for known synthetic models, one colour table, no backend change.
+"""camcal.report.plots: Figures with the expected content for known synthetic models, one colour table, no backend
+change.
 
 The models are built directly from known parameters (small arrays, no files), so each figure's data can be
 compared with the truth: the lines carry the model's values, the overlays are scaled right, G2 has the
@@ -21,10 +22,12 @@ from matplotlib.colors import same_color
 from matplotlib.figure import Figure
 from PIL import Image
 
-from camcal.dark_model import HOT, DarkModel
-from camcal.flat_model import FlatModel, radial_gain
 from camcal.frame import PLANES
-from camcal.plots import (
+from camcal.models.dark import HOT, DarkModel
+from camcal.models.flat import FlatModel, radial_gain
+from camcal.models.response import ChannelResponse, ResponseModel
+from camcal.models.spectral import SpectralSensitivity
+from camcal.report.plots import (
     COLOURS,
     DPI,
     HOT_COLOUR,
@@ -37,8 +40,6 @@ from camcal.plots import (
     spectral_figure,
     write_png,
 )
-from camcal.response_model import ChannelResponse, ResponseModel
-from camcal.spectral_model import SpectralSensitivity
 from camcal.water.simulate import seed_section5_tables
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -309,14 +310,15 @@ def _python(code: str, **env: str) -> subprocess.CompletedProcess:
                           env=environ)
 
 
-# One user backend other than the default: camcal's drawing path does not depend on which one it is (camcal.plots
+# One user backend other than the default: camcal's drawing path does not depend on which one it is (camcal.report.plots
 # builds matplotlib.figure.Figure directly and never sets the backend), so a second backend ("pdf" until now) ran
 # the same camcal code again in a new interpreter.
 @pytest.mark.parametrize("backend", ["svg"])
 def test_drawing_keeps_the_users_backend_and_never_touches_pyplot(backend):
     code = (
         "import sys\n"
-        "import camcal.flat, camcal.response, camcal.spectral, camcal.report, camcal.plots as P\n"
+        "import camcal.calibrate.flat, camcal.calibrate.response, camcal.calibrate.sweep, camcal.report.page, "
+        "camcal.report.plots as P\n"
         "import matplotlib\n"
         f"assert matplotlib.get_backend() == {backend!r}, matplotlib.get_backend()\n"
         "from tests import test_plots as T\n"
@@ -341,7 +343,8 @@ def test_no_camcal_module_imports_matplotlib_at_import_time():
         "for n in names:\n"
         "    importlib.import_module(n)\n"
         "    assert 'matplotlib' not in sys.modules, n + ' imports matplotlib'\n"
-        "assert {'camcal.cli', 'camcal.apply', 'camcal.report', 'camcal.plots', 'camcal.flat'} <= set(names)\n"
+        "assert {'camcal.cli', 'camcal.apply.photo', 'camcal.report.page', 'camcal.report.plots', "
+        "'camcal.calibrate.flat'} <= set(names)\n"
         "print(len(names))\n"
     )
     proc = _python(code)
@@ -350,7 +353,7 @@ def test_no_camcal_module_imports_matplotlib_at_import_time():
 
 
 # modules that still call matplotlib.use; camcal/water/simulate.py is being changed elsewhere (issue 17: it is to
-# draw with a Figure like camcal.plots) — empty this set when it is.
+# draw with a Figure like camcal.report.plots) — empty this set when it is.
 STILL_SETTING_THE_BACKEND: set[str] = set()
 
 

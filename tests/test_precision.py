@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import OpenImageIO as oiio
 
-from camcal.exr import read_exr, read_exr_header
-from camcal.reference_spectra import gaussian_line
+from camcal.io.exr import read_exr, read_exr_header
+from camcal.models.spectra import gaussian_line
 from camcal.synth.camera import Scene
 from tests.conftest import assert_one_line_error, run_cli
 

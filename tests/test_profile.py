@@ -6,9 +6,9 @@ import zipfile
 import numpy as np
 import pytest
 
-from camcal.container import JSON_MEMBER, MAPS_MEMBER
 from camcal.errors import CamcalError
-from camcal.profile import SCHEMA_VERSION, contract, diff_profiles, load_profile, save_profile
+from camcal.io.container import JSON_MEMBER, MAPS_MEMBER
+from camcal.models.profile import SCHEMA_VERSION, contract, diff_profiles, load_profile, save_profile
 from camcal.units import SPECTRAL_SENSITIVITY
 from tests.conftest import assert_one_line_error, run_cli
 
@@ -92,7 +92,7 @@ def test_tampered_number_is_refused(profile_path, tmp_path):
 
 
 def test_unknown_version_is_refused(profile_path, tmp_path):
-    from camcal.container import content_hash
+    from camcal.io.container import content_hash
 
     def bump(d):
         d["schema_version"] = "2.0"
@@ -104,7 +104,7 @@ def test_unknown_version_is_refused(profile_path, tmp_path):
 
 
 def test_schema_violation_with_valid_hash_is_refused(profile_path, tmp_path):
-    from camcal.container import content_hash
+    from camcal.io.container import content_hash
 
     def corrupt(d):
         d["reference"]["iso"] = "a hundred"
@@ -160,7 +160,7 @@ def test_light_load_verifies_but_does_not_decode_maps(profile_path, tmp_path):
 
 # ---- strict schema inside sections (issue 19) -------------------------------------------------------------------
 def _rehashed_copy(src, dst, edit):
-    from camcal.container import content_hash
+    from camcal.io.container import content_hash
 
     def both(d):
         edit(d)
@@ -237,7 +237,7 @@ def test_schema_1_0_profile_still_loads(profile_path, tmp_path):
 
 
 def test_profile_without_stages_follows_the_schema():
-    from camcal.profile import CalibrationProfile, CameraIdentity, profile_to_document, validate_document
+    from camcal.models.profile import CalibrationProfile, CameraIdentity, profile_to_document, validate_document
 
     p = CalibrationProfile(CameraIdentity("m", "x", None, "RGGB", 96, 64), 100.0, 4.0)
     doc, maps = profile_to_document(p)

@@ -1,10 +1,10 @@
 """Property-based tests (hypothesis): parsers and loaders never fail except with a one-line CamcalError;
 the numerical inverters never raise for finite input and mark impossible input NaN with a reason.
 
-- manifest/CSV parser (:func:`camcal.manifest.read_manifest`): arbitrary bytes, and CSVs assembled from
+- manifest/CSV parser (:func:`camcal.io.manifest.read_manifest`): arbitrary bytes, and CSVs assembled from
   valid and invalid cells with any BOM / line ending / padding; accepted values obey the documented rules;
   valid records round-trip exactly.
-- profile loader (:func:`camcal.container.read_container`, :func:`camcal.profile.load_profile`): a valid
+- profile loader (:func:`camcal.io.container.read_container`, :func:`camcal.models.profile.load_profile`): a valid
   profile with mutated bytes, and with a mutated JSON document re-hashed (so the schema and the stage
   decoders, not the hash, must catch it); a profile that loads must also render its contract
   (what ``camcal profile show`` prints).
@@ -25,10 +25,10 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from camcal.container import JSON_MEMBER, MAPS_MEMBER, content_hash, read_container
 from camcal.errors import CamcalError
-from camcal.manifest import NUMERIC_COLUMNS, PLAUSIBLE_RANGE, POSITIVE_COLUMNS, TINY, read_manifest
-from camcal.profile import contract, load_profile
+from camcal.io.container import JSON_MEMBER, MAPS_MEMBER, content_hash, read_container
+from camcal.io.manifest import NUMERIC_COLUMNS, PLAUSIBLE_RANGE, POSITIVE_COLUMNS, TINY, read_manifest
+from camcal.models.profile import contract, load_profile
 from camcal.water.invert import Reason, invert_images, invert_ratio, tau_newton
 from camcal.water.models import RefinedModel, SeedModel
 
@@ -136,8 +136,8 @@ class Parts(tuple):
 
 @pytest.fixture(scope="module")
 def valid_profile(tmp_path_factory) -> Parts:
-    from camcal.calibrate import CalibrateOptions, calibrate_session
-    from camcal.profile import save_profile
+    from camcal.calibrate.run import CalibrateOptions, calibrate_session
+    from camcal.models.profile import save_profile
     from camcal.synth.camera import SensorParams, SyntheticCamera
     from camcal.synth.session import SessionPlan, write_session
 

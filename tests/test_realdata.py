@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from camcal.io import load_frame
+from camcal.io.read import load_frame
 from tests.conftest import assert_one_line_error, run_cli
 
 REALDATA = Path(__file__).resolve().parents[1].parent / "shared" / "realdata"

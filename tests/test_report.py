@@ -15,8 +15,8 @@ import pytest
 from PIL import Image
 
 from camcal.errors import CamcalError
-from camcal.profile import contract, load_profile
-from camcal.report import render_report, write_report
+from camcal.models.profile import contract, load_profile
+from camcal.report.page import render_report, write_report
 from camcal.synth.session import SessionPlan, write_session
 from tests.conftest import assert_one_line_error, run_cli
 

@@ -39,8 +39,8 @@ import numpy as np
 import pytest
 from test_bad_inputs import Base, build_base, exr_window_patch, jpeg_sof_patch, tiff_patch
 
-from camcal.container import JSON_MEMBER, MAPS_MEMBER, content_hash
-from camcal.limits import (
+from camcal.io.container import JSON_MEMBER, MAPS_MEMBER, content_hash
+from camcal.io.limits import (
     MAX_CSV_COLUMNS,
     MAX_JSON_DEPTH,
     MAX_PROFILE_JSON_BYTES,
@@ -316,7 +316,7 @@ def _exr_water(make: Callable[[Base, Path], bytes]):
 
 def _exr_channels(n: int, shape: tuple[int, int] = (4, 4)):
     def make(b: Base, ws: Path) -> bytes:
-        from camcal.exr import write_exr
+        from camcal.io.exr import write_exr
 
         chans = {f"c{i:03d}": np.zeros(shape, np.float32) for i in range(n)}
         return write_exr(ws / "many.exr", chans).read_bytes()
@@ -325,7 +325,7 @@ def _exr_channels(n: int, shape: tuple[int, int] = (4, 4)):
 
 def _exr_uncompressed(xmax: int, ymax: int):
     def make(b: Base, ws: Path) -> bytes:
-        from camcal.exr import write_exr
+        from camcal.io.exr import write_exr
 
         img = np.full((32, 48), 0.5, np.float32)
         data = write_exr(ws / "none.exr", {"L663": img, "R": img}, compression="none").read_bytes()
@@ -556,11 +556,11 @@ def test_apply_batch_memory_does_not_grow(batch_session, tmp_path: Path):
     ("bilevel.tif", 1, "uint8", {"oiio:BitsPerSample": 1, "compression": "zip"})])
 def test_constant_images_pass_the_expansion_limit(tmp_path, name, channels, fmt, attrs):
     """The most compressible real images (one constant value: a mask, a blank frame) expand about 190:1 (JPEG)
-    to 1000:1 (deflate), well under :data:`camcal.limits.MAX_IMAGE_EXPANSION`."""
+    to 1000:1 (deflate), well under :data:`camcal.io.limits.MAX_IMAGE_EXPANSION`."""
     import OpenImageIO as oiio
 
-    from camcal.io import open_image
-    from camcal.limits import MAX_IMAGE_EXPANSION, declared_image_bytes
+    from camcal.io.limits import MAX_IMAGE_EXPANSION, declared_image_bytes
+    from camcal.io.read import open_image
 
     path = tmp_path / name
     spec = oiio.ImageSpec(1000, 750, channels, getattr(oiio, fmt.upper()))

@@ -9,12 +9,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from camcal.calibrate.response import emva_linearity_error, fit_response, roi_slices, roi_window
 from camcal.errors import CamcalError
-from camcal.exposure import relative_exposure
 from camcal.frame import PLANES
-from camcal.io import iter_folder
-from camcal.response import emva_linearity_error, fit_response, roi_slices, roi_window
-from camcal.response_model import (
+from camcal.io.read import iter_folder
+from camcal.io.store import to_jsonable
+from camcal.models.exposure import relative_exposure
+from camcal.models.response import (
     ResponseModel,
     load_response,
     save_response,
@@ -22,7 +23,6 @@ from camcal.response_model import (
     srgb_form_encode,
     srgb_form_toe,
 )
-from camcal.store import to_jsonable
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera, frame_rngs
 from camcal.synth.session import SessionPlan, _white_spectrum, write_session
 from tests.conftest import assert_one_line_error, run_cli
@@ -241,7 +241,7 @@ def test_iso_and_aperture_series_give_the_reference_rate(tmp_path, small_camera)
 
 
 class _TruthDark:
-    """A dark model from the camera's own maps (the protocol camcal.dark_model.DarkModel implements)."""
+    """A dark model from the camera's own maps (the protocol camcal.models.dark.DarkModel implements)."""
 
     def __init__(self, camera: SyntheticCamera) -> None:
         self.camera = camera

@@ -1,4 +1,4 @@
-"""camcal.robust: the sampled median equals numpy's bit for bit, and the MAD scipy's, whatever the data."""
+"""camcal.calibrate.robust: the sampled median equals numpy's bit for bit, and the MAD scipy's, whatever the data."""
 
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy.stats import median_abs_deviation
 
-import camcal.robust as robust
-from camcal.robust import SAMPLED_MEDIAN_MIN, _median_between, median, median_and_mad
+import camcal.calibrate.robust as robust
+from camcal.calibrate.robust import SAMPLED_MEDIAN_MIN, _median_between, median, median_and_mad
 
 N = SAMPLED_MEDIAN_MIN + 12_345
 

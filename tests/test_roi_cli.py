@@ -10,9 +10,9 @@ from pathlib import Path
 
 import pytest
 
-from camcal.io import load_frame
+from camcal.calibrate.response import SERIES_ROI_FRACTION, roi_slices, roi_window
+from camcal.io.read import load_frame
 from camcal.region import DEFAULT_ROI_FRACTION, central_roi
-from camcal.response import SERIES_ROI_FRACTION, roi_slices, roi_window
 from tests.conftest import assert_one_line_error, run_cli
 
 

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from camcal.errors import CamcalError
-from camcal.rrs import CSV_COLUMNS, append_survey, run_rrs, station_row
-from camcal.sun import photo_sun
+from camcal.io.sun import photo_sun
 from camcal.synth.station import WATERS, place_at, surface_reflectance, water_rrs, write_station
 from camcal.water.products import SPM_NECHAD_2010, TURBIDITY_DOGLIOTTI_2015, product
+from camcal.water.rrs_photos import CSV_COLUMNS, append_survey, run_rrs, station_row
 from tests.conftest import assert_one_line_error, run_cli
 from tests.test_bad_inputs import run_main
 
@@ -102,9 +102,9 @@ def test_glint_photo_named_and_left_out(results, water):
 
 
 def test_without_screening_the_glint_would_show(stations, profile_path, monkeypatch):
-    import camcal.rrs
+    import camcal.water.rrs_photos
 
-    monkeypatch.setattr(camcal.rrs, "screen_water", lambda photos: photos)
+    monkeypatch.setattr(camcal.water.rrs_photos, "screen_water", lambda photos: photos)
     glinted = _run(stations[("clear", True)], profile_path).result
     plain = _run(stations[("clear", False)], profile_path).result
     assert glinted.rrs["R"] > plain.rrs["R"] + 2 * plain.sigma["R"]

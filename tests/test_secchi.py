@@ -7,8 +7,8 @@ import pytest
 from scipy.ndimage import binary_erosion
 
 from camcal.errors import CamcalError
-from camcal.io import load_frame
-from camcal.reference_spectra import WAVELENGTHS_NM
+from camcal.io.read import load_frame
+from camcal.models.spectra import WAVELENGTHS_NM
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
 from camcal.synth.secchi import daylight_white_radiance, disk_weight, secchi_scenes, suggest_exposure_s
 from camcal.water import BandModel, RefinedModel, bricaud_1998, illuminant_spectrum, invert_images

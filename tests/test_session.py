@@ -1,4 +1,4 @@
-"""The session index (camcal.session): a session read once, exposures resolved with their source, checks
+"""The session index (camcal.calibrate.session): a session read once, exposures resolved with their source, checks
 that need no pixels. Sessions are real DNG/JPEG files written by :mod:`camcal.synth`."""
 
 from __future__ import annotations
@@ -12,13 +12,19 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import camcal.manifest
-from camcal.calibrate import calibrate_session
-from camcal.dark import DarkOptions, fit_dark, fit_dark_stacks, stack_darks
-from camcal.dark_model import dark_to_parts
+import camcal.io.manifest
+from camcal.calibrate.dark import DarkOptions, fit_dark, fit_dark_stacks, stack_darks
+from camcal.calibrate.run import calibrate_session
+from camcal.calibrate.session import StageFrames, index_session
+from camcal.calibrate.sweep import (
+    SweepOptions,
+    measure_sweep,
+    measure_sweep_settings,
+    read_sweep,
+    sensitivity_from_settings,
+)
 from camcal.errors import CamcalError
-from camcal.session import StageFrames, index_session
-from camcal.spectral import SweepOptions, measure_sweep, measure_sweep_settings, read_sweep, sensitivity_from_settings
+from camcal.models.dark import dark_to_parts
 from camcal.synth.camera import SensorParams, SyntheticCamera
 from camcal.synth.session import SessionPlan, write_session
 
@@ -33,8 +39,8 @@ def small_session(tmp_path_factory) -> Path:
 
 
 def _count_manifest_reads(monkeypatch) -> Counter:
-    """Wrap camcal.manifest.read_manifest (and every camcal module's imported name of it) with a counter."""
-    original = camcal.manifest.read_manifest
+    """Wrap camcal.io.manifest.read_manifest (and every camcal module's imported name of it) with a counter."""
+    original = camcal.io.manifest.read_manifest
     reads: Counter = Counter()
 
     def counting(path, **kw):

@@ -20,12 +20,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from camcal.curve_files import SPECTACLE_HEADER, read_spectacle_csv, write_spectacle_csv
+from camcal.calibrate.sweep import LeftOutWarning, SweepWarning, deconvolve_slit, measure_sweep, merge_sweeps
+from camcal.curves.files import SPECTACLE_HEADER, read_spectacle_csv, write_spectacle_csv
 from camcal.errors import CamcalError, TooFewFrames
 from camcal.frame import PLANES
-from camcal.reference_spectra import WAVELENGTHS_NM, gaussian_line
-from camcal.spectral import LeftOutWarning, SweepWarning, deconvolve_slit, measure_sweep, merge_sweeps
-from camcal.spectral_model import SpectralSensitivity
+from camcal.models.spectra import WAVELENGTHS_NM, gaussian_line
+from camcal.models.spectral import SpectralSensitivity
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
 from camcal.synth.session import SessionPlan, write_session
 from camcal.units import SPECTRAL_SENSITIVITY
@@ -63,13 +63,13 @@ def quiet_measure(*args, **kwargs) -> SpectralSensitivity:
 
 @pytest.fixture(scope="module")
 def dark_model(session_dir):
-    dark = pytest.importorskip("camcal.dark")
+    dark = pytest.importorskip("camcal.calibrate.dark")
     return dark.fit_dark(session_dir / "dark", session_dir / "bias")
 
 
 @pytest.fixture(scope="module")
 def flat_model(session_dir, dark_model):
-    flat = pytest.importorskip("camcal.flat")
+    flat = pytest.importorskip("camcal.calibrate.flat")
     return flat.fit_flat(session_dir / "flat", dark_model)
 
 

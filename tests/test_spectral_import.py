@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from camcal.apply import apply, prepare
-from camcal.curve_files import (
+from camcal.apply.photo import apply, prepare
+from camcal.curves.files import (
     SPECTACLE_HEADER,
     read_curve_table,
     read_spectacle_csv,
@@ -28,15 +28,15 @@ from camcal.curve_files import (
     spectacle_array,
     write_spectacle_csv,
 )
+from camcal.curves.import_spectral import import_spectral, predicted_rate, radiance_target, region_rate
 from camcal.errors import CamcalError
-from camcal.exr import read_exr
 from camcal.frame import PLANES
-from camcal.hashing import sha256_file
-from camcal.io import load_frame
-from camcal.profile import contract, load_profile, save_profile
-from camcal.reference_spectra import WAVELENGTHS_NM, camera_sensitivities, planck_radiance
-from camcal.reference_targets import import_spectral, predicted_rate, radiance_target, region_rate
-from camcal.spectral_model import RELATIVE_UNITS, SpectralSensitivity
+from camcal.io.exr import read_exr
+from camcal.io.hashing import sha256_file
+from camcal.io.read import load_frame
+from camcal.models.profile import contract, load_profile, save_profile
+from camcal.models.spectra import WAVELENGTHS_NM, camera_sensitivities, planck_radiance
+from camcal.models.spectral import RELATIVE_UNITS, SpectralSensitivity
 from camcal.synth.camera import Scene
 from camcal.synth.session import exposure_for_level
 from camcal.synth.targets import grey_card_reflectance, smooth_target_spectra, write_target_photos

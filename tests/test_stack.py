@@ -9,11 +9,12 @@ import tempfile
 import numpy as np
 import pytest
 
-from camcal import stack, threads
+from camcal import threads
+from camcal.calibrate import stack
+from camcal.calibrate.screen import Majority, StageJudge
+from camcal.calibrate.stack import _read_slot, combine_folder, combine_frames
 from camcal.errors import CamcalError
-from camcal.io import load_frame
-from camcal.screen import Majority, StageJudge
-from camcal.stack import _read_slot, combine_folder, combine_frames
+from camcal.io.read import load_frame
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera, frame_rngs
 
 
@@ -230,7 +231,7 @@ def test_a_spill_that_cannot_be_written_is_one_line_naming_it(stack_dir, monkeyp
     what to change, not an OSError without a file name; the spill file is removed."""
     import errno
 
-    import camcal.stack as stack_module
+    import camcal.calibrate.stack as stack_module
 
     files, _ = _cube(stack_dir[0])
     monkeypatch.setenv("CAMCAL_SPILL_MEMORY_MB", "0")

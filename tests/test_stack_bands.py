@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from camcal.stack import IQR_TO_SIGMA, _band_stats
+from camcal.calibrate.stack import IQR_TO_SIGMA, _band_stats
 
 
 def _outliers(n: int) -> int:

@@ -19,22 +19,7 @@ from scipy.optimize import brentq
 from scipy.special import erf, eval_legendre, gammainccinv
 
 from camcal import units
-from camcal.correct import Corrected, dark_frame, system_gain_dn_per_e
-from camcal.dark import (
-    DarkOptions,
-    DarkStacks,
-    _fit_lines,
-    _noise_model,
-    fit_dark_stacks,
-    subtract_dark,
-    temporal_noise,
-)
-from camcal.dark_model import DEAD, HOT, NOISY, DarkModel
-from camcal.errors import CamcalError
-from camcal.flat import _quadratic_vertex, _total_degree_mask, correct_flat, fit_2d_plane, fit_radial_plane
-from camcal.flat_model import FlatModel, PlaneGeometry, dead_pixels, radial_gain
-from camcal.frame import PLANES, Exposure
-from camcal.radiance import (
+from camcal.apply.radiance import (
     RadianceModel,
     _interp,
     radiance_at,
@@ -43,8 +28,25 @@ from camcal.radiance import (
     smooth_operator,
     smooth_spread_rel,
 )
-from camcal.response import fit_eq12, fit_line, fit_srgb_form, saturation_point
-from camcal.response_model import (
+from camcal.calibrate.dark import (
+    DarkOptions,
+    DarkStacks,
+    _fit_lines,
+    _noise_model,
+    fit_dark_stacks,
+    subtract_dark,
+    temporal_noise,
+)
+from camcal.calibrate.flat import _quadratic_vertex, _total_degree_mask, correct_flat, fit_2d_plane, fit_radial_plane
+from camcal.calibrate.response import fit_eq12, fit_line, fit_srgb_form, saturation_point
+from camcal.calibrate.stack import StackResult
+from camcal.calibrate.sweep import deconvolve_slit, merge_sweeps, slit_matrix
+from camcal.errors import CamcalError
+from camcal.frame import PLANES, Exposure
+from camcal.models.correct import Corrected, dark_frame, system_gain_dn_per_e
+from camcal.models.dark import DEAD, HOT, NOISY, DarkModel
+from camcal.models.flat import FlatModel, PlaneGeometry, dead_pixels, radial_gain
+from camcal.models.response import (
     ChannelResponse,
     ColourMatrix,
     ResponseModel,
@@ -52,9 +54,7 @@ from camcal.response_model import (
     srgb_form_encode,
     srgb_form_toe,
 )
-from camcal.spectral import deconvolve_slit, merge_sweeps, slit_matrix
-from camcal.spectral_model import SpectralSensitivity, to_relative
-from camcal.stack import StackResult
+from camcal.models.spectral import SpectralSensitivity, to_relative
 from camcal.water.band import BandModel, ChlorophyllAbsorption, bricaud_1998, solvent_spectrum
 from camcal.water.field import FieldGeometry, MeasuredSky, field_band_model
 from camcal.water.models import LampModel, RefinedModel, SeedModel
@@ -1921,7 +1921,7 @@ def test_bias_only_model_every_field_from_bias_frames_with_planes_below_one_dn(t
 
 def _response_record_model():
     """A RAW response with distinct numbers in every field, a colour matrix, a tone record and points."""
-    from camcal.response_model import ChannelResponse, ColourMatrix, ResponseModel
+    from camcal.models.response import ChannelResponse, ColourMatrix, ResponseModel
 
     chans = {}
     for k, name in enumerate(("R", "G1", "G2", "B")):
@@ -1950,7 +1950,7 @@ def test_response_model_record_reads_back_every_field_through_json():
     record (source folders reduced to their names); saturated files are the union over channels, sorted, once each."""
     import json
 
-    from camcal.response_model import ResponseModel
+    from camcal.models.response import ResponseModel
 
     m = _response_record_model()
     d = m.to_dict()
@@ -2003,7 +2003,7 @@ def test_response_model_record_defaults_and_refusals():
     import copy
     import math
 
-    from camcal.response_model import ResponseModel
+    from camcal.models.response import ResponseModel
 
     rec = {"alpha": 1.0, "alpha_unc": 0.1, "gamma": 1.0, "gamma_unc": None, "beta": 2.0, "beta_unc": 0.2,
            "linear_range_dn": [3.0, None], "saturation_dn": 255.0, "linearity_error_pct": 0.5, "pearson_r": 0.99,
@@ -2057,7 +2057,7 @@ def test_colour_matrix_record_defaults_and_refusals():
     length are refused with one line each."""
     import math
 
-    from camcal.response_model import ColourMatrix
+    from camcal.models.response import ColourMatrix
 
     m = [[2.0, 0.0, 0.0], [0.0, 3.0, 0.0], [0.0, 0.0, 4.0]]
     cm = ColourMatrix.from_dict({"matrix": [[2, 0, 0], [0, 3, 0], [0, 0, 4]], "matrix_unc": [[1, 0, 0]] * 3})
@@ -2110,7 +2110,7 @@ def test_colour_matrix_record_defaults_and_refusals():
 
 def _exposure_series_record(x_s, mean_dn, sem_dn, files, clipped=None, kind="raw", channels=("R", "G1")):
     """An ExposureSeries with the given per-frame arrays (other fields fixed, unused by the functions tested)."""
-    from camcal.response import ExposureSeries
+    from camcal.calibrate.response import ExposureSeries
 
     x = np.asarray(x_s, float)
     n, c = np.asarray(mean_dn).shape
@@ -2126,7 +2126,7 @@ def test_check_monotone_tolerance_is_five_sigma_of_grouped_means():
     """Frames of one exposure are grouped: mean of their means, standard error sqrt(sum sem^2)/k. A drop between
     consecutive groups is refused above 5·hypot(σ_prev, σ_next) + 1e-6·|mean_prev|. Here the frames at x = 2 s
     (means 100, 104; sem 3, 4) give 102 ± 2.5, so with an exact next point the limit is 12.5 + 1.02e-4 DN."""
-    from camcal.response import _check_monotone
+    from camcal.calibrate.response import _check_monotone
 
     files = ("a.dng", "b1.dng", "b2.dng", "c.dng", "d.dng")
     x = [1.0, 2.0, 2.0, 4.0, 8.0]
@@ -2182,7 +2182,7 @@ def test_roi_slices_and_window_by_hand():
     """roi_slices rounds each fraction times the side to the nearest pixel (at least one pixel, clipped to the
     plane); roi_window turns None, a central fraction f or four fractions into (y0, y1, x0, x1) and refuses the
     rest with one line each."""
-    from camcal.response import roi_slices, roi_window
+    from camcal.calibrate.response import roi_slices, roi_window
 
     assert roi_slices((10, 20), (0.26, 0.74, 0.1, 0.56)) == (slice(3, 7), slice(2, 11))  # 2.6, 7.4; 2.0, 11.2
     assert roi_slices((10, 20), (0.0, 1.0, 0.0, 1.0)) == (slice(0, 10), slice(0, 20))
@@ -2220,7 +2220,7 @@ def test_roi_slices_and_window_by_hand():
 def test_mask_raw_clipped_marks_twins_of_clipping_raw_frames():
     """A processed frame becomes saturated in every channel (clipped fraction 1) when a RAW frame at the same
     relative exposure (rtol 1e-6) has more than 1e-3 of its ROI clipped in any plane; other frames are kept."""
-    from camcal.response import mask_raw_clipped
+    from camcal.calibrate.response import mask_raw_clipped
 
     pc = np.array([[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.0, 0.2, 0.0], [0.0, 0.0, 0.3], [0.0, 0.0, 0.0]])
     proc = _exposure_series_record([1.0, 2.0, 3.0, 4.0, 6.0], np.ones((5, 3)), np.zeros((5, 3)), "abcde", pc,
@@ -2248,7 +2248,7 @@ def test_pearson_mode_and_pair_planes_small_cases():
     """_pearson is the textbook correlation (NaN for fewer than 2 points or a constant series); _mode the most
     frequent value, the smaller on a tie; _pair_planes subtracts the bias frame, else the black level, in float32,
     leaving the input untouched."""
-    from camcal.response import _mode, _pair_planes, _pearson
+    from camcal.calibrate.response import _mode, _pair_planes, _pearson
 
     x = np.array([1.0, 2.0, 3.0, 5.0])
     y = np.array([2.0, 1.0, 4.0, 3.0])
@@ -2288,7 +2288,7 @@ def test_robust_mask_median_and_normal_scaled_mad_by_hand():
     kept; a zero MAD keeps every valid pixel."""
     from scipy.stats import norm
 
-    from camcal.spectral import _robust_mask
+    from camcal.calibrate.sweep import _robust_mask
 
     base = np.array([[-3, -2, -1, 0, 1, 2, 3], [0, 1, -1, 2, -2, 0, 0], [1, 0, 0, -1, 0, 2, -2],
                      [0, 0, 1, -1, 0, 0, 1], [-1, 0, 2, 0, 1, -1, 0], [0, 3, 0, -3, 0, 1, 0],
@@ -2357,7 +2357,7 @@ def test_robust_mask_median_and_normal_scaled_mad_by_hand():
 
 
 def _sweep_frame_record(planes, invalid=None, x=1.0, radiance=2.0, wl=550.0):
-    from camcal.spectral import SweepRow, _FrameResult
+    from camcal.calibrate.sweep import SweepRow, _FrameResult
 
     p = np.asarray(planes, np.float32)
     row = SweepRow(path=Path(f"f{wl:g}.dng"), wavelength_nm=wl, radiance_w_m2_sr=radiance, radiance_unc_w_m2_sr=None,
@@ -2370,7 +2370,7 @@ def test_frame_signal_is_brightest_plane_mean_and_its_standard_error():
     """The signal is the mean of the valid pixels of the plane with the highest such mean; its standard error is
     their sample standard deviation (ddof 1) over √n. Planes with fewer than 2 valid pixels are skipped; none
     left -> (0, 0)."""
-    from camcal.spectral import frame_signal
+    from camcal.calibrate.sweep import frame_signal
 
     planes = np.array([[[10, 12], [14, 16]], [[20, 30], [25, 1000]], [[500, 0], [0, 0]], [[19, 21], [23, 25]]])
     invalid = np.zeros(planes.shape, bool)
@@ -2411,7 +2411,7 @@ def test_frame_signal_is_brightest_plane_mean_and_its_standard_error():
 def test_no_light_compares_signal_per_exposure_and_radiance_with_repeats():
     """A frame is left out when s/(x·L) is below 0.05 of the median of its repeats' s/(x·L) (strictly), with the
     one-line reason giving its signal, the wavelength, the expected signal ref·x·L and the reference reading."""
-    from camcal.spectral import no_light
+    from camcal.calibrate.sweep import no_light
 
     def frame(signal, x, radiance):
         return _sweep_frame_record(np.full((1, 2, 2), signal), x=x, radiance=radiance, wl=612.5)
@@ -2450,8 +2450,8 @@ def test_require_wavelengths_roi_check_and_sweep_mode():
     """require_wavelengths counts the wavelengths with a usable frame against the spline's need and says how many
     sweep.csv listed and which wavelengths were dropped; _check_roi accepts a ROI inside the half-resolution planes
     (integers) and refuses any other; SweepOptions.check accepts the two modes only."""
+    from camcal.calibrate.sweep import SweepMeasurement, SweepOptions, _check_roi, require_wavelengths
     from camcal.errors import TooFewFrames
-    from camcal.spectral import SweepMeasurement, SweepOptions, _check_roi, require_wavelengths
 
     notes = ("dropped 400 nm: saturated", "3 defects saturate", "dropped 410 nm: no light")
     meas = SweepMeasurement(settings=(object(),) * 3, channels=PLANES, notes=notes, csv_path=Path("/s/sweep.csv"),
@@ -2491,7 +2491,7 @@ def test_spectral_origin_record_and_its_description():
     """origin() returns the curve's source when it has one, else the sweep's own record (absolute: the reference
     detector set the scale; relative: none); describe_origin turns each kind of record into its two lines, with
     the plural of 'target' only for a count other than one and a 12-character hash prefix."""
-    from camcal.spectral_model import describe_origin
+    from camcal.models.spectral import describe_origin
 
     wl = np.array([500.0, 600.0])
     ones = {p: np.ones(2) for p in PLANES}

@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from camcal.apply import apply
-from camcal.io import load_frame
-from camcal.profile import contract, load_profile
+from camcal.apply.photo import apply
+from camcal.io.read import load_frame
+from camcal.models.profile import contract, load_profile
 from tests.conftest import run_cli
 
 DATA = Path(__file__).resolve().parent / "data"
@@ -41,7 +41,7 @@ def test_stored_profile_loads_and_applies_identically():
 def test_stored_profile_through_the_cli(tmp_path):
     proc = run_cli("apply", DATA / "stored.camcal", DATA / "stored_photo.dng", "-o", tmp_path)
     assert proc.returncode == 0, proc.stderr
-    from camcal.exr import read_exr
+    from camcal.io.exr import read_exr
 
     channels, _ = read_exr(tmp_path / "stored_photo.dng.exr")
     with np.load(DATA / "stored_expected.npz", allow_pickle=False) as expected:

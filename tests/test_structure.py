@@ -1,4 +1,4 @@
-"""Structure rules of issue 17 that a test can check: imports where a reader expects them, the library never
+"""Structure rules that a test can check: the layers as folders, imports where a reader expects them, the library never
 imports the CLI, one ``--roi`` parser."""
 
 from __future__ import annotations
@@ -170,30 +170,132 @@ def test_every_third_party_import_of_camcal_is_declared():
     assert not missing, f"imported by camcal/ but not declared in pyproject.toml: {missing}"
 
 
-# the fitting code of each stage; a model module (camcal.<stage>_model) holds what the stage's results are
-FITTING_MODULES = ("camcal.dark", "camcal.flat", "camcal.response", "camcal.spectral", "camcal.colour_matrix",
-                   "camcal.emva", "camcal.calibrate", "camcal.stack", "camcal.sweep_means")
-MODEL_MODULES = ("dark_model", "flat_model", "response_model", "spectral_model", "emva_model", "blocks")
+# --- layers: one sub-package per layer (generated; keep the two marker lines) ---
+# camcal/ is one sub-package per layer; its top-level modules are the core types (CORE), the entry points and the
+# demo. LAYERS says which layers a module of each layer may import ("core" is the core modules and the camcal
+# package itself); a layer not listed here (a new sub-package) fails test_every_sub_package_is_a_layer until it
+# has a row. demo runs every layer (it may import anything but the CLI); the CLI may import anything.
+CORE = {"errors", "frame", "region", "threads", "units"}
+TOP_LEVEL = {"__init__", "__main__", "errors", "frame", "region", "threads", "units"}
+MAX_TOP_LEVEL_MODULES = 8
+LAYERS = {
+    "core": set(),
+    "io": {"core"},
+    "models": {"core", "io"},
+    "calibrate": {"core", "io", "models"},
+    "curves": {"core", "io", "models"},
+    "apply": {"core", "io", "models"},
+    "report": {"core", "io", "models"},
+    "water": {"apply", "core", "io", "models", "report"},
+    "synth": {"core", "io", "models", "water"},
+    "emva1288": {"calibrate", "core", "io", "models", "report"},
+    "chart": {"calibrate", "core", "curves", "io", "models", "water"},
+}
+# What synth, the source of ground truth, may take from the layers it imports: its own writers, the core types,
+# reference spectra and water's optical constants and column models; never a stage, correct or the profile.
+SYNTH_NEVER_LAYERS = ("calibrate", "curves", "apply", "report")
+SYNTH_NEVER_MODULES = ("camcal.models.correct", "camcal.models.profile")
+
+
+def _layer_of_file(path: Path) -> str:
+    rel = path.relative_to(ROOT / "camcal")
+    if len(rel.parts) > 1:
+        return rel.parts[0]
+    return "core" if rel.stem in CORE or rel.stem == "__init__" else rel.stem
+
+
+def _sub_packages() -> set[str]:
+    return {p.parent.name for p in (ROOT / "camcal").glob("*/__init__.py")}
+
+
+def _camcal_imports(path: Path) -> set[str]:
+    """camcal modules ``path`` imports; ``from camcal import x`` counts as ``camcal.x`` when x is a module."""
+    names = set()
+    modules = _sub_packages() | {p.stem for p in (ROOT / "camcal").glob("*.py")}
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            names |= {a.name for a in node.names if a.name.split(".")[0] == "camcal"}
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and (node.module or "").split(".")[0] == "camcal":
+            if node.module == "camcal":
+                names |= {f"camcal.{a.name}" if a.name in modules else "camcal" for a in node.names}
+            else:
+                names.add(node.module)
+    return names
+
+
+def _layer_of_import(name: str) -> str:
+    parts = name.split(".")
+    if len(parts) == 1:
+        return "core"
+    return parts[1] if parts[1] in _sub_packages() else ("core" if parts[1] in CORE else parts[1])
+
+
+def test_camcal_holds_few_modules_beside_its_sub_packages():
+    top = sorted(p.stem for p in (ROOT / "camcal").glob("*.py"))
+    assert len(top) <= MAX_TOP_LEVEL_MODULES, top
+    assert set(top) <= TOP_LEVEL, sorted(set(top) - TOP_LEVEL)
+
+
+def test_every_sub_package_is_a_layer():
+    assert sorted(_sub_packages() - set(LAYERS) - {"cli"}) == []
+
+
+@pytest.mark.parametrize("layer", sorted(LAYERS))
+def test_each_layer_imports_only_the_layers_below_it(layer):
+    """``models/`` never imports ``calibrate/``; ``apply/``, ``report/`` and ``water/`` read a profile through
+    ``models/`` only; ``io/`` imports the core modules only; nothing in the library imports the CLI."""
+    offenders = []
+    for path in sorted((ROOT / "camcal").rglob("*.py")):
+        if _layer_of_file(path) != layer:
+            continue
+        for name in sorted(_camcal_imports(path)):
+            target = _layer_of_import(name)
+            if target not in LAYERS[layer] | {layer}:
+                offenders.append(f"{path.relative_to(ROOT)}: {name}")
+    assert offenders == []
+
+
+def test_demo_and_entry_points_only_sit_above_the_layers():
+    demo = sorted((ROOT / "camcal" / "demo").glob("*.py"))
+    assert demo, "camcal/demo/ holds the demo's modules"
+    for path in demo:
+        assert not any(_layer_of_import(n) == "cli" for n in _camcal_imports(path)), path
+
+
+def test_the_layer_check_sees_an_upward_import(tmp_path, monkeypatch):
+    """The check above finds models/ importing calibrate/ in a planted module (it can fail)."""
+    planted = tmp_path / "camcal" / "models"
+    planted.mkdir(parents=True)
+    (planted / "x.py").write_text("from camcal.calibrate.dark import fit_dark_stacks\nfrom camcal import errors\n")
+    monkeypatch.setitem(globals(), "ROOT", tmp_path)
+    assert _layer_of_file(planted / "x.py") == "models"
+    assert {_layer_of_import(n) for n in _camcal_imports(planted / "x.py")} == {"calibrate", "core"}
+
+
+def test_synth_takes_no_stage_correction_or_profile():
+    offenders = []
+    for path in sorted((ROOT / "camcal" / "synth").rglob("*.py")):
+        offenders += [f"{path.name}: {n}" for n in sorted(_camcal_imports(path))
+                      if _layer_of_import(n) in SYNTH_NEVER_LAYERS or n in SYNTH_NEVER_MODULES]
+    assert offenders == []
 
 
 def test_reading_and_applying_a_profile_loads_no_fitting_code():
-    """Issue 25 item 4: a profile, and what reads or applies it, needs the stages' models, never their fits
-    (one interpreter for the four, so the check costs one start-up)."""
-    readers = ("camcal.profile", "camcal.apply", "camcal.water", "camcal.report")
+    """A profile, and what reads or applies it, needs the stages' models, never their measurement or fit, nor
+    curves/ (one interpreter for all, so the check costs one start-up)."""
+    readers = ("camcal.models.profile", "camcal.apply.photo", "camcal.apply.batch", "camcal.water",
+               "camcal.report.page")
     code = (f"import json, sys, {', '.join(readers)}\n"
             "print('LOADED', json.dumps(sorted(m for m in sys.modules if m.startswith('camcal.'))))\n")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=ROOT)
     assert proc.returncode == 0, proc.stderr
     loaded = set(json.loads(proc.stdout.rsplit("LOADED", 1)[1]))
     assert set(readers) <= loaded
-    assert sorted(loaded & set(FITTING_MODULES)) == []
+    assert sorted(m for m in loaded if m.split(".")[1] in {"calibrate", "curves"}) == []
 
 
-@pytest.mark.parametrize("name", MODEL_MODULES)
-def test_model_modules_import_no_stage(name):
-    """A model module sits below every stage: it imports no fitting module (nor another stage's model through
-    one)."""
-    tree = ast.parse((ROOT / "camcal" / f"{name}.py").read_text())
-    imported = {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module}
-    imported |= {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
-    assert sorted(imported & set(FITTING_MODULES)) == []
+@pytest.mark.parametrize("path", sorted((ROOT / "camcal" / "models").glob("*.py")), ids=lambda p: p.name)
+def test_model_modules_import_no_stage(path):
+    """A model module sits below every stage: ``models/`` never imports ``calibrate/``."""
+    assert sorted(n for n in _camcal_imports(path) if _layer_of_import(n) == "calibrate") == []
+# --- end of the layer rules ---

@@ -27,10 +27,9 @@ import pvlib
 import pytest
 
 from camcal.errors import CamcalError
-from camcal.io import load_frame, read_photo_metadata
-from camcal.manifest import read_session_defaults
-from camcal.reference_spectra import WAVELENGTHS_NM
-from camcal.sun import (
+from camcal.io.manifest import read_session_defaults
+from camcal.io.read import load_frame, read_photo_metadata
+from camcal.io.sun import (
     SOURCE_GPS,
     SOURCE_OFFSET,
     SOURCE_SESSION,
@@ -39,6 +38,7 @@ from camcal.sun import (
     photo_time_utc,
     sun_position,
 )
+from camcal.models.spectra import WAVELENGTHS_NM
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
 from camcal.synth.exif import _ASCII, _IFD, _LONG, _RATIONAL, PlaceTime
 from camcal.synth.heic import write_heic

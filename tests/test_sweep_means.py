@@ -13,11 +13,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from camcal.curve_files import read_spectacle_csv
+from camcal.curves.files import read_spectacle_csv
+from camcal.curves.published_sweeps import read_means_csv, read_open_sweep, reduce_sweep
 from camcal.errors import CamcalError
-from camcal.profile import load_profile
-from camcal.reference_spectra import camera_sensitivities
-from camcal.sweep_means import read_means_csv, read_open_sweep, reduce_sweep
+from camcal.models.profile import load_profile
+from camcal.models.spectra import camera_sensitivities
 from tests.conftest import assert_one_line_error, run_cli
 
 SWEEPS = Path(__file__).resolve().parents[1].parent / "shared" / "realdata" / "sweeps"

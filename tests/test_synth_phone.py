@@ -13,7 +13,7 @@ import pytest
 import rawpy
 
 from camcal.errors import CamcalError
-from camcal.io import read_photo_metadata
+from camcal.io.read import read_photo_metadata
 from camcal.synth.camera import Scene
 from camcal.synth.exif import PlaceTime
 from camcal.synth.phone import (

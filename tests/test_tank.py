@@ -10,8 +10,8 @@ import pytest
 from scipy.ndimage import binary_erosion
 
 from camcal.errors import CamcalError
-from camcal.io import load_frame
-from camcal.reference_spectra import WAVELENGTHS_NM
+from camcal.io.read import load_frame
+from camcal.models.spectra import WAVELENGTHS_NM
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
 from camcal.synth.tank import (
     TankSetup,

@@ -7,10 +7,10 @@ import json
 import numpy as np
 import pytest
 
-from camcal.apply import RESOLUTION_NOTE
+from camcal.apply.photo import RESOLUTION_NOTE
 from camcal.errors import CamcalError
-from camcal.exr import read_exr, write_exr
-from camcal.io import load_frame
+from camcal.io.exr import read_exr, write_exr
+from camcal.io.read import load_frame
 from camcal.synth.camera import Scene
 from camcal.synth.secchi import secchi_scenes, suggest_exposure_s
 from camcal.water.band import band_model_from_profile

@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from camcal.errors import CamcalError
-from camcal.reference_spectra import WAVELENGTHS_NM, gaussian_line
+from camcal.models.spectra import WAVELENGTHS_NM, gaussian_line
 from camcal.water.band import BandModel, bricaud_1998, solvent_spectrum
 from camcal.water.invert import Reason, TauTable, invert_images, invert_ratio, tau_newton, tau_table
 from camcal.water.models import LampModel, RefinedModel, SeedModel

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from scipy.integrate import quad
 
 from camcal.errors import CamcalError
-from camcal.reference_spectra import WAVELENGTHS_NM
+from camcal.models.spectra import WAVELENGTHS_NM
 from camcal.synth.camera import SensorParams, SyntheticCamera
 from camcal.water.band import BandModel, illuminant_spectrum
 from camcal.water.invert import Reason, invert_ratio
@@ -198,7 +198,7 @@ def test_per_pixel_geometry_narrowband_is_exact():
 def test_per_pixel_geometry_through_the_cli(tmp_path):
     from dataclasses import replace
 
-    from camcal.exr import read_exr, write_exr
+    from camcal.io.exr import read_exr, write_exr
     from camcal.water.lampfield import PixelGeometry
     from camcal.water.models import lamp_angle_reaching
 

@@ -8,8 +8,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from camcal.exr import read_exr, write_exr
-from camcal.reference_spectra import WAVELENGTHS_NM
+from camcal.io.exr import read_exr, write_exr
+from camcal.models.spectra import WAVELENGTHS_NM
 from camcal.synth.camera import SensorParams, SyntheticCamera
 from camcal.water.band import BandModel, illuminant_spectrum
 from camcal.water.models import LampModel, RefinedModel

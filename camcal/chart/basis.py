@@ -37,11 +37,11 @@ from typing import Any
 import numpy as np
 from scipy import special
 
-from camcal.borrowed_uncertainty import shipped_borrowed_uncertainty
 from camcal.chart.targets import GRID_NM
-from camcal.curve_library import COLLECTION, library_folder, list_cameras, read_curve_json
+from camcal.curves.borrowed import shipped_borrowed_uncertainty
+from camcal.curves.import_spectral import CURVE_CORRELATION
+from camcal.curves.library import COLLECTION, library_folder, list_cameras, read_curve_json
 from camcal.errors import CamcalError
-from camcal.reference_targets import CURVE_CORRELATION
 
 CHANNELS = ("R", "G", "B")
 #: Components kept when not stated (a 24-patch chart constrains few more per channel).
@@ -128,9 +128,9 @@ class CameraBasis:
 
 def lab_covariance(wavelength_nm, channel: str) -> np.ndarray:
     """(n, n) Σ_lab = f(λ) f(λ') ρ(λ − λ'): how far a measured curve lies from the camera's true curve, as a
-    fraction of the peak (f: the borrowed-curve table of :mod:`camcal.borrowed_uncertainty`, independent
+    fraction of the peak (f: the borrowed-curve table of :mod:`camcal.curves.borrowed`, independent
     measurements of one model by different labs; ρ: their correlation over wavelength,
-    :data:`camcal.reference_targets.CURVE_CORRELATION`)."""
+    :data:`camcal.curves.import_spectral.CURVE_CORRELATION`)."""
     wl = np.asarray(wavelength_nm, float)
     f = shipped_borrowed_uncertainty().at(wl)[channel]
     d = wl[:, None] - wl[None, :]
@@ -213,7 +213,7 @@ def with_filter_variants(names: tuple[str, ...], curves: np.ndarray, wavelength_
 
 def camera_basis(exclude=(), *, wavelength_nm=GRID_NM, extra: dict[str, np.ndarray] | None = None,
                  filter_variants: bool = True) -> CameraBasis:
-    """The basis of the bundled library's cameras (:mod:`camcal.curve_library`), less ``exclude`` (names such as
+    """The basis of the bundled library's cameras (:mod:`camcal.curves.library`), less ``exclude`` (names such as
     ``"Nikon D5100"`` or file names), plus ``extra`` curves ({name: (3, n) R, G, B on ``wavelength_nm``}), with
     the filter-shape prior (:func:`with_filter_variants`) unless ``filter_variants`` is False."""
     wl = np.asarray(wavelength_nm, float)

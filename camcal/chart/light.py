@@ -35,8 +35,8 @@ import numpy as np
 
 from camcal.chart.targets import GRID_NM
 from camcal.errors import CamcalError
-from camcal.hashing import sha256_file
-from camcal.manifest import read_text_file
+from camcal.io.hashing import sha256_file
+from camcal.io.manifest import read_text_file
 from camcal.water.field import (
     DEFAULT_AOD_500NM,
     DEFAULT_DAY_OF_YEAR,

@@ -2,13 +2,13 @@
 
 The photos
 ----------
-Every photo is decoded by :func:`camcal.io.load_frame` (RAW and linear DNG through LibRaw, HEIC through
+Every photo is decoded by :func:`camcal.io.read.load_frame` (RAW and linear DNG through LibRaw, HEIC through
 pillow-heif, JPEG/TIFF/PNG through OpenImageIO), the chart found (:mod:`camcal.chart.detect`) and its patches
 sampled (:mod:`camcal.chart.patches`). A RAW photo and a processed photo of the same name stem are *twins*
 (one shot written twice, as a phone writes DNG + HEIC).
 
 RAW and linear DNG: the patch means (black level subtracted) are divided by the relative exposure
-x = (ISO·t/N²)/(ISO_ref/N_ref²) (seed §2.1, :func:`camcal.exposure.frame_relative_exposure`) with the reference
+x = (ISO·t/N²)/(ISO_ref/N_ref²) (seed §2.1, :func:`camcal.models.exposure.frame_relative_exposure`) with the reference
 setting (ISO_ref, N_ref) the photos' own (a phone's aperture is fixed): DN s⁻¹ at the reference setting, the
 signals of absolute c(λ) (:func:`camcal.chart.recovery.recover_sensitivity`) when the light's scale is known.
 Several photos are averaged patch by patch (inverse-variance). A photo whose exposure tags are unknown gives
@@ -22,12 +22,12 @@ colour matrix is then the identity: its c(λ) already contains the camera's mixi
 channel is). The white balance is compared across the photos (:func:`camcal.chart.tone.white_balance_check`).
 
 The light: the clear-sky global irradiance on the level chart (SPECTRL2, :func:`camcal.chart.light.
-clear_sky_irradiance`) at the sun's zenith angle from the first photo's EXIF time and GPS (:mod:`camcal.sun`) or
+clear_sky_irradiance`) at the sun's zenith angle from the first photo's EXIF time and GPS (:mod:`camcal.io.sun`) or
 ``--sun``; a CIE illuminant by name (shape only: relative c); a CSV; or ``estimate`` (a CIE daylight fitted with
 c(λ), :func:`camcal.chart.recovery.estimate_illuminant`).
 
 Vignetting: a chart photo does not measure it. Photos of a uniform surface (``--flat``) give a relative flat
-(:func:`camcal.flat.fit_flat_planes`, 1 on the optical axis) that divides the patches (at each patch's centre)
+(:func:`camcal.calibrate.flat.fit_flat_planes`, 1 on the optical axis) that divides the patches (at each patch's centre)
 and goes into the profile; without it the patches are read as they are (keep the chart near the image centre)
 and the profile records that vignetting is not corrected.
 """
@@ -47,6 +47,7 @@ from typing import Any
 import numpy as np
 
 from camcal import __version__
+from camcal.calibrate.flat import fit_flat_planes, flats_optics
 from camcal.chart.basis import DEFAULT_COMPONENTS, camera_basis
 from camcal.chart.detect import NEUTRAL_PATCHES, ChartLocation, locate_chart
 from camcal.chart.light import Irradiance, cie_illuminant, clear_sky_irradiance, read_irradiance_csv
@@ -61,15 +62,14 @@ from camcal.chart.recovery import (
 from camcal.chart.targets import ChartReflectance, published_chart, read_chart_csv
 from camcal.chart.tone import ToneFit, fit_tone_neutral, fit_tone_twins, white_balance_check
 from camcal.errors import CamcalError
-from camcal.exposure import frame_relative_exposure
-from camcal.flat import fit_flat_planes, flats_optics
-from camcal.flat_model import FlatModel
 from camcal.frame import Frame
-from camcal.hashing import sha256_file
-from camcal.io import load_frame
-from camcal.profile import CalibrationProfile, CameraIdentity, Provenance
-from camcal.response_model import ChannelResponse, ColourMatrix, ResponseModel
-from camcal.sun import SunPosition, parse_sun_option, sun_from_metadata
+from camcal.io.hashing import sha256_file
+from camcal.io.read import load_frame
+from camcal.io.sun import SunPosition, parse_sun_option, sun_from_metadata
+from camcal.models.exposure import frame_relative_exposure
+from camcal.models.flat import FlatModel
+from camcal.models.profile import CalibrationProfile, CameraIdentity, Provenance
+from camcal.models.response import ChannelResponse, ColourMatrix, ResponseModel
 from camcal.water.field import (
     DEFAULT_AOD_500NM,
     DEFAULT_OZONE_ATM_CM,
@@ -244,7 +244,7 @@ def combine_signals(photos: Sequence[ChartPhoto], x_s: Sequence[float] | None, f
 
 # ---- the light ---------------------------------------------------------------------------------------------------
 def chart_sun(options: ChartOptions, photo: ChartPhoto) -> SunPosition:
-    """The sun for the chart photo: ``--sun`` or the photo's EXIF time and GPS (:mod:`camcal.sun`)."""
+    """The sun for the chart photo: ``--sun`` or the photo's EXIF time and GPS (:mod:`camcal.io.sun`)."""
     if options.sun is not None:
         return parse_sun_option(options.sun)
     try:
@@ -376,7 +376,7 @@ def flat_from_photos(paths: Sequence[Path], tone: ToneFit | None = None, progres
 
     RAW photos: black level subtracted; processed photos: linearised with ``tone`` and binned 2x2 (the planes a
     processed profile's apply divides). The photos are normalised by their medians and averaged; the radial model
-    of :func:`camcal.flat.fit_flat_planes` is fitted (no PRNU: a wall or a sky is not uniform pixel by pixel).
+    of :func:`camcal.calibrate.flat.fit_flat_planes` is fitted (no PRNU: a wall or a sky is not uniform pixel by pixel).
     """
     stack = None
     n = 0
@@ -430,7 +430,7 @@ def _input(path: Path, stage: str, sha: str | None = None) -> dict:
 
 def build_chart_profile(paths: Sequence[str | Path], options: ChartOptions = ChartOptions(),  # noqa: B008
                         progress: Callable[[str], None] | None = None) -> ChartResult:
-    """Chart photos → :class:`camcal.profile.CalibrationProfile` with ``source: chart`` (module docstring)."""
+    """Chart photos → :class:`camcal.models.profile.CalibrationProfile` with ``source: chart`` (module docstring)."""
     if not paths:
         raise CamcalError("give at least one photo of the colour chart")
     tick = progress or (lambda _msg: None)

@@ -5,7 +5,7 @@ channel i records
 
     y_i,p = ∫ c_i(λ) R_p(λ) E(λ) / π dλ  ≈  Σ_λ M_pλ c_i(λ),     M_pλ = R_p(λ) E(λ) ω_λ / π,
 
-ω_λ the trapezoid weights of the grid (the convention of :func:`camcal.reference_targets.predicted_rate`).
+ω_λ the trapezoid weights of the grid (the convention of :func:`camcal.curves.import_spectral.predicted_rate`).
 y is in DN s⁻¹ normalised to the reference exposure (absolute c, :data:`camcal.units.SPECTRAL_SENSITIVITY`)
 when E is absolute, otherwise only c's shape is determined.
 
@@ -57,7 +57,7 @@ from camcal.chart.basis import DEFAULT_COMPONENTS, CameraBasis, basis_from_curve
 from camcal.chart.light import Irradiance, blackbody, daylight
 from camcal.chart.targets import ChartReflectance
 from camcal.errors import CamcalError
-from camcal.spectral_model import ABSOLUTE_UNITS, RELATIVE_UNITS, SpectralSensitivity
+from camcal.models.spectral import ABSOLUTE_UNITS, RELATIVE_UNITS, SpectralSensitivity
 
 #: Uncertainty terms of a recovered curve, in the order they are reported.
 TERMS = ("noise", "chart", "illuminant", "basis", "truncation", "library")
@@ -136,7 +136,7 @@ class RecoveredSensitivity:
 
     def to_spectral_sensitivity(self, *, reference_iso: float | None = None,
                                 reference_f_number: float | None = None) -> SpectralSensitivity:
-        """camcal's :class:`~camcal.spectral_model.SpectralSensitivity` (planes as recovered; ``source`` kind
+        """camcal's :class:`~camcal.models.spectral.SpectralSensitivity` (planes as recovered; ``source`` kind
         ``chart``). Relative curves are divided by the largest value over all planes."""
         planes = self.planes
         unc = self.uncertainty

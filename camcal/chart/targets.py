@@ -34,9 +34,9 @@ from typing import Any
 import numpy as np
 
 from camcal.errors import CamcalError
-from camcal.hashing import sha256_file
-from camcal.limits import MAX_CSV_COLUMNS
-from camcal.manifest import read_text_file
+from camcal.io.hashing import sha256_file
+from camcal.io.limits import MAX_CSV_COLUMNS
+from camcal.io.manifest import read_text_file
 
 #: The default working grid of the chart module, nm (the curve library's grid).
 GRID_NM = np.arange(380.0, 781.0, 5.0)

@@ -3,8 +3,8 @@
 A phone renders v_i = W · T(j_i / W) with j = A · r: the sensor's linear signals r (R, G, B) mixed by a
 colour matrix A (white balance included), then a tone curve T, W the file's white level (seed eq. 12's
 processed case). camcal describes T with the sRGB form of free exponent p and offset a (IEC 61966-2-1's
-shape, :func:`camcal.response_model.srgb_form_encode`): T(L) = (1 + a) L^p − a above a linear toe. That is
-the form ``camcal apply`` inverts (:meth:`camcal.response_model.ResponseModel.linearise`).
+shape, :func:`camcal.models.response.srgb_form_encode`): T(L) = (1 + a) L^p − a above a linear toe. That is
+the form ``camcal apply`` inverts (:meth:`camcal.models.response.ResponseModel.linearise`).
 
 Two fits:
 
@@ -37,7 +37,7 @@ from scipy.optimize import isotonic_regression, least_squares
 
 from camcal.chart.detect import NEUTRAL_PATCHES
 from camcal.errors import CamcalError
-from camcal.response_model import SRGB_OFFSET_A, srgb_form_decode, srgb_form_encode, srgb_form_toe
+from camcal.models.response import SRGB_OFFSET_A, srgb_form_decode, srgb_form_encode, srgb_form_toe
 
 #: Relative change of a neutral patch's R/G or B/G between photos beyond which the white balance moved.
 WB_TOLERANCE = 0.02

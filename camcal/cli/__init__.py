@@ -23,9 +23,9 @@ except ImportError:  # pragma: no cover - depends on the installed typer
     from click.exceptions import ClickException
 
 from camcal import __version__
-from camcal.allocator import use_frame_allocator
-from camcal.atomic import remove_pending
 from camcal.errors import CamcalError
+from camcal.io.allocator import use_frame_allocator
+from camcal.io.atomic import remove_pending
 
 app = typer.Typer(
     name="camcal",

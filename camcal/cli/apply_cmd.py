@@ -6,10 +6,10 @@ from pathlib import Path
 
 import typer
 
-from camcal.batch import BatchOptions, report_rows, run_batch
+from camcal.apply.batch import BatchOptions, report_rows, run_batch
 from camcal.cli.common import console, err_console, print_json, progress
 from camcal.errors import CamcalError
-from camcal.exr import COMPRESSIONS, PRECISIONS
+from camcal.io.exr import COMPRESSIONS, PRECISIONS
 from camcal.region import Region
 from camcal.units import IN_BAND_RADIANCE
 

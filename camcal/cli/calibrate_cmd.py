@@ -7,11 +7,11 @@ from pathlib import Path
 
 import typer
 
-from camcal.calibrate import CalibrateOptions, calibrate_session
+from camcal.calibrate.run import CalibrateOptions, calibrate_session
 from camcal.cli.common import console, err_console, progress
 from camcal.cli.profile_cmd import print_contract
 from camcal.errors import FrameLeftOut
-from camcal.profile import contract, save_profile
+from camcal.models.profile import contract, save_profile
 
 
 def register(app: typer.Typer) -> None:

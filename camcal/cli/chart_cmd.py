@@ -14,7 +14,7 @@ from camcal.chart.profile_build import ChartOptions, ChartResult, build_chart_pr
 from camcal.cli.common import console, print_json, progress
 from camcal.cli.water_cmd import _split_unc
 from camcal.errors import CamcalError
-from camcal.profile import save_profile
+from camcal.models.profile import save_profile
 from camcal.water.field import DEFAULT_AOD_500NM
 
 

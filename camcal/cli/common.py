@@ -1,4 +1,4 @@
-"""Helpers shared by CLI modules: console, progress bars (from :mod:`camcal.terminal`), JSON output."""
+"""Helpers shared by CLI modules: console, progress bars (from :mod:`camcal.io.terminal`), JSON output."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from camcal.errors import CamcalError
-from camcal.terminal import console, err_console, progress, track
+from camcal.io.terminal import console, err_console, progress, track
 
 __all__ = ["console", "err_console", "fraction", "one_output", "plot_path", "print_json", "progress", "track"]
 

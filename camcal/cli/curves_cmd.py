@@ -1,4 +1,4 @@
-"""``camcal curves list``: the bundled camera-curve library (camcal.curve_library)."""
+"""``camcal curves list``: the bundled camera-curve library (camcal.curves.library)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import typer
 from rich.table import Table
 
 from camcal.cli.common import console, err_console, print_json
-from camcal.curve_library import COLLECTION, NO_CURVES_NEXT_STEP, list_cameras
+from camcal.curves.library import COLLECTION, NO_CURVES_NEXT_STEP, list_cameras
 
 
 def register(app: typer.Typer) -> None:

@@ -7,11 +7,11 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
+from camcal.calibrate.dark import fit_dark
 from camcal.cli.common import console, print_json, progress
-from camcal.dark import fit_dark
-from camcal.dark_model import save_dark
 from camcal.errors import CamcalError
 from camcal.frame import PLANES
+from camcal.models.dark import save_dark
 from camcal.units import DN, DN_PER_S
 
 

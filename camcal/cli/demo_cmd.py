@@ -6,8 +6,8 @@ from pathlib import Path
 
 import typer
 
-from camcal.demo import run_demo
-from camcal.demo_phone import run_phone_demo
+from camcal.demo.lab import run_demo
+from camcal.demo.phone import run_phone_demo
 from camcal.errors import CamcalError
 
 

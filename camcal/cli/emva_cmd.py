@@ -7,12 +7,12 @@ from pathlib import Path
 
 import typer
 
-from camcal.atomic import atomic_write_text
+from camcal.calibrate.emva_descriptor import NS_PER_S, load_measurement, read_descriptor
+from camcal.calibrate.emva_standard import evaluate
 from camcal.cli.common import console, print_json, progress
-from camcal.emva_descriptor import NS_PER_S, load_measurement, read_descriptor
-from camcal.emva_sheet import render_sheet, sheet_from_figures
-from camcal.emva_standard import evaluate
+from camcal.emva1288.sheet import render_sheet, sheet_from_figures
 from camcal.errors import CamcalError
+from camcal.io.atomic import atomic_write_text
 from camcal.units import DN_PER_ELECTRON, ELECTRONS
 
 

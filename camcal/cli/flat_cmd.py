@@ -7,10 +7,10 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
+from camcal.calibrate.flat import run_flat_stage
 from camcal.cli.common import console, plot_path, print_json, progress
-from camcal.flat import run_flat_stage
-from camcal.plots import flat_figure, write_png
-from camcal.profile import flats_optics_text
+from camcal.models.profile import flats_optics_text
+from camcal.report.plots import flat_figure, write_png
 
 
 def register(app: typer.Typer) -> None:

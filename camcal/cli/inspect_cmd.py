@@ -7,10 +7,10 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
+from camcal.calibrate.inspect import SUN_KEYS, describe, describe_many
 from camcal.cli.common import console, err_console, print_json
 from camcal.frame import PLACE_TIME, TRACKED
-from camcal.inspect import SUN_KEYS, describe, describe_many
-from camcal.sun import parse_sun_option
+from camcal.io.sun import parse_sun_option
 
 _UNITS = {"exposure_s": " s", "focal_length_mm": " mm", "exposure_value_s": " s", "white_level_dn": " DN",
           "latitude_deg": "°", "longitude_deg": "°", "altitude_m": " m", "zenith_deg": "°", "azimuth_deg": "°",

@@ -7,14 +7,14 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
+from camcal.calibrate.response import fit_response
 from camcal.cli.common import console, fraction, print_json, progress
-from camcal.dark_model import load_dark
 from camcal.errors import CamcalError
-from camcal.plots import response_figure, write_png
+from camcal.io.store import to_jsonable
+from camcal.models.dark import load_dark
+from camcal.models.response import save_response
 from camcal.region import Region
-from camcal.response import fit_response
-from camcal.response_model import save_response
-from camcal.store import to_jsonable
+from camcal.report.plots import response_figure, write_png
 
 
 def register(app: typer.Typer) -> None:

@@ -8,14 +8,14 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from camcal.borrowed_uncertainty import borrowed_table_rows, shipped_borrowed_uncertainty, shipped_table_sha256
 from camcal.cli.common import console, fraction, print_json, progress
-from camcal.curve_files import write_spectacle_csv
-from camcal.emva_model import STANDARD, EmvaSheet, sheet_rows
+from camcal.curves.borrowed import borrowed_table_rows, shipped_borrowed_uncertainty, shipped_table_sha256
+from camcal.curves.files import write_spectacle_csv
+from camcal.curves.import_spectral import import_spectral
 from camcal.errors import CamcalError
-from camcal.profile import CameraIdentity, contract, diff_profiles, flats_optics_text, load_profile, save_profile
-from camcal.reference_targets import import_spectral
-from camcal.spectral_model import describe_origin
+from camcal.models.emva import STANDARD, EmvaSheet, sheet_rows
+from camcal.models.profile import CameraIdentity, contract, diff_profiles, flats_optics_text, load_profile, save_profile
+from camcal.models.spectral import describe_origin
 from camcal.units import DN, DN_PER_ELECTRON, DN_PER_S, SPECTRAL_SENSITIVITY
 
 

@@ -7,8 +7,8 @@ from pathlib import Path
 import typer
 
 from camcal.cli.common import console, progress
-from camcal.profile import load_profile
-from camcal.report import write_report
+from camcal.models.profile import load_profile
+from camcal.report.page import write_report
 
 
 def register(app: typer.Typer) -> None:

@@ -9,9 +9,9 @@ from rich.table import Table
 
 from camcal.cli.common import console, print_json, progress
 from camcal.errors import CamcalError
-from camcal.rrs import append_survey, run_rrs, station_json, station_row, write_page
-from camcal.sun import parse_sun_option, photo_sun
+from camcal.io.sun import parse_sun_option, photo_sun
 from camcal.water.rrs import BANDS
+from camcal.water.rrs_photos import append_survey, run_rrs, station_json, station_row, write_page
 
 
 def register(app: typer.Typer) -> None:

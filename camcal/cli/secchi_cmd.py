@@ -12,9 +12,8 @@ from rich.table import Table
 from camcal.cli.common import console, print_json, progress
 from camcal.cli.water_cmd import _depth_unc, _number, _split_unc, _unc_value
 from camcal.errors import CamcalError
+from camcal.io.sun import parse_sun_option, photo_sun
 from camcal.region import Region
-from camcal.secchi import SecchiResult, all_warnings, result_json, run_secchi, write_diagnostics
-from camcal.sun import parse_sun_option, photo_sun
 from camcal.units import CONCENTRATION
 from camcal.water.band import read_chlorophyll_csv
 from camcal.water.field import (
@@ -24,6 +23,7 @@ from camcal.water.field import (
     OvercastSky,
     read_sky_csv,
 )
+from camcal.water.secchi import SecchiResult, all_warnings, result_json, run_secchi, write_diagnostics
 from camcal.water.uncertainty import Uncertain
 
 #: Default 1-σ of the stated field inputs (docs/water.md, "The field model").

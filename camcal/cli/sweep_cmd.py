@@ -11,16 +11,16 @@ import numpy as np
 import typer
 from rich.table import Table
 
+from camcal.calibrate.session import resolve_exposure
+from camcal.calibrate.sweep import measure_sweep, read_sweep
 from camcal.cli.common import console, err_console, fraction, plot_path, print_json, progress
-from camcal.curve_files import write_spectacle_csv
-from camcal.curve_library import with_layout
+from camcal.curves.files import write_spectacle_csv
+from camcal.curves.library import with_layout
+from camcal.curves.published_sweeps import sweep_means_sensitivity
 from camcal.errors import CamcalError
-from camcal.manifest import session_defaults_for
-from camcal.plots import spectral_figure, write_png
+from camcal.io.manifest import session_defaults_for
 from camcal.region import Region
-from camcal.session import resolve_exposure
-from camcal.spectral import measure_sweep, read_sweep
-from camcal.sweep_means import sweep_means_sensitivity
+from camcal.report.plots import spectral_figure, write_png
 from camcal.units import SPECTRAL_SENSITIVITY
 
 

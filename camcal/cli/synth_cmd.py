@@ -11,7 +11,7 @@ from camcal.cli.common import console, one_output, progress
 from camcal.cli.synth_phone import register_phone
 from camcal.cli.synth_station import register_station
 from camcal.errors import CamcalError
-from camcal.reference_spectra import WAVELENGTHS_NM, gaussian_line, planck_radiance
+from camcal.models.spectra import WAVELENGTHS_NM, gaussian_line, planck_radiance
 from camcal.synth.camera import Scene, SyntheticCamera, preset
 from camcal.synth.exif import place_time_from_text
 from camcal.synth.messy import plant_problems

@@ -7,12 +7,12 @@ from pathlib import Path
 import numpy as np
 import typer
 
+from camcal.apply.provenance import check_made_by, check_pair
 from camcal.cli.common import console, print_json, progress
 from camcal.cli.water_tables import forward_table, ratio_table, summary_table
 from camcal.errors import CamcalError
-from camcal.exr import read_exr, write_exr
-from camcal.profile import load_profile
-from camcal.provenance import check_made_by, check_pair
+from camcal.io.exr import read_exr, write_exr
+from camcal.models.profile import load_profile
 from camcal.region import Region, pixels_per_output_cell
 from camcal.water.band import band_model_from_profile, read_chlorophyll_csv
 from camcal.water.invert import Reason, invert_images, invert_ratio

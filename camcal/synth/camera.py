@@ -50,10 +50,10 @@ from pathlib import Path
 import numpy as np
 import OpenImageIO as oiio
 
-from camcal.atomic import atomic_write_bytes, atomic_write_text
 from camcal.errors import CamcalError
 from camcal.frame import PATTERNS, PLANES, merge_planes, plane_offsets, rgb_from_planes, split_planes
-from camcal.reference_spectra import WAVELENGTHS_NM, camera_sensitivities, photon_energy_j
+from camcal.io.atomic import atomic_write_bytes, atomic_write_text
+from camcal.models.spectra import WAVELENGTHS_NM, camera_sensitivities, photon_energy_j
 from camcal.synth.dng import write_dng, write_linear_dng
 from camcal.synth.exif import PlaceTime, encode_exif_app1
 from camcal.synth.heic import write_heic
@@ -116,7 +116,7 @@ class SensorParams:
     qe_peak: tuple[float, float, float] = (0.35, 0.45, 0.38)
     """Peak quantum efficiency of R, G, B (the measured curves give the shape)."""
     sensitivity: str = "nikon-d5100"
-    """Key of :data:`camcal.reference_spectra.CAMERAS` or a colour-science camera name."""
+    """Key of :data:`camcal.models.spectra.CAMERAS` or a colour-science camera name."""
     reference_iso: float = 100.0
     reference_f_number: float = 4.0
     make: str = "camcal"

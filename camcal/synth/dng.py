@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from camcal.atomic import atomic_write_bytes
+from camcal.io.atomic import atomic_write_bytes
 from camcal.synth.exif import (
     _ASCII,
     _BYTE,

@@ -23,7 +23,7 @@ from datetime import UTC, datetime, timedelta
 from fractions import Fraction
 
 from camcal.errors import CamcalError
-from camcal.manifest import parse_utc_offset
+from camcal.io.manifest import parse_utc_offset
 
 # TIFF field types
 _BYTE, _ASCII, _SHORT, _LONG, _RATIONAL, _UNDEFINED, _SRATIONAL = 1, 2, 3, 4, 5, 7, 10

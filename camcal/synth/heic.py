@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pillow_heif
 
-from camcal.atomic import atomic_write_bytes
+from camcal.io.atomic import atomic_write_bytes
 from camcal.synth.exif import PlaceTime, encode_exif_tiff
 
 

@@ -25,8 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from camcal.atomic import atomic_write_bytes, atomic_write_text
-from camcal.reference_spectra import WAVELENGTHS_NM
+from camcal.io.atomic import atomic_write_bytes, atomic_write_text
+from camcal.models.spectra import WAVELENGTHS_NM
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera, frame_rngs, save_truth
 from camcal.synth.dng import write_dng
 from camcal.units import IN_BAND_RADIANCE

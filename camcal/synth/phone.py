@@ -54,10 +54,10 @@ import pandas as pd
 import pvlib
 from skimage.transform import ProjectiveTransform
 
-from camcal.data import read_bundled_table
 from camcal.errors import CamcalError
 from camcal.frame import rgb_from_planes
-from camcal.reference_spectra import WAVELENGTHS_NM
+from camcal.io.data import read_bundled_table
+from camcal.models.spectra import WAVELENGTHS_NM
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera, frame_rngs, save_truth, write_jpeg_file
 from camcal.synth.exif import PlaceTime
 from camcal.synth.heic import write_heic

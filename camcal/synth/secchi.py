@@ -42,7 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from camcal.errors import CamcalError
-from camcal.reference_spectra import WAVELENGTHS_NM
+from camcal.models.spectra import WAVELENGTHS_NM
 from camcal.synth.camera import Scene, SyntheticCamera
 from camcal.units import CONCENTRATION
 from camcal.water.band import BandModel, bricaud_1998
@@ -181,7 +181,7 @@ def secchi_scenes(
     depth_m : depth of the submerged disk, m, > 0.
     disk_albedo, background_albedo : Lambertian albedos in (0, 1]; the background must be darker.
     white_radiance : radiance of a perfect white surface under the light, W m⁻² sr⁻¹ nm⁻¹ on
-        :data:`camcal.reference_spectra.WAVELENGTHS_NM` (default :func:`daylight_white_radiance`, D65).
+        :data:`camcal.models.spectra.WAVELENGTHS_NM` (default :func:`daylight_white_radiance`, D65).
     model : 'refined' (default), 'seed', or a SeedModel/RefinedModel (its geometry; albedo relative to the
         reference, so 1).
     chlorophyll, water_absorption_per_m, background_absorption_per_m : as

@@ -31,9 +31,9 @@ from pathlib import Path
 
 import numpy as np
 
-from camcal.atomic import atomic_write_text
 from camcal.frame import PLANES
-from camcal.reference_spectra import WAVELENGTHS_NM, gaussian_line, planck_radiance
+from camcal.io.atomic import atomic_write_text
+from camcal.models.spectra import WAVELENGTHS_NM, gaussian_line, planck_radiance
 from camcal.synth.camera import Scene, SyntheticCamera, frame_rngs, save_truth
 
 STAGES = ("bias", "dark", "flat", "linearity", "sweep")
@@ -57,7 +57,7 @@ class SessionPlan:
     linearity_factor: float = 2**0.5
     linearity_repeats: int = 1
     """RAW frames per linearity exposure; 2 or more give the frame pairs of EMVA 1288 photon transfer
-    (the system gain K from the mean–variance line, :mod:`camcal.emva`)."""
+    (the system gain K from the mean–variance line, :mod:`camcal.calibrate.emva`)."""
     linearity_jpeg: bool = True
     jpeg_tone: str = "srgb"
     jpeg_gamma: float = 1 / 2.2
@@ -65,7 +65,7 @@ class SessionPlan:
     """The camera's 3x3 colour matrix for JPEGs (camera RGB → output RGB); None: no mixing."""
     sweep_jpeg: bool = True
     """Also write a JPEG twin (``<stem>.jpg``, same exposure) of the first sweep frame at each wavelength:
-    the chromaticities from which :mod:`camcal.colour_matrix` fits the JPEG colour matrix."""
+    the chromaticities from which :mod:`camcal.calibrate.colour_matrix` fits the JPEG colour matrix."""
     sweep_start_nm: float = 400.0
     sweep_stop_nm: float = 700.0
     sweep_step_nm: float = 5.0

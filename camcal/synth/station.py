@@ -51,7 +51,7 @@ import pandas as pd
 import pvlib
 
 from camcal.errors import CamcalError
-from camcal.reference_spectra import WAVELENGTHS_NM
+from camcal.models.spectra import WAVELENGTHS_NM
 from camcal.synth.camera import Scene, SyntheticCamera, save_truth
 from camcal.synth.exif import PlaceTime
 from camcal.synth.secchi import suggest_exposure_s

@@ -43,9 +43,9 @@ from pathlib import Path
 import numpy as np
 import pvlib
 
-from camcal.data import read_bundled_table
 from camcal.errors import CamcalError
-from camcal.reference_spectra import WAVELENGTHS_NM
+from camcal.io.data import read_bundled_table
+from camcal.models.spectra import WAVELENGTHS_NM
 from camcal.synth.camera import Scene, SyntheticCamera, save_truth
 from camcal.synth.exif import PlaceTime
 from camcal.synth.secchi import disk_weight, suggest_exposure_s

@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from camcal.atomic import atomic_write_text
-from camcal.reference_spectra import WAVELENGTHS_NM, planck_radiance
+from camcal.io.atomic import atomic_write_text
+from camcal.models.spectra import WAVELENGTHS_NM, planck_radiance
 from camcal.synth.camera import Scene, SyntheticCamera, frame_rngs
 from camcal.synth.session import exposure_for_level
 

@@ -31,11 +31,11 @@ import numpy as np
 from scipy.interpolate import CubicHermiteSpline
 from scipy.special import expn
 
-from camcal.data import read_bundled_table
 from camcal.errors import CamcalError
-from camcal.manifest import read_text_file
-from camcal.profile import load_profile
-from camcal.reference_spectra import planck_radiance
+from camcal.io.data import read_bundled_table
+from camcal.io.manifest import read_text_file
+from camcal.models.profile import load_profile
+from camcal.models.spectra import planck_radiance
 from camcal.water.invert import CHUNK, HermiteTable, Inversion, Reason, _run_chunks
 from camcal.water.models import ClosedForm, RefinedModel, SeedModel, form_at
 from camcal.water.purewater import pure_water_absorption_per_m
@@ -423,7 +423,7 @@ def band_model_from_profile(profile, channel: str = "R", *, geometry=None, chlor
 
     Parameters
     ----------
-    profile : a :class:`camcal.profile.CalibrationProfile` or the path of a ``.camcal`` file.
+    profile : a :class:`camcal.models.profile.CalibrationProfile` or the path of a ``.camcal`` file.
     channel : 'R', 'G' or 'B' (``profile.spectral.rgb()``) or a CFA plane ('R', 'G1', 'G2', 'B').
     geometry : SeedModel or RefinedModel (default: RefinedModel(), i.e. Pope & Fry water).
     illuminant : the reference disk's relative spectral radiance: a name for :func:`illuminant_spectrum`

@@ -47,7 +47,7 @@ import numpy as np
 import pvlib
 
 from camcal.errors import CamcalError
-from camcal.manifest import read_text_file
+from camcal.io.manifest import read_text_file
 from camcal.water.band import BandModel, bricaud_1998
 from camcal.water.models import ExactTransmittanceForm, ExponentialForm, RefinedModel
 from camcal.water.optics import N_WATER, snell, transmittance

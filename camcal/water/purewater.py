@@ -17,7 +17,7 @@ import functools
 
 import numpy as np
 
-from camcal.data import read_bundled_table
+from camcal.io.data import read_bundled_table
 
 POPE_FRY_FILE = "water_absorption_pope_fry_1997.csv"
 

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from camcal.atomic import atomic_write_text
-from camcal.plots import seed_ratio_figure, write_png
+from camcal.io.atomic import atomic_write_text
+from camcal.report.plots import seed_ratio_figure, write_png
 from camcal.water.models import SeedModel
 
 
@@ -68,7 +68,7 @@ def appendix_markdown(rows: list[dict]) -> str:
 
 def simulate_seed_section5(outdir: str | Path, model: SeedModel | None = None) -> list[Path]:
     """Write ``ratio_vs_depth.csv``, ``ratio_vs_concentration.csv`` and a PNG of each
-    (:func:`camcal.plots.seed_ratio_figure`), and the appendix comparison (CSV and Markdown)."""
+    (:func:`camcal.report.plots.seed_ratio_figure`), and the appendix comparison (CSV and Markdown)."""
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
     tables = seed_section5_tables(model)

@@ -28,7 +28,7 @@ lie between none and all of the surround, X in [0, S] (:meth:`SurroundBudget.une
 sky may be brighter than the model's (up to the diffuse fraction whose glare would be the whole surround). C stays
 the model's estimate; σ_C takes the unexplained term, a rectangular distribution whose half-width is the largest
 |C(X; sky) − C| over those bounds (GUM 4.3.7; computed through the nonlinear inversion, not its slope):
-:func:`camcal.secchi.unexplained_sigma`. A surround darker than the glare by more than that is also a
+:func:`camcal.water.secchi.unexplained_sigma`. A surround darker than the glare by more than that is also a
 warning (the sky in the reflected direction is darker than the uniform sky, a polariser): the measured surround
 is then the glare.
 

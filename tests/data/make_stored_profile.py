@@ -13,11 +13,11 @@ from pathlib import Path
 
 import numpy as np
 
-from camcal.apply import apply
-from camcal.calibrate import calibrate_session
-from camcal.io import load_frame
-from camcal.profile import load_profile, save_profile
-from camcal.reference_spectra import planck_radiance
+from camcal.apply.photo import apply
+from camcal.calibrate.run import calibrate_session
+from camcal.io.read import load_frame
+from camcal.models.profile import load_profile, save_profile
+from camcal.models.spectra import planck_radiance
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
 from camcal.synth.session import SessionPlan, write_session
 
