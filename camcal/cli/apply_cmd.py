@@ -42,7 +42,6 @@ def register(app: typer.Typer) -> None:
                                       help="EXR pixels: float (32-bit, default), half (16-bit; docs/apply.md "
                                       "says when it is enough) or mixed (the 1σ channels in half when their "
                                       "values fit it)."),
-        half: bool = typer.Option(False, "--half", hidden=True, help="Same as --precision half."),
         compression: str = typer.Option(BatchOptions.compression, "--compression",
                                         help="EXR compression: none (default: lossless, the fastest), zip, zips, "
                                         "piz, pxr24, b44, dwaa, dwab, zstd or rle; measured in docs/apply.md "
@@ -61,7 +60,6 @@ def register(app: typer.Typer) -> None:
             raise CamcalError("give --roi or --mask, not both")
         if precision not in PRECISIONS:
             raise CamcalError(f"--precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
-        precision = "half" if half else precision
         if compression not in COMPRESSIONS:
             raise CamcalError(f"--compression must be one of {', '.join(COMPRESSIONS)}, got {compression!r}")
         if jobs is not None and jobs < 1:

@@ -17,15 +17,8 @@ def print_json(obj: object) -> None:
                      + "\n")
 
 
-def plot_path(png: Path | None, plot: bool, default: Path) -> Path | None:
-    """Where to write a command's plot: ``default`` with ``--plot`` (the default), None with ``--no-plot``.
-
-    The old ``--png PATH`` still names the file for one release, with a deprecation line.
-    """
-    if png is not None:
-        print(f"camcal: deprecated: --png PATH is now --plot/--no-plot (the plot goes to {default.name}); "
-              "--png is removed in camcal 0.3", file=sys.stderr)
-        return png if plot else None
+def plot_path(plot: bool, default: Path) -> Path | None:
+    """Where to write a command's plot: ``default`` with ``--plot`` (the default), None with ``--no-plot``."""
     return default if plot else None
 
 

@@ -22,7 +22,6 @@ def register(app: typer.Typer) -> None:
         dark: Path | None = typer.Option(None, "--dark", help="Dark model JSON from `camcal dark`; without it only "
                                          "the files' black level is subtracted."),
         plot: bool = typer.Option(True, "--plot/--no-plot", help="Write the falloff plot to <stem>.falloff.png."),
-        png: Path | None = typer.Option(None, "--png", hidden=True, help="Deprecated: the plot's path."),
         model: str = typer.Option("radial", "--vignetting-model", help="radial (DNG radial, fitted centre) or 2d "
                                   "(Legendre)."),
         downsample: int | None = typer.Option(None, "--downsample", min=1,
@@ -49,7 +48,7 @@ def register(app: typer.Typer) -> None:
                 folder, output, dark, model=model, downsample=downsample, n_terms=terms, degree_2d=degree,
                 with_prnu=not no_prnu, method=method, sigma=sigma, jobs=jobs, progress=tick,
             )
-        png_path = plot_path(png, plot, output.with_name(output.stem + ".falloff.png"))
+        png_path = plot_path(plot, output.with_name(output.stem + ".falloff.png"))
         if png_path is not None:
             png_path = write_png(flat_figure(fm, master=master.value), png_path)
         summary = fm.summary()

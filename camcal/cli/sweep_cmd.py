@@ -24,8 +24,7 @@ from camcal.report.plots import spectral_figure, write_png
 from camcal.units import SPECTRAL_SENSITIVITY
 
 
-def _means(means: Path, responsivity: Path | None, reduction: str, output: Path, png: Path | None,
-           as_json: bool) -> None:
+def _means(means: Path, responsivity: Path | None, reduction: str, output: Path, as_json: bool) -> None:
     if reduction not in ("camcal", "publisher"):
         raise CamcalError(f"--reduction must be camcal or publisher, got {reduction!r}")
     sens, red, readings = sweep_means_sensitivity(means, responsivity, reduction)  # type: ignore[arg-type]
@@ -34,7 +33,7 @@ def _means(means: Path, responsivity: Path | None, reduction: str, output: Path,
         "absolute_scale": {"method": "none", "description": "relative: the reference detector's responsivity is "
                            "relative"}, "notes": [f"{f['file']} {f['sha256']}" for f in readings.files]}), "bayer")
     write_spectacle_csv(sens, output)
-    png_path = png or output.with_suffix(".png")
+    png_path = output.with_suffix(".png")
     write_png(spectral_figure(sens), png_path)
     summary = sens.summary()
     if as_json:
@@ -102,7 +101,6 @@ def register(app: typer.Typer) -> None:
         reference_f_number: float | None = typer.Option(None, help="Reference f-number of the absolute result "
                                                         "(default: the sweep frames' most common f-number)."),
         plot: bool = typer.Option(True, "--plot/--no-plot", help="Write the plot of c(λ) to <output stem>.png."),
-        png: Path | None = typer.Option(None, "--png", hidden=True, help="Deprecated: the plot's path."),
         jobs: int = typer.Option(2, "--jobs", "-j", min=1, help="CPU cores to use (decoding threads)."),
         as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
         means: Path | None = typer.Option(None, "--means", help="A sweep measured elsewhere, as per-step channel "
@@ -121,7 +119,7 @@ def register(app: typer.Typer) -> None:
         if (sweep is None) == (means is None):
             raise CamcalError("give a sweep folder or --means FILE, one of them")
         if means is not None:
-            _means(means, responsivity, reduction, output, png, as_json)
+            _means(means, responsivity, reduction, output, as_json)
             return
         if mode not in ("absolute", "relative"):
             raise CamcalError(f"--sweep-mode must be absolute or relative, got {mode!r}")
@@ -145,7 +143,7 @@ def register(app: typer.Typer) -> None:
         for msg in dict.fromkeys(" ".join(str(w.message).split()) for w in caught):
             err_console.print(f"camcal: warning: {msg}", soft_wrap=True, markup=False, highlight=False)
         write_spectacle_csv(result, output)
-        png_path = plot_path(png, plot, output.with_suffix(".png"))
+        png_path = plot_path(plot, output.with_suffix(".png"))
         if png_path is not None:
             write_png(spectral_figure(result), png_path)
         summary = result.summary()
