@@ -110,6 +110,11 @@ class Exposure:
     sources: tuple[tuple[str, str], ...] = ()
     notes: tuple[str, ...] = ()
 
+    def __post_init__(self) -> None:
+        unknown = sorted({s for _, s in self.sources} - set(SOURCES))
+        if unknown:
+            raise ValueError(f"unknown metadata source {', '.join(unknown)} (known: {', '.join(SOURCES)})")
+
     def source(self, name: str) -> str | None:
         """Where field ``name`` (of :data:`TRACKED` or :data:`PLACE_TIME`) came from (one of :data:`SOURCES`);
         None when the value is unknown."""

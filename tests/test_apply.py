@@ -26,6 +26,7 @@ from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
 from camcal.synth.session import exposure_for_level
 from camcal.units import BAND_RADIANCE, IN_BAND_RADIANCE
 from tests.conftest import assert_one_line_error, run_cli
+from tests.oracles import read_var_dn2
 
 LINE_BAND_W_M2_SR = 2.0
 LINE = LINE_BAND_W_M2_SR * gaussian_line(663.0, 5.0)
@@ -294,7 +295,7 @@ def _reference_raw(frame, plan, notes_dark: bool = True):
         ds = prof.dark.dark_current_dn_per_s * e.exposure_s * s
         planes = planes - prof.dark.bias_dn - ds
         invalid |= prof.dark.defects != 0
-        var = np.maximum(planes + ds, 0) * plan.gain_dn_per_e * s + plan.read_var_dn2 * s * s
+        var = np.maximum(planes + ds, 0) * plan.gain_dn_per_e * s + read_var_dn2(plan) * s * s
     else:
         planes = planes - frame.black_vector()
     if plan.flat_planes is not None:

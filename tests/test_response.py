@@ -12,20 +12,13 @@ import pytest
 from camcal.calibrate.response import emva_linearity_error, fit_response, roi_slices, roi_window
 from camcal.errors import CamcalError
 from camcal.frame import PLANES
-from camcal.io.read import iter_folder
 from camcal.io.store import to_jsonable
 from camcal.models.exposure import relative_exposure
-from camcal.models.response import (
-    ResponseModel,
-    load_response,
-    save_response,
-    srgb_form_decode,
-    srgb_form_encode,
-    srgb_form_toe,
-)
+from camcal.models.response import ResponseModel, save_response, srgb_form_decode, srgb_form_encode, srgb_form_toe
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera, frame_rngs
 from camcal.synth.session import SessionPlan, _white_spectrum, write_session
 from tests.conftest import assert_one_line_error, run_cli
+from tests.oracles import iter_folder, load_response
 
 RGB_OF_PLANE = {"R": "R", "G1": "G", "G2": "G", "B": "B"}
 

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from camcal.calibrate.sweep import LeftOutWarning, SweepWarning, deconvolve_slit, measure_sweep, merge_sweeps
+from camcal.calibrate.sweep import LeftOutWarning, SweepWarning, deconvolve_slit, measure_sweep
 from camcal.curves.files import SPECTACLE_HEADER, read_spectacle_csv, write_spectacle_csv
 from camcal.errors import CamcalError, TooFewFrames
 from camcal.frame import PLANES
@@ -30,6 +30,7 @@ from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
 from camcal.synth.session import SessionPlan, write_session
 from camcal.units import SPECTRAL_SENSITIVITY
 from tests.conftest import assert_one_line_error, run_cli
+from tests.oracles import fit_flat, merge_sweeps, to_colour, to_colour_planes
 
 PLANE_TO_RGB = {"R": 0, "G1": 1, "G2": 1, "B": 2}
 
@@ -69,8 +70,7 @@ def dark_model(session_dir):
 
 @pytest.fixture(scope="module")
 def flat_model(session_dir, dark_model):
-    flat = pytest.importorskip("camcal.calibrate.flat")
-    return flat.fit_flat(session_dir / "flat", dark_model)
+    return fit_flat(session_dir / "flat", dark_model)
 
 
 @pytest.fixture(scope="module")
@@ -237,10 +237,10 @@ def test_spectacle_csv_round_trip_and_colour(tmp_path):
         np.testing.assert_allclose(back.values[p], s.values[p], rtol=1e-8)
         np.testing.assert_allclose(back.uncertainty[p], s.uncertainty[p], rtol=1e-8)
     assert back.mode == "relative" and back.bandwidth_nm == 5.0
-    rgb = s.to_colour()
+    rgb = to_colour(s)
     assert rgb.__class__.__name__ == "RGB_CameraSensitivities"
     np.testing.assert_allclose(rgb.values[:, 1], 0.5 * (s.values["G1"] + s.values["G2"]))
-    planes = s.to_colour_planes()
+    planes = to_colour_planes(s)
     assert list(planes.labels) == ["R", "G1", "G2", "B"]
     np.testing.assert_allclose(planes.values[:, 2], s.values["G2"])
     (tmp_path / "bad.csv").write_text("Wavelength,R,G\n400,1,2\n")

@@ -12,10 +12,11 @@ import pytest
 from camcal import threads
 from camcal.calibrate import stack
 from camcal.calibrate.screen import Majority, StageJudge
-from camcal.calibrate.stack import _read_slot, combine_folder, combine_frames
+from camcal.calibrate.stack import _read_slot, combine_frames
 from camcal.errors import CamcalError
 from camcal.io.read import load_frame
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera, frame_rngs
+from tests.oracles import combine_folder
 
 
 @pytest.fixture(scope="module")

@@ -28,19 +28,11 @@ from camcal.apply.radiance import (
     smooth_operator,
     smooth_spread_rel,
 )
-from camcal.calibrate.dark import (
-    DarkOptions,
-    DarkStacks,
-    _fit_lines,
-    _noise_model,
-    fit_dark_stacks,
-    subtract_dark,
-    temporal_noise,
-)
-from camcal.calibrate.flat import _quadratic_vertex, _total_degree_mask, correct_flat, fit_2d_plane, fit_radial_plane
+from camcal.calibrate.dark import DarkOptions, DarkStacks, _fit_lines, _noise_model, fit_dark_stacks, temporal_noise
+from camcal.calibrate.flat import _quadratic_vertex, _total_degree_mask, fit_2d_plane, fit_radial_plane
 from camcal.calibrate.response import fit_eq12, fit_line, fit_srgb_form, saturation_point
 from camcal.calibrate.stack import StackResult
-from camcal.calibrate.sweep import deconvolve_slit, merge_sweeps, slit_matrix
+from camcal.calibrate.sweep import deconvolve_slit, slit_matrix
 from camcal.errors import CamcalError
 from camcal.frame import PLANES, Exposure
 from camcal.models.correct import Corrected, dark_frame, system_gain_dn_per_e
@@ -59,7 +51,8 @@ from camcal.water.band import BandModel, ChlorophyllAbsorption, bricaud_1998, so
 from camcal.water.field import FieldGeometry, MeasuredSky, field_band_model
 from camcal.water.models import LampModel, RefinedModel, SeedModel
 from camcal.water.purewater import pure_water_absorption_per_m
-from camcal.water.uncertainty import Uncertain, combine, interpolate_term, monte_carlo_sigma, solve_c, term_sigma_c
+from camcal.water.uncertainty import Uncertain, combine, interpolate_term, solve_c, term_sigma_c
+from tests.oracles import correct_flat, merge_sweeps, monte_carlo_sigma, subtract_dark
 
 
 def test_pure_water_absorption_is_pope_and_fry():

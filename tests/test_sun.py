@@ -27,7 +27,6 @@ import pvlib
 import pytest
 
 from camcal.errors import CamcalError
-from camcal.io.manifest import read_session_defaults
 from camcal.io.read import load_frame, read_photo_metadata
 from camcal.io.sun import (
     SOURCE_GPS,
@@ -44,6 +43,7 @@ from camcal.synth.exif import _ASCII, _IFD, _LONG, _RATIONAL, PlaceTime
 from camcal.synth.heic import write_heic
 from camcal.synth.session import exposure_for_level
 from tests.conftest import assert_one_line_error, run_cli
+from tests.oracles import read_session_defaults
 
 REAL = Path(__file__).resolve().parents[1] / ".." / "shared" / "realdata"
 needs_real = pytest.mark.skipif(not REAL.is_dir(), reason="../shared/realdata is absent")

@@ -22,6 +22,7 @@ from camcal.water.units import (
     parse_epsilon_L_per_mol_cm,
     parse_length_m,
 )
+from tests.oracles import refined_at_wavelength
 
 
 def test_fresnel_and_schlick_reference_values():
@@ -178,7 +179,7 @@ def test_pope_fry_1997_table():
     assert pure_water_absorption_per_m(800.0) == a[-1]  # held beyond the table
     assert WATER_ABSORPTION_663_PER_M == pytest.approx(0.425, abs=1e-12)
     assert RefinedModel().water_absorption_per_m == WATER_ABSORPTION_663_PER_M
-    assert RefinedModel.at_wavelength(680.0).water_absorption_per_m == pytest.approx(0.465)
+    assert refined_at_wavelength(680.0).water_absorption_per_m == pytest.approx(0.465)
 
 
 def test_seed_appendix_second_order_formula():

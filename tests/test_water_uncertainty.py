@@ -13,17 +13,9 @@ from camcal.models.spectra import WAVELENGTHS_NM
 from camcal.synth.camera import SensorParams, SyntheticCamera
 from camcal.water.band import BandModel, illuminant_spectrum
 from camcal.water.models import LampModel, RefinedModel
-from camcal.water.uncertainty import (
-    Uncertain,
-    combine,
-    dominant,
-    forward_for,
-    model_ratio,
-    monte_carlo_sigma,
-    solve_c,
-    uncertainty_terms,
-)
+from camcal.water.uncertainty import Uncertain, combine, dominant, forward_for, model_ratio, solve_c, uncertainty_terms
 from tests.conftest import run_cli
+from tests.oracles import monte_carlo_sigma
 
 DEPTH_M = 0.3
 C_UG = 200.0

@@ -170,11 +170,6 @@ class ApplyPlan:
         """True when the profile's c(λ) is relative: every map is then relative radiance (ratios only)."""
         return getattr(self.profile.spectral, "mode", "absolute") != "absolute"
 
-    @property
-    def read_var_dn2(self) -> np.ndarray | None:
-        """(4, h, w) read-noise variance of the dark model at its ISO, DN²."""
-        dark = self.calibration.dark
-        return None if dark is None else dark.read_noise_dn.astype(np.float32) ** 2
 
     @property
     def gain_dn_per_e(self) -> np.ndarray | None:

@@ -52,7 +52,6 @@ from camcal.errors import CamcalError, FrameLeftOut, MissingMetadataError, TooFe
 from camcal.frame import Frame
 from camcal.io.hashing import sha256_file
 from camcal.io.read import exposure_from_exif, saturated_fraction
-from camcal.models.correct import Calibration, correct_planes
 from camcal.models.dark import DEAD, HOT, NOISY, DarkModel
 from camcal.threads import thread_count, thread_map
 
@@ -1018,12 +1017,3 @@ def _channel_summary(b, b_var, beta, beta_var, var_t, defects, stacks, have_bias
 
     return dict(zip(names, _run_planes(plane, len(names), jobs, b[0].size), strict=True))
 
-
-def subtract_dark(planes: np.ndarray, model: DarkModel, exposure_s: float, iso: float | None = None) -> np.ndarray:
-    """Remove the expected dark frame (bias + β·t) from (4, h, w) planes in DN; float32 result.
-
-    A thin wrapper of the one correction path, :func:`camcal.models.correct.correct_planes` (no flat, no mask).
-    """
-    planes = np.asarray(planes)
-    return correct_planes(planes, Calibration(dark=model), exposure_s=exposure_s, iso=iso, white_level_dn=np.inf,
-                          black_level_dn=np.zeros(planes.shape[0])).signal_dn

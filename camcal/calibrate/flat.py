@@ -58,7 +58,7 @@ from camcal.errors import CamcalError
 from camcal.frame import PLANES, Exposure, Frame
 from camcal.io.read import list_frames
 from camcal.models.blocks import auto_downsample, block_mean
-from camcal.models.correct import Calibration, correct_frame, correct_planes, require_valid
+from camcal.models.correct import Calibration, correct_frame, require_valid
 from camcal.models.dark import DarkModel, as_dark_model
 from camcal.models.flat import (
     DEAD_RESPONSE,
@@ -303,23 +303,7 @@ def fit_flat_planes(
 # ---------------------------------------------------------------------------------------------
 # applying
 # ---------------------------------------------------------------------------------------------
-def correct_flat(planes: np.ndarray, model: FlatModel, with_prnu: bool = False) -> np.ndarray:
-    """Divide dark-subtracted planes by the flat-field gain (1 at the optical centre).
 
-    Parameters
-    ----------
-    planes : (C, h, w) DN above dark (subtract bias/dark first), channels as in ``model.channels``.
-    model : the fitted :class:`FlatModel`.
-    with_prnu : also divide by the PRNU map.
-
-    Returns
-    -------
-    (C, h, w) float32: the signal the pixel would have at the optical centre.
-    """
-    planes = np.asarray(planes)
-    cal = Calibration.of(flat=model, with_prnu=with_prnu)
-    return correct_planes(planes, cal, exposure_s=None, iso=None, white_level_dn=np.inf,
-                          black_level_dn=np.zeros(planes.shape[0]), channels=tuple(model.channels)).signal_dn
 
 
 # ---------------------------------------------------------------------------------------------
@@ -610,36 +594,6 @@ def master_flat(
         optics=optics,
     )
 
-
-def fit_flat(
-    flat_folder: str | Path | StageFrames,
-    dark: DarkModel | str | Path | None = None,
-    *,
-    model: Literal["radial", "2d"] = "radial",
-    downsample: int | None = None,
-    n_terms: int = DEFAULT_TERMS,
-    degree_2d: int = 4,
-    with_prnu: bool = True,
-    method: str = "sigma_clip",
-    sigma: float = 3.0,
-    checks: FlatChecks = FlatChecks(),  # noqa: B008
-    jobs: int | None = 1,
-    progress: Callable | None = None,
-) -> FlatModel:
-    """Master flat of a folder, then the vignetting model and PRNU (see :func:`fit_flat_planes`).
-
-    Parameters
-    ----------
-    flat_folder : folder of RAW flat frames (+ optional ``frames.csv``).
-    dark : a ``camcal.models.dark.DarkModel``, a path to a dark model JSON, or None (subtract the
-        files' black level only).
-    model, downsample, n_terms, degree_2d, with_prnu : see :func:`fit_flat_planes`.
-    method, sigma : combine method (``mean``, ``median``, ``sigma_clip``) and clip threshold.
-    checks : exposure limits (:class:`FlatChecks`).
-    jobs, progress : passed to :func:`camcal.calibrate.stack.combine_frames`.
-    """
-    options = FlatOptions(model, downsample, n_terms, degree_2d, with_prnu, method, sigma, checks)
-    return fit_flat_with(flat_folder, as_dark_model(dark), options, jobs=jobs, progress=progress)
 
 
 def fit_flat_with(

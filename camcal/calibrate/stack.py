@@ -50,7 +50,7 @@ from camcal.calibrate.screen import FrameFacts, StageJudge, StrictJudge
 from camcal.errors import CamcalError, TooFewFrames
 from camcal.frame import PLANES, Exposure, Frame, plane_offsets, split_planes
 from camcal.io.atomic import scratch_fd
-from camcal.io.read import folder_files, folder_manifest, load_folder_frame
+from camcal.io.read import folder_manifest, load_folder_frame
 from camcal.threads import thread_count
 
 METHODS = ("mean", "median", "sigma_clip")
@@ -1091,11 +1091,3 @@ def _bands(fd: int, name: str, n: int, shape: tuple[int, int, int], dtype: np.dt
             one(b)
     return value, mean, var, count, var_all, mean_all
 
-
-def combine_folder(folder: str | Path, **kwargs) -> StackResult:
-    """:func:`combine_frames` over every image of ``folder`` (its ``frames.csv`` applied).
-
-    Files listed in ``frames.csv`` but missing from the folder are an error.
-    """
-    files, manifest = folder_files(folder, kwargs.pop("manifest", None))
-    return combine_frames(files, manifest=manifest, **kwargs)

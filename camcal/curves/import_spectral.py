@@ -63,14 +63,12 @@ from camcal.models.flat import load_flat
 from camcal.models.profile import SCHEMA_VERSION, CalibrationProfile, CameraIdentity, Provenance
 from camcal.models.spectral import SpectralSensitivity
 from camcal.region import DEFAULT_ROI_FRACTION, Region, central_roi
-from camcal.units import SPECTRAL_RADIANCE
 
 TARGETS_CSV = "targets.csv"
 #: Below this χ² p-value the targets disagree beyond their noise: the curves do not fit this camera.
 CONSISTENCY_P = 0.01
 #: Largest fraction of a channel's ∫c_rel a target spectrum may leave uncovered.
 MAX_UNCOVERED = 0.005
-RADIANCE_UNITS = SPECTRAL_RADIANCE
 
 
 # ---- the one region measurement --------------------------------------------------------------------------

@@ -226,26 +226,9 @@ MAX_SESSION_DEFAULTS_BYTES = 64 * 1024
 _DEFAULTS_CACHE: dict[tuple[str, int, int], tuple[dict[str, float | str], dict[str, float]]] = {}
 
 
-def read_session_defaults(path: str | Path) -> dict[str, float | str]:
-    """Read a ``session.toml`` into :class:`camcal.frame.Exposure` keywords (camera facts,
-    :data:`CAMERA_KEYS`, are checked too and left to :func:`session_camera_facts`).
-
-    The file is TOML with top-level keys from :data:`SESSION_KEYS` (``f_number``, ``iso``,
-    ``exposure_s`` in s, ``temperature_C`` in °C), each a number within :data:`PLAUSIBLE_RANGE`,
-    and ``utc_offset`` (:data:`SESSION_TEXT_KEYS`), text ``"+HH:MM"`` between −12:00 and +14:00.
-    A value fills what a frame's file does not hold (or holds only as LibRaw's reading of a maker
-    header); ``frames.csv`` still overrides it. Unknown keys, tables, non-numbers and implausible
-    values are refused, naming the file and the key.
-
-    Returns
-    -------
-    dict such as ``{"f_number": 2.8}`` (Exposure field names).
-    """
-    return _read_session_toml(Path(path))[0]
-
 
 def _read_session_toml(path: Path) -> tuple[dict[str, float | str], dict[str, float]]:
-    """(Exposure keywords, camera facts) of a ``session.toml`` (see :func:`read_session_defaults`)."""
+    """(Exposure keywords, camera facts) of a ``session.toml``."""
     text = read_text_file(path, "session defaults file", MAX_SESSION_DEFAULTS_BYTES)
     try:
         doc = tomllib.loads(text)
@@ -318,7 +301,7 @@ def _session_toml_for(folder: str | Path) -> tuple[dict[str, float | str], dict[
 
 
 def session_defaults_for(folder: str | Path) -> dict[str, float | str]:
-    """:func:`read_session_defaults` of :func:`find_session_defaults` (``{}`` when none), cached by
+    """The exposure keywords of :func:`find_session_defaults`'s ``session.toml`` (``{}`` when none), cached by
     file identity (path, size, modification time)."""
     return dict(_session_toml_for(folder)[0])
 

@@ -1091,15 +1091,6 @@ def folder_files(
     return files, manifest
 
 
-def iter_folder(folder: str | Path):
-    """Yield ``(path, frame)`` for every image of a folder, manifest applied, one at a time.
-
-    Frames are read lazily so memory does not grow with the number of frames.
-    """
-    files, manifest = folder_files(folder)
-    for p in files:
-        yield p, load_folder_frame(p, manifest)
-
 
 def read_ahead(items: Iterable[T], load: Callable[[T], R], threads: int = 1) -> Iterator[R]:
     """``load(item)`` of each item, in order, with up to ``threads`` of the next items loading in threads meanwhile.

@@ -33,7 +33,6 @@ from camcal.models.emva import SHEET_KEYS, EmvaSheet
 from camcal.models.flat import FlatModel, flat_from_parts, flat_to_parts
 from camcal.models.response import ResponseModel
 from camcal.models.spectral import SpectralSensitivity, spectral_from_dict, spectral_to_dict
-from camcal.units import SPECTRAL_SENSITIVITY
 
 FORMAT = "camcal-profile"
 SCHEMA_VERSION = "1.9"  # 1.1: optional response.processed.colour_matrix; 1.2: optional spectral_sensitivity.source;
@@ -48,7 +47,6 @@ SCHEMA_VERSION = "1.9"  # 1.1: optional response.processed.colour_matrix; 1.2: o
 # 1.9: spectral_sensitivity.source kind "chart" (camcal chart: c(λ) from a colour chart) with its chart, light,
 # basis, photos and processed records; absolute_scale method "chart"
 SUPPORTED_MAJOR = 1
-SPECTRAL_UNITS_DEFAULT = SPECTRAL_SENSITIVITY
 
 
 @dataclass(frozen=True)

@@ -15,7 +15,7 @@ import numpy as np
 
 from camcal.errors import CamcalError
 from camcal.frame import PLANES
-from camcal.io.store import load_stage, save_stage
+from camcal.io.store import save_stage
 
 
 @dataclass(frozen=True)
@@ -316,15 +316,6 @@ def save_response(models: dict[str, ResponseModel] | ResponseModel, path: str | 
     if isinstance(models, ResponseModel):
         models = {models.kind: models}
     return save_stage(path, RESPONSE_KIND, {"models": {k: m.to_dict() for k, m in models.items()}})
-
-
-def load_response(path: str | Path) -> dict[str, ResponseModel]:
-    """Read what :func:`save_response` wrote: ``{kind: ResponseModel}``."""
-    data, _ = load_stage(path, RESPONSE_KIND)  # validated against camcal/schemas/response-1.schema.json
-    try:
-        return {str(k): ResponseModel.from_dict(v) for k, v in data["models"].items()}
-    except CamcalError as exc:
-        raise CamcalError(exc.message, path) from None
 
 
 

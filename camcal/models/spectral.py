@@ -115,24 +115,6 @@ class SpectralSensitivity:
         """Planes and RGB together: R, G1, G2, B, G (R, G, B for linear RAW)."""
         return {**self.values, "G": self.rgb()["G"]}
 
-    def to_colour(self):
-        """colour-science :class:`RGB_CameraSensitivities` of R, G (mean of G1, G2), B.
-
-        The four planes (keeping G1 and G2) are in :meth:`to_colour_planes`.
-        """
-        from colour.characterisation import RGB_CameraSensitivities  # loads matplotlib: kept off paths that do not plot
-
-        rgb = self.rgb()
-        data = np.column_stack([rgb["R"], rgb["G"], rgb["B"]])
-        return RGB_CameraSensitivities(data, self.wavelength_nm, name=f"camcal c(λ) [{self.units}]")
-
-    def to_colour_planes(self):
-        """colour-science :class:`MultiSpectralDistributions` labelled R, G1, G2, B."""
-        import colour  # loads matplotlib: kept off paths that do not plot
-
-        data = np.column_stack([self.values[p] for p in self.plane_names])
-        return colour.MultiSpectralDistributions(data, self.wavelength_nm, labels=list(self.plane_names),
-                                                 name=f"camcal c(λ) planes [{self.units}]")
 
     def origin(self) -> dict[str, Any]:
         """:attr:`source`, or for curves without one (measured by :func:`measure_sweep`) the sweep's record."""

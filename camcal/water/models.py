@@ -18,7 +18,7 @@ Functions, §5.1 (exponential integrals E_n); Mobley, C. D. (1994), Light and Wa
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import brentq
@@ -327,10 +327,6 @@ class RefinedModel:
     name = "refined"
     includes_water = True  # band models default to Pope & Fry water
 
-    @classmethod
-    def at_wavelength(cls, wavelength_nm: float, **kwargs) -> RefinedModel:
-        """The model at one wavelength: ``water_absorption_per_m`` from Pope & Fry (1997) at ``wavelength_nm``."""
-        return cls(water_absorption_per_m=float(pure_water_absorption_per_m(wavelength_nm)), **kwargs)
 
     def water_cutoff_rad(self) -> float:
         """In-water cutoff: the sky cutoff refracted (the critical angle for a full sky)."""
@@ -442,13 +438,6 @@ class LampModel:
         e_air = hd / (x * x + hd * hd) ** 1.5
         return self.albedo * e_water / e_air * self.transmittance_up() / (n * n)
 
-    def toward(self, offset_x_m: float, offset_y_m: float, depth_m: float) -> LampModel:
-        """The same lamp seen from a disk point offset by (x, y) m from the disk centre (x away from the lamp's
-        foot): a LampModel whose lamp angle is that of the refracted ray reaching that point (the geometry
-        depends only on the point's horizontal distance from the lamp's foot). Per-pixel geometry."""
-        x0 = float(self.horizontal_offset_m(depth_m))
-        target = float(np.hypot(x0 + offset_x_m, offset_y_m))
-        return replace(self, lamp_angle_rad=lamp_angle_reaching(self.height_m, depth_m, target, self.n_water))
 
     def closed_form_at(self, depth_m: float) -> ExponentialForm:
         return ExponentialForm(float(self.geometry_factor(depth_m)), float(self.path_factor()))

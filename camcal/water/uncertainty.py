@@ -13,8 +13,8 @@ B = Σ c S R_λ Δλ / Σ c S Δλ gives (independent wavelengths)
 
 The terms depend on C only (one depth, one geometry), so for images they are tabulated on a log grid of C
 and interpolated per pixel (log-log). The ratio-noise term stays per pixel (:mod:`camcal.water.invert`).
-The total is the root sum of squares (the inputs are independent). :func:`monte_carlo_sigma` checks the
-first-order terms by sampling the same inputs and re-inverting (tests: within 10 %).
+The total is the root sum of squares (the inputs are independent). A Monte Carlo oracle in the tests checks the
+first-order terms by sampling the same inputs and re-inverting (within 10 %).
 
 References
 ----------
@@ -108,15 +108,6 @@ def solve_c(forward_c: Callable[[np.ndarray], np.ndarray], ratio: float, c_hi_ug
         return float("nan")
     return float(np.exp(brentq(g, lo, hi, xtol=1e-12, rtol=1e-12)))
 
-
-def monte_carlo_sigma(forward: Callable[[float, np.ndarray], np.ndarray], param: Uncertain, ratio: float,
-                      samples: int = 400, seed: int = 0) -> float:
-    """Standard deviation of C (µg/L) when ``param`` is drawn from N(value, σ) and ``ratio`` re-inverted with
-    each draw (the Monte Carlo counterpart of :func:`term_sigma_c`)."""
-    rng = np.random.default_rng(seed)
-    draws = param.value + param.sigma * rng.standard_normal(samples)
-    c = np.array([solve_c(lambda cc, p=p: forward(p, cc), ratio) for p in draws])
-    return float(np.nanstd(c, ddof=1))
 
 
 def _is_band(model) -> bool:

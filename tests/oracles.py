@@ -1,0 +1,237 @@
+"""Library functions only the tests call: thin wrappers and slow oracles, kept here rather than in camcal/."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import replace
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+
+from camcal.calibrate.flat import DEFAULT_TERMS, FlatChecks, FlatOptions, fit_flat_with
+from camcal.calibrate.session import StageFrames
+from camcal.calibrate.stack import StackResult, combine_frames
+from camcal.errors import CamcalError
+from camcal.io.manifest import _read_session_toml
+from camcal.io.read import folder_files, load_folder_frame
+from camcal.io.store import load_stage
+from camcal.models.correct import Calibration, correct_planes
+from camcal.models.dark import DarkModel, as_dark_model
+from camcal.models.flat import FlatModel
+from camcal.models.response import RESPONSE_KIND, ResponseModel
+from camcal.models.spectral import SpectralSensitivity
+from camcal.water.models import LampModel, RefinedModel, lamp_angle_reaching
+from camcal.water.purewater import pure_water_absorption_per_m
+from camcal.water.uncertainty import Uncertain, solve_c
+
+
+def merge_sweeps(a: SpectralSensitivity, b: SpectralSensitivity, *, scale: bool = True,
+                 min_overlap: int = 2) -> SpectralSensitivity:
+    """Merge two sweeps (e.g. two gratings) into one on the union of their wavelengths.
+
+    ``b`` is first scaled onto ``a`` by one factor k fitted in the overlap
+    (weighted least squares over all planes, k = Σ w a b / Σ w b², w = 1/(u_a² + k² u_b²)
+    iterated), with k's uncertainty added to b's. Then, where both sweeps cover a
+    wavelength (b interpolated linearly onto it), the values are averaged with
+    inverse-variance (SNR) weights; elsewhere the covering sweep is used.
+    """
+    if a.mode != b.mode or a.deconvolved != b.deconvolved:
+        raise CamcalError("cannot merge sweeps of different mode or deconvolution")
+    if (a.reference_iso, a.reference_f_number) != (b.reference_iso, b.reference_f_number) and a.mode == "absolute":
+        raise CamcalError("cannot merge absolute sweeps normalised to different reference settings")
+    wa, wb = a.wavelength_nm, b.wavelength_nm
+    grid = np.union1d(wa, wb)
+
+    def on(s: SpectralSensitivity, key: str, which: str) -> tuple[np.ndarray, np.ndarray]:
+        src = getattr(s, which)[key]
+        inside = (grid >= s.wavelength_nm[0]) & (grid <= s.wavelength_nm[-1])
+        return np.where(inside, np.interp(grid, s.wavelength_nm, src), np.nan), inside
+
+    k, u_k = 1.0, 0.0
+    overlap = (grid >= max(wa[0], wb[0])) & (grid <= min(wa[-1], wb[-1]))
+    planes = a.plane_names
+    if b.plane_names != planes:
+        raise CamcalError(f"cannot merge sweeps of planes {', '.join(planes)} and {', '.join(b.plane_names)}")
+    if scale:
+        if overlap.sum() < min_overlap:
+            raise CamcalError(f"sweeps overlap at {int(overlap.sum())} wavelengths; need {min_overlap} to scale")
+        av = np.concatenate([on(a, p, "values")[0][overlap] for p in planes])
+        au = np.concatenate([on(a, p, "uncertainty")[0][overlap] for p in planes])
+        bv = np.concatenate([on(b, p, "values")[0][overlap] for p in planes])
+        bu = np.concatenate([on(b, p, "uncertainty")[0][overlap] for p in planes])
+        for _ in range(5):
+            wgt = 1.0 / np.maximum(au**2 + k**2 * bu**2, 1e-300)
+            k = float(np.sum(wgt * av * bv) / np.sum(wgt * bv**2))
+        u_k = float(1.0 / math.sqrt(np.sum(wgt * bv**2)))
+    vals, uncs = {}, {}
+    for p in planes:
+        va, ina = on(a, p, "values")
+        ua, _ = on(a, p, "uncertainty")
+        vb, inb = on(b, p, "values")
+        ub, _ = on(b, p, "uncertainty")
+        vb, ub = k * vb, np.hypot(k * ub, u_k * vb)
+        wa_ = np.where(ina, 1.0 / np.maximum(ua, 1e-300) ** 2, 0.0)
+        wb_ = np.where(inb, 1.0 / np.maximum(ub, 1e-300) ** 2, 0.0)
+        tot = wa_ + wb_
+        vals[p] = (np.nan_to_num(va) * wa_ + np.nan_to_num(vb) * wb_) / tot
+        uncs[p] = 1.0 / np.sqrt(tot)
+    notes = (*a.notes, *b.notes, f"merged: second sweep scaled by {k:.6g} ± {u_k:.2g}")
+    bws = [x for x in (a.bandwidth_nm, b.bandwidth_nm) if x]
+    return SpectralSensitivity(grid, vals, uncs, a.units, a.mode, a.reference_iso, a.reference_f_number,
+                               max(bws) if bws else None, a.deconvolved, {**b.n_frames, **a.n_frames}, notes)
+
+
+def iter_folder(folder: str | Path):
+    """Yield ``(path, frame)`` for every image of a folder, manifest applied, one at a time.
+
+    Frames are read lazily so memory does not grow with the number of frames.
+    """
+    files, manifest = folder_files(folder)
+    for p in files:
+        yield p, load_folder_frame(p, manifest)
+
+
+def combine_folder(folder: str | Path, **kwargs) -> StackResult:
+    """:func:`combine_frames` over every image of ``folder`` (its ``frames.csv`` applied).
+
+    Files listed in ``frames.csv`` but missing from the folder are an error.
+    """
+    files, manifest = folder_files(folder, kwargs.pop("manifest", None))
+    return combine_frames(files, manifest=manifest, **kwargs)
+
+
+def read_session_defaults(path: str | Path) -> dict[str, float | str]:
+    """Read a ``session.toml`` into :class:`camcal.frame.Exposure` keywords (camera facts,
+    :data:`CAMERA_KEYS`, are checked too and left to :func:`session_camera_facts`).
+
+    The file is TOML with top-level keys from :data:`SESSION_KEYS` (``f_number``, ``iso``,
+    ``exposure_s`` in s, ``temperature_C`` in °C), each a number within :data:`PLAUSIBLE_RANGE`,
+    and ``utc_offset`` (:data:`SESSION_TEXT_KEYS`), text ``"+HH:MM"`` between −12:00 and +14:00.
+    A value fills what a frame's file does not hold (or holds only as LibRaw's reading of a maker
+    header); ``frames.csv`` still overrides it. Unknown keys, tables, non-numbers and implausible
+    values are refused, naming the file and the key.
+
+    Returns
+    -------
+    dict such as ``{"f_number": 2.8}`` (Exposure field names).
+    """
+    return _read_session_toml(Path(path))[0]
+
+
+def subtract_dark(planes: np.ndarray, model: DarkModel, exposure_s: float, iso: float | None = None) -> np.ndarray:
+    """Remove the expected dark frame (bias + β·t) from (4, h, w) planes in DN; float32 result.
+
+    A thin wrapper of the one correction path, :func:`camcal.models.correct.correct_planes` (no flat, no mask).
+    """
+    planes = np.asarray(planes)
+    return correct_planes(planes, Calibration(dark=model), exposure_s=exposure_s, iso=iso, white_level_dn=np.inf,
+                          black_level_dn=np.zeros(planes.shape[0])).signal_dn
+
+
+def correct_flat(planes: np.ndarray, model: FlatModel, with_prnu: bool = False) -> np.ndarray:
+    """Divide dark-subtracted planes by the flat-field gain (1 at the optical centre).
+
+    Parameters
+    ----------
+    planes : (C, h, w) DN above dark (subtract bias/dark first), channels as in ``model.channels``.
+    model : the fitted :class:`FlatModel`.
+    with_prnu : also divide by the PRNU map.
+
+    Returns
+    -------
+    (C, h, w) float32: the signal the pixel would have at the optical centre.
+    """
+    planes = np.asarray(planes)
+    cal = Calibration.of(flat=model, with_prnu=with_prnu)
+    return correct_planes(planes, cal, exposure_s=None, iso=None, white_level_dn=np.inf,
+                          black_level_dn=np.zeros(planes.shape[0]), channels=tuple(model.channels)).signal_dn
+
+
+def fit_flat(
+    flat_folder: str | Path | StageFrames,
+    dark: DarkModel | str | Path | None = None,
+    *,
+    model: Literal["radial", "2d"] = "radial",
+    downsample: int | None = None,
+    n_terms: int = DEFAULT_TERMS,
+    degree_2d: int = 4,
+    with_prnu: bool = True,
+    method: str = "sigma_clip",
+    sigma: float = 3.0,
+    checks: FlatChecks = FlatChecks(),  # noqa: B008
+    jobs: int | None = 1,
+    progress: Callable | None = None,
+) -> FlatModel:
+    """Master flat of a folder, then the vignetting model and PRNU (see :func:`fit_flat_planes`).
+
+    Parameters
+    ----------
+    flat_folder : folder of RAW flat frames (+ optional ``frames.csv``).
+    dark : a ``camcal.models.dark.DarkModel``, a path to a dark model JSON, or None (subtract the
+        files' black level only).
+    model, downsample, n_terms, degree_2d, with_prnu : see :func:`fit_flat_planes`.
+    method, sigma : combine method (``mean``, ``median``, ``sigma_clip``) and clip threshold.
+    checks : exposure limits (:class:`FlatChecks`).
+    jobs, progress : passed to :func:`camcal.calibrate.stack.combine_frames`.
+    """
+    options = FlatOptions(model, downsample, n_terms, degree_2d, with_prnu, method, sigma, checks)
+    return fit_flat_with(flat_folder, as_dark_model(dark), options, jobs=jobs, progress=progress)
+
+
+def load_response(path: str | Path) -> dict[str, ResponseModel]:
+    """Read what :func:`save_response` wrote: ``{kind: ResponseModel}``."""
+    data, _ = load_stage(path, RESPONSE_KIND)  # validated against camcal/schemas/response-1.schema.json
+    try:
+        return {str(k): ResponseModel.from_dict(v) for k, v in data["models"].items()}
+    except CamcalError as exc:
+        raise CamcalError(exc.message, path) from None
+
+
+def monte_carlo_sigma(forward: Callable[[float, np.ndarray], np.ndarray], param: Uncertain, ratio: float,
+                      samples: int = 400, seed: int = 0) -> float:
+    """Standard deviation of C (µg/L) when ``param`` is drawn from N(value, σ) and ``ratio`` re-inverted with
+    each draw (the Monte Carlo counterpart of :func:`term_sigma_c`)."""
+    rng = np.random.default_rng(seed)
+    draws = param.value + param.sigma * rng.standard_normal(samples)
+    c = np.array([solve_c(lambda cc, p=p: forward(p, cc), ratio) for p in draws])
+    return float(np.nanstd(c, ddof=1))
+
+
+
+def to_colour(s: SpectralSensitivity):
+    """colour-science :class:`RGB_CameraSensitivities` of R, G (mean of G1, G2), B of ``s``."""
+    from colour.characterisation import RGB_CameraSensitivities
+
+    rgb = s.rgb()
+    data = np.column_stack([rgb["R"], rgb["G"], rgb["B"]])
+    return RGB_CameraSensitivities(data, s.wavelength_nm, name=f"camcal c(λ) [{s.units}]")
+
+
+def to_colour_planes(s: SpectralSensitivity):
+    """colour-science :class:`MultiSpectralDistributions` of ``s``'s planes (R, G1, G2, B)."""
+    import colour
+
+    data = np.column_stack([s.values[p] for p in s.plane_names])
+    return colour.MultiSpectralDistributions(data, s.wavelength_nm, labels=list(s.plane_names),
+                                             name=f"camcal c(λ) planes [{s.units}]")
+
+
+def refined_at_wavelength(wavelength_nm: float, **kwargs) -> RefinedModel:
+    """The refined model at one wavelength: ``water_absorption_per_m`` from Pope & Fry (1997) there."""
+    return RefinedModel(water_absorption_per_m=float(pure_water_absorption_per_m(wavelength_nm)), **kwargs)
+
+
+def lamp_toward(lamp: LampModel, offset_x_m: float, offset_y_m: float, depth_m: float) -> LampModel:
+    """The same lamp seen from a disk point offset by (x, y) m from the disk centre (x away from the lamp's
+    foot): the lamp angle of the refracted ray reaching that point."""
+    x0 = float(lamp.horizontal_offset_m(depth_m))
+    target = float(np.hypot(x0 + offset_x_m, offset_y_m))
+    return replace(lamp, lamp_angle_rad=lamp_angle_reaching(lamp.height_m, depth_m, target, lamp.n_water))
+
+
+def read_var_dn2(plan) -> np.ndarray | None:
+    """(4, h, w) read-noise variance of an apply plan's dark model at its ISO, DN²."""
+    dark = plan.calibration.dark
+    return None if dark is None else dark.read_noise_dn.astype(np.float32) ** 2
