@@ -39,6 +39,7 @@ import numpy as np
 from scipy import stats
 
 from camcal.models.emva import SHEET_KEYS, EmvaSheet
+from camcal.models.spectra import photon_energy_j
 
 QUANTISATION_VAR_DN2 = 1.0 / 12.0
 """σ²_q of integer data, DN² (EMVA 1288 linear model, eq. 4)."""
@@ -55,8 +56,6 @@ LINEARITY_RANGE = (0.05, 0.95)
 BOOTSTRAP_SAMPLES = 400
 """Resamples of the photon-transfer points for u(K) (:func:`gain_bootstrap`)."""
 
-PLANCK_J_S = 6.62607015e-34
-LIGHT_M_PER_S = 299792458.0
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -431,11 +430,6 @@ def datasheet(gain_dn_per_e: float, saturation_dn: float, dark_noise_dn: float) 
     sat_e = saturation_dn / k
     thr = dark_noise_dn / k + 0.5
     return Datasheet(k, float(saturation_dn), float(sat_e), float(thr), math.sqrt(max(sat_e, 0.0)), sat_e / thr)
-
-
-def photon_energy_j(wavelength_nm: np.ndarray) -> np.ndarray:
-    """hc/λ, J."""
-    return PLANCK_J_S * LIGHT_M_PER_S / (np.asarray(wavelength_nm, float) * 1e-9)
 
 
 def quantum_efficiency(wavelength_nm: np.ndarray, sensitivity: np.ndarray, gain_dn_per_e: float,

@@ -61,7 +61,7 @@ from camcal.models.dark import load_dark
 from camcal.models.exposure import frame_relative_exposure
 from camcal.models.flat import load_flat
 from camcal.models.profile import SCHEMA_VERSION, CalibrationProfile, CameraIdentity, Provenance
-from camcal.models.spectral import SpectralSensitivity
+from camcal.models.spectral import SpectralSensitivity, float_or_none
 from camcal.region import DEFAULT_ROI_FRACTION, Region, central_roi
 
 TARGETS_CSV = "targets.csv"
@@ -556,10 +556,6 @@ def targets_setting(targets_csv: str | Path) -> tuple[float, float]:
     return seen.most_common(1)[0][0]
 
 
-def _float_or_none(v) -> float | None:
-    return None if v is None else float(v)
-
-
 def import_spectral(
     curves_path: str | Path | None = None,
     *,
@@ -668,8 +664,8 @@ def import_spectral(
         source["library"] = library_record
     if grid_notes:
         source["notes"] = grid_notes
-    curves = dataclasses.replace(curves, source=source, reference_iso=_float_or_none(ref_iso),
-                                 reference_f_number=_float_or_none(ref_n))
+    curves = dataclasses.replace(curves, source=source, reference_iso=float_or_none(ref_iso),
+                                 reference_f_number=float_or_none(ref_n))
     options = {"spectral_import": {"file": path.name, "format": used, "camera": library_camera,
                                    "targets": None if targets is None
                                    else Path(targets).name, "absolute": bool(absolute),
@@ -687,8 +683,8 @@ def import_spectral(
         if camera is None:
             raise CamcalError("a new profile needs the camera's identity: give reference-target photos, an "
                               "existing profile, or the camera's make, model and size")
-        profile = CalibrationProfile(camera=camera, reference_iso=_float_or_none(ref_iso),
-                                     reference_f_number=_float_or_none(ref_n),
+        profile = CalibrationProfile(camera=camera, reference_iso=float_or_none(ref_iso),
+                                     reference_f_number=float_or_none(ref_n),
                                      dark=dark, flat=flat, spectral=curves,
                                      provenance=Provenance(__version__, created, tuple(inputs), options))
     return profile, scale

@@ -32,7 +32,7 @@ from camcal.models.dark import DarkModel, dark_from_parts, dark_to_parts
 from camcal.models.emva import SHEET_KEYS, EmvaSheet
 from camcal.models.flat import FlatModel, flat_from_parts, flat_to_parts
 from camcal.models.response import ResponseModel
-from camcal.models.spectral import SpectralSensitivity, spectral_from_dict, spectral_to_dict
+from camcal.models.spectral import SpectralSensitivity, float_or_none, spectral_from_dict, spectral_to_dict
 
 FORMAT = "camcal-profile"
 SCHEMA_VERSION = "1.9"  # 1.1: optional response.processed.colour_matrix; 1.2: optional spectral_sensitivity.source;
@@ -153,18 +153,14 @@ def _stage_from_parts(name: str, data: dict, maps: dict[str, np.ndarray], where:
 _STAGE_ATTR = {"dark": "dark", "flat": "flat", "response": "response", "spectral_sensitivity": "spectral"}
 
 
-def _float_or_none(v: float | None) -> float | None:
-    return None if v is None else float(v)
-
-
 def profile_to_document(profile: CalibrationProfile) -> tuple[dict, dict[str, np.ndarray]]:
     """The JSON document (without integrity) and the prefixed maps of a profile."""
     doc: dict[str, Any] = {
         "format": FORMAT,
         "schema_version": profile.schema_version,
         "camera": dataclasses.asdict(profile.camera),
-        "reference": {"iso": _float_or_none(profile.reference_iso),
-                      "f_number": _float_or_none(profile.reference_f_number)},
+        "reference": {"iso": float_or_none(profile.reference_iso),
+                      "f_number": float_or_none(profile.reference_f_number)},
     }
     maps: dict[str, np.ndarray] = {}
     names: dict[str, list[str]] = {}
@@ -287,8 +283,8 @@ def profile_from_document(doc: dict, maps: dict[str, np.ndarray], where: str | P
     return CalibrationProfile(
         camera=CameraIdentity(cam["make"], cam["model"], cam["serial"], cam["cfa_pattern"], int(cam["width"]),
                               int(cam["height"]), str(cam.get("layout") or "bayer")),
-        reference_iso=_float_or_none(doc["reference"]["iso"]),
-        reference_f_number=_float_or_none(doc["reference"]["f_number"]),
+        reference_iso=float_or_none(doc["reference"]["iso"]),
+        reference_f_number=float_or_none(doc["reference"]["f_number"]),
         provenance=Provenance(prov["camcal_version"], prov["created_utc"], tuple(prov["inputs"]),
                               dict(prov["options"]), tuple(prov.get("left_out", ())),
                               tuple(prov.get("not_calibrated", ()))),

@@ -20,6 +20,7 @@ data set for camera spectral sensitivity estimation. JOSA A 32(3), 381-391
 from __future__ import annotations
 
 import numpy as np
+import scipy.constants
 from scipy.interpolate import CubicSpline
 
 from camcal.errors import CamcalError
@@ -29,9 +30,9 @@ WAVELENGTHS_NM = np.arange(380.0, 781.0, 1.0)
 
 CAMERAS = {"nikon-d5100": "Nikon 5100 (NPL)", "sigma-sd-merrill": "Sigma SDMerill (NPL)"}
 
-H_PLANCK = 6.62607015e-34  # J s
-C_LIGHT = 299792458.0  # m s⁻¹
-K_BOLTZMANN = 1.380649e-23  # J K⁻¹
+H_PLANCK = scipy.constants.h  # J s
+C_LIGHT = scipy.constants.c  # m s⁻¹
+K_BOLTZMANN = scipy.constants.k  # J K⁻¹
 C1_W_M2 = 2 * np.pi * H_PLANCK * C_LIGHT**2  # first radiation constant, W m^2
 C2_M_K = H_PLANCK * C_LIGHT / K_BOLTZMANN  # second radiation constant, m K
 

@@ -246,7 +246,8 @@ def _planes_of(values: dict) -> tuple[str, ...]:
     return PLANES if "G1" in values else RGB
 
 
-def _float_or_none(v: Any) -> float | None:
+def float_or_none(v: Any) -> float | None:
+    """``None`` stays unknown; anything else becomes a float."""
     return None if v is None else float(v)
 
 
@@ -258,8 +259,8 @@ def spectral_from_dict(d: dict[str, Any]) -> SpectralSensitivity:
             values={p: np.asarray(d["values"][p], float) for p in _planes_of(d["values"])},
             uncertainty={p: np.asarray(d["uncertainty"][p], float) for p in _planes_of(d["values"])},
             units=str(d["units"]), mode="absolute" if d["mode"] == "absolute" else "relative",
-            reference_iso=_float_or_none(d.get("reference_iso")),
-            reference_f_number=_float_or_none(d.get("reference_f_number")),
+            reference_iso=float_or_none(d.get("reference_iso")),
+            reference_f_number=float_or_none(d.get("reference_f_number")),
             bandwidth_nm=None if d.get("bandwidth_nm") is None else float(d["bandwidth_nm"]),
             deconvolved=bool(d.get("deconvolved", False)), n_frames=dict(d.get("n_frames") or {}),
             notes=tuple(str(n) for n in d.get("notes") or ()),
