@@ -82,3 +82,13 @@ def thread_map(fn: Callable[[T], R], items: Iterable[T], threads: int, name: str
         return [fn(x) for x in items]
     with ThreadPoolExecutor(max_workers=min(threads, len(items)), thread_name_prefix=name) as pool:
         return list(pool.map(fn, items))
+
+
+def run_bands(work: Callable[[int, int], object], size: int, band: int, threads: int | None = None,
+              name: str = "camcal") -> None:
+    """Call ``work(start, stop)`` for the consecutive bands of ``band`` items that cover ``range(size)``, on up to
+    ``threads`` threads (default :func:`thread_count` for that many bands; :func:`thread_map`): the one band
+    runner of the stages that split an array into rows or chunks so that a band's temporaries stay in the CPU
+    cache while numpy releases the GIL."""
+    bands = [(s, min(s + band, size)) for s in range(0, size, max(1, int(band)))]
+    thread_map(lambda b: work(*b), bands, thread_count(work_items=len(bands)) if threads is None else threads, name)

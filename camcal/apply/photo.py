@@ -76,7 +76,7 @@ from camcal.models.correct import Calibration, correct_planes, system_gain_dn_pe
 from camcal.models.exposure import frame_relative_exposure
 from camcal.models.flat import FlatChoice, choose_flat
 from camcal.region import Region
-from camcal.threads import default_threads, thread_map
+from camcal.threads import default_threads, run_bands
 from camcal.units import BAND_RADIANCE
 
 BAND_UNITS = BAND_RADIANCE
@@ -319,12 +319,6 @@ def _noise_params(profile, iso: float) -> tuple[np.ndarray | None, np.ndarray | 
 BAND_ROWS = 16
 
 
-def _run_bands(work, n_rows: int, threads: int) -> None:
-    """Run ``work(r0, r1)`` over bands of :data:`BAND_ROWS` rows, on ``threads`` threads (numpy releases the GIL)."""
-    bands = [(r, min(r + BAND_ROWS, n_rows)) for r in range(0, n_rows, BAND_ROWS)]
-    thread_map(lambda b: work(*b), bands, threads)
-
-
 def _raw_check(frame: Frame, plan: ApplyPlan) -> None:
     """Refuse a photo whose layout or planes do not match the profile's (another camera, mode, crop or resolution)."""
     layout = getattr(plan.profile.camera, "layout", "bayer")
@@ -422,7 +416,7 @@ def _raw_pixels(frame: Frame, plan: ApplyPlan, t: float, iso: float, inv_x: floa
                 np.sqrt(var[i], out=var[i])  # σ in place: var[i] is not used after this
                 np.multiply(var[i], band_k[i], out=o[..., 5 + i])
 
-    _run_bands(work, h, threads)
+    run_bands(work, h, BAND_ROWS, threads)
     return out
 
 

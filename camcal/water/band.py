@@ -36,7 +36,8 @@ from camcal.io.data import read_bundled_table
 from camcal.io.manifest import read_text_file
 from camcal.models.profile import load_profile
 from camcal.models.spectra import planck_radiance
-from camcal.water.invert import CHUNK, HermiteTable, Inversion, Reason, _run_chunks
+from camcal.threads import run_bands
+from camcal.water.invert import CHUNK, HermiteTable, Inversion, Reason
 from camcal.water.models import ClosedForm, RefinedModel, SeedModel, form_at
 from camcal.water.purewater import pure_water_absorption_per_m
 from camcal.water.units import specific_absorption_m2_per_mg, ug_per_L_to_mol_per_L
@@ -570,7 +571,7 @@ class BandInverse:
             sl = slice(start, min(start + CHUNK, flat.size))
             self._into(flat[sl], c[sl], sig[sl], reason[sl], s if s is None or np.ndim(s) == 0 else s[sl])
 
-        _run_chunks(work, flat.size)
+        run_bands(lambda start, _stop: work(start), flat.size, CHUNK)
         c = c.reshape(r.shape)
         return Inversion(ug_per_L_to_mol_per_L(c), c, sig.reshape(r.shape), np.full(r.shape, np.nan),
                          reason.reshape(r.shape))

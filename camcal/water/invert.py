@@ -18,14 +18,13 @@ The radiance uncertainty propagates as σ_C = |dC/d ln r| σ_ln r, σ_ln r² = (
 from __future__ import annotations
 
 import functools
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from enum import IntEnum
 
 import numpy as np
 
 from camcal.errors import CamcalError
-from camcal.threads import thread_count
+from camcal.threads import run_bands
 from camcal.water.models import ClosedForm, form_at
 from camcal.water.units import mol_per_L_to_ug_per_L
 
@@ -196,7 +195,7 @@ class TauTable:
             sl = slice(s, min(s + CHUNK, flat.size))
             self.tau_into(flat[sl], tau[sl], reason[sl], None if slope is None else slope[sl])
 
-        _run_chunks(work, flat.size)
+        run_bands(lambda start, _stop: work(start), flat.size, CHUNK)
         out = (tau.reshape(r.shape), reason.reshape(r.shape))
         return out + (slope.reshape(r.shape),) if with_slope else out
 
@@ -232,18 +231,6 @@ class TauTable:
         tau[out] = np.nan
         if slope is not None:
             slope[out] = np.nan
-
-
-def _run_chunks(work, size: int) -> None:
-    """Run ``work(start)`` over chunk starts, on :func:`camcal.threads.thread_count` threads (one per chunk at most)."""
-    starts = range(0, size, CHUNK)
-    threads = thread_count(work_items=len(starts))
-    if threads <= 1:
-        for s in starts:
-            work(s)
-        return
-    with ThreadPoolExecutor(max_workers=threads) as pool:
-        list(pool.map(work, starts))
 
 
 @functools.lru_cache(maxsize=16)
@@ -394,7 +381,7 @@ def _invert_table_scalar(r: np.ndarray, model, cf: ClosedForm, depth_m: float, s
             np.abs(sp, out=sp)
             sp *= float(sigma_ln_ratio) / per_c * to_ug
 
-    _run_chunks(work, flat.size)
+    run_bands(lambda start, _stop: work(start), flat.size, CHUNK)
     shape = r.shape
     return Inversion(c.reshape(shape), cug.reshape(shape), sig.reshape(shape), tau.reshape(shape),
                      reason.reshape(shape))
