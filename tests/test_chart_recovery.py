@@ -269,3 +269,25 @@ def test_a_chart_drawn_within_the_spread(nominal_chart):
     rec = recover_sensitivity(sig, cov, nominal_chart, clear_sky_irradiance(SUN_ZENITH_DEG), camera_basis())
     for plane, (rms, covered) in check(truth, rec).items():
         assert rms <= 10.0 and covered >= 0.90, (plane, rms, covered)
+
+
+def test_chart_evidence_rules_out_an_early_ir_cut_but_not_650_against_680_nm(nominal_chart):
+    """Why c_R's tail past a phone's IR cut is not fitted: the basis of every library camera behind one common
+    extra IR-cut edge (the same filter on R, G and B), scored by the evidence of all three planes (c marginalised,
+    −2 log p), separates a 630 nm cut from the IMX219 module's true ~650 nm one, but 650 from 680 nm only by about
+    one unit, a likelihood ratio below 2: the 24 smooth patches carry next to no information on the edge there."""
+    from camcal.chart.basis import basis_from_curves, filter_edge, with_filter_variants
+    from camcal.chart.recovery import DEFAULT_REGULARISATION, _evidence
+
+    base = camera_basis(filter_variants=False)
+    rel = phone_curves("imx219")
+    truth = TRUE_PEAK * rel / rel.max(axis=1, keepdims=True)
+    sig, cov = render(truth, sunlight_fine(), np.random.default_rng(47))
+    light = clear_sky_irradiance(SUN_ZENITH_DEG)
+    score = {}
+    for cut in (630.0, 650.0, 680.0):
+        names, curves = with_filter_variants(base.cameras, base.curves * filter_edge(GRID_NM, cut, "ir"), GRID_NM)
+        b = basis_from_curves(curves, names, GRID_NM)
+        score[cut] = _evidence(sig, cov, nominal_chart, light, b, 8, DEFAULT_REGULARISATION)
+    assert score[630.0] - min(score[650.0], score[680.0]) > 8.0, score
+    assert abs(score[650.0] - score[680.0]) < 3.0, score
