@@ -213,3 +213,14 @@ def test_rrs_with_the_cie_sky_rho(stations, profile_path):
     flat = run_rrs(profile_path, sorted(d.glob("water_*.dng")), sorted(d.glob("sky_*.dng")), [d / "card.dng"],
                    sun=None, sky_model="cie")
     assert "uniform sky" in flat.result.rho.model and any("CIE sky needs" in n for n in flat.meta["notes"])
+
+
+def test_cli_sky_model(stations, profile_path):
+    d = stations[("turbid", False)]
+    args = ["rrs", "--profile", profile_path, "--water", d / "water_1.dng", "--sky", d / "sky_1.dng", "--card",
+            d / "card.dng", "--json"]
+    code, out, err = run_main([*args, "--sky-model", "cie"])
+    assert code == 0, err
+    assert "CIE standard clear sky" in json.loads(out)["rrs"]["rho"]["model"]
+    code, _, err = run_main([*args, "--sky-model", "perez"])
+    assert code == 2 and "--sky-model" in err and "Traceback" not in err

@@ -13,6 +13,10 @@ surface would reflect into the camera (the sky photo, taken at the water photo's
   facet sends back down into the water are not counted (they see water, not sky). For a uniform sky this is
   ρ = Σ w R(ω) / Σ w over the facets; the sum is a 2-D Gauss-Hermite quadrature over the slopes.
 
+- **a sky of realistic shape** (:func:`rho_sky`, :func:`rho_sky_with_sigma`): the same facets, each carrying the
+  radiance of the CIE standard general sky (CIE S 011/E:2003; Darula & Kittler 2002) in its reflected direction
+  relative to the mirror direction's, for the sun's zenith and azimuth; σ from the clear/hazy sky types.
+
 Uncertainty (:func:`rho_with_sigma`): the wind speed's own 1-σ (a finite difference of the model), and the
 **sky's structure**: the model reflects a uniform sky, a real one brightens towards the horizon and has the sun
 in it. Mobley (1999, Fig. 9 and Table 2) computes ρ with a Hydrolight sky of realistic radiance distribution: at
@@ -28,6 +32,8 @@ J. Opt. Soc. Am. 44(11), 838-850.
 Mobley, C. D. (1994). Light and Water: Radiative Transfer in Natural Waters, §4.4.
 Mobley, C. D. (1999). Estimation of the remote-sensing reflectance from above-surface measurements.
 Applied Optics 38(36), 7442-7455, doi:10.1364/AO.38.007442.
+Darula, S., Kittler, R. (2002). CIE general sky standard defining luminance distributions. Proc. eSim 2002.
+CIE S 011/E:2003 (ISO 15469:2004). Spatial distribution of daylight - CIE standard general sky.
 Leeuw, T., Boss, E. (2018). The HydroColor app: above water measurements of remote sensing reflectance and
 turbidity using a smartphone camera. Sensors 18(1), 256, doi:10.3390/s18010256.
 """
