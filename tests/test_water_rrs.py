@@ -159,3 +159,19 @@ def test_column_radiance_limits():
 def test_hydrocolor_is_a_fixed_rho():
     one = {b: 1.0 for b in BANDS}
     assert hydrocolor_rrs(one, one, one)["R"] == pytest.approx((1 - 0.028) * 0.18 / np.pi)
+
+
+def test_rho_of_the_cie_clear_sky_against_mobley_1999():
+    from camcal.water.skyglint import cie_sky_relative, rho_sky, rho_sky_with_sigma
+
+    # Mobley (1999): 0.028 at 40° from nadir, 135° from the sun, 5 m/s, with a Hydrolight sky
+    r = rho_sky_with_sigma(40.0, 5.0, 2.0, 30.0, 135.0)
+    assert r.value == pytest.approx(0.028, abs=0.0008)
+    assert set(r.terms) == {"wind", "sky_structure"} and 0 < r.terms["sky_structure"] < 0.05 * r.value
+    # a sky brightening to the horizon reflects more than a uniform one; calm water tends to Fresnel
+    assert r.value > 1.05 * rho_rough(40.0, 5.0)
+    assert rho_sky(40.0, 0.0, 30.0, 135.0) == pytest.approx(rho_rough(40.0, 0.0), rel=0.02)
+    # the CIE clear sky: brighter near the sun and towards the horizon than at 90° from the sun at 40° zenith
+    mid = cie_sky_relative(np.cos(np.radians(40)), np.pi / 2)
+    assert cie_sky_relative(np.cos(np.radians(40)), 0.2) > 3 * mid
+    assert cie_sky_relative(np.cos(np.radians(80)), np.pi / 2) > 1.5 * mid

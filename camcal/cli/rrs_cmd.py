@@ -34,6 +34,8 @@ def register(app: typer.Typer) -> None:
                                           "degrees (recorded; the protocol's 135 keeps glitter out)."),
         card_reflectance: Path = typer.Option(None, "--card-reflectance", help="The card's measured reflectance: "
                                               "CSV wavelength_nm,reflectance[,sigma] (default 18 % flat ± 0.36 %)."),
+        sky_model: str = typer.Option("uniform", "--sky-model", help="ρ's sky: uniform, or cie (the CIE standard "
+                                      "clear sky for the sun's position; needs the sun)."),
         sun: str = typer.Option("auto", "--sun", help="auto (the card photo's EXIF time and GPS position) or "
                                 "ZENITH,AZIMUTH in degrees."),
         utc_offset: str = typer.Option(None, help="--sun auto: the camera clock's offset from UTC, +HH:MM."),
@@ -46,6 +48,8 @@ def register(app: typer.Typer) -> None:
         its σ and dominant term; turbidity (FNU) and SPM (g m⁻³) from the red band; band ratios."""
         if not (0 <= wind <= 30 and 0 <= wind_unc <= 30 and 0 <= view_deg < 85):
             raise CamcalError("--wind and --wind-sigma must be 0-30 m/s, --view-deg 0-85")
+        if sky_model not in ("uniform", "cie"):
+            raise CamcalError(f"--sky-model {sky_model!r}: choose uniform or cie")
         note = None
         if sun.strip().lower() == "auto":
             try:
@@ -59,7 +63,7 @@ def register(app: typer.Typer) -> None:
             task = bar.add_task("rrs", total=len(water) + len(sky) + len(card))
             st = run_rrs(profile, list(water), list(sky), list(card), sun=position, view_deg=view_deg,
                          relative_azimuth_deg=azimuth_deg, wind_m_s=wind, wind_sigma_m_s=wind_unc,
-                         card_csv=card_reflectance, progress=lambda: bar.advance(task))
+                         card_csv=card_reflectance, sky_model=sky_model, progress=lambda: bar.advance(task))
         if note:
             st.meta["notes"].insert(0, note)
         page = write_page(st, out, name) if out is not None else None

@@ -50,7 +50,7 @@ from camcal.water.rrs import (
     region_stats,
     screen_water,
 )
-from camcal.water.skyglint import rho_with_sigma
+from camcal.water.skyglint import rho_sky_with_sigma, rho_with_sigma
 
 
 @dataclass
@@ -113,8 +113,10 @@ def _meta(meta: dict) -> dict:
 
 def run_rrs(profile_path, water: list, sky: list, card: list, *, sun: SunPosition | None, view_deg: float = 40.0,
             relative_azimuth_deg: float | None = 135.0, wind_m_s: float | None = 5.0, wind_sigma_m_s: float = 2.0,
-            card_csv: str | Path | None = None, progress=None) -> Station:
-    """The whole stage (module docstring). ``sun`` None: the light is taken flat (noted)."""
+            card_csv: str | Path | None = None, sky_model: str = "uniform", progress=None) -> Station:
+    """The whole stage (module docstring). ``sun`` None: the light is taken flat (noted). ``sky_model`` 'cie': ρ
+    reflects the CIE standard clear sky for the sun's position (:func:`camcal.water.skyglint.rho_sky_with_sigma`;
+    needs the sun, the wind and the relative azimuth), 'uniform': a uniform sky."""
     profile = load_profile(profile_path)
     plan = prepare(profile)
     if plan.relative:
@@ -161,7 +163,13 @@ def run_rrs(profile_path, water: list, sky: list, card: list, *, sun: SunPositio
     if not kept:
         raise CamcalError("every water photo was rejected: " + "; ".join(f"{s.name}: {s.rejected}"
                                                                          for s in stats["water"]))
-    rho = rho_with_sigma(view_deg, wind_m_s, wind_sigma_m_s)
+    if sky_model == "cie" and sun is not None and wind_m_s is not None and relative_azimuth_deg is not None:
+        rho = rho_sky_with_sigma(view_deg, wind_m_s, wind_sigma_m_s, float(sun.apparent_zenith_deg),
+                                 relative_azimuth_deg)
+    else:
+        if sky_model == "cie":
+            notes.append("ρ for a uniform sky: the CIE sky needs the sun's position, the wind and the azimuth")
+        rho = rho_with_sigma(view_deg, wind_m_s, wind_sigma_m_s)
     if card_csv is not None:
         cwl, cr, cs = read_card_csv(card_csv)
     else:

@@ -13,6 +13,10 @@ surface would reflect into the camera (the sky photo, taken at the water photo's
   facet sends back down into the water are not counted (they see water, not sky). For a uniform sky this is
   ρ = Σ w R(ω) / Σ w over the facets; the sum is a 2-D Gauss-Hermite quadrature over the slopes.
 
+- **a sky of realistic shape** (:func:`rho_sky`, :func:`rho_sky_with_sigma`): the same facets, each carrying the
+  radiance of the CIE standard general sky (CIE S 011/E:2003; Darula & Kittler 2002) in its reflected direction
+  relative to the mirror direction's, for the sun's zenith and azimuth; σ from the clear/hazy sky types.
+
 Uncertainty (:func:`rho_with_sigma`): the wind speed's own 1-σ (a finite difference of the model), and the
 **sky's structure**: the model reflects a uniform sky, a real one brightens towards the horizon and has the sun
 in it. Mobley (1999, Fig. 9 and Table 2) computes ρ with a Hydrolight sky of realistic radiance distribution: at
@@ -28,6 +32,8 @@ J. Opt. Soc. Am. 44(11), 838-850.
 Mobley, C. D. (1994). Light and Water: Radiative Transfer in Natural Waters, §4.4.
 Mobley, C. D. (1999). Estimation of the remote-sensing reflectance from above-surface measurements.
 Applied Optics 38(36), 7442-7455, doi:10.1364/AO.38.007442.
+Darula, S., Kittler, R. (2002). CIE general sky standard defining luminance distributions. Proc. eSim 2002.
+CIE S 011/E:2003 (ISO 15469:2004). Spatial distribution of daylight - CIE standard general sky.
 Leeuw, T., Boss, E. (2018). The HydroColor app: above water measurements of remote sensing reflectance and
 turbidity using a smartphone camera. Sensors 18(1), 256, doi:10.3390/s18010256.
 """
@@ -120,3 +126,79 @@ def rho_with_sigma(view_deg: float, wind_m_s: float | None, wind_sigma_m_s: floa
         model = "Cox & Munk (1954) facets, uniform sky, Fresnel per facet"
     return Rho(v, float(np.sqrt(sum(t * t for t in terms.values()))), terms, model, float(view_deg),
                None if wind_m_s is None else float(wind_m_s))
+
+
+# --- ρ for a sky of realistic angular radiance distribution -------------------------------------------------------
+
+#: CIE standard general sky (CIE S 011/E:2003, ISO 15469; Darula & Kittler 2002), the clear types:
+#: (a, b) of the gradation φ(Z) = 1 + a e^(b/cos Z), (c, d, e) of the indicatrix
+#: f(χ) = 1 + c [e^(dχ) − e^(dπ/2)] + e cos²χ.
+CIE_SKY_TYPES = {
+    11: (-1.0, -0.55, 10.0, -3.0, 0.45),  # white-blue sky with a distinct solar corona
+    12: (-1.0, -0.32, 10.0, -3.0, 0.45),  # CIE standard clear sky, low luminance turbidity
+    13: (-1.0, -0.32, 16.0, -3.0, 0.30),  # CIE standard clear sky, polluted atmosphere
+    14: (-1.0, -0.15, 16.0, -3.0, 0.30),  # cloudless turbid sky with a broad solar corona
+}
+#: The nominal sky and the alternatives whose ρ spread is σ(ρ)'s sky-shape term.
+CIE_NOMINAL = 12
+CIE_ALTERNATIVES = (11, 13, 14)
+
+
+def cie_sky_relative(cos_zenith, scattering_rad, sky_type: int = CIE_NOMINAL) -> np.ndarray:
+    """φ(Z) f(χ) of the CIE standard general sky (relative radiance, any scale), Z from the zenith, χ from the sun."""
+    a, b, c, d, e = CIE_SKY_TYPES[sky_type]
+    cz = np.clip(np.asarray(cos_zenith, float), 1e-6, 1.0)
+    chi = np.asarray(scattering_rad, float)
+    return (1.0 + a * np.exp(b / cz)) * (1.0 + c * (np.exp(d * chi) - np.exp(d * np.pi / 2)) + e * np.cos(chi) ** 2)
+
+
+@functools.lru_cache(maxsize=1024)
+def rho_sky(view_deg: float, wind_m_s: float, sun_zenith_deg: float, relative_azimuth_deg: float,
+            sky_type: int = CIE_NOMINAL, n: float = N_WATER, nodes: int = HERMITE_NODES) -> float:
+    """ρ_eff = Σ w R(ω) L(r) / (Σ w · L(mirror)) over Cox-Munk facets (the weights of :func:`rho_rough`), with
+    L the CIE standard general sky of ``sky_type`` for the sun at ``sun_zenith_deg`` and ``relative_azimuth_deg``
+    from the view's azimuth (degrees). The sun's disk itself is not in the sky model: its mirror image is glint,
+    screened out of the water photos. Mobley (1999) computes 0.028 at 40°, 135°, 5 m s⁻¹ with a Hydrolight sky."""
+    if not 0 <= view_deg < 85:
+        raise CamcalError(f"view angle {view_deg:g} deg from nadir: give 0-85 deg")
+    if not 0 <= sun_zenith_deg < 90:
+        raise CamcalError(f"sun zenith {sun_zenith_deg:g} deg: give 0-90 deg")
+    s = np.sqrt(cox_munk_mss(wind_m_s) / 2.0)
+    x, w = np.polynomial.hermite_e.hermegauss(nodes)
+    zx, zy = np.meshgrid(s * x, s * x, indexing="ij")
+    wxy = np.outer(w, w)
+    t = np.radians(view_deg)
+    v = np.array([np.sin(t), 0.0, -np.cos(t)])
+    norm = np.sqrt(1.0 + zx ** 2 + zy ** 2)
+    nx, ny, nz = -zx / norm, -zy / norm, 1.0 / norm
+    cos_w = -(v[0] * nx + v[1] * ny + v[2] * nz)
+    rx, ry, rz = v[0] + 2.0 * cos_w * nx, v[1] + 2.0 * cos_w * ny, v[2] + 2.0 * cos_w * nz
+    zs, az = np.radians(sun_zenith_deg), np.radians(relative_azimuth_deg)
+    sun = np.array([np.sin(zs) * np.cos(az), np.sin(zs) * np.sin(az), np.cos(zs)])
+    chi = np.arccos(np.clip(rx * sun[0] + ry * sun[1] + rz * sun[2], -1.0, 1.0))
+    seen = (cos_w > 0) & (rz > 0)
+    area = wxy * np.where(cos_w > 0, cos_w * norm, 0.0)
+    r = fresnel_reflectance(np.arccos(np.clip(cos_w, -1, 1)), 1.0, n)
+    sky = np.where(seen, cie_sky_relative(rz, chi, sky_type), 0.0)
+    mirror = cie_sky_relative(np.cos(t), np.arccos(np.clip(np.sin(t) * sun[0] + np.cos(t) * sun[2], -1, 1)),
+                              sky_type)
+    return float(np.sum(area * r * sky) / (np.sum(area) * mirror))
+
+
+def rho_sky_with_sigma(view_deg: float, wind_m_s: float, wind_sigma_m_s: float, sun_zenith_deg: float,
+                       relative_azimuth_deg: float, n: float = N_WATER) -> Rho:
+    """ρ of :func:`rho_sky` for the CIE clear sky (type 12) and its 1-σ: the wind's (central difference) and the
+    sky's shape, the largest departure of the other clear types (11 hazier gradation, 13 polluted, 14 turbid) from
+    type 12."""
+    args = (float(view_deg), float(sun_zenith_deg), float(relative_azimuth_deg))
+    v = rho_sky(args[0], float(wind_m_s), args[1], args[2], CIE_NOMINAL, n)
+    h = max(float(wind_sigma_m_s), 1e-3)
+    lo, hi = max(wind_m_s - h, 0.0), min(wind_m_s + h, 30.0)
+    d = (rho_sky(args[0], hi, args[1], args[2], CIE_NOMINAL, n)
+         - rho_sky(args[0], lo, args[1], args[2], CIE_NOMINAL, n)) / (hi - lo)
+    shape = max(abs(rho_sky(args[0], float(wind_m_s), args[1], args[2], k, n) - v) for k in CIE_ALTERNATIVES)
+    terms = {"wind": abs(d) * float(wind_sigma_m_s), "sky_structure": shape}
+    model = (f"Cox & Munk (1954) facets reflecting the CIE standard clear sky (type {CIE_NOMINAL}) for the sun at "
+             f"{sun_zenith_deg:.1f} deg zenith, {relative_azimuth_deg:g} deg in azimuth; σ: wind and clear/hazy sky "
+             "types 11, 13, 14")
+    return Rho(v, float(np.sqrt(sum(t * t for t in terms.values()))), terms, model, float(view_deg), float(wind_m_s))
