@@ -11,11 +11,11 @@ from pathlib import Path
 
 import numpy as np
 
-from camcal.rrs import run_rrs
-from camcal.sun import photo_sun
+from camcal.io.sun import photo_sun
 from camcal.synth.camera import SensorParams, SyntheticCamera
 from camcal.synth.station import place_at, write_station
 from camcal.water.products import SPM_NECHAD_2010, TURBIDITY_DOGLIOTTI_2015, product
+from camcal.water.rrs_photos import run_rrs
 
 SUNS = {"high": "2026-06-21T11:40:00Z", "low": "2026-06-21T16:40:00Z"}
 
