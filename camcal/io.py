@@ -766,7 +766,7 @@ def _load_monochrome(path: Path) -> Frame:
     lo, hi = int(data.min()), int(data.max())
     return Frame(data=np.ascontiguousarray(data, np.uint16), kind="raw", cfa_pattern=None,
                  black_level_dn={"Y": 0.0}, white_level_dn=float(2**bits - 1), exposure=exp, path=path,
-                 layout="mono").with_value_range(lo, hi)
+                 layout="mono", black_level_source="unknown").with_value_range(lo, hi)
 
 
 def _processed_frame(path: Path, rgb: np.ndarray, bits: int, exposure: Exposure, icc_profile: str | None) -> Frame:
@@ -896,11 +896,11 @@ def _load_fits(path: Path) -> Frame:
         sources += [("capture_time", "tag"), ("utc_offset", "tag")]
     exp = Exposure(exposure_s=t, capture_time=when, utc_offset=None if when is None else "+00:00",
                    model=None if model is None else str(model).strip(), sources=tuple(sorted(sources)))
-    pedestal = _clean(header.get("PEDESTAL")) or 0.0
+    pedestal = _clean(header.get("PEDESTAL"))
     out = np.ascontiguousarray(data, np.uint16)
-    return Frame(data=out, kind="raw", cfa_pattern=None, black_level_dn={"Y": float(pedestal)},
+    return Frame(data=out, kind="raw", cfa_pattern=None, black_level_dn={"Y": float(pedestal or 0.0)},
                  white_level_dn=float(2**bits - 1), exposure=exp, path=path,
-                 layout="mono").with_value_range(int(out.min()), int(out.max()))
+                 layout="mono", black_level_source="file" if pedestal is not None else "unknown").with_value_range(int(out.min()), int(out.max()))
 
 
 def is_raw_path(path: Path) -> bool:
