@@ -900,7 +900,8 @@ def _load_fits(path: Path) -> Frame:
     out = np.ascontiguousarray(data, np.uint16)
     return Frame(data=out, kind="raw", cfa_pattern=None, black_level_dn={"Y": float(pedestal or 0.0)},
                  white_level_dn=float(2**bits - 1), exposure=exp, path=path,
-                 layout="mono", black_level_source="file" if pedestal is not None else "unknown").with_value_range(int(out.min()), int(out.max()))
+                 layout="mono", black_level_source="file" if pedestal is not None else "unknown",
+                 ).with_value_range(int(out.min()), int(out.max()))
 
 
 def is_raw_path(path: Path) -> bool:
