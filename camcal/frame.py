@@ -191,6 +191,9 @@ class Frame:
     path: Path | None = None
     layout: Literal["bayer", "linear", "processed", "mono"] | None = None
     icc_profile: str | None = None
+    black_level_source: str = "file"
+    """Where ``black_level_dn`` came from: ``"file"`` (its tags), or ``"unknown"`` (a PNG, TIFF or FITS frame that
+    states none: the value is a placeholder 0, and the dark fit estimates the offset from the dark series)."""
     value_range_dn: tuple[int, int] | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:

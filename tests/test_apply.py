@@ -438,3 +438,57 @@ def test_uniform_grey_scene_l663_is_its_spectral_radiance(tmp_path, profile_path
     assert sigma >= meta["spectral_unc_rel"] * value  # the spectral term is in the stated σ
     for ch in "RGB":  # a flat spectrum: every band radiance is the spectral radiance itself
         assert float(np.nanmedian(chans[ch])) == pytest.approx(0.02, rel=0.01), ch
+
+
+# ---- a monochrome sensor: band radiance Y -------------------------------------------------------------------------
+def test_monochrome_session_calibrate_then_apply_gives_y_within_2_sigma(tmp_path):
+    """One plane of the synthetic camera as one-sample LinearRaw DNGs: calibrate (dark, flat, linearity) with the
+    plane's true c(λ) as its spectral sensitivity, then ``camcal apply`` on a uniform scene of known radiance: the
+    band radiance Y = ∫L c dλ / ∫c dλ within 2σ of its mean over a centre ROI, and no L663 (one broad channel)."""
+    import dataclasses
+
+    from camcal.calibrate.run import CalibrateOptions, calibrate_session
+    from camcal.cli import main
+    from camcal.models.profile import save_profile
+    from camcal.models.spectral import ABSOLUTE_UNITS, SpectralSensitivity
+    from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
+    from camcal.synth.dng import encode_mono_dng
+    from camcal.synth.session import _white_spectrum, exposure_for_level
+
+    cam = SyntheticCamera(SensorParams(width=128, height=96, prnu_sigma=0.005, hot_pixel_fraction=0.0))
+    p = cam.params
+    rng = np.random.default_rng(11)
+    spec = _white_spectrum(5000.0)
+
+    def shoot(path, t, scene):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        planes = cam.expose_planes(scene, exposure_s=t, rng=rng)
+        path.write_bytes(encode_mono_dng(planes[1], black_level_dn=p.black_level_dn[1], white_level_dn=p.white_dn,
+                                         exposure_s=t, f_number=4.0, iso=100))
+
+    for t in (1 / 4000, 2.0, 8.0):
+        for i in range(3):
+            shoot(tmp_path / "S" / "dark" / f"d_{t:g}_{i}.dng", t, Scene.dark())
+    t_flat = exposure_for_level(cam, spec, 0.45, 100, 4.0)
+    for i in range(8):
+        shoot(tmp_path / "S" / "flat" / f"f_{i}.dng", t_flat, Scene.uniform(spec))
+    profile, _ = calibrate_session(tmp_path / "S", CalibrateOptions(reference_iso=100, reference_f_number=4.0))
+    c = cam.spectral_sensitivity(100, 4.0)[1]  # the G plane's true c(λ) at the reference setting
+    sens = SpectralSensitivity(WAVELENGTHS_NM, {"Y": c}, {"Y": 0.002 * c}, ABSOLUTE_UNITS, "absolute", 100.0, 4.0)
+    save_profile(dataclasses.replace(profile, spectral=sens), tmp_path / "mono.camcal")
+    scene = 1.7 * spec
+    t = exposure_for_level(cam, scene, 0.4, 100, 4.0)
+    shoot(tmp_path / "photo.dng", t, Scene.uniform(scene))
+    assert main(["apply", str(tmp_path / "mono.camcal"), str(tmp_path / "photo.dng"), "-o", str(tmp_path / "out"),
+                 "--roi", "16,12,32,24"]) == 0
+    img = read_exr(next((tmp_path / "out").glob("*.exr")))
+    ch = img[0]
+    assert set(ch) == {"Y", "Y_unc"}
+    truth = float(np.trapezoid(scene * c, WAVELENGTHS_NM) / np.trapezoid(c, WAVELENGTHS_NM))
+    y, u = ch["Y"][12:36, 16:48], ch["Y_unc"][12:36, 16:48]  # the 64x48 plane's centre
+    assert abs(np.nanmean(y) - truth) < 2 * np.nanmean(u) / np.sqrt(np.isfinite(y).sum()) + 0.004 * truth
+    assert np.nanstd(y) == pytest.approx(np.nanmean(u), rel=0.15)  # the stated σ is the pixels' scatter
+    with pytest.raises(CamcalError, match="one channel"):
+        prepare(dataclasses.replace(profile, spectral=sens), estimator="smooth")
+    filt = prepare(dataclasses.replace(profile, spectral=sens), estimator="narrowband", filter_fwhm_nm=10.0)
+    assert filt.model.weights[0] == pytest.approx(1 / (10.0 * np.interp(663.0, WAVELENGTHS_NM, c)), rel=1e-3)

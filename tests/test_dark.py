@@ -172,3 +172,35 @@ def test_dark_model_evaluates_itself_on_a_window():
     np.testing.assert_array_equal(bias_only.dark_frame_dn(30.0, 800.0), bias)
     with pytest.raises(CamcalError, match="exposure time"):
         dark_frame(model, -1.0, None, bias.shape, path="x.dng")
+
+
+def test_png_darks_without_bias_fit_their_offset_instead_of_assuming_zero(tmp_path):
+    """One-channel 16-bit PNGs state no black level: without bias frames the offset is the dark series' intercept
+    (not a prior of 0 at t = 0, which tilts the line), so the dark current is the truth and the source is recorded."""
+    import OpenImageIO as oiio
+
+    from camcal.io.read import load_frame
+
+    rng = np.random.default_rng(3)
+    offset_dn, current_dn_per_s, read_dn = 1200.0, 5.0, 3.0  # levels 1205..1280 DN: far from 11 bits' top
+    d = tmp_path / "dark"
+    d.mkdir()
+    rows = ["file,exposure_s,iso"]
+    for t in (1.0, 4.0, 16.0):
+        for i in range(4):
+            level = offset_dn + current_dn_per_s * t
+            a = np.clip(np.rint(rng.normal(level, np.sqrt(read_dn**2 + level - offset_dn), (32, 48))), 0, 65535)
+            name = f"d_{t:g}_{i}.png"
+            out = oiio.ImageOutput.create(str(d / name))
+            out.open(str(d / name), oiio.ImageSpec(48, 32, 1, oiio.UINT16))
+            out.write_image(np.ascontiguousarray(a.astype(np.uint16)[..., None]))
+            out.close()
+            rows.append(f"{name},{t},100")
+    (d / "frames.csv").write_text("\n".join(rows) + "\n")
+    assert load_frame(d / "d_1_0.png").black_level_source == "unknown"
+    model = fit_dark(d)
+    beta = float(np.median(model.dark_current_dn_per_s))
+    bias = float(np.median(model.bias_dn))
+    assert beta == pytest.approx(current_dn_per_s, abs=0.1), (beta, bias)  # a prior of 0 at t = 0 would give ≫ 5 DN/s
+    assert bias == pytest.approx(offset_dn, abs=1.0), bias
+    assert model.provenance["black_level_source"].startswith("unknown")

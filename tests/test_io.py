@@ -340,3 +340,33 @@ def test_fits_frames(tmp_path):
     (tmp_path / "cut.fits").write_bytes(raw[:2880 + 100])
     with pytest.raises(CamcalError, match="truncated"):
         load_frame(tmp_path / "cut.fits", defaults={})
+
+
+def test_a_session_of_fits_frames_through_calibrate(tmp_path):
+    """FITS darks and flats (exposure time from EXPTIME, no black level stated) through ``camcal calibrate``: a
+    one-channel profile whose dark current and offset are the truth (offset from the dark series' intercept)."""
+    from astropy.io import fits
+
+    from camcal.cli import main
+    from camcal.models.profile import load_profile
+
+    rng = np.random.default_rng(1)
+    root = tmp_path / "S"
+    yy, xx = np.mgrid[0:48, 0:64]
+    vignetting = 1 - 0.2 * (((xx - 32) / 32) ** 2 + ((yy - 24) / 24) ** 2)
+    for stage, times, lit in (("dark", (1.0, 4.0, 16.0), False), ("flat", (0.5,), True)):
+        (root / stage).mkdir(parents=True)
+        for t in times:
+            for i in range(4):
+                level = 1200 + 5 * t + (20000 * vignetting if lit else np.zeros((48, 64)))
+                a = np.clip(np.rint(rng.normal(level, np.sqrt(9 + level - 1200))), 0, 65535).astype(np.uint16)
+                hdr = fits.Header()
+                hdr["EXPTIME"] = t
+                fits.PrimaryHDU(a, header=hdr).writeto(root / stage / f"{stage}_{t:g}_{i}.fits")
+    (root / "session.toml").write_text("iso = 100\nf_number = 4.0\n")
+    assert main(["calibrate", str(root), "-o", str(tmp_path / "p.camcal")]) == 0
+    p = load_profile(tmp_path / "p.camcal")
+    assert p.camera.layout == "mono" and p.flat is not None and p.flat.channels == ("Y",)
+    assert float(np.median(p.dark.dark_current_dn_per_s)) == pytest.approx(5.0, abs=0.1)
+    assert float(np.median(p.dark.bias_dn)) == pytest.approx(1200.0, abs=1.0)
+    assert p.dark.provenance["black_level_source"].startswith("unknown")

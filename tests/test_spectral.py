@@ -341,3 +341,34 @@ def test_cli_sweep_writes_csv_meta_and_png(session_dir, camera, tmp_path):
     assert '"peak_wavelength_nm"' in proc.stdout
     bad = run_cli("sweep", session_dir / "sweep", "-o", tmp_path / "x.txt")
     assert_one_line_error(bad, "x.txt", ".csv")
+
+
+def test_monochrome_sweep_measures_one_plane_y(tmp_path):
+    """A sweep of one-sample LinearRaw DNGs (one plane of the synthetic camera: a monochrome sensor) gives c(λ) of
+    one plane ``Y``, the plane's true curve within 1 % of its peak (relative)."""
+    import shutil
+
+    from camcal.frame import split_planes
+    from camcal.io.read import load_frame
+    from camcal.synth.dng import encode_mono_dng
+
+    cam = SyntheticCamera(SensorParams(width=96, height=64, seed=5))
+    src = write_session(tmp_path / "S", cam, SessionPlan(stages=("sweep",)))
+    mono = tmp_path / "M" / "sweep"
+    mono.mkdir(parents=True)
+    for f in (src / "sweep").iterdir():
+        if f.suffix.lower() != ".dng":
+            shutil.copyfile(f, mono / f.name)
+            continue
+        fr = load_frame(f)
+        plane = split_planes(fr.data, fr.cfa_pattern)[1]  # G1
+        e = fr.exposure
+        (mono / f.name).write_bytes(encode_mono_dng(plane, black_level_dn=fr.black_vector().ravel()[1],
+                                                    white_level_dn=fr.white_level_dn, exposure_s=e.exposure_s,
+                                                    f_number=e.f_number, iso=int(e.iso)))
+    s = quiet_measure(mono, mode="relative")
+    assert s.plane_names == ("Y",) and s.mono
+    truth = truth_at(cam, s.wavelength_nm)[1]
+    truth /= truth.max()
+    err = float(np.sqrt(np.mean((s.values["Y"] - truth) ** 2)))
+    assert err < 0.01, err

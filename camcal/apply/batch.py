@@ -46,6 +46,7 @@ from pathlib import Path
 
 from camcal.apply.photo import (
     LINEAR_RESOLUTION_NOTE,
+    MONO_RESOLUTION_NOTE,
     apply_prepared,
     check_camera,
     prepare,
@@ -276,7 +277,7 @@ def _stats(channels: dict, options: BatchOptions, mask_image, where: Path, meta:
         return ()
 
     shape = next(iter(channels.values())).shape
-    scale = 1 if (meta or {}).get("resolution") == LINEAR_RESOLUTION_NOTE else 2
+    scale = 1 if (meta or {}).get("resolution") in (LINEAR_RESOLUTION_NOTE, MONO_RESOLUTION_NOTE) else 2
     m = roi_mask(shape, options.roi, mask_image, where, scale=scale)
     units = (meta or {}).get("units") or {}
     rows = roi_statistics({k: channels[k] for k in sorted(channels, key=_channel_order)}, m)

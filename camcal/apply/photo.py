@@ -67,7 +67,7 @@ from pathlib import Path
 import numpy as np
 import OpenImageIO as oiio
 
-from camcal.apply.radiance import RadianceModel, radiance_at, radiance_model
+from camcal.apply.radiance import RadianceModel, mono_model, radiance_at, radiance_model
 from camcal.errors import CamcalError
 from camcal.frame import PLANES, Frame, plane_offsets, rgb_from_planes
 from camcal.io.read import open_image, read_pixels
@@ -203,8 +203,14 @@ def prepare(
                           "--reference-f-number, or with 'iso' and 'f_number' in session.toml (imported curves: "
                           "camcal profile import-spectral --reference-iso and --reference-f-number)")
     slit = 0.0 if spectral.deconvolved else spectral.bandwidth_nm
-    model = radiance_model(spectral.wavelength_nm, spectral.rgb(), spectral.rgb_uncertainty(), float(wavelength_nm),
-                           estimator, filter_fwhm_nm=filter_fwhm_nm, line_fwhm_nm=line_fwhm_nm, slit_fwhm_nm=slit)
+    if getattr(spectral, "mono", False):  # one channel Y: band radiance, L(λ0) only through a narrowband filter
+        model = mono_model(spectral.wavelength_nm, spectral.values["Y"], spectral.uncertainty["Y"],
+                           float(wavelength_nm), estimator, filter_fwhm_nm=filter_fwhm_nm,
+                           line_fwhm_nm=line_fwhm_nm, slit_fwhm_nm=slit)
+    else:
+        model = radiance_model(spectral.wavelength_nm, spectral.rgb(), spectral.rgb_uncertainty(),
+                               float(wavelength_nm), estimator, filter_fwhm_nm=filter_fwhm_nm,
+                               line_fwhm_nm=line_fwhm_nm, slit_fwhm_nm=slit)
     flat_planes, flat_rgb = _flat_maps(None if profile.flat is None else profile.flat.gain(with_prnu=with_prnu),
                                        profile)
     prnu_rel = None
@@ -237,7 +243,7 @@ def _flat_maps(gain: np.ndarray | None, profile) -> tuple[np.ndarray | None, np.
     flat_planes = np.asarray(gain, np.float32)
     if flat_planes.shape[0] == 4:
         return flat_planes, rgb_from_planes(flat_planes)
-    if getattr(profile.camera, "layout", "bayer") == "linear":  # linear RAW: R, G, B planes
+    if getattr(profile.camera, "layout", "bayer") in ("linear", "mono"):  # linear RAW R, G, B or mono Y planes
         return flat_planes, flat_planes
     return None, flat_planes  # a flat fitted on processed RGB frames
 
@@ -325,8 +331,8 @@ def _raw_check(frame: Frame, plan: ApplyPlan) -> None:
     if frame.layout != layout:
         raise CamcalError(f"is a {frame.layout} RAW file but the profile was measured on {layout} RAW frames; a "
                           "profile applies only to photos of its layout", frame.path)
-    if frame.layout == "linear":
-        shape = (3, *frame.shape)
+    if frame.layout in ("linear", "mono"):
+        shape = (3 if frame.layout == "linear" else 1, *frame.shape)
     else:
         shape = (4, frame.shape[0] // 2, frame.shape[1] // 2)
         if frame.shape[0] % 2 or frame.shape[1] % 2:
@@ -492,6 +498,8 @@ def apply_prepared(frame: Frame, plan: ApplyPlan, *, allow_other_camera: bool = 
     iso = frame.exposure.require("iso", path)
     plan, choice = plan_for_optics(plan, frame.exposure, path, notes, strict)
     inv_x = 1.0 / x
+    if frame.layout == "mono" or getattr(profile.spectral, "mono", False):
+        return _mono_image(frame, plan, t, iso, inv_x, notes, choice)
     if frame.kind == "raw":
         pixels = _raw_pixels(frame, plan, t, iso, inv_x, notes, default_threads() if threads is None else threads)
     else:
@@ -577,6 +585,74 @@ def apply_prepared(frame: Frame, plan: ApplyPlan, *, allow_other_camera: bool = 
         "invalid": "NaN: defective (dark model) or saturated pixels",
         "optics": None if choice is None else choice.record(profile.flat),
         "notes": notes,
+    }
+    return RadianceImage(channels, meta)
+
+
+MONO_RESOLUTION_NOTE = "full resolution: the monochrome sensor's own pixels (no colour filter)"
+
+
+def _mono_image(frame: Frame, plan: ApplyPlan, t: float, iso: float, inv_x: float, notes: list[str],
+                choice: FlatChoice | None) -> RadianceImage:
+    """A monochrome RAW frame -> ``Y`` (band radiance, :data:`BAND_UNITS`) and ``Y_unc``; with the narrowband
+    estimator also ``L<λ0>`` and its σ (:func:`camcal.apply.radiance.mono_model`). Same chain as :func:`_raw_pixels`
+    on the one plane: dark, flat, exposure, ``Y = rate / ∫c dλ``."""
+    profile = plan.profile
+    if frame.layout != "mono" or not getattr(profile.spectral, "mono", False):
+        raise CamcalError(f"is a {frame.layout} {frame.kind} file but the profile's c(λ) is "
+                          f"{'of a monochrome sensor (Y)' if getattr(profile.spectral, 'mono', False) else 'R, G, B'}"
+                          "; a profile applies only to photos of its layout", frame.path)
+    _raw_check(frame, plan)
+    cal, model = plan.calibration, plan.model
+    if cal.dark is None:
+        notes.append("no dark model: the file's black level was subtracted, dark current ignored; no noise map")
+    planes = np.asarray(frame.data, np.float32)[None].copy()
+    corr = correct_planes(planes, cal, exposure_s=t, iso=iso, white_level_dn=float(frame.white_level_dn),
+                          black_level_dn=frame.black_vector().ravel(), variance=True, channels=("Y",),
+                          path=frame.path, inplace=True)
+    signal, invalid, var = corr.signal_dn, corr.invalid, corr.variance_dn2
+    signal[invalid] = np.nan
+    if var is not None and plan.prnu_rel is not None:
+        var = var + (plan.prnu_rel * signal) ** 2
+    k = np.float32(inv_x / model.band_integral[0])
+    y = (signal[0] * k).astype(np.float32)
+    y_unc = np.full_like(y, np.nan) if var is None else (np.sqrt(np.maximum(var[0], 0)) * k).astype(np.float32)
+    relative = plan.relative
+    band_units = RELATIVE_UNITS if relative else BAND_UNITS
+    channels = {"Y": y, "Y_unc": y_unc}
+    units = {"Y": band_units, "Y_unc": band_units}
+    if np.any(model.weights != 0):
+        name = radiance_channel_name(model.wavelength_nm, model.in_band)
+        lv, lu = radiance_at(signal, var, model, inv_x)
+        channels |= {name: lv.astype(np.float32), f"{name}_unc": lu.astype(np.float32)}
+        units |= {name: RELATIVE_UNITS if relative else model.units,
+                  f"{name}_unc": RELATIVE_UNITS if relative else model.units}
+    else:
+        notes.append(f"monochrome sensor: one broad channel cannot reconstruct the spectral radiance at "
+                     f"{model.wavelength_nm:g} nm, so only the band radiance Y is written (with a narrowband filter "
+                     "in front of the lens: --estimator narrowband --filter-fwhm FWHM)")
+    if plan.flat_planes is None:
+        notes.append("no flat model: vignetting not corrected")
+    e = frame.exposure
+    meta = {
+        "units": units,
+        "radiance_scale": "relative" if relative else "absolute",
+        "uncertainty": {"Y_unc": "1-σ noise of the band radiance (photon, read and dark noise, PRNU left "
+                                 "uncorrected); the c(λ) scale uncertainty is band_scale_unc_rel"},
+        "band_scale_unc_rel": [float(model.band_unc[0] / model.band_integral[0])],
+        "band": "Y = rate / ∫c dλ: the c(λ)-weighted mean spectral radiance over the sensor's band",
+        "wavelength_nm": model.wavelength_nm, "estimator": model.estimator, "estimator_channel": model.channel,
+        "estimator_weights": [float(w) for w in model.weights], "options": plan.options,
+        "profile_sha256": profile.content_sha256,
+        "source_file": str(frame.path) if frame.path is not None else None,
+        "source_name": frame.path.name if frame.path is not None else None, "kind": frame.kind,
+        "exposure": {"exposure_s": e.exposure_s, "iso": e.iso, "f_number": e.f_number,
+                     "focal_length_mm": e.focal_length_mm, "capture_time": e.capture_time,
+                     "relative_exposure_s": 1.0 / inv_x, "reference_iso": profile.reference_iso,
+                     "reference_f_number": profile.reference_f_number},
+        "camera": {"make": e.make, "model": e.model, "serial": e.serial},
+        "resolution": MONO_RESOLUTION_NOTE, "invalid": "NaN: defective (dark model) or saturated pixels",
+        "optics": None if choice is None else choice.record(profile.flat), "notes": notes,
     }
     return RadianceImage(channels, meta)
 

@@ -350,3 +350,44 @@ def smooth_spread_rel(wavelength_nm: np.ndarray, c_rgb: dict[str, np.ndarray], t
     errors = np.array([row["error_pct"] for row in smooth_error_table(wavelength_nm, c_rgb, target_nm)]) / 100.0
     errors = errors[np.isfinite(errors)]
     return float(np.sqrt(np.mean(errors**2))) if errors.size else float("nan")
+
+
+def mono_model(
+    wavelength_nm: np.ndarray,
+    c: np.ndarray,
+    c_unc: np.ndarray | None,
+    target_nm: float = 663.0,
+    estimator: str = "auto",
+    filter_fwhm_nm: float | None = None,
+    line_fwhm_nm: float | None = None,
+    slit_fwhm_nm: float | None = None,
+) -> RadianceModel | None:
+    """The band radiance of a monochrome sensor's one channel ``Y``, and L(λ0) only where it is honest.
+
+    ``band_integral`` is ∫c dλ (``Y = rate / ∫c dλ``, the c-weighted mean spectral radiance, as for R, G, B).
+    One broad channel cannot reconstruct a spectrum, so ``auto`` gives no L(λ0) (returns a model of zero
+    weight); ``narrowband`` gives L(λ0) = rate / c(λ0) (in-band, W m⁻² sr⁻¹) or, with ``filter_fwhm_nm`` (a
+    narrowband filter in front of the lens), rate / (c(λ0) · FWHM) in W m⁻² sr⁻¹ nm⁻¹; ``smooth`` and
+    ``trained`` are refused.
+    """
+    if estimator in SPECTRAL_ESTIMATORS:
+        raise CamcalError(f"a monochrome sensor has one channel: the {estimator} estimator needs three to reconstruct "
+                          "a spectrum; use --estimator narrowband with --filter-fwhm (a narrowband filter in front "
+                          "of the lens), or the default, which writes the band radiance Y alone")
+    if estimator not in ESTIMATORS:
+        raise CamcalError(f"unknown estimator {estimator!r}; choose {', '.join(ESTIMATORS)}")
+    wl = np.asarray(wavelength_nm, float)
+    rgb = {k: np.asarray(c, float) for k in RGB}
+    unc = None if c_unc is None else {k: np.asarray(c_unc, float) for k in RGB}
+    if estimator == "narrowband":
+        m = radiance_model(wl, rgb, unc, target_nm, "narrowband", filter_fwhm_nm, line_fwhm_nm, slit_fwhm_nm)
+        return replace(m, band_integral=m.band_integral[:1], band_unc=m.band_unc[:1], weights=m.weights[m.weights != 0],
+                       channel="Y")
+    cc = np.clip(np.asarray(c, float), 0, None)
+    band = np.trapezoid(cc, wl)
+    if band <= 0:
+        raise CamcalError("the channel Y has no sensitivity at all; the profile's c(λ) is unusable")
+    u = np.zeros_like(cc) if c_unc is None else np.asarray(c_unc, float)
+    band_unc = float(np.sqrt(np.sum((u * np.gradient(wl)) ** 2)))
+    return RadianceModel(np.array([band]), np.array([band_unc]), float(target_nm), "none", np.zeros(1), 0.0,
+                         IN_BAND_RADIANCE, None)

@@ -463,8 +463,10 @@ def fit_dark_stacks(stacks: DarkStacks, options: DarkOptions = DarkOptions(),  #
         obs.append((tb, bias_stack.value, bias_stack.count, None))
     for t, st in stack_list:
         obs.append((t, st.value, st.count, None))
-    if bias_stack is None:  # the black level as a prior point at t = 0, weighted as bias_prior_frames frames
+    black_known = bool(getattr(ref, "black_level_known", True))
+    if bias_stack is None and black_known:  # the file's black level as a prior point at t = 0 (bias_prior_frames)
         obs.insert(0, (0.0, black, np.float64(bias_prior_frames), None))
+    # files that state no black level (PNG, TIFF, FITS): the offset is the dark series' intercept, no prior
     # the maps in float32, as the model stores them (the sums in float64): 0.7 GB less new memory at 24 MP
     beta, _, b, _, _ = _fit_lines(obs, white, with_variance=False, with_count=False, dtype=np.float32, jobs=jobs)
     # Per-pixel temporal variances from 4-16 frames are too noisy to propagate (a t-like tail), so the
@@ -533,7 +535,9 @@ def fit_dark_stacks(stacks: DarkStacks, options: DarkOptions = DarkOptions(),  #
                     "noisy_sigma": noisy_sigma, "saturation_fraction": saturation_fraction,
                     "bias_prior_frames": bias_prior_frames},
         "read_noise_method": noise.method,
-        "bias_source": "bias frames" if bias_stack is not None else "fit of dark frames, black level as prior",
+        "bias_source": "bias frames" if bias_stack is not None else "fit of dark frames, black level as prior"
+        if black_known else "fit of dark frames: intercept at t = 0 (the files state no black level)",
+        "black_level_source": "file" if black_known else "unknown (the files state none)",
         "read_noise_source": "bias frames" if bias_stack is not None
         else f"shortest dark ({stack_list[0][0]:g} s), per-plane value extrapolated to t = 0",
     }

@@ -137,6 +137,8 @@ class StackResult:
     variance_all: np.ndarray | None = None
     mean_all: np.ndarray | None = None
     kept_planes: tuple[np.ndarray, ...] = ()
+    black_level_known: bool = True
+    """False when the files state no black level (PNG, TIFF, FITS without one): ``black_level_dn`` is a placeholder."""
 
 
 # --------------------------------------------------------------------------------------------
@@ -154,6 +156,7 @@ class _Meta:
     frame_shape: tuple[int, int]
     planes_shape: tuple[int, ...]
     layout: str = "bayer"
+    black_known: bool = True
 
 
 def _check_same(meta: _Meta, first: _Meta, path: Path) -> None:
@@ -244,7 +247,7 @@ class _Decoder:
             spill = planes if self.spill_fd is not None else None
         meta = _Meta(index, frame.exposure, frame.kind, frame.cfa_pattern, frame.channel_names,
                      tuple(float(v) for v in frame.black_vector().ravel()), float(frame.white_level_dn), frame.shape,
-                     shape, str(frame.layout))
+                     shape, str(frame.layout), getattr(frame, "black_level_source", "file") != "unknown")
         return meta, spill, planes
 
     def spill_write(self, index: int, planes: np.ndarray) -> None:
@@ -865,6 +868,7 @@ def _combine(paths: tuple[Path, ...], method: str, sigma: float, keep_frames: in
         exposures=tuple(used[i].exposure for i in order), paths=tuple(paths[i] for i in order),
         channel_names=first_meta.channel_names, kind=first_meta.kind, cfa_pattern=first_meta.cfa_pattern,
         black_level_dn=first_meta.black, white_level_dn=first_meta.white, frame_shape=first_meta.frame_shape,
+        black_level_known=first_meta.black_known,
         variance_all=var_all, mean_all=mean_all,
         kept_planes=tuple(kept[i] for i in order[:keep_frames] if i in kept),
     )

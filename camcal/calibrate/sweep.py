@@ -60,7 +60,7 @@ from camcal.calibrate.robust import median_and_mad
 from camcal.calibrate.screen import FrameFacts, StageJudge
 from camcal.calibrate.session import SWEEP_CSV, SWEEP_REQUIRED
 from camcal.errors import CamcalError, FrameLeftOut, TooFewFrames
-from camcal.frame import PLANES, RGB, Frame, split_planes
+from camcal.frame import MONO, PLANES, RGB, Frame, split_planes
 from camcal.io.manifest import exposure_overrides, read_manifest, safe_member
 from camcal.io.read import load_frame
 from camcal.models.correct import Calibration, correct_planes
@@ -193,6 +193,9 @@ def _process_frame(row: SweepRow, cal: Calibration, roi: tuple[int, int, int, in
     if frame.layout == "bayer":
         planes = split_planes(frame.data[2 * y0: 2 * y1, 2 * x0: 2 * x1], frame.cfa_pattern)
         full = (4, frame.shape[0] // 2, frame.shape[1] // 2)
+    elif frame.layout == "mono":  # a monochrome sensor: its one plane Y at full resolution
+        planes = frame.data[None, y0:y1, x0:x1].astype(np.float32)
+        full = (1, *frame.shape)
     else:  # linear RAW: R, G, B at full resolution
         planes = np.moveaxis(frame.data[y0:y1, x0:x1], -1, 0).astype(np.float32)
         full = (3, *frame.shape)
@@ -444,7 +447,7 @@ def measure_sweep_settings(
     if judge is not None and judge.majority.layout is not None and judge.majority.raw_shape is not None:
         # the session's RAW geometry: every frame the judge keeps has it (no frame decoded twice)
         layout, full_shape = judge.majority.layout, judge.majority.raw_shape
-        names = PLANES if layout == "bayer" else RGB
+        names = PLANES if layout == "bayer" else MONO if layout == "mono" else RGB
     else:  # geometry from the first frame (decoded again by the pool)
         first = load_frame(rows[0].path, rows[0].overrides)
         if first.kind != "raw":

@@ -223,8 +223,11 @@ def _tag_present(tags: dict[str, object], field_name: str) -> bool:
 def exposure_from_exif(path: Path, tags: dict[str, object] | None = None) -> Exposure:
     """Exposure metadata from a file's EXIF, via exifread; every value found is marked ``tag``.
 
-    A tag that holds zero (or an empty date) gives None: unknown.
+    A tag that holds zero (or an empty date) gives None: unknown. A FITS file has no EXIF: its header's keys
+    (:func:`_fits_exposure`).
     """
+    if tags is None and is_fits(path):
+        return _fits_exposure(_fits_header(path))
     tags = _exif_tags(path) if tags is None else tags
     if not tags:
         return Exposure()
@@ -766,7 +769,7 @@ def _load_monochrome(path: Path) -> Frame:
     lo, hi = int(data.min()), int(data.max())
     return Frame(data=np.ascontiguousarray(data, np.uint16), kind="raw", cfa_pattern=None,
                  black_level_dn={"Y": 0.0}, white_level_dn=float(2**bits - 1), exposure=exp, path=path,
-                 layout="mono").with_value_range(lo, hi)
+                 layout="mono", black_level_source="unknown").with_value_range(lo, hi)
 
 
 def _processed_frame(path: Path, rgb: np.ndarray, bits: int, exposure: Exposure, icc_profile: str | None) -> Frame:
@@ -861,6 +864,20 @@ def _fits_header(path: Path):
     return header
 
 
+def _fits_exposure(header) -> Exposure:
+    """Exposure time (``EXPTIME`` or ``EXPOSURE``, s), capture time (``DATE-OBS``, UTC) and model (``INSTRUME``) of
+    a FITS header, each marked ``tag``."""
+    t = _clean(header.get("EXPTIME", header.get("EXPOSURE")))
+    when = header.get("DATE-OBS")
+    when = when.strip()[:19] if isinstance(when, str) and when.strip() else None
+    model = header.get("INSTRUME")
+    sources = [("exposure_s", "tag")] if t is not None else []
+    if when is not None:  # FITS times are UTC (FITS standard 4.0 §9.1)
+        sources += [("capture_time", "tag"), ("utc_offset", "tag")]
+    return Exposure(exposure_s=t, capture_time=when, utc_offset=None if when is None else "+00:00",
+                    model=None if model is None else str(model).strip(), sources=tuple(sorted(sources)))
+
+
 def _load_fits(path: Path) -> Frame:
     """A FITS image (an astronomy camera's frame) as a monochrome RAW frame.
 
@@ -887,20 +904,13 @@ def _load_fits(path: Path) -> Frame:
     bits = min(int(stated), 16) if stated is not None else min(bits, 16)
     if data.size and int(data.max()) >= 2**bits:
         raise CamcalError(f"holds {int(data.max())}, above the {bits}-bit range", path)
-    t = _clean(header.get("EXPTIME", header.get("EXPOSURE")))
-    when = header.get("DATE-OBS")
-    when = when.strip()[:19] if isinstance(when, str) and when.strip() else None
-    model = header.get("INSTRUME")
-    sources = [("exposure_s", "tag")] if t is not None else []
-    if when is not None:  # FITS times are UTC (FITS standard 4.0 §9.1)
-        sources += [("capture_time", "tag"), ("utc_offset", "tag")]
-    exp = Exposure(exposure_s=t, capture_time=when, utc_offset=None if when is None else "+00:00",
-                   model=None if model is None else str(model).strip(), sources=tuple(sorted(sources)))
-    pedestal = _clean(header.get("PEDESTAL")) or 0.0
+    exp = _fits_exposure(header)
+    pedestal = _clean(header.get("PEDESTAL"))
     out = np.ascontiguousarray(data, np.uint16)
-    return Frame(data=out, kind="raw", cfa_pattern=None, black_level_dn={"Y": float(pedestal)},
+    return Frame(data=out, kind="raw", cfa_pattern=None, black_level_dn={"Y": float(pedestal or 0.0)},
                  white_level_dn=float(2**bits - 1), exposure=exp, path=path,
-                 layout="mono").with_value_range(int(out.min()), int(out.max()))
+                 layout="mono", black_level_source="file" if pedestal is not None else "unknown",
+                 ).with_value_range(int(out.min()), int(out.max()))
 
 
 def is_raw_path(path: Path) -> bool:

@@ -246,7 +246,7 @@ def validate_document(doc: dict, where: str | Path) -> None:
     if spec:
         n = len(spec["wavelength_nm"])
         for part in ("values", "uncertainty"):
-            for plane in (PLANES if "G1" in spec[part] else RGB):
+            for plane in (PLANES if "G1" in spec[part] else ("Y",) if "Y" in spec[part] else RGB):
                 if len(spec[part][plane]) != n:
                     raise CamcalError(f"spectral_sensitivity.{part}.{plane} has {len(spec[part][plane])} values, "
                                       f"wavelength_nm has {n}", where)

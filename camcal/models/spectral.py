@@ -14,7 +14,7 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 
 from camcal.errors import CamcalError
-from camcal.frame import PLANES, RGB
+from camcal.frame import MONO, PLANES, RGB
 from camcal.io.store import to_jsonable
 from camcal.models.spectra import FWHM_TO_SIGMA
 from camcal.units import RELATIVE, SPECTRAL_SENSITIVITY
@@ -85,21 +85,29 @@ class SpectralSensitivity:
         if wl.ndim != 1 or wl.size == 0 or np.any(np.diff(wl) <= 0):
             raise CamcalError("spectral sensitivity wavelengths must be a non-empty increasing 1-D array")
         for d in (self.values, self.uncertainty):
-            if set(d) not in (set(PLANES), set(RGB)) or any(np.shape(v) != wl.shape for v in d.values()):
-                raise CamcalError(f"spectral sensitivity needs planes {PLANES} (Bayer) or {RGB} (linear RAW) of "
-                                  f"{wl.size} values each")
+            if set(d) not in (set(PLANES), set(RGB), set(MONO)) or any(np.shape(v) != wl.shape for v in d.values()):
+                raise CamcalError(f"spectral sensitivity needs planes {PLANES} (Bayer), {RGB} (linear RAW) or {MONO} "
+                                  f"(monochrome) of {wl.size} values each")
         if set(self.values) != set(self.uncertainty):
             raise CamcalError("spectral sensitivity values and uncertainties name different planes")
 
     @property
     def plane_names(self) -> tuple[str, ...]:
-        """:data:`camcal.frame.PLANES` (Bayer sensors) or :data:`camcal.frame.RGB` (linear RAW)."""
-        return PLANES if "G1" in self.values else RGB
+        """:data:`camcal.frame.PLANES` (Bayer sensors), :data:`camcal.frame.RGB` (linear RAW) or
+        :data:`camcal.frame.MONO` (a monochrome sensor)."""
+        return PLANES if "G1" in self.values else MONO if "Y" in self.values else RGB
+
+    @property
+    def mono(self) -> bool:
+        """True for the one channel ``Y`` of a monochrome sensor (no R, G, B views)."""
+        return "Y" in self.values
 
     # ---- views ---------------------------------------------------------------------
     def rgb(self) -> dict[str, np.ndarray]:
         """R, G (mean of G1 and G2 on a Bayer sensor), B."""
         v = self.values
+        if "Y" in v:  # a monochrome sensor: its one channel
+            return {"Y": v["Y"]}
         if "G1" not in v:
             return {"R": v["R"], "G": v["G"], "B": v["B"]}
         return {"R": v["R"], "G": 0.5 * (v["G1"] + v["G2"]), "B": v["B"]}
@@ -107,12 +115,16 @@ class SpectralSensitivity:
     def rgb_uncertainty(self) -> dict[str, np.ndarray]:
         """Standard uncertainty of :meth:`rgb` (G1 and G2 treated as independent)."""
         u = self.uncertainty
+        if "Y" in u:
+            return {"Y": u["Y"]}
         if "G1" not in u:
             return {"R": u["R"], "G": u["G"], "B": u["B"]}
         return {"R": u["R"], "G": 0.5 * np.hypot(u["G1"], u["G2"]), "B": u["B"]}
 
     def channels(self) -> dict[str, np.ndarray]:
-        """Planes and RGB together: R, G1, G2, B, G (R, G, B for linear RAW)."""
+        """Planes and RGB together: R, G1, G2, B, G (R, G, B for linear RAW; Y for a monochrome sensor)."""
+        if self.mono:
+            return dict(self.values)
         return {**self.values, "G": self.rgb()["G"]}
 
 
@@ -243,7 +255,7 @@ def spectral_to_dict(s: SpectralSensitivity) -> dict[str, Any]:
 
 def _planes_of(values: dict) -> tuple[str, ...]:
     """The plane names a stored curve set uses: R, G1, G2, B (Bayer) or R, G, B (linear RAW)."""
-    return PLANES if "G1" in values else RGB
+    return PLANES if "G1" in values else MONO if "Y" in values else RGB
 
 
 def float_or_none(v: Any) -> float | None:
