@@ -623,7 +623,7 @@ def test_dark_fit_with_bias_frames_and_one_dark_time_against_numpy(tmp_path):
         "options": {"method": "sigma_clip", "sigma": 3.0, "hot_sigma": 6.0, "hot_factor": 5.0, "noisy_sigma": 6.0,
                     "saturation_fraction": 0.01, "bias_prior_frames": 1.0},
         "read_noise_method": "per-pixel temporal variance minus the quantisation variance 1/12 DN² (EMVA 1288 eq. 4)",
-        "bias_source": "bias frames", "read_noise_source": "bias frames"}
+        "bias_source": "bias frames", "read_noise_source": "bias frames", "black_level_source": "file"}
 
     # bias only: the bias frames' own model, with the options and folder given
     only = fit_dark_stacks(DarkStacks((), bias_st, bias_folder=bias_folder), DarkOptions(hot_sigma=7.0))
