@@ -82,7 +82,8 @@ def parse_corners(text: str) -> np.ndarray:
         raise CamcalError("--corners must be eight numbers x1,y1,x2,y2,x3,y3,x4,y4: the swatch grid's outer corners "
                           f"in photo pixels, next to patch 1 (dark skin), 6, 24 (black) and 19 (white); got {text!r}")
     c = np.array(vals, float).reshape(4, 2)
-    area = 0.5 * abs(np.cross(c[2] - c[0], c[3] - c[1]))
+    d1, d2 = c[2] - c[0], c[3] - c[1]
+    area = 0.5 * abs(d1[0] * d2[1] - d1[1] * d2[0])  # the quadrilateral's area from its diagonals' cross product
     if area < 24 * 16:
         raise CamcalError(f"--corners {text!r} enclose {area:.0f} square pixels: too small for 24 patches")
     return c
