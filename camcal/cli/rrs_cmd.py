@@ -34,8 +34,8 @@ def register(app: typer.Typer) -> None:
                                           "degrees (recorded; the protocol's 135 keeps glitter out)."),
         card_reflectance: Path = typer.Option(None, "--card-reflectance", help="The card's measured reflectance: "
                                               "CSV wavelength_nm,reflectance[,sigma] (default 18 % flat ± 0.36 %)."),
-        sky_model: str = typer.Option("uniform", "--sky-model", help="ρ's sky: uniform, or cie (the CIE standard "
-                                      "clear sky for the sun's position; needs the sun)."),
+        sky_model: str = typer.Option("cie", "--sky-model", help="ρ's sky: cie (the CIE standard "
+                                      "clear sky for the sun's position; needs the sun; the default) or uniform."),
         sun: str = typer.Option("auto", "--sun", help="auto (the card photo's EXIF time and GPS position) or "
                                 "ZENITH,AZIMUTH in degrees."),
         utc_offset: str = typer.Option(None, help="--sun auto: the camera clock's offset from UTC, +HH:MM."),

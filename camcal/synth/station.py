@@ -6,9 +6,13 @@ light. Each scene is spectral (1 nm, 380-780 nm), rendered here from its own phy
 estimator** (:mod:`camcal.water.rrs`, :mod:`camcal.water.skyglint`): nothing of :mod:`camcal.water` is called.
 
 - **Light**: SPECTRL2 (Bird & Riordan 1986, :class:`camcal.synth.sunlit.SunSky`) at the sun of the photos' place
-  and time (pvlib's solar position): E_d = DNI cos θs + DHI. The sky is not uniform: it brightens towards the
-  horizon, L(θ) = L0 [1 + k (1 − cos θ)], with L0 fixed by ∫ L cos θ dΩ = DHI (so L0 = DHI / (π (1 + k/3))),
-  k = ``SKY_GRADIENT``.
+  and time (pvlib's solar position): E_d = DNI cos θs + DHI. The sky's angular shape is the Perez, Seals &
+  Michalsky (1993) all-weather luminance model for a clear sky (clearness bin 8, ε > 6.2, brightness
+  Δ = ``PEREZ_DELTA``): L(ζ, γ) = L0 (1 + a e^(b/cos ζ)) (1 + c e^(dγ) + e cos²γ), ζ the zenith angle of the sky
+  element, γ its angle to the sun, the coefficients x = x1 + x2 Z + Δ (x3 + x4 Z) of the model's table at the
+  sun's zenith Z; L0 is fixed by ∫ L cos ζ dΩ = DHI over the hemisphere (numerically). The sky photos and every
+  reflected ray carry this sky at their own direction and the sun of the station (the view points 135° in
+  azimuth from the sun). Its shape is independent of the estimator's CIE sky.
 - **Water** (a bio-optical model): a = a_w (Pope & Fry 1997) + a_ph(Chl) (Bricaud et al. 1998, A C^E) +
   a_CDOM(440) e^(−0.014 (λ−440)) + a_NAP(440) e^(−0.011 (λ−440)) (Babin et al. 2003); b_b = b_bw + b_bp with
   b_bw = 0.5 · 0.00288 (λ/500)^−4.32 (Morel 1974) and b_bp(λ) = b_bp(555) (555/λ)^η. The subsurface
@@ -37,7 +41,9 @@ Meteor. 25, 87-97. Bricaud, A. et al. (1998). J. Geophys. Res. 103(C13), 31033-3
 J. Opt. Soc. Am. 44(11), 838-850. Gordon, H. R. et al. (1988). J. Geophys. Res. 93(D9), 10909-10924.
 Lee, Z., Carder, K. L., Arnone, R. A. (2002). Applied Optics 41(27), 5755-5772. Morel, A. (1974). Optical
 properties of pure water and pure sea water. In Optical Aspects of Oceanography, 1-24. Mobley, C. D. (1999).
-Applied Optics 38(36), 7442-7455. Pope, R. M., Fry, E. S. (1997). Applied Optics 36(33), 8710-8723.
+Applied Optics 38(36), 7442-7455. Perez, R., Seals, R., Michalsky, J. (1993). All-weather model for sky luminance
+distribution. Solar Energy 50(3), 235-245 (erratum 51(5), 423). Pope, R. M., Fry, E. S. (1997). Applied Optics
+36(33), 8710-8723.
 """
 
 from __future__ import annotations
@@ -57,7 +63,11 @@ from camcal.synth.exif import PlaceTime
 from camcal.synth.secchi import suggest_exposure_s
 from camcal.synth.sunlit import N_LAKE, SUN_SOLID_ANGLE_SR, SunSky, _fresnel_r, lake_absorption_per_m
 
-SKY_GRADIENT = 0.6
+PEREZ_DELTA = 0.15
+#: Perez et al. (1993) Table 1, clearness bin 8 (ε > 6.2): (x1, x2, x3, x4) of a, b, c, d, e.
+PEREZ_CLEAR = {"a": (-1.0500, 0.0289, 0.4260, 0.3590), "b": (-0.3250, 0.1156, 0.7781, 0.0025),
+               "c": (31.0625, -14.5000, -46.1148, 55.3750), "d": (-7.2312, 0.4050, 13.3500, 0.6234),
+               "e": (1.5000, -0.6426, 1.8564, 0.5636)}
 FACETS = 400_000
 WAVE_SCATTER = 0.02
 SKY_DRIFT = 0.01
@@ -95,12 +105,42 @@ def water_rrs(wavelengths_nm, water: Water) -> np.ndarray:
     return 0.52 * r / (1.0 - 1.7 * r)
 
 
-def sky_shape(cos_theta) -> np.ndarray:
-    """L(θ)/L0 = 1 + k (1 − cos θ)."""
-    return 1.0 + SKY_GRADIENT * (1.0 - np.asarray(cos_theta, float))
+def _sun_direction(sun_zenith_deg: float) -> np.ndarray:
+    """Unit vector to the sun in the station frame: x the camera's view azimuth, the sun 135° away from it."""
+    z, phi = np.radians(sun_zenith_deg), np.radians(RELATIVE_AZIMUTH_DEG)
+    return np.array([np.sin(z) * np.cos(phi), np.sin(z) * np.sin(phi), np.cos(z)])
 
 
-def surface_reflectance(view_deg: float, wind_m_s: float, rng: np.random.Generator, facets: int = FACETS) -> float:
+def sky_shape(direction, sun_zenith_deg: float, delta: float = PEREZ_DELTA) -> np.ndarray:
+    """L/L0 of the Perez et al. (1993) clear sky (module docstring) at unit vectors ``direction`` (3, ...)."""
+    zs = np.radians(sun_zenith_deg)
+    k = {n: x1 + x2 * zs + delta * (x3 + x4 * zs) for n, (x1, x2, x3, x4) in PEREZ_CLEAR.items()}
+    d = np.asarray(direction, float)
+    cz = np.clip(d[2], 1e-6, 1.0)
+    s = _sun_direction(sun_zenith_deg).reshape((3,) + (1,) * (d.ndim - 1))
+    gamma = np.arccos(np.clip(np.sum(d * s, axis=0), -1.0, 1.0))
+    return (1.0 + k["a"] * np.exp(k["b"] / cz)) * (1.0 + k["c"] * np.exp(k["d"] * gamma)
+                                                   + k["e"] * np.cos(gamma) ** 2)
+
+
+def sky_irradiance_integral(sun_zenith_deg: float, steps: int = 720) -> float:
+    """∫ (L/L0) cos ζ dΩ over the sky hemisphere (sr), midpoint rule in ζ and azimuth."""
+    zeta = (np.arange(steps // 4) + 0.5) * (np.pi / 2) / (steps // 4)
+    phi = (np.arange(steps) + 0.5) * 2 * np.pi / steps
+    zz, pp = np.meshgrid(zeta, phi, indexing="ij")
+    d = np.stack([np.sin(zz) * np.cos(pp), np.sin(zz) * np.sin(pp), np.cos(zz)])
+    f = sky_shape(d, sun_zenith_deg) * np.cos(zz) * np.sin(zz)
+    return float(f.sum() * (np.pi / 2 / zeta.size) * (2 * np.pi / steps))
+
+
+def view_sky_direction(view_deg: float) -> np.ndarray:
+    """The sky photo's direction: θv from the zenith, the mirror of the water view (azimuth 0 of the frame)."""
+    t = np.radians(view_deg)
+    return np.array([np.sin(t), 0.0, np.cos(t)])
+
+
+def surface_reflectance(view_deg: float, wind_m_s: float, rng: np.random.Generator, facets: int = FACETS,
+                        sun_zenith_deg: float = 40.0) -> float:
     """ρ_eff of the module docstring by Monte Carlo over Cox-Munk facets (sky radiance relative to L(θv))."""
     s = np.sqrt((0.003 + 0.00512 * wind_m_s) / 2.0)
     zx, zy = rng.normal(0.0, s, facets), rng.normal(0.0, s, facets)
@@ -113,8 +153,8 @@ def surface_reflectance(view_deg: float, wind_m_s: float, rng: np.random.Generat
     front = cos_w > 0
     w = np.where(front, cos_w * norm, 0.0)
     up = front & (r[2] > 0)
-    refl = np.where(up, _fresnel_r(cos_w, 1.0, N_LAKE) * sky_shape(np.clip(r[2], 0, 1)), 0.0)
-    return float(np.sum(w * refl) / np.sum(w) / sky_shape(np.cos(t)))
+    refl = np.where(up, _fresnel_r(cos_w, 1.0, N_LAKE) * sky_shape(r, sun_zenith_deg), 0.0)
+    return float(np.sum(w * refl) / np.sum(w) / sky_shape(view_sky_direction(view_deg), sun_zenith_deg))
 
 
 def station_sun(place: PlaceTime) -> tuple[float, float]:
@@ -151,11 +191,11 @@ def write_station(outdir: str | Path, camera: SyntheticCamera, *, water: str | W
                  day_of_year=int(place.utc_aware.timetuple().tm_yday))
     dni, dhi = sky.spectra(wl)
     ed = dni * np.cos(np.radians(zen)) + dhi
-    l0 = dhi / (np.pi * (1.0 + SKY_GRADIENT / 3.0))
-    l_sky_view = l0 * sky_shape(np.cos(np.radians(VIEW_DEG)))
+    l0 = dhi / sky_irradiance_integral(zen)
+    l_sky_view = l0 * float(sky_shape(view_sky_direction(VIEW_DEG), zen))
     rrs = water_rrs(wl, wtype)
     lw = rrs * ed
-    rho = surface_reflectance(VIEW_DEG, wind_m_s, rng)
+    rho = surface_reflectance(VIEW_DEG, wind_m_s, rng, sun_zenith_deg=zen)
     card = np.full(wl.size, 0.18) if card_reflectance is None else np.interp(wl, card_wavelengths_nm,
                                                                                card_reflectance)
     sens = camera.spectral_sensitivity()
@@ -198,13 +238,14 @@ def write_station(outdir: str | Path, camera: SyntheticCamera, *, water: str | W
 
     truth = {
         "renderer": "camcal.synth.station (SPECTRL2, Gordon/Lee Rrs(a, bb), Cox-Munk Monte Carlo surface, "
-                    "sky brightening to the horizon)",
+                    "Perez et al. 1993 clear sky)",
         "water": asdict(wtype) | {"name": water if isinstance(water, str) else "custom"},
         "rrs_per_sr": band(lw),
         "rrs_spectrum": {"wavelength_nm": wl[::5].tolist(), "rrs_per_sr": rrs[::5].tolist()},
         "reflected_over_ed_per_sr": band(reflected_sum / max(kept, 1)),
         "rho_eff": rho, "wind_m_s": wind_m_s, "view_deg": VIEW_DEG, "relative_azimuth_deg": RELATIVE_AZIMUTH_DEG,
-        "sky_gradient": SKY_GRADIENT, "sun_zenith_deg": zen, "sun_azimuth_deg": az,
+        "sky_model": {"name": "Perez et al. (1993) clear sky, bin 8", "delta": PEREZ_DELTA},
+        "sun_zenith_deg": zen, "sun_azimuth_deg": az,
         "utc": place.utc_aware.astimezone(UTC).isoformat(), "latitude_deg": place.latitude_deg,
         "longitude_deg": place.longitude_deg,
         "glint_photo": None if glint_photo is None else f"water_{glint_photo}.dng",

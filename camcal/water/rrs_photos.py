@@ -113,7 +113,7 @@ def _meta(meta: dict) -> dict:
 
 def run_rrs(profile_path, water: list, sky: list, card: list, *, sun: SunPosition | None, view_deg: float = 40.0,
             relative_azimuth_deg: float | None = 135.0, wind_m_s: float | None = 5.0, wind_sigma_m_s: float = 2.0,
-            card_csv: str | Path | None = None, sky_model: str = "uniform", progress=None) -> Station:
+            card_csv: str | Path | None = None, sky_model: str = "cie", progress=None) -> Station:
     """The whole stage (module docstring). ``sun`` None: the light is taken flat (noted). ``sky_model`` 'cie': ρ
     reflects the CIE standard clear sky for the sun's position (:func:`camcal.water.skyglint.rho_sky_with_sigma`;
     needs the sun, the wind and the relative azimuth), 'uniform': a uniform sky."""
