@@ -492,3 +492,12 @@ def test_monochrome_session_calibrate_then_apply_gives_y_within_2_sigma(tmp_path
         prepare(dataclasses.replace(profile, spectral=sens), estimator="smooth")
     filt = prepare(dataclasses.replace(profile, spectral=sens), estimator="narrowband", filter_fwhm_nm=10.0)
     assert filt.model.weights[0] == pytest.approx(1 / (10.0 * np.interp(663.0, WAVELENGTHS_NM, c)), rel=1e-3)
+    # the profile reads as a one-channel profile everywhere: its summary has a Y column, its report renders
+    shown = run_cli("profile", "show", tmp_path / "mono.camcal")
+    assert shown.returncode == 0, shown.stderr
+    header = next(line for line in shown.stdout.splitlines() if "quantity" in line)
+    assert "Y" in header and " R " not in header
+    report = run_cli("report", tmp_path / "mono.camcal", "-o", tmp_path / "mono.html")
+    assert report.returncode == 0, report.stderr
+    html = (tmp_path / "mono.html").read_text()
+    assert "u(Y)" in html and "u(R)" not in html  # the c(λ) table of the one channel

@@ -56,11 +56,12 @@ def print_contract(c: dict, title: str = "profile") -> None:
     if c["spectral_sensitivity"]:
         s = c["spectral_sensitivity"]
         rows += [("peak λ", "nm", s["peak_wavelength_nm"]), ("effective λ", "nm", s["effective_wavelength_nm"])]
+    channels = ("Y",) if cam.get("layout") == "mono" else ("R", "G", "B")  # a monochrome sensor has one channel
     table = Table(show_header=True, title_justify="left")
-    for col in ("quantity", "unit", "R", "G", "B"):
+    for col in ("quantity", "unit", *channels):
         table.add_column(col, justify="left" if col in ("quantity", "unit") else "right")
     for name, unit, vals in rows:
-        table.add_row(name, unit, *(_fmt((vals or {}).get(ch)) for ch in ("R", "G", "B")))
+        table.add_row(name, unit, *(_fmt((vals or {}).get(ch)) for ch in channels))
     console.print(table)
     if c["flat"]:
         console.print(f"flats at {flats_optics_text(c['flat'])}", soft_wrap=True, markup=False, highlight=False)

@@ -422,8 +422,8 @@ def contract(profile: CalibrationProfile) -> dict:
         rgb, unc = s.rgb(), s.rgb_uncertainty()
         out["spectral_sensitivity"] = {
             "wavelength_nm": [float(v) for v in s.wavelength_nm],
-            **{c: [float(v) for v in rgb[c]] for c in ("R", "G", "B")},
-            **{f"{c}_unc": [float(v) for v in unc[c]] for c in ("R", "G", "B")},
+            **{c: [float(v) for v in rgb[c]] for c in rgb},  # R, G, B; Y for a monochrome sensor
+            **{f"{c}_unc": [float(v) for v in unc[c]] for c in rgb},
             "units": s.units,
             "mode": s.mode,
             "peak_wavelength_nm": s.peak_wavelength_nm(),

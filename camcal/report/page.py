@@ -240,15 +240,16 @@ def _spectral_section(profile, c: dict) -> str:
     s = c["spectral_sensitivity"]
     spec = profile.spectral
     peak, eff = s["peak_wavelength_nm"], s["effective_wavelength_nm"]
-    summary = _table(["quantity", "unit", *_RGB], _channel_rows(
-        [("peak λ", "nm", peak), ("effective λ", "nm", eff)], _RGB), left=2)
+    planes, bands = (("Y",), ("Y",)) if spec.mono else (_RGB, ("R", "G", "B"))  # a monochrome sensor: Y alone
+    summary = _table(["quantity", "unit", *planes], _channel_rows(
+        [("peak λ", "nm", peak), ("effective λ", "nm", eff)], planes), left=2)
     values = spec.channels()
-    rows = [[f"{wl:g}", *(values[ch][i] if ch in values else None for ch in _RGB),  # linear RAW: no G1, G2
-             *(s[f"{ch}_unc"][i] for ch in ("R", "G", "B"))]
+    rows = [[f"{wl:g}", *(values[ch][i] if ch in values else None for ch in planes),  # linear RAW: no G1, G2
+             *(s[f"{ch}_unc"][i] for ch in bands)]
             for i, wl in enumerate(s["wavelength_nm"])]
     full = ("<details><summary>c(λ) values ("
             f"{len(rows)} wavelengths)</summary>"
-            + _table(["λ [nm]", *_RGB, "u(R)", "u(G)", "u(B)"], rows) + "</details>")
+            + _table(["λ [nm]", *planes, *(f"u({b})" for b in bands)], rows) + "</details>")
     band = "unknown" if spec.bandwidth_nm is None else f"{spec.bandwidth_nm:g} nm"
     notes = "".join(f"<li>{_esc(n)}</li>" for n in spec.notes)
     fig = _img(png_bytes(spectral_figure(spec)), "spectral sensitivity with uncertainty bands",

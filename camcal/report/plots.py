@@ -380,6 +380,8 @@ def spectral_figure(spec: SpectralSensitivity, truth: dict[str, np.ndarray] | No
     if truth is not None and truth_wavelength_nm is None:
         raise ValueError("truth needs truth_wavelength_nm")
     wl = np.asarray(spec.wavelength_nm, float)
+    if spec.mono:
+        return _mono_spectral_figure(spec, wl, truth, truth_wavelength_nm, title)
     rgb, unc = spec.rgb(), spec.rgb_uncertainty()
     fig = new_figure(11.0, 5.8)
     (ax1, ax2), (ax3, ax4) = fig.subplots(2, 2, sharex=True, height_ratios=[2.6, 1.0])
@@ -419,6 +421,30 @@ def spectral_figure(spec: SpectralSensitivity, truth: dict[str, np.ndarray] | No
         ax.legend(fontsize=7, ncols=3 if ax in (ax3, ax4) else 1)
     for ax in (ax3, ax4):
         ax.set_xlabel("wavelength λ [nm]")
+    if title:
+        fig.suptitle(title, fontsize=10)
+    return fig
+
+
+def _mono_spectral_figure(spec, wl: np.ndarray, truth, truth_wavelength_nm, title: str | None) -> Figure:
+    """c(λ) of a monochrome sensor's one channel ``Y`` with its ±1 σ band (top) and u(λ) (bottom)."""
+    v, u = np.asarray(spec.values["Y"], float), np.asarray(spec.uncertainty["Y"], float)
+    fig = new_figure(7.0, 5.0)
+    ax1, ax3 = fig.subplots(2, 1, sharex=True, height_ratios=[2.6, 1.0])
+    ax1.fill_between(wl, v - u, v + u, color="0.5", alpha=0.3, lw=0)
+    ax1.plot(wl, v, "-", color="0.15", lw=1.4, marker=".", ms=3, label="Y")
+    ax3.plot(wl, u, "-", color="0.15", lw=1.2, label="u(Y)")
+    if truth is not None and "Y" in truth:
+        ax1.plot(np.asarray(truth_wavelength_nm, float), np.asarray(truth["Y"], float), ":", color="0.15", lw=1.6,
+                 label="Y truth")
+    unit = "rel." if spec.mode == "relative" else f"{DN_PER_S} per {SPECTRAL_RADIANCE}"
+    ax1.set_title("c(λ) of the monochrome channel Y; band ±1 σ" + (", deconvolved" if spec.deconvolved else ""))
+    ax1.set_ylabel(f"c(λ) [{unit}]", fontsize=8)
+    ax3.set_ylabel("u(λ)", fontsize=8)
+    ax3.set_xlabel("wavelength λ [nm]")
+    for ax in (ax1, ax3):
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
     if title:
         fig.suptitle(title, fontsize=10)
     return fig
