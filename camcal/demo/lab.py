@@ -67,6 +67,20 @@ class Check:
         return bool(np.isfinite(self.recovered) and abs(self.error) <= self.tolerance)
 
 
+def checks_table(title: str, checks: list[Check], absolute_bound: str = "±") -> Table:
+    """The demo's table of truth against recovered: one row per :class:`Check`, its error and tolerance (relative
+    in %, else absolute with ``absolute_bound``, ``±`` or ``≤``) and a tick or a cross."""
+    table = Table(title=title, title_justify="left", pad_edge=False)
+    for col in ("stage", "quantity", "truth", "recovered", "error", "tolerance", ""):
+        table.add_column(col, justify="left" if col in ("stage", "quantity") else "right")
+    for c in checks:
+        err = f"{100 * c.error:+.2f}%" if c.relative else f"{c.error:+.2g}"
+        tol = f"±{100 * c.tolerance:g}%" if c.relative else f"{absolute_bound}{c.tolerance:g}"
+        table.add_row(c.stage, c.quantity, f"{c.truth:.4g}", f"{c.recovered:.4g}", err, tol,
+                      "[green]✓[/green]" if c.ok else "[red]✗[/red]")
+    return table
+
+
 def _checks(truth: dict, contract: dict, survey: dict, vignetting_error: float) -> list[Check]:
     rows: list[Check] = []
     d = contract["dark"]
@@ -200,17 +214,8 @@ def run_demo(out: str | Path, *, size: tuple[int, int] = (384, 256), preset_name
     checks = _checks(truth, contract(profile), survey_vals, vig)
     checks.append(Check("secchi", f"chl-a sunlit ({CONCENTRATION})", CHL_UG_PER_L, sec.c_ug_per_L, 0.03))
 
-    table = Table(title=f"camcal demo: truth against recovered (chl-a {CHL_UG_PER_L:g} {CONCENTRATION} at "
-                        f"{100 * DEPTH_M:g} cm)",
-                  title_justify="left", pad_edge=False)
-    for col in ("stage", "quantity", "truth", "recovered", "error", "tolerance", ""):
-        table.add_column(col, justify="left" if col in ("stage", "quantity") else "right")
-    for c in checks:
-        err = f"{100 * c.error:+.2f}%" if c.relative else f"{c.error:+.2g}"
-        tol = f"±{100 * c.tolerance:g}%" if c.relative else f"±{c.tolerance:g}"
-        table.add_row(c.stage, c.quantity, f"{c.truth:.4g}", f"{c.recovered:.4g}", err, tol,
-                      "[green]✓[/green]" if c.ok else "[red]✗[/red]")
-    console.print(table)
+    console.print(checks_table(f"camcal demo: truth against recovered (chl-a {CHL_UG_PER_L:g} {CONCENTRATION} at "
+                               f"{100 * DEPTH_M:g} cm)", checks))
     for n in notes:
         console.print(f"note: {n}")
     seconds = time.perf_counter() - t0

@@ -17,11 +17,10 @@ import time
 from pathlib import Path
 
 import numpy as np
-from rich.table import Table
 
 from camcal.apply.photo import apply
 from camcal.chart.profile_build import ChartOptions, build_chart_profile
-from camcal.demo.lab import Check
+from camcal.demo.lab import Check, checks_table
 from camcal.errors import CamcalError
 from camcal.io.read import load_frame
 from camcal.io.sun import photo_sun
@@ -90,16 +89,8 @@ def run_phone_demo(out: str | Path) -> dict:
             checks.append(Check(f"secchi {ext.upper()}", "|C − truth| / σ_C (≤ 2)", 0.0,
                                 abs(c - c_true) / sigma if sigma > 0 else float("inf"), 2.0, relative=False))
         bar.update(task, advance=2)
-    table = Table(title=f"camcal demo --phone: a chart in the sun, then the lake (chl-a {c_true:g} {CONCENTRATION})",
-                  title_justify="left", pad_edge=False)
-    for col in ("stage", "quantity", "truth", "recovered", "error", "tolerance", ""):
-        table.add_column(col, justify="left" if col in ("stage", "quantity") else "right")
-    for c in checks:
-        err = f"{100 * c.error:+.2f}%" if c.relative else f"{c.error:+.2g}"
-        tol = f"±{100 * c.tolerance:g}%" if c.relative else f"≤{c.tolerance:g}"
-        table.add_row(c.stage, c.quantity, f"{c.truth:.4g}", f"{c.recovered:.4g}", err, tol,
-                      "[green]✓[/green]" if c.ok else "[red]✗[/red]")
-    console.print(table)
+    console.print(checks_table(f"camcal demo --phone: a chart in the sun, then the lake (chl-a {c_true:g} "
+                               f"{CONCENTRATION})", checks, absolute_bound="≤"))
     rms = res.recovered.term_rms_pct_of_peak()
     console.print("c(λ) from the chart: u(c) RMS % of peak " + ", ".join(f"{p} {v['total']:.2g}"
                                                                         for p, v in rms.items()), highlight=False)
