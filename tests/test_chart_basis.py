@@ -9,6 +9,7 @@ from camcal.chart.basis import (
     _pca,
     _uncentred_components,
     camera_basis,
+    ir_cut_nodes,
     leave_one_out_table,
     projection_floor,
 )
@@ -66,3 +67,18 @@ def test_exclude(basis):
     assert max(projection_floor(b, d5100, 8).values()) > 0.1
     with pytest.raises(CamcalError, match="not a camera of the curve library"):
         camera_basis(exclude=("Apple iPhone 15 Pro",))
+
+
+def test_a_known_ir_cut_takes_every_camera_behind_that_edge_and_none_without_it():
+    nodes = ir_cut_nodes(650.0, 10.0)
+    assert np.mean(nodes) == pytest.approx(650.0) and np.var(nodes) == pytest.approx(100.0)
+    assert ir_cut_nodes(650.0, 0.0) == (650.0,)
+    b = camera_basis(ir_cut=(650.0, 10.0))
+    assert b.source["ir_cut"] == {"cut_nm": 650.0, "sigma_nm": 10.0, "source": "user (the module's datasheet)"}
+    assert all("IR-cut" in n for n in b.cameras) and len(b.cameras) == 52 * 3 * 3  # 3 edges, bare + 2 UV each
+    assert b.source["filter_variants"]["bare_included"] is False
+    # every R curve has lost most of its response beyond the edge, whatever the DSLR's own filter did
+    assert np.all(b.curves[:, 0, GRID_NM >= 690] < 0.1)
+    for bad in ((900.0, 10.0), (650.0, -1.0), (650.0, float("nan"))):
+        with pytest.raises(CamcalError, match="IR cut"):
+            camera_basis(ir_cut=bad)

@@ -123,6 +123,15 @@ def test_cli_chart_writes_a_profile_and_refuses_bad_input(phone_day, tmp_path):
                                   "--corners", "1,2,3"), "--corners")
     assert_one_line_error(run_cli("chart", phone_day / "chart" / "chart_evp0.dng", "-o", tmp_path / "x.txt"),
                           ".camcal")
+    # a datasheet IR cut: recorded with its source; without its 1-σ, or outside 550-760 nm, one line
+    proc = run_cli("chart", phone_day / "chart" / "chart_evp0.dng", "-o", out, "--sun", "26.5,144.5",
+                   "--ir-cut", "650±10", "--json")
+    assert proc.returncode == 0, proc.stderr
+    cut = load_profile(out).provenance.options["chart"]["ir_cut"]
+    assert cut == {"cut_nm": 650.0, "sigma_nm": 10.0, "source": "user (the module's datasheet)"}
+    for bad in ("650", "red±10", "900±10"):
+        assert_one_line_error(run_cli("chart", phone_day / "chart" / "chart_evp0.dng", "-o", tmp_path / "x.camcal",
+                                      "--ir-cut", bad), "IR cut" if bad == "900±10" else "--ir-cut")
 
 
 # ---- the tone curve's own fits -----------------------------------------------------------------------------------

@@ -291,3 +291,26 @@ def test_chart_evidence_rules_out_an_early_ir_cut_but_not_650_against_680_nm(nom
         score[cut] = _evidence(sig, cov, nominal_chart, light, b, 8, DEFAULT_REGULARISATION)
     assert score[630.0] - min(score[650.0], score[680.0]) > 8.0, score
     assert abs(score[650.0] - score[680.0]) < 3.0, score
+
+
+@pytest.mark.parametrize("true_cut_nm", [650.0, 665.0])
+def test_a_datasheet_ir_cut_brings_the_red_tail_in_and_its_u_still_covers(nominal_chart, true_cut_nm):
+    """The chart leaves c_R's tail past a phone's IR cut to the prior (the test above); a datasheet's cut,
+    650 ± 10 nm, replaces the 630-700 nm filter prior by that edge. Where the datasheet is right (650 nm), the R
+    error beyond 655 nm falls by more than a third; where the module's edge lies 1.5σ off it (665 nm), the tail is
+    pulled the wrong way, but 2u still covers ≥ 90 % of wavelengths in every channel."""
+    phone = pytest.importorskip("camcal.synth.phone")
+    rel = phone.phone_sensitivities("imx219", FINE_NM, ir_cut_nm=true_cut_nm).rgb
+    truth = TRUE_PEAK * rel / rel.max(axis=1, keepdims=True)
+    sig, cov = render(truth, sunlight_fine(), np.random.default_rng(47))
+    light = clear_sky_irradiance(SUN_ZENITH_DEG)
+    tail = GRID_NM >= 655
+    true_r = np.interp(GRID_NM, FINE_NM, truth[0])
+    err = {}
+    for cut in (None, (650.0, 10.0)):
+        rec = recover_sensitivity(sig, cov, nominal_chart, light, camera_basis(ir_cut=cut))
+        err[cut] = float(np.sqrt(np.mean((rec.values["R"][tail] - true_r[tail]) ** 2)) / true_r.max())
+        for plane, (rms, covered) in check(truth, rec).items():
+            assert rms <= 10.0 and covered >= 0.90, (cut, plane, rms, covered)
+    if true_cut_nm == 650.0:
+        assert err[(650.0, 10.0)] < 0.65 * err[None], err

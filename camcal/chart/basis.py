@@ -199,23 +199,48 @@ def filter_edge(wavelength_nm, cut_nm: float, kind: str, sigma_nm: float = FILTE
     return 0.5 * special.erfc(x if kind == "ir" else -x)
 
 
-def with_filter_variants(names: tuple[str, ...], curves: np.ndarray, wavelength_nm
-                         ) -> tuple[tuple[str, ...], np.ndarray]:
-    """The filter-shape prior: every training camera also behind each extra IR- and UV-cut edge
-    (:data:`FILTER_IR_CUTS_NM`, :data:`FILTER_UV_CUTS_NM`), the same sensor in a module with another cut filter."""
-    out, labels = [curves], list(names)
-    for kind, cuts in (("ir", FILTER_IR_CUTS_NM), ("uv", FILTER_UV_CUTS_NM)):
-        for cut in cuts:
-            out.append(curves * filter_edge(wavelength_nm, cut, kind))
-            labels += [f"{n} × {kind.upper()}-cut {cut:g} nm" for n in names]
+def with_filter_variants(names: tuple[str, ...], curves: np.ndarray, wavelength_nm, *,
+                         ir_cuts_nm: tuple[float, ...] = FILTER_IR_CUTS_NM,
+                         uv_cuts_nm: tuple[float, ...] = FILTER_UV_CUTS_NM,
+                         keep_bare: bool = True) -> tuple[tuple[str, ...], np.ndarray]:
+    """The filter-shape prior: every training camera also behind each extra IR-cut edge (``ir_cuts_nm``) and
+    each UV-cut edge (``uv_cuts_nm``): the same sensor in a module with another cut filter.
+
+    ``keep_bare`` False (a known IR cut, :func:`ir_cut_nodes`) leaves out the cameras without an extra IR edge
+    and takes the UV edges on each IR variant instead of on the bare cameras."""
+    ir = [(curves * filter_edge(wavelength_nm, cut, "ir"), [f"{n} × IR-cut {cut:g} nm" for n in names])
+          for cut in ir_cuts_nm]
+    sets = [(curves, list(names)), *ir] if keep_bare else ir
+    uv_of = sets[:1] if keep_bare else ir
+    out, labels = [c for c, _ in sets], [lab for _, ls in sets for lab in ls]
+    for cut in uv_cuts_nm:
+        for c, ls in uv_of:
+            out.append(c * filter_edge(wavelength_nm, cut, "uv"))
+            labels += [f"{lab} × UV-cut {cut:g} nm" for lab in ls]
     return tuple(labels), np.concatenate(out)
 
 
+def ir_cut_nodes(cut_nm: float, sigma_nm: float) -> tuple[float, ...]:
+    """IR-cut edges that stand for a cut known as ``cut_nm`` ± ``sigma_nm`` (a module's datasheet): the three
+    points c + σ·{−√1.5, 0, +√1.5}, equally weighted, whose spread is σ (their variance is exactly σ²)."""
+    if not (math.isfinite(cut_nm) and 550.0 <= cut_nm <= 760.0):
+        raise CamcalError(f"an IR cut at {cut_nm:g} nm is outside 550-760 nm")
+    if not (math.isfinite(sigma_nm) and 0.0 <= sigma_nm <= 50.0):
+        raise CamcalError(f"the IR cut's uncertainty {sigma_nm:g} nm is outside 0-50 nm")
+    h = math.sqrt(1.5) * sigma_nm
+    return (cut_nm,) if sigma_nm == 0.0 else (cut_nm - h, cut_nm, cut_nm + h)
+
+
 def camera_basis(exclude=(), *, wavelength_nm=GRID_NM, extra: dict[str, np.ndarray] | None = None,
-                 filter_variants: bool = True) -> CameraBasis:
+                 filter_variants: bool = True, ir_cut: tuple[float, float] | None = None) -> CameraBasis:
     """The basis of the bundled library's cameras (:mod:`camcal.curves.library`), less ``exclude`` (names such as
     ``"Nikon D5100"`` or file names), plus ``extra`` curves ({name: (3, n) R, G, B on ``wavelength_nm``}), with
-    the filter-shape prior (:func:`with_filter_variants`) unless ``filter_variants`` is False."""
+    the filter-shape prior (:func:`with_filter_variants`) unless ``filter_variants`` is False.
+
+    ``ir_cut`` (nm, 1-σ nm): the module's IR cut is known (its datasheet's half-transmission wavelength): every
+    training camera is taken behind that edge (:func:`ir_cut_nodes`) and none without it, so the prior is the
+    library's cameras as the module's filter makes them. A chart cannot measure the edge beyond about 640 nm
+    (docs/spectral.md); this is how a user who knows it says so."""
     wl = np.asarray(wavelength_nm, float)
     exclude = tuple(str(e) for e in exclude)
     names, curves = _library(exclude, tuple(float(x) for x in wl))
@@ -227,12 +252,17 @@ def camera_basis(exclude=(), *, wavelength_nm=GRID_NM, extra: dict[str, np.ndarr
         names = names + tuple(extra)
         curves = np.concatenate([curves, np.array([normalise(v) for v in extra.values()])])
     n_measured = len(names)
-    if filter_variants:
-        names, curves = with_filter_variants(names, curves, wl)
+    ir_cuts = FILTER_IR_CUTS_NM if ir_cut is None else ir_cut_nodes(*ir_cut)
+    if filter_variants or ir_cut is not None:
+        names, curves = with_filter_variants(names, curves, wl, ir_cuts_nm=ir_cuts, keep_bare=ir_cut is None)
+    variants = filter_variants or ir_cut is not None
     src = {"collection": COLLECTION, "excluded": list(exclude), "extra": list(extra or {}),
            "n_measured_cameras": n_measured,
-           "filter_variants": {"ir_cuts_nm": list(FILTER_IR_CUTS_NM), "uv_cuts_nm": list(FILTER_UV_CUTS_NM),
-                               "edge_sigma_nm": FILTER_EDGE_SIGMA_NM} if filter_variants else None}
+           "filter_variants": {"ir_cuts_nm": list(ir_cuts), "uv_cuts_nm": list(FILTER_UV_CUTS_NM),
+                               "edge_sigma_nm": FILTER_EDGE_SIGMA_NM, "bare_included": ir_cut is None}
+           if variants else None,
+           "ir_cut": None if ir_cut is None else {"cut_nm": float(ir_cut[0]), "sigma_nm": float(ir_cut[1]),
+                                                   "source": "user (the module's datasheet)"}}
     return basis_from_curves(curves, names, wl, src)
 
 

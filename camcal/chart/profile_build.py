@@ -80,10 +80,11 @@ from camcal.water.field import (
 RGB3 = ("R", "G", "B")
 
 
-@functools.lru_cache(maxsize=1)
-def _library_basis():
-    """The bundled library's camera basis, built once per process (its leave-one-out prior takes seconds)."""
-    return camera_basis()
+@functools.lru_cache(maxsize=4)
+def _library_basis(ir_cut: tuple[float, float] | None = None):
+    """The bundled library's camera basis (behind a known IR cut, nm and 1-σ nm, when given), built once per
+    process (its leave-one-out prior takes seconds)."""
+    return camera_basis(ir_cut=ir_cut)
 
 #: Field angle of the image corner assumed for the uncorrected fall-off of a profile without flats, degrees (a
 #: phone's main camera: 26 mm equivalent, 39.8° to the corner of a 3:2 frame; 38° for 4:3).
@@ -111,6 +112,9 @@ class ChartOptions:
     flat: tuple[Path, ...] = ()
     n_components: int = DEFAULT_COMPONENTS
     regularisation: float = DEFAULT_REGULARISATION
+    ir_cut: tuple[float, float] | None = None
+    """The module's IR cut as (half-transmission wavelength, its 1-σ), nm, from its datasheet; None: unknown
+    (the filter-shape prior of :mod:`camcal.chart.basis` spans 630-700 nm)."""
 
     def record(self) -> dict:
         return {"chart": None if self.chart_csv is None else Path(self.chart_csv).name,
@@ -120,7 +124,9 @@ class ChartOptions:
                 "sun": self.sun, "aerosol_optical_depth_500nm": self.aerosol_optical_depth_500nm,
                 "precipitable_water_cm": self.precipitable_water_cm, "ozone_atm_cm": self.ozone_atm_cm,
                 "pressure_Pa": self.pressure_Pa, "flat": [Path(p).name for p in self.flat],
-                "n_components": self.n_components, "regularisation": self.regularisation}
+                "n_components": self.n_components, "regularisation": self.regularisation,
+                "ir_cut": None if self.ir_cut is None else {"cut_nm": self.ir_cut[0], "sigma_nm": self.ir_cut[1],
+                                                            "source": "user (the module's datasheet)"}}
 
 
 @dataclass(frozen=True, eq=False)
@@ -451,7 +457,7 @@ def build_chart_profile(paths: Sequence[str | Path], options: ChartOptions = Cha
     if procs and len({p.white_level_dn for p in procs}) > 1:
         raise CamcalError("the processed chart photos differ in bit depth: give HEICs or JPEGs, not both")
     chart = (published_chart() if options.chart_csv is None else read_chart_csv(options.chart_csv))
-    basis = _library_basis()
+    basis = _library_basis(options.ir_cut)
     wl = basis.wavelength_nm
     chart = chart.on(wl)
     light = make_light(options, photos[0], wl)

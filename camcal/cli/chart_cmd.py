@@ -27,6 +27,20 @@ def _aerosol(text: str) -> tuple[float, float | None]:
                           "0.1±0.05") from None
 
 
+def _ir_cut(text: str | None) -> tuple[float, float] | None:
+    if text is None:
+        return None
+    a, b = _split_unc(text)
+    try:
+        cut, sigma = float(a), float(b) if b is not None else None
+    except ValueError:
+        cut = sigma = None
+    if cut is None or sigma is None:
+        raise CamcalError(f"--ir-cut {text!r}: give the IR-cut filter's half-transmission wavelength and its 1-σ "
+                          "in nm, e.g. 650±10 (from the camera module's datasheet)")
+    return cut, sigma
+
+
 def summary(res: ChartResult) -> dict:
     """The JSON summary of ``camcal chart --json``."""
     s = res.profile.spectral
@@ -128,6 +142,10 @@ def register(app: typer.Typer) -> None:
         flat: list[Path] = typer.Option([], "--flat", help="Photo of a uniform surface (an overcast sky through a "
                                         "diffuser, a white wall; repeat): a relative flat (vignetting)."),
         components: int = typer.Option(8, help="Components of the camera basis."),
+        ir_cut: str | None = typer.Option(None, "--ir-cut", help="The camera module's IR-cut filter: its "
+                                          "half-transmission wavelength and 1-σ in nm from a datasheet, e.g. "
+                                          "650±10. A chart cannot see the cut beyond ~640 nm; without this the "
+                                          "prior spans 630-700 nm and σ says so."),
         as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
     ) -> None:
         """A calibration profile from photos of a colour chart in the sun (or under a known light)."""
@@ -138,7 +156,7 @@ def register(app: typer.Typer) -> None:
                             illuminant=illuminant, illuminant_absolute=not illuminant_relative, sun=sun,
                             utc_offset=utc_offset, aerosol_optical_depth_500nm=a, aerosol_sigma=sa,
                             precipitable_water_cm=precipitable_water, ozone_atm_cm=ozone, pressure_Pa=pressure,
-                            flat=tuple(flat), n_components=components)
+                            flat=tuple(flat), n_components=components, ir_cut=_ir_cut(ir_cut))
         with progress() as bar:
             task = bar.add_task("chart", total=None)
             res = build_chart_profile(photos, opts, lambda msg: bar.update(task, description=msg))
