@@ -68,6 +68,9 @@ class Exposure:
         Aperture f-number N (dimensionless).
     focal_length_mm : float or None
         Lens focal length, mm (EXIF FocalLength: the lens's real focal length, not the 35 mm equivalent).
+    focal_length_35mm_mm : float or None
+        The 35 mm equivalent focal length, mm (EXIF FocalLengthIn35mmFilm): with the 36 × 24 mm frame's
+        half-diagonal it gives the field angle of the image corner (:mod:`camcal.models.falloff`).
     iso : float or None
         ISO speed (dimensionless, the camera's gain setting).
     make, model, serial : str or None
@@ -107,6 +110,7 @@ class Exposure:
     longitude_deg: float | None = None
     altitude_m: float | None = None
     focal_length_mm: float | None = None
+    focal_length_35mm_mm: float | None = None
     sources: tuple[tuple[str, str], ...] = ()
     notes: tuple[str, ...] = ()
 

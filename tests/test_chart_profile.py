@@ -191,6 +191,21 @@ def test_without_flats_apply_states_the_fall_off_in_sigma(phone_day, tmp_path):
     assert corner_err > 0.4 * truth  # uncorrected: the corner reads low
     assert corner_err < 2 * u[2, 2]  # and its σ says so
     assert any("vignetting was not measured" in n for n in img.metadata["notes"])
+    # the corner's field angle is the photo's own (EXIF FocalLengthIn35mmFilm 28 mm: 37.7°), not an assumption
+    field = img.metadata["uncorrected_vignetting"]
+    assert field["focal_length_35mm_mm"] == 28.0 and "EXIF FocalLengthIn35mmFilm" in field["source"]
+    assert field["corner_field_deg"] == pytest.approx(37.69, abs=0.01)
+
+
+def test_heic_radiance_sigma_holds_the_tone_and_matrix_terms(phone_day, twin_profile):
+    """A HEIC through the chart profile: the profile has no noise model for processed files, so before the tone
+    curve's and colour matrix's uncertainty were propagated its σ was NaN; now each band's σ holds those terms
+    (first order, camcal.apply.processed_unc), finite and positive, and the notes say which entered."""
+    img = apply(load_frame(phone_day / "grey" / "grey.heic"), load_profile(twin_profile))
+    for ch in "RGB":
+        u = _centre(img, f"{ch}_unc")
+        assert np.isfinite(u) and 0 < u < 0.05 * _centre(img, ch), (ch, u)
+    assert any("tone-curve" in n and "colour-matrix" in n for n in img.metadata["notes"])
 
 
 REALDATA = Path(__file__).resolve().parents[1].parent / "shared" / "realdata"

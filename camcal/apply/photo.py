@@ -67,6 +67,7 @@ from pathlib import Path
 import numpy as np
 import OpenImageIO as oiio
 
+from camcal.apply.processed_unc import SystematicVariance, systematic_variance
 from camcal.apply.radiance import RadianceModel, mono_model, radiance_at, radiance_model
 from camcal.errors import CamcalError
 from camcal.frame import PLANES, Frame, plane_offsets, rgb_from_planes
@@ -74,6 +75,7 @@ from camcal.io.read import open_image, read_pixels
 from camcal.models.camera_id import Sensor, match, sensor_of, sensor_of_profile
 from camcal.models.correct import Calibration, correct_planes, system_gain_dn_per_e
 from camcal.models.exposure import frame_relative_exposure
+from camcal.models.falloff import corner_field, relative_radius, uncorrected_sigma_rel
 from camcal.models.flat import FlatChoice, choose_flat
 from camcal.region import Region
 from camcal.threads import default_threads, run_bands
@@ -452,6 +454,7 @@ def _processed_signal(frame: Frame, plan: ApplyPlan, iso: float, notes: list[str
     lin = rp.linearise(values, white_level_dn=frame.white_level_dn).astype(np.float32)
     if rp.colour_matrix is not None:  # r = A⁻¹ j: the camera's channel mixing undone (camcal.calibrate.colour_matrix)
         signal = binf(rp.colour_matrix.to_raw(lin))
+        to_signal = lambda g: binf(rp.colour_matrix.to_raw(g))  # noqa: E731
         notes.append("processed file: RAW-equivalent signal through the profile's colour matrix (fitted on the "
                      "sweep's JPEG twins); valid with the white balance and picture style of the calibration")
     else:
@@ -461,6 +464,7 @@ def _processed_signal(frame: Frame, plan: ApplyPlan, iso: float, notes: list[str
                         if ch == "G" and "G1" in rr.channels else rr.linear_gain_dn_per_s(ch))
             k.append(raw_gain / rp.linear_gain_dn_per_s(ch))
         signal = binf(lin * np.array(k, np.float32)[:, None, None])
+        to_signal = lambda g: binf(g * np.array(k, np.float32)[:, None, None])  # noqa: E731
         notes.append("processed file: no colour matrix in the profile, so one gain per channel: assumes the "
                      "camera does not mix its channels (true for the synthetic camera without a matrix, not for "
                      "real ones; calibrate with JPEG twins of the sweep)")
@@ -476,7 +480,14 @@ def _processed_signal(frame: Frame, plan: ApplyPlan, iso: float, notes: list[str
             rv = np.stack([read_var[0], 0.25 * (read_var[1] + read_var[2]), read_var[3]])
             kk = rgb_from_planes(kg)
             var = rv + kk * np.maximum(signal, 0) * np.array([1.0, 0.5, 1.0], np.float32)[:, None, None]
-    return signal, var, saturated
+    raw_signal = signal.copy()
+
+    def systematic(inv_flat: np.ndarray | None) -> SystematicVariance | None:
+        """The tone curve's and the colour matrix's variance (:mod:`camcal.apply.processed_unc`)."""
+        return systematic_variance(values, rp, frame.white_level_dn, to_signal, raw_signal, inv_flat,
+                                   plan.model.weights)
+
+    return signal, var, saturated, systematic
 
 
 def apply_prepared(frame: Frame, plan: ApplyPlan, *, allow_other_camera: bool = False,
@@ -503,7 +514,7 @@ def apply_prepared(frame: Frame, plan: ApplyPlan, *, allow_other_camera: bool = 
     if frame.kind == "raw":
         pixels = _raw_pixels(frame, plan, t, iso, inv_x, notes, default_threads() if threads is None else threads)
     else:
-        signal, var, saturated = _processed_signal(frame, plan, iso, notes)
+        signal, var, saturated, systematic = _processed_signal(frame, plan, iso, notes)
         if plan.flat_rgb is not None:
             if plan.flat_rgb.shape != signal.shape:
                 raise CamcalError(f"photo (half resolution {signal.shape[1:]}) does not match the profile's flat "
@@ -523,14 +534,27 @@ def apply_prepared(frame: Frame, plan: ApplyPlan, *, allow_other_camera: bool = 
             np.multiply(signal[i], k, out=pixels[..., i])
             pixels[..., 5 + i] = np.nan if var is None else np.sqrt(np.maximum(var[i], 0)) * k
         radiance_at(signal, var, plan.model, inv_x, out=(pixels[..., 3], pixels[..., 4]))
+        sysvar = systematic(None if plan.flat_rgb is None else plan.rgb_calibration.inv_flat_gain)
+        if sysvar is not None:
+            _add_systematic_sigma(pixels, sysvar, plan, inv_x, saturated)
+            notes.append("processed file: R_unc, G_unc, B_unc and the L uncertainty include the profile's "
+                         + " and ".join({"tone": "tone-curve", "colour_matrix": "colour-matrix"}[t]
+                                        for t in sysvar.terms)
+                         + " uncertainty at each pixel's value (first order; camcal.apply.processed_unc)"
+                         + ("" if var is not None else "; no noise model (the profile has no dark model), so "
+                            "they hold these terms alone"))
+    unflat = None
     if plan.flat_planes is None and plan.flat_rgb is None:
         notes.append("no flat model: vignetting not corrected")
         vig = (getattr(profile.spectral, "source", None) or {}).get("vignetting")
         if isinstance(vig, dict) and not vig.get("corrected", True):
-            _add_unflat_sigma(pixels, float(vig["corner_field_deg"]))
+            field = unflat_corner_field(frame.exposure, vig, path)
+            _add_unflat_sigma(pixels, field["corner_field_deg"])
             notes.append("the profile's vignetting was not measured: R_unc, G_unc, B_unc and the L uncertainty "
-                         f"include the cos⁴ fall-off of a corner at {float(vig['corner_field_deg']):g}° as a bias "
-                         "of 0 to that loss (0 at the centre; shoot flats for camcal chart --flat to correct it)")
+                         f"include the cos⁴ fall-off of a corner at {field['corner_field_deg']:.3g}° "
+                         f"({field['source']}) as a bias of 0 to that loss (0 at the centre; shoot flats for "
+                         "camcal chart --flat to correct it)")
+            unflat = field
     name = radiance_channel_name(plan.model.wavelength_nm, plan.model.in_band)
     names = [{"L": name, "L_unc": f"{name}_unc"}.get(c, c) for c in OUTPUT_CHANNELS]
     channels = {c: pixels[..., i] for i, c in enumerate(names)}
@@ -584,9 +608,24 @@ def apply_prepared(frame: Frame, plan: ApplyPlan, *, allow_other_camera: bool = 
         "resolution": LINEAR_RESOLUTION_NOTE if frame.layout == "linear" else RESOLUTION_NOTE,
         "invalid": "NaN: defective (dark model) or saturated pixels",
         "optics": None if choice is None else choice.record(profile.flat),
+        "uncorrected_vignetting": unflat,
         "notes": notes,
     }
     return RadianceImage(channels, meta)
+
+
+def unflat_corner_field(exposure, vignetting: dict, path: Path | None) -> dict:
+    """The corner field angle of the uncorrected fall-off of a photo (:mod:`camcal.models.falloff`): the photo's own
+    EXIF FocalLengthIn35mmFilm; else the profile's (from its chart photos' EXIF); else the stated assumption."""
+    own = corner_field(exposure, path.name if path is not None else None)
+    if own["focal_length_35mm_mm"] is not None:
+        return own
+    deg = float(vignetting.get("corner_field_deg", own["corner_field_deg"]))
+    if vignetting.get("focal_length_35mm_mm") is not None or abs(deg - own["corner_field_deg"]) > 1e-9:
+        src = vignetting.get("corner_field_source") or "its corner_field_deg"
+        return {"corner_field_deg": deg, "focal_length_35mm_mm": vignetting.get("focal_length_35mm_mm"),
+                "source": f"the profile's, {src} (the photo holds no FocalLengthIn35mmFilm)"}
+    return own
 
 
 MONO_RESOLUTION_NOTE = "full resolution: the monochrome sensor's own pixels (no colour filter)"
@@ -657,20 +696,30 @@ def _mono_image(frame: Frame, plan: ApplyPlan, t: float, iso: float, inv_x: floa
     return RadianceImage(channels, meta)
 
 
+def _add_systematic_sigma(pixels: np.ndarray, sysvar: SystematicVariance, plan: ApplyPlan, inv_x: float,
+                          saturated: np.ndarray) -> None:
+    """Add, in place, the tone curve's and colour matrix's σ (:mod:`camcal.apply.processed_unc`) to the uncertainty
+    channels of ``pixels`` (h, w, 8): band i by its scale inv_x/∫c_i, L(λ0) by inv_x (the weights are in the
+    weighted sum already). Channels without a noise figure (NaN) get these terms alone; saturated pixels stay NaN."""
+    for i in range(3):
+        term = np.sqrt(sysvar.band_dn2[i]) * np.float32(inv_x / plan.model.band_integral[i])
+        old = pixels[..., 5 + i]
+        pixels[..., 5 + i] = np.where(saturated[i], np.nan, np.hypot(np.nan_to_num(old), term))
+    term = np.sqrt(sysvar.weighted_dn2) * np.float32(abs(inv_x))
+    old = pixels[..., 4]
+    pixels[..., 4] = np.where(np.isfinite(old), np.hypot(np.nan_to_num(old), term), old)
+
+
 def _add_unflat_sigma(pixels: np.ndarray, corner_field_deg: float) -> None:
     """Add, in place, the uncorrected fall-off's σ to the uncertainty channels of ``pixels`` (h, w, 8).
 
-    The relative illumination of a lens whose image corner lies at ``corner_field_deg`` is cos⁴ θ with
-    tan θ = r tan θ_corner (r the distance from the image centre over the distance to the corner); an uncorrected
-    pixel's value v is low by a fraction between 0 and ℓ = 1 − cos⁴ θ, so the radiance lies between v and
-    v/(1 − ℓ): a uniform bias of σ = v ℓ/((1 − ℓ)√3). Channels without a noise figure (NaN) get that term alone.
+    The cos⁴ fall-off of a lens whose image corner lies at ``corner_field_deg``, left uncorrected, as a uniform bias
+    between 0 and the loss (:func:`camcal.models.falloff.uncorrected_sigma_rel`). Channels without a noise figure
+    (NaN) get that term alone.
     """
     h, w = pixels.shape[:2]
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
-    r = np.hypot(xx - (w - 1) / 2, yy - (h - 1) / 2) / np.float32(math.hypot((w - 1) / 2, (h - 1) / 2) or 1.0)
-    t = r * np.float32(math.tan(math.radians(corner_field_deg)))
-    kept = 1.0 / (1.0 + t * t) ** 2  # cos⁴θ = 1/(1 + tan²θ)²
-    rel = (1.0 - kept) / (kept * np.float32(math.sqrt(3.0)))
+    rel = uncorrected_sigma_rel(relative_radius(xx, yy, w, h).astype(np.float32), corner_field_deg).astype(np.float32)
     for value, unc in ((0, 5), (1, 6), (2, 7), (3, 4)):
         term = pixels[..., value] * rel
         old = pixels[..., unc]

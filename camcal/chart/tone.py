@@ -73,6 +73,11 @@ class ToneFit:
     table_linear_dn: np.ndarray | None = None
     """The table's linear values at the knots, DN on the 0..W scale."""
     table_rms_dn: float = float("nan")
+    exponent_offset_cov: np.ndarray | None = None
+    """(2, 2) covariance of (exponent, offset_a) of the fit (what apply propagates,
+    :mod:`camcal.models.processed_unc`)."""
+    table_linear_dn_unc: np.ndarray | None = None
+    """Standard error of the table's linear value at each knot, linear DN (0 at the origin)."""
 
     def linearise(self, v_dn: np.ndarray) -> np.ndarray:
         """File DN → linear DN on the 0..W scale (what ``camcal apply`` computes)."""
@@ -97,14 +102,18 @@ class ToneFit:
             xw = None if x_white_s is None else float(x_white_s[i])
             out[ch] = {"use": "srgb" if self.table_v_dn is None else "table",
                        "srgb": {"form": "srgb", "exponent": self.exponent, "exponent_unc": self.exponent_unc,
-                                "offset_a": self.offset_a, "x_white_s": xw, "toe_linear": lb, "toe_slope": s,
-                                "chi2_red": self.chi2_red, "rms_dn": self.rms_dn},
+                                "offset_a": self.offset_a, "offset_a_unc": self.offset_a_unc,
+                                "exponent_offset_covariance": None if self.exponent_offset_cov is None else
+                                self.exponent_offset_cov.tolist(), "x_white_s": xw, "toe_linear": lb,
+                                "toe_slope": s, "chi2_red": self.chi2_red, "rms_dn": self.rms_dn},
                        "eq12_rms_dn": None, "x_white_s": xw,
                        "linear_gain_dn_per_s": None if xw is None else self.white_level_dn / xw}
             if self.table_v_dn is not None:
                 out[ch]["table"] = {"v_dn": [float(x) for x in self.table_v_dn],
                                     "linear_dn": [float(x) for x in self.table_linear_dn],
                                     "rms_dn": self.table_rms_dn}
+                if self.table_linear_dn_unc is not None:
+                    out[ch]["table"]["linear_dn_unc"] = [float(x) for x in self.table_linear_dn_unc]
         return {"form": "srgb form with free exponent and offset (IEC 61966-2-1 shape), fitted on a colour chart's "
                         + ("patches with RAW twins" if self.matrix is not None else "six neutral patches"),
                 "channels": out}
@@ -168,7 +177,7 @@ def fit_tone_neutral(values_dn: Sequence[np.ndarray], sem_dn: Sequence[np.ndarra
         notes.append("every photo has the same exposure: the tone curve rests on the six grey patches alone")
     return ToneFit(float(res.x[0]), float(np.sqrt(max(cov[0, 0], 0.0))), float(res.x[1]),
                    float(np.sqrt(max(cov[1, 1], 0.0))), w, np.exp(res.x[2:]), None, None, rms,
-                   float(res.fun @ res.fun) / dof, int(v.size), tuple(notes))
+                   float(res.fun @ res.fun) / dof, int(v.size), tuple(notes), exponent_offset_cov=cov[:2, :2].copy())
 
 
 def fit_tone_twins(values_dn: Sequence[np.ndarray], sem_dn: Sequence[np.ndarray], raw_rgb_dn: Sequence[np.ndarray],
@@ -213,7 +222,7 @@ def fit_tone_twins(values_dn: Sequence[np.ndarray], sem_dn: Sequence[np.ndarray]
     rms = float(np.sqrt(np.mean((res.fun * np.maximum(u, 0.5)[good]) ** 2)))
     fit = ToneFit(float(res.x[0]), float(np.sqrt(max(cov[0, 0], 0.0))), float(res.x[1]),
                   float(np.sqrt(max(cov[1, 1], 0.0))), w, None, m, m_unc, rms, float(res.fun @ res.fun) / dof,
-                  int(good.sum()))
+                  int(good.sum()), exponent_offset_cov=cov[:2, :2].copy())
     if good.sum() >= TABLE_MIN_POINTS:
         fit = _with_table(fit, v, r, good)
     return fit
@@ -264,9 +273,28 @@ def _with_table(fit: ToneFit, v: np.ndarray, r: np.ndarray, good: np.ndarray) ->
             best = dataclasses.replace(table, matrix=m, table_rms_dn=rms)
     if best is None or not best.table_rms_dn < fit.rms_dn:
         return fit
+    best = dataclasses.replace(best, table_linear_dn_unc=_knot_unc(best, v, r, good))
     return dataclasses.replace(best, notes=(*fit.notes, f"tone table ({best.table_v_dn.size} knots, RMS "
                                                         f"{best.table_rms_dn:.3g} DN) replaces the sRGB form (RMS "
                                                         f"{fit.rms_dn:.3g} DN)"))
+
+
+def _knot_unc(table: ToneFit, v: np.ndarray, r: np.ndarray, good: np.ndarray) -> np.ndarray:
+    """Standard error of each knot's linear value: the residuals (table(v) − W A r) of the fitted values nearest the
+    knot (between the midpoints to its neighbours), √(π/2)·s/√n (the standard error of a median of normal data);
+    the origin is fixed (0), a knot with fewer than 3 values takes the residuals' overall standard deviation."""
+    w = table.white_level_dn
+    resid = (table.linearise(v) - w * (r @ table.matrix.T))[good]
+    vv = v[good]
+    vk = table.table_v_dn
+    mid = np.r_[-np.inf, 0.5 * (vk[1:] + vk[:-1]), np.inf]
+    overall = float(np.std(resid, ddof=1)) if resid.size > 1 else 0.0
+    out = np.zeros(vk.size)
+    for k in range(1, vk.size):
+        sel = (vv > mid[k]) & (vv <= mid[k + 1])
+        n = int(sel.sum())
+        out[k] = np.sqrt(np.pi / 2) * (float(np.std(resid[sel], ddof=1)) / np.sqrt(n) if n >= 3 else overall)
+    return out
 
 
 def white_balance_check(linear_neutrals: Sequence[np.ndarray], names: Sequence[str],

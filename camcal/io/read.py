@@ -212,6 +212,7 @@ TAG_NAMES: dict[str, tuple[str, ...]] = {
     "iso": ("EXIF ISOSpeedRatings", "EXIF PhotographicSensitivity", "EXIF ISOSpeed", "Image ISOSpeedRatings"),
     "capture_time": ("EXIF DateTimeOriginal", "Image DateTimeOriginal"),
     "focal_length_mm": ("EXIF FocalLength", "Image FocalLength"),
+    "focal_length_35mm_mm": ("EXIF FocalLengthIn35mmFilm",),
 }
 """The capture time is DateTimeOriginal only: IFD0 ``DateTime`` is when the file was last written."""
 
@@ -247,6 +248,7 @@ def exposure_from_exif(path: Path, tags: dict[str, object] | None = None) -> Exp
         "iso": num(*TAG_NAMES["iso"]),
         "capture_time": _iso_time(text(*TAG_NAMES["capture_time"])),
         "focal_length_mm": num(*TAG_NAMES["focal_length_mm"]),
+        "focal_length_35mm_mm": num(*TAG_NAMES["focal_length_35mm_mm"]),
     }
     place, notes = place_time_from_exif(tags)
     return Exposure(

@@ -112,6 +112,8 @@ class SensorParams:
     pixel_pitch_um: float = 4.78
     focal_length_mm: float | None = None
     """Focal length written to the DNGs' FocalLength tag, mm (None: no tag)."""
+    focal_length_35mm_mm: float | None = None
+    """35 mm equivalent focal length written to the DNGs' FocalLengthIn35mmFilm tag, mm (None: no tag)."""
     lens_transmittance: float = 0.9
     qe_peak: tuple[float, float, float] = (0.35, 0.45, 0.38)
     """Peak quantum efficiency of R, G, B (the measured curves give the shape)."""
@@ -411,6 +413,7 @@ class SyntheticCamera:
                 white_level_dn=p.white_dn, exposure_s=exposure_s, f_number=f_number if tag_f_number else None,
                 iso=iso, make=p.make, model=p.model, serial=p.serial, capture_time=capture_time,
                 temperature_c=temperature_c, place=place, focal_length_mm=p.focal_length_mm,
+                focal_length_35mm_mm=p.focal_length_35mm_mm,
             )
         if layout != "bayer":
             raise ValueError(f"layout must be 'bayer' or 'linear', got {layout!r}")
@@ -431,6 +434,7 @@ class SyntheticCamera:
             temperature_c=temperature_c,
             place=place,
             focal_length_mm=p.focal_length_mm,
+            focal_length_35mm_mm=p.focal_length_35mm_mm,
         )
 
     def black_by_position(self) -> tuple[float, float, float, float]:
@@ -612,6 +616,8 @@ def write_jpeg_file(
     quality: int = 97,
     capture_time: datetime | None = None,
     place: PlaceTime | None = None,
+    focal_length_mm: float | None = None,
+    focal_length_35mm_mm: float | None = None,
 ) -> Path:
     """Write an (H, W, 3) uint8 image as a JPEG with an Exif block, atomically.
 
@@ -632,7 +638,7 @@ def write_jpeg_file(
         data = tmp.read_bytes()
     app1 = encode_exif_app1(
         exposure_s=exposure_s, f_number=f_number, iso=iso, make=make, model=model, capture_time=capture_time,
-        place=place,
+        place=place, focal_length_mm=focal_length_mm, focal_length_35mm_mm=focal_length_35mm_mm,
     )
     return atomic_write_bytes(path, data[:2] + app1 + data[2:])
 

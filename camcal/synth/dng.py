@@ -57,6 +57,7 @@ def encode_dng(
     temperature_c: float | None = None,
     place: PlaceTime | None = None,
     focal_length_mm: float | None = None,
+    focal_length_35mm_mm: float | None = None,
 ) -> bytes:
     """Encode a CFA mosaic as the bytes of an uncompressed DNG file.
 
@@ -84,7 +85,7 @@ def encode_dng(
     return _encode_image(
         mosaic, [1], 32803, cfa_pattern, black, [int(white_level_dn)], exposure_s=exposure_s, f_number=f_number,
         iso=iso, make=make, model=model, serial=serial, capture_time=capture_time, temperature_c=temperature_c,
-        place=place, focal_length_mm=focal_length_mm,
+        place=place, focal_length_mm=focal_length_mm, focal_length_35mm_mm=focal_length_35mm_mm,
     )
 
 
@@ -103,6 +104,7 @@ def encode_linear_dng(
     temperature_c: float | None = None,
     place: PlaceTime | None = None,
     focal_length_mm: float | None = None,
+    focal_length_35mm_mm: float | None = None,
 ) -> bytes:
     """Encode a linear R, G, B image as the bytes of an uncompressed LinearRaw DNG file.
 
@@ -129,7 +131,7 @@ def encode_linear_dng(
     return _encode_image(
         rgb, [1, 1, 1], 34892, None, black, [int(white_level_dn)] * 3, exposure_s=exposure_s, f_number=f_number,
         iso=iso, make=make, model=model, serial=serial, capture_time=capture_time, temperature_c=temperature_c,
-        place=place, focal_length_mm=focal_length_mm,
+        place=place, focal_length_mm=focal_length_mm, focal_length_35mm_mm=focal_length_35mm_mm,
     )
 
 
@@ -177,6 +179,7 @@ def _encode_image(
     temperature_c: float | None,
     place: PlaceTime | None = None,
     focal_length_mm: float | None = None,
+    focal_length_35mm_mm: float | None = None,
 ) -> bytes:
     """The DNG bytes of a little-endian uint16 ``image`` (H, W) or (H, W, samples)."""
     h, w = image.shape[:2]
@@ -230,6 +233,8 @@ def _encode_image(
     exif.add(34855, _SHORT, [int(round(iso))])
     if focal_length_mm is not None:
         exif.add(37386, _RATIONAL, [focal_length_mm])  # FocalLength
+    if focal_length_35mm_mm is not None:
+        exif.add(41989, _SHORT, [int(round(focal_length_35mm_mm))])  # FocalLengthIn35mmFilm
     exif.add(34864, _SHORT, [3])  # SensitivityType: ISO speed
     exif.add(34867, _LONG, [int(round(iso))])  # ISOSpeed
     exif.add(36864, _UNDEFINED, b"0230")

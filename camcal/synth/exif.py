@@ -249,10 +249,13 @@ def encode_exif_tiff(
     capture_time: datetime | None = None,
     place: PlaceTime | None = None,
     colour_space: int | None = 1,
+    focal_length_mm: float | None = None,
+    focal_length_35mm_mm: float | None = None,
 ) -> bytes:
     """The TIFF structure of an EXIF block (IFD0, Exif IFD, GPS IFD when ``place`` has any GPS data).
 
-    Exact rational exposure tags; a value None is not written (the file does not hold it).
+    Exact rational exposure tags; a value None is not written (the file does not hold it). ``focal_length_35mm_mm``
+    is written as FocalLengthIn35mmFilm (a SHORT: whole millimetres, as cameras write it).
     ``colour_space`` 1 is sRGB, 0xFFFF uncalibrated (as phones with Display P3 write), None: no tag.
     """
     ifd0, exif = _IFD(), _IFD()
@@ -271,6 +274,10 @@ def encode_exif_tiff(
     if iso:
         exif.add(34855, _SHORT, [int(round(iso))])
     exif.add(36864, _UNDEFINED, b"0230")
+    if focal_length_mm:
+        exif.add(37386, _RATIONAL, [focal_length_mm])  # FocalLength
+    if focal_length_35mm_mm:
+        exif.add(41989, _SHORT, [int(round(focal_length_35mm_mm))])  # FocalLengthIn35mmFilm
     when = add_time_tags(exif, capture_time, place)
     ifd0.add(306, _ASCII, when)
     if colour_space is not None:
@@ -318,8 +325,12 @@ def encode_exif_app1(
     model: str,
     capture_time: datetime | None = None,
     place: PlaceTime | None = None,
+    focal_length_mm: float | None = None,
+    focal_length_35mm_mm: float | None = None,
 ) -> bytes:
     """An Exif APP1 segment (marker included) for a JPEG, with exact rational exposure tags."""
     payload = b"Exif\x00\x00" + encode_exif_tiff(exposure_s=exposure_s, f_number=f_number, iso=iso, make=make,
-                                                  model=model, capture_time=capture_time, place=place)
+                                                  model=model, capture_time=capture_time, place=place,
+                                                  focal_length_mm=focal_length_mm,
+                                                  focal_length_35mm_mm=focal_length_35mm_mm)
     return b"\xff\xe1" + struct.pack(">H", len(payload) + 2) + payload

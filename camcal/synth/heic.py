@@ -38,6 +38,8 @@ def write_heic(
     exif: bytes | None = None,
     icc_profile: bytes | None = None,
     preset: str | None = None,
+    focal_length_mm: float | None = None,
+    focal_length_35mm_mm: float | None = None,
 ) -> Path:
     """Write an (H, W, 3) image as a HEIC file with an EXIF block, atomically.
 
@@ -47,7 +49,7 @@ def write_heic(
         uint8 (8-bit file) or uint16 holding 0..2**bits − 1 (a 10- or 12-bit file).
     bits : 8, 10 or 12; None: 8 for uint8, 10 for uint16.
     quality : HEVC quality 0–100 (pillow-heif's scale); chroma 4:4:4.
-    exposure_s, f_number, iso, make, model, capture_time, place
+    exposure_s, f_number, iso, make, model, capture_time, place, focal_length_mm, focal_length_35mm_mm
         The EXIF tags (:func:`camcal.synth.exif.encode_exif_tiff`); a value None is not written.
     exif : bytes, optional
         A ready TIFF-structure EXIF block instead of the one built from the tags.
@@ -77,7 +79,8 @@ def write_heic(
         heif = pillow_heif.from_bytes(mode="RGB;16", size=(w, h), data=data)
     if exif is None:
         exif = encode_exif_tiff(exposure_s=exposure_s, f_number=f_number, iso=iso, make=make, model=model,
-                                capture_time=capture_time, place=place)
+                                capture_time=capture_time, place=place, focal_length_mm=focal_length_mm,
+                                focal_length_35mm_mm=focal_length_35mm_mm)
     buf = io.BytesIO()
     kwargs: dict = {"icc_profile": icc_profile} if icc_profile is not None else {}
     if preset is not None:

@@ -15,7 +15,9 @@ phone's numbers: 1.12 µm pixels, a full well of 4500 e⁻, 2 e⁻ read noise, 1
 lens, and the natural falloff of a wide lens, cos⁴θ with tan θ = (r / r_corner) tan θ_corner (θ_corner = 37.4°:
 0.40 at the corners), represented within 1e-4 of the gain by the DNG radial polynomial the camera
 uses (least squares in r², r⁴ … r¹⁰). The pinhole focal length follows from the same corner field angle, so the
-chart's perspective and the falloff share one lens. The RAW is a Bayer DNG (``synth.dng``); the processed photo
+chart's perspective and the falloff share one lens; every file's EXIF states it as a phone's does, FocalLength
+(mm) and FocalLengthIn35mmFilm (21.63 mm / tan θ_corner, in whole mm: 28 mm at 37.4°). The RAW is a Bayer DNG
+(``synth.dng``); the processed photo
 is an 8-bit HEIC (``synth.heic``) made as a phone's pipeline does (:meth:`PhoneCamera.process`): black removed and
 scaled, optional lens-shading correction, white-balance gains, a 3×3 colour matrix, a tone curve (sRGB, or a
 filmic shoulder before sRGB), 2× nearest-neighbour up-sampling of the superpixel demosaic, 8-bit quantisation.
@@ -57,6 +59,7 @@ from skimage.transform import ProjectiveTransform
 from camcal.errors import CamcalError
 from camcal.frame import rgb_from_planes
 from camcal.io.data import read_bundled_table
+from camcal.models.falloff import HALF_DIAGONAL_35MM_MM
 from camcal.models.spectra import WAVELENGTHS_NM
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera, frame_rngs, save_truth, write_jpeg_file
 from camcal.synth.exif import PlaceTime
@@ -304,7 +307,9 @@ class PhoneCamera(SyntheticCamera):
             make=ph.make, model=ph.model_name, serial=ph.serial, seed=ph.seed,
         )
         super().__init__(params)
-        self.params = dataclasses.replace(params, focal_length_mm=self.focal_length_px * ph.pixel_pitch_um * 1e-3)
+        self.params = dataclasses.replace(
+            params, focal_length_mm=self.focal_length_px * ph.pixel_pitch_um * 1e-3,
+            focal_length_35mm_mm=HALF_DIAGONAL_35MM_MM / float(np.tan(np.radians(ph.corner_field_angle_deg))))
 
     # ---- optics ----------------------------------------------------------------------------------------------
     @property
@@ -401,7 +406,8 @@ class PhoneCamera(SyntheticCamera):
         return write_heic(path, img, bits=8, quality=self.phone.heic_quality, preset=self.phone.heic_preset,
                           exposure_s=exposure_s,
                           f_number=self.phone.f_number, iso=iso, make=self.params.make, model=self.params.model,
-                          capture_time=capture_time, place=place)
+                          capture_time=capture_time, place=place, focal_length_mm=self.params.focal_length_mm,
+                          focal_length_35mm_mm=self.params.focal_length_35mm_mm)
 
     def write_jpeg(self, path, scene: Scene, *, exposure_s: float, iso: float | None = None,
                    rng: np.random.Generator, place: PlaceTime | None = None, capture_time=None,
@@ -412,7 +418,8 @@ class PhoneCamera(SyntheticCamera):
         img = self.render_processed(scene, exposure_s=exposure_s, iso=iso, rng=rng)
         return write_jpeg_file(path, img, exposure_s=exposure_s, f_number=self.phone.f_number, iso=iso,
                                make=self.params.make, model=self.params.model, quality=95,
-                               capture_time=capture_time, place=place)
+                               capture_time=capture_time, place=place, focal_length_mm=self.params.focal_length_mm,
+                               focal_length_35mm_mm=self.params.focal_length_35mm_mm)
 
     def _check_aperture(self, f_number: float | None) -> None:
         if f_number is not None and abs(float(f_number) - self.phone.f_number) > 1e-9:
@@ -430,7 +437,10 @@ class PhoneCamera(SyntheticCamera):
                                     f"{self.phone.corner_field_angle_deg:g} deg, cos4_radial_k)")
         t["vignetting"]["corner_radius_px"] = self.corner_radius_px
         t["lens"] = {"f_number": self.phone.f_number, "focal_length_px": self.focal_length_px,
-                     "focal_length_mm": self.params.focal_length_mm, "fixed_aperture": True}
+                     "focal_length_mm": self.params.focal_length_mm,
+                     "focal_length_35mm_mm": self.params.focal_length_35mm_mm,
+                     "exif_focal_length_35mm_mm": int(round(self.params.focal_length_35mm_mm)),
+                     "fixed_aperture": True}
         t["processing"] = {"white_balance": list(self.wb_gains),
                            "white_balance_source": "given" if self.phone.white_balance else "daylight preset (D55)",
                            "colour_matrix": [list(r) for r in self.phone.colour_matrix],
