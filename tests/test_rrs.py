@@ -254,3 +254,29 @@ def test_cli_sky_model(stations, profile_path):
     assert "uniform sky" in json.loads(out)["rrs"]["rho"]["model"]
     code, _, err = run_main([*args, "--sky-model", "perez"])
     assert code == 2 and "--sky-model" in err and "Traceback" not in err
+
+
+def test_a_phone_station_through_its_chart_profile(tmp_path):
+    """The synthetic phone (curves not in the library, vignetting to 0.40, 10-bit DNG) photographs a green-water
+    station; its profile comes from `camcal chart` on its sunlit chart DNGs and flats. Rrs within 5 %, σ covering,
+    band ratios within 2 %: Rrs is water over card through one channel, so c(λ)'s error largely cancels (the 48
+    stations of benchmarks/bench_rrs_stations.py phone: docs/water.md)."""
+    from camcal.chart.profile_build import ChartOptions, build_chart_profile
+    from camcal.models.profile import save_profile
+    from camcal.synth.phone import PhoneCamera, write_phone_photos
+
+    day = write_phone_photos(tmp_path / "day", formats=("dng",), depths_m=(1.0,))
+    photos = [tmp_path / "day" / s["files"]["dng"] for s in day["chart"]["shots"]]
+    flats = tuple(tmp_path / "day" / s["files"]["dng"] for s in day["flat"]["shots"])
+    prof = save_profile(build_chart_profile(photos, ChartOptions(flat=flats)).profile, tmp_path / "phone.camcal")
+    assert prof.spectral.source["kind"] == "chart"
+    d = tmp_path / "station"
+    write_station(d, PhoneCamera(), water="green", place=place_at(HIGH_SUN), rng=np.random.default_rng([3, 49]))
+    truth = json.loads((d / "truth.json").read_text())
+    st = _run(d, tmp_path / "phone.camcal")
+    for b in "RGB":
+        t, r, s = truth["rrs_per_sr"][b], st.result.rrs[b], st.result.sigma[b]
+        assert abs(r - t) <= _tolerance(t) and abs(r - t) <= 2 * s, (b, r, t, s)
+    for k, (num, den) in {"B/G": ("B", "G"), "G/R": ("G", "R")}.items():
+        true = truth["rrs_per_sr"][num] / truth["rrs_per_sr"][den]
+        assert abs(st.result.ratios[k][0] / true - 1) <= 0.02, k

@@ -9,6 +9,7 @@ import typer
 from camcal.cli.common import console, one_output
 from camcal.errors import CamcalError
 from camcal.synth.camera import SyntheticCamera, preset
+from camcal.synth.phone import PhoneCamera, PhoneParams
 from camcal.synth.station import WATERS, place_at, write_station
 
 
@@ -24,6 +25,8 @@ def register_station(synth: typer.Typer) -> None:
         n_water: int = typer.Option(5, "--water-photos", help="Number of water photos."),
         n_sky: int = typer.Option(3, "--sky-photos", help="Number of sky photos."),
         glint: int = typer.Option(None, "--glint-photo", help="Add sun glitter to this water photo (1-based)."),
+        camera: str = typer.Option("lab", "--camera", help="lab (the demo's camera, --preset) or phone (the "
+                                   "synthetic phone of `camcal synth phone`)."),
         preset_name: str = typer.Option("default", "--preset", help="Camera preset (as `camcal demo`)."),
         seed: int = typer.Option(1, help="Camera seed (the demo's camera is 1)."),
     ) -> None:
@@ -34,7 +37,10 @@ def register_station(synth: typer.Typer) -> None:
             lat, lon = (float(v) for v in gps.split(","))
         except ValueError:
             raise CamcalError(f"--gps takes LAT,LON in degrees, got {gps!r}") from None
-        cam = SyntheticCamera(preset(preset_name, seed=seed))
+        if camera not in ("lab", "phone"):
+            raise CamcalError(f"--camera {camera!r}: choose lab or phone")
+        cam = (PhoneCamera(PhoneParams(seed=seed)) if camera == "phone"
+               else SyntheticCamera(preset(preset_name, seed=seed)))
         truth = write_station(out, cam, water=water, place=place_at(utc, lat, lon), wind_m_s=wind, n_water=n_water,
                               n_sky=n_sky, glint_photo=glint)
         rrs = ", ".join(f"{b} {v:.5f}" for b, v in truth["rrs_per_sr"].items())
