@@ -2,12 +2,13 @@
 
 camcal does not use this: it needs numba (``pip install numba``), which is not a camcal dependency. It measures
 what the decision left open by issue 28 would buy: the master dark of 32 frames of 12 MP within 2x the 2-thread
-decode needs the band statistics (``camcal.calibrate.stack._integer_band_stats``) in fewer passes than numpy's
+decode needs the band statistics (``camcal.calibrate.band_stats._integer_band_stats``) in fewer passes than numpy's
 whole-plane calls allow, so ``python benchmarks/bench_band_kernel.py`` prints a Markdown section for
 ``benchmarks/RESULTS.md``:
 
-1. **Identity.** The kernel reproduces ``camcal.calibrate.stack._band_stats(x, "sigma_clip", 3.0)`` on integer bands
-   (uint16, 2 to 64 frames, noise from 0.3 to 400 DN, cosmic rays, constant pixels): every output, bit for bit.
+1. **Identity.** The kernel reproduces ``camcal.calibrate.band_stats.band_statistics(x, "sigma_clip", 3.0)`` on
+   integer bands (uint16, 2 to 64 frames, noise from 0.3 to 400 DN, cosmic rays, constant pixels): every
+   output, bit for bit.
    It follows the same arithmetic: float32 deviations from the median (exact); their sums and the sums of
    their squares in float64 (exact: whole and half DN) rounded once to float32, which is what numpy's path
    gives (float32 sums, exact below ``EXACT_SQUARES``; above it, float64 sums rounded once); the pass-1
@@ -15,17 +16,17 @@ whole-plane calls allow, so ``python benchmarks/bench_band_kernel.py`` prints a 
    (``_moments``), the pass-2 half-width (``_pass2_threshold``). A value is kept when ``lo <= d <= hi``: the
    values a clip removes from a sorted pixel are its lowest and highest ranks, so masking every value gives the
    rank-wise result.
-2. **The band phase.** ``camcal.calibrate.stack._bands`` over the spilled 32 x 12 MP mosaics of
-``benchmarks/bench_dark.py``
-   (its frames, written by its ``prepare``), in camcal's 2 band threads, once with camcal's numpy statistics
+2. **The band phase.** ``camcal.calibrate.spill.spilled_statistics`` over the spilled 32 x 12 MP mosaics of
+   ``benchmarks/bench_dark.py`` (its frames, written by its ``prepare``), in camcal's 2 band threads, once with
+   camcal's numpy statistics
    and once with the kernel in their place (each band thread runs the kernel, which releases the GIL),
    interleaved, medians of ``--runs``.
 3. **The whole master dark.** ``bench_dark.py``'s three measurements in fresh processes, in one shuffled order:
    the 2-thread decode, camcal's master dark, and the same with the kernel in place of the numpy statistics.
 
 The kernel: a block of 256 pixels of every frame is copied into a (N, 256) buffer that stays in the core's
-first-level cache, sorted by camcal's sorting network (``camcal.calibrate.stack._sorting_network``: one min and one max
-per pair, vectorised over the block's pixels), then every statistic is taken on that block, each step a loop
+first-level cache, sorted by camcal's sorting network (``camcal.calibrate.band_stats._sorting_network``: one min and
+one max per pair, vectorised over the block's pixels), then every statistic is taken on that block, each step a loop
 over the block's pixels that the compiler vectorises.
 """
 
@@ -51,10 +52,11 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))  # run from a checkout without installing
 sys.path.insert(0, str(HERE))
 
-from camcal.calibrate import stack  # noqa: E402
-from camcal.calibrate.stack import IQR_TO_SIGMA  # noqa: E402
+from camcal.calibrate import band_stats as numpy_band_stats  # noqa: E402
+from camcal.calibrate import spill  # noqa: E402
+from camcal.calibrate.band_stats import IQR_TO_SIGMA  # noqa: E402
 
-NUMPY_BAND_STATS = stack._band_stats
+NUMPY_BAND_STATS = numpy_band_stats.band_statistics
 """camcal's own band statistics (numpy), kept before any run puts the kernel in their place."""
 
 BLOCK = 256
@@ -73,7 +75,7 @@ def _kernel():
         iqr = np.float32(IQR_TO_SIGMA)
         half = np.float32(0.5)
         zero = np.float32(0.0)
-        eps = np.float32(1e-6)  # camcal.calibrate.stack._pass2_threshold's share of the median
+        eps = np.float32(1e-6)  # camcal.calibrate.band_stats._pass2_threshold's share of the median
         q1a = int(math.floor(0.25 * (n - 1)))
         q1b = min(q1a + 1, n - 1)
         q1f = np.float32(0.25 * (n - 1) - q1a)
@@ -170,7 +172,7 @@ _CLIP_STATS = None
 
 
 def band_stats(x: np.ndarray, method: str, sigma: float, work: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
-    """``camcal.calibrate.stack._band_stats`` with the kernel for integer sigma-clipped bands (camcal's numpy
+    """``camcal.calibrate.band_stats.band_statistics`` with the kernel for integer sigma-clipped bands (camcal's numpy
     otherwise)."""
     global _CLIP_STATS
     if x.dtype.kind not in "ui" or x.dtype.itemsize > 2 or method != "sigma_clip" or x.shape[0] > 128:
@@ -179,7 +181,7 @@ def band_stats(x: np.ndarray, method: str, sigma: float, work: np.ndarray | None
         _CLIP_STATS = _kernel()
     n, shape = x.shape[0], x.shape[1:]
     flat = x.reshape(n, -1)
-    pairs = np.array(stack._sorting_network(n), np.int64).reshape(-1, 2)
+    pairs = np.array(numpy_band_stats._sorting_network(n), np.int64).reshape(-1, 2)
     # value and mean_all in float64, as numpy's path gives them (the stack writes both into float32 maps)
     outs = [np.empty(flat.shape[1], t) for t in (np.float64, np.float32, np.uint8, np.float32, np.float64)]
     _CLIP_STATS(flat, pairs, sigma, *outs)
@@ -238,13 +240,13 @@ def measure_bands(runs: int) -> dict[str, list[tuple[float, float]]]:
     try:
         for _ in range(runs):
             for name, fn in (("numpy", own), ("kernel", band_stats)):
-                stack._band_stats = fn
+                spill.band_statistics = fn
                 c0, t0 = _cpu_s(), time.perf_counter()
-                stack._bands(fd, "spill", n, (4, h, w), np.dtype(np.uint16), "sigma_clip", 3.0, 2, stack.BAND_MB,
-                             frame.cfa_pattern, frozenset(DARK_STATISTICS))
+                spill.spilled_statistics(fd, "spill", n, (4, h, w), np.dtype(np.uint16), "sigma_clip", 3.0, 2,
+                                         spill.BAND_MB, frame.cfa_pattern, frozenset(DARK_STATISTICS))
                 times[name].append((time.perf_counter() - t0, _cpu_s() - c0))
     finally:
-        stack._band_stats = own
+        spill.band_statistics = own
         os.close(fd)
     return times
 
@@ -271,7 +273,7 @@ def _run_calibrate(kernel: bool) -> dict:
     use_frame_allocator()
     if kernel:
         compile_seconds()
-        stack._band_stats = band_stats
+        spill.band_statistics = band_stats
     session = bench_calibrate.session_dir(6000, 4000)
     if not (session / "truth.json").is_file():
         raise SystemExit(f"no session at {session}: run python benchmarks/bench_calibrate.py --prepare first")
@@ -291,7 +293,7 @@ def _run_one(which: str) -> dict:
         return bench_dark.run_decode(bench_dark.N_MAX, 2)
     if which == "kernel":
         band_stats(np.zeros((bench_dark.N_MAX, 8), np.uint16), "sigma_clip", 3.0)  # compiled before timing
-        stack._band_stats = band_stats
+        spill.band_statistics = band_stats
     return bench_dark.run_camcal(bench_dark.N_MAX, 2)
 
 

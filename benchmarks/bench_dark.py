@@ -14,7 +14,8 @@ adds the ccdproc row (about a minute at 12 MP).
 
    - baseline: ``camcal.io.read.load_frame`` + ``Frame.planes`` (uint16) of every file in 2 threads: the decode
      the stack itself does, nothing else.
-   - camcal: ``combine_frames(paths, method="sigma_clip", jobs=2, statistics=camcal.calibrate.dark.DARK_STATISTICS)`` on
+   - camcal: ``combine_frames(paths, StackOptions("sigma_clip", jobs=2,
+     statistics=camcal.calibrate.dark.DARK_STATISTICS))`` on
      the DNG files (decode included): the master dark as the dark stage makes it, with the statistics that stage
      asks for (the clipped value and count, the variance and the mean of all values); its spill is held in memory
      when it fits (``camcal.io.atomic.scratch_fd``);
@@ -125,12 +126,13 @@ def run_camcal(n: int, jobs: int, every_statistic: bool = False) -> dict:
     """The master dark of the first ``n`` frames as the dark stage makes it (its statistics), or with every
     statistic (``every_statistic``)."""
     from camcal.calibrate.dark import DARK_STATISTICS
-    from camcal.calibrate.stack import combine_frames
+    from camcal.calibrate.stack import StackOptions, combine_frames
 
     paths = [_dng(i) for i in range(n)]
     c0 = _cpu_s()
     t0 = time.perf_counter()
-    res = combine_frames(paths, method="sigma_clip", jobs=jobs, statistics=None if every_statistic else DARK_STATISTICS)
+    res = combine_frames(paths, StackOptions(method="sigma_clip", jobs=jobs,
+                                             statistics=None if every_statistic else DARK_STATISTICS))
     dt = time.perf_counter() - t0
     import numpy as np
 

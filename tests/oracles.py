@@ -12,7 +12,7 @@ import numpy as np
 
 from camcal.calibrate.flat import DEFAULT_TERMS, FlatChecks, FlatOptions, fit_flat_with
 from camcal.calibrate.session import StageFrames
-from camcal.calibrate.stack import StackResult, combine_frames
+from camcal.calibrate.stack import StackOptions, StackResult, combine_frames
 from camcal.errors import CamcalError
 from camcal.io.manifest import _read_session_toml
 from camcal.io.read import folder_files, load_folder_frame
@@ -93,13 +93,13 @@ def iter_folder(folder: str | Path):
         yield p, load_folder_frame(p, manifest)
 
 
-def combine_folder(folder: str | Path, **kwargs) -> StackResult:
+def combine_folder(folder: str | Path, options: StackOptions = StackOptions(), **kwargs) -> StackResult:  # noqa: B008
     """:func:`combine_frames` over every image of ``folder`` (its ``frames.csv`` applied).
 
     Files listed in ``frames.csv`` but missing from the folder are an error.
     """
     files, manifest = folder_files(folder, kwargs.pop("manifest", None))
-    return combine_frames(files, manifest=manifest, **kwargs)
+    return combine_frames(files, options, manifest=manifest, **kwargs)
 
 
 def read_session_defaults(path: str | Path) -> dict[str, float | str]:
@@ -235,3 +235,59 @@ def read_var_dn2(plan) -> np.ndarray | None:
     """(4, h, w) read-noise variance of an apply plan's dark model at its ISO, DN²."""
     dark = plan.calibration.dark
     return None if dark is None else dark.read_noise_dn.astype(np.float32) ** 2
+
+
+def band_statistics_reference(x: np.ndarray, method: str, sigma: float) -> tuple[np.ndarray, ...]:
+    """The oracle of :func:`camcal.calibrate.band_stats.band_statistics`: its definition, with :func:`numpy.sort`
+    along the frame axis and a boolean mask per pass over every value (no sorting network, no rank-wise clipping,
+    no float32 sums).
+
+    The arithmetic is the module's: float32 deviations ``d`` from the float32 median (exact for DN: whole or half
+    DN); the sums of the kept ``d`` and ``d²`` in float64, rounded once to float32 (what the module's float32 sums
+    give where they are exact, and its float64 sums of the loud pixels everywhere else); the variance of all
+    values ``max(Σd² − (Σd)²/n, 0)/(n − 1)`` in float32; quartiles by linear interpolation of the sorted
+    deviations in float32; pass 1 keeps ``|d| ≤ σ·IQR/1.349`` (the plain standard deviation where the IQR is 0),
+    pass 2 keeps ``|d − m₁| ≤ σ·s₁ + 10⁻⁶·|median|``; moments in float64 from the rounded sums. On integer bands
+    of up to ``NETWORK_MAX_FRAMES`` frames its results equal the module's bit for bit; on float32 bands (and
+    longer integer ones) they may differ by the float32 rounding of the module's sums.
+    """
+    n = x.shape[0]
+    s = np.sort(x.astype(np.float32), axis=0)
+    med = s[n // 2] if n % 2 else np.float32(0.5) * (s[n // 2 - 1] + s[n // 2])
+    d = s - med
+
+    def sums(keep: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        dd = np.where(keep, d.astype(np.float64), 0.0)
+        return (dd.sum(axis=0).astype(np.float32), (dd * dd).sum(axis=0).astype(np.float32),
+                keep.sum(axis=0))
+
+    def moments(keep: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        s1, s2, cnt = sums(keep)
+        s1d, s2d, c = s1.astype(np.float64), s2.astype(np.float64), cnt.astype(np.float64)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            m = s1d / c
+            v = (np.maximum(s2d - s1d * m, 0) / (c - 1)).astype(np.float32)
+        v[cnt <= 1] = np.nan
+        return m.astype(np.float32), v, cnt
+
+    sd, sdd, _ = sums(np.ones(d.shape, bool))
+    mean_all = med.astype(np.float64) + sd.astype(np.float64) / n
+    with np.errstate(invalid="ignore"):
+        var_all = (np.maximum(sdd - sd * sd / n, 0) / (n - 1) if n > 1
+                   else np.full(sd.shape, np.nan, np.float32))
+    if method == "median":
+        return med, mean_all, var_all, np.full(med.shape, n), var_all, mean_all
+
+    def quantile(q: float) -> np.ndarray:
+        lo = int(np.floor(q * (n - 1)))
+        hi = min(lo + 1, n - 1)
+        return d[lo] + np.float32(q * (n - 1) - lo) * (d[hi] - d[lo])
+
+    scale = (quantile(0.75) - quantile(0.25)) / np.float32(1.349)
+    scale = np.where(scale > 0, scale, np.fmax(np.sqrt(var_all), 0))
+    thr = (sigma * scale).astype(np.float32)
+    m, v, _ = moments((d >= -thr) & (d <= thr))
+    thr = sigma * np.fmax(np.sqrt(v), 0).astype(np.float32) + np.float32(1e-6) * np.abs(med)
+    m, v, cnt = moments((d >= m - thr) & (d <= m + thr))
+    mean = m.astype(np.float64) + med.astype(np.float64)
+    return mean, mean, v, cnt, var_all, mean_all

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from camcal.calibrate.dark import fit_dark
-from camcal.calibrate.stack import combine_frames
+from camcal.calibrate.stack import StackOptions, combine_frames
 from camcal.errors import CamcalError
 from camcal.models.correct import dark_frame
 from camcal.models.dark import HOT, DarkModel, load_dark, save_dark
@@ -94,7 +94,7 @@ def test_subtract_save_load(session, tmp_path):
     assert back.summary()["hot_pixel_count"] == model.summary()["hot_pixel_count"]
     assert back.temperature_c == model.temperature_c and back.cfa_pattern == model.cfa_pattern
     files = sorted((root / "dark").glob("dark_016.000s_*.dng"))
-    st = combine_frames(files, method="mean")
+    st = combine_frames(files, StackOptions(method="mean"))
     resid = subtract_dark(st.value, back, 16.0)
     good = back.defects == 0
     for k in range(4):

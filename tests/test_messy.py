@@ -19,7 +19,7 @@ from camcal.calibrate.response import MIN_EXPOSURES, fit_series, measure_series,
 from camcal.calibrate.run import calibrate_session, stage_checks
 from camcal.calibrate.screen import screen_session
 from camcal.calibrate.session import index_session
-from camcal.calibrate.stack import combine_frames
+from camcal.calibrate.stack import StackOptions, combine_frames
 from camcal.calibrate.sweep import MIN_WAVELENGTHS
 from camcal.errors import CamcalError, FrameLeftOut
 from camcal.models.profile import load_profile
@@ -354,8 +354,8 @@ def test_messy_bias_judged_while_stacked_gives_the_clean_stack(tiny):
         screening = screen_session(index, stage_checks(), defer={"bias": names})
         assert screening.left_out() == []  # nothing judged before the stage
         judge = screening.judge("bias", stage_checks()["bias"])
-        got = combine_frames(index.frames["bias"].paths, method=method, judge=judge, jobs=2, keep_frames=2)
-        want = combine_frames(clean, method=method, jobs=1, keep_frames=2)
+        got = combine_frames(index.frames["bias"].paths, StackOptions(method=method, jobs=2, keep_frames=2), rule=judge)
+        want = combine_frames(clean, StackOptions(method=method, jobs=1, keep_frames=2))
         assert {f"bias/{v.file}": v.reason for v in judge.left_out()} == expected
         assert got.paths == want.paths and got.n_frames == len(clean)
         for name in ("value", "mean", "variance", "count", "variance_all", "mean_all"):
@@ -374,9 +374,9 @@ def test_a_copy_read_before_its_original_passes_its_place_to_the_original(tiny):
     names = {r.path.name for r in index.frames["bias"].frames}
     for method in ("mean", "sigma_clip"):
         judge = screen_session(index, stage_checks(), defer={"bias": names}).judge("bias", stage_checks()["bias"])
-        got = combine_frames([b[1], copy, b[0], b[2]], method=method, judge=judge, jobs=1, keep_frames=3)
-        want = combine_frames([b[1], b[0], b[2]], method=method, jobs=1, keep_frames=3)
-        assert [v.file for v in judge.left_out()] == [copy.name] and judge.retracted == [copy]
+        got = combine_frames([b[1], copy, b[0], b[2]], StackOptions(method=method, jobs=1, keep_frames=3), rule=judge)
+        want = combine_frames([b[1], b[0], b[2]], StackOptions(method=method, jobs=1, keep_frames=3))
+        assert [v.file for v in judge.left_out()] == [copy.name] and judge.superseded == [copy]
         assert got.paths == want.paths
         for name in ("value", "mean", "variance", "count"):
             assert np.array_equal(getattr(got, name), getattr(want, name), equal_nan=True), (method, name)

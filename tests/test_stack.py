@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 
 from camcal import threads
-from camcal.calibrate import stack
+from camcal.calibrate import spill, stack
 from camcal.calibrate.screen import Majority, StageJudge
-from camcal.calibrate.stack import _read_slot, combine_frames
+from camcal.calibrate.spill import read_slot
+from camcal.calibrate.stack import StackOptions, combine_frames
 from camcal.errors import CamcalError
 from camcal.io.read import load_frame
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera, frame_rngs
@@ -49,13 +50,13 @@ def _cube(folder):
 @pytest.mark.parametrize("jobs", [1, 2])
 def test_mean_and_median_match_numpy(stack_dir, jobs):
     files, x = _cube(stack_dir[0])
-    res = combine_frames(files, method="mean", jobs=jobs)
+    res = combine_frames(files, StackOptions(method="mean", jobs=jobs))
     assert res.n_frames == 9 and res.channel_names == ("R", "G1", "G2", "B") and res.cfa_pattern == "BGGR"
     np.testing.assert_allclose(res.value, x.mean(0), rtol=0, atol=1e-3)
     np.testing.assert_allclose(res.variance, x.var(0, ddof=1), rtol=1e-4, atol=1e-3)
     assert res.count.min() == res.count.max() == 9
     assert [e.iso for e in res.exposures] == [200.0] * 9
-    med = combine_frames(files, method="median", jobs=jobs, band_mb=0.05)  # tiny bands: many band reads
+    med = combine_frames(files, StackOptions(method="median", jobs=jobs, band_mb=0.05))  # tiny bands: many band reads
     np.testing.assert_array_equal(med.value, np.median(x, 0).astype(np.float32))
     np.testing.assert_allclose(med.mean, x.mean(0), atol=1e-3)
     np.testing.assert_allclose(med.variance, x.var(0, ddof=1), rtol=1e-4, atol=1e-3)
@@ -67,7 +68,7 @@ def test_a_mean_stack_summed_as_mosaics_keeps_the_planes_of_its_first_frames(sta
     are still the frames' own, in file order and integer type (split from the mosaic of a frame whose planes
     the decode thread did not return), and the value and variance land in the right planes."""
     files, x = _cube(stack_dir[0])
-    res = combine_frames(files, method="mean", jobs=jobs, keep_frames=4)
+    res = combine_frames(files, StackOptions(method="mean", jobs=jobs, keep_frames=4))
     assert len(res.kept_planes) == 4
     for p, kept in zip(files, res.kept_planes, strict=False):
         frame = load_frame(p)
@@ -85,7 +86,7 @@ def test_a_spilled_stack_keeps_the_planes_of_its_first_frames(stack_dir, jobs):
     still the frames' own planes, in file order, in their integer type, and so are the planes read back from
     a spilled mosaic's slot (when a kept frame's planes were not returned by its decode thread)."""
     files, _ = _cube(stack_dir[0])
-    res = combine_frames(files, method="median", jobs=jobs, keep_frames=4, band_mb=0.05)
+    res = combine_frames(files, StackOptions(method="median", jobs=jobs, keep_frames=4, band_mb=0.05))
     assert len(res.kept_planes) == 4
     frames = [load_frame(p) for p in files]
     for frame, kept in zip(frames, res.kept_planes, strict=False):
@@ -96,17 +97,17 @@ def test_a_spilled_stack_keeps_the_planes_of_its_first_frames(stack_dir, jobs):
     planes = frames[2].planes(dtype=np.uint16)
     fd = os.open(spill, os.O_RDONLY)
     try:
-        np.testing.assert_array_equal(_read_slot(fd, str(spill), 2, planes.shape, np.dtype(np.uint16), "BGGR"),
+        np.testing.assert_array_equal(read_slot(fd, str(spill), 2, planes.shape, np.dtype(np.uint16), "BGGR"),
                                       planes)
         with pytest.raises(CamcalError, match="ended early"):  # a slot past the end: a short file
-            _read_slot(fd, str(spill), 3, planes.shape, np.dtype(np.uint16), "BGGR")
+            read_slot(fd, str(spill), 3, planes.shape, np.dtype(np.uint16), "BGGR")
     finally:
         os.close(fd)
 
 
 def test_sigma_clip_rejects_the_cosmic_ray(stack_dir):
     files, x = _cube(stack_dir[0])
-    res = combine_frames(files, method="sigma_clip", sigma=3.0, jobs=2, band_mb=0.1)
+    res = combine_frames(files, StackOptions(method="sigma_clip", sigma=3.0, jobs=2, band_mb=0.1))
     hit = np.zeros(x.shape[1:], bool)
     # row 10 of a BGGR mosaic is an even row: B at even columns, G1 at odd columns (plane row 5)
     hit[3, 5, 10:30] = True
@@ -119,7 +120,7 @@ def test_sigma_clip_rejects_the_cosmic_ray(stack_dir):
     # frames as the robust scale (MAD) of 9 quantised values is itself noisy; 10 % would mean a broken clip
     assert np.mean(res.count[~hit]) > 8.1
     assert np.all(res.variance_all[hit] > 1e5)  # the unclipped variance still sees it
-    plain = combine_frames(files, method="mean")
+    plain = combine_frames(files, StackOptions(method="mean"))
     assert np.all(plain.value[hit] > res.value[hit] + 500)
 
 
@@ -136,7 +137,7 @@ def test_sigma_clip_combines_a_pixel_masked_in_some_frames_from_the_others(stack
         planes[2, 4, 4] = np.nan  # masked in every frame
         return planes
 
-    res = combine_frames(files, method="sigma_clip", preprocess=masked, jobs=1)
+    res = combine_frames(files, StackOptions(method="sigma_clip", jobs=1), preprocess=masked)
     others = np.delete(x, 2, axis=0)[:, 0, 7, 3:9]  # the 7 unmasked values of those pixels
     assert np.all(res.count[0, 7, 3:9] <= 7) and np.all(res.count[0, 7, 3:9] >= 6)
     # the clipped mean of 7 values of ~5 DN noise: within 3 DN of their plain mean (at most one clipped value)
@@ -150,11 +151,11 @@ def test_processed_frames_and_custom_preprocess(tmp_path):
     scene = Scene.uniform(np.ones(401) * 0.02)
     for i, rng in enumerate(frame_rngs(3, 3, 1)):
         cam.write_jpeg(tmp_path / f"j{i}.jpg", scene, exposure_s=0.01, rng=rng)
-    res = combine_folder(tmp_path, method="median")
+    res = combine_folder(tmp_path, StackOptions("median"))
     assert res.channel_names == ("R", "G", "B") and res.value.shape == (3, 64, 96) and res.kind == "processed"
     x = np.stack([load_frame(p).planes() for p in sorted(tmp_path.glob("*.jpg"))])
     np.testing.assert_array_equal(res.value, np.median(x, 0))
-    half = combine_folder(tmp_path, method="sigma_clip", preprocess=lambda f: f.planes() * 0.5, jobs=2)
+    half = combine_folder(tmp_path, StackOptions("sigma_clip", jobs=2), preprocess=lambda f: f.planes() * 0.5)
     assert half.value.dtype == np.float32
     np.testing.assert_allclose(np.median(half.value), 0.5 * np.median(x), rtol=0.02)
 
@@ -162,11 +163,11 @@ def test_processed_frames_and_custom_preprocess(tmp_path):
 def test_errors(stack_dir, tmp_path):
     files, _ = _cube(stack_dir[0])
     with pytest.raises(CamcalError, match="differs from the first frame"):
-        combine_frames([*files[:2], stack_dir[1]], method="median", jobs=2)
+        combine_frames([*files[:2], stack_dir[1]], StackOptions(method="median", jobs=2))
     with pytest.raises(CamcalError, match="differs from the first frame"):
-        combine_frames([*files[:2], stack_dir[1]], method="mean")
+        combine_frames([*files[:2], stack_dir[1]], StackOptions(method="mean"))
     with pytest.raises(CamcalError, match="unknown combination method"):
-        combine_frames(files, method="mode")
+        combine_frames(files, StackOptions(method="mode"))
     with pytest.raises(CamcalError, match="no frames"):
         combine_frames([])
 
@@ -175,7 +176,7 @@ def test_errors(stack_dir, tmp_path):
             raise CamcalError("refused by check", frame.path)
 
     with pytest.raises(CamcalError, match="f2.dng: refused by check"):
-        combine_frames(files, check=refuse, jobs=2, method="median")
+        combine_frames(files, StackOptions(jobs=2, method="median"), check=refuse)
     bad = tmp_path / "x.dng"
     bad.write_bytes(b"II*\x00garbage" * 10)
     with pytest.raises(CamcalError, match="x.dng"):
@@ -201,8 +202,8 @@ def test_the_thread_rule(monkeypatch):
 
 def test_automatic_threads_give_the_same_stack(stack_dir):
     files, _ = _cube(stack_dir[0])
-    auto = combine_frames(files, method="sigma_clip", jobs=None, band_mb=0.1)
-    two = combine_frames(files, method="sigma_clip", jobs=2, band_mb=0.1)
+    auto = combine_frames(files, StackOptions(method="sigma_clip", jobs=None, band_mb=0.1))
+    two = combine_frames(files, StackOptions(method="sigma_clip", jobs=2, band_mb=0.1))
     np.testing.assert_array_equal(auto.value, two.value)
     np.testing.assert_array_equal(auto.count, two.count)
 
@@ -218,7 +219,8 @@ def test_a_stack_spilled_to_disk_equals_one_held_in_memory(stack_dir, monkeypatc
     for limit in ("0", "1000"):
         monkeypatch.setenv("CAMCAL_SPILL_MEMORY_MB", limit)
         judge = StageJudge("dark", Majority(), None, {p: i for i, p in enumerate(files)})
-        runs[limit] = combine_frames(files, method="sigma_clip", jobs=2, band_mb=0.05, keep_frames=3, judge=judge)
+        runs[limit] = combine_frames(files, StackOptions(method="sigma_clip", jobs=2, band_mb=0.05, keep_frames=3),
+                                     rule=judge)
         assert judge.reasons[copy] is not None
     disk, memory = runs["0"], runs["1000"]
     assert disk.n_frames == memory.n_frames == len(files) - 1
@@ -232,7 +234,7 @@ def test_a_spill_that_cannot_be_written_is_one_line_naming_it(stack_dir, monkeyp
     what to change, not an OSError without a file name; the spill file is removed."""
     import errno
 
-    import camcal.calibrate.stack as stack_module
+    import camcal.calibrate.spill as spill_module
 
     files, _ = _cube(stack_dir[0])
     monkeypatch.setenv("CAMCAL_SPILL_MEMORY_MB", "0")
@@ -242,10 +244,10 @@ def test_a_spill_that_cannot_be_written_is_one_line_naming_it(stack_dir, monkeyp
     def full(fd, data, offset):
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 
-    monkeypatch.setattr(stack_module.os, "pwrite", full)
+    monkeypatch.setattr(spill_module.os, "pwrite", full)
     with pytest.raises(CamcalError, match=r"cannot write the temporary stack file .*camcal-stack-.*: No space left "
                                           r"on device; point TMPDIR"):
-        combine_frames(files, method="sigma_clip", jobs=1)
+        combine_frames(files, StackOptions(method="sigma_clip", jobs=1))
     assert not list(tmp_path.glob("camcal-stack-*"))
 
 
@@ -258,17 +260,17 @@ def test_a_stage_gets_only_the_statistics_it_asks_for(stack_dir, method, statist
     stack, bit for bit. The median's mean and variance are those of all values (mean_all, variance_all): asking
     for either name gives the one array."""
     files, _ = _cube(stack_dir[0])
-    full = combine_frames(files, method=method, jobs=2, band_mb=0.05)
+    full = combine_frames(files, StackOptions(method=method, jobs=2, band_mb=0.05))
     made = []
-    bands = stack._bands
+    bands = stack.spilled_statistics
 
     def recording(*args, **kwargs):
         out = bands(*args, **kwargs)
         made.append({id(a) for a in out if a is not None})
         return out
 
-    monkeypatch.setattr(stack, "_bands", recording)
-    part = combine_frames(files, method=method, jobs=2, band_mb=0.05, statistics=statistics)
+    monkeypatch.setattr(stack, "spilled_statistics", recording)
+    part = combine_frames(files, StackOptions(method=method, jobs=2, band_mb=0.05, statistics=statistics))
     if method != "mean":  # the band statistics made the value, the count and what was asked for, no more
         asked = {id(part.value), id(part.count)} | {id(getattr(part, n)) for n in statistics}
         assert made == [asked]
@@ -285,7 +287,7 @@ def test_a_stage_gets_only_the_statistics_it_asks_for(stack_dir, method, statist
 def test_an_unknown_statistic_is_refused(stack_dir):
     files, _ = _cube(stack_dir[0])
     with pytest.raises(CamcalError, match="unknown statistics.*'stdev'"):
-        combine_frames(files, method="sigma_clip", statistics=("variance", "stdev"))
+        combine_frames(files, StackOptions(method="sigma_clip", statistics=("variance", "stdev")))
 
 
 def test_a_band_stays_within_its_budget_and_its_pixel_cap_whatever_the_frames():
@@ -295,13 +297,13 @@ def test_a_band_stays_within_its_budget_and_its_pixel_cap_whatever_the_frames():
     shape = (4, 1500, 2000)  # a 12 MP mosaic's planes
     c, h, w = shape
     for n in (2, 8, 16, 32, 64, 128):
-        rows = stack._band_rows(n, shape, stack.BAND_MB)
+        rows = spill._band_rows(n, shape, spill.BAND_MB)
         assert 1 <= rows <= h
-        assert n * c * rows * w * 4 <= stack.BAND_MB * 1e6
-        assert c * rows * w <= stack.MAX_BAND_PIXELS
+        assert n * c * rows * w * 4 <= spill.BAND_MB * 1e6
+        assert c * rows * w <= spill.MAX_BAND_PIXELS
         # the largest band within both: one more row breaks one of them
-        assert (n * c * (rows + 1) * w * 4 > stack.BAND_MB * 1e6 or c * (rows + 1) * w > stack.MAX_BAND_PIXELS)
-    assert stack._band_rows(32, shape, 16.0) == 15  # 16e6 / (32 · 4 · 2000 · 4) = 15.6 rows
-    assert stack._band_rows(8, shape, 16.0) == 32  # the cap: 2^18 / 8000 = 32.8 rows (the budget allows 62)
-    assert stack._band_rows(32, shape, 1e-6) == 1  # a tiny budget: one row
-    assert stack._band_rows(2, (1, 3, 2000), 1e3) == 3  # never more rows than the planes have
+        assert (n * c * (rows + 1) * w * 4 > spill.BAND_MB * 1e6 or c * (rows + 1) * w > spill.MAX_BAND_PIXELS)
+    assert spill._band_rows(32, shape, 16.0) == 15  # 16e6 / (32 · 4 · 2000 · 4) = 15.6 rows
+    assert spill._band_rows(8, shape, 16.0) == 32  # the cap: 2^18 / 8000 = 32.8 rows (the budget allows 62)
+    assert spill._band_rows(32, shape, 1e-6) == 1  # a tiny budget: one row
+    assert spill._band_rows(2, (1, 3, 2000), 1e3) == 3  # never more rows than the planes have

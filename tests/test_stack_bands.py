@@ -11,7 +11,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from camcal.calibrate.stack import IQR_TO_SIGMA, _band_stats
+from camcal.calibrate.band_stats import IQR_TO_SIGMA, band_statistics
+from tests.oracles import band_statistics_reference
 
 
 def _outliers(n: int) -> int:
@@ -56,7 +57,7 @@ def _numpy_sigma_clip(x: np.ndarray, sigma: float) -> tuple[np.ndarray, ...]:
 @pytest.mark.parametrize(("n", "seed"), [(32, 1), (9, 2), (64, 3)])
 def test_integer_band_sigma_clip_is_numpys(n, seed):
     x = _band(n, seed)
-    value, mean, var, cnt, var_all, mean_all = _band_stats(x.copy(), "sigma_clip", 3.0)
+    value, mean, var, cnt, var_all, mean_all = band_statistics(x.copy(), "sigma_clip", 3.0)
     ref_mean, ref_var, ref_cnt, ref_var_all, ref_mean_all, _, _ = _numpy_sigma_clip(x, 3.0)
     # the same values are kept: the comparisons are exact in both (whole DN against float32 bounds)
     np.testing.assert_array_equal(cnt, ref_cnt)
@@ -77,16 +78,16 @@ def test_integer_band_matches_the_masked_float_path(n, seed):
     bit for bit where the float32 sums are exact (deviations from the median squared sum to less than 2^22),
     within float32 rounding at the loud pixels, where the integer path is the exact one."""
     x = _band(n, seed)
-    fast = _band_stats(x.copy(), "sigma_clip", 3.0)
-    masked = _band_stats(x.astype(np.float32), "sigma_clip", 3.0)
+    fast = band_statistics(x.copy(), "sigma_clip", 3.0)
+    masked = band_statistics(x.astype(np.float32), "sigma_clip", 3.0)
     v = x.astype(np.float64)
     loud = ((v - np.median(v, axis=0)) ** 2).sum(0) >= 2.0**22
     assert 2 <= loud.sum() < loud.size // 10
     for a, b in zip(fast, masked, strict=True):
         np.testing.assert_array_equal(a[~loud], b[~loud])
         np.testing.assert_allclose(a[loud], b[loud], rtol=1e-5)
-    med = _band_stats(x.copy(), "median", 3.0)
-    for a, b in zip(med, _band_stats(x.astype(np.float32), "median", 3.0), strict=True):
+    med = band_statistics(x.copy(), "median", 3.0)
+    for a, b in zip(med, band_statistics(x.astype(np.float32), "median", 3.0), strict=True):
         np.testing.assert_array_equal(a[~loud], b[~loud])
         np.testing.assert_allclose(a[loud], b[loud], rtol=1e-5)
     np.testing.assert_array_equal(med[0], np.median(v, axis=0).astype(np.float32))
@@ -104,7 +105,7 @@ def test_float_band_clip_skips_lost_values_that_are_not_numbers():
     x[1, 0, 0, 20:40] = -np.inf  # and at -inf: lost at the bottom
     x[2, 0, 0, 40:60] = 5.0  # an outlier, finite: lost, as before
     x[3, 0, 0, 60:70] = np.nan  # one masked value: sorted last, lost at the top
-    value, _mean, var, cnt, _var_all, _mean_all = _band_stats(x.copy(), "sigma_clip", 3.0)
+    value, _mean, var, cnt, _var_all, _mean_all = band_statistics(x.copy(), "sigma_clip", 3.0)
     assert np.isfinite(value).all() and np.isfinite(var).all()
     assert (cnt[0, 0, :70] <= n - 1).all()  # the infinities, the outlier and the masked value went
     for j in range(w):  # the finite values of each pixel, clipped as the module docstring says, with numpy
@@ -117,3 +118,39 @@ def test_float_band_clip_skips_lost_values_that_are_not_numbers():
         assert cnt[0, 0, j] == ref_cnt[0], j
         np.testing.assert_allclose(value[0, 0, j], ref_mean[0], rtol=1e-6)
         np.testing.assert_allclose(var[0, 0, j], ref_var[0], rtol=1e-5)
+
+
+@pytest.mark.parametrize(("n", "seed"), [(32, 11), (9, 12), (64, 13), (2, 14), (3, 15), (128, 16)])
+@pytest.mark.parametrize("method", ["sigma_clip", "median"])
+def test_integer_band_statistics_are_the_oracles_bit_for_bit(n, seed, method):
+    """Every output of :func:`band_statistics` on an integer band equals its oracle
+    (``tests.oracles.band_statistics_reference``: numpy.sort and a mask per pass over every value) bit for bit,
+    loud pixels (squares past 2^22, summed in float64) and the type's extremes included, up to the sorting
+    network's 128 frames."""
+    x = _band(n, seed)
+    got = band_statistics(x.copy(), method, 3.0)
+    want = band_statistics_reference(x, method, 3.0)
+    v = x.astype(np.float64)
+    assert (((v - np.median(v, axis=0)) ** 2).sum(0) >= 2.0**22).any()  # the loud path is exercised
+    for name, a, b in zip(got._fields, got, want, strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b), err_msg=name)
+        if name != "count":
+            assert np.asarray(a).dtype == np.asarray(b).dtype, name
+
+
+def test_float_band_statistics_are_the_oracles_within_float32_rounding():
+    """A float32 band (preprocessed frames): the same kept values as the oracle, the moments within the float32
+    rounding of the module's sums."""
+    rng = np.random.default_rng(17)
+    x = (1 + 0.02 * rng.standard_normal((16, 2, 4, 50))).astype(np.float32)
+    x[:2, 0, 0, :10] = 3.0  # outliers lost by pass 1
+    got = band_statistics(x.copy(), "sigma_clip", 3.0)
+    want = band_statistics_reference(x, "sigma_clip", 3.0)
+    np.testing.assert_array_equal(got.count, want[3])
+    for a, b in zip(got, want, strict=True):
+        np.testing.assert_allclose(np.asarray(a, np.float64), np.asarray(b, np.float64), rtol=2e-5, atol=1e-9)
+
+
+def test_band_statistics_refuse_a_method_without_bands():
+    with pytest.raises(ValueError, match="median"):
+        band_statistics(np.zeros((3, 4), np.uint16), "mean", 3.0)

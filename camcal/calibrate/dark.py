@@ -47,7 +47,7 @@ from scipy.stats import chi2
 from camcal.calibrate.robust import median, median_and_mad
 from camcal.calibrate.screen import StageJudge
 from camcal.calibrate.session import StageFrames, folder_of, stage_files
-from camcal.calibrate.stack import METHODS, StackResult, combine_frames
+from camcal.calibrate.stack import METHODS, StackOptions, StackResult, combine_frames
 from camcal.errors import CamcalError, FrameLeftOut, MissingMetadataError, TooFewFrames
 from camcal.frame import Frame
 from camcal.io.hashing import sha256_file
@@ -334,8 +334,8 @@ def stack_darks(
             raise CamcalError("the dark model needs dark frames, bias frames or both")
         files, manifest = stage_files(bias)
         bias_folder = folder_of(bias)
-        st = combine_frames(files, method="mean", manifest=manifest, check=check, jobs=jobs, progress=progress,
-                            keep_frames=QUANTISED_FIT_FRAMES, judge=bias_judge)
+        st = combine_frames(files, StackOptions("mean", jobs=jobs, keep_frames=QUANTISED_FIT_FRAMES),
+                            manifest=manifest, check=check, progress=progress, rule=bias_judge)
         if st.n_frames < 2:
             raise TooFewFrames("bias", "frames (a bias-only calibration measures the read noise between frames)",
                                2, st.n_frames, path=bias_folder)
@@ -357,22 +357,23 @@ def stack_darks(
     bias_stack = None
     if bias_files:
         try:
-            bias_stack = combine_frames(bias_files, method="mean", manifest=bias_manifest, check=check, jobs=jobs,
-                                        progress=_progress_from(progress, 0, total), keep_frames=QUANTISED_FIT_FRAMES,
-                                        judge=bias_judge)
+            bias_stack = combine_frames(bias_files, StackOptions("mean", jobs=jobs, keep_frames=QUANTISED_FIT_FRAMES),
+                                        manifest=bias_manifest, check=check,
+                                        progress=_progress_from(progress, 0, total), rule=bias_judge)
         except TooFewFrames:  # every bias frame left out: as without bias frames
             bias_folder = None
     while True:
         darks: list[tuple[float, StackResult]] = []
         done = len(bias_files)
-        retracted = len(judge.retracted) if judge is not None else 0
+        superseded = len(judge.superseded) if judge is not None else 0
         for t in sorted(groups):
             # the read-noise stack (the shortest exposure time with two frames or more) keeps its first frames
             keep = QUANTISED_FIT_FRAMES if bias_stack is None and not any(s.n_frames > 1 for _, s in darks) else 0
             try:
-                st = combine_frames(groups[t], method=options.method, sigma=options.sigma, manifest=manifest,
-                                    check=check, jobs=jobs, progress=_progress_from(progress, done, total),
-                                    keep_frames=keep, judge=judge, statistics=DARK_STATISTICS)
+                st = combine_frames(groups[t], StackOptions(options.method, options.sigma, jobs, keep_frames=keep,
+                                                            statistics=DARK_STATISTICS),
+                                    manifest=manifest, check=check, progress=_progress_from(progress, done, total),
+                                    rule=judge)
                 darks.append((t, st))
             except TooFewFrames:  # every frame at this time left out: as if never taken
                 pass
@@ -380,7 +381,7 @@ def stack_darks(
         used = {p for _, st in darks for p in st.paths}
         # a copy stacked at one exposure time, its original (first in file order) found at a later one: stacked
         # again with the verdicts fixed (rare: a copy given another exposure time than its original)
-        if judge is None or not used & set(judge.retracted[retracted:]):
+        if judge is None or not used & set(judge.superseded[superseded:]):
             break
     if not used:
         n = sum(len(g) for g in groups.values())

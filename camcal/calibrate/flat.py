@@ -53,7 +53,7 @@ from camcal.calibrate.emva import Nonuniformity, prnu, spatial_variance
 from camcal.calibrate.robust import median
 from camcal.calibrate.screen import StageJudge
 from camcal.calibrate.session import StageFrames, aperture_folders, folder_of, stage_files
-from camcal.calibrate.stack import combine_frames
+from camcal.calibrate.stack import StackOptions, combine_frames
 from camcal.errors import CamcalError
 from camcal.frame import PLANES, Exposure, Frame
 from camcal.io.read import list_frames
@@ -574,8 +574,8 @@ def master_flat(
         planes /= med[:, None, None].astype(np.float32)
         return planes
 
-    res = combine_frames(paths, method=method, sigma=sigma, preprocess=preprocess, manifest=manifest, check=check,
-                         jobs=jobs, progress=progress, judge=judge)
+    res = combine_frames(paths, StackOptions(method, sigma, jobs), preprocess=preprocess, manifest=manifest,
+                         check=check, progress=progress, rule=judge)
     optics = flats_optics(res.exposures, folder_of(flat_folder))
     # per-plane level in DN: that of the first frame (the check guarantees all are similar)
     level = {c: float(m) for c, m in zip(res.channel_names, first["level"], strict=True)}

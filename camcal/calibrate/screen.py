@@ -130,6 +130,19 @@ class FrameFacts:
 
 
 @dataclass(frozen=True)
+class Keep:
+    """The verdict a stack's callback gives one decoded frame (:func:`camcal.calibrate.stack.combine_frames`).
+
+    ``keep``: combine it. ``replaces``: a frame combined before that this one takes the place of (a copy of it,
+    later in file order: the stack gives its sums or its slot to this one). ``reason``: why it is left out.
+    """
+
+    keep: bool
+    replaces: Path | None = None
+    reason: str | None = None
+
+
+@dataclass(frozen=True)
 class Screening:
     """The verdicts of a whole session.
 
@@ -302,7 +315,8 @@ class StageJudge:
     :meth:`decide` runs in the stage's own thread, frame after frame, and gives the verdict (:func:`_reason`:
     the same reasons as :func:`screen_session`). A copy is told by its pixel digest; the copy first in the
     stage's file order is kept, whatever order the stage reads them in: when the kept copy comes after a copy
-    already used, :attr:`retracted` names the one used, now a duplicate (the stage leaves it out again).
+    already used, the one used is a duplicate now, and :meth:`keep` names it (the stage puts the new one in its
+    place).
     """
 
     def __init__(self, stage: str, majority: Majority, check: StageCheck | None, order: Mapping[Path, int],
@@ -314,7 +328,9 @@ class StageJudge:
         self.seen: dict[bytes, tuple[int, Path]] = {d: (i, Path(n)) for d, (i, n) in (seen or {}).items()}
         self.facts = facts if facts is not None else {}
         self.reasons: dict[Path, str | None] = {}
-        self.retracted: list[Path] = []
+        self.superseded: list[Path] = []
+        """Frames used, then found to be copies of a frame first in file order, in the order found (a stage that
+        stacks frames in several groups measures again when one of its groups used one)."""
         self.reported: set[str] = set()
         """Names of the frames whose verdict the caller has recorded already."""
 
@@ -324,11 +340,21 @@ class StageJudge:
 
     def decide(self, path: Path, facts: FrameFacts) -> str | None:
         """The verdict of ``path`` (None: used); recorded. A path judged already keeps its verdict."""
+        return self._verdict(path, facts)[0]
+
+    def keep(self, path: Path, facts: FrameFacts) -> Keep:
+        """The verdict of ``path`` as a stack's callback wants it (:func:`camcal.calibrate.stack.combine_frames`):
+        kept or not, and the frame used before that it replaces (its copy, later in file order)."""
+        reason, replaces = self._verdict(path, facts)
+        return Keep(reason is None, replaces, reason)
+
+    def _verdict(self, path: Path, facts: FrameFacts) -> tuple[str | None, Path | None]:
+        """(reason, the frame used before that is now a duplicate of ``path`` or None); recorded."""
         if path in self.reasons:
-            return self.reasons[path]
+            return self.reasons[path], None
         if facts.error is None:
             self.facts[path] = facts
-        first = None
+        first = replaces = None
         rank = self.order.get(path)
         if rank is None:  # not a frame of the stage's index: after all of them
             rank = self.order[path] = len(self.order)
@@ -339,11 +365,12 @@ class StageJudge:
             elif seen[1] != path:  # this one comes first in file order: the one seen before is its copy
                 self.seen[facts.digest] = (rank, path)
                 if self.reasons.get(seen[1]) is None:
-                    self.retracted.append(seen[1])
+                    replaces = seen[1]
+                    self.superseded.append(replaces)
                 self.reasons[seen[1]] = _duplicate(path.name)
         reason = _reason(facts, self.majority, first)
         self.reasons[path] = reason
-        return reason
+        return reason, (replaces if reason is None else None)
 
     def judge_all(self, refs: Sequence[FrameRef]) -> list[FrameRef]:
         """Decode and judge ``refs`` one after another (for a stage that cannot judge while it measures);
@@ -390,6 +417,11 @@ class StrictJudge(StageJudge):
             raise CamcalError(f"has the same pixels as {first.name} (the same frame twice, or a copy): "
                               "each frame of a stack must be a separate exposure", copy)
         self.reasons[path] = None
+
+    def keep(self, path: Path, facts: FrameFacts) -> Keep:
+        """Kept (:meth:`decide` raises for a copy)."""
+        self.decide(path, facts)
+        return Keep(True)
 
 
 def screen_session(index: SessionIndex, checks: Mapping[str, StageCheck] | None = None, *, jobs: int | None = None,

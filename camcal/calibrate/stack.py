@@ -1,52 +1,48 @@
 """Streaming combination of a stack of frames: mean, median, sigma-clipped mean.
 
-Every calibration stage (bias, dark, flat, sweep, profile) averages N frames of one
-setting per pixel and per channel plane. :func:`combine_frames` does it with each
-file decoded exactly once and a working set that does not grow with N (the frames themselves wait in the
-median/clip spill file: in memory only while they fit in a quarter of what is available). Each frame is judged
-as it is decoded (the stage's :class:`camcal.calibrate.screen.StageJudge` leaves an unusable frame out; by default a
-:class:`camcal.calibrate.screen.StrictJudge` makes it an error):
+Every calibration stage (bias, dark, flat, sweep, profile) averages N frames of one setting per pixel and per
+channel plane. :func:`combine_frames` does it with each file decoded exactly once and a working set that does not
+grow with N. A callback given each decoded frame's :class:`camcal.calibrate.screen.FrameFacts` says whether to keep
+it (:class:`Keep`; a stage passes its :meth:`camcal.calibrate.screen.StageJudge.keep`, and by default a
+:class:`camcal.calibrate.screen.StrictJudge` makes an unusable frame an error):
 
-- ``method="mean"``: running sums of the deviations from the first frame and of their squares in
-  float64 (the shifted-data algorithm, Chan, Golub & LeVeque 1983), one frame in memory at a time; a Bayer
-  frame with the default planes is summed as its mosaic (the sums are per pixel) and the result split into
-  its planes once, at the end.
-- ``method="median"`` / ``"sigma_clip"``: each decoded frame is spilled to a temporary
-  raw file (:func:`camcal.io.atomic.scratch_fd`: in memory while the stack fits in a quarter of the available
-  memory, else on disk; uint16 when the planes are integer DN, as with the default preprocessing,
-  float32 otherwise; a Bayer frame with the default planes as its mosaic, split into planes band by band
-  after the statistics, which are per pixel); the statistics are then computed over *row bands* read back with
-  explicit ``readinto`` calls (not ``np.memmap``, whose touched pages count against the
-  resident set). The band height shrinks as N grows so the working set stays at about
-  ``band_mb`` megabytes whatever the number of frames.
+- ``method="mean"``: running sums of the deviations from the first frame and of their squares in float64 (the
+  shifted-data algorithm, Chan, Golub & LeVeque 1983), one frame in memory at a time; a Bayer frame with the
+  default planes is summed as its mosaic (the sums are per pixel) and the result split into its planes once, at
+  the end.
+- ``method="median"`` / ``"sigma_clip"``: each decoded frame is spilled (:mod:`camcal.calibrate.spill`; uint16 when
+  the planes are integer DN, as with the default preprocessing, float32 otherwise; a Bayer frame with the default
+  planes as its mosaic, split into planes band by band after the statistics, which are per pixel) and the
+  statistics computed over row bands of the spill (:func:`camcal.calibrate.band_stats.band_statistics`, whose
+  module states the clip).
 
-Decoding can run in 2 threads (``jobs=2``; LibRaw releases the GIL) that write straight into the spill
-file (the second frame is decoded while the first, which sets the stack's shape, is decoded in the calling
-thread); the band statistics run in ``jobs`` threads (numpy releases the GIL). Each band is sorted along the
-frame axis once; integer bands (the default planes) stay integer and a clip takes the values a pixel loses
-off the sums of all its values, rank by rank from both ends (:class:`_SortedBand`).
-
-Sigma clipping (``sigma_clip``) per pixel: pass 1 keeps values within ``sigma`` robust
-standard deviations (interquartile range / 1.349) of the median; pass 2 keeps
-values within ``sigma`` standard deviations (ddof=1) of the mean of the pass-1 values.
-The combined value is the mean of the kept values; ``mean``/``variance``/``count`` are
-those of the kept values too (for ``mean`` and ``median`` every value is used).
+Decoding can run in 2 threads (``jobs=2``; LibRaw releases the GIL) that write straight into the spill file (the
+second frame is decoded while the first, which sets the stack's shape, is decoded in the calling thread); the band
+statistics run in ``jobs`` threads (numpy releases the GIL).
 """
 
 from __future__ import annotations
 
 import contextlib
-import functools
-import os
 import threading
 from collections.abc import Callable, Collection, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 
-from camcal.calibrate.screen import FrameFacts, StageJudge, StrictJudge
+from camcal.calibrate.screen import FrameFacts, Keep, StrictJudge
+from camcal.calibrate.spill import (
+    BAND_MB,
+    OPTIONAL_STATISTICS,
+    close_up,
+    count_dtype,
+    read_slot,
+    spilled_statistics,
+    write_exactly,
+)
 from camcal.errors import CamcalError, TooFewFrames
 from camcal.frame import PLANES, Exposure, Frame, plane_offsets, split_planes
 from camcal.io.atomic import scratch_fd
@@ -54,25 +50,62 @@ from camcal.io.read import folder_manifest, load_folder_frame
 from camcal.threads import thread_count
 
 METHODS = ("mean", "median", "sigma_clip")
-IQR_TO_SIGMA = 1.349
-"""Interquartile range of a normal law in standard deviations."""
 
 
-OPTIONAL_STATISTICS = ("mean", "variance", "variance_all", "mean_all")
-"""The :class:`StackResult` statistics a caller may leave out (``combine_frames(statistics=...)``); ``value`` and
-``count`` always come."""
+@dataclass(frozen=True)
+class StackOptions:
+    """How :func:`combine_frames` combines a stack.
+
+    Attributes
+    ----------
+    method : ``"mean"``, ``"median"`` or ``"sigma_clip"`` (sigma-clipped mean,
+        :mod:`camcal.calibrate.band_stats`).
+    sigma : clipping threshold in standard deviations (``sigma_clip`` only).
+    jobs : threads to decode and to compute band statistics in; None: automatic, from the first frame's size
+        (:func:`camcal.threads.thread_count`).
+    band_mb : working-set budget of one row band, MB (median / sigma_clip); a band holds at most
+        :data:`camcal.calibrate.spill.MAX_BAND_PIXELS` pixels of each frame whatever the budget.
+    spill_dir : folder for the temporary spill file (default: the system temp folder).
+    keep_frames : keep the planes of the first ``keep_frames`` frames (``StackResult.kept_planes``), so
+        statistics of single frames need no second decode.
+    statistics : the optional statistics to return (:data:`camcal.calibrate.spill.OPTIONAL_STATISTICS`), the
+        others None; None: all. A stage asks only for what it uses: a median or sigma-clipped stack then neither
+        allocates nor writes the others (a (C, h, w) float32 array each, 96 MB at 24 MP).
+    """
+
+    method: str = "mean"
+    sigma: float = 3.0
+    jobs: int | None = 1
+    band_mb: float = BAND_MB
+    spill_dir: str | Path | None = None
+    keep_frames: int = 0
+    statistics: Collection[str] | None = None
+
+    def check(self) -> frozenset[str]:
+        """Refuse an unknown method or statistic, or a sigma that is not a positive number; gives the statistics
+        wanted."""
+        if self.method not in METHODS:
+            raise CamcalError(f"unknown combination method {self.method!r}; choose from {', '.join(METHODS)}")
+        if not np.isfinite(self.sigma) or self.sigma <= 0:
+            raise CamcalError(f"sigma must be a positive number, got {self.sigma}")
+        wanted = frozenset(OPTIONAL_STATISTICS if self.statistics is None else self.statistics)
+        if not wanted <= set(OPTIONAL_STATISTICS):
+            raise CamcalError(f"unknown statistics {sorted(wanted - set(OPTIONAL_STATISTICS))}; choose from "
+                              f"{', '.join(OPTIONAL_STATISTICS)} (value and count always come)")
+        return wanted
 
 
-def _working_count_dtype(n: int) -> type[np.integer]:
-    """The integer type of a band's running per-pixel count of ``n`` values: one byte up to 255, so a mask is
-    added or taken off as bytes (``mask.view(np.uint8)``) without numpy's buffered bool-to-int32 cast, several
-    times slower than the arithmetic itself; int32 above."""
-    return np.uint8 if n <= 255 else np.int32
+class FrameRule(Protocol):
+    """What :func:`combine_frames` asks of each frame: decode it with its facts, then keep it or not.
 
+    ``load`` runs in the decode threads; ``keep`` in the calling thread, frame after frame (in completion order).
+    ``stage`` names the frames in :class:`camcal.errors.TooFewFrames`."""
 
-def _count_dtype(n: int) -> type[np.signedinteger]:
-    """The integer type of a stack's per-pixel frame count for ``n`` frames: int16 below 2¹⁵, else int32."""
-    return np.int16 if n < 2**15 else np.int32
+    stage: str
+
+    def load(self, path: Path, loader: Callable[[Path], Frame]) -> tuple[Frame | None, FrameFacts]: ...
+
+    def keep(self, path: Path, facts: FrameFacts) -> Keep: ...
 
 
 @dataclass(frozen=True)
@@ -178,9 +211,9 @@ class _Decoder:
     """
 
     def __init__(self, manifest: dict | None, check: Callable[[Frame], None] | None,
-                 preprocess: Callable[[Frame], np.ndarray] | None, keep_frames: int, judge: StageJudge) -> None:
+                 preprocess: Callable[[Frame], np.ndarray] | None, keep_frames: int, rule: FrameRule) -> None:
         self.manifest = manifest
-        self.judge = judge
+        self.rule = rule
         self.keep_frames = keep_frames
         self.check = check
         self.preprocess = preprocess
@@ -201,14 +234,13 @@ class _Decoder:
     def prefetch(self, pool: ThreadPoolExecutor, index: int, path: Path) -> None:
         """Start decoding frame ``index`` in ``pool`` now (the next frame, while the first is decoded in the
         calling thread: the second core is not left idle while the first frame sets the stack's shape)."""
-        self.prefetched[index] = pool.submit(self.judge.load, path, self.load)
+        self.prefetched[index] = pool.submit(self.rule.load, path, self.load)
 
-    def judged_load(self, index: int, path: Path) -> tuple[object | None, FrameFacts]:
-        """The judge's :meth:`camcal.calibrate.screen.StageJudge.load` of frame ``index``, from :meth:`prefetch` when
-        started."""
+    def judged_load(self, index: int, path: Path) -> tuple[Frame | None, FrameFacts]:
+        """The rule's :meth:`FrameRule.load` of frame ``index``, from :meth:`prefetch` when started."""
         with self.lock:
             ahead = self.prefetched.pop(index, None)
-        return ahead.result() if ahead is not None else self.judge.load(path, self.load)
+        return ahead.result() if ahead is not None else self.rule.load(path, self.load)
 
     def _manifest_for(self, path: Path) -> dict:
         if self.manifest is not None:
@@ -255,478 +287,66 @@ class _Decoder:
         data = planes.astype(dtype, copy=False) if planes.dtype != dtype else planes
         buf = np.ascontiguousarray(data).view(np.uint8).reshape(-1)
         assert self.spill_fd is not None
-        _write_exactly(self.spill_fd, self.spill_name, memoryview(buf), index * buf.nbytes)
+        write_exactly(self.spill_fd, self.spill_name, memoryview(buf), index * buf.nbytes)
 
     def worker(self, item: tuple[int, str]) -> tuple[int, FrameFacts, _Meta | None, np.ndarray | None,
-                                                     np.ndarray | None]:
-        """Decode one frame in a pool thread and give what its judge needs
-        (:class:`camcal.calibrate.screen.StageJudge`); a frame the judge will leave out (unreadable, another camera, the
-        stage check) goes no further, the others are spilled (median/clip; their planes returned only when kept) or
-        returned (mean: the planes, or the Bayer mosaic with the planes only when kept). Gives (index, facts, meta,
-        planes, mosaic)."""
+                                                     np.ndarray | None, CamcalError | None]:
+        """Decode one frame in a pool thread: (index, facts, meta, planes, mosaic, error).
+
+        A frame that cannot be used (unreadable, the stage check's error in its facts) goes no further. The others
+        are checked (``check``, the first frame's size, kind and pattern: an error is returned, and raised only if
+        the rule keeps the frame), then spilled (median/clip; their planes returned only when kept) or returned
+        (mean: the planes, or the Bayer mosaic with the planes only when kept)."""
         assert self.first is not None  # set from the first frame used before any worker runs
         index, path = item[0], Path(item[1])
         frame, facts = self.judged_load(index, path)
-        if frame is None or facts.check_error is not None or self.judge.majority.mismatch(facts) is not None:
-            return index, facts, None, None, None
+        if frame is None or facts.check_error is not None:
+            return index, facts, None, None, None, None
         spilled = self.spill_fd is not None
-        meta, spill, planes = self.planes_of(index, path, frame,  # type: ignore[arg-type]
-                                             want_planes=(not spilled and not self.mosaic)
-                                             or index < self.keep_frames)
+        try:
+            meta, spill, planes = self.planes_of(index, path, frame,
+                                                 want_planes=(not spilled and not self.mosaic)
+                                                 or index < self.keep_frames)
+            _check_same(meta, self.first, path)
+        except CamcalError as exc:
+            return index, facts, None, None, None, exc
         del frame
-        _check_same(meta, self.first, path)
         if spilled and spill is not None:
             self.spill_write(index, spill)
-            return index, facts, meta, planes if index < self.keep_frames else None, None
-        return index, facts, meta, planes, spill
+            return index, facts, meta, planes if index < self.keep_frames else None, None, None
+        return index, facts, meta, planes, spill, None
 
-
-# --------------------------------------------------------------------------------------------
-# band statistics
-
-
-def _band_stats(x: np.ndarray, method: str, sigma: float, work: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
-    """Statistics along axis 0 of an (N, ...) band (uint16 or float32; the band is overwritten).
-
-    Returns value, mean, variance, count, the variance and the mean of all values. The band is
-    sorted once (a sorting network, :func:`_sorted_planes`); everything else works on values shifted by the
-    median in float32, so sums of squares keep their precision. Integer bands (DN) go through
-    :func:`_integer_band_stats`, where a clip costs a few operations on the pixels that lose values; float32
-    bands (preprocessed frames, NaN = masked) through :func:`_clipped_moments`.
-    """
-    if x.dtype.kind in "ui" and x.dtype.itemsize <= 2 and x.shape[0] <= NETWORK_MAX_FRAMES:
-        return _integer_band_stats(x, method, sigma, work)
-    n = x.shape[0]
-    d = _sorted_float32(x, work)
-    med = _sorted_median(d)
-    d -= med
-    sd = d.sum(axis=0, dtype=np.float32)
-    sdd = np.einsum("i...,i...->...", d, d)
-    mean_all = med + sd.astype(np.float64) / n
-    var_all = _all_variance(sd, sdd, n)
-    if method == "median":
-        return med, mean_all, var_all, np.full(med.shape, n, np.int32), var_all, mean_all
-    thr = _pass1_threshold(d, var_all, sigma)
-    d2 = d.reshape(n, -1)  # (N, pixels) view
-    m, v, cnt = _clipped_moments(d2, -thr.reshape(-1), thr.reshape(-1))
-    thr = _pass2_threshold(v, med.reshape(-1), sigma)
-    m, v, cnt = _clipped_moments(d2, m - thr, m + thr)
-    m, v, cnt = (a.reshape(med.shape) for a in (m, v, cnt))
-    mean = med + m.astype(np.float64)
-    return mean, mean, v, cnt, var_all, mean_all
-
-
-def _all_variance(sd: np.ndarray, sdd: np.ndarray, n: int) -> np.ndarray:
-    """Variance (ddof=1) of n values from the sums of their deviations and of their squares (float32)."""
-    if n < 2:
-        return np.full(sd.shape, np.nan, np.float32)
-    with np.errstate(invalid="ignore"):
-        return np.maximum(sdd - sd * sd / n, 0) / (n - 1)
-
-
-def _pass1_threshold(d: np.ndarray | Sequence[np.ndarray], var_all: np.ndarray, sigma: float) -> np.ndarray:
-    """Pass 1 half-width: ``sigma`` robust standard deviations, the interquartile range of the sorted values
-    ``d`` (axis 0) / 1.349, or the plain standard deviation where the interquartile range is 0."""
-    scale = (_sorted_quantile(d, 0.75) - _sorted_quantile(d, 0.25)) / np.float32(IQR_TO_SIGMA)
-    fallback = ~(scale > 0)
-    if fallback.any():  # np.fmax(NaN, 0) = 0: a NaN variance (one value) gives 0
-        scale[fallback] = np.fmax(np.sqrt(var_all[fallback]), 0)
-    return (sigma * scale).astype(np.float32)
-
-
-class _RankView:
-    """Some ranks of a sorted band, indexable by rank (``view[k]``) with ``len`` N, for :func:`_sorted_quantile`."""
-
-    def __init__(self, ranks: dict[int, np.ndarray], n: int) -> None:
-        self.ranks = ranks
-        self.n = n
-
-    def __len__(self) -> int:
-        return self.n
-
-    def __getitem__(self, k: int) -> np.ndarray:
-        return self.ranks[k]
-
-
-def _pass2_threshold(v: np.ndarray, med: np.ndarray, sigma: float) -> np.ndarray:
-    """Pass 2 half-width: ``sigma`` standard deviations (ddof=1) of the pass-1 values, plus 1e-6 of the median
-    so that a pixel whose kept values are all equal keeps them."""
-    sd = np.fmax(np.sqrt(v), 0)  # a NaN variance (fewer than 2 values) gives 0
-    return sigma * sd.astype(np.float32, copy=False) + np.float32(1e-6) * np.abs(med)
-
-
-DENSE_RANKS = 2
-"""The first ranks from each end of a sorted band that a clip takes off every pixel at once (a 12 MP dark
-band: 11-18 % of the pixels lose their lowest or highest value to pass 1, 2-4 % the second); deeper ranks are
-followed pixel by pixel."""
-
-EXACT_SQUARES = 2.0**22
-"""Below this sum of squared deviations (DN²) a float32 sum of squares of an integer band is exact.
-
-The deviations from the median of integer DN are multiples of 1/2 and their squares multiples of 1/4, which
-float32 holds exactly up to 2²⁴ / 4 = 2²²; the terms are not negative, so every partial sum of any order of
-summation is at most the computed total, and a total below 2²² proves every partial sum exact. The plain sums
-are then exact too (their partial sums are at most √(N·2²²) ≤ 2¹⁵ in size for N ≤ 128)."""
-
-
-def _integer_band_stats(x: np.ndarray, method: str, sigma: float,
-                        work: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
-    """:func:`_band_stats` of an integer (N, ...) band (uint8/uint16 DN; ``x`` is overwritten).
-
-    The band is sorted by a sorting network in its own type (:class:`_SortedBand`); the sums of all
-    deviations from the median and of their squares are taken plane by plane in float32 (``work``, when
-    given, holds one plane). The values a clip removes from a sorted pixel are its lowest and highest ranks,
-    so a clipping pass (:meth:`_SortedBand.clipped_moments`) takes them off those sums rank by rank from
-    both ends, following only the pixels that lost the rank before (fewer at each rank: about 11 % of a
-    12 MP dark band's pixels lose their lowest value to pass 1, 0.1 % their fourth lowest), instead of
-    masking every value of every pixel (:func:`_clipped_moments`). The result is the same: bit for bit
-    where the float32 sums are exact (all pixels whose squared deviations sum to less than
-    :data:`EXACT_SQUARES`), and the exact value rounded once to float32 for the few pixels above it, which
-    are summed in float64 instead.
-    """
-    n = x.shape[0]
-    shape = x.shape[1:]
-    band = _SortedBand(x, work)
-    med, sd, sdd = band.med, band.sd, band.sdd
-    mean_all = sd.astype(np.float64)
-    mean_all /= n
-    mean_all += med.astype(np.float64)  # converted once: numpy's mixed-type arithmetic is slower, same result
-    var_all = _all_variance(sd, sdd, n)
-    if method == "median":
-        return tuple(a.reshape(shape) for a in (med, mean_all, var_all, np.full(med.size, n, np.int32), var_all,
-                                                mean_all))
-    thr = _pass1_threshold(_RankView(band.dev, n), var_all, sigma)
-    m, v, cnt = band.clipped_moments(-thr, thr)
-    thr = _pass2_threshold(v, med, sigma)
-    m, v, cnt = band.clipped_moments(m - thr, m + thr)
-    mean = m.astype(np.float64)
-    mean += med.astype(np.float64)
-    var_all, mean_all = var_all.reshape(shape), mean_all.reshape(shape)
-    return mean.reshape(shape), mean.reshape(shape), v.reshape(shape), cnt.reshape(shape), var_all, mean_all
-
-
-class _SortedBand:
-    """An integer (N, ...) band sorted along axis 0 (flat planes), with the sums of all its values' deviations
-    from their median and of their squares (float32, exact: see :data:`EXACT_SQUARES`)."""
-
-    def __init__(self, x: np.ndarray, work: np.ndarray | None = None) -> None:
-        n = x.shape[0]
-        self.planes = planes = [p.reshape(-1) for p in _sorted_planes(x)]
-        self.med = med = _sorted_median(planes)
-        size = med.size
-        # plane by plane, so a plane and the sums stay in the cache; the deviations of the first ranks from
-        # each end are kept (each clip compares them with its bounds), and those of the quartiles
-        self.sd = sd = np.zeros(size, np.float32)
-        self.sdd = sdd = np.zeros(size, np.float32)
-        square = np.empty(size, np.float32) if work is None else work.reshape(-1)[:size]
-        ends = [*range(min(n, DENSE_RANKS)), *range(max(0, n - DENSE_RANKS), n)]
-        kept_ranks = {*ends, *_quantile_ranks(n, 0.25), *_quantile_ranks(n, 0.75)}
-        self.dev: dict[int, np.ndarray] = {}  # deviations of the ranks used again: the ends, the quartiles
-        for k, plane in enumerate(planes):
-            dev = np.empty(size, np.float32) if k in kept_ranks else square
-            dev[...] = plane
-            dev -= med  # exact: a whole DN less a whole or half DN
-            sd += dev
-            if k in kept_ranks:
-                self.dev[k] = dev
-            np.multiply(dev, dev, out=square)
-            sdd += square
-        self.loud = np.flatnonzero(sdd >= EXACT_SQUARES)
-        self.loud_dev = np.empty((n, 0))
-        if self.loud.size:  # hot pixels, cosmic rays: their sums again, exactly, in float64
-            self.loud_dev = np.stack([p[self.loud] for p in planes]).astype(np.float64) - med[self.loud]
-            sd[self.loud] = self.loud_dev.sum(axis=0)
-            sdd[self.loud] = np.einsum("ij,ij->j", self.loud_dev, self.loud_dev)
-
-    def clipped_moments(self, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Mean, variance (ddof=1) and count of the deviations ``d`` from the median with ``lo <= d <= hi``.
-
-        The same result as :func:`_clipped_moments` (masking every value). A sorted pixel loses its lowest
-        ranks below ``lo`` and its highest above ``hi``: the :data:`DENSE_RANKS` first ranks from each end
-        are compared for every pixel, each further rank only for the pixels that lost the one before, and
-        the values lost are taken off the sums of all values. Exact in float32: every partial result is the
-        sum of a subset of the pixel's values (or squares), at most the sum of them all, below
-        :data:`EXACT_SQUARES`. The loud pixels above it are summed from their float64 deviations instead.
-        """
-        n = len(self.planes)
-        s1 = self.sd.copy()
-        s2 = self.sdd.copy()
-        cnt = np.full(s1.shape, n, _working_count_dtype(n))  # one byte (n <= NETWORK_MAX_FRAMES)
-        lost_rank = np.empty(s1.shape, bool)
-        lost = np.empty(s1.shape, bool)
-        lost_count = lost.view(np.uint8) if cnt.dtype == np.uint8 else lost  # what a lost mask takes off the count
-        taken = np.empty(s1.shape, np.float32)
-        dense = min(n, DENSE_RANKS)
-        for ranks, bound, lost_of in ((range(n), lo, np.less), (range(n - 1, -1, -1), hi, np.greater)):
-            # the first ranks from each end: many pixels lose them (a tenth of a dark's pixels lose the lowest),
-            # so they are taken off every pixel at once (0 or the value); a NaN bound loses nothing here: see
-            # "inverted" below
-            for k, r in enumerate(ranks[:dense]):
-                lost_of(self.dev[r], bound, out=lost_rank)
-                if k:
-                    lost &= lost_rank  # a rank is lost only if the rank before it is
-                else:
-                    lost[...] = lost_rank
-                np.copyto(taken, lost)  # 0 or 1 (a plain cast; multiplying by the bool mask casts it slowly)
-                taken *= self.dev[r]
-                s1 -= taken
-                taken *= taken
-                s2 -= taken
-                cnt -= lost_count
-            idx = np.flatnonzero(lost)
-            for r in ranks[dense:]:  # deeper ranks: only the pixels that lost the one before
-                dev = self.planes[r][idx].astype(np.float32) - self.med[idx]
-                keep_going = lost_of(dev, bound[idx])
-                idx, dev = idx[keep_going], dev[keep_going]
-                if not idx.size:
-                    break
-                s1[idx] -= dev
-                s2[idx] -= dev * dev
-                cnt[idx] -= 1
-        with np.errstate(invalid="ignore"):
-            inverted = ~(lo <= hi)
-        if inverted.any():  # bounds that keep nothing (NaN, or lo > hi): no value is lost twice
-            s1[inverted] = 0
-            s2[inverted] = 0
-            cnt[inverted] = 0
-        if self.loud.size:
-            d = self.loud_dev
-            keep = (d >= lo[self.loud]) & (d <= hi[self.loud])
-            s1[self.loud] = np.where(keep, d, 0).sum(axis=0)
-            s2[self.loud] = np.where(keep, d * d, 0).sum(axis=0)
-            cnt[self.loud] = keep.sum(axis=0)
-        return _moments(s1, s2, cnt)
-
-
-def _moments(s1: np.ndarray, s2: np.ndarray, cnt: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Mean and variance (ddof=1, NaN below 2 values) from the float32 sums of ``cnt`` deviations and of their
-    squares."""
-    # in float64 (the sums are float32, the count whole): converted once each, as numpy's mixed-type
-    # arithmetic would convert them in every operation, several times slower, with the same result
-    s1d, s2d, n = s1.astype(np.float64), s2.astype(np.float64), cnt.astype(np.float64)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        m = s1d / n
-        s1d *= m
-        np.subtract(s2d, s1d, out=s2d)
-        np.maximum(s2d, 0, out=s2d)
-        n -= 1
-        s2d /= n
-    v = s2d.astype(np.float32)
-    v[cnt <= 1] = np.nan
-    return m.astype(np.float32), v, cnt
-
-
-NETWORK_MAX_FRAMES = 128
-"""Integer bands of up to this many frames are sorted by a sorting network, larger ones by :func:`numpy.sort`."""
-
-
-@functools.cache
-def _sorting_network(n: int) -> tuple[tuple[int, int], ...]:
-    """Compare-exchange pairs of Batcher's odd-even merge sort for ``n`` inputs (any ``n``).
-
-    Batcher, K. E. (1968), "Sorting networks and their applications", AFIPS Spring Joint Computer
-    Conference 32, 307-314; the arbitrary-``n`` form drops the pairs that reach past ``n``
-    (Knuth, TAOCP vol. 3, 5.3.4, exercise 12). 191 pairs for 32 inputs.
-    """
-    pairs = []
-    p = 1
-    while p < n:
-        k = p
-        while k >= 1:
-            for j in range(k % p, n - k, 2 * k):
-                for i in range(min(k, n - j - k)):
-                    if (i + j) // (2 * p) == (i + j + k) // (2 * p):
-                        pairs.append((i + j, i + j + k))
-            k //= 2
-        p *= 2
-    return tuple(pairs)
-
-
-def _sorted_float32(x: np.ndarray, work: np.ndarray | None = None) -> np.ndarray:
-    """The (N, ...) band sorted along axis 0, as float32 (``x`` is overwritten; ``work``, float32 of at least
-    ``x.size`` values, is used for the result when given, so a thread reuses one buffer for all its bands).
-
-    Integer and float32 bands of up to :data:`NETWORK_MAX_FRAMES` frames go through :func:`_sorted_planes`, then
-    are converted to float32 plane by plane. Other float types, and more frames, use :func:`numpy.sort`.
-    """
-    n = x.shape[0]
-    integer = x.dtype.kind in "ui"
-    if (not integer and x.dtype != np.float32) or n > NETWORK_MAX_FRAMES:
-        d = x if x.dtype == np.float32 else x.astype(np.float32)
-        d.sort(axis=0)
-        return d
-    planes = _sorted_planes(x)
-    d = np.empty(x.shape, np.float32) if work is None else work.reshape(-1)[:x.size].reshape(x.shape)
-    for k, plane in enumerate(planes):
-        d[k] = plane
-    return d
-
-
-def _sorted_planes(x: np.ndarray) -> list[np.ndarray]:
-    """The planes ``x[0], x[1], ...`` of an (N, ...) integer or float32 band, sorted along axis 0 in their own
-    type, as a list of N arrays (views of ``x`` and of one spare plane; ``x`` is overwritten).
-
-    A sorting network of whole planes (:func:`_sorting_network`: per pair one ``np.minimum`` and one
-    ``np.maximum`` over a plane, SIMD in the band's own 16-bit type): 2.5x faster than ``np.sort`` of the
-    float32 band along axis 0 and 5x faster than ``np.sort`` of the uint16 band at 32 frames (numpy has no
-    vectorised 16-bit sort on AVX2), with the same result (a sort is a sort). float32 bands (preprocessed
-    frames, NaN = masked) use ``np.fmin`` for the low side: it keeps the number of a (number, NaN) pair low and
-    ``np.maximum`` sends the NaN high, so a NaN ends last as with :func:`numpy.sort`.
-    """
-    low_of = np.minimum if x.dtype.kind in "ui" else np.fmin
-    planes = list(x)
-    spare = np.empty_like(planes[0])
-    for i, j in _sorting_network(x.shape[0]):
-        low = low_of(planes[i], planes[j], out=spare)
-        spare = planes[i]
-        np.maximum(spare, planes[j], out=planes[j])
-        planes[i] = low
-    return planes
-
-
-def _clipped_moments(d2: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Mean, variance (ddof=1) and count along axis 0 of the values of ``d2`` in ``[lo, hi]`` (float32).
-
-    ``d2`` is (N, pixels), sorted along axis 0 (NaN last), so the values a pixel loses are its smallest and its
-    largest (and its NaN): rows ``i0 <= i < i1``, where no pixel loses a value, are summed as they are (one
-    pass, no mask); only the rows below ``i0`` and from ``i1`` up are masked, row by row (about 13 of 32 in a
-    12 MP dark band, where some pixel of the band always clips deep). Same results as masking every row.
-
-    A masked row adds its kept values as ``keep · value`` (the mask cast to 0 or 1, then multiplied: a quarter of
-    the time of copying the values where kept), and its mask to the count as bytes (without numpy's buffered
-    bool-to-int32 cast). The product is exact: the value where kept, a zero where lost. A lost value that is not
-    a number (NaN: a masked pixel; ±inf) would give NaN: the few pixels with one (at an end of their sorted
-    values) have their masked rows summed again, with the values copied where kept, in the same order.
-    """
-    n = d2.shape[0]
-    i0 = 0
-    while i0 < n and not (d2[i0] >= lo).all():  # "not >=": a NaN value (a masked pixel) or bound is lost too
-        i0 += 1
-    i1 = n
-    while i1 > i0 and not (d2[i1 - 1] <= hi).all():
-        i1 -= 1
-    mid = d2[i0:i1]
-    s1 = mid.sum(axis=0, dtype=np.float32)
-    s2 = np.einsum("ij,ij->j", mid, mid)
-    cnt = np.full(s1.shape, i1 - i0, _working_count_dtype(n))
-    masked = (*range(i0), *range(i1, n))
-    if not masked:
-        return _moments(s1, s2, cnt)
-    odd = np.flatnonzero(~(np.isfinite(d2[0]) & np.isfinite(d2[n - 1])))  # sorted: ±inf and NaN at the ends
-    odd_sums = (s1[odd], s2[odd], cnt[odd])  # copies: the sums of the rows in the middle
-    keep = np.empty(s1.shape, bool)
-    keep_count = keep.view(np.uint8) if cnt.dtype == np.uint8 else keep  # what a keep mask adds to the count
-    inside = np.empty(s1.shape, bool)
-    row = np.empty_like(s1)
-    for i in masked:
-        np.greater_equal(d2[i], lo, out=keep)
-        keep &= np.less_equal(d2[i], hi, out=inside)
-        np.copyto(row, keep)  # 0 or 1
-        with np.errstate(invalid="ignore"):  # 0 · ±inf (a lost infinity): NaN, summed again below
-            row *= d2[i]
-        s1 += row
-        row *= row
-        s2 += row
-        cnt += keep_count
-    if odd.size:
-        sub, lo_odd, hi_odd = d2[:, odd], lo[odd], hi[odd]
-        o1, o2, oc = odd_sums
-        for i in masked:
-            kept = (sub[i] >= lo_odd) & (sub[i] <= hi_odd)
-            r = np.where(kept, sub[i], np.float32(0))  # not sub·kept: a lost NaN would make the sum NaN
-            o1 += r
-            r *= r
-            o2 += r
-            oc += kept.astype(oc.dtype)
-        s1[odd], s2[odd], cnt[odd] = o1, o2, oc
-    return _moments(s1, s2, cnt)
-
-
-def _sorted_median(s: np.ndarray | Sequence[np.ndarray]) -> np.ndarray:
-    """Median of sorted values along axis 0 (or of a list of sorted planes), float32."""
-    n = len(s)
-    if n % 2:
-        return s[n // 2].astype(np.float32)
-    return np.float32(0.5) * (s[n // 2 - 1].astype(np.float32) + s[n // 2].astype(np.float32))
-
-
-def _quantile_ranks(n: int, q: float) -> tuple[int, int]:
-    """The two ranks of ``n`` sorted values that :func:`_sorted_quantile` interpolates between."""
-    lo = int(np.floor(q * (n - 1)))
-    return lo, min(lo + 1, n - 1)
-
-
-def _sorted_quantile(s: np.ndarray | Sequence[np.ndarray], q: float) -> np.ndarray:
-    """Quantile of sorted values along axis 0 (linear interpolation, numpy's default).
-
-    ``s``: an array, or anything that gives the sorted planes by rank (``s[k]``) and their number (``len``)."""
-    n = len(s)
-    lo, hi = _quantile_ranks(n, q)
-    f = np.float32(q * (n - 1) - lo)
-    return s[lo] + f * (s[hi] - s[lo])
-
-
-# --------------------------------------------------------------------------------------------
-
-
-BAND_MB = 16.0
-"""Default working-set budget of one row band of a median or sigma-clipped stack, MB (4 bytes a value).
-
-Each band costs a few hundred numpy calls (a 32-frame band: 382 for its sorting network, about 200 more for
-its sums and clips), and each call hands the GIL from one band thread to the other: smaller bands hand it over
-more often, larger ones no longer stay in a core's cache. With few frames the budget alone would give bands too
-large for the cache: hence :data:`MAX_BAND_PIXELS` (benchmarks/RESULTS.md, "dark", has the measurements)."""
-
-MAX_BAND_PIXELS = 1 << 18
-"""The most pixels of each frame in one band (all C planes together): with few frames the budget
-:data:`BAND_MB` would give bands whose planes no longer fit in a core's cache (see there)."""
 
 
 def combine_frames(
     paths: Sequence[str | Path],
+    options: StackOptions = StackOptions(),  # noqa: B008 (frozen)
     *,
-    method: str = "mean",
-    sigma: float = 3.0,
     preprocess: Callable[[Frame], np.ndarray] | None = None,
     manifest: dict | None = None,
     check: Callable[[Frame], None] | None = None,
-    jobs: int | None = 1,
     progress: Callable[[int, int], None] | None = None,
-    band_mb: float = BAND_MB,
-    spill_dir: str | Path | None = None,
-    keep_frames: int = 0,
-    judge: StageJudge | None = None,
-    statistics: Collection[str] | None = None,
+    rule: FrameRule | None = None,
 ) -> StackResult:
     """Combine frames per pixel and per channel plane, reading each file once.
 
     Parameters
     ----------
     paths : image files (RAW or processed), all of one size.
-    method : ``"mean"``, ``"median"`` or ``"sigma_clip"`` (sigma-clipped mean, see module docs).
-    sigma : clipping threshold in standard deviations (``sigma_clip`` only).
+    options : :class:`StackOptions` (method, sigma, threads, band budget, spill folder, kept frames, statistics).
     preprocess : ``Frame -> (C, h, w)`` float32 array; default :meth:`Frame.planes`
         (raw: R, G1, G2, B planes in DN; processed: R, G, B).
     manifest : ``frames.csv`` rows (:func:`camcal.io.read.folder_manifest`) applied to every file;
         None reads each file's own folder manifest.
-    check : called with each decoded frame the judge keeps; raise :class:`CamcalError` to refuse it (an error
-        whatever the judge).
-    jobs : threads to decode and to compute band statistics in; None: automatic, from the first frame's size
-        (:func:`camcal.threads.thread_count`).
+    check : called with each decoded frame that is kept; raise :class:`CamcalError` to refuse it (an error
+        whatever the rule).
     progress : ``progress(done, total)`` after each decoded frame.
-    band_mb : working-set budget of one row band, MB (median / sigma_clip); a band holds at most
-        :data:`MAX_BAND_PIXELS` pixels of each frame whatever the budget.
-    spill_dir : folder for the temporary spill file (default: the system temp folder).
-    keep_frames : keep the planes of the first ``keep_frames`` frames (``StackResult.kept_planes``), so
-        statistics of single frames need no second decode.
-    judge : the stage's :class:`camcal.calibrate.screen.StageJudge`: each frame is judged as it is decoded; a frame left
-        out (unreadable, a copy, another camera, layout or size, the stage's check) is not combined, as if it
-        were not in ``paths`` (the result's ``paths``, ``exposures`` and ``n_frames`` are the frames used).
-        Raises :class:`camcal.errors.TooFewFrames` when every frame is left out. Default: a
-        :class:`camcal.calibrate.screen.StrictJudge`, for which such a frame is an error.
-    statistics : the optional statistics to return (:data:`OPTIONAL_STATISTICS`), the others None; default all.
-        A stage asks only for what it uses: a median or sigma-clipped stack then neither allocates nor writes
-        the others (a (C, h, w) float32 array each, 96 MB at 24 MP), and its memory peak is lower.
+    rule : the :class:`FrameRule` that decodes each frame with its facts and keeps it or not (a stage's
+        :class:`camcal.calibrate.screen.StageJudge`): a frame not kept is not combined, as if it were not in
+        ``paths`` (the result's ``paths``, ``exposures`` and ``n_frames`` are the frames used); a frame kept in
+        place of one combined before (:attr:`camcal.calibrate.screen.Keep.replaces`, its copy) takes its place.
+        Default: a :class:`camcal.calibrate.screen.StrictJudge`, for which an unreadable frame or a copy is an
+        error.
 
     Returns
     -------
@@ -735,32 +355,24 @@ def combine_frames(
     Raises
     ------
     CamcalError
-        No frames, an unknown method, frames of different sizes, kinds or CFA patterns, or whatever ``check``
-        raises; without a judge, an unreadable file or two frames with the same pixels (a copy).
+        No frames, bad options, frames of different sizes, kinds or CFA patterns, or whatever ``check`` raises.
+    TooFewFrames
+        Every frame left out.
 
     Notes
     -----
     The first usable frame is decoded in this thread (its size sets the threads and the stack's shape); the
-    others in the pool. Copies: the judge keeps the first in file order
-    (:meth:`camcal.calibrate.screen.StageJudge.decide`); when it comes after the copy already combined, the two have the
-    same pixels: the sums are unchanged and the slot (median/clip) or the kept planes pass to it. The spilled slots of
-    the frames left out are closed up (the frames after them moved down) before the band statistics, so these see the
-    frames used as if alone.
+    others in the pool. A copy kept in place of one combined before has the same pixels: the sums are unchanged
+    and the slot (median/clip) or the kept planes pass to it. The spilled slots of the frames left out are closed
+    up (the frames after them moved down) before the band statistics, so these see the frames used as if alone.
     """
     paths = tuple(Path(p) for p in paths)
-    if method not in METHODS:
-        raise CamcalError(f"unknown combination method {method!r}; choose from {', '.join(METHODS)}")
+    wanted = options.check()
     if not paths:
         raise CamcalError("no frames to combine")
-    if not np.isfinite(sigma) or sigma <= 0:
-        raise CamcalError(f"sigma must be a positive number, got {sigma}")
-    wanted = frozenset(OPTIONAL_STATISTICS if statistics is None else statistics)
-    if not wanted <= set(OPTIONAL_STATISTICS):
-        raise CamcalError(f"unknown statistics {sorted(wanted - set(OPTIONAL_STATISTICS))}; choose from "
-                          f"{', '.join(OPTIONAL_STATISTICS)} (value and count always come)")
     n = len(paths)
-    judge = judge if judge is not None else StrictJudge(paths)
-    dec = _Decoder(manifest, check, preprocess, keep_frames, judge)  # this call's settings, given to the threads
+    rule = rule if rule is not None else StrictJudge(paths)
+    dec = _Decoder(manifest, check, preprocess, options.keep_frames, rule)  # this call's settings, for the threads
     dec.mosaic = preprocess is None
     done = 0
 
@@ -770,20 +382,21 @@ def combine_frames(
         if progress:
             progress(done, n)
 
+    jobs = options.jobs
     ahead = ThreadPoolExecutor(1, thread_name_prefix="camcal-decode") if n > 1 and thread_count(jobs, n) > 1 else None
     try:
         if ahead is not None:
             dec.prefetch(ahead, 1, paths[1])
-        return _combine(paths, method, sigma, keep_frames, spill_dir, band_mb, jobs, dec, judge, tick, wanted)
+        return _combine(paths, options, dec, rule, tick, wanted)
     finally:
         if ahead is not None:
             ahead.shutdown(wait=True, cancel_futures=True)
 
 
-def _combine(paths: tuple[Path, ...], method: str, sigma: float, keep_frames: int, spill_dir: str | Path | None,
-             band_mb: float, jobs: int | None, dec: _Decoder, judge: StageJudge,
+def _combine(paths: tuple[Path, ...], options: StackOptions, dec: _Decoder, rule: FrameRule,
              tick: Callable[[], None], wanted: frozenset[str]) -> StackResult:
     """:func:`combine_frames` once its arguments are checked and its decoder made."""
+    method, keep_frames = options.method, options.keep_frames
     n = len(paths)
     start = 0
     first_meta = first_spill = first_planes = None
@@ -792,24 +405,24 @@ def _combine(paths: tuple[Path, ...], method: str, sigma: float, keep_frames: in
         frame, facts = dec.judged_load(start, path)
         start += 1
         tick()
-        if judge.decide(path, facts) is None:
+        if rule.keep(path, facts).keep:
             first_meta, first_spill, first_planes = dec.planes_of(  # type: ignore[arg-type]
                 start - 1, path, frame, want_planes=(method == "mean" and not dec.mosaic) or keep_frames > 0)
             del frame
             break
     if first_meta is None:
-        raise TooFewFrames(judge.stage, "frames", 1, 0, f"all {n} left out", paths[0].parent)
+        raise TooFewFrames(rule.stage, "frames", 1, 0, f"all {n} left out", paths[0].parent)
     first_index = start - 1
     dec.first = first_meta
     dec.mosaic = dec.mosaic and first_meta.layout == "bayer"
-    jobs = thread_count(jobs, n, first_meta.frame_shape[0] * first_meta.frame_shape[1])
+    jobs = thread_count(options.jobs, n, first_meta.frame_shape[0] * first_meta.frame_shape[1])
     c, h, w = first_meta.planes_shape
     index_of = {p: i for i, p in enumerate(paths)}
     used: dict[int, _Meta] = {first_index: first_meta}
     kept: dict[int, np.ndarray] = {first_index: first_planes} if keep_frames > 0 else {}
     # median / sigma_clip spill every frame to a private file (in memory when it fits), gone however the block ends
     spill_bytes = n * c * h * w * dec.spill_dtype.itemsize
-    spill = (scratch_fd("camcal-stack-", spill_bytes, spill_dir) if method != "mean"
+    spill = (scratch_fd("camcal-stack-", spill_bytes, options.spill_dir) if method != "mean"
              else contextlib.nullcontext((None, "")))
     with spill as (spill_fd, spill_name):
         dec.spill_fd, dec.spill_name = spill_fd, spill_name
@@ -820,19 +433,20 @@ def _combine(paths: tuple[Path, ...], method: str, sigma: float, keep_frames: in
                 dec.spill_write(first_index, first_planes if first_spill is None else first_spill)
             del first_planes, first_spill
             items = [(i, str(paths[i])) for i in range(start, n)]
-            for index, facts, meta, planes, mosaic in _run(items, jobs, dec.worker):
+            for index, facts, meta, planes, mosaic, error in _run(items, jobs, dec.worker):
                 tick()
-                retracted = len(judge.retracted)
-                if judge.decide(paths[index], facts) is not None:
+                verdict = rule.keep(paths[index], facts)
+                if not verdict.keep:
                     continue
+                if error is not None:
+                    raise error
                 assert meta is not None
                 used[index] = meta
-                copy_of = [index_of[p] for p in judge.retracted[retracted:] if index_of.get(p) in used]
-                for j in copy_of:  # this frame's copy, combined already: the same pixels, now this frame's
+                j = index_of.get(verdict.replaces) if verdict.replaces is not None else None
+                if j in used:  # this frame's copy, combined already: the same pixels, now this frame's
                     del used[j]
                     if j in kept:
                         kept[index] = kept.pop(j)
-                if copy_of:
                     continue
                 if acc is not None:
                     acc.add(planes if mosaic is None else mosaic)
@@ -848,22 +462,22 @@ def _combine(paths: tuple[Path, ...], method: str, sigma: float, keep_frames: in
                 value, mean, var, count = acc.result(first_meta.cfa_pattern if dec.mosaic else None)
                 var_all, mean_all = var, mean
             else:
-                _close_up(spill_fd, spill_name, order, c * h * w * dec.spill_dtype.itemsize)
+                close_up(spill_fd, spill_name, order, c * h * w * dec.spill_dtype.itemsize)
                 pattern = first_meta.cfa_pattern if dec.mosaic else None
                 for pos, i in enumerate(order[:keep_frames]):  # kept planes the threads did not return
                     if i not in kept:
-                        kept[i] = _read_slot(spill_fd, spill_name, pos, (c, h, w), dec.spill_dtype, pattern)
-                value, mean, var, count, var_all, mean_all = _bands(spill_fd, spill_name, len(order), (c, h, w),
-                                                                    dec.spill_dtype, method, sigma, jobs, band_mb,
-                                                                    pattern, wanted)
+                        kept[i] = read_slot(spill_fd, spill_name, pos, (c, h, w), dec.spill_dtype, pattern)
+                value, mean, var, count, var_all, mean_all = spilled_statistics(
+                    spill_fd, spill_name, len(order), (c, h, w), dec.spill_dtype, method, options.sigma, jobs,
+                    options.band_mb, pattern, wanted)
         finally:
             dec.spill_fd = None
     n_used = len(order)
-    count_dtype = _count_dtype(n_used)
+    n_type = count_dtype(n_used)
     mean, var, var_all, mean_all = (a if name in wanted else None for name, a in
                                     zip(OPTIONAL_STATISTICS, (mean, var, var_all, mean_all), strict=True))
     return StackResult(
-        value=value, mean=mean, variance=var, count=count.astype(count_dtype, copy=False), n_frames=n_used,
+        value=value, mean=mean, variance=var, count=count.astype(n_type, copy=False), n_frames=n_used,
         method=method,
         exposures=tuple(used[i].exposure for i in order), paths=tuple(paths[i] for i in order),
         channel_names=first_meta.channel_names, kind=first_meta.kind, cfa_pattern=first_meta.cfa_pattern,
@@ -872,56 +486,6 @@ def _combine(paths: tuple[Path, ...], method: str, sigma: float, keep_frames: in
         variance_all=var_all, mean_all=mean_all,
         kept_planes=tuple(kept[i] for i in order[:keep_frames] if i in kept),
     )
-
-
-def _read_exactly(fd: int, name: str, mv: memoryview, offset: int) -> None:
-    """Fill ``mv`` from the spill file ``fd`` (named ``name`` in messages) at byte ``offset``."""
-    got = 0
-    while got < mv.nbytes:
-        r = os.preadv(fd, [mv[got:]], offset + got)
-        if r <= 0:
-            raise CamcalError(f"{name} ended early (disk or memory full?)")
-        got += r
-
-
-def _write_exactly(fd: int, name: str, mv: memoryview, offset: int) -> None:
-    """Write all of ``mv`` to the spill file ``fd`` (named ``name`` in messages) at byte ``offset``; a failed
-    write (no space left, a quota) is one line naming the spill and what to change."""
-    done = 0
-    try:
-        while done < mv.nbytes:
-            done += os.pwrite(fd, mv[done:], offset + done)
-    except OSError as exc:
-        raise CamcalError(f"cannot write the temporary stack file {name}: {exc.strerror or exc}; point TMPDIR to "
-                          f"a folder with room for the stack (or let it stay in memory: CAMCAL_SPILL_MEMORY_MB)"
-                          ) from None
-
-
-def _close_up(fd: int, name: str, order: list[int], nbytes: int) -> None:
-    """Move the spilled slots ``order`` (ascending) of the spill file ``fd`` down to slots 0, 1, ... (the slots
-    between are left out)."""
-    if order == list(range(len(order))):
-        return
-    buf = bytearray(min(nbytes, 1 << 24))
-    mv = memoryview(buf)
-    for pos, i in enumerate(order):
-        if i == pos:
-            continue
-        for off in range(0, nbytes, len(buf)):
-            size = min(len(buf), nbytes - off)
-            _read_exactly(fd, name, mv[:size], i * nbytes + off)
-            _write_exactly(fd, name, mv[:size], pos * nbytes + off)
-
-
-def _read_slot(fd: int, name: str, pos: int, shape: tuple[int, int, int], dtype: np.dtype,
-               pattern: str | None = None) -> np.ndarray:
-    """The planes spilled at slot ``pos`` of the spill file ``fd`` (split out of the spilled mosaic when its CFA
-    ``pattern`` is given)."""
-    _, h, w = shape
-    out = np.empty(shape if pattern is None else (2 * h, 2 * w), dtype)
-    mv = memoryview(out.reshape(-1)).cast("B")
-    _read_exactly(fd, name, mv, pos * mv.nbytes)
-    return out if pattern is None else split_planes(out, pattern, dtype=None)
 
 
 def _run(items: list[tuple[int, str]], jobs: int, worker: Callable[[tuple[int, str]], tuple]):
@@ -1019,79 +583,6 @@ class _ShiftedSums:
         if n <= 1:
             var[:] = np.nan
         # the count in the type the stack keeps (int16 below 2¹⁵ frames): no int32 map to convert (96 MB at 24 MP)
-        return mean, mean, var, np.full(mean.shape, n, _count_dtype(n))
+        return mean, mean, var, np.full(mean.shape, n, count_dtype(n))
 
-
-def _band_rows(n: int, shape: tuple[int, int, int], band_mb: float) -> int:
-    """Rows of a band of ``n`` frames of (C, h, w) planes: within ``band_mb`` MB at 4 bytes a value (so the
-    working set does not grow with ``n``) and :data:`MAX_BAND_PIXELS` pixels a frame, at least one row."""
-    c, h, w = shape
-    return max(1, min(h, int(band_mb * 1e6 / (n * c * w * 4)), MAX_BAND_PIXELS // (c * w)))
-
-
-def _bands(fd: int, name: str, n: int, shape: tuple[int, int, int], dtype: np.dtype, method: str, sigma: float,
-           jobs: int, band_mb: float, pattern: str | None = None,
-           wanted: Collection[str] = OPTIONAL_STATISTICS) -> tuple[np.ndarray | None, ...]:
-    """Band-wise statistics of the (n, C, h, w) stack spilled to the file ``fd`` (``name`` in messages), or of the
-    spilled (n, 2h, 2w) Bayer mosaics when their CFA ``pattern`` is given (C = 4): a band of h-rows ``y0:y1`` is
-    then mosaic rows ``2 y0:2 y1`` of each frame, one read per frame, its statistics taken per mosaic pixel and
-    split into the planes after. Gives value, mean, variance, count, variance_all and mean_all; of the optional
-    ones (:data:`OPTIONAL_STATISTICS`) only those ``wanted`` are allocated and written, the others are None."""
-    c, h, w = shape
-    rows = _band_rows(n, shape, band_mb)
-    bands = [(y0, min(h, y0 + rows)) for y0 in range(0, h, rows)]
-
-    def new(*names: str) -> np.ndarray | None:
-        return np.empty(shape, np.float32) if any(v in wanted for v in names) else None
-
-    value = np.empty(shape, np.float32)
-    count = np.empty(shape, _count_dtype(n))
-    if method == "sigma_clip":  # the clipped mean is the value; the unclipped statistics are their own arrays
-        mean, var, var_all, mean_all = value, new("variance"), new("variance_all"), new("mean_all")
-    else:  # median: the mean and the variance are those of all values
-        mean = mean_all = new("mean", "mean_all")
-        var = var_all = new("variance", "variance_all")
-    item = dtype.itemsize
-    # (source rows, source columns) of each output plane in a band's result: the plane itself, or its cells
-    # of the mosaic
-    cells = ([(slice(r, None, 2), slice(q, None, 2)) for r, q in map(plane_offsets(pattern).get, PLANES)]
-             if pattern is not None else None)
-    scratch = threading.local()  # each thread reads and sorts every band in the same two buffers
-
-    def one(band: tuple[int, int]) -> None:
-        y0, y1 = band
-        if not hasattr(scratch, "raw"):
-            scratch.raw = np.empty(n * c * rows * w, dtype)
-            # a float32 band is sorted into this buffer; an integer band is sorted in place (its own type)
-            scratch.work = (np.empty(n * c * rows * w, np.float32) if dtype == np.float32 and n <= NETWORK_MAX_FRAMES
-                            else None)
-        if cells is None:
-            buf = scratch.raw[:n * c * (y1 - y0) * w].reshape(n, c, y1 - y0, w)
-            for i in range(n):
-                for k in range(c):
-                    _read_exactly(fd, name, memoryview(buf[i, k]).cast("B"), (((i * c + k) * h) + y0) * w * item)
-        else:
-            buf = scratch.raw[:n * c * (y1 - y0) * w].reshape(n, 2 * (y1 - y0), 2 * w)
-            for i in range(n):
-                # mosaic row 2 y0 of frame i
-                _read_exactly(fd, name, memoryview(buf[i]).cast("B"), (i * c * h * w + 4 * y0 * w) * item)
-        results = _band_stats(buf, method, sigma, scratch.work)
-        del buf
-        outs = (value, mean, var, count, var_all, mean_all)
-        for k, (out, res) in enumerate(zip(outs, results, strict=True)):
-            if out is None or any(out is outs[j] for j in range(k)):  # not wanted, or written once already
-                continue
-            if cells is None:
-                out[:, y0:y1] = res
-            else:
-                for p, (r, q) in enumerate(cells):
-                    out[p, y0:y1] = res[r, q]
-
-    if jobs > 1 and len(bands) > 1:
-        with ThreadPoolExecutor(jobs) as ex:
-            list(ex.map(one, bands))
-    else:
-        for b in bands:
-            one(b)
-    return value, mean, var, count, var_all, mean_all
 

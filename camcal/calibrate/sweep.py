@@ -584,11 +584,11 @@ def measure_sweep_settings(
     if judge is None:
         return measure()
     while True:
-        retracted = len(judge.retracted)
+        superseded = len(judge.superseded)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             measured = measure()
-        if len(judge.retracted) == retracted:
+        if len(judge.superseded) == superseded:
             for w in caught:  # the warnings of the measurement that is kept
                 warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
             return measured
