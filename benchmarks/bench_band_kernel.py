@@ -224,7 +224,7 @@ def measure_bands(runs: int) -> dict[str, list[tuple[float, float]]]:
     """The band phase of the 32-frame 12 MP master dark, numpy against the kernel, interleaved: (wall, CPU) s."""
     import bench_dark
 
-    from camcal.calibrate.dark import DARK_STATISTICS
+    from camcal.calibrate.dark_frames import DARK_STATISTICS
     from camcal.io.read import load_frame
 
     n = bench_dark.N_MAX

@@ -47,8 +47,8 @@ sys.path.insert(0, str(HERE.parent))  # run from a checkout without installing
 STAGES = (
     ("index_session", "index the session (folders, manifests)"),
     ("screen_session", "screening: every frame's header read (its stage decodes and judges it)"),
-    ("stack_darks", "dark + bias stacks (each frame decoded and judged once)"),
-    ("fit_dark_stacks", "dark fit"),
+    ("measure_dark", "dark + bias stacks (each frame decoded and judged once)"),
+    ("fit_dark", "dark fit"),
     ("master_flat", "master flat (each frame decoded and judged once)"),
     ("fit_master", "flat fit"),
     ("measure_series", "linearity series (each frame decoded and judged once)"),

@@ -15,7 +15,7 @@ adds the ccdproc row (about a minute at 12 MP).
    - baseline: ``camcal.io.read.load_frame`` + ``Frame.planes`` (uint16) of every file in 2 threads: the decode
      the stack itself does, nothing else.
    - camcal: ``combine_frames(paths, StackOptions("sigma_clip", jobs=2,
-     statistics=camcal.calibrate.dark.DARK_STATISTICS))`` on
+     statistics=camcal.calibrate.dark_frames.DARK_STATISTICS))`` on
      the DNG files (decode included): the master dark as the dark stage makes it, with the statistics that stage
      asks for (the clipped value and count, the variance and the mean of all values); its spill is held in memory
      when it fits (``camcal.io.atomic.scratch_fd``);
@@ -125,7 +125,7 @@ def _cpu_s() -> float:
 def run_camcal(n: int, jobs: int, every_statistic: bool = False) -> dict:
     """The master dark of the first ``n`` frames as the dark stage makes it (its statistics), or with every
     statistic (``every_statistic``)."""
-    from camcal.calibrate.dark import DARK_STATISTICS
+    from camcal.calibrate.dark_frames import DARK_STATISTICS
     from camcal.calibrate.stack import StackOptions, combine_frames
 
     paths = [_dng(i) for i in range(n)]

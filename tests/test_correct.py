@@ -19,7 +19,9 @@ import rawpy
 from scipy.optimize import minimize
 from scipy.special import erfc
 
-from camcal.calibrate.dark import fit_dark, quantised_noise_fit
+from camcal.calibrate.dark import fit_dark
+from camcal.calibrate.dark_frames import measure_dark
+from camcal.calibrate.dark_noise import quantised_noise_fit
 from camcal.calibrate.run import calibrate_session
 from camcal.errors import CamcalError
 from camcal.frame import PLANES
@@ -343,7 +345,7 @@ def test_duplicate_frames_refused_by_content(tmp_path, camera):
         camera.write_dng(d / f"b{i}.dng", Scene.dark(), exposure_s=1 / 4000, rng=r)
     shutil.copy(d / "b0.dng", d / "b2.dng")
     with pytest.raises(CamcalError, match="same pixels as b0.dng"):
-        fit_dark(None, d)
+        fit_dark(measure_dark(None, d))
     proc = run_cli("dark", tmp_path / "x", "--bias", d, "-o", tmp_path / "dark.json")
     assert proc.returncode == 2
 
@@ -421,7 +423,7 @@ def test_dead_pixels_found_by_response_not_by_dark_variance(tmp_path):
     cam = SyntheticCamera(preset("default", width=256, height=192, dead_pixel_fraction=2e-3))
     out = write_session(tmp_path / "S", cam, SessionPlan(stages=("bias", "dark", "flat"), n_bias=8, n_dark=3,
                                                          n_flat=5))
-    dark_only = fit_dark(out / "dark", out / "bias")
+    dark_only = fit_dark(measure_dark(out / "dark", out / "bias"))
     assert np.count_nonzero(dark_only.defects & DEAD) == 0
     profile, _ = calibrate_session(out)
     found = (profile.dark.defects & DEAD) != 0

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from camcal.calibrate.dark import fit_dark
+from camcal.calibrate.dark_frames import measure_dark
 from camcal.calibrate.stack import StackOptions, combine_frames
 from camcal.errors import CamcalError
 from camcal.models.correct import dark_frame
@@ -30,8 +31,8 @@ def session(request, tmp_path_factory):
     cam = SyntheticCamera(SensorParams(cfa_pattern=pattern, **PATTERNS[pattern]))
     root = write_session(tmp_path_factory.mktemp(pattern) / "S", cam, SessionPlan(stages=("bias", "dark")))
     truth = json.loads((root / "truth.json").read_text())
-    with_bias = fit_dark(root / "dark", root / "bias", jobs=2)
-    without = fit_dark(root / "dark")
+    with_bias = fit_dark(measure_dark(root / "dark", root / "bias", jobs=2))
+    without = fit_dark(measure_dark(root / "dark"))
     return root, truth, with_bias, without
 
 
@@ -120,21 +121,21 @@ def test_errors(session, tmp_path):
     root = session[0]
     one = _copy(root / "dark", tmp_path / "one", lambda n: n.startswith("dark_008"))
     with pytest.raises(CamcalError, match="one exposure time"):
-        fit_dark(one)
+        fit_dark(measure_dark(one))
     # with bias frames a single dark exposure time is enough
-    m = fit_dark(one, root / "bias")
+    m = fit_dark(measure_dark(one, root / "bias"))
     assert m.exposure_times_s == (8.0,)
     sat = _copy(root / "dark", tmp_path / "sat", lambda n: n.startswith(("dark_002", "dark_008")))
     mosaic = np.full((256, 384), 16383, np.uint16)
     write_dng(sat / "dark_002.000s_01.dng", mosaic, cfa_pattern=session[1]["params"]["cfa_pattern"],
               black_level_dn=512.0, white_level_dn=16383, exposure_s=2.0, f_number=4.0, iso=100.0)
     with pytest.raises(CamcalError, match=r"dark_002.000s_01.dng: .*saturated"):
-        fit_dark(sat)
+        fit_dark(measure_dark(sat))
     size = _copy(root / "dark", tmp_path / "size", lambda n: n.startswith(("dark_002", "dark_008")))
     SyntheticCamera(SensorParams(width=192, height=128)).write_dng(
         size / "dark_008.000s_03.dng", Scene.dark(), exposure_s=8.0, rng=np.random.default_rng(0))
     with pytest.raises(CamcalError, match="frame size 192x128 differs"):
-        fit_dark(size, jobs=2)
+        fit_dark(measure_dark(size, jobs=2))
     proc = run_cli("dark", one, "-o", tmp_path / "x.json")
     assert_one_line_error(proc, "one exposure time", "--bias")
     assert not (tmp_path / "x.json").exists()
@@ -198,7 +199,7 @@ def test_png_darks_without_bias_fit_their_offset_instead_of_assuming_zero(tmp_pa
             rows.append(f"{name},{t},100")
     (d / "frames.csv").write_text("\n".join(rows) + "\n")
     assert load_frame(d / "d_1_0.png").black_level_source == "unknown"
-    model = fit_dark(d)
+    model = fit_dark(measure_dark(d))
     beta = float(np.median(model.dark_current_dn_per_s))
     bias = float(np.median(model.bias_dn))
     assert beta == pytest.approx(current_dn_per_s, abs=0.1), (beta, bias)  # a prior of 0 at t = 0 would give ≫ 5 DN/s

@@ -288,9 +288,11 @@ def test_bad_options_and_empty_folders(tmp_path, session_dir):
 @pytest.fixture(scope="module")
 def dark_json(session_dir, tmp_path_factory):
     from camcal.calibrate.dark import fit_dark
+    from camcal.calibrate.dark_frames import measure_dark
     from camcal.models.dark import save_dark
 
-    return save_dark(fit_dark(session_dir / "dark", session_dir / "bias"), tmp_path_factory.mktemp("dark") / "d.json")
+    model = fit_dark(measure_dark(session_dir / "dark", session_dir / "bias"))
+    return save_dark(model, tmp_path_factory.mktemp("dark") / "d.json")
 
 
 def test_fit_flat_with_dark_model(session_dir, truth, camera, dark_json, tmp_path):

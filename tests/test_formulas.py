@@ -22,17 +22,9 @@ from scipy.stats import chi2
 import camcal.calibrate.dark
 from camcal.apply.photo import apply
 from camcal.apply.radiance import radiance_model
-from camcal.calibrate.dark import (
-    DarkOptions,
-    DarkStacks,
-    TemporalNoise,
-    _channel_summary,
-    _fit_lines,
-    _max_median_mean,
-    _noise_model,
-    _robust,
-    fit_dark_stacks,
-)
+from camcal.calibrate.dark import _channel_summary, _fit_lines, _robust, fit_dark
+from camcal.calibrate.dark_frames import DarkOptions, DarkStacks
+from camcal.calibrate.dark_noise import TemporalNoise, _max_median_mean, noise_model
 from camcal.calibrate.emva import dark_noise_stacks
 from camcal.calibrate.stack import StackResult
 from camcal.errors import CamcalError, MissingMetadataError
@@ -116,7 +108,7 @@ def test_dark_line_fit_leaves_clipped_levels_out():
     beta[3, 4, 4] = 5000.0  # clips in every dark group
     times = (2.0**-13, 1.0, 8.0, 20.0)  # bias frames, then three dark groups
     stacks = [_stack(np.minimum(bias + beta * t, white), t, white, black) for t in times]
-    model = fit_dark_stacks(DarkStacks(tuple((t, s) for t, s in zip(times[1:], stacks[1:], strict=True)), stacks[0]))
+    model = fit_dark(DarkStacks(tuple((t, s) for t, s in zip(times[1:], stacks[1:], strict=True)), stacks[0]))
     fitted = np.ones(shape, bool)
     fitted[3, 4, 4] = False
     np.testing.assert_allclose(model.dark_current_dn_per_s[fitted], beta[fitted], rtol=1e-6)
@@ -168,7 +160,7 @@ def _noise_stack(signal_dn: float, t_s: float, var_all_dn2: float, var_clipped_d
 
 
 def test_dark_noise_line_reads_the_unclipped_variance_and_its_guards():
-    """The temporal-noise line variance = v0 + g·(level − bias) of ``_noise_model``, per plane, against values
+    """The temporal-noise line variance = v0 + g·(level − bias) of ``noise_model``, per plane, against values
     written out (all inputs exact in float32, so the two-point line is exact to rounding):
 
     - it reads each stack's unclipped variance (``variance_all``, v0 = 0.5 DN², g = 0.5 DN/e⁻ through
@@ -185,36 +177,36 @@ def test_dark_noise_line_reads_the_unclipped_variance_and_its_guards():
     bias[:, 0, 0] = np.nan  # its stack values are finite: only the bias says to leave it out
     stats = [(1.0, _noise_stack(20.0, 1.0, 10.5, 21.0, bias)), (2.0, _noise_stack(20.5, 2.0, 10.75, 21.5, bias))]
     stats[1][1].variance_all[:, 2, 1] = np.nan
-    v0, g = _noise_model(stats, bias)
+    v0, g = noise_model(stats, bias)
     np.testing.assert_allclose(v0.ravel(), 0.5, rtol=1e-9)
     np.testing.assert_allclose(g.ravel(), 0.5, rtol=1e-9)
     # stacks without variance_all: their variance is read
-    v0, g = _noise_model([(1.0, _noise_stack(20.0, 1.0, 10.5, None, bias)),
+    v0, g = noise_model([(1.0, _noise_stack(20.0, 1.0, 10.5, None, bias)),
                           (2.0, _noise_stack(20.5, 2.0, 10.75, None, bias))], bias)
     np.testing.assert_allclose(v0.ravel(), 0.5, rtol=1e-9)
     np.testing.assert_allclose(g.ravel(), 0.5, rtol=1e-9)
     # two stacks at the same level (no dark current): no line
-    v0, g = _noise_model([(1.0, _noise_stack(20.0, 1.0, 16.0, 32.0, bias)),
+    v0, g = noise_model([(1.0, _noise_stack(20.0, 1.0, 16.0, 32.0, bias)),
                           (4.0, _noise_stack(20.0, 4.0, 16.0, 32.0, bias))], bias)
     np.testing.assert_allclose(v0.ravel(), 16.0, rtol=1e-12)
     assert np.all(g == 0)
     # one stack below 1 DN² (no variance_all): its variance, not the floor
-    v0, g = _noise_model([(1.0, _noise_stack(0.25, 1.0, 0.625, None, bias))], bias)
+    v0, g = noise_model([(1.0, _noise_stack(0.25, 1.0, 0.625, None, bias))], bias)
     np.testing.assert_allclose(v0.ravel(), 0.625, rtol=1e-12)
     assert np.all(g == 0)
     # a negative intercept (-1 + 0.5 s) is floored at 1e-6; a falling line (30 - 0.5 s) has g = 0
-    v0, g = _noise_model([(1.0, _noise_stack(20.0, 1.0, 9.0, 18.0, bias)),
+    v0, g = noise_model([(1.0, _noise_stack(20.0, 1.0, 9.0, 18.0, bias)),
                           (2.0, _noise_stack(24.0, 2.0, 11.0, 22.0, bias))], bias)
     assert np.all(v0 == 1e-6)
     np.testing.assert_allclose(g.ravel(), 0.5, rtol=1e-9)
-    v0, g = _noise_model([(1.0, _noise_stack(20.0, 1.0, 20.0, 40.0, bias)),
+    v0, g = noise_model([(1.0, _noise_stack(20.0, 1.0, 20.0, 40.0, bias)),
                           (2.0, _noise_stack(24.0, 2.0, 18.0, 36.0, bias))], bias)
     assert np.all(g == 0)
     np.testing.assert_allclose(v0.ravel(), 30.0, rtol=1e-9)
 
 
 def test_dark_noise_line_plane_means_are_float64_sums():
-    """The plane means of ``_noise_model`` are exact to float64 rounding on a large plane: a million float32 levels
+    """The plane means of ``noise_model`` are exact to float64 rounding on a large plane: a million float32 levels
     near 1020 DN with fractional noise, whose float32 sum would be off by about 1e-4 DN in the mean (2e-4 of the
     slope here). The expected line goes through the exact means (``math.fsum`` of the float64 differences)."""
     rng = np.random.default_rng(11)
@@ -228,7 +220,7 @@ def test_dark_noise_line_plane_means_are_float64_sums():
         xs.append([math.fsum((st.value[k].astype(np.float64) - bias[k].astype(np.float64)).ravel()) / bias[k].size
                    for k in range(4)])
         ys.append(var)
-    v0, g = _noise_model(stats, bias)
+    v0, g = noise_model(stats, bias)
     for k in range(4):
         slope = (ys[1] - ys[0]) / (xs[1][k] - xs[0][k])
         assert g.ravel()[k] == pytest.approx(slope, rel=1e-9)
@@ -246,7 +238,7 @@ def test_dark_noise_line_leaves_out_pixels_noisier_than_five_times_the_plane():
         st = _noise_stack(signal, t, var, var, bias)
         st.variance_all[:, 4, 7] = 5.8 * var
         stats.append((t, st))
-    v0, g = _noise_model(stats, bias)
+    v0, g = noise_model(stats, bias)
     np.testing.assert_allclose(v0.ravel(), 0.5, rtol=1e-9)
     np.testing.assert_allclose(g.ravel(), 0.5, rtol=1e-9)
 
@@ -388,7 +380,7 @@ def _line_by_hand(points):
 def _plane_figures(k, b, b_var, beta, beta_var, defects, read_noise_var, gain, temporal, dsnu_bias2=None) -> dict:
     """The channel summary of plane k written out with numpy: EMVA 1288-style figures over the good pixels.
 
-    The maps as the model holds them (float32 from :func:`fit_dark_stacks`, any float type here): the means and
+    The maps as the model holds them (float32 from :func:`fit_dark`, any float type here): the means and
     variances of their values in float64; the median of the β uncertainties as the model takes it, of the
     square roots in the maps' own type."""
     good = defects[k] == 0
@@ -547,7 +539,7 @@ def test_dark_noise_stacks_keep_what_the_emva_sheet_reads_and_nothing_more():
 
 
 def test_dark_fit_with_bias_frames_and_one_dark_time_against_numpy(tmp_path):
-    """``fit_dark_stacks`` on bias frames (16, exposure time not recorded: t = 0) and one dark time (4 frames at
+    """``fit_dark`` on bias frames (16, exposure time not recorded: t = 0) and one dark time (4 frames at
     0.5 s), every output against values written out in the test:
 
     - b and β: the line through the two exact levels; the pixel saturated at 0.5 s has no line: β is the bound
@@ -580,7 +572,7 @@ def test_dark_fit_with_bias_frames_and_one_dark_time_against_numpy(tmp_path):
     dark_st = _dark_group(level, var_dark, t, 4, black=black, temps=(21.0, 21.5, 22.0, 23.5))
     dark_folder, bias_folder = tmp_path / "dark", tmp_path / "bias"
     stacks = DarkStacks(((t, dark_st),), bias_st, dark_folder, bias_folder, ("d1.dng", "d2.dng"), ("b1.dng",))
-    model = fit_dark_stacks(stacks)
+    model = fit_dark(stacks)
 
     fitted = np.ones(shape, bool)
     fitted[2, 5, 7] = False
@@ -626,23 +618,23 @@ def test_dark_fit_with_bias_frames_and_one_dark_time_against_numpy(tmp_path):
         "bias_source": "bias frames", "read_noise_source": "bias frames", "black_level_source": "file"}
 
     # bias only: the bias frames' own model, with the options and folder given
-    only = fit_dark_stacks(DarkStacks((), bias_st, bias_folder=bias_folder), DarkOptions(hot_sigma=7.0))
+    only = fit_dark(DarkStacks((), bias_st, bias_folder=bias_folder), DarkOptions(hot_sigma=7.0))
     assert only.dark_current_dn_per_s is None
     np.testing.assert_array_equal(only.bias_dn, bias)
     assert only.provenance["bias_folder"] == str(bias_folder) and only.provenance["options"]["hot_sigma"] == 7.0
     # bias frames at another ISO than the darks: refused, naming the dark folder
     with pytest.raises(CamcalError, match="mix ISO") as err:
-        fit_dark_stacks(replace(stacks, bias=_dark_group(bias, var_bias, 0.0, 16, black=black, iso=200.0)))
+        fit_dark(replace(stacks, bias=_dark_group(bias, var_bias, 0.0, 16, black=black, iso=200.0)))
     assert err.value.path == dark_folder
     # a frame without an ISO: named in the error
     nameless = replace(dark_st, exposures=(Exposure(exposure_s=t, iso=None),) + dark_st.exposures[1:])
     with pytest.raises(MissingMetadataError) as err:
-        fit_dark_stacks(replace(stacks, darks=((t, nameless),)))
+        fit_dark(replace(stacks, darks=((t, nameless),)))
     assert err.value.path == dark_st.paths[0]
 
 
 def test_dark_fit_without_bias_frames_takes_the_black_level_as_a_prior(tmp_path):
-    """``fit_dark_stacks`` on dark frames alone at 0.5, 2 and 8 s (16, 4 and 6 frames), the black level a prior
+    """``fit_dark`` on dark frames alone at 0.5, 2 and 8 s (16, 4 and 6 frames), the black level a prior
     point at t = 0 worth 2 frames, against values written out in the test:
 
     - b and β: the frame-weighted least squares through the prior and the three levels (``_line_by_hand``); the
@@ -671,7 +663,7 @@ def test_dark_fit_without_bias_frames_takes_the_black_level_as_a_prior(tmp_path)
         temps = [20.0] * n if t < 8.0 else [None] * n
         darks.append((t, _dark_group(level, var, t, n, black=black, cfa=None, temps=temps)))
         points.append((t, level, np.where(level < white - 1.0, n, 0.0), v0 + g * np.maximum(level - blk, 0.0)))
-    model = fit_dark_stacks(DarkStacks(tuple(darks), None, tmp_path / "dark"), DarkOptions(bias_prior_frames=2.0))
+    model = fit_dark(DarkStacks(tuple(darks), None, tmp_path / "dark"), DarkOptions(bias_prior_frames=2.0))
 
     fitted = np.ones(shape, bool)
     fitted[2, 5, 7] = False

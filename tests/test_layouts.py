@@ -287,7 +287,7 @@ def test_the_reader_keeps_the_value_range_it_measured(tmp_path):
     data) measures its range again; a processed frame measures it when asked."""
     import dataclasses
 
-    from camcal.calibrate.dark import dark_frame_check
+    from camcal.calibrate.dark_frames import dark_frame_check
 
     mosaic = np.full((64, 64), 70, np.uint16)
     mosaic[0, :7] = 60

@@ -2507,7 +2507,7 @@ def test_exposure_time_rules_leave_out_lone_frames_and_need_two_times_without_bi
     import warnings as _warnings
     from pathlib import Path
 
-    from camcal.calibrate.dark import _exposure_time_rules
+    from camcal.calibrate.dark_frames import _exposure_time_rules
     from camcal.errors import FrameLeftOut, TooFewFrames
 
     a, b, c, d = (Path(f"/d/{n}.dng") for n in "abcd")
@@ -2548,7 +2548,7 @@ def test_dark_frame_check_refuses_processed_and_saturated_frames():
     saturated dark frame, the fraction and level in its message."""
     from pathlib import Path
 
-    from camcal.calibrate.dark import dark_frame_check
+    from camcal.calibrate.dark_frames import dark_frame_check
     from camcal.frame import Frame
 
     data = np.full((10, 10), 100, np.uint16)
@@ -2584,7 +2584,7 @@ def test_dark_exposure_times_take_the_index_then_the_manifest_then_the_file_tag(
     from PIL import Image
     from PIL.TiffImagePlugin import IFDRational
 
-    from camcal.calibrate.dark import _exposure_times
+    from camcal.calibrate.dark_frames import _exposure_times
     from camcal.calibrate.session import FrameRef, StageFrames
     from camcal.errors import MissingMetadataError
 
@@ -2612,7 +2612,7 @@ def test_dark_stacks_must_share_frame_size_pattern_and_iso():
     from pathlib import Path
     from types import SimpleNamespace
 
-    from camcal.calibrate.dark import _check_stacks
+    from camcal.calibrate.dark_frames import _check_stacks
 
     def stack(name, shape=(4, 6), cfa="RGGB", iso=400.0):
         return SimpleNamespace(frame_shape=shape, cfa_pattern=cfa, paths=(Path(f"/d/{name}1.dng"),

@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 import camcal.io.manifest
-from camcal.calibrate.dark import DarkOptions, fit_dark, fit_dark_stacks, stack_darks
+from camcal.calibrate.dark import fit_dark
+from camcal.calibrate.dark_frames import DarkOptions, measure_dark
 from camcal.calibrate.run import calibrate_session
 from camcal.calibrate.session import StageFrames, index_session
 from camcal.calibrate.sweep import (
@@ -106,18 +107,18 @@ def test_fits_read_no_file(tmp_path, small_session):
     one-call stage functions give."""
     s = tmp_path / "S"
     shutil.copytree(small_session, s)
-    whole = fit_dark(s / "dark", s / "bias", method="median")
-    bias_only = fit_dark(None, s / "bias")
+    whole = fit_dark(measure_dark(s / "dark", s / "bias", DarkOptions(method="median")), DarkOptions(method="median"))
+    bias_only = fit_dark(measure_dark(None, s / "bias"))
     opts = DarkOptions(method="median")
-    stacks = stack_darks(s / "dark", s / "bias", opts)
-    stacks_bias = stack_darks(None, s / "bias")
+    stacks = measure_dark(s / "dark", s / "bias", opts)
+    stacks_bias = measure_dark(None, s / "bias")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         sweep_opts = SweepOptions(mode="relative")
         sens = measure_sweep(s / "sweep", dark=whole, mode="relative")
         measured = measure_sweep_settings(s / "sweep", read_sweep(s / "sweep"), dark=whole, options=sweep_opts)
     shutil.rmtree(s)
-    for a, b in ((fit_dark_stacks(stacks, opts), whole), (fit_dark_stacks(stacks_bias), bias_only)):
+    for a, b in ((fit_dark(stacks, opts), whole), (fit_dark(stacks_bias), bias_only)):
         (da, ma), (db, mb) = dark_to_parts(a), dark_to_parts(b)
         assert da == db and ma.keys() == mb.keys()
         assert all(np.array_equal(ma[k], mb[k], equal_nan=True) for k in ma)

@@ -20,6 +20,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from camcal.calibrate.dark import fit_dark
+from camcal.calibrate.dark_frames import measure_dark
 from camcal.calibrate.sweep import LeftOutWarning, SweepWarning, deconvolve_slit, measure_sweep
 from camcal.curves.files import SPECTACLE_HEADER, read_spectacle_csv, write_spectacle_csv
 from camcal.errors import CamcalError, TooFewFrames
@@ -64,8 +66,7 @@ def quiet_measure(*args, **kwargs) -> SpectralSensitivity:
 
 @pytest.fixture(scope="module")
 def dark_model(session_dir):
-    dark = pytest.importorskip("camcal.calibrate.dark")
-    return dark.fit_dark(session_dir / "dark", session_dir / "bias")
+    return fit_dark(measure_dark(session_dir / "dark", session_dir / "bias"))
 
 
 @pytest.fixture(scope="module")

@@ -28,7 +28,9 @@ from camcal.apply.radiance import (
     smooth_operator,
     smooth_spread_rel,
 )
-from camcal.calibrate.dark import DarkOptions, DarkStacks, _fit_lines, _noise_model, fit_dark_stacks, temporal_noise
+from camcal.calibrate.dark import _fit_lines, fit_dark
+from camcal.calibrate.dark_frames import DarkOptions, DarkStacks
+from camcal.calibrate.dark_noise import noise_model, temporal_noise
 from camcal.calibrate.flat import _quadratic_vertex, _total_degree_mask, fit_2d_plane, fit_radial_plane
 from camcal.calibrate.response import fit_eq12, fit_line, fit_srgb_form, saturation_point
 from camcal.calibrate.stack import StackResult
@@ -439,11 +441,11 @@ def test_dark_noise_line_through_the_stacks_leaves_hot_pixels_out():
         st = _dark_stack(level, t, var_dn2=6.0 + 0.4 * signal)
         st.variance_all[:, 2, 2] = 1e4
         stats.append((t, st))
-    v0, g = _noise_model(stats, bias)
+    v0, g = noise_model(stats, bias)
     np.testing.assert_allclose(v0.ravel(), 6.0, rtol=1e-4)
     np.testing.assert_allclose(g.ravel(), 0.4, rtol=1e-5)
     # a single stack: no slope, v0 is its variance
-    v0, g = _noise_model(stats[:1], bias)
+    v0, g = noise_model(stats[:1], bias)
     np.testing.assert_allclose(v0.ravel(), 14.0, rtol=1e-5)
     assert np.all(g == 0)
 
@@ -1823,7 +1825,7 @@ def test_band_inverse_where_the_band_stops_responding_or_underflows():
 
 
 def test_bias_only_model_every_field_from_bias_frames_with_planes_below_one_dn(tmp_path):
-    """``fit_dark_stacks`` on bias frames alone (the bias-only model), every output against values written out here.
+    """``fit_dark`` on bias frames alone (the bias-only model), every output against values written out here.
 
     Five frames of 128 × 128 pixels a plane, kept for the quantised fit: R σ = 1.5 DN and B σ = 0.97 DN (temporal
     noise above 1 DN: read noise √(mean var − 1/12) over the good pixels, EMVA 1288 eq. 4, and DSNU
@@ -1849,7 +1851,7 @@ def test_bias_only_model_every_field_from_bias_frames_with_planes_below_one_dn(t
     exposure = st.exposures[0]  # 1e-4 s at ISO 100
     folder = tmp_path / "bias"
     options = DarkOptions(hot_sigma=7.0, noisy_sigma=6.0, saturation_fraction=0.02)
-    model = fit_dark_stacks(DarkStacks((), st, bias_folder=folder), options)
+    model = fit_dark(DarkStacks((), st, bias_folder=folder), options)
 
     var32 = var.astype(np.float32).astype(np.float64)
     bound = _noisy_bound(4, 6.0)
@@ -1901,11 +1903,11 @@ def test_bias_only_model_every_field_from_bias_frames_with_planes_below_one_dn(t
         "read_noise_method": "quantised-normal likelihood of 3 frame pair(s) in planes G1, G2 (temporal noise "
                              "below 1 DN); elsewhere " + NOISE_METHOD,
         "dark_current": "unknown: no dark frames (bias-only calibration); apply subtracts the bias only"}
-    assert fit_dark_stacks(DarkStacks((), replace(st, cfa_pattern=None), bias_folder=folder),
+    assert fit_dark(DarkStacks((), replace(st, cfa_pattern=None), bias_folder=folder),
                            options).cfa_pattern is None
     mixed = replace(st, exposures=(exposure,) * 4 + (Exposure(exposure_s=1e-4, iso=200.0),))
     with pytest.raises(CamcalError, match="mix ISO settings") as err:
-        fit_dark_stacks(DarkStacks((), mixed, bias_folder=folder), options)
+        fit_dark(DarkStacks((), mixed, bias_folder=folder), options)
     assert err.value.path == folder
 
 

@@ -266,7 +266,7 @@ def test_the_layer_check_sees_an_upward_import(tmp_path, monkeypatch):
     """The check above finds models/ importing calibrate/ in a planted module (it can fail)."""
     planted = tmp_path / "camcal" / "models"
     planted.mkdir(parents=True)
-    (planted / "x.py").write_text("from camcal.calibrate.dark import fit_dark_stacks\nfrom camcal import errors\n")
+    (planted / "x.py").write_text("from camcal.calibrate.dark import fit_dark\nfrom camcal import errors\n")
     monkeypatch.setitem(globals(), "ROOT", tmp_path)
     assert _layer_of_file(planted / "x.py") == "models"
     assert {_layer_of_import(n) for n in _camcal_imports(planted / "x.py")} == {"calibrate", "core"}

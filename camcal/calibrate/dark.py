@@ -26,83 +26,27 @@ times), following EMVA 1288 (release 4.0, §4.3 "dark current", §4.5 "DSNU"):
   (temporal variance above the plane's model variance beyond a chi-square bound,
   :func:`temporal_noise`). 2 dead is defined by the response, not by the darks (a pixel that
   reads one value in every dark frame is normal below 1 DN of noise): :func:`camcal.models.flat.dead_pixels`.
-- **duplicates**: two frames with identical pixels are refused by content (:mod:`camcal.calibrate.stack`).
-- **bias only** (:func:`fit_bias`): bias, read noise, DSNU, noisy pixels; dark current unknown.
+- **bias only** (a measurement without darks): bias, read noise, DSNU, noisy pixels; dark current unknown.
+
+The stage's two calls: :func:`camcal.calibrate.dark_frames.measure_dark` (the files: frames grouped by exposure
+time and stacked) and :func:`fit_dark` (this module: pure, stacks in, model out); the temporal noise is
+:mod:`camcal.calibrate.dark_noise`.
 """
 
 from __future__ import annotations
 
-import hashlib
 import math
-import warnings
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy.optimize import minimize
-from scipy.special import ndtr
-from scipy.stats import chi2
 
+from camcal.calibrate.dark_frames import DarkOptions, DarkStacks, same_iso
+from camcal.calibrate.dark_noise import QUANTISATION_VAR_DN2, TemporalNoise, noise_model, run_planes, temporal_noise
 from camcal.calibrate.robust import median, median_and_mad
-from camcal.calibrate.screen import StageJudge
-from camcal.calibrate.session import StageFrames, folder_of, stage_files
-from camcal.calibrate.stack import METHODS, StackOptions, StackResult, combine_frames
-from camcal.errors import CamcalError, FrameLeftOut, MissingMetadataError, TooFewFrames
-from camcal.frame import Frame
-from camcal.io.hashing import sha256_file
-from camcal.io.read import exposure_from_exif, saturated_fraction
+from camcal.calibrate.stack import StackResult
 from camcal.models.dark import DEAD, HOT, NOISY, DarkModel
 from camcal.threads import thread_count, thread_map
-
-QUANTISATION_VAR_DN2 = 1.0 / 12.0
-"""Variance of rounding to integer DN (EMVA 1288 σ_q²), DN²."""
-
-
-# --------------------------------------------------------------------------------------------
-
-
-def _exposure_times(source: str | Path | StageFrames, files: list[Path], manifest: dict) -> list[float]:
-    """Exposure time of each frame, s: as the session index resolved it (manifest row > tag > session.toml),
-    else from the manifest row or the file's EXIF header (no decode)."""
-    if isinstance(source, StageFrames):
-        known = {f.path: f.exposure_s for f in source.frames}
-    else:
-        known = {}
-    out = []
-    for path in files:
-        t = known.get(path)
-        if t is None:
-            t = (manifest.get(path.name) or {}).get("exposure_s")
-        if t is None:
-            t = exposure_from_exif(path).exposure_s
-        if t is None:
-            raise MissingMetadataError(path, "exposure_s")
-        out.append(float(t))
-    return out
-
-
-def dark_frame_check(saturation_fraction: float = 0.01) -> Callable[[Frame], None]:
-    """Per-frame check for bias/dark frames: RAW only, not saturated."""
-
-    def check(frame: Frame) -> None:
-        if frame.kind != "raw":
-            raise CamcalError("bias and dark frames must be RAW files (the dark model works on CFA planes)",
-                              frame.path)
-        white = frame.white_level_dn
-        frac = saturated_fraction(frame)
-        if frac > saturation_fraction:
-            raise CamcalError(f"dark frame is saturated: {100 * frac:.1f} % of pixels at the white level "
-                              f"{white:.0f} DN (light leak, or not a dark frame?)", frame.path)
-
-    return check
-
-
-def _same_iso(stacks: list[StackResult], where: Path) -> float:
-    isos = {e.require("iso", p) for s in stacks for e, p in zip(s.exposures, s.paths, strict=True)}
-    if len(isos) > 1:
-        raise CamcalError(f"frames mix ISO settings {sorted(isos)}; take bias and dark frames at one ISO", where)
-    return isos.pop()
 
 
 def _robust(x: np.ndarray) -> tuple[float, float]:
@@ -113,328 +57,7 @@ def _robust(x: np.ndarray) -> tuple[float, float]:
     return median_and_mad(x)  # np.median and scipy's normal-scaled MAD, by sampled selection
 
 
-@dataclass(frozen=True)
-class DarkOptions:
-    """Options of the dark fit (recorded in the model's provenance).
-
-    Attributes
-    ----------
-    method : how each exposure group of darks is combined (:func:`camcal.calibrate.stack.combine_frames`);
-        bias frames are always averaged (``mean``) so their variance is the full temporal variance.
-    sigma : sigma-clipping threshold, standard deviations.
-    hot_sigma, hot_factor : hot if β > median + max(hot_sigma · robust σ_β, (hot_factor - 1) · median).
-    noisy_sigma : noisy if the temporal variance is above the plane's model variance by more than
-        ``noisy_sigma`` standard errors of a variance and by more than the chi-square bound a
-        normal pixel exceeds with probability 1e-6 for the number of frames. Dead pixels are not
-        found here (a zero temporal variance is normal below 1 DN of noise): the flat stage finds
-        them by their response (:func:`camcal.models.flat.dead_pixels`).
-    saturation_fraction : a frame with more than this fraction of pixels at the white level is refused.
-    bias_prior_frames : weight, in frames, of the black-level prior at t = 0 (no bias frames only).
-    """
-
-    method: str = "sigma_clip"
-    sigma: float = 3.0
-    hot_sigma: float = 6.0
-    hot_factor: float = 5.0
-    noisy_sigma: float = 6.0
-    saturation_fraction: float = 0.01
-    bias_prior_frames: float = 1.0
-
-
-@dataclass(frozen=True)
-class DarkStacks:
-    """The combined frames the dark model is fitted to (made by :func:`stack_darks`).
-
-    Attributes
-    ----------
-    darks : ``(exposure_s, stack)`` per exposure time of the dark frames (s), shortest first; empty for a
-        bias-only calibration.
-    bias : the averaged bias frames, or None.
-    dark_folder, bias_folder, dark_files, bias_files : where the frames came from (provenance only).
-
-    The read-noise stack (bias, else the shortest darks) keeps its first :data:`QUANTISED_FIT_FRAMES`
-    frames (``kept_planes``) for the quantised-noise fit, so fitting decodes nothing.
-    """
-
-    darks: tuple[tuple[float, StackResult], ...]
-    bias: StackResult | None
-    dark_folder: Path | None = None
-    bias_folder: Path | None = None
-    dark_files: tuple[str, ...] = ()
-    bias_files: tuple[str, ...] = ()
-    left_out: tuple[tuple[str, str], ...] = ()
-    """(file name, reason) of dark frames not stacked: a frame alone at its exposure time."""
-
-
-def _progress_from(progress: Callable[[int, int], None] | None, offset: int,
-                   total: int) -> Callable[[int, int], None] | None:
-    """``progress`` of one stack among several: its frames counted after ``offset`` of ``total``."""
-    if progress is None:
-        return None
-
-    def cb(i: int, _n: int) -> None:
-        progress(offset + i, total)
-
-    return cb
-
-
-def _check_stacks(stacks: list[StackResult], where: Path) -> float:
-    """One frame size, CFA pattern and ISO over all stacks; returns the ISO."""
-    ref = stacks[0]
-    for st in stacks:
-        if st.frame_shape != ref.frame_shape or st.cfa_pattern != ref.cfa_pattern:
-            h, w = st.frame_shape
-            h0, w0 = ref.frame_shape
-            raise CamcalError(f"frame size {w}x{h} ({st.cfa_pattern}) differs from the first dark frame's "
-                              f"{w0}x{h0} ({ref.cfa_pattern})", st.paths[0])
-    return _same_iso(stacks, where)
-
-
-def refuse_shared_frames(dark_files: list[Path], bias_files: list[Path]) -> None:
-    """Refuse a frame given both as a dark and as a bias frame (the same file, or a copy of it).
-
-    The same exposure counted twice fits a dark current of exactly zero with zero uncertainty, which reads like
-    a measurement. A copy is found by content: files of equal size whose sampled blocks agree (:func:`_sample_digest`)
-    are compared by their SHA-256.
-
-    Raises
-    ------
-    CamcalError
-        Naming both files.
-    """
-    if not dark_files or not bias_files:
-        return
-    by_size: dict[int, list[Path]] = {}
-    for p in bias_files:
-        by_size.setdefault(p.stat().st_size, []).append(p)
-    samples: dict[Path, bytes] = {}
-    hashes: dict[Path, str] = {}
-
-    def sample(p: Path) -> bytes:
-        if p not in samples:
-            samples[p] = _sample_digest(p)
-        return samples[p]
-
-    def digest(p: Path) -> str:
-        if p not in hashes:
-            hashes[p] = sha256_file(p)
-        return hashes[p]
-
-    for d in dark_files:
-        for b in by_size.get(d.stat().st_size, ()):
-            # a copy has every byte equal: files whose samples differ are not copies; equal samples are
-            # confirmed by the whole file's hash
-            if d.resolve() == b.resolve() or (sample(d) == sample(b) and digest(d) == digest(b)):
-                raise CamcalError(f"is given twice: as a dark frame and as the bias frame {b} (the same exposure "
-                                  "cannot be both); give each frame once", d)
-
-
-SAMPLE_BYTES = 1 << 16
-"""Bytes read at each of :data:`SAMPLE_POINTS` offsets of a file to tell two files of one size apart."""
-SAMPLE_POINTS = 4
-
-
-def _sample_digest(path: Path) -> bytes:
-    """BLAKE2b of :data:`SAMPLE_POINTS` blocks of :data:`SAMPLE_BYTES` spread over the file (the last at its end,
-    where a RAW file's pixel data are): two separate exposures of one size differ there by their noise, so
-    most pairs are told apart without hashing whole files; equal samples still need the whole file's hash."""
-    size = path.stat().st_size
-    h = hashlib.blake2b(digest_size=16)
-    with path.open("rb") as f:
-        for i in range(1, SAMPLE_POINTS + 1):
-            f.seek(max(0, size * i // SAMPLE_POINTS - SAMPLE_BYTES))
-            h.update(f.read(SAMPLE_BYTES))
-    return h.digest()
-
-
-def _exposure_time_rules(groups: dict[float, list[Path]], have_bias: bool, folder: Path
-                         ) -> tuple[dict[float, list[Path]], tuple[tuple[str, str], ...]]:
-    """The rules on the dark frames grouped by exposure time (s): a frame alone at its exposure time has no
-    temporal noise to measure and is left out (with a :class:`FrameLeftOut` warning) while other times have two
-    frames or more; without bias frames, the dark-current fit needs two exposure times.
-
-    Returns
-    -------
-    groups : the exposure times kept and their frames.
-    left_out : ``(file name, reason)`` of the frames left out.
-
-    Raises
-    ------
-    TooFewFrames
-        No bias frames and fewer than two exposure times.
-    """
-    lone = {t: g for t, g in groups.items() if len(g) < 2}
-    left_out: tuple[tuple[str, str], ...] = ()
-    if lone and len(lone) < len(groups):
-        left_out = tuple((g[0].name, f"alone at its exposure time ({t:g} s): the dark model measures the temporal "
-                                     "noise of each exposure time from two or more frames") for t, g in lone.items())
-        for name, reason in left_out:
-            warnings.warn(f"left out: {name}: {reason}", FrameLeftOut, stacklevel=3)
-        groups = {t: g for t, g in groups.items() if t not in lone}
-    if not have_bias and len(groups) < 2:
-        if not groups:
-            raise TooFewFrames("dark", "frames", 1, 0, path=folder)
-        ((t0, g0),) = groups.items()
-        raise TooFewFrames("dark", "exposure times (or bias frames)", 2, 1,
-                           f"all {len(g0)} dark frames have one exposure time ({t0:g} s); the dark-current fit "
-                           "needs two or more exposure times, or bias frames (--bias)", folder)
-    return groups, left_out
-
-
-DARK_STATISTICS = ("variance_all", "mean_all")
-"""What the dark stage uses of a dark stack (:func:`camcal.calibrate.stack.combine_frames`'s optional statistics): its
-value and count, the temporal variance of all its values (the noise model, the read noise without bias frames)
-and, with it, their mean (the EMVA 1288 DSNU, :func:`camcal.calibrate.emva.build_sheet`). The clipped values' variance
-is not made: 96 MB less per stack at 24 MP. (The bias is a plain mean, whose statistics share two arrays: it keeps
-them all.)"""
-
-
-def stack_darks(
-    dark: str | Path | StageFrames | None,
-    bias: str | Path | StageFrames | None = None,
-    options: DarkOptions = DarkOptions(),  # noqa: B008
-    *,
-    jobs: int | None = 1,
-    progress: Callable[[int, int], None] | None = None,
-    judge: StageJudge | None = None,
-    bias_judge: StageJudge | None = None,
-) -> DarkStacks:
-    """The file step of the dark stage: list the frames, group the darks by exposure time, combine each group
-    and the bias frames (:func:`camcal.calibrate.stack.combine_frames`), check sizes, patterns and ISO.
-
-    Parameters
-    ----------
-    dark, bias : folders or the session index's :class:`camcal.calibrate.session.StageFrames`.
-    options : the combination method and the saturation limit of the frame check (:func:`dark_frame_check`).
-    jobs, progress : as for :func:`camcal.calibrate.stack.combine_frames` (``progress`` counts the frames of all
-    stacks).
-    judge, bias_judge : the dark and bias stages' :class:`camcal.calibrate.screen.StageJudge`: each frame is judged as
-    it
-        is stacked, and the rules that follow from what is left out (:func:`_exposure_time_rules`; an exposure
-        time whose frames are all left out is as if never taken; every bias frame left out is as without bias
-        frames; a bias-only model needs two frames) are applied to the frames used. Without a judge a frame that
-        cannot be used is an error (:class:`camcal.calibrate.screen.StrictJudge`), and the exposure-time rules are
-        applied to the files before any is decoded.
-
-    Returns
-    -------
-    DarkStacks
-
-    Raises
-    ------
-    CamcalError
-        Non-RAW or saturated frames, frames of different sizes/patterns/ISO, a single dark
-        exposure time without bias frames, fewer than two frames for a bias-only model, missing exposure times.
-    """
-    if options.method not in METHODS:
-        raise CamcalError(f"unknown combination method {options.method!r}; choose from {', '.join(METHODS)}")
-    check = dark_frame_check(options.saturation_fraction)
-    if dark is None:
-        if bias is None:
-            raise CamcalError("the dark model needs dark frames, bias frames or both")
-        files, manifest = stage_files(bias)
-        bias_folder = folder_of(bias)
-        st = combine_frames(files, StackOptions("mean", jobs=jobs, keep_frames=QUANTISED_FIT_FRAMES),
-                            manifest=manifest, check=check, progress=progress, rule=bias_judge)
-        if st.n_frames < 2:
-            raise TooFewFrames("bias", "frames (a bias-only calibration measures the read noise between frames)",
-                               2, st.n_frames, path=bias_folder)
-        _check_stacks([st], bias_folder)
-        return DarkStacks((), st, None, bias_folder, (), tuple(p.name for p in st.paths))
-    files, manifest = stage_files(dark)
-    bias_files, bias_manifest = stage_files(bias) if bias is not None else ([], {})
-    refuse_shared_frames(files, bias_files)  # before any frame is left out: a copy is refused, not set aside
-    times = _exposure_times(dark, files, manifest)
-    dark_folder = folder_of(dark)
-    bias_folder = folder_of(bias) if bias is not None else None
-    groups: dict[float, list[Path]] = {}
-    for p, t in zip(files, times, strict=True):
-        groups.setdefault(float(f"{t:.6g}"), []).append(p)
-    left_out: tuple[tuple[str, str], ...] = ()
-    if judge is None:  # no dark frame is left out by judging: the rules hold for the files, none decoded yet
-        groups, left_out = _exposure_time_rules(groups, bias is not None, dark_folder)
-    total = sum(len(g) for g in groups.values()) + len(bias_files)
-    bias_stack = None
-    if bias_files:
-        try:
-            bias_stack = combine_frames(bias_files, StackOptions("mean", jobs=jobs, keep_frames=QUANTISED_FIT_FRAMES),
-                                        manifest=bias_manifest, check=check,
-                                        progress=_progress_from(progress, 0, total), rule=bias_judge)
-        except TooFewFrames:  # every bias frame left out: as without bias frames
-            bias_folder = None
-    while True:
-        darks: list[tuple[float, StackResult]] = []
-        done = len(bias_files)
-        superseded = len(judge.superseded) if judge is not None else 0
-        for t in sorted(groups):
-            # the read-noise stack (the shortest exposure time with two frames or more) keeps its first frames
-            keep = QUANTISED_FIT_FRAMES if bias_stack is None and not any(s.n_frames > 1 for _, s in darks) else 0
-            try:
-                st = combine_frames(groups[t], StackOptions(options.method, options.sigma, jobs, keep_frames=keep,
-                                                            statistics=DARK_STATISTICS),
-                                    manifest=manifest, check=check, progress=_progress_from(progress, done, total),
-                                    rule=judge)
-                darks.append((t, st))
-            except TooFewFrames:  # every frame at this time left out: as if never taken
-                pass
-            done += len(groups[t])
-        used = {p for _, st in darks for p in st.paths}
-        # a copy stacked at one exposure time, its original (first in file order) found at a later one: stacked
-        # again with the verdicts fixed (rare: a copy given another exposure time than its original)
-        if judge is None or not used & set(judge.superseded[superseded:]):
-            break
-    if not used:
-        n = sum(len(g) for g in groups.values())
-        raise TooFewFrames("dark", "frames", 1, 0, f"all {n} left out", dark_folder)
-    kept, lone = _exposure_time_rules({t: list(st.paths) for t, st in darks}, bias_folder is not None, dark_folder)
-    darks = [(t, st) for t, st in darks if t in kept]
-    used = {p for g in kept.values() for p in g}
-    _check_stacks([s for _, s in darks] + ([bias_stack] if bias_stack is not None else []), dark_folder)
-    return DarkStacks(tuple(darks), bias_stack, dark_folder, bias_folder, tuple(p.name for p in files if p in used),
-                      tuple(p.name for p in bias_stack.paths) if bias_stack is not None else (), left_out + lone)
-
-
-def fit_dark(
-    dark_folder: str | Path | StageFrames | None,
-    bias_folder: str | Path | StageFrames | None = None,
-    *,
-    method: str = "sigma_clip",
-    sigma: float = 3.0,
-    hot_sigma: float = 6.0,
-    hot_factor: float = 5.0,
-    noisy_sigma: float = 6.0,
-    saturation_fraction: float = 0.01,
-    bias_prior_frames: float = 1.0,
-    jobs: int | None = 1,
-    progress: Callable[[int, int], None] | None = None,
-) -> DarkModel:
-    """Fit the dark model from dark frames (and optionally bias frames): :func:`stack_darks` (files), then
-    :func:`fit_dark_stacks` (maths).
-
-    Parameters
-    ----------
-    dark_folder : folder (or the session index's :class:`camcal.calibrate.session.StageFrames`) of RAW dark
-        frames at two or more exposure times (one is enough with bias frames), with an optional
-        ``frames.csv`` (``exposure_s``, ``iso``, ``temperature_C``...); None for a bias-only
-        calibration (bias, read noise and noisy pixels; the dark current
-        is then unknown, ``dark_current_dn_per_s`` None).
-    bias_folder : folder of RAW bias frames (shortest exposure, no light), optional.
-    method, sigma, hot_sigma, hot_factor, noisy_sigma, saturation_fraction, bias_prior_frames :
-        see :class:`DarkOptions`.
-    jobs : decoding threads (:func:`camcal.threads.thread_count`).
-    progress : ``progress(done, total)`` over all frames.
-
-    Raises
-    ------
-    CamcalError
-        Non-RAW or saturated frames, frames of different sizes/patterns/ISO, a single dark
-        exposure time without bias frames, missing exposure times.
-    """
-    options = DarkOptions(method, sigma, hot_sigma, hot_factor, noisy_sigma, saturation_fraction, bias_prior_frames)
-    return fit_dark_stacks(stack_darks(dark_folder, bias_folder, options, jobs=jobs, progress=progress), options)
-
-
-def fit_dark_stacks(stacks: DarkStacks, options: DarkOptions = DarkOptions(),  # noqa: B008
+def fit_dark(stacks: DarkStacks, options: DarkOptions = DarkOptions(),  # noqa: B008
                     *, jobs: int | None = None) -> DarkModel:
     """Fit the dark model to combined dark (and bias) frames: pure, no file is read.
 
@@ -452,7 +75,7 @@ def fit_dark_stacks(stacks: DarkStacks, options: DarkOptions = DarkOptions(),  #
     stack_list = list(stacks.darks)
     ref = stack_list[0][1]
     method, sigma = options.method, options.sigma
-    iso = _same_iso([s for _, s in stack_list] + ([bias_stack] if bias_stack is not None else []),
+    iso = same_iso([s for _, s in stack_list] + ([bias_stack] if bias_stack is not None else []),
                     stacks.dark_folder)  # type: ignore[arg-type]
     black = np.asarray(ref.black_level_dn, np.float64)[:, None, None]
     white = ref.white_level_dn
@@ -475,7 +98,7 @@ def fit_dark_stacks(stacks: DarkStacks, options: DarkOptions = DarkOptions(),  #
     # photon-transfer line of the dark signal (EMVA 1288 §4.3: dark current from mean and variance),
     # g the system gain in DN per electron, v0 the read-noise variance.
     dark_stats = [(t, st) for t, st in stack_list] + ([(0.0, bias_stack)] if bias_stack is not None else [])
-    noise_v0, noise_gain = _noise_model(dark_stats, b, jobs)
+    noise_v0, noise_gain = noise_model(dark_stats, b, jobs)
     v0_full, g_full = (np.broadcast_to(a, b.shape) for a in (noise_v0, noise_gain))
     black_full = np.broadcast_to(black, b.shape)
 
@@ -507,7 +130,7 @@ def fit_dark_stacks(stacks: DarkStacks, options: DarkOptions = DarkOptions(),  #
         hot_k |= beta[k] > np.float64(thresh)  # compared in float64, not at the threshold rounded to float32
         np.multiply(hot_k, np.uint8(HOT), out=defects[k])
 
-    _run_planes(hot, beta.shape[0], jobs, beta[0].size)
+    run_planes(hot, beta.shape[0], jobs, beta[0].size)
     noise = temporal_noise(rn_stack, var_t, defects, noisy_sigma, jobs)
     np.bitwise_or(defects, np.uint8(NOISY), out=defects, where=noise.noisy)
     read_noise = noise.read_noise_map_dn
@@ -561,186 +184,12 @@ def fit_dark_stacks(stacks: DarkStacks, options: DarkOptions = DarkOptions(),  #
 
 #: Below this temporal standard deviation (DN) the quantisation of the data is not a small correction:
 #: read noise and DSNU come from a quantised-normal likelihood of frame pairs instead of ``var - 1/12``.
-SUB_DN_NOISE = 1.0
-
-#: Frames of the read-noise stack used for the quantised-normal fit (consecutive pairs).
-QUANTISED_FIT_FRAMES = 4
-
-
-@dataclass(frozen=True)
-class TemporalNoise:
-    """Temporal noise of the read-noise stack (bias frames, or the shortest darks), per plane.
-
-    Attributes
-    ----------
-    temporal_noise_dn : (C,) standard deviation of the recorded values, DN (quantisation included; the
-        per-pixel temporal variance averaged over good pixels, as numpy measures it).
-    read_noise_dn : (C,) read noise with the quantisation removed, DN (NaN where not computed here).
-    dsnu_dn : (C,) spatial spread of the per-pixel means from the quantised fit, DN (NaN elsewhere).
-    quantised : (C,) bool, True where the quantised-normal fit was used (temporal noise < 1 DN).
-    noisy : (C, h, w) bool, temporal variance far above the plane's model variance.
-    read_noise_map_dn : (C, h, w) float32 per-pixel read noise, DN (computed in float64, stored as the dark
-        model stores it).
-    method : how the read noise was obtained.
-    """
-
-    temporal_noise_dn: np.ndarray
-    read_noise_dn: np.ndarray
-    dsnu_dn: np.ndarray
-    quantised: np.ndarray
-    noisy: np.ndarray
-    read_noise_map_dn: np.ndarray
-    method: str
-
-
-def quantised_noise_fit(first: np.ndarray, second: np.ndarray, eps: float = 1e-4) -> tuple[float, float, float]:
-    """Read noise of integer data below ~1 DN from two frames of one plane (quantised-normal likelihood).
-
-    Each pixel records ``k_f = round(μ + o_f + σ·z_f)`` in frame f: μ its own mean (spread over the plane as a
-    normal distribution of standard deviation ``dsnu``), o_f a frame offset (jitter) and z_f standard normal.
-    The joint histogram of the pairs (k_1, k_2) is fitted by maximum likelihood of this model (cell
-    probabilities integrated exactly over the rounding with the normal CDF :func:`scipy.special.ndtr`, and over μ
-    by the trapezoid rule on ±8 dsnu in steps of at most σ/3 at the start values: a fixed Gauss–Hermite rule
-    does not resolve the 1 DN cells once dsnu ≫ σ), with a small uniform outlier weight ``eps``, minimised by the
-    Nelder–Mead simplex (:func:`scipy.optimize.minimize`, ``method="Nelder-Mead"``). This is right where
-    ``var − 1/12`` (Sheppard's correction, EMVA 1288 eq. 4) is not: when σ and the spread of the pixel means are
-    both below ~0.5 DN, so that the fractional parts of μ are not uniform (a 10-bit IMX296 at black level 60:
-    σ ≈ 0.38 DN, while ``var − 1/12`` gives 0.35–0.38 and the raw temporal standard deviation 0.45–0.48).
-
-    Parameters
-    ----------
-    first, second : integer arrays of the same pixels (defects removed), DN.
-
-    Returns
-    -------
-    sigma_dn, dsnu_dn, offset_dn (second − first).
-    """
-    k1 = np.asarray(first).astype(np.int64).ravel()
-    k2 = np.asarray(second).astype(np.int64).ravel()
-    lo, hi = np.quantile(np.concatenate([k1, k2]), [2e-4, 1 - 2e-4])
-    lo, hi = int(np.floor(lo)), int(np.ceil(hi))
-    keep = (k1 >= lo) & (k1 <= hi) & (k2 >= lo) & (k2 <= hi)
-    k1, k2 = k1[keep] - lo, k2[keep] - lo
-    n = hi - lo + 1
-    hist = np.bincount(k1 * n + k2, minlength=n * n).reshape(n, n).astype(np.float64)
-    edges = np.arange(n + 1, dtype=np.float64) - 0.5
-    m0 = float(k1.mean())
-    d = (k2 - k1).astype(np.float64)
-    s0 = max(float(np.sqrt(max(d.var() / 2 - 1 / 12, 0.01))), 0.05)
-    # the spread of the pair means from their central 95 % (±1.96 standard deviations): far hot pixels, which the
-    # outlier weight carries, would otherwise start the fit at a dsnu of tens of DN, in the wrong minimum
-    q_lo, q_hi = np.quantile(0.5 * (k1 + k2), [0.025, 0.975])
-    spread = float(q_hi - q_lo) / 3.92
-    sd0 = max(float(np.sqrt(max(spread**2 - s0**2 / 2 - 1 / 24, 0.0025))), 0.05)
-    # μ = m + dsnu·z on z in [-8, 8]: 16·dsnu/(nodes − 1) <= σ/3 at the start; the normal weights are 1e-14 at the
-    # ends, so their plain sum is the trapezoid rule
-    nodes = np.linspace(-8.0, 8.0, min(max(49, int(np.ceil(48.0 * spread / s0)) + 1), 4001))
-    weights = np.exp(-0.5 * nodes**2)
-    weights /= weights.sum()
-
-    def nll(p: np.ndarray) -> float:
-        m, o, lsd, ls = p
-        sd, sg = np.exp(lsd), np.exp(ls)
-        mu = m + sd * nodes
-        cdf = ndtr(np.stack([(edges[None, :] - mu[:, None]) / sg, (edges[None, :] - (mu[:, None] + o)) / sg]))
-        p1, p2 = np.diff(cdf[0], axis=1), np.diff(cdf[1], axis=1)  # one ndtr call: half the numpy overhead
-        prob = np.einsum("q,qi,qj->ij", weights, p1, p2)
-        prob = (1 - eps) * prob + eps / (n * n)
-        return -float(np.sum(hist * np.log(prob)))
-
-    res = minimize(nll, [m0, float(d.mean()), np.log(sd0), np.log(s0)], method="Nelder-Mead",
-                   options={"xatol": 1e-5, "fatol": 1e-4, "maxiter": 4000})
-    _, o, lsd, ls = res.x
-    return float(np.exp(ls)), float(np.exp(lsd)), float(o)
-
-
-def temporal_noise(stack: StackResult, var_t: np.ndarray, defects: np.ndarray, noisy_sigma: float,
-                   jobs: int | None = 1) -> TemporalNoise:
-    """Temporal noise, noisy pixels and the read-noise map of the read-noise stack (quantisation-aware).
-
-    Per plane, the model variance v̂ is the mean per-pixel temporal variance over good pixels (the top 0.1 %
-    left out). A pixel is *noisy* when its variance exceeds v̂ by more than the chi-square bound a normal pixel
-    passes with probability 1e-6 and by ``noisy_sigma`` standard errors of a variance (√(2/dof)); the chi-square
-    quantile is ``scipy.stats.chi2.isf``. A zero temporal variance is not a defect: below 1 DN of noise
-    most pixels read one value in every frame. Where the temporal noise is below :data:`SUB_DN_NOISE`, the read
-    noise is :func:`quantised_noise_fit` of consecutive frame pairs (the first :data:`QUANTISED_FIT_FRAMES`
-    frames of the stack, ``stack.kept_planes``), else ``√(var − 1/12)``. The planes run in ``jobs`` threads.
-    """
-    c = var_t.shape[0]
-    dof = float(np.median(stack.count)) - 1.0
-    rn_map = np.empty(var_t.shape, np.float32)
-    bound = 1.0
-    if dof >= 1:
-        bound = max(float(chi2.isf(1e-6, dof)) / dof, 1.0 + noisy_sigma * math.sqrt(2.0 / dof))
-    temporal = np.zeros(c)
-    noisy = np.zeros(var_t.shape, bool)
-
-    def plane(k: int) -> None:
-        # in float64 (``var_t`` may be float32 as stacked): converted after the selection, the same values
-        v = np.asarray(var_t[k][(defects[k] == 0) & np.isfinite(var_t[k])], np.float64)
-        if v.size == 0:
-            raise CamcalError(f"plane {stack.channel_names[k]} has no pixel to measure the temporal noise on",
-                              stack.paths[0] if stack.paths else None)
-        v = v[v <= np.quantile(v, 0.999)] if v.size > 1000 else v
-        vhat = float(np.mean(v))
-        temporal[k] = math.sqrt(vhat)
-        if dof >= 1 and vhat > 0:
-            np.greater(var_t[k], np.float64(vhat * bound), out=noisy[k])  # compared in float64
-        rn = np.subtract(var_t[k], QUANTISATION_VAR_DN2, dtype=np.float64)  # then max(·, 0) and √ in place
-        np.maximum(rn, 0.0, out=rn)
-        rn_map[k] = np.sqrt(rn, out=rn)
-
-    _run_planes(plane, c, jobs, var_t[0].size)
-    read = np.full(c, np.nan)
-    dsnu = np.full(c, np.nan)
-    quantised = temporal < SUB_DN_NOISE
-    method = "per-pixel temporal variance minus the quantisation variance 1/12 DN² (EMVA 1288 eq. 4)"
-    if quantised.any():
-        if len(stack.paths) < 2:
-            raise CamcalError("the read noise needs two or more frames of one exposure",
-                              stack.paths[0] if stack.paths else None)
-        frames = list(stack.kept_planes[:QUANTISED_FIT_FRAMES])  # kept by combine_frames: no second decode
-        if len(frames) < 2:
-            raise ValueError("the read-noise stack must keep its first frames (combine_frames(keep_frames=...))")
-        sig = np.zeros((c, len(frames) - 1))
-        sds = np.zeros((c, len(frames) - 1))
-        for k in np.flatnonzero(quantised):
-            good = (defects[k] == 0) & ~noisy[k]
-            for j in range(len(frames) - 1):
-                sig[k, j], sds[k, j], _ = quantised_noise_fit(frames[j][k][good], frames[j + 1][k][good])
-            read[k] = float(np.mean(sig[k]))
-            dsnu[k] = float(np.mean(sds[k]))
-            rn_map[k] = np.where(noisy[k], rn_map[k], read[k])
-        method = (f"quantised-normal likelihood of {len(frames) - 1} frame pair(s) in planes "
-                  f"{', '.join(stack.channel_names[k] for k in np.flatnonzero(quantised))} (temporal noise below "
-                  f"{SUB_DN_NOISE:g} DN); elsewhere " + method)
-    return TemporalNoise(temporal, read, dsnu, quantised, noisy, rn_map, method)
-
-
-def fit_bias(
-    bias_folder: str | Path | StageFrames,
-    *,
-    hot_sigma: float = 6.0,
-    noisy_sigma: float = 6.0,
-    saturation_fraction: float = 0.01,
-    jobs: int | None = 1,
-    progress: Callable[[int, int], None] | None = None,
-) -> DarkModel:
-    """A bias-only dark model: bias, read noise, DSNU and noisy pixels; dark current unknown (None).
-
-    Two frames are enough. ``hot_sigma`` is recorded but hot pixels need dark frames (their dark
-    current), so none are flagged; :mod:`camcal.apply.photo` then subtracts the bias only and says so.
-    :func:`stack_darks` (files), then :func:`fit_dark_stacks` (maths).
-    """
-    options = DarkOptions(hot_sigma=hot_sigma, noisy_sigma=noisy_sigma, saturation_fraction=saturation_fraction)
-    return fit_dark_stacks(stack_darks(None, bias_folder, options, jobs=jobs, progress=progress), options)
-
 
 def _fit_bias_stack(st: StackResult, bias_folder: Path | None, options: DarkOptions) -> DarkModel:
-    """The bias-only model of averaged bias frames (see :func:`fit_bias`); pure."""
+    """The bias-only model of averaged bias frames (:func:`fit_dark` of a measurement without darks); pure."""
     hot_sigma, noisy_sigma, saturation_fraction = options.hot_sigma, options.noisy_sigma, options.saturation_fraction
     files = st.paths
-    iso = _same_iso([st], bias_folder)  # type: ignore[arg-type]
+    iso = same_iso([st], bias_folder)  # type: ignore[arg-type]
     var_t = st.variance  # float32 as stacked; converted to float64 where used
     defects = np.zeros(var_t.shape, np.uint8)
     noise = temporal_noise(st, var_t, defects, noisy_sigma)
@@ -789,6 +238,7 @@ def _fit_bias_stack(st: StackResult, bias_folder: Path | None, options: DarkOpti
             "dark_current": "unknown: no dark frames (bias-only calibration); apply subtracts the bias only",
         },
     )
+
 
 
 FIT_BAND_PIXELS = 1 << 16
@@ -919,65 +369,6 @@ def _fit_lines(obs, white: float, *, variance: Callable[[np.ndarray, tuple], np.
     return beta, beta_var, b, b_var, n_times
 
 
-def _noise_model(stats: list[tuple[float, StackResult]], b: np.ndarray,
-                 jobs: int | None = 1) -> tuple[np.ndarray, np.ndarray]:
-    """Per-plane line ``variance = v0 + g · signal`` through the stacks' mean dark signal and variance.
-
-    Returns v0 (DN²) and g (DN per electron), both shaped (C, 1, 1). Pixels more than 5x the
-    median variance (hot, noisy) are left out of the plane means. The planes run in ``jobs`` threads.
-    """
-    c = b.shape[0]
-    v0 = np.zeros((c, 1, 1))
-    g = np.zeros((c, 1, 1))
-
-    def plane(k: int) -> None:
-        xs, ys = [], []
-        b_ok = np.isfinite(b[k])
-        for _t, st in stats:
-            var = (st.variance_all if st.variance_all is not None else st.variance)[k]  # float32 as stacked
-            ok = np.isfinite(var) & b_ok
-            # hot and noisy pixels out: above 5x the median, or (quantised data below 1 DN of noise, whose
-            # median variance is often 0) above 5x the mean; the means and the median in float64
-            v = np.asarray(var[ok], np.float64)  # in raster order; _max_median_mean keeps that order
-            thr = np.float64(5 * _max_median_mean(v))
-            below = v < thr  # compared in float64, as ``var < thr`` promotes the float32 variances
-            ok &= var < thr
-            if not ok.any():
-                raise CamcalError(f"the dark frames at {_t:g} s show no temporal noise at all",
-                                  st.paths[0].parent if st.paths else None)
-            # plane means over the kept pixels as masked float64 sums: no whole-plane float64 copy (48 MB at 24 MP)
-            xs.append(float((np.sum(st.value[k], where=ok, dtype=np.float64)
-                             - np.sum(b[k], where=ok, dtype=np.float64))
-                            / np.count_nonzero(ok)))
-            ys.append(float(np.mean(v, where=below)))  # the values of var[ok] below the cut
-        if len(xs) >= 2 and np.ptp(xs) > 0:
-            slope, icpt = np.polyfit(xs, ys, 1)
-            g[k], v0[k] = max(slope, 0.0), max(icpt, 1e-6)
-        else:
-            v0[k] = max(ys[0], 1e-6)
-
-    _run_planes(plane, c, jobs, b[0].size)
-    return v0, g
-
-
-def _max_median_mean(x: np.ndarray) -> float:
-    """``max(median(x), mean(x))`` of a 1-D float64 array (``x`` is not modified).
-
-    When at least ``n // 2 + 1`` values lie at or below the mean, both middle order statistics do, so the median
-    is at most the mean and the maximum is the mean: one comparison instead of a selection (a skewed variance
-    distribution, the usual case, takes this path). Otherwise :func:`numpy.median`. Exact either way.
-    """
-    mean = float(np.mean(x))
-    if np.count_nonzero(x <= mean) >= x.size // 2 + 1:
-        return mean
-    return max(float(median(x)), mean)
-
-
-def _run_planes(one: Callable[[int], object], c: int, jobs: int | None, plane_pixels: int) -> list:
-    """``[one(k) for k in range(c)]`` in ``jobs`` threads (:func:`camcal.threads.thread_count`), in plane order."""
-    return thread_map(one, range(c), thread_count(jobs, c, plane_pixels), "camcal-dark-plane")
-
-
 def _channel_summary(b, b_var, beta, beta_var, var_t, defects, stacks, have_bias: bool, gain,
                      noise: TemporalNoise, names: tuple[str, ...], jobs: int | None = 1) -> dict:
     """Per-plane figures of the dark model (the planes in ``jobs`` threads)."""
@@ -1020,5 +411,5 @@ def _channel_summary(b, b_var, beta, beta_var, var_t, defects, stacks, have_bias
             "noisy_pixel_count": int(np.count_nonzero(defects[k] & NOISY)),
         }
 
-    return dict(zip(names, _run_planes(plane, len(names), jobs, b[0].size), strict=True))
+    return dict(zip(names, run_planes(plane, len(names), jobs, b[0].size), strict=True))
 

@@ -20,7 +20,8 @@ from pathlib import Path
 
 from camcal import __version__
 from camcal.calibrate.colour_matrix import fit_colour_matrix, twin_pairs
-from camcal.calibrate.dark import DarkOptions, dark_frame_check, fit_dark_stacks, stack_darks
+from camcal.calibrate.dark import fit_dark
+from camcal.calibrate.dark_frames import DarkOptions, dark_frame_check, measure_dark
 from camcal.calibrate.emva import Nonuniformity, build_sheet, dark_noise_stacks
 from camcal.calibrate.emva_standard import prnu_1288_planes
 from camcal.calibrate.flat import (
@@ -491,14 +492,14 @@ def calibrate_session(
         def fit_darks():
             nonlocal dark_noise
             with run.judging("bias", "dark"):
-                stacks = stack_darks(run.index.frames["dark"], bias_frames, dark_opts, jobs=opts.jobs,
+                stacks = measure_dark(run.index.frames["dark"], bias_frames, dark_opts, jobs=opts.jobs,
                                      progress=cb("dark"), judge=dark_judge, bias_judge=bias_judge)
             record.leave_out([Verdict("dark", name, reason) for name, reason in stacks.left_out])
             dark_noise = dark_noise_stacks(stacks.darks, stacks.bias)  # the sheet's, even if the fit fails
             # the fit reads no stack's unclipped mean: all but the DSNU stack's (which dark_noise holds) go now,
             # 96 MB each at 24 MP off the fit's peak
             stacks = replace(stacks, darks=tuple((t, replace(st, mean_all=None)) for t, st in stacks.darks))
-            return fit_dark_stacks(stacks, dark_opts, jobs=opts.jobs)
+            return fit_dark(stacks, dark_opts, jobs=opts.jobs)
 
         dark = record.attempt("dark", fit_darks, left_out=dark_judge is not None)
         if bias_frames is not None and bias_judge is not None and not run.index.frames["bias"].frames:
@@ -508,10 +509,10 @@ def calibrate_session(
         def fit_bias():
             nonlocal dark_noise
             with run.judging("bias"):
-                stacks = stack_darks(None, run.index.stage("bias"), jobs=opts.jobs, progress=cb("bias"),
+                stacks = measure_dark(None, run.index.stage("bias"), jobs=opts.jobs, progress=cb("bias"),
                                      bias_judge=bias_judge)
             dark_noise = dark_noise_stacks(stacks.darks, stacks.bias)
-            return fit_dark_stacks(stacks, jobs=opts.jobs)
+            return fit_dark(stacks, jobs=opts.jobs)
 
         dark = record.attempt("bias", fit_bias, left_out=bias_judge is not None)
         if dark is not None:

@@ -8,6 +8,7 @@ import typer
 from rich.table import Table
 
 from camcal.calibrate.dark import fit_dark
+from camcal.calibrate.dark_frames import DarkOptions, measure_dark
 from camcal.cli.common import console, print_json, progress
 from camcal.errors import CamcalError
 from camcal.frame import PLANES
@@ -44,7 +45,8 @@ def register(app: typer.Typer) -> None:
             def cb(done: int, total: int) -> None:
                 bar.update(task, completed=done, total=total)
 
-            model = fit_dark(dark, bias, method=method, sigma=sigma, jobs=jobs, progress=cb)
+            options = DarkOptions(method, sigma)
+            model = fit_dark(measure_dark(dark, bias, options, jobs=jobs, progress=cb), options)
         save_dark(model, output)
         summary = model.summary()
         if as_json:
