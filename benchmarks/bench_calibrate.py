@@ -90,7 +90,7 @@ def prepare(width: int, height: int) -> Path:
 
 
 def files(session: Path) -> list[Path]:
-    from camcal.io.read import list_frames
+    from camcal.io.folders import list_frames
 
     return [p for d in sorted(session.iterdir()) if d.is_dir() for p in list_frames(d)]
 

@@ -14,8 +14,8 @@ from camcal.calibrate.flat import DEFAULT_TERMS, FlatChecks, FlatOptions, fit_fl
 from camcal.calibrate.session import StageFrames
 from camcal.calibrate.stack import StackOptions, StackResult, combine_frames
 from camcal.errors import CamcalError
+from camcal.io.folders import folder_files, load_folder_frame
 from camcal.io.manifest import _read_session_toml
-from camcal.io.read import folder_files, load_folder_frame
 from camcal.io.store import load_stage
 from camcal.models.correct import Calibration, correct_planes
 from camcal.models.dark import DarkModel, as_dark_model

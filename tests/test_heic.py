@@ -23,7 +23,8 @@ from camcal.calibrate.inspect import describe
 from camcal.calibrate.response import fit_response
 from camcal.errors import CamcalError
 from camcal.io.exr import read_exr
-from camcal.io.read import is_raw_path, load_frame
+from camcal.io.kinds import is_raw_path
+from camcal.io.read import load_frame
 from camcal.models.profile import load_profile, save_profile
 from camcal.models.spectra import WAVELENGTHS_NM, gaussian_line
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera

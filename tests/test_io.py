@@ -157,7 +157,7 @@ def test_read_ahead_keeps_order_bounds_frames_in_flight_and_raises_in_turn(tmp_p
     import threading
     import time
 
-    from camcal.io.read import read_ahead
+    from camcal.io.folders import read_ahead
 
     paths = []
     for i in range(6):

@@ -58,8 +58,10 @@ from camcal.errors import CamcalError
 from camcal.io.allocator import use_frame_allocator
 from camcal.io.atomic import atomic_write_text, clear_stale, remove_pending
 from camcal.io.exr import read_exr, read_exr_header, write_exr
+from camcal.io.folders import folder_manifest, list_frames
+from camcal.io.kinds import is_raw_path
 from camcal.io.manifest import exposure_overrides
-from camcal.io.read import exposure_from_exif, folder_manifest, is_raw_path, list_frames, load_frame
+from camcal.io.read import exposure_from_exif, load_frame
 from camcal.models.camera_id import Sensor, could_match, sensor_of_profile
 from camcal.models.profile import load_profile
 from camcal.region import Region

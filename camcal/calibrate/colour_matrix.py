@@ -29,7 +29,9 @@ import numpy as np
 
 from camcal.calibrate.session import StageFrames, folder_of
 from camcal.errors import CamcalError
-from camcal.io.read import is_raw_path, list_frames, load_frame
+from camcal.io.folders import list_frames
+from camcal.io.kinds import is_raw_path
+from camcal.io.read import load_frame
 from camcal.models.correct import Calibration, correct_frame
 from camcal.models.response import ColourMatrix
 from camcal.region import DEFAULT_ROI_FRACTION, central_roi

@@ -56,7 +56,7 @@ from camcal.calibrate.session import StageFrames, aperture_folders, folder_of, s
 from camcal.calibrate.stack import StackOptions, combine_frames
 from camcal.errors import CamcalError
 from camcal.frame import PLANES, Exposure, Frame
-from camcal.io.read import list_frames
+from camcal.io.folders import list_frames
 from camcal.models.blocks import auto_downsample, block_mean
 from camcal.models.correct import Calibration, correct_frame, require_valid
 from camcal.models.dark import DarkModel, as_dark_model

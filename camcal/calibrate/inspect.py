@@ -7,8 +7,9 @@ from pathlib import Path
 from camcal.calibrate.session import STAGES, index_session
 from camcal.errors import CamcalError
 from camcal.frame import PLACE_TIME, TRACKED
+from camcal.io.folders import folder_manifest
 from camcal.io.manifest import exposure_overrides
-from camcal.io.read import folder_manifest, load_frame, saturated_fraction
+from camcal.io.read import load_frame, saturated_fraction
 from camcal.io.sun import SunPosition, photo_time_utc, sun_from_metadata
 
 SUN_KEYS = ("zenith_deg", "azimuth_deg", "apparent_zenith_deg", "source")

@@ -55,7 +55,7 @@ from camcal.calibrate.emva import linearity_error, pair_statistics
 from camcal.calibrate.screen import StageJudge
 from camcal.calibrate.session import StageFrames, folder_of, stage_files
 from camcal.errors import CamcalError, TooFewFrames
-from camcal.io.read import load_folder_frame, read_ahead
+from camcal.io.folders import load_folder_frame, read_ahead
 from camcal.models.correct import Calibration, DarkFrameModel, correct_planes
 from camcal.models.exposure import relative_exposure
 from camcal.models.response import (

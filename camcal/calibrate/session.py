@@ -22,8 +22,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from camcal.errors import CamcalError, MissingMetadataError
+from camcal.io.folders import folder_files, folder_manifest, list_frames
+from camcal.io.kinds import IMAGE_EXTENSIONS, is_raw_path
 from camcal.io.manifest import FRAMES_CSV, exposure_overrides, read_manifest, session_defaults_for
-from camcal.io.read import IMAGE_EXTENSIONS, exposure_from_exif, folder_files, folder_manifest, is_raw_path, list_frames
+from camcal.io.read import exposure_from_exif
 from camcal.models.flat import same_f_number
 
 STAGES = ("bias", "dark", "flat", "linearity", "sweep")
@@ -320,7 +322,7 @@ def _check(index: SessionIndex) -> None:
 
 def stage_files(source: str | Path | StageFrames) -> tuple[list[Path], dict[str, Row]]:
     """The image files of a stage and their manifest rows: from a :class:`StageFrames` as indexed, or read
-    from a folder (:func:`camcal.io.read.folder_files`) for callers that hold only a path."""
+    from a folder (:func:`camcal.io.folders.folder_files`) for callers that hold only a path."""
     if isinstance(source, StageFrames):
         return source.paths, dict(source.manifest)
     return folder_files(source)

@@ -46,7 +46,7 @@ from camcal.calibrate.spill import (
 from camcal.errors import CamcalError, TooFewFrames
 from camcal.frame import PLANES, Exposure, Frame, plane_offsets, split_planes
 from camcal.io.atomic import scratch_fd
-from camcal.io.read import folder_manifest, load_folder_frame
+from camcal.io.folders import folder_manifest, load_folder_frame
 from camcal.threads import thread_count
 
 METHODS = ("mean", "median", "sigma_clip")
@@ -336,7 +336,7 @@ def combine_frames(
     options : :class:`StackOptions` (method, sigma, threads, band budget, spill folder, kept frames, statistics).
     preprocess : ``Frame -> (C, h, w)`` float32 array; default :meth:`Frame.planes`
         (raw: R, G1, G2, B planes in DN; processed: R, G, B).
-    manifest : ``frames.csv`` rows (:func:`camcal.io.read.folder_manifest`) applied to every file;
+    manifest : ``frames.csv`` rows (:func:`camcal.io.folders.folder_manifest`) applied to every file;
         None reads each file's own folder manifest.
     check : called with each decoded frame that is kept; raise :class:`CamcalError` to refuse it (an error
         whatever the rule).

@@ -1,34 +1,26 @@
-"""Reading frames: RAW through rawpy (LibRaw), JPEG/TIFF/PNG through OpenImageIO, HEIC/HEIF through
-pillow-heif (libheif).
+"""Decoding frames: RAW through rawpy (LibRaw), JPEG/TIFF/PNG through OpenImageIO, HEIC/HEIF through pillow-heif
+(libheif), FITS through astropy; headers read without decoding.
 
-HEIC/HEIF photos (a phone's default format) are processed images like JPEG: R, G, B of 8 bits, or of
-10 or 12 bits held in uint16 (white level 2**bits − 1); the embedded ICC profile's description is noted
-on the frame (iPhones write Display P3), not applied. Their EXIF block, taken out by libheif, is read by
-the same EXIF reader as every other file.
-
-Where and when (:data:`camcal.frame.PLACE_TIME`), from the EXIF of RAW, JPEG and HEIC alike, each marked
-``tag``: OffsetTimeOriginal (the clock's zone), the GPS block's position and altitude, and its UTC
-GPSDateStamp + GPSTimeStamp. A position of exactly 0°, 0° (written by receivers without a fix), a
-reference letter that is missing, and a GPS time without a date are unknown, with a note. A
-``utc_offset`` in ``session.toml`` fills an offset the file does not hold (marked ``session``).
+HEIC/HEIF photos (a phone's default format) are processed images like JPEG: R, G, B of 8 bits, or of 10 or 12 bits
+held in uint16 (white level 2**bits − 1); the embedded ICC profile's description is noted on the frame (iPhones
+write Display P3), not applied.
 
 Exposure metadata, each value with its source (:data:`camcal.frame.SOURCES`):
 
-1. the file's tags, read by an EXIF reader (exifread; for processed images also the
-   OpenImageIO spec). A tag that is present but holds zero or nothing is *unknown*;
-2. for RAW files, LibRaw's value where no tag holds one (e.g. a maker header that only
-   LibRaw decodes), marked ``libraw``; LibRaw's placeholders for zero tags (shutter 1 s,
-   f/1, the 1970 timestamp) are never used. Where LibRaw and the tag disagree, a note says so;
+1. the file's tags (:mod:`camcal.io.exif`; for processed images also the OpenImageIO spec). A tag that is present
+   but holds zero or nothing is *unknown*;
+2. for RAW files, LibRaw's value where no tag holds one (e.g. a maker header that only LibRaw decodes), marked
+   ``libraw`` (:func:`camcal.io.exif.reconcile_libraw`);
 3. the session defaults file (``session.toml`` in the frame's folder or its parent, see
    :func:`camcal.io.manifest.session_defaults_for`) for values still unknown;
-4. the folder's ``frames.csv`` manifest, which overrides all of them.
+4. the folder's ``frames.csv`` manifest, which overrides all of them (:mod:`camcal.io.folders`).
 
-RAW files are 2x2 Bayer mosaics (``layout == "bayer"``) or linear multi-channel RAW
-(DNG LinearRaw, LibRaw ``RawType.Stack``: ``layout == "linear"``); other sensor layouts
-(X-Trans, Foveon, 4-colour CFAs) and RAW files without image data are refused.
+RAW files are 2x2 Bayer mosaics (``layout == "bayer"``) or linear multi-channel RAW (DNG LinearRaw, LibRaw
+``RawType.Stack``: ``layout == "linear"``); other sensor layouts (X-Trans, Foveon, 4-colour CFAs) and RAW files
+without image data are refused. What kind a file is: :mod:`camcal.io.kinds`; the C libraries' stderr is held by
+:mod:`camcal.io.stderr`.
 
-Every failure to read a file becomes a one-line :class:`~camcal.errors.CamcalError`
-naming the file.
+Every failure to read a file becomes a one-line :class:`~camcal.errors.CamcalError` naming the file.
 """
 
 from __future__ import annotations
@@ -36,21 +28,8 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import io
-import itertools
-import logging
-import math
-import os
-import sys
-import threading
-from collections import deque
-from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import ThreadPoolExecutor
-from datetime import UTC, datetime
-from fractions import Fraction
 from pathlib import Path
-from typing import TypeVar
 
-import exifread
 import numpy as np
 import OpenImageIO as oiio
 import pillow_heif
@@ -59,30 +38,26 @@ from PIL import ImageCms
 
 from camcal.errors import CamcalError
 from camcal.frame import PLANES, RGB, TRACKED, Exposure, Frame, pattern_from_rawpy, plane_offsets
+from camcal.io.exif import (
+    TAG_NAMES,
+    clean_number,
+    exif_from_block,
+    exif_tags,
+    exif_value,
+    fill_exposure,
+    iso_time,
+    libraw_time,
+    place_time_from_exif,
+    reconcile_libraw,
+    tag_present,
+)
+from camcal.io.kinds import check_file, is_fits, is_heif, is_raw_path
 from camcal.io.limits import check_expansion, declared_image_bytes, max_pixels
 from camcal.io.manifest import (
-    FRAMES_CSV,
-    exposure_overrides,
-    parse_utc_offset,
-    read_manifest,
     session_camera_facts,
     session_defaults_for,
 )
-
-T = TypeVar("T")
-R = TypeVar("R")
-
-RAW_EXTENSIONS = {
-    ".dng", ".cr2", ".cr3", ".crw", ".nef", ".nrw", ".arw", ".srf", ".sr2", ".orf", ".rw2", ".raf",
-    ".pef", ".srw", ".x3f", ".3fr", ".iiq", ".erf", ".kdc", ".dcr", ".mrw", ".raw", ".rwl",
-}
-HEIF_EXTENSIONS = {".heic", ".heif", ".hif"}
-PROCESSED_EXTENSIONS = {".jpg", ".jpeg", ".tif", ".tiff", ".png"} | HEIF_EXTENSIONS
-HEIF_BRANDS = {b"heic", b"heix", b"hevc", b"hevx", b"heim", b"heis", b"hevm", b"hevs", b"mif1", b"msf1", b"mif2"}
-"""ISO/IEC 23008-12 major brands of HEVC-coded HEIF files (the ``ftyp`` box, bytes 8–12)."""
-FITS_EXTENSIONS = {".fits", ".fit", ".fts"}
-"""FITS images (astronomy cameras): monochrome frames read with astropy (:func:`_load_fits`)."""
-IMAGE_EXTENSIONS = RAW_EXTENSIONS | PROCESSED_EXTENSIONS | FITS_EXTENSIONS
+from camcal.io.stderr import quiet_stderr
 
 
 def _check_pixels(path: Path, width: int, height: int, stored_bytes: float | None = None) -> None:
@@ -97,130 +72,6 @@ def _check_pixels(path: Path, width: int, height: int, stored_bytes: float | Non
     check_expansion(path, 2.0 * width * height if stored_bytes is None else stored_bytes)
 
 
-def _clean(value) -> float | None:
-    """rawpy gives float32 values (0.004000000189...): round to 7 significant digits."""
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        return None
-    if not math.isfinite(v) or v <= 0:
-        return None
-    return float(f"{v:.7g}")
-
-
-def _check_file(path: Path) -> None:
-    if not path.exists():
-        raise CamcalError("no such file", path)
-    if path.is_dir():
-        raise CamcalError("is a directory, not an image file", path)
-    try:
-        size = path.stat().st_size
-    except OSError as exc:
-        raise CamcalError(f"cannot read: {exc.strerror}", path) from None
-    if size == 0:
-        raise CamcalError("is empty (0 bytes)", path)
-
-
-def _magic(path: Path) -> bytes:
-    try:
-        with open(path, "rb") as fh:
-            return fh.read(16)
-    except OSError as exc:
-        raise CamcalError(f"cannot read: {exc.strerror}", path) from None
-
-
-def is_heif(path: Path) -> bool:
-    """True when the file is an HEVC-coded HEIF (HEIC) image, by its ``ftyp`` box or, failing that, its name."""
-    head = _magic(path)
-    if head[4:8] == b"ftyp":
-        return head[8:12] in HEIF_BRANDS
-    return path.suffix.lower() in HEIF_EXTENSIONS and not head.startswith((b"\xff\xd8\xff", b"\x89PNG"))
-
-
-def _exif_reader():
-    log = logging.getLogger("exifread")  # it logs "File format not recognized." to stderr on non-EXIF files
-    if log.level == logging.NOTSET:
-        log.setLevel(logging.ERROR)
-    return exifread
-
-
-def _exif_from_block(block: bytes | None) -> dict[str, object]:
-    """EXIF tags of an EXIF block (TIFF structure, optionally after ``Exif\\0\\0``) via exifread; {} on failure."""
-    if not block:
-        return {}
-    if block.startswith(b"Exif\x00\x00"):
-        block = block[6:]
-    try:
-        return _exif_reader().process_file(io.BytesIO(block), details=False, debug=False)
-    except Exception:  # exifread raises many types on damaged blocks; metadata is optional here
-        return {}
-
-
-def _heif_exif_block(path: Path) -> bytes | None:
-    """The EXIF block libheif finds in a HEIF file (exifread knows only some HEIF brands); None when none."""
-    try:
-        with quiet_stderr():
-            return pillow_heif.open_heif(str(path)).info.get("exif")
-    except Exception:  # a damaged file: the pixel decoder reports it; metadata is optional here
-        return None
-
-
-def _exif_tags(path: Path) -> dict[str, object]:
-    """EXIF tags via exifread (header only); {} when the file has none or is damaged.
-
-    HEIF files: the EXIF block libheif takes out of the file, read by exifread.
-    """
-    try:
-        if is_heif(path):
-            return _exif_from_block(_heif_exif_block(path))
-    except CamcalError:  # unreadable: the decoder reports it; metadata is optional here
-        return {}
-    try:
-        exifread = _exif_reader()
-        with open(path, "rb") as fh:
-            return exifread.process_file(fh, details=False, debug=False)
-    except Exception:  # exifread raises many types on damaged files; metadata is optional here
-        return {}
-
-
-def _exif_value(tags: dict[str, object], *names: str) -> float | str | None:
-    for name in names:
-        tag = tags.get(name)
-        if tag is None:
-            continue
-        vals = getattr(tag, "values", None)
-        if isinstance(vals, str):
-            s = vals.strip("\x00 ").strip()
-            if s:
-                return s
-            continue
-        if isinstance(vals, list | tuple) and vals:
-            v = vals[0]
-            try:
-                if hasattr(v, "num"):
-                    return float(Fraction(v.num, v.den)) if v.den else None
-                return float(v)
-            except (TypeError, ValueError, ZeroDivisionError):
-                continue
-    return None
-
-
-#: exifread names of the tags of each tracked field, first found wins.
-TAG_NAMES: dict[str, tuple[str, ...]] = {
-    "exposure_s": ("EXIF ExposureTime", "Image ExposureTime"),
-    "f_number": ("EXIF FNumber", "Image FNumber"),
-    "iso": ("EXIF ISOSpeedRatings", "EXIF PhotographicSensitivity", "EXIF ISOSpeed", "Image ISOSpeedRatings"),
-    "capture_time": ("EXIF DateTimeOriginal", "Image DateTimeOriginal"),
-    "focal_length_mm": ("EXIF FocalLength", "Image FocalLength"),
-    "focal_length_35mm_mm": ("EXIF FocalLengthIn35mmFilm",),
-}
-"""The capture time is DateTimeOriginal only: IFD0 ``DateTime`` is when the file was last written."""
-
-
-def _tag_present(tags: dict[str, object], field_name: str) -> bool:
-    return any(n in tags for n in TAG_NAMES[field_name])
-
-
 def exposure_from_exif(path: Path, tags: dict[str, object] | None = None) -> Exposure:
     """Exposure metadata from a file's EXIF, via exifread; every value found is marked ``tag``.
 
@@ -229,24 +80,24 @@ def exposure_from_exif(path: Path, tags: dict[str, object] | None = None) -> Exp
     """
     if tags is None and is_fits(path):
         return _fits_exposure(_fits_header(path))
-    tags = _exif_tags(path) if tags is None else tags
+    tags = exif_tags(path) if tags is None else tags
     if not tags:
         return Exposure()
 
     def num(*names):
-        v = _exif_value(tags, *names)
-        return _clean(v) if isinstance(v, float) else None
+        v = exif_value(tags, *names)
+        return clean_number(v) if isinstance(v, float) else None
 
     def text(*names):
-        v = _exif_value(tags, *names)
+        v = exif_value(tags, *names)
         return v if isinstance(v, str) else None
 
-    temp = _exif_value(tags, "EXIF Temperature", "EXIF Tag 0x9400")
+    temp = exif_value(tags, "EXIF Temperature", "EXIF Tag 0x9400")
     values = {
         "exposure_s": num(*TAG_NAMES["exposure_s"]),
         "f_number": num(*TAG_NAMES["f_number"]),
         "iso": num(*TAG_NAMES["iso"]),
-        "capture_time": _iso_time(text(*TAG_NAMES["capture_time"])),
+        "capture_time": iso_time(text(*TAG_NAMES["capture_time"])),
         "focal_length_mm": num(*TAG_NAMES["focal_length_mm"]),
         "focal_length_35mm_mm": num(*TAG_NAMES["focal_length_35mm_mm"]),
     }
@@ -261,230 +112,6 @@ def exposure_from_exif(path: Path, tags: dict[str, object] | None = None) -> Exp
         sources=tuple(sorted((k, "tag") for k, v in (values | place).items() if v is not None)),
         notes=tuple(notes),
     )
-
-
-def _ratios(tags: dict[str, object], name: str) -> list[float] | None:
-    """The rational values of tag ``name`` as floats; None when absent or a denominator is zero."""
-    tag = tags.get(name)
-    vals = getattr(tag, "values", None)
-    if not isinstance(vals, list | tuple) or not vals:
-        return None
-    out = []
-    for v in vals:
-        try:
-            out.append(float(Fraction(v.num, v.den)) if hasattr(v, "num") else float(v))
-        except (TypeError, ValueError, ZeroDivisionError):
-            return None
-    return out
-
-
-def place_time_from_exif(tags: dict[str, object]) -> tuple[dict[str, object], list[str]]:
-    """OffsetTimeOriginal and the GPS block (position, altitude, UTC date and time) of exifread ``tags``.
-
-    Returns
-    -------
-    (values, notes): ``values`` holds the :data:`camcal.frame.PLACE_TIME` fields found (unknown ones left
-    out); ``notes`` says why a present tag was not used.
-    """
-    values: dict[str, object] = {}
-    notes: list[str] = []
-
-    def text(name: str) -> str | None:
-        v = _exif_value(tags, name)
-        return v if isinstance(v, str) else None
-
-    off = text("EXIF OffsetTimeOriginal")
-    if off is not None:
-        if parse_utc_offset(off) is None:
-            notes.append(f"OffsetTimeOriginal {off!r} is not an offset of a time zone (±HH:MM); not used")
-        else:
-            values["utc_offset"] = "+00:00" if off.strip() in ("Z", "z") else off.strip()
-    lat, lon = _ratios(tags, "GPS GPSLatitude"), _ratios(tags, "GPS GPSLongitude")
-    lat_ref, lon_ref = text("GPS GPSLatitudeRef"), text("GPS GPSLongitudeRef")
-    if lat is not None and lon is not None:
-        deg = [sum(x / 60.0**i for i, x in enumerate(v[:3])) for v in (lat, lon)]
-        if lat_ref not in ("N", "S") or lon_ref not in ("E", "W"):
-            notes.append("GPS position without its N/S or E/W reference; not used")
-        elif deg[0] == 0.0 and deg[1] == 0.0:
-            notes.append("GPS position 0°, 0° (a receiver without a fix writes it); not used")
-        elif deg[0] > 90.0 or deg[1] > 180.0:
-            notes.append(f"GPS position {deg[0]:.6g}°, {deg[1]:.6g}° is out of range; not used")
-        else:
-            values["latitude_deg"] = -deg[0] if lat_ref == "S" else deg[0]
-            values["longitude_deg"] = -deg[1] if lon_ref == "W" else deg[1]
-    alt = _ratios(tags, "GPS GPSAltitude")
-    if alt is not None and "latitude_deg" in values:
-        ref = _ratios(tags, "GPS GPSAltitudeRef")
-        values["altitude_m"] = -alt[0] if ref and ref[0] == 1 else alt[0]
-    hms, date = _ratios(tags, "GPS GPSTimeStamp"), text("GPS GPSDate") or text("GPS GPSDateStamp")
-    if hms is not None and len(hms) == 3:
-        if date is None:
-            notes.append("GPS time stamp without a GPS date; not used (the UTC date is unknown)")
-        else:
-            try:
-                day = datetime.strptime(date.strip(), "%Y:%m:%d")
-                h, m, sec = hms
-                if not (0 <= h < 24 and 0 <= m < 60 and 0 <= sec < 61):
-                    raise ValueError
-                whole = int(sec)
-                utc = day.replace(hour=int(h), minute=int(m), second=min(whole, 59),
-                                  microsecond=int(round((sec - whole) * 1e6)) % 1_000_000, tzinfo=UTC)
-                values["gps_time_utc"] = utc.isoformat()
-            except ValueError:
-                notes.append(f"GPS date/time {date} {hms} is not a valid date and time; not used")
-    return values, notes
-
-
-def _iso_time(exif_time: str | None) -> str | None:
-    if not exif_time or not exif_time.strip(" 0:"):  # "0000:00:00 00:00:00" is the EXIF way of saying unknown
-        return None
-    parts = exif_time.replace(":", "-", 2).split(" ")
-    return "T".join(parts) if len(parts) == 2 else exif_time
-
-
-def _libraw_time(ts) -> str | None:
-    """LibRaw's timestamp as ISO text; its placeholder (the 1970 epoch, no date in the file) is None."""
-    if not hasattr(ts, "isoformat") or getattr(ts, "year", 1970) <= 1970:
-        return None
-    return ts.replace(microsecond=0).isoformat()
-
-
-def _fmt(name: str, v: float | str) -> str:
-    return v if isinstance(v, str) else f"{v:.6g}{' s' if name == 'exposure_s' else ''}"
-
-
-def reconcile_libraw(exp: Exposure, tags: dict[str, object], libraw: dict[str, float | str | None]) -> Exposure:
-    """Combine the tag values ``exp`` (from :func:`exposure_from_exif`) with LibRaw's ``libraw`` values.
-
-    Per field of :data:`camcal.frame.TRACKED`: a tag with a value wins (a note when LibRaw disagrees
-    by more than 0.1 %); a tag present but zero or empty makes the value unknown, whatever LibRaw says
-    (its placeholders: shutter 1 s, f/1, ISO 0, the 1970 epoch); with no tag, LibRaw's value is used
-    and marked ``libraw``.
-    """
-    values: dict[str, object] = {}
-    sources = dict(exp.sources)
-    notes = list(exp.notes)
-    for name in TRACKED:
-        tag_v, lib_v = getattr(exp, name), libraw.get(name)
-        if tag_v is not None:
-            if lib_v is not None and (
-                tag_v != lib_v if isinstance(tag_v, str) else abs(float(tag_v) - float(lib_v)) > 1e-3 * float(tag_v)
-            ):
-                notes.append(f"{name}: the file's tag says {_fmt(name, tag_v)}, LibRaw {_fmt(name, lib_v)}; "
-                             "the tag is used")
-            continue
-        if tags and _tag_present(tags, name):
-            if lib_v is not None:
-                notes.append(f"{name}: the file's tag holds zero or nothing (unknown); LibRaw's "
-                             f"{_fmt(name, lib_v)} is not used")
-            continue
-        if lib_v is not None:
-            values[name] = lib_v
-            sources[name] = "libraw"
-    return dataclasses.replace(exp, **values, sources=tuple(sorted(sources.items())), notes=tuple(notes))
-
-
-def _fill(primary: Exposure, fallback: Exposure) -> Exposure:
-    """Fields of ``primary``, with gaps filled from ``fallback`` (each value keeps its own source)."""
-    values, src = {}, {}
-    for f in dataclasses.fields(Exposure):
-        if f.name in ("sources", "notes"):
-            continue
-        take = primary if getattr(primary, f.name) is not None else fallback
-        values[f.name] = getattr(take, f.name)
-        if take.source(f.name) is not None:
-            src[f.name] = take.source(f.name)
-    return Exposure(**values, sources=tuple(sorted(src.items())), notes=primary.notes + fallback.notes)
-
-
-class _QuietState:
-    """The state of :func:`quiet_stderr`, process-wide as fd 2 is (guarded by ``lock``)."""
-
-    lock = threading.Lock()
-    depth = 0
-    """Blocks open, in every thread."""
-    fd = -1
-    """The silenced descriptor (2) from the first open block until the last one restores it, else -1."""
-    previous: object = None
-    """``sys.stderr`` as it was before the first open block."""
-    real: io.TextIOWrapper | None = None
-    """A stream on a duplicate of the real standard error (:func:`_real_stderr`)."""
-    real_of = -1
-    """The descriptor ``real`` duplicates (2)."""
-    real_key: tuple[int, int] | None = None
-    """(device, inode) of the file ``real`` writes to."""
-
-
-def _real_stderr(fd: int) -> io.TextIOWrapper:
-    """A line-buffered text stream on a duplicate of ``fd`` (standard error, not silenced).
-
-    One for as long as ``fd`` refers to the same file: a camcal process keeps a single duplicate and never closes
-    it while a thread may still write to it. When ``fd`` has been pointed at another file since (a test harness
-    capturing each test's output), a new duplicate replaces the old one."""
-    st = os.fstat(fd)
-    key = (st.st_dev, st.st_ino)
-    if _QuietState.real is None or _QuietState.real_key != key or _QuietState.real_of != fd:
-        old = _QuietState.real
-        enc = getattr(sys.stderr, "encoding", None) or "utf-8"
-        # the stream does not own the duplicate (closefd=False): it stays open to the process's end, with nothing
-        # to close or to warn about at exit, whatever thread or interrupt still holds the stream then
-        _QuietState.real = open(os.dup(fd), "w", buffering=1, encoding=enc, errors="backslashreplace",  # noqa: SIM115
-                                closefd=False)
-        _QuietState.real_of, _QuietState.real_key = fd, key
-        if old is not None:
-            old.flush()
-            os.close(old.fileno())
-    return _QuietState.real
-
-
-@contextlib.contextmanager
-def quiet_stderr():
-    """Silence C libraries (LibRaw, libpng, libjpeg print their warnings to fd 2) for the block, not Python.
-
-    fd 2 is process-wide, so concurrent blocks share one redirection (reference-counted): the first to enter
-    points fd 2 at the null device, the last to leave points it back. Meanwhile ``sys.stderr`` is a stream on a
-    duplicate of the real standard error (:func:`_real_stderr`), so what Python writes, in any thread, still
-    reaches it: a stage's warning, a failed photo, the command line's "interrupted" while another thread decodes.
-
-    The steps are ordered so that an interrupt (KeyboardInterrupt, which Python raises between any two of them)
-    leaves ``sys.stderr`` writing to the real standard error, and a later block finishes what it left: the stream
-    is swapped in before fd 2 is silenced, and fd 2 is restored before the stream is swapped out.
-    """
-    state = _QuietState
-    if sys.stderr is not None and sys.stderr is state.real:
-        fd = state.real_of  # a block is open in another thread (or was left open by an interrupt)
-    else:
-        try:
-            fd = sys.stderr.fileno()
-        except (AttributeError, OSError, ValueError):
-            yield
-            return
-    with state.lock:
-        if state.depth == 0:
-            if state.fd == -1:  # fd is the real standard error: keep a stream on it, then silence it
-                sys.stderr.flush()
-                real = _real_stderr(fd)
-                if sys.stderr is not real:
-                    state.previous = sys.stderr
-                sys.stderr = real
-                state.fd = fd
-            null = os.open(os.devnull, os.O_WRONLY)
-            try:
-                os.dup2(null, state.fd)
-            finally:
-                os.close(null)
-        state.depth += 1
-    try:
-        yield
-    finally:
-        with state.lock:
-            state.depth -= 1
-            if state.depth == 0 and state.real is not None and state.fd != -1:
-                state.real.flush()
-                os.dup2(state.real.fileno(), state.fd)
-                if sys.stderr is state.real and state.previous is not None:
-                    sys.stderr = state.previous  # unless something else replaced it meanwhile
-                state.fd, state.previous = -1, None
 
 
 def _layout_name(raw) -> str:
@@ -613,11 +240,11 @@ def _load_raw(path: Path) -> Frame:
             white = float(raw.white_level)
             other = raw.other
             libraw = {
-                "exposure_s": _clean(other.shutter_speed),
-                "f_number": _clean(other.aperture),
-                "iso": _clean(other.iso_speed),
-                "capture_time": _libraw_time(getattr(other, "timestamp", None)),
-                "focal_length_mm": _clean(getattr(other, "focal_len", None)),
+                "exposure_s": clean_number(other.shutter_speed),
+                "f_number": clean_number(other.aperture),
+                "iso": clean_number(other.iso_speed),
+                "capture_time": libraw_time(getattr(other, "timestamp", None)),
+                "focal_length_mm": clean_number(getattr(other, "focal_len", None)),
             }
     except rawpy.LibRawFileUnsupportedError:
         raise CamcalError("is not a RAW file LibRaw can decode (unsupported or not an image)", path) from None
@@ -633,7 +260,7 @@ def _load_raw(path: Path) -> Frame:
         off = plane_offsets(pattern)
         black = {name: float(per_color[int(rp[off[name]])]) for name in PLANES}
     lo, hi = check_has_data(path, data, min(black.values()), white)
-    tags = _exif_tags(path)
+    tags = exif_tags(path)
     exp = reconcile_libraw(exposure_from_exif(path, tags), tags, libraw)
     return Frame(
         data=data,
@@ -698,27 +325,27 @@ def _load_processed(path: Path) -> Frame:
             return None
 
         oiio_exp = Exposure(
-            exposure_s=_clean(attr("ExposureTime")),
-            f_number=_clean(attr("FNumber")),
-            iso=_clean(attr("Exif:PhotographicSensitivity", "Exif:ISOSpeedRatings")),
-            focal_length_mm=_clean(attr("Exif:FocalLength", "FocalLength")),
+            exposure_s=clean_number(attr("ExposureTime")),
+            f_number=clean_number(attr("FNumber")),
+            iso=clean_number(attr("Exif:PhotographicSensitivity", "Exif:ISOSpeedRatings")),
+            focal_length_mm=clean_number(attr("Exif:FocalLength", "FocalLength")),
             make=attr("Make"),
             model=attr("Model"),
-            capture_time=_iso_time(attr("Exif:DateTimeOriginal")),
+            capture_time=iso_time(attr("Exif:DateTimeOriginal")),
         )
         icc = spec.getattribute("ICCProfile")
         icc_name = icc_description(None if icc is None else np.asarray(icc, np.uint8).tobytes())
-    tags = _exif_tags(path)
+    tags = exif_tags(path)
     exif_exp = exposure_from_exif(path, tags)
     # both read the file's EXIF; a tag exifread sees holding zero stays unknown
     oiio_exp = dataclasses.replace(
         oiio_exp,
-        **{k: None for k in TRACKED if tags and _tag_present(tags, k)},
+        **{k: None for k in TRACKED if tags and tag_present(tags, k)},
     )
     oiio_exp = dataclasses.replace(
         oiio_exp, sources=tuple(sorted((k, "tag") for k in TRACKED if getattr(oiio_exp, k) is not None))
     )
-    exp = _fill(exif_exp, oiio_exp)
+    exp = fill_exposure(exif_exp, oiio_exp)
     exp = dataclasses.replace(exp, make=oiio_exp.make or exif_exp.make, model=oiio_exp.model or exif_exp.model)
     return _processed_frame(path, data, bits, exp, icc_name)
 
@@ -728,7 +355,7 @@ def read_monochrome(path: str | Path) -> np.ndarray:
     or uint16, values as stored (no scaling); checked against the limits before decoding. A file with more than
     one channel is refused: its channels are not one sensor's samples."""
     path = Path(path)
-    _check_file(path)
+    check_file(path)
     with open_image(path, ("tiff", "png"), "a PNG or TIFF image") as (inp, spec):
         if spec.nchannels != 1:
             raise CamcalError(f"has {spec.nchannels} channels; a monochrome frame has one", path)
@@ -766,7 +393,7 @@ def _load_monochrome(path: Path) -> Frame:
         if int(data.max()) >= 2**bits:
             raise CamcalError(f"holds {int(data.max())}, above the {bits}-bit range of session.toml's "
                               "bits_per_sample", path)
-    tags = _exif_tags(path)
+    tags = exif_tags(path)
     exp = exposure_from_exif(path, tags)
     lo, hi = int(data.min()), int(data.max())
     return Frame(data=np.ascontiguousarray(data, np.uint16), kind="raw", cfa_pattern=None,
@@ -829,13 +456,8 @@ def _load_heif(path: Path) -> Frame:
     else:
         data = pixels[..., :3]
         bits = 8 * data.dtype.itemsize
-    exp = exposure_from_exif(path, _exif_from_block(heif.info.get("exif")))
+    exp = exposure_from_exif(path, exif_from_block(heif.info.get("exif")))
     return _processed_frame(path, data, bits, exp, icc_description(heif.info.get("icc_profile")))
-
-
-def is_fits(path: Path) -> bool:
-    """True when the file is a FITS image (its first card ``SIMPLE  =``)."""
-    return _magic(path).startswith(b"SIMPLE  =")
 
 
 #: BITPIX of the FITS images camcal reads (integer data; 16 with BZERO 32768 is unsigned 16-bit).
@@ -869,7 +491,7 @@ def _fits_header(path: Path):
 def _fits_exposure(header) -> Exposure:
     """Exposure time (``EXPTIME`` or ``EXPOSURE``, s), capture time (``DATE-OBS``, UTC) and model (``INSTRUME``) of
     a FITS header, each marked ``tag``."""
-    t = _clean(header.get("EXPTIME", header.get("EXPOSURE")))
+    t = clean_number(header.get("EXPTIME", header.get("EXPOSURE")))
     when = header.get("DATE-OBS")
     when = when.strip()[:19] if isinstance(when, str) and when.strip() else None
     model = header.get("INSTRUME")
@@ -907,20 +529,12 @@ def _load_fits(path: Path) -> Frame:
     if data.size and int(data.max()) >= 2**bits:
         raise CamcalError(f"holds {int(data.max())}, above the {bits}-bit range", path)
     exp = _fits_exposure(header)
-    pedestal = _clean(header.get("PEDESTAL"))
+    pedestal = clean_number(header.get("PEDESTAL"))
     out = np.ascontiguousarray(data, np.uint16)
     return Frame(data=out, kind="raw", cfa_pattern=None, black_level_dn={"Y": float(pedestal or 0.0)},
                  white_level_dn=float(2**bits - 1), exposure=exp, path=path,
                  layout="mono", black_level_source="file" if pedestal is not None else "unknown",
                  ).with_value_range(int(out.min()), int(out.max()))
-
-
-def is_raw_path(path: Path) -> bool:
-    """True when the file looks like a RAW file (not JPEG/PNG/HEIF/FITS, not a plain .tif)."""
-    head = _magic(path)
-    if head.startswith(b"\xff\xd8\xff") or head.startswith(b"\x89PNG") or is_heif(path) or is_fits(path):
-        return False
-    return path.suffix.lower() not in {".tif", ".tiff", ".jpg", ".jpeg", ".png"} | HEIF_EXTENSIONS
 
 
 def load_frame(
@@ -947,7 +561,7 @@ def load_frame(
         Missing, empty, damaged or unsupported files, one line naming the file.
     """
     path = Path(path)
-    _check_file(path)
+    check_file(path)
     frame = (_load_heif(path) if is_heif(path) else _load_fits(path) if is_fits(path)
              else _load_raw(path) if is_raw_path(path) else _load_processed(path))
     if defaults is None:
@@ -993,7 +607,7 @@ def frame_header(path: str | Path) -> FrameHeader:
         The header cannot be read (the decode would fail too, with its own message).
     """
     path = Path(path)
-    _check_file(path)
+    check_file(path)
     if is_heif(path):
         try:
             with quiet_stderr():
@@ -1001,14 +615,14 @@ def frame_header(path: str | Path) -> FrameHeader:
         except (ValueError, RuntimeError, OSError, SyntaxError) as exc:
             raise CamcalError(f"cannot open as a HEIC/HEIF image: {exc}", path) from None
         w, h = heif.size
-        exif = exposure_from_exif(path, _exif_from_block(heif.info.get("exif")))
+        exif = exposure_from_exif(path, exif_from_block(heif.info.get("exif")))
         return FrameHeader("processed", "processed", (int(h), int(w)), exif.make, exif.model)
     if is_fits(path):
         hdr = _fits_header(path)
         model = hdr.get("INSTRUME")
         return FrameHeader("raw", "mono", (int(hdr["NAXIS2"]), int(hdr["NAXIS1"])), None,
                            None if model is None else str(model).strip())
-    tags = _exif_tags(path)
+    tags = exif_tags(path)
     exif = exposure_from_exif(path, tags)
     if not is_raw_path(path):
         with open_image(path, ("jpeg", "tiff", "png"), "a JPEG, TIFF or PNG image") as (_inp, spec):
@@ -1052,77 +666,10 @@ def read_photo_metadata(path: str | Path, defaults: dict[str, float | str] | Non
         A missing, empty or unreadable file.
     """
     path = Path(path)
-    _check_file(path)
+    check_file(path)
     exp = exposure_from_exif(path)
     if defaults is None:
         defaults = session_defaults_for(path.parent)
     return exp.filled("session", **defaults) if defaults else exp
 
 
-def list_frames(folder: str | Path) -> list[Path]:
-    """Image files in ``folder`` (not recursive), sorted by name; hidden and partial files skipped."""
-    folder = Path(folder)
-    if not folder.is_dir():
-        raise CamcalError("is not a folder", folder)
-    return sorted(
-        p
-        for p in folder.iterdir()
-        if p.is_file() and not p.name.startswith(".") and p.suffix.lower() in IMAGE_EXTENSIONS
-    )
-
-
-def folder_manifest(folder: str | Path) -> dict[str, dict[str, float | str | None]]:
-    """The folder's ``frames.csv`` rows keyed by file name ({} when absent)."""
-    path = Path(folder) / FRAMES_CSV
-    return read_manifest(path) if path.exists() else {}
-
-
-def load_folder_frame(path: Path, manifest: dict[str, dict[str, float | str | None]]) -> Frame:
-    """Load ``path`` with the exposure overrides of its manifest row, if any."""
-    return load_frame(path, exposure_overrides(manifest.get(path.name)))
-
-
-def folder_files(
-    folder: str | Path, manifest: dict[str, dict[str, float | str | None]] | None = None
-) -> tuple[list[Path], dict[str, dict[str, float | str | None]]]:
-    """The image files of a folder and its manifest rows (read from ``frames.csv`` unless given).
-
-    Rows of ``frames.csv`` naming anything but an image file of the folder (absent, another extension,
-    a sub-folder), and a folder without images, are errors.
-    """
-    folder = Path(folder)
-    files = list_frames(folder)
-    if manifest is None:
-        manifest = folder_manifest(folder)
-    names = {p.name for p in files}
-    for name in manifest:
-        if name not in names:
-            raise CamcalError(f"frames.csv lists {name!r}, which is not an image file in the folder", folder)
-    if not files:
-        raise CamcalError("holds no image files", folder)
-    return files, manifest
-
-
-
-def read_ahead(items: Iterable[T], load: Callable[[T], R], threads: int = 1) -> Iterator[R]:
-    """``load(item)`` of each item, in order, with up to ``threads`` of the next items loading in threads meanwhile.
-
-    The caller works on one frame while the next ones decode (LibRaw and OpenImageIO release the GIL). At most
-    ``threads + 1`` results exist at once, so memory does not grow with the number of items. An error of
-    ``load`` is raised when its item's turn comes, as a plain loop would; ``threads <= 0`` is that plain loop.
-    """
-    if threads <= 0:
-        yield from map(load, items)
-        return
-    it = iter(items)
-    with ThreadPoolExecutor(max_workers=threads) as pool:
-        pending = deque(pool.submit(load, x) for x in itertools.islice(it, threads))
-        try:
-            while pending:
-                done = pending.popleft()
-                for x in itertools.islice(it, 1):
-                    pending.append(pool.submit(load, x))
-                yield done.result()
-        finally:
-            for f in pending:  # the caller stopped early (an error): do not decode what nobody will read
-                f.cancel()
