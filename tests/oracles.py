@@ -10,7 +10,7 @@ from typing import Literal
 
 import numpy as np
 
-from camcal.calibrate.flat import DEFAULT_TERMS, FlatChecks, FlatOptions, fit_flat_with
+from camcal.calibrate.flat import DEFAULT_TERMS, FlatChecks, FlatOptions, fit_flat, measure_flat
 from camcal.calibrate.session import StageFrames
 from camcal.calibrate.stack import StackOptions, StackResult, combine_frames
 from camcal.errors import CamcalError
@@ -149,7 +149,7 @@ def correct_flat(planes: np.ndarray, model: FlatModel, with_prnu: bool = False) 
                           black_level_dn=np.zeros(planes.shape[0]), channels=tuple(model.channels)).signal_dn
 
 
-def fit_flat(
+def flat_of_folder(
     flat_folder: str | Path | StageFrames,
     dark: DarkModel | str | Path | None = None,
     *,
@@ -177,7 +177,8 @@ def fit_flat(
     jobs, progress : passed to :func:`camcal.calibrate.stack.combine_frames`.
     """
     options = FlatOptions(model, downsample, n_terms, degree_2d, with_prnu, method, sigma, checks)
-    return fit_flat_with(flat_folder, as_dark_model(dark), options, jobs=jobs, progress=progress)
+    dark_model = as_dark_model(dark)
+    return fit_flat(measure_flat(flat_folder, dark_model, options, jobs=jobs, progress=progress), dark_model, options)
 
 
 def load_response(path: str | Path) -> dict[str, ResponseModel]:

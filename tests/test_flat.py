@@ -25,7 +25,7 @@ from camcal.models.flat import load_flat, radial_gain, save_flat
 from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
 from camcal.synth.session import SessionPlan, _white_spectrum, exposure_for_level, write_session
 from tests.conftest import assert_one_line_error, run_cli
-from tests.oracles import correct_flat, fit_flat
+from tests.oracles import correct_flat, flat_of_folder
 
 SPECTRUM = _white_spectrum(5000.0)
 
@@ -185,7 +185,7 @@ def test_save_load_round_trip(fitted, tmp_path):
 
 
 def test_fit_flat_from_session_dng(session_dir, truth, camera):
-    fm = fit_flat(session_dir / "flat")
+    fm = flat_of_folder(session_dir / "flat")
     assert fm.info["n_frames"] == truth["plan"]["n_flat"]
     assert np.abs(fm.gain() / camera.vignetting_map - 1).max() < 0.005
     for c in fm.channels:
@@ -206,15 +206,15 @@ def _small_session(path, level: float, n: int = 2, **params):
 def test_saturated_flats_are_refused(tmp_path):
     folder = _small_session(tmp_path / "S", level=1.3)
     with pytest.raises(CamcalError, match="saturated"):
-        fit_flat(folder)
+        flat_of_folder(folder)
 
 
 def test_dark_flats_are_refused(tmp_path):
     folder = _small_session(tmp_path / "S", level=0.01)
     with pytest.raises(CamcalError, match="too dark for a useful SNR"):
-        fit_flat(folder)
+        flat_of_folder(folder)
     # the limit is a documented knob
-    fm = fit_flat(folder, checks=FlatChecks(min_level=0.001), with_prnu=False)
+    fm = flat_of_folder(folder, checks=FlatChecks(min_level=0.001), with_prnu=False)
     assert fm.info["n_frames"] == 2
 
 
@@ -226,10 +226,10 @@ def test_mismatched_sizes_are_refused(tmp_path):
     # (exposed to ~40 % of full scale: a saturated frame would be refused for that before its size is compared)
     cam.write_dng(folder / "flat_zzz.dng", Scene.uniform(SPECTRUM), exposure_s=8e-5, rng=np.random.default_rng(0))
     with pytest.raises(CamcalError, match="mismatched sizes") as err:
-        fit_flat(folder)
+        flat_of_folder(folder)
     assert "flat_zzz.dng" in str(err.value)
     # a flat model applied to frames of another size
-    fm = fit_flat(other, with_prnu=False)
+    fm = flat_of_folder(other, with_prnu=False)
     with pytest.raises(CamcalError, match="flat model is for"):
         correct_flat(np.ones((4, 48, 80), np.float32), fm)
 
@@ -240,7 +240,7 @@ def test_jpeg_flats_are_refused(tmp_path):
     cam = SyntheticCamera(SensorParams(width=128, height=96))
     cam.write_jpeg(folder / "f.jpg", Scene.uniform(SPECTRUM), exposure_s=0.05, rng=np.random.default_rng(0))
     with pytest.raises(CamcalError, match="must be RAW"):
-        fit_flat(folder)
+        flat_of_folder(folder)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -274,15 +274,14 @@ def test_cli_flat_errors_are_one_line(tmp_path, session_dir):
 
 
 def test_bad_options_and_empty_folders(tmp_path, session_dir):
-    from camcal.calibrate.flat import run_flat_stage
+    from camcal.calibrate.flat import FlatOptions, measure_flat
 
     with pytest.raises(CamcalError, match="unknown flat model"):
-        run_flat_stage(session_dir / "flat", tmp_path / "f.json", model="3d")
-    with pytest.raises(CamcalError, match="must be a .json"):
-        run_flat_stage(session_dir / "flat", tmp_path / "f.exr")
+        measure_flat(session_dir / "flat", None, FlatOptions(model="3d"))
+    assert_one_line_error(run_cli("flat", session_dir / "flat", "-o", tmp_path / "f.exr"), "must be a .json")
     (tmp_path / "empty").mkdir()
     with pytest.raises(CamcalError, match="no image files"):
-        fit_flat(tmp_path / "empty")
+        flat_of_folder(tmp_path / "empty")
 
 
 @pytest.fixture(scope="module")
@@ -296,7 +295,7 @@ def dark_json(session_dir, tmp_path_factory):
 
 
 def test_fit_flat_with_dark_model(session_dir, truth, camera, dark_json, tmp_path):
-    fm = fit_flat(session_dir / "flat", dark_json)
+    fm = flat_of_folder(session_dir / "flat", dark_json)
     assert fm.info["dark"] == "dark model"
     assert np.abs(fm.gain() / camera.vignetting_map - 1).max() < 0.005
     for c in fm.channels:
@@ -307,7 +306,7 @@ def test_fit_flat_with_dark_model(session_dir, truth, camera, dark_json, tmp_pat
     # a dark model of another sensor size is refused
     other = _small_session(tmp_path / "S", level=0.4)
     with pytest.raises(CamcalError, match="mismatched sizes"):
-        fit_flat(other, dark_json)
+        flat_of_folder(other, dark_json)
 
 
 def test_stray_saturated_pixels_are_masked_not_refused(tmp_path):
@@ -320,7 +319,7 @@ def test_stray_saturated_pixels_are_masked_not_refused(tmp_path):
     frame = load_frame(sorted(folder.glob("*.dng"))[0])
     at_white = np.mean(frame.planes() >= frame.white_level_dn)
     assert 1e-3 < at_white < 1e-2  # saturated hot pixels are really there (the old limit was 1e-4)
-    fm = fit_flat(folder)
+    fm = flat_of_folder(folder)
     err = np.abs(fm.gain() / cam.vignetting_map - 1)
     # 4 flats of a 128x96 sensor: the model's largest error is 0.29 / 0.37 % without stuck pixels and
     # 0.52 / 0.25 % with them (seeds 1 / 2; the PRNU maps differ between the two cameras)

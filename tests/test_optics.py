@@ -18,7 +18,7 @@ import pytest
 
 from camcal.apply.batch import BatchOptions, run_batch
 from camcal.apply.photo import apply
-from camcal.calibrate.flat import run_flat_stage
+from camcal.calibrate.flat import fit_flat, measure_flat
 from camcal.calibrate.run import calibrate_session
 from camcal.calibrate.session import index_session
 from camcal.errors import CamcalError
@@ -221,13 +221,13 @@ def test_focal_length_from_frames_csv_and_session_toml(tmp_path):
 def test_flat_stage_refuses_several_f_numbers_with_the_next_step(optics_session, tmp_path):
     root, _, _, _ = optics_session
     with pytest.raises(CamcalError, match=r"holds its flats in f2\.8/, f8/ \(one folder per f-number\)"):
-        run_flat_stage(root / "flat", tmp_path / "flat.json")
+        measure_flat(root / "flat")
     mixed = tmp_path / "mixed"
     mixed.mkdir()
     for n in ("2.8", "8"):
         for i in range(2):
             shutil.copy(root / "flat" / f"f{n}" / f"flat_f{n}_{i:03d}.dng", mixed)
     with pytest.raises(CamcalError, match=r"flats at several f-numbers \(f/2\.8, f/8\)"):
-        run_flat_stage(mixed, tmp_path / "flat.json")
-    model, _, _ = run_flat_stage(root / "flat" / "f8", tmp_path / "f8.json")
+        measure_flat(mixed)
+    model = fit_flat(measure_flat(root / "flat" / "f8"))
     assert (model.optics.f_number, model.optics.focal_length_mm) == (8.0, 35.0)

@@ -32,7 +32,7 @@ from camcal.synth.camera import Scene, SensorParams, SyntheticCamera
 from camcal.synth.session import SessionPlan, write_session
 from camcal.units import SPECTRAL_SENSITIVITY
 from tests.conftest import assert_one_line_error, run_cli
-from tests.oracles import fit_flat, merge_sweeps, to_colour, to_colour_planes
+from tests.oracles import flat_of_folder, merge_sweeps, to_colour, to_colour_planes
 
 PLANE_TO_RGB = {"R": 0, "G1": 1, "G2": 1, "B": 2}
 
@@ -71,7 +71,7 @@ def dark_model(session_dir):
 
 @pytest.fixture(scope="module")
 def flat_model(session_dir, dark_model):
-    return fit_flat(session_dir / "flat", dark_model)
+    return flat_of_folder(session_dir / "flat", dark_model)
 
 
 @pytest.fixture(scope="module")

@@ -69,7 +69,6 @@ from camcal.models.flat import (
     Optics,
     PlaneGeometry,
     _legendre_uv,
-    save_flat,
 )
 
 DEFAULT_TERMS = 3
@@ -240,7 +239,7 @@ def fit_flat_planes(
         from the PRNU RMS estimate.
     info : provenance to store in the model.
     smooth_out : a list to which the smooth model A·g (float64, (C, h, w), the PRNU map's divisor) is appended
-        when the PRNU is computed, for :func:`flat_prnu` of the same fit (:func:`fit_master`) without evaluating
+        when the PRNU is computed, for :func:`flat_prnu` of the same fit (:func:`fit_flat`) without evaluating
         the model again.
     """
     master = np.asarray(master)
@@ -336,7 +335,7 @@ class FlatChecks:
 
 @dataclass(frozen=True)
 class FlatOptions:
-    """Options of the flat stage: the combine (:func:`master_flat`) and the fit (:func:`fit_master`).
+    """Options of the flat stage: the combine (:func:`measure_flat`) and the fit (:func:`fit_flat`).
 
     Attributes
     ----------
@@ -355,7 +354,7 @@ class FlatOptions:
     checks: FlatChecks = FlatChecks()  # noqa: RUF009 - frozen, so one shared default is safe
 
     def fit_kwargs(self) -> dict:
-        """The keywords of :func:`fit_master`."""
+        """The keywords of :func:`fit_flat_planes`."""
         return {"model": self.model, "downsample": self.downsample, "n_terms": self.n_terms,
                 "degree_2d": self.degree_2d, "with_prnu": self.with_prnu}
 
@@ -509,18 +508,20 @@ def flats_optics(exposures: list[Exposure] | tuple[Exposure, ...], where: Path |
     return Optics(n, n_src, f, f_src)
 
 
-def master_flat(
+def measure_flat(
     flat_folder: str | Path | StageFrames,
     dark: DarkModel | str | Path | None = None,
+    options: FlatOptions = FlatOptions(),  # noqa: B008
     *,
-    method: str = "sigma_clip",
-    sigma: float = 3.0,
-    checks: FlatChecks = FlatChecks(),  # noqa: B008
     jobs: int | None = 1,
     progress: Callable | None = None,
     judge: StageJudge | None = None,
 ) -> MasterFlat:
-    """Correct, normalise and combine every flat of a folder (streaming, :mod:`camcal.calibrate.stack`).
+    """The file step of the flat stage: correct, normalise and combine every flat of a folder (streaming,
+    :mod:`camcal.calibrate.stack`; ``options.method``, ``options.sigma``, ``options.checks``).
+
+    A folder that holds its flats only in per-f-number subfolders (``f<N>/``) is refused, naming them: one
+    vignetting model is fitted per f-number (``camcal calibrate`` does each).
 
     ``judge``: the stage's :class:`camcal.calibrate.screen.StageJudge`, given to
     :func:`camcal.calibrate.stack.combine_frames`: each flat is judged as it is decoded, and one left out is not
@@ -532,6 +533,13 @@ def master_flat(
     The valid pixels are divided by their per-plane median so lamp drift between frames does not
     bias the combine; the combined master is thus normalised per channel (median ≈ 1).
     """
+    _check_options(options.model, options.n_terms)
+    method, sigma, checks = options.method, options.sigma, options.checks
+    subs = aperture_folders(Path(flat_folder)) if not isinstance(flat_folder, StageFrames) else []
+    if subs and not list_frames(flat_folder):
+        names = ", ".join(f"{d.name}/" for _, d in subs)
+        raise CamcalError(f"holds its flats in {names} (one folder per f-number): give one of them, or calibrate "
+                          "the session (one vignetting model per f-number)", flat_folder)
     dark_model = as_dark_model(dark)
     cal = Calibration.of(dark_model).remembering_dark_frames()  # one exposure: the dark frame computed once
     paths, manifest = stage_files(flat_folder)
@@ -596,34 +604,16 @@ def master_flat(
 
 
 
-def fit_flat_with(
-    flat: str | Path | StageFrames,
-    dark: DarkModel | None,
-    options: FlatOptions = FlatOptions(),  # noqa: B008
-    *,
-    jobs: int | None = 1,
-    progress: Callable | None = None,
-) -> FlatModel:
-    """The flat stage with typed options: :func:`master_flat` (the file step: correct, normalise, combine)
-    then :func:`fit_master` (pure: vignetting model and PRNU)."""
-    _check_options(options.model, options.n_terms)
-    mf = master_flat(flat, dark, method=options.method, sigma=options.sigma, checks=options.checks, jobs=jobs,
-                     progress=progress)
-    return fit_master(mf, dark, **options.fit_kwargs())
-
-
-def fit_master(
+def fit_flat(
     mf: MasterFlat,
     dark_model: DarkModel | None = None,
+    options: FlatOptions = FlatOptions(),  # noqa: B008
     *,
-    model: Literal["radial", "2d"] = "radial",
-    downsample: int | None = None,
-    n_terms: int = DEFAULT_TERMS,
-    degree_2d: int = 4,
-    with_prnu: bool = True,
     prnu_out: dict[str, Nonuniformity] | None = None,
 ) -> FlatModel:
-    """Fit a :class:`MasterFlat` (hot pixels of ``dark_model.defects`` masked); levels reported in DN.
+    """The fit of the flat stage, pure: the vignetting model and PRNU of a :class:`MasterFlat`
+    (:func:`fit_flat_planes` with ``options.fit_kwargs()``; hot pixels of ``dark_model.defects`` masked); levels
+    reported in DN.
 
     ``prnu_out``: a dict filled with the EMVA 1288 PRNU per plane of this fit (:func:`flat_prnu`, about the smooth
     model the fit evaluated already; also without ``with_prnu``), when the master has unclipped statistics.
@@ -645,9 +635,10 @@ def fit_master(
         "flat_level_dn": mf.level_dn,
     }
     smooth: list[np.ndarray] = []
-    fm = fit_flat_planes(mf.value, channels=mf.channels, cfa_pattern=mf.cfa_pattern, model=model,
-                         downsample=downsample, n_terms=n_terms, degree_2d=degree_2d, mask=mask, with_prnu=with_prnu,
-                         noise_var=mf.variance_of_mean, info=info, smooth_out=smooth)
+    _check_options(options.model, options.n_terms)
+    with_prnu = options.with_prnu
+    fm = fit_flat_planes(mf.value, channels=mf.channels, cfa_pattern=mf.cfa_pattern, mask=mask,
+                         noise_var=mf.variance_of_mean, info=info, smooth_out=smooth, **options.fit_kwargs())
     if (with_prnu or prnu_out is not None) and mf.mean_all is not None:
         figures = _prnu_figures(mf, fm.channels, smooth[0] if smooth else _smooth_model(fm), mask)
         if with_prnu:
@@ -694,33 +685,3 @@ def _prnu_figures(mf: MasterFlat, channels: tuple[str, ...], smooth: np.ndarray,
         sv = spatial_variance(rel, mf.variance_all[i] / smooth[i] ** 2, mf.n_frames, good)
         out[c] = prnu(sv)
     return out
-
-
-def run_flat_stage(
-    flat_folder: str | Path,
-    output: str | Path,
-    dark: DarkModel | str | Path | None = None,
-    **kwargs,
-) -> tuple[FlatModel, Path, MasterFlat]:
-    """The ``camcal flat`` stage: master flat, fit, ``output`` JSON + maps EXR.
-
-    ``kwargs`` go to :func:`master_flat` (method, sigma, checks, jobs, progress) and
-    :func:`fit_master` (model, downsample, n_terms, degree_2d, with_prnu). Returns (model, JSON path,
-    master flat); the command draws the falloff plot from the model and the master
-    (:func:`camcal.report.plots.flat_figure`).
-    """
-    output = Path(output)
-    if output.suffix.lower() != ".json":
-        raise CamcalError("the flat model output must be a .json file", output)
-    subs = aperture_folders(Path(flat_folder)) if not isinstance(flat_folder, StageFrames) else []
-    if subs and not list_frames(flat_folder):
-        names = ", ".join(f"{d.name}/" for _, d in subs)
-        raise CamcalError(f"holds its flats in {names} (one folder per f-number): give one of them, or calibrate "
-                          "the session (one vignetting model per f-number)", flat_folder)
-    mkeys = {"method", "sigma", "checks", "jobs", "progress"}
-    _check_options(kwargs.get("model", "radial"), kwargs.get("n_terms", DEFAULT_TERMS))
-    dark_model = as_dark_model(dark)
-    mf = master_flat(flat_folder, dark_model, **{k: v for k, v in kwargs.items() if k in mkeys})
-    fm = fit_master(mf, dark_model, **{k: v for k, v in kwargs.items() if k not in mkeys})
-    path = save_flat(fm, output)
-    return fm, path, mf

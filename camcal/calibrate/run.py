@@ -29,8 +29,8 @@ from camcal.calibrate.flat import (
     FlatOptions,
     MasterFlat,
     check_flat_frame,
-    fit_master,
-    master_flat,
+    fit_flat,
+    measure_flat,
 )
 from camcal.calibrate.response import fit_series_set, measure_series
 from camcal.calibrate.screen import Screening, StageCheck, StageJudge, Verdict, screen_session
@@ -376,7 +376,7 @@ def _fit_flats(index: SessionIndex, dark, opts: CalibrateOptions, ref_n: float |
     reference f-number, else the one of most frames (the smaller f-number on a tie); the others are its
     :attr:`~camcal.models.flat.FlatModel.apertures`. Flats of unknown f-number beside known ones are left out.
     Returns (primary model, its master flat, its EMVA 1288 PRNU per plane or None without unclipped statistics),
-    (None, None, None) when no group could be fitted. The PRNU is the one :func:`camcal.calibrate.flat.fit_master`
+    (None, None, None) when no group could be fitted. The PRNU is the one :func:`camcal.calibrate.flat.fit_flat`
     reduced the primary's PRNU map to (:func:`camcal.calibrate.flat.flat_prnu`), not computed again.
 
     ``judge``: the flat stage's :class:`camcal.calibrate.screen.StageJudge` when its frames (of one f-number) are judged
@@ -396,14 +396,13 @@ def _fit_flats(index: SessionIndex, dark, opts: CalibrateOptions, ref_n: float |
     fitted: list[tuple[FlatModel, MasterFlat, dict[str, Nonuniformity]]] = []
     for i, g in enumerate(groups):
         label = "flat" if len(groups) == 1 else f"flat f/{g.f_number:g}"
-        kwargs = flat_opts.fit_kwargs() | ({} if i == 0 else {"with_prnu": False})
+        group_opts = flat_opts if i == 0 else replace(flat_opts, with_prnu=False)
 
-        def fit(g=g, label=label, kwargs=kwargs):
-            mf = master_flat(g.frames, dark, method=flat_opts.method, sigma=flat_opts.sigma,
-                             checks=flat_opts.checks, jobs=opts.jobs, progress=cb(label), judge=judge)
+        def fit(g=g, label=label, group_opts=group_opts):
+            mf = measure_flat(g.frames, dark, group_opts, jobs=opts.jobs, progress=cb(label), judge=judge)
             prnu: dict[str, Nonuniformity] = {}
             # the PRNU figures of the first model fitted (the primary's, unless it could not be fitted)
-            fm = fit_master(mf, dark, prnu_out=None if fitted else prnu, **kwargs)
+            fm = fit_flat(mf, dark, group_opts, prnu_out=None if fitted else prnu)
             if g.f_number is not None and fm.optics.f_number is None:  # the folder's f-number (not in the files)
                 fm = fm.replace(optics=replace(fm.optics, f_number=g.f_number, f_number_source=g.f_number_source))
             return fm, mf, prnu

@@ -7,8 +7,11 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
-from camcal.calibrate.flat import run_flat_stage
+from camcal.calibrate.flat import FlatOptions, fit_flat, measure_flat
 from camcal.cli.common import console, plot_path, print_json, progress
+from camcal.errors import CamcalError
+from camcal.models.dark import as_dark_model
+from camcal.models.flat import save_flat
 from camcal.models.profile import flats_optics_text
 from camcal.report.plots import flat_figure, write_png
 
@@ -37,6 +40,8 @@ def register(app: typer.Typer) -> None:
         as_json: bool = typer.Option(False, "--json", help="Print the model summary as JSON."),
     ) -> None:
         """Fit a per-channel vignetting model (DNG radial, optical centre free) and PRNU from flat fields."""
+        if output.suffix.lower() != ".json":
+            raise CamcalError("the flat model output must be a .json file", output)
 
         with progress() as bar:
             task = bar.add_task("flat frames", total=None)
@@ -44,10 +49,11 @@ def register(app: typer.Typer) -> None:
             def tick(done: int, total: int) -> None:
                 bar.update(task, completed=done, total=total)
 
-            fm, path, master = run_flat_stage(
-                folder, output, dark, model=model, downsample=downsample, n_terms=terms, degree_2d=degree,
-                with_prnu=not no_prnu, method=method, sigma=sigma, jobs=jobs, progress=tick,
-            )
+            options = FlatOptions(model, downsample, terms, degree, not no_prnu, method, sigma)
+            dark_model = as_dark_model(dark)
+            master = measure_flat(folder, dark_model, options, jobs=jobs, progress=tick)
+            fm = fit_flat(master, dark_model, options)
+        path = save_flat(fm, output)
         png_path = plot_path(plot, output.with_name(output.stem + ".falloff.png"))
         if png_path is not None:
             png_path = write_png(flat_figure(fm, master=master.value), png_path)
