@@ -87,12 +87,12 @@ def bare_decode(paths: list[Path], threads: int = 1) -> float:
 
 
 def run_camcal() -> tuple[float, object]:
-    from camcal.calibrate.sweep import measure_sweep
+    from camcal.calibrate.sweep import SweepOptions, fit_sweep, measure_sweep
 
     t0 = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        s = measure_sweep(WORK, mode="relative", jobs=2)
+        s = fit_sweep(measure_sweep(WORK, None, SweepOptions(mode="relative"), jobs=2), SweepOptions(mode="relative"))
     return time.perf_counter() - t0, s
 
 

@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from camcal.apply.photo import apply
-from camcal.calibrate.colour_matrix import fit_colour_matrix, twin_pairs
+from camcal.calibrate.colour_matrix import fit_colour_matrix, measure_colour_matrix, twin_pairs
 from camcal.calibrate.run import calibrate_session
 from camcal.errors import CamcalError
 from camcal.io.read import load_frame
@@ -118,5 +118,6 @@ def test_fit_needs_colours(matrix_session):
     """The linearity series alone is one chromaticity: no channel row can be solved from it."""
     session, profile, _, _ = matrix_session
     with pytest.raises(CamcalError, match="colour matrix|singular"):
-        fit_colour_matrix([session / "linearity"], profile.response["processed"], min_frames=20)
-    assert fit_colour_matrix([session / "flat"], profile.response["processed"]) is None  # no twins at all
+        fit_colour_matrix(measure_colour_matrix([session / "linearity"], profile.response["processed"]),
+                          min_frames=20)
+    assert measure_colour_matrix([session / "flat"], profile.response["processed"]) is None  # no twins at all

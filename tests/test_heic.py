@@ -20,7 +20,7 @@ import pytest
 
 from camcal.apply.photo import apply
 from camcal.calibrate.inspect import describe
-from camcal.calibrate.response import fit_response
+from camcal.calibrate.response import fit_response, measure_response
 from camcal.errors import CamcalError
 from camcal.io.exr import read_exr
 from camcal.io.kinds import is_raw_path
@@ -144,7 +144,7 @@ def test_heic_exposure_series_through_the_processed_response(tmp_path):
         cam.write_dng(folder / f"f{i}.dng", Scene.uniform(LINE), exposure_s=k * t0, iso=100, f_number=4.0, rng=rng)
         cam.write_heic(folder / f"f{i}.heic", Scene.uniform(LINE), exposure_s=k * t0, iso=100, f_number=4.0,
                        rng=rng)
-    models = fit_response(folder)
+    models = fit_response(measure_response(folder))
     assert set(models) == {"raw", "processed"}
     proc = models["processed"]
     assert proc.white_level_dn == 255.0 and len(proc.points["R"]["x_s"]) == 8

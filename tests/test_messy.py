@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 import camcal.io.read as camcal_io
-from camcal.calibrate.response import MIN_EXPOSURES, fit_series, measure_series, saturation_point
+from camcal.calibrate.response import MIN_EXPOSURES, fit_series, measure_response, saturation_point
 from camcal.calibrate.run import calibrate_session, stage_checks
 from camcal.calibrate.screen import screen_session
 from camcal.calibrate.session import index_session
@@ -182,7 +182,7 @@ def test_saturation_point_brackets_the_saturation_exposure():
 def test_fully_saturated_top_steps_are_used_and_end_the_linear_range(tiny, tiny_camera):
     """Two more steps with every pixel at the white level: read (not refused), marked saturated, not fitted; the
     fit (α, γ, β) is the same as without them, exactly, since they carry no weight in it."""
-    before = fit_series(measure_series(index_session(tiny).frames["linearity"])["raw"])
+    before = fit_series(measure_response(index_session(tiny).frames["linearity"])["raw"])
     p = tiny_camera.params
     rows = (tiny / "linearity" / "frames.csv").read_text().splitlines()
     for k, t in enumerate((1.0, 2.0)):
@@ -194,7 +194,7 @@ def test_fully_saturated_top_steps_are_used_and_end_the_linear_range(tiny, tiny_
         rows.append(f"{name},{t},100.0,4.0")
     (tiny / "linearity" / "frames.csv").write_text("\n".join(rows) + "\n")
     assert _left_out(tiny) == {}  # two fully saturated frames are alike but not copies of one another
-    after = fit_series(measure_series(index_session(tiny).frames["linearity"])["raw"])
+    after = fit_series(measure_response(index_session(tiny).frames["linearity"])["raw"])
     for ch in ("R", "G1", "G2", "B"):
         b, a = before.channels[ch], after.channels[ch]
         assert (a.alpha, a.gamma, a.beta) == (b.alpha, b.gamma, b.beta), ch

@@ -9,7 +9,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from camcal.calibrate.response import emva_linearity_error, fit_response, roi_slices, roi_window
+from camcal.calibrate.response import (
+    ResponseOptions,
+    emva_linearity_error,
+    fit_response,
+    measure_response,
+    roi_slices,
+    roi_window,
+)
 from camcal.errors import CamcalError
 from camcal.frame import PLANES
 from camcal.io.store import to_jsonable
@@ -33,14 +40,14 @@ def srgb_series(tmp_path_factory, small_camera):
     """17 steps of √2: from ~1 % of full scale to ~2.6x past saturation of the green planes; sRGB JPEGs."""
     out = write_session(tmp_path_factory.mktemp("lin_srgb") / "S", small_camera,
                         SessionPlan(stages=("linearity",), linearity_steps=17))
-    return out, json.loads((out / "truth.json").read_text()), fit_response(out / "linearity")
+    return out, json.loads((out / "truth.json").read_text()), fit_response(measure_response(out / "linearity"))
 
 
 @pytest.fixture(scope="module")
 def power_series(tmp_path_factory, small_camera):
     out = write_session(tmp_path_factory.mktemp("lin_power") / "S", small_camera,
                         SessionPlan(stages=("linearity",), jpeg_tone="power", jpeg_gamma=1 / 2.2))
-    return out, json.loads((out / "truth.json").read_text()), fit_response(out / "linearity")
+    return out, json.loads((out / "truth.json").read_text()), fit_response(measure_response(out / "linearity"))
 
 
 def _roi_truth(camera: SyntheticCamera, truth: dict):
@@ -220,7 +227,7 @@ def test_iso_and_aperture_series_give_the_reference_rate(tmp_path, small_camera)
         small_camera.write_dng(d / f"f{i}.dng", Scene.uniform(spec), exposure_s=t, iso=iso, f_number=n, rng=rng)
         rows.append(f"f{i}.dng,{t},{iso},{n}")
     (d / "frames.csv").write_text("\n".join(rows) + "\n")
-    raw = fit_response(d, reference_iso=100, reference_f_number=4)["raw"]
+    raw = fit_response(measure_response(d, ResponseOptions(reference_iso=100, reference_f_number=4)))["raw"]
     rate = small_camera.channel_rates_e(spec, 4.0) * small_camera.dn_per_electron(100)
     h, w = small_camera.params.height // 2, small_camera.params.width // 2
     ys, xs = roi_slices((h, w), roi_window(None))
@@ -247,7 +254,7 @@ class _TruthDark:
 
 def test_dark_model_subtraction_removes_offset(srgb_series, small_camera):
     out, truth, models = srgb_series
-    sub = fit_response(out / "linearity", dark=_TruthDark(small_camera))["raw"]
+    sub = fit_response(measure_response(out / "linearity", dark=_TruthDark(small_camera)))["raw"]
     assert sub.dark_subtracted
     exp = _roi_truth(small_camera, truth)
     for name, ch in sub.channels.items():

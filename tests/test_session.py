@@ -19,10 +19,9 @@ from camcal.calibrate.run import calibrate_session
 from camcal.calibrate.session import StageFrames, index_session
 from camcal.calibrate.sweep import (
     SweepOptions,
+    fit_sweep,
     measure_sweep,
-    measure_sweep_settings,
     read_sweep,
-    sensitivity_from_settings,
 )
 from camcal.errors import CamcalError
 from camcal.models.dark import dark_to_parts
@@ -115,14 +114,14 @@ def test_fits_read_no_file(tmp_path, small_session):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         sweep_opts = SweepOptions(mode="relative")
-        sens = measure_sweep(s / "sweep", dark=whole, mode="relative")
-        measured = measure_sweep_settings(s / "sweep", read_sweep(s / "sweep"), dark=whole, options=sweep_opts)
+        sens = fit_sweep(measure_sweep(s / "sweep", None, sweep_opts, dark=whole), sweep_opts)
+        measured = measure_sweep(s / "sweep", read_sweep(s / "sweep"), sweep_opts, dark=whole)
     shutil.rmtree(s)
     for a, b in ((fit_dark(stacks, opts), whole), (fit_dark(stacks_bias), bias_only)):
         (da, ma), (db, mb) = dark_to_parts(a), dark_to_parts(b)
         assert da == db and ma.keys() == mb.keys()
         assert all(np.array_equal(ma[k], mb[k], equal_nan=True) for k in ma)
-    again = sensitivity_from_settings(measured, sweep_opts)
+    again = fit_sweep(measured, sweep_opts)
     assert again.plane_names == sens.plane_names and again.mode == "relative"
     for p in sens.plane_names:
         assert np.array_equal(again.values[p], sens.values[p]) and np.array_equal(again.uncertainty[p],

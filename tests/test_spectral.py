@@ -22,7 +22,7 @@ import pytest
 
 from camcal.calibrate.dark import fit_dark
 from camcal.calibrate.dark_frames import measure_dark
-from camcal.calibrate.sweep import LeftOutWarning, SweepWarning, deconvolve_slit, measure_sweep
+from camcal.calibrate.sweep import LeftOutWarning, SweepOptions, SweepWarning, deconvolve_slit, fit_sweep, measure_sweep
 from camcal.curves.files import SPECTACLE_HEADER, read_spectacle_csv, write_spectacle_csv
 from camcal.errors import CamcalError, TooFewFrames
 from camcal.frame import PLANES
@@ -58,10 +58,12 @@ def assert_peaks_within_sampling(s: SpectralSensitivity, camera: SyntheticCamera
         assert abs(measured - true_peak) < step, (p, measured, true_peak)
 
 
-def quiet_measure(*args, **kwargs) -> SpectralSensitivity:
+def quiet_measure(folder, dark=None, flat=None, **options) -> SpectralSensitivity:
+    """The sweep stage's two calls with its warnings silenced; ``options``: :class:`SweepOptions` fields."""
+    opts = SweepOptions(**options)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SweepWarning)
-        return measure_sweep(*args, **kwargs)
+        return fit_sweep(measure_sweep(folder, None, opts, dark=dark, flat=flat), opts)
 
 
 @pytest.fixture(scope="module")
@@ -111,7 +113,8 @@ def test_nikon_absolute_with_dark_and_flat_within_3_percent(session_dir, camera,
 
 def test_absolute_without_flat_warns(session_dir, camera):
     with pytest.warns(SweepWarning, match="no flat model"):
-        s = measure_sweep(session_dir / "sweep", mode="absolute", roi=0.1)
+        opts = SweepOptions(mode="absolute", roi=0.1)
+        s = fit_sweep(measure_sweep(session_dir / "sweep", None, opts), opts)
     errs = rms_of_peak(s, truth_at(camera, s.wavelength_nm))
     assert max(errs.values()) < 0.03, errs
 
@@ -282,7 +285,7 @@ def test_missing_frame_is_a_clear_error(tmp_path):
     d = _mini_sweep(tmp_path / "sw")
     (d / "s_550_1.dng").unlink()
     with pytest.raises(CamcalError, match=r"lists 's_550_1.dng' at 550 nm, which is not in the folder"):
-        measure_sweep(d)
+        fit_sweep(measure_sweep(d))
     proc = run_cli("sweep", d, "-o", tmp_path / "o.csv")
     assert_one_line_error(proc, "sweep.csv", "s_550_1.dng", "not in the folder")
 
@@ -298,13 +301,13 @@ def test_path_outside_and_negative_radiance(tmp_path):
     d3 = _mini_sweep(tmp_path / "sw3")
     _edit_csv(d3, ",0.02,", ",0,")
     with pytest.raises(CamcalError, match="must be positive"):
-        measure_sweep(d3, mode="relative")
+        fit_sweep(measure_sweep(d3, None, SweepOptions(mode="relative")), SweepOptions(mode="relative"))
 
 
 def test_saturated_frames_left_out_and_wavelengths_dropped(tmp_path):
     d = _mini_sweep(tmp_path / "sw", saturate=("s_550_0.dng",))
     with pytest.warns(LeftOutWarning, match=r"left out: s_550_0.dng: saturated: .* at the white level at 550 nm"):
-        s = measure_sweep(d, mode="relative")
+        s = fit_sweep(measure_sweep(d, None, SweepOptions(mode="relative")), SweepOptions(mode="relative"))
     assert s.n_frames == {"500": 2, "550": 1, "600": 2}
     d2 = _mini_sweep(tmp_path / "sw2", saturate=("s_600_0.dng", "s_600_1.dng"))
     s2 = quiet_measure(d2, mode="relative")  # no usable frame at 600 nm: the wavelength is dropped, and said
@@ -322,7 +325,7 @@ def test_bad_roi_and_mode(tmp_path):
     with pytest.raises(CamcalError, match="ROI"):
         quiet_measure(d, roi=(0, 0, 100, 10))
     with pytest.raises(CamcalError, match="mode"):
-        measure_sweep(d, mode="absolut")  # type: ignore[arg-type]
+        fit_sweep(measure_sweep(d, None, SweepOptions(mode="absolut")), SweepOptions(mode="absolut"))  # type: ignore[arg-type]
     with pytest.raises(CamcalError, match="bandwidth_nm"):
         _edit_csv(d, ",5,", ",,")
         quiet_measure(d, deconvolve=True)

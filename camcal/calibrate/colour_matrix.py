@@ -23,6 +23,7 @@ IEEE Signal Processing Magazine 22(1), 34–43; seed eq. 12 for the per-channel 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -58,9 +59,29 @@ def twin_pairs(folder: str | Path | StageFrames) -> list[tuple[Path, Path]]:
     return pairs
 
 
-def fit_colour_matrix(folders: Sequence[str | Path | StageFrames], processed, *,
-                      roi_fraction: float = DEFAULT_ROI_FRACTION, min_frames: int = 6) -> ColourMatrix | None:
-    """Fit the colour matrix A from RAW frames and their JPEG twins (module docstring).
+@dataclass(frozen=True)
+class TwinMeasurement:
+    """The central box of each RAW frame and its processed twin (:func:`measure_colour_matrix`).
+
+    Attributes
+    ----------
+    raw_rgb_dn : (N, 3) RAW means above the file's black level, DN (the two greens averaged).
+    linearised_dn : (N, 3) linearised processed means (``processed.linearise``), DN of the response model.
+    usable : (N, 3) bool, neither channel clipped nor too dark.
+    where : the first folder (named in errors); sources : every folder (recorded).
+    """
+
+    raw_rgb_dn: np.ndarray
+    linearised_dn: np.ndarray
+    usable: np.ndarray
+    where: Path | None = None
+    sources: tuple[str, ...] = ()
+
+
+def measure_colour_matrix(folders: Sequence[str | Path | StageFrames], processed, *,
+                          roi_fraction: float = DEFAULT_ROI_FRACTION) -> TwinMeasurement | None:
+    """The file step of the colour matrix: every RAW frame of ``folders`` with a processed twin, both decoded once
+    and their central box measured (:func:`measure_twins`); None when no folder has twins.
 
     Parameters
     ----------
@@ -71,23 +92,30 @@ def fit_colour_matrix(folders: Sequence[str | Path | StageFrames], processed, *,
         one exposure.
     processed : the processed :class:`camcal.models.response.ResponseModel` (its ``linearise``).
     roi_fraction : central box, fraction of each side.
-    min_frames : usable frames each processed channel needs.
-
-    Returns
-    -------
-    ColourMatrix, or None when no folder has twins.
 
     Raises
     ------
     CamcalError
-        A twin that is not a processed image of the same size, or too few usable frames.
+        A twin that is not a processed image of the same size.
     """
     pairs = [p for f in folders for p in twin_pairs(f)]
     if not pairs:
         return None
     r, j, ok = measure_twins(pairs, processed, roi_fraction=roi_fraction)
-    return colour_matrix_from_twins(r, j, ok, min_frames=min_frames, where=folder_of(folders[0]),
-                                    sources=tuple(str(folder_of(f)) for f in folders))
+    return TwinMeasurement(r, j, ok, folder_of(folders[0]), tuple(str(folder_of(f)) for f in folders))
+
+
+def fit_colour_matrix(measured: TwinMeasurement, *, min_frames: int = 6) -> ColourMatrix:
+    """The fit of the colour matrix A (module docstring), pure: :func:`colour_matrix_from_twins` of a
+    :class:`TwinMeasurement`; ``min_frames``: usable frames each processed channel needs.
+
+    Raises
+    ------
+    CamcalError
+        Too few usable frames, or a singular matrix.
+    """
+    return colour_matrix_from_twins(measured.raw_rgb_dn, measured.linearised_dn, measured.usable,
+                                    min_frames=min_frames, where=measured.where, sources=measured.sources)
 
 
 def measure_twins(pairs: Sequence[tuple[Path, Path]], processed, *,

@@ -16,7 +16,7 @@ What this module does, per kind of file present in a folder (``raw`` planes
 R, G1, G2, B; ``processed`` channels R, G, B):
 
 1. the mean and its standard error in a central region of interest (ROI) of
-   every frame and channel (:func:`measure_series`); optional dark-frame
+   every frame and channel (:func:`measure_response`); optional dark-frame
    subtraction from a dark model (RAW only);
 2. saturation: a frame is saturated in a channel when more than 0.1 % of its
    ROI pixels sit at the white level; the top points are also trimmed while
@@ -248,18 +248,38 @@ def roi_slices(shape: tuple[int, int], roi: tuple[float, float, float, float]) -
     return slice(y0, min(y1, h)), slice(x0, min(x1, w))
 
 
-def measure_series(
+@dataclass(frozen=True)
+class ResponseOptions:
+    """Options of the linearity stage.
+
+    Attributes
+    ----------
+    roi : a :class:`camcal.region.Region` (photo pixels) or a central fraction of each side (see
+        :func:`roi_window`); default :data:`SERIES_ROI_FRACTION` (10 % of each plane's area).
+    reference_iso, reference_f_number : the setting x refers to; default the series' most common (ties: the
+        smaller value).
+    """
+
+    roi: Region | float | tuple[float, float, float, float] | None = None
+    reference_iso: float | None = None
+    reference_f_number: float | None = None
+
+
+def measure_response(
     folder: str | Path | StageFrames,
+    options: ResponseOptions = ResponseOptions(),  # noqa: B008
     *,
-    roi: Region | float | tuple[float, float, float, float] | None = None,
     dark: DarkFrameModel | None = None,
-    reference_iso: float | None = None,
-    reference_f_number: float | None = None,
     progress: Callable[[int, int], None] | None = None,
     jobs: int | None = None,
     judge: StageJudge | None = None,
 ) -> dict[str, ExposureSeries]:
-    """ROI statistics of every frame of an exposure-series folder, grouped by kind.
+    """The file step of the linearity stage: ROI statistics of every frame of an exposure-series folder (a
+    constant source, ``SESSION/linearity``, with an optional frames.csv giving ``exposure_s, iso, f_number``),
+    grouped by kind; :func:`fit_response` fits them.
+
+    ``dark``: an optional dark model (``dark_frame_dn(exposure_s, iso)``) subtracted from RAW frames.
+    ``progress(done, total)`` after each frame.
 
     ``judge``: the stage's :class:`camcal.calibrate.screen.StageJudge`: each frame is judged as it is decoded
     (unreadable, a copy, another camera...) and a frame left out is skipped, as if it were not in the folder; without a
@@ -276,6 +296,7 @@ def measure_series(
     CamcalError
         Folder without images, unreadable files, missing exposure metadata, bad ROI.
     """
+    roi, reference_iso, reference_f_number = options.roi, options.reference_iso, options.reference_f_number
     files, manifest = stage_files(folder)
     folder = folder_of(folder)
     region = roi if isinstance(roi, Region) else None
@@ -681,38 +702,9 @@ def _tone_fit(ch: ChannelResponse, fit: dict, x: np.ndarray, g: np.ndarray, sem:
 # ---------------------------------------------------------------------------------------------------------------
 
 
-def fit_response(
-    folder: str | Path | StageFrames,
-    *,
-    roi: Region | float | tuple[float, float, float, float] | None = None,
-    dark: DarkFrameModel | None = None,
-    reference_iso: float | None = None,
-    reference_f_number: float | None = None,
-    progress: Callable[[int, int], None] | None = None,
-) -> dict[str, ResponseModel]:
-    """Fit seed eq. 12 to every kind of file in an exposure-series folder.
-
-    Parameters
-    ----------
-    folder : a folder of frames of a constant source (``SESSION/linearity``), with an optional
-        frames.csv giving ``exposure_s, iso, f_number``.
-    roi : a :class:`camcal.region.Region` (photo pixels) or a central fraction of each side (see
-        :func:`roi_window`); default :data:`SERIES_ROI_FRACTION` (10 % of each plane's area).
-    dark : optional dark model (``dark_frame_dn(exposure_s, iso)``) subtracted from RAW frames.
-    reference_iso, reference_f_number : the setting x refers to; default the series' most common.
-    progress : ``progress(done, total)`` after each frame.
-
-    Returns
-    -------
-    ``{"raw": ResponseModel, "processed": ResponseModel}`` for the kinds present.
-    """
-    series = measure_series(folder, roi=roi, dark=dark, reference_iso=reference_iso,
-                            reference_f_number=reference_f_number, progress=progress)
-    return fit_series_set(series)
-
-
-def fit_series_set(series: dict[str, ExposureSeries]) -> dict[str, ResponseModel]:
-    """Fit every kind of series measured from one folder (:func:`measure_series`); pure.
+def fit_response(series: dict[str, ExposureSeries]) -> dict[str, ResponseModel]:
+    """The fit of the linearity stage, pure: every kind of series measured from one folder
+    (:func:`measure_response`), seed eq. 12.
 
     A processed frame whose RAW twin clips is masked first (:func:`mask_raw_clipped`), then each kind is
     fitted with :func:`fit_series` (seed eq. 12).

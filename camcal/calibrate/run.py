@@ -19,7 +19,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 from camcal import __version__
-from camcal.calibrate.colour_matrix import fit_colour_matrix, twin_pairs
+from camcal.calibrate.colour_matrix import fit_colour_matrix, measure_colour_matrix, twin_pairs
 from camcal.calibrate.dark import fit_dark
 from camcal.calibrate.dark_frames import DarkOptions, dark_frame_check, measure_dark
 from camcal.calibrate.emva import Nonuniformity, build_sheet, dark_noise_stacks
@@ -32,15 +32,15 @@ from camcal.calibrate.flat import (
     fit_flat,
     measure_flat,
 )
-from camcal.calibrate.response import fit_series_set, measure_series
+from camcal.calibrate.response import ResponseOptions, fit_response, measure_response
 from camcal.calibrate.screen import Screening, StageCheck, StageJudge, Verdict, screen_session
 from camcal.calibrate.session import STAGES, SessionIndex, aperture_groups, index_session, present_stages
 from camcal.calibrate.sweep import (
     SweepOptions,
-    measure_sweep_settings,
+    fit_sweep,
+    measure_sweep,
     read_sweep,
     require_wavelengths,
-    sensitivity_from_settings,
     sweep_rows,
 )
 from camcal.errors import CamcalError, TooFewFrames
@@ -535,13 +535,12 @@ def calibrate_session(
             nonlocal series, pairs
             judge = judges.get("linearity")
             with run.judging("linearity"):
-                series = measure_series(run.index.frames["linearity"], dark=dark, reference_iso=ref_iso,
-                                        reference_f_number=ref_n, progress=cb("linearity"), jobs=opts.jobs,
-                                        judge=judge)
+                series = measure_response(run.index.frames["linearity"], ResponseOptions(None, ref_iso, ref_n),
+                                          dark=dark, progress=cb("linearity"), jobs=opts.jobs, judge=judge)
             if judge is not None and not run.index.frames["linearity"].frames:
                 raise run.all_left_out("linearity")
             pairs = series["raw"].pairs if "raw" in series else None
-            return fit_series_set(series)
+            return fit_response(series)
 
         response = record.attempt("linearity", fit_linearity, left_out=True)
     if "sweep" in stages:
@@ -571,14 +570,13 @@ def calibrate_session(
                 notes.append(f"no flats at the sweep's f/{ref_n:g}: its region of interest corrected with the "
                              f"{sweep_flat.optics.label()} vignetting model")
 
-        def fit_sweep():
+        def sweep_stage():
             if not rows:
                 raise TooFewFrames("sweep", "frames listed in sweep.csv", 1, 0)
             try:
                 with run.judging("sweep"):
-                    measured = measure_sweep_settings(sweep.folder, rows, dark=dark, flat=sweep_flat,
-                                                      options=sweep_opts, jobs=opts.jobs, progress=cb("sweep"),
-                                                      judge=judge)
+                    measured = measure_sweep(sweep.folder, rows, sweep_opts, dark=dark, flat=sweep_flat,
+                                             jobs=opts.jobs, progress=cb("sweep"), judge=judge)
             except TooFewFrames:
                 if judge is None or any(r is None for r in judge.reasons.values()):
                     raise
@@ -588,15 +586,16 @@ def calibrate_session(
                 raise TooFewFrames("sweep", "frames listed in sweep.csv", 1, 0) from None
             record.leave_out([Verdict("sweep", name, reason) for name, reason in measured.left_out])
             require_wavelengths(measured, listed=listed)
-            return sensitivity_from_settings(measured, sweep_opts)
+            return fit_sweep(measured, sweep_opts)
 
-        spectral = record.attempt("sweep", fit_sweep, left_out=True)
+        spectral = record.attempt("sweep", sweep_stage, left_out=True)
         if spectral is not None and flat is None:
             notes.append("sweep without a flat model: c(λ) refers to the region of interest, not the optical axis")
         if response is not None and "processed" in response:
             if twin_pairs(run.index.frames["sweep"]):  # the sweep's colours; the series adds a broadband one
-                cm = fit_colour_matrix([run.index.frames["sweep"], run.index.frames["linearity"]],
-                                       response["processed"])
+                twins = measure_colour_matrix([run.index.frames["sweep"], run.index.frames["linearity"]],
+                                              response["processed"])
+                cm = fit_colour_matrix(twins)  # type: ignore[arg-type] (the sweep has twins)
                 response = {**response, "processed": replace(response["processed"], colour_matrix=cm)}
             else:
                 notes.append("JPEG response without a colour matrix (the sweep has no JPEG twins): JPEG radiance "

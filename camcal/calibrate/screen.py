@@ -12,8 +12,9 @@ Where a frame is judged (each frame decoded once for its verdict and its stage):
   (threads, one frame in memory per thread) and judges the frames whose stage does not judge them itself
   (in ``camcal calibrate``: the sweep's JPEG twins, and flats of several f-numbers, grouped on the frames used).
 - The stages given a :class:`StageJudge` (``camcal calibrate``: the bias and dark stacks and the master flat,
-  :func:`camcal.calibrate.stack.combine_frames`; the linearity series, :func:`camcal.calibrate.response.measure_series`;
-  the sweep's rows, :func:`camcal.calibrate.sweep.measure_sweep_settings`) judge each frame as they decode it for their
+  :func:`camcal.calibrate.stack.combine_frames`; the linearity series,
+  :func:`camcal.calibrate.response.measure_response`; the sweep's rows, :func:`camcal.calibrate.sweep.measure_sweep`)
+  judge each frame as they decode it for their
   fit, in their one streaming pass, and leave a frame judged unusable out of what they accumulate. ``--strict`` judges
   every frame in :func:`screen_session` first (all or nothing, refused at the first problem).
 

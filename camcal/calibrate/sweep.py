@@ -279,75 +279,24 @@ def combine_wavelength(results: Sequence[_FrameResult]) -> tuple[np.ndarray, np.
     return value, u_noise, np.asarray(u_ref)
 
 
-def measure_sweep(
-    sweep_folder: str | Path,
-    *,
-    rows: Sequence[SweepRow] | None = None,
-    dark: DarkModel | str | Path | None = None,
-    flat: FlatModel | str | Path | None = None,
-    roi: Region | tuple[int, int, int, int] | float | None = None,
-    mode: Literal["relative", "absolute"] = "absolute",
-    deconvolve: bool = False,
-    slit: Literal["gaussian", "triangular"] = "gaussian",
-    regularisation: float | None = None,
-    reference_iso: float = DEFAULT_REFERENCE_ISO,
-    reference_f_number: float = DEFAULT_REFERENCE_F_NUMBER,
-    max_saturated_fraction: float = 1e-3,
-    min_frames: int = 1,
-    jobs: int | None = 2,
-    progress: Callable[[int, int], None] | None = None,
-) -> SpectralSensitivity:
-    """Measure c(λ) per CFA plane from ``SWEEP/`` and its ``sweep.csv`` (seed §3.1).
+@dataclass(frozen=True)
+class SweepOptions:
+    """Options of the sweep stage.
 
-    Parameters
+    Attributes
     ----------
-    sweep_folder : folder holding the frames and ``sweep.csv`` (columns ``file,
-        wavelength_nm, radiance_W_m2_sr`` required; ``radiance_unc_W_m2_sr,
-        bandwidth_nm, exposure_s, iso, f_number`` optional).
-    rows : the rows of ``sweep.csv`` already read (:func:`sweep_rows` of the session index's manifest);
-        None reads ``sweep_folder/sweep.csv``.
-    dark : DarkModel or path to ``dark.json``, optional
-        Subtracted per pixel at each frame's exposure; without it the file's
-        black level is subtracted (dark current then biases c(λ) by β/L).
-    flat : FlatModel or path to ``flat.json``, optional
-        The ROI is divided by the smooth gain (1 at the optical centre), so
-        absolute values refer to the optical axis. Without it, absolute mode warns.
-    roi : a :class:`camcal.region.Region` (photo pixels, rounded outward to whole planes' pixels),
-        (x0, y0, x1, y1) in plane pixels (half resolution for Bayer), or a fraction of
-        each side for a centred box (default 0.2).
-    mode : "absolute" (DN s⁻¹ per (W m⁻² sr⁻¹ nm⁻¹) per nm at the reference
-        setting) or "relative" (divided by the largest value over all planes).
-    deconvolve : bool
-        Remove the slit function (``bandwidth_nm`` required) with
-        :func:`deconvolve_slit`.
+    roi : a :class:`camcal.region.Region` (photo pixels, rounded outward to whole planes' pixels), (x0, y0, x1, y1)
+        in plane pixels (half resolution for Bayer), or a fraction of each side for a centred box (default 0.2).
+    mode : "absolute" (DN s⁻¹ per (W m⁻² sr⁻¹ nm⁻¹) per nm at the reference setting) or "relative" (divided by
+        the largest value over all planes).
+    deconvolve : remove the slit function (``bandwidth_nm`` required) with :func:`deconvolve_slit`.
     slit : slit function shape for deconvolution.
     regularisation : Tikhonov weight for deconvolution (None: chosen by GCV).
     reference_iso, reference_f_number : the reference setting (seed §2.1).
-    max_saturated_fraction : a frame with more than this fraction of clipped ROI
-        pixels is skipped with a :class:`SweepWarning`.
+    max_saturated_fraction : a frame with more than this fraction of clipped ROI pixels is skipped with a
+        :class:`SweepWarning`.
     min_frames : frames that must remain per wavelength after skipping.
-    jobs : decoding threads (LibRaw releases the GIL); None: automatic (:func:`camcal.threads.thread_count`).
-    progress : ``progress(done, total)`` after each frame.
-
-    Raises
-    ------
-    CamcalError
-        Bad manifest, missing frame, path outside the folder, negative or zero
-        radiance, non-RAW frames, mismatched sizes, too few unsaturated frames.
     """
-    options = SweepOptions(roi=roi, mode=mode, deconvolve=deconvolve, slit=slit, regularisation=regularisation,
-                           reference_iso=reference_iso, reference_f_number=reference_f_number,
-                           max_saturated_fraction=max_saturated_fraction, min_frames=min_frames)
-    options.check()
-    rows = list(rows) if rows is not None else read_sweep(sweep_folder)
-    measured = measure_sweep_settings(sweep_folder, rows, dark=dark, flat=flat, options=options, jobs=jobs,
-                                      progress=progress)
-    return sensitivity_from_settings(measured, options)
-
-
-@dataclass(frozen=True)
-class SweepOptions:
-    """Options of the sweep stage (see :func:`measure_sweep` for each)."""
 
     roi: Region | tuple[int, int, int, int] | float | None = None
     mode: Literal["relative", "absolute"] = "absolute"
@@ -389,7 +338,7 @@ class SweepSetting:
 
 @dataclass(frozen=True)
 class SweepMeasurement:
-    """What :func:`measure_sweep_settings` read from the sweep's files: one :class:`SweepSetting` per
+    """What :func:`measure_sweep` read from the sweep's files: one :class:`SweepSetting` per
     wavelength (ascending), the plane names, notes (dropped wavelengths, saturating defects), ``sweep.csv`` and
     the frames left out with their reasons."""
 
@@ -403,19 +352,28 @@ class SweepMeasurement:
     """Wavelengths listed in ``sweep.csv``."""
 
 
-def measure_sweep_settings(
+def measure_sweep(
     sweep_folder: str | Path,
-    rows: Sequence[SweepRow],
+    rows: Sequence[SweepRow] | None = None,
+    options: SweepOptions = SweepOptions(),  # noqa: B008
     *,
     dark: DarkModel | str | Path | None = None,
     flat: FlatModel | str | Path | None = None,
-    options: SweepOptions = SweepOptions(),  # noqa: B008
     jobs: int | None = 2,
     progress: Callable[[int, int], None] | None = None,
     judge: StageJudge | None = None,
 ) -> SweepMeasurement:
-    """The file step of the sweep: decode every frame of ``rows`` once (in threads), correct its ROI
-    (:mod:`camcal.models.correct`), skip saturated frames and combine each wavelength (:func:`combine_wavelength`).
+    """The file step of the sweep (seed §3.1): decode every frame of ``rows`` once (in threads), correct its ROI
+    (:mod:`camcal.models.correct`; the dark model subtracted per pixel at each frame's exposure, else the file's
+    black level; the ROI divided by the flat's smooth gain, so absolute values refer to the optical axis), skip
+    saturated frames and combine each wavelength (:func:`combine_wavelength`). :func:`fit_sweep` turns the
+    measurement into c(λ).
+
+    ``sweep_folder`` holds the frames and ``sweep.csv`` (columns ``file, wavelength_nm, radiance_W_m2_sr``
+    required; ``radiance_unc_W_m2_sr, bandwidth_nm, exposure_s, iso, f_number`` optional); ``rows``: its rows
+    already read (:func:`sweep_rows` of the session index's manifest), None reads ``sweep_folder/sweep.csv``.
+    ``jobs``: decoding threads (None: :func:`camcal.threads.thread_count`); ``progress(done, total)`` after each
+    frame.
 
     ``judge``: the stage's :class:`camcal.calibrate.screen.StageJudge`: each frame is judged as it is decoded
     (unreadable, a copy, another camera, not RAW...) and a frame left out is skipped, as if its row were not
@@ -425,8 +383,11 @@ def measure_sweep_settings(
     Raises
     ------
     CamcalError
-        Negative or zero radiance, non-RAW frames, mismatched sizes, too few unsaturated frames.
+        Bad manifest, missing frame, path outside the folder, negative or zero radiance, non-RAW frames,
+        mismatched sizes, too few unsaturated frames.
     """
+    options.check()
+    rows = list(rows) if rows is not None else read_sweep(sweep_folder)
     reference_iso, reference_f_number = options.reference_iso, options.reference_f_number
     roi, max_saturated_fraction, min_frames = options.roi, options.max_saturated_fraction, options.min_frames
     csv_path = Path(sweep_folder) / SWEEP_CSV
@@ -631,7 +592,7 @@ def no_light(frames: Sequence[_FrameResult]) -> list[tuple[_FrameResult, str]]:
     Each frame's signal per unit exposure and reference radiance, s_k / (x_k L_k), is compared with the median of
     the other frames at the wavelength; a frame is left out when its own is below :data:`NO_LIGHT_FRACTION` of
     that median. Frames alone at their wavelength are judged against the neighbouring wavelengths by
-    :func:`measure_sweep_settings`.
+    :func:`measure_sweep`.
     """
     if len(frames) < 2:
         return []
@@ -651,7 +612,7 @@ def no_light(frames: Sequence[_FrameResult]) -> list[tuple[_FrameResult, str]]:
     return out
 
 
-def sensitivity_from_settings(measured: SweepMeasurement, options: SweepOptions = SweepOptions()  # noqa: B008
+def fit_sweep(measured: SweepMeasurement, options: SweepOptions = SweepOptions()  # noqa: B008
                               ) -> SpectralSensitivity:
     """c(λ) per plane from the per-wavelength measurements (seed §3.1); pure.
 

@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
-from camcal.calibrate.response import fit_response
+from camcal.calibrate.response import ResponseOptions, fit_response, measure_response
 from camcal.cli.common import console, fraction, print_json, progress
 from camcal.errors import CamcalError
 from camcal.io.store import to_jsonable
@@ -49,8 +49,8 @@ def register(app: typer.Typer) -> None:
             def tick(done: int, total: int) -> None:
                 bar.update(task, completed=done, total=total)
 
-            models = fit_response(folder, roi=region, dark=dark_model, reference_iso=reference_iso,
-                                  reference_f_number=reference_f_number, progress=tick)
+            options = ResponseOptions(roi=region, reference_iso=reference_iso, reference_f_number=reference_f_number)
+            models = fit_response(measure_response(folder, options, dark=dark_model, progress=tick))
         save_response(models, out)
         plots = []
         if plot:

@@ -12,7 +12,7 @@ import typer
 from rich.table import Table
 
 from camcal.calibrate.session import resolve_exposure
-from camcal.calibrate.sweep import measure_sweep, read_sweep
+from camcal.calibrate.sweep import SweepOptions, fit_sweep, measure_sweep, read_sweep
 from camcal.cli.common import console, err_console, fraction, plot_path, print_json, progress
 from camcal.curves.files import write_spectacle_csv
 from camcal.curves.library import with_layout
@@ -135,11 +135,11 @@ def register(app: typer.Typer) -> None:
         with warnings.catch_warnings(record=True) as caught, progress() as bar:
             warnings.simplefilter("always")
             task = bar.add_task("sweep frames", total=total)
-            result = measure_sweep(
-                sweep, dark=dark, flat=flat, roi=region, mode=mode, deconvolve=deconvolve,  # type: ignore[arg-type]
-                slit=slit, reference_iso=reference_iso, reference_f_number=reference_f_number,  # type: ignore[arg-type]
-                jobs=jobs, progress=lambda done, n: bar.update(task, completed=done),
-            )
+            options = SweepOptions(roi=region, mode=mode, deconvolve=deconvolve, slit=slit,  # type: ignore[arg-type]
+                                   reference_iso=reference_iso, reference_f_number=reference_f_number)  # type: ignore[arg-type]
+            measured = measure_sweep(sweep, rows, options, dark=dark, flat=flat, jobs=jobs,
+                                     progress=lambda done, n: bar.update(task, completed=done))
+            result = fit_sweep(measured, options)
         for msg in dict.fromkeys(" ".join(str(w.message).split()) for w in caught):
             err_console.print(f"camcal: warning: {msg}", soft_wrap=True, markup=False, highlight=False)
         write_spectacle_csv(result, output)
