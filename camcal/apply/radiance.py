@@ -153,6 +153,25 @@ def smooth_operator(wavelength_nm: np.ndarray, c: np.ndarray, length_nm: float =
     return k @ cmat.T @ np.linalg.inv(ckc + reg * np.eye(ckc.shape[0]))
 
 
+def _trained_row(wl: np.ndarray, c: np.ndarray, target_nm: float) -> tuple[np.ndarray, float]:
+    """The ``trained`` estimator's weights on (R, G, B) at ``target_nm`` and its leave-one-out spread
+    (:func:`trained_weights`)."""
+    return trained_weights(wl, {k: c[i] for i, k in enumerate(RGB)}, target_nm)
+
+
+def _smooth_row(wl: np.ndarray, c: np.ndarray, target_nm: float) -> tuple[np.ndarray, float]:
+    """The ``smooth`` estimator's weights on (R, G, B) at ``target_nm`` (a row of :func:`smooth_operator`) and its
+    RMS error over the priors (:func:`smooth_spread_rel`)."""
+    m = smooth_operator(wl, c)
+    row = np.array([np.interp(target_nm, wl, m[:, i]) for i in range(3)])
+    return row, smooth_spread_rel(wl, {k: c[i] for i, k in enumerate(RGB)}, target_nm)
+
+
+SPECTRAL_ROWS = {"trained": _trained_row, "smooth": _smooth_row}
+"""The estimators that reconstruct a spectrum from the three channels: name → (wavelengths, c (3, n), λ0) →
+(weights on R, G, B, relative spectral error)."""
+
+
 def radiance_model(
     wavelength_nm: np.ndarray,
     c_rgb: dict[str, np.ndarray],
@@ -212,12 +231,7 @@ def radiance_model(
         return RadianceModel(band, band_unc, float(target_nm), estimator, weights, float(rel), units, RGB[best])
     # relative uncertainty from c(λ): first order, rate ~ c·L so δL/L ~ δc/c of the weighted band
     rel = float(np.sqrt(np.sum((band_unc / band) ** 2) / 3))
-    if estimator == "trained":
-        row, spread = trained_weights(wl, {k: c[i] for i, k in enumerate(RGB)}, float(target_nm))
-    else:
-        m = smooth_operator(wl, c)
-        row = np.array([np.interp(target_nm, wl, m[:, i]) for i in range(3)])
-        spread = smooth_spread_rel(wl, {k: c[i] for i, k in enumerate(RGB)}, float(target_nm))
+    row, spread = SPECTRAL_ROWS[estimator](wl, c, float(target_nm))
     return RadianceModel(band, band_unc, float(target_nm), estimator, row, rel, SPECTRAL_RADIANCE, None,
                          spectral_unc_rel=float(spread))
 

@@ -251,10 +251,31 @@ def _reading_sigma(darks: np.ndarray, integer_floor: bool) -> np.ndarray:
     return sig
 
 
+def _camcal_dark(cam: np.ndarray, j: int, before: int | None, around: list[int]) -> np.ndarray:
+    """Lit reading ``j`` less the mean of the dark readings just before and after it."""
+    return cam[j] - cam[around].mean(axis=0)
+
+
+def _publisher_dark(cam: np.ndarray, j: int, before: int | None, around: list[int]) -> np.ndarray:
+    """Lit reading ``j`` less the dark reading before it, clipped at 0 (the publisher's ``process_data.c``)."""
+    if before is None:
+        raise CamcalError(f"lit reading {j + 1} has no dark reading before it (the publisher's reduction needs one)")
+    return np.maximum(cam[j] - cam[before], 0.0)
+
+
+DARK_REDUCTIONS = {
+    "camcal": (_camcal_dark, "dark = mean of the dark readings before and after each lit reading"),
+    "publisher": (_publisher_dark, "camera dark = the reading before; negative camera signals clipped to 0 (the "
+                                   "publisher's process_data.c)"),
+}
+"""The camera's dark subtraction of each ``method`` of :func:`reduce_sweep`: (function, note)."""
+
+
 def reduce_sweep(readings: SweepReadings, method: Method = "camcal") -> SweepReduction:
     """c(λ) per channel from sweep readings (module docstring: the maths, the two methods, u from repeats)."""
-    if method not in ("camcal", "publisher"):
-        raise CamcalError(f"unknown sweep-means reduction {method!r}; use camcal or publisher")
+    if method not in DARK_REDUCTIONS:
+        raise CamcalError(f"unknown sweep-means reduction {method!r}; use {' or '.join(DARK_REDUCTIONS)}")
+    lit_minus_dark, dark_note = DARK_REDUCTIONS[method]
     st = readings.state
     dark_idx = np.flatnonzero(st == "dark")
     lit_idx = np.flatnonzero(st == "lit")
@@ -270,14 +291,7 @@ def reduce_sweep(readings: SweepReadings, method: Method = "camcal") -> SweepRed
             raise CamcalError(f"lit reading {int(j) + 1} has no dark reading before or after it")
         around = [k for k in (b, a) if k is not None]
         ref_dark = np.mean(ref[around])
-        if method == "publisher":
-            if b is None:
-                raise CamcalError(f"lit reading {int(j) + 1} has no dark reading before it (the publisher's "
-                                  "reduction needs one)")
-            d = np.maximum(cam[j] - cam[b], 0.0)
-        else:
-            d = cam[j] - cam[around].mean(axis=0)
-        d_list.append(d)
+        d_list.append(lit_minus_dark(cam, int(j), b, around))
         r_list.append(ref[j] - ref_dark)
         nd_list.append(len(around))
     d = np.array(d_list)
@@ -318,12 +332,7 @@ def reduce_sweep(readings: SweepReadings, method: Method = "camcal") -> SweepRed
         else:
             out_u[k] = u_single[sel][0]
     notes = [f"sweep means ({readings.name}): c = (lit − dark) / ((reference − its dark) / responsivity), "
-             f"{'publisher' if method == 'publisher' else 'camcal'} reduction"]
-    if method == "publisher":
-        notes.append("camera dark = the reading before; negative camera signals clipped to 0 (the publisher's "
-                     "process_data.c)")
-    else:
-        notes.append("dark = mean of the dark readings before and after each lit reading")
+             f"{method} reduction", dark_note]
     if not repeated:
         notes.append("one reading per wavelength: u(c) from the scatter of the repeated dark readings (a lower "
                      "bound where the lit reading's photon noise dominates)")

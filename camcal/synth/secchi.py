@@ -143,14 +143,16 @@ class SecchiScenes:
     truth: dict
 
 
-def _geometry(model):
+GEOMETRIES = {"refined": RefinedModel, "seed": SeedModel}
+"""The water models a synthetic Secchi scene can be rendered with, by name."""
 
+
+def _geometry(model):
+    """The water model ``model`` names (:data:`GEOMETRIES`), or the model itself."""
     if isinstance(model, str):
-        if model == "refined":
-            return RefinedModel()
-        if model == "seed":
-            return SeedModel()
-        raise CamcalError(f"unknown water model {model!r}; use refined or seed")
+        if model not in GEOMETRIES:
+            raise CamcalError(f"unknown water model {model!r}; use {' or '.join(GEOMETRIES)}")
+        return GEOMETRIES[model]()
     if not hasattr(model, "closed_form"):
         raise CamcalError("water model must be 'refined', 'seed' or a SeedModel/RefinedModel")
     return model

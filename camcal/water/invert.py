@@ -262,6 +262,24 @@ class Inversion:
         return {"pixels": int(self.reason.size), "valid": int(ok.sum()), "reasons": counts, **stats}
 
 
+def _tau_by_table(r: np.ndarray, cf: ClosedForm) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """τ, the reason codes and dτ/dln R of ratios ``r`` by the interpolated table (:func:`tau_table`)."""
+    return tau_table(cf).tau(r, with_slope=True)
+
+
+def _tau_by_newton(r: np.ndarray, cf: ClosedForm) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """τ, the reason codes and dτ/dln R of ratios ``r`` by Newton's method per pixel (:func:`tau_newton`)."""
+    tau, reason = tau_newton(r.astype(float), cf)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        slope = 1.0 / -cf.dlog_ratio_dtau(np.where(np.isfinite(tau), tau, 0.0))
+    return tau, reason, slope
+
+
+TAU_METHODS = {"table": _tau_by_table, "newton": _tau_by_newton}
+"""How :func:`invert_ratio` solves R(τ) = ratio: ``table`` (fast, for images) or ``newton`` (per pixel, the
+reference)."""
+
+
 def invert_ratio(ratio, model, depth_m, *, sigma_ln_ratio=None, method: str = "table") -> Inversion:
     """Chlorophyll-a from the ratio of disk radiance to reference radiance, per pixel.
 
@@ -300,14 +318,9 @@ def invert_ratio(ratio, model, depth_m, *, sigma_ln_ratio=None, method: str = "t
     if method == "table" and scalar_depth and scalar_sigma:
         return _finite_or_reason(_invert_table_scalar(r, model, cf, float(depth_m), sigma_ln_ratio))
     depth = np.broadcast_to(np.asarray(depth_m, dtype=float), r.shape)
-    if method == "table":
-        tau, reason, slope = tau_table(cf).tau(r, with_slope=True)
-    elif method == "newton":
-        tau, reason = tau_newton(r.astype(float), cf)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            slope = 1.0 / -cf.dlog_ratio_dtau(np.where(np.isfinite(tau), tau, 0.0))
-    else:
-        raise ValueError(f"unknown method {method!r}; use 'table' or 'newton'")
+    if method not in TAU_METHODS:
+        raise ValueError(f"unknown method {method!r}; use {' or '.join(map(repr, TAU_METHODS))}")
+    tau, reason, slope = TAU_METHODS[method](r, cf)
     reason = reason.copy()
     good_depth = np.isfinite(depth) & (depth >= MIN_DEPTH_M)
     reason[~good_depth & (reason == 0)] = Reason.BAD_DEPTH

@@ -70,13 +70,15 @@ def fresnel_reflectance(theta_i_rad, n1: float = N_AIR, n2: float = N_WATER):
     return np.where(tir, 1.0, np.nan_to_num(r, nan=1.0))
 
 
+REFLECTANCE_METHODS = {"fresnel": fresnel_reflectance, "schlick": schlick_reflectance}
+"""The surface reflectance R(θ_i, n1, n2) of each ``method``: Fresnel's unpolarised (exact) or Schlick's."""
+
+
 def transmittance(theta_i_rad, n1: float = N_AIR, n2: float = N_WATER, method: str = "fresnel"):
-    """T = 1 - R (seed §1.1.2) with R from ``method`` = 'fresnel' (exact) or 'schlick'."""
-    if method == "fresnel":
-        return 1.0 - fresnel_reflectance(theta_i_rad, n1, n2)
-    if method == "schlick":
-        return 1.0 - schlick_reflectance(theta_i_rad, n1, n2)
-    raise ValueError(f"unknown reflectance method {method!r}; use 'fresnel' or 'schlick'")
+    """T = 1 - R (seed §1.1.2) with R from ``method`` (:data:`REFLECTANCE_METHODS`)."""
+    if method not in REFLECTANCE_METHODS:
+        raise ValueError(f"unknown reflectance method {method!r}; use {' or '.join(map(repr, REFLECTANCE_METHODS))}")
+    return 1.0 - REFLECTANCE_METHODS[method](theta_i_rad, n1, n2)
 
 
 @functools.lru_cache(maxsize=8)
