@@ -88,6 +88,16 @@ RELATIVE_UNITS = "relative (c(λ) without an absolute scale: ratios only)"
 OUTPUT_CHANNELS = ("R", "G", "B", "L", "L_unc", "R_unc", "G_unc", "B_unc")
 
 
+SPECTRAL_ASSUMPTIONS = {
+    "narrowband": "light confined near the wavelength (a line or an interference filter); on a broadband scene L is "
+                  "the in-band radiance, not a spectral radiance, and its spectral error is unbounded",
+    "smooth": "smooth spectrum (no lines); spectral_unc_rel is the RMS error over the priors",
+    "trained": "a scene like the prior spectra (black bodies, daylight, reflectances under daylight); "
+               "spectral_unc_rel is the leave-one-out RMS error over them",
+}
+"""What each L(λ0) estimator assumes of the scene (:mod:`camcal.apply.radiance`), written in the EXR's metadata."""
+
+
 def next_step_for_c(profile) -> str:
     """What to do for a profile without a usable c(λ): the step that fits the profile at hand."""
     spectral = getattr(profile, "spectral", None)
@@ -578,13 +588,7 @@ def apply_prepared(frame: Frame, plan: ApplyPlan, *, allow_other_camera: bool = 
         "band_scale_unc_rel": [float(u / b) for u, b in zip(plan.model.band_unc, plan.model.band_integral,
                                                              strict=True)],
         "spectral_unc_rel": plan.model.spectral_unc_rel,
-        "spectral_assumption": ("light confined near the wavelength (a line or an interference filter); on a "
-                                "broadband scene L is the in-band radiance, not a spectral radiance, and its "
-                                "spectral error is unbounded" if plan.model.estimator == "narrowband" else
-                                "smooth spectrum (no lines); spectral_unc_rel is the RMS error over the priors"
-                                if plan.model.estimator == "smooth" else
-                                "a scene like the prior spectra (black bodies, daylight, reflectances under "
-                                "daylight); spectral_unc_rel is the leave-one-out RMS error over them"),
+        "spectral_assumption": SPECTRAL_ASSUMPTIONS.get(plan.model.estimator, SPECTRAL_ASSUMPTIONS["trained"]),
         "estimator_summary": plan.model.describe(),
         "estimator_candidates": [list(c) for c in plan.model.candidates],
         "wavelength_nm": plan.model.wavelength_nm,

@@ -657,21 +657,31 @@ def fit_sweep(measured: SweepMeasurement, options: SweepOptions = SweepOptions()
 
 
 # ---- finite bandwidth ----------------------------------------------------------------------
+def _gaussian_slits(grid_nm: np.ndarray, centre_nm: np.ndarray, fwhm_nm: np.ndarray) -> np.ndarray:
+    """``colour.sd_gaussian(centre, fwhm, method="FWHM")`` on the grid, one row per setting."""
+    import colour  # loads matplotlib: kept off paths that do not plot
+
+    grid = colour.SpectralShape(float(grid_nm[0]), float(grid_nm[-1]), float(grid_nm[1] - grid_nm[0]))
+    return np.stack([np.asarray(colour.sd_gaussian(float(c), float(f), shape=grid, method="FWHM").values)
+                     for c, f in zip(centre_nm, fwhm_nm, strict=True)])
+
+
+def _triangular_slits(grid_nm: np.ndarray, centre_nm: np.ndarray, fwhm_nm: np.ndarray) -> np.ndarray:
+    """1 − |offset|/FWHM, clipped at 0, one row per setting."""
+    return np.clip(1.0 - np.abs(grid_nm[None, :] - centre_nm[:, None]) / fwhm_nm[:, None], 0.0, None)
+
+
+SLIT_SHAPES = {"gaussian": _gaussian_slits, "triangular": _triangular_slits}
+"""A monochromator's slit function by name: (grid, centres, FWHMs in nm) → unit-peak rows."""
+
+
 def slit_functions(grid_nm: np.ndarray, centre_nm: np.ndarray, fwhm_nm: np.ndarray,
                    shape: str = "gaussian") -> np.ndarray:
-    """Unit-peak slit functions (n, len(grid)) of the settings ``centre_nm`` on a regular ``grid_nm``.
-
-    Gaussian: ``colour.sd_gaussian(centre, fwhm, method="FWHM")``; triangular: 1 − |offset|/FWHM, clipped at 0.
-    """
-    if shape == "gaussian":
-        import colour  # loads matplotlib: kept off paths that do not plot
-
-        grid = colour.SpectralShape(float(grid_nm[0]), float(grid_nm[-1]), float(grid_nm[1] - grid_nm[0]))
-        return np.stack([np.asarray(colour.sd_gaussian(float(c), float(f), shape=grid, method="FWHM").values)
-                         for c, f in zip(centre_nm, fwhm_nm, strict=True)])
-    if shape == "triangular":
-        return np.clip(1.0 - np.abs(grid_nm[None, :] - centre_nm[:, None]) / fwhm_nm[:, None], 0.0, None)
-    raise CamcalError(f"unknown slit shape {shape!r}; use gaussian or triangular")
+    """Unit-peak slit functions (n, len(grid)) of the settings ``centre_nm`` on a regular ``grid_nm``, of
+    ``shape`` (:data:`SLIT_SHAPES`)."""
+    if shape not in SLIT_SHAPES:
+        raise CamcalError(f"unknown slit shape {shape!r}; use {' or '.join(SLIT_SHAPES)}")
+    return SLIT_SHAPES[shape](np.asarray(grid_nm, float), np.asarray(centre_nm, float), np.asarray(fwhm_nm, float))
 
 
 def slit_matrix(wavelength_nm: np.ndarray, fwhm_nm: np.ndarray | float, shape: str = "gaussian",

@@ -369,6 +369,11 @@ def _evidence(signal, signal_cov, chart, light, basis, k, reg) -> float:
     return total
 
 
+ILLUMINANT_FAMILIES = {"daylight": (daylight, (4000.0, 25000.0)), "blackbody": (blackbody, (1500.0, 20000.0))}
+"""The lights :func:`estimate_illuminant` searches: family → (spectrum of a temperature in K, the K range searched
+by default: CIE daylight's correlated colour temperatures, a black body's temperatures)."""
+
+
 def estimate_illuminant(signal: dict[str, np.ndarray], signal_cov: dict[str, np.ndarray], chart: ChartReflectance,
                         basis: CameraBasis, *, family: Literal["daylight", "blackbody"] = "daylight",
                         n_components: int = DEFAULT_COMPONENTS, regularisation: float = DEFAULT_REGULARISATION,
@@ -387,10 +392,10 @@ def estimate_illuminant(signal: dict[str, np.ndarray], signal_cov: dict[str, np.
     ----------
     MacKay, D. J. C. (1992). Bayesian interpolation. Neural Computation 4(3), 415-447.
     """
-    make = {"daylight": daylight, "blackbody": blackbody}.get(family)
-    if make is None:
-        raise CamcalError(f"unknown illuminant family {family!r}; use daylight or blackbody")
-    lo, hi = range_K or ((4000.0, 25000.0) if family == "daylight" else (1500.0, 20000.0))
+    if family not in ILLUMINANT_FAMILIES:
+        raise CamcalError(f"unknown illuminant family {family!r}; use {' or '.join(ILLUMINANT_FAMILIES)}")
+    make, default_range_K = ILLUMINANT_FAMILIES[family]
+    lo, hi = range_K or default_range_K
     wl = basis.wavelength_nm
     k = int(n_components)
 
