@@ -83,7 +83,7 @@ def profile_path(session_dir, tmp_path_factory) -> Path:
 @pytest.fixture(scope="session")
 def demo_run(tmp_path_factory) -> tuple[Path, subprocess.CompletedProcess]:
     """``camcal demo -o <folder>/camcal-demo`` (the README's first command) run once per test run by the real CLI:
-    the demo's folder and the finished process (its exit code, stdout and stderr). tests/test_demo.py checks the
+    the demo's folder and the finished process (its exit code, stdout and stderr). tests/demo/test_demo.py checks the
     run; tests/test_docs_run.py runs the docs' examples on its files."""
 
     def build(folder: Path) -> None:

@@ -54,10 +54,11 @@ PLACEHOLDERS = (
 #: Examples that are not run, by a fragment of the command, with the reason.
 NOT_RUN = {
     "camcal demo": "the session fixture runs the README's demo command itself",
-    "phone.camcal": "needs photos of a colour chart and a phone's survey (tests/test_chart_profile.py runs the "
+    "phone.camcal": "needs photos of a colour chart and a phone's survey (tests/chart/test_profile_build.py runs the "
     "phone chapter's commands on camcal synth phone's photos)",
-    "camcal chart": "needs photos of a colour chart (tests/test_chart_profile.py and tests/test_chart_detect.py)",
-    "import-spectral": "needs photos of reference targets of known radiance (tests/test_spectral_import.py runs it)",
+    "camcal chart": "needs photos of a colour chart (tests/chart/test_profile_build.py and tests/chart/test_detect.py)",
+    "import-spectral": "needs photos of reference targets of known radiance "
+    "(tests/curves/test_import_spectral.py runs it)",
     "--dask-scheduler": "needs a Dask cluster",
     "--model lamp --lamp-height 1m±1cm --lamp-angle 20±0.5 --profile": "needs photos of a lamp-lit tank and a dye "
     "spectrum (notebook 04 runs it on synthetic photos)",
@@ -65,10 +66,10 @@ NOT_RUN = {
     "a dye spectrum (notebook 04 runs it on synthetic photos)",
     "camcal water invert ...": "an elided synopsis, not a command",
     "cam_abs.camcal": "shows the profile the import-spectral example writes",
-    "camcal secchi": "needs sunlit photos of a Secchi disk with their time and GPS (tests/test_field_water.py runs "
+    "camcal secchi": "needs sunlit photos of a Secchi disk with their time and GPS (tests/water/test_field.py runs "
     "camcal secchi end to end on rendered scenes, from DNG, JPEG and HEIC)",
-    "--means": "needs a sweep published as channel means (tests/test_sweep_means.py runs it on the open sweeps of "
-    "../shared/realdata/sweeps)",
+    "--means": "needs a sweep published as channel means (tests/curves/test_published_sweeps.py runs it on the open "
+    "sweeps of ../shared/realdata/sweeps)",
 }
 
 
@@ -137,7 +138,7 @@ def _parse_only(argv: list[str]) -> None:
 def workdir(tmp_path_factory, demo_run):
     """The README's own demo command run once; the working folder holds its files under the docs' names.
 
-    The run is the ``demo_run`` fixture's (``camcal demo -o DIR`` by the real CLI, shared with tests/test_demo.py):
+    The run is the ``demo_run`` fixture's (``camcal demo -o DIR`` by the real CLI, shared with tests/demo/test_demo.py):
     the README's command must be exactly that one, with only the output folder's name in place of DIR."""
     work = tmp_path_factory.mktemp("docs")
     (demo_cmd,) = [c for p, _, c in all_commands() if p == "README.md" and c.startswith("camcal demo")]

@@ -1,6 +1,6 @@
 """``docs/cli.md``: every command and option, generated from the Typer app, and the naming rules it keeps.
 
-Regenerate with ``python -m camcal.cli.reference > docs/cli.md``; ``tests/test_cli_reference.py`` checks the
+Regenerate with ``python -m camcal.cli.reference > docs/cli.md``; ``tests/cli/test_reference.py`` checks the
 file is current and that every command (including ones added later) follows :data:`RULES`.
 """
 
@@ -68,7 +68,7 @@ def render() -> str:
     """The Markdown of docs/cli.md."""
     lines = ["# Command-line reference", "",
              "Generated from the app by `python -m camcal.cli.reference > docs/cli.md`; "
-             "`tests/test_cli_reference.py` keeps it current. Do not edit by hand.", "",
+             "`tests/cli/test_reference.py` keeps it current. Do not edit by hand.", "",
              "## Naming rules", ""]
     lines += [f"- {r}" for r in RULES]
     lines.append("")

@@ -18,7 +18,7 @@ The publisher of the open data set in ``../shared/realdata/sweeps`` (ilia3101/Sp
 ``process_data.c``) reduces differently in two details: the camera's dark is the reading *before* only and
 negative camera signals are clipped to 0. :func:`reduce_sweep` with ``method="publisher"`` does exactly
 that (it reproduces their ``response.dat`` to its 6 printed decimals); the default ``"camcal"`` differs from
-it by at most 5.5e-4 of the peak on both open cameras (tests/test_sweep_means.py, docs/spectral.md).
+it by at most 5.5e-4 of the peak on both open cameras (tests/curves/test_published_sweeps.py, docs/spectral.md).
 
 Uncertainty, from the repeats:
 

@@ -1,4 +1,4 @@
-"""Write the stored profile, photo and expected radiance of ``tests/test_stored_profile.py``.
+"""Write the stored profile, photo and expected radiance of ``tests/models/test_stored_profile.py``.
 
 Run once with the camcal whose output is to be kept (``python tests/data/make_stored_profile.py``); the test
 then checks that every later camcal loads that profile and applies it to that photo with the same numbers.
