@@ -20,7 +20,9 @@ from hypothesis import settings
 
 from camcal.cli import main
 from camcal.synth.camera import SensorParams, SyntheticCamera
+from camcal.synth.phone import write_phone_photos
 from camcal.synth.session import SessionPlan, write_session
+from tests.corpus import Base, build_base, load_base
 
 # CI runs the property tests on a fixed, derandomised sequence of examples, so a submission's CI result
 # does not depend on luck; local runs keep exploring new examples.
@@ -98,6 +100,34 @@ def demo_run(tmp_path_factory) -> tuple[Path, subprocess.CompletedProcess]:
                                        int((folder / "returncode").read_text()), (folder / "stdout").read_text(),
                                        (folder / "stderr").read_text())
     return folder / "camcal-demo", proc
+
+
+@pytest.fixture(scope="session")
+def phone_day(tmp_path_factory) -> Path:
+    """A sunlit day of the synthetic phone (chart, flats, Secchi disk photos as DNG and HEIC, ``truth.json``),
+    written once per test run (shared by the workers)."""
+    return shared_once(tmp_path_factory, "phone-day", lambda d: write_phone_photos(d))
+
+
+@pytest.fixture(scope="session")
+def corpus_base(tmp_path_factory) -> Base:
+    """The bad-input corpus's valid base (:func:`tests.corpus.build_base`), built once per test run (shared by
+    the workers); the corpus and the resource-limit tests derive their damaged inputs from it."""
+    return load_base(shared_once(tmp_path_factory, "corpus-base", build_base))
+
+
+#: The fixtures that many tests read and each take seconds to build, by the xdist worker that builds them first.
+PREBUILT = {"gw0": ("profile_path", "corpus_base"), "gw1": ("demo_run", "phone_day")}
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _prebuild(request) -> None:
+    """Under xdist, each worker first builds its share of :data:`PREBUILT` (those the selected tests use), so the
+    two workers build the shared inputs side by side instead of one waiting on the other's lock."""
+    wanted = set().union(*(item.fixturenames for item in request.session.items))
+    for name in PREBUILT.get(os.environ.get("PYTEST_XDIST_WORKER", ""), ()):
+        if name in wanted:
+            request.getfixturevalue(name)
 
 
 def run_cli(*args: str, cwd: Path | None = None, env: dict[str, str] | None = None) -> subprocess.CompletedProcess:

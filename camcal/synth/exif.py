@@ -162,7 +162,7 @@ class PlaceTime:
 
 def place_time_from_text(utc: str, gps: str | None = None, utc_offset: str = "+00:00", *,
                          write_offset: bool = True, write_gps_time: bool = True) -> PlaceTime:
-    """A :class:`PlaceTime` from command-line text: ``utc`` an ISO 8601 instant (``2026-06-21T10:30:00Z``; a
+    """A :class:`PlaceTime` from command-line text: ``utc`` an ISO 8601 instant (``YYYY-MM-DDThh:mm:ssZ``; a
     time without a zone is UTC), ``gps`` ``LAT,LON`` or ``LAT,LON,ALT_M`` (degrees north and east, metres),
     ``utc_offset`` the camera clock's zone ``+HH:MM``.
 

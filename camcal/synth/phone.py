@@ -457,8 +457,8 @@ class PhoneCamera(SyntheticCamera):
 
 DEFAULT_PLACE = PlaceTime(pd.Timestamp("2026-06-21T10:30:00Z").to_pydatetime(), utc_offset_min=120,
                           latitude_deg=46.45, longitude_deg=6.55, altitude_m=372.0)
-"""Where and when the default phone photos are taken: Lake Geneva, 21 June 2026, 12:30 local (sun ~24° from the
-zenith)."""
+"""Where and when the default phone photos are taken: Lake Geneva near local noon at the June solstice (the sun
+~24° from the zenith)."""
 
 
 def sun_sky_at(place: PlaceTime, *, aerosol_optical_depth_500nm: float = 0.1, precipitable_water_cm: float = 1.42,

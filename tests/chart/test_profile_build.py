@@ -18,16 +18,9 @@ from camcal.errors import CamcalError
 from camcal.io.read import load_frame
 from camcal.models.profile import load_profile, save_profile
 from camcal.models.response import srgb_form_encode
-from tests.conftest import assert_one_line_error, run_cli, shared_once
+from tests.conftest import assert_one_line_error, run_cli
 
 pytestmark = pytest.mark.slow
-
-
-@pytest.fixture(scope="module")
-def phone_day(tmp_path_factory) -> Path:
-    from camcal.synth.phone import write_phone_photos
-
-    return shared_once(tmp_path_factory, "phone-day", lambda d: write_phone_photos(d))
 
 
 @pytest.fixture(scope="module")

@@ -20,7 +20,6 @@ that kind). Adding a command is one row in :data:`CONSUMERS` (see the comment th
 
 from __future__ import annotations
 
-import contextlib
 import io
 import json
 import os
@@ -29,18 +28,17 @@ import shutil
 import struct
 import subprocess
 import sys
-import warnings
 import zipfile
 from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from camcal.cli import main
 from camcal.io.container import JSON_MEMBER, MAPS_MEMBER, content_hash
+from tests.corpus import DARK0, WATER_SHAPE, Base, run_main, water_exrs
 
 SUBPROCESS_EVERY = 150
 OK, ERROR, EITHER = "ok", "error", "either"
@@ -48,43 +46,10 @@ OK, ERROR, EITHER = "ok", "error", "either"
 # --------------------------------------------------------------------------------------------------------------
 # the valid base: a tiny session and what the stages make of it (built once per test process)
 
-DARK0 = "dark_002.000s_00.dng"  # the frame replaced by damaged images in folder consumers
 SWEEP0 = "sweep_400.0nm_00.dng"
 FRAMES_DARK_HEADER = "file,exposure_s,iso,f_number,temperature_C"
 FRAMES_LIN_HEADER = "file,exposure_s,iso,f_number"
 SWEEP_HEADER = "file,wavelength_nm,radiance_W_m2_sr,radiance_unc_W_m2_sr,bandwidth_nm,exposure_s,iso,f_number"
-
-
-@dataclass
-class Base:
-    root: Path
-    session: Path
-    dark_json: Path
-    profile: Path
-    files: dict[str, bytes] = field(default_factory=dict)
-    """Valid source bytes by kind: dng, jpeg, tiff, exr, profile, water_sub, water_ref (radiance EXRs)."""
-
-
-def run_main(argv: list[str], env: dict[str, str] | None = None) -> tuple[int, str, str]:
-    """Run the CLI in-process: (exit code, stdout, stderr incl. Python warnings as the interpreter shows them)."""
-    out, err = io.StringIO(), io.StringIO()
-    saved = {k: os.environ.get(k) for k in (env or {})}
-    os.environ.update(env or {})
-    try:
-        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err), \
-                warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("default")
-            for cat in (DeprecationWarning, PendingDeprecationWarning, ImportWarning, ResourceWarning):
-                warnings.filterwarnings("ignore", category=cat)
-            code = main([str(a) for a in argv])
-    finally:
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
-    shown = "".join(warnings.formatwarning(w.message, w.category, w.filename, w.lineno) for w in caught)
-    return code, out.getvalue(), err.getvalue() + shown
 
 
 def run_subprocess(argv: list[str], env: dict[str, str] | None = None) -> tuple[int, str, str]:
@@ -93,63 +58,10 @@ def run_subprocess(argv: list[str], env: dict[str, str] | None = None) -> tuple[
     return proc.returncode, proc.stdout, proc.stderr
 
 
-WATER_SHAPE = (32, 48)  # the half-resolution radiance maps `camcal apply` makes of a 96x64 photo
-
-
-def water_exrs(folder: Path, shape: tuple[int, int] = WATER_SHAPE, **pixels: np.ndarray) -> dict[str, bytes]:
-    """A valid pair of radiance EXRs for ``camcal water invert`` (channels L663 and R, as apply writes).
-
-    The submerged disk is 0.3 times as bright as the reference: a ratio of 0.3 at 20 cm inverts to a finite
-    concentration with every model (the refined model's clear water gives 0.43 there: a ratio of 0.5 would be
-    above clear water, no valid pixel, an error). ``pixels`` replace the L663 and R pixels of the named image.
-    """
-    from camcal.io.exr import write_exr
-
-    ref = np.linspace(0.1, 1.0, shape[0] * shape[1], dtype=np.float32).reshape(shape)
-    images = {"sub": 0.3 * ref, "ref": ref, **pixels}
-    folder.mkdir(parents=True, exist_ok=True)
-    out = {}
-    for name, img in images.items():
-        p = write_exr(folder / f"{name}.exr", {"L663": img, "R": img}, {"source": f"{name} (corpus)"})
-        out[name] = p.read_bytes()
-    return out
-
-
-def build_base(root: Path) -> Base:
-    import OpenImageIO as oiio
-
-    from camcal.synth.camera import SensorParams, SyntheticCamera
-    from camcal.synth.session import SessionPlan, write_session
-
-    cam = SyntheticCamera(SensorParams(width=96, height=64))
-    plan = SessionPlan(n_bias=3, n_dark=2, dark_exposures_s=(2.0, 16.0), n_flat=3, linearity_steps=9,
-                       sweep_step_nm=50.0, n_sweep=1)
-    session = write_session(root / "S", cam, plan)
-    dark_json = root / "models" / "dark.json"
-    code, _, err = run_main(["dark", session / "dark", "--bias", session / "bias", "-o", dark_json, "-j", "1"])
-    assert code == 0, err
-    profile = root / "models" / "p.camcal"
-    code, _, err = run_main(["calibrate", session, "-o", profile, "-j", "1"])
-    assert code == 0, err
-    tiff = root / "rgb.tif"
-    spec = oiio.ImageSpec(64, 64, 3, oiio.UINT16)
-    spec.attribute("compression", "none")  # 24 kB: truncations at 1 kB really cut the pixel data
-    out = oiio.ImageOutput.create(str(tiff))
-    assert out.open(str(tiff), spec)
-    assert out.write_image(np.random.default_rng(0).integers(0, 60000, (64, 64, 3)).astype(np.uint16))
-    out.close()
-    files = {"dng": (session / "dark" / DARK0).read_bytes(),
-             "jpeg": (session / "linearity" / "lin_004.jpg").read_bytes(),
-             "tiff": tiff.read_bytes(), "exr": (root / "models" / "dark.maps.exr").read_bytes(),
-             "profile": profile.read_bytes()}
-    for name, data in water_exrs(root / "water").items():
-        files[f"water_{name}"] = data
-    return Base(root, session, dark_json, profile, files)
-
 
 @pytest.fixture(scope="module")
-def base(tmp_path_factory) -> Base:
-    return build_base(tmp_path_factory.mktemp("corpus-base"))
+def base(corpus_base: Base) -> Base:
+    return corpus_base
 
 
 # --------------------------------------------------------------------------------------------------------------

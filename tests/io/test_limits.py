@@ -48,7 +48,8 @@ from camcal.io.limits import (
     MAX_TEXT_LINES,
     json_nesting_depth,
 )
-from tests.cli.test_bad_inputs import Base, build_base, exr_window_patch, jpeg_sof_patch, tiff_patch
+from tests.cli.test_bad_inputs import exr_window_patch, jpeg_sof_patch, tiff_patch
+from tests.corpus import Base
 
 MAX_PEAK_MB = 300.0
 MAX_CPU_S = 2.0
@@ -442,8 +443,8 @@ ATTACKS: tuple[Attack, ...] = (
 
 
 @pytest.fixture(scope="module")
-def base(tmp_path_factory) -> Base:
-    return build_base(tmp_path_factory.mktemp("resource-base"))
+def base(corpus_base: Base) -> Base:
+    return corpus_base
 
 
 @pytest.mark.parametrize("attack", ATTACKS, ids=[f"{a.family}:{a.name}" for a in ATTACKS])

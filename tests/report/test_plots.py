@@ -321,7 +321,7 @@ def test_drawing_keeps_the_users_backend_and_never_touches_pyplot(backend):
         "camcal.report.plots as P\n"
         "import matplotlib\n"
         f"assert matplotlib.get_backend() == {backend!r}, matplotlib.get_backend()\n"
-        "from tests import test_plots as T\n"
+        "from tests.report import test_plots as T\n"
         "figs = [P.dark_figure(T.make_dark()), P.flat_figure(T.make_flat()),\n"
         "        P.response_figure(T.make_response()[0]), P.spectral_figure(T.make_spectral()),\n"
         "        P.seed_ratio_figure(T.seed_section5_tables(points=5)['depth'], 'depth')]\n"

@@ -13,8 +13,8 @@ from camcal.io.sun import photo_sun
 from camcal.synth.station import WATERS, place_at, surface_reflectance, water_rrs, write_station
 from camcal.water.products import SPM_NECHAD_2010, TURBIDITY_DOGLIOTTI_2015, product
 from camcal.water.rrs_photos import CSV_COLUMNS, append_survey, run_rrs, station_row
-from tests.cli.test_bad_inputs import run_main
 from tests.conftest import assert_one_line_error, run_cli
+from tests.corpus import run_main
 
 HIGH_SUN, LOW_SUN = "2026-06-21T11:40:00Z", "2026-06-21T16:40:00Z"
 
