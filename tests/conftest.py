@@ -30,18 +30,6 @@ settings.register_profile("ci", derandomize=True, print_blob=True)
 settings.load_profile("ci" if os.environ.get("CI") else "default")
 
 
-#: The test files that take longest (a minute or more of CPU each), run first: under ``--dist loadfile`` a file runs
-#: whole on one worker, and one of these started last would leave the other worker idle (longest first).
-LONG_FILES_FIRST = ("cli/test_bad_inputs.py", "test_notebooks.py", "io/test_limits.py", "test_docs_run.py",
-                    "chart/test_recovery.py")
-
-
-def pytest_collection_modifyitems(config, items) -> None:
-    """Put the files of :data:`LONG_FILES_FIRST` first, in that order; the others keep their order."""
-    rank = {name: i for i, name in enumerate(LONG_FILES_FIRST)}
-    items.sort(key=lambda item: rank.get(item.nodeid.split("::")[0].removeprefix("tests/"), len(rank)))
-
-
 @pytest.fixture(scope="session")
 def camera() -> SyntheticCamera:
     return SyntheticCamera(SensorParams())
@@ -118,7 +106,7 @@ def demo_run(tmp_path_factory) -> tuple[Path, subprocess.CompletedProcess]:
 def phone_day(tmp_path_factory) -> Path:
     """A sunlit day of the synthetic phone (chart, flats, Secchi disk photos as DNG and HEIC, ``truth.json``),
     written once per test run (shared by the workers)."""
-    return shared_once(tmp_path_factory, "phone-day", lambda d: write_phone_photos(d))
+    return shared_once(tmp_path_factory, "phone-day", write_phone_photos)
 
 
 @pytest.fixture(scope="session")

@@ -78,6 +78,7 @@ def water_exrs(folder: Path, shape: tuple[int, int] = WATER_SHAPE, **pixels: np.
 
 
 def build_base(root: Path) -> Base:
+    """Write the base into ``root``: the session, its dark model and profile, a TIFF and a pair of radiance EXRs."""
     cam = SyntheticCamera(SensorParams(width=96, height=64))
     plan = SessionPlan(n_bias=3, n_dark=2, dark_exposures_s=(2.0, 16.0), n_flat=3, linearity_steps=9,
                        sweep_step_nm=50.0, n_sweep=1)
@@ -95,13 +96,8 @@ def build_base(root: Path) -> Base:
     assert out.open(str(tiff), spec)
     assert out.write_image(np.random.default_rng(0).integers(0, 60000, (64, 64, 3)).astype(np.uint16))
     out.close()
-    files = {"dng": (session / "dark" / DARK0).read_bytes(),
-             "jpeg": (session / "linearity" / "lin_004.jpg").read_bytes(),
-             "tiff": tiff.read_bytes(), "exr": (root / "models" / "dark.maps.exr").read_bytes(),
-             "profile": profile.read_bytes()}
-    for name, data in water_exrs(root / "water").items():
-        files[f"water_{name}"] = data
-    return Base(root, session, dark_json, profile, files)
+    water_exrs(root / "water")
+    return load_base(root)
 
 
 def load_base(root: Path) -> Base:
